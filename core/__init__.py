@@ -1,0 +1,1 @@
+"""The renderer core: NumPy arrays in, NumPy arrays out. Never imports bpy."""

@@ -1,0 +1,134 @@
+"""OpenEXR and PNG files: float32 named channels, written atomically.
+
+Atomic: every writer writes a temporary file in the destination folder and renames it over the target only
+once it is complete, so an existing file is never half-overwritten and a failed write leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import zlib
+import struct
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+
+class OutputError(OSError):
+    """The output file cannot be written; the message names the path and the reason."""
+
+
+def _atomic_write(path: str | os.PathLike, suffix: str, write) -> Path:
+    """Call write(tmp_path) for a temporary file beside `path`, then rename it onto `path`."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise OutputError(f"cannot write {path}: folder {folder} does not exist")
+    if path.is_dir():
+        raise OutputError(f"cannot write {path}: it is a folder")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=folder)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from exc
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        if isinstance(exc, OSError) and not isinstance(exc, OutputError):
+            raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from exc
+        raise
+    return path
+
+
+def image_channels(
+    color: np.ndarray,
+    variance: np.ndarray | None = None,
+    albedo: np.ndarray | None = None,
+    normal: np.ndarray | None = None,
+    depth: np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
+    """Monte's channel layout: R G B A, variance.R/G/B, albedo.R/G/B, normal.X/Y/Z, Z (depth).
+    Arrays are (H, W, C) with row 0 at the top."""
+    channels: dict[str, np.ndarray] = {}
+    for i, name in enumerate("RGBA"[: color.shape[2]]):
+        channels[name] = color[..., i]
+    for prefix, arr, names in (("variance.", variance, "RGB"), ("albedo.", albedo, "RGB"), ("normal.", normal, "XYZ")):
+        if arr is not None:
+            for i, name in enumerate(names):
+                channels[prefix + name] = arr[..., i]
+    if depth is not None:
+        channels["Z"] = depth
+    return channels
+
+
+def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray]) -> Path:
+    """Write float32 channels (each (H, W), row 0 at the top) to a ZIP-compressed scanline EXR, atomically."""
+    if not channels:
+        raise ValueError("no channels to write")
+    shapes = {np.shape(a) for a in channels.values()}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise ValueError(f"all channels must be 2-D with one shape, got {sorted(shapes)}")
+    data = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+
+    def write(tmp: str) -> None:
+        with OpenEXR.File(header, data) as f:
+            f.write(tmp)
+
+    return _atomic_write(path, ".exr", write)
+
+
+def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read every channel of an EXR as float32 (H, W) arrays (interleaved groups like 'RGB' split into R, G, B)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such EXR file: {path}")
+    try:
+        f = OpenEXR.File(str(path), separate_channels=True)
+    except Exception as exc:  # OpenEXR raises plain exceptions for corrupt files
+        raise ValueError(f"{path} is not a readable OpenEXR file: {exc}") from exc
+    with f:
+        return {name: np.asarray(ch.pixels, dtype=np.float32) for name, ch in f.channels().items()}
+
+
+def read_rgb(path: str | os.PathLike) -> np.ndarray:
+    """An EXR's R, G, B channels as one (H, W, 3) float32 array."""
+    ch = read_exr(path)
+    try:
+        return np.stack([ch["R"], ch["G"], ch["B"]], axis=-1)
+    except KeyError as exc:
+        raise ValueError(f"{path} has no R, G, B channels (it has {', '.join(sorted(ch))})") from exc
+
+
+def linear_to_srgb8(rgb: np.ndarray) -> np.ndarray:
+    """Linear RGB -> 8-bit sRGB (standard transfer curve, values clipped to [0, 1]), for previews."""
+    x = np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0)
+    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return (s * 255.0 + 0.5).astype(np.uint8)
+
+
+def write_png(path: str | os.PathLike, rgb: np.ndarray) -> Path:
+    """Write a linear (H, W, 3) image as an sRGB 8-bit PNG preview (row 0 at the top), atomically.
+    A minimal PNG encoder (zlib + CRC from the standard library) so core needs no imaging package."""
+    img = linear_to_srgb8(rgb[..., :3])
+    h, w, _ = img.shape
+    raw = np.concatenate([np.zeros((h, 1), np.uint8), img.reshape(h, w * 3)], axis=1).tobytes()  # filter 0 rows
+
+    def chunk(kind: bytes, payload: bytes) -> bytes:
+        return struct.pack(">I", len(payload)) + kind + payload + struct.pack(">I", zlib.crc32(kind + payload))
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+           + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as f:
+            f.write(png)
+
+    return _atomic_write(path, ".png", write)

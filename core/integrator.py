@@ -1,0 +1,363 @@
+"""The wavefront path tracer: a batch of paths advances one bounce at a time as structure-of-arrays.
+
+Per bounce: intersect all live paths (Embree), add emission seen (MIS-weighted against light sampling), then
+for each live path sample a light (next-event estimation with a shadow ray, MIS power heuristic) and the BSDF
+for the next direction, apply Russian roulette, and compact away the dead. Bounce counting follows Cycles:
+max_bounces B scatters at most B + 1 times (B = 0 still gives direct light at the first hit).
+
+Geometry lives in a frame shifted by the camera position (float64 subtraction, then float32), so precision
+is best where the camera looks, wherever the scene sits in the world.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from . import bsdf as bsdf_mod
+from .accel import Accelerator, offset_ray_origin
+from .lights import EmissiveTriangles, LightSampler
+from .scene import Scene
+from .settings import RenderSettings
+
+# Sampler dimension layout: film position first, then a fixed block per bounce.
+DIM_FILM = 0
+DIM_BOUNCE_BASE = 2
+DIM_STRIDE = 8
+_D_LOBE, _D_BSDF, _D_LIGHT_SELECT, _D_LIGHT, _D_RR = 0, 1, 3, 4, 6
+
+SHADOW_EPSILON = np.float32(1e-4)  # shadow rays stop this fraction short of the light (its own surface)
+_LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _normalize(v: np.ndarray) -> np.ndarray:
+    length = np.sqrt(_dot(v, v))
+    return v / np.maximum(length, np.float32(1e-30))[:, None]
+
+
+def _onb(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Branchless orthonormal basis (Duff et al. 2017) around unit normals n (N,3)."""
+    sign = np.where(n[:, 2] >= 0, np.float32(1), np.float32(-1))
+    a = -1.0 / (sign + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    t = np.stack([1.0 + sign * n[:, 0] * n[:, 0] * a, sign * b, -sign * n[:, 0]], axis=1)
+    bt = np.stack([b, sign + n[:, 1] * n[:, 1] * a, -n[:, 1]], axis=1)
+    return t.astype(np.float32), bt.astype(np.float32)
+
+
+def _take_lobes(lobes, rows: np.ndarray):
+    """The LobeBatch rows `rows` (every per-hit array of the batch indexed the same way)."""
+    return type(lobes)(**{f.name: getattr(lobes, f.name)[rows] for f in fields(lobes)})
+
+
+@dataclass
+class PreparedScene:
+    """A validated scene flattened for rendering: one triangle soup in the camera-shifted float32 frame."""
+
+    scene: Scene
+    shift: np.ndarray
+    vertices: np.ndarray  # (V, 3) float32
+    triangles: np.ndarray  # (T, 3) int32
+    tri_vertices: np.ndarray  # (T, 3, 3) float32
+    face_normals: np.ndarray  # (T, 3) float32 unit, from the winding
+    tri_magnitude: np.ndarray  # (T,) float32: largest |coordinate| of each triangle (ray offset scale)
+    corner_normals: np.ndarray | None  # (T, 3, 3) float32 or None when every triangle is flat
+    smooth: np.ndarray | None  # (T,) bool: triangle has shading normals
+    uvs: np.ndarray | None  # (T, 3, 2) float32 or None
+    material_index: np.ndarray  # (T,) int32
+    materials: "bsdf_mod.MaterialTable"
+    lights: LightSampler
+    emissive: EmissiveTriangles | None
+    has_nondelta: np.ndarray  # (M,) bool: material has a lobe that next-event estimation can reach
+    radius: float
+    features: dict = field(default_factory=dict)
+
+    @classmethod
+    def build(cls, scene: Scene) -> "PreparedScene":
+        shift = scene.camera.position.copy()
+        verts, tris, mats, normals, uvs, smooth = [], [], [], [], [], []
+        offset = 0
+        any_smooth = any(m.normals is not None for m in scene.meshes)
+        any_uv = any(m.uvs is not None for m in scene.meshes)
+        for mesh in scene.meshes:
+            if mesh.triangle_count == 0:
+                continue
+            verts.append((np.asarray(mesh.vertices, np.float64) - shift).astype(np.float32))
+            tris.append(mesh.triangles + offset)
+            offset += len(mesh.vertices)
+            mats.append(mesh.material_index)
+            t = mesh.triangle_count
+            if any_smooth:
+                normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
+                smooth.append(np.full(t, mesh.normals is not None))
+            if any_uv:
+                uvs.append(mesh.uvs if mesh.uvs is not None else np.zeros((t, 3, 2), np.float32))
+        vertices = np.concatenate(verts) if verts else np.zeros((0, 3), np.float32)
+        triangles = np.concatenate(tris).astype(np.int32) if tris else np.zeros((0, 3), np.int32)
+        material_index = np.concatenate(mats).astype(np.int32) if mats else np.zeros(0, np.int32)
+        tri_vertices = vertices[triangles]
+        e1 = (tri_vertices[:, 1] - tri_vertices[:, 0]).astype(np.float64)
+        e2 = (tri_vertices[:, 2] - tri_vertices[:, 0]).astype(np.float64)
+        cross = np.cross(e1, e2)
+        length = np.linalg.norm(cross, axis=1)
+        # Triangles that became degenerate in float32 (huge coordinates) keep a safe normal and are harmless.
+        face_normals = (cross / np.maximum(length, 1e-300)[:, None]).astype(np.float32)
+        tri_magnitude = np.abs(tri_vertices).max(axis=(1, 2)).astype(np.float32) if len(triangles) else np.zeros(0, np.float32)
+        corner_normals = np.concatenate(normals).astype(np.float32) if any_smooth and normals else None
+        smooth_mask = np.concatenate(smooth) if any_smooth and smooth else None
+        uv_arr = np.concatenate(uvs).astype(np.float32) if any_uv and uvs else None
+
+        materials = bsdf_mod.MaterialTable.build(scene.materials, scene.textures)
+        emissive = EmissiveTriangles.from_mesh_arrays(tri_vertices, material_index, materials.emission)
+        if len(vertices):
+            lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
+            radius = float(np.linalg.norm(hi - lo) / 2) or 1.0
+        else:
+            radius = 1.0
+        lights = LightSampler(scene, shift, emissive, radius)
+        has_nondelta = np.array(
+            [any(lobe.kind == "diffuse" or lobe.roughness > 0 for lobe in m.lobes) for m in scene.materials], bool
+        )
+        features = {
+            "lobes": sorted(materials.kinds_present),
+            "lights": sorted(lights.kinds_present),
+            "textures": bool(scene.textures),
+            "smooth_normals": corner_normals is not None,
+        }
+        return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
+                   smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius, features)
+
+
+@dataclass
+class PathStats:
+    """Counters a render reports."""
+
+    paths: int = 0
+    rays_closest: int = 0
+    rays_shadow: int = 0
+    nonfinite: int = 0
+    clamped: int = 0
+    bounces: list = field(default_factory=list)
+
+
+@dataclass
+class FirstHit:
+    """First-hit AOVs for each camera sample: albedo, world-space shading normal, z-depth (inf on a miss)."""
+
+    albedo: np.ndarray
+    normal: np.ndarray
+    depth: np.ndarray
+
+
+class PathTracer:
+    """Traces batches of camera rays through a prepared scene and returns each sample's radiance."""
+
+    def __init__(self, prepared: PreparedScene, accel: Accelerator, settings: RenderSettings, sampler) -> None:
+        self.ps = prepared
+        self.accel = accel
+        self.settings = settings
+        self.sampler = sampler
+        self.stats = PathStats()
+        self.use_nee = settings.light_sampling in ("mis", "light") and prepared.lights.has_lights
+        self.use_bsdf_emission = settings.light_sampling in ("mis", "bsdf")
+        self.mis = settings.light_sampling == "mis"
+
+    def _dim(self, depth: int, k: int) -> int:
+        return DIM_BOUNCE_BASE + depth * DIM_STRIDE + k
+
+    def trace(
+        self,
+        pixel_id: np.ndarray,
+        sample_id: np.ndarray,
+        origins: np.ndarray,
+        directions: np.ndarray,
+        tmax: np.ndarray,
+        depth_scale: np.ndarray,
+        t_start: np.ndarray,
+        want_aovs: bool,
+    ) -> tuple[np.ndarray, FirstHit | None]:
+        """Radiance (N, 3) float32 of N camera paths. pixel_id/sample_id (uint32) key the random numbers."""
+        ps, s = self.ps, self.settings
+        n = len(origins)
+        radiance = np.zeros((n, 3), np.float32)
+        first = None
+        if want_aovs:
+            first = FirstHit(np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32), np.full(n, np.inf, np.float32))
+        idx = np.arange(n)  # which sample each live path belongs to
+        o, d, tm = origins, directions, tmax
+        throughput = np.ones((n, 3), np.float32)
+        prev_pdf = np.zeros(n, np.float32)
+        prev_delta = np.ones(n, bool)  # camera rays: emission seen directly gets weight 1
+        pix, smp = pixel_id, sample_id
+        self.stats.paths += n
+
+        for depth in range(s.max_bounces + 2):
+            if len(idx) == 0:
+                break
+            hits = self.accel.intersect(o, d, tm)
+            hit = hits.prim >= 0
+            # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
+            if ps.lights.has_lights:
+                mis_here = self.mis and depth > 0
+                if self.use_bsdf_emission or depth == 0:
+                    le = ps.lights.intersect(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf,
+                                             prev_delta, mis_here)
+                    if depth > 0 and not self.use_bsdf_emission:
+                        le = np.where(prev_delta[:, None], le, 0)
+                    self._add(radiance, idx, throughput * le)
+                elif s.light_sampling == "light":
+                    le = ps.lights.intersect(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf,
+                                             prev_delta, False)
+                    self._add(radiance, idx, np.where(prev_delta[:, None], throughput * le, 0))
+            if not hit.all():
+                keep = np.flatnonzero(hit)
+                idx, o, d, throughput = idx[keep], o[keep], d[keep], throughput[keep]
+                prev_pdf, prev_delta, pix, smp = prev_pdf[keep], prev_delta[keep], pix[keep], smp[keep]
+                prim, bu, bv, t = hits.prim[keep], hits.u[keep], hits.v[keep], hits.t[keep]
+                if depth == 0:
+                    depth_scale, t_start = depth_scale[keep], t_start[keep]
+            else:
+                prim, bu, bv, t = hits.prim, hits.u, hits.v, hits.t
+            if len(idx) == 0:
+                break
+
+            # Surface point from barycentrics (precision of the triangle itself, not of origin + t d).
+            tv = ps.tri_vertices[prim]
+            bw = (1.0 - bu - bv).astype(np.float32)
+            p = tv[:, 0] * bw[:, None] + tv[:, 1] * bu[:, None] + tv[:, 2] * bv[:, None]
+            ng = ps.face_normals[prim]
+            if ps.corner_normals is not None:
+                cn = ps.corner_normals[prim]
+                ns = cn[:, 0] * bw[:, None] + cn[:, 1] * bu[:, None] + cn[:, 2] * bv[:, None]
+                ns = np.where(ps.smooth[prim][:, None], _normalize(ns), ng)
+            else:
+                ns = ng
+            uv = None
+            if ps.uvs is not None:
+                tuv = ps.uvs[prim]
+                uv = tuv[:, 0] * bw[:, None] + tuv[:, 1] * bu[:, None] + tuv[:, 2] * bv[:, None]
+            mat = ps.material_index[prim]
+            wo_world = -d
+            cos_o_geo = _dot(wo_world, ng)
+
+            # Emission of an emissive triangle hit (two-sided), MIS-weighted against light sampling.
+            if ps.emissive is not None:
+                em_idx = ps.emissive.emitter_of_triangle[prim]
+                is_em = em_idx >= 0
+                if is_em.any():
+                    e = np.flatnonzero(is_em)
+                    le = ps.materials.emission[mat[e]]
+                    if depth == 0 or not self.use_nee:
+                        w = np.ones(len(e), np.float32)
+                    elif not self.use_bsdf_emission:
+                        w = prev_delta[e].astype(np.float32)
+                    else:
+                        pdf_l = ps.lights.pdf_triangle(em_idx[e], t[e] * t[e], np.abs(cos_o_geo[e]))
+                        pb = prev_pdf[e]
+                        w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
+                    self._add(radiance, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
+
+            if want_aovs and depth == 0:
+                lobes0 = ps.materials.gather(mat, uv)
+                first.albedo[idx] = bsdf_mod.albedo(lobes0)
+                first.normal[idx] = ns
+                first.depth[idx] = (t_start + t) * depth_scale
+
+            if depth == s.max_bounces + 1:
+                break  # this vertex only contributes emission (Cycles' bounce counting)
+
+            # Shading frame: +z = shading normal on the side the face normal points to ("outside").
+            ns = np.where((_dot(ns, ng) < 0)[:, None], -ns, ns)
+            tangent, bitangent = _onb(ns)
+            wo = np.stack([_dot(wo_world, tangent), _dot(wo_world, bitangent), _dot(wo_world, ns)], axis=1)
+            lobes = ps.materials.gather(mat, uv)
+            mag = np.maximum(ps.tri_magnitude[prim], np.abs(p).max(axis=1))
+
+            if self.use_nee:
+                self._next_event(depth, idx, pix, smp, p, ng, ns, tangent, bitangent, wo, cos_o_geo, mag, mat,
+                                 lobes, throughput, radiance)
+
+            # Sample the BSDF for the next direction.
+            u_lobe = self.sampler.get_1d(pix, smp, self._dim(depth, _D_LOBE))
+            u_dir = self.sampler.get_2d(pix, smp, self._dim(depth, _D_BSDF))
+            bs = bsdf_mod.sample_bsdf(lobes, wo, u_lobe, u_dir)
+            wi = bs.wi[:, :1] * tangent + bs.wi[:, 1:2] * bitangent + bs.wi[:, 2:3] * ns
+            # Geometric consistency: reflection stays on wo's side of the true surface, transmission crosses.
+            side_o = cos_o_geo > 0
+            side_i = _dot(wi, ng) > 0
+            ok = bs.valid & np.where(bs.transmitted, side_o != side_i, side_o == side_i)
+            throughput = throughput * bs.weight
+            # Russian roulette by throughput after rr_depth bounces.
+            if depth + 1 >= s.rr_depth:
+                q = np.minimum(throughput.max(axis=1), np.float32(1.0))
+                u_rr = self.sampler.get_1d(pix, smp, self._dim(depth, _D_RR))
+                survive = u_rr < q
+                ok &= survive
+                throughput = throughput / np.where(survive, q, 1)[:, None]
+            ok &= throughput.max(axis=1) > 0
+            keep = np.flatnonzero(ok)
+            wi, p_keep, ng_keep, mag_keep = wi[keep], p[keep], ng[keep], mag[keep]
+            o = offset_ray_origin(p_keep, ng_keep, wi, mag_keep)
+            d = _normalize(wi).astype(np.float32)
+            tm = np.full(len(keep), np.float32(3e38))
+            idx, throughput, pix, smp = idx[keep], throughput[keep], pix[keep], smp[keep]
+            prev_pdf, prev_delta = bs.pdf[keep].astype(np.float32), bs.delta[keep]
+            self.stats.bounces.append(len(keep))
+        return radiance, first
+
+    def _next_event(self, depth, idx, pix, smp, p, ng, ns, tangent, bitangent, wo, cos_o_geo, mag, mat, lobes,
+                    throughput, radiance) -> None:
+        """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted."""
+        ps = self.ps
+        can = np.flatnonzero(ps.has_nondelta[mat])
+        if len(can) == 0:
+            return
+        sub = lambda a: a[can]  # noqa: E731
+        p_c, ng_c, ns_c = sub(p), sub(ng), sub(ns)
+        u_sel = self.sampler.get_1d(pix[can], smp[can], self._dim(depth, _D_LIGHT_SELECT))
+        u_l = self.sampler.get_2d(pix[can], smp[can], self._dim(depth, _D_LIGHT))
+        ls = ps.lights.sample(p_c, ns_c, u_sel, u_l)
+        wi = ls.wi
+        wi_local = np.stack([_dot(wi, tangent[can]), _dot(wi, bitangent[can]), _dot(wi, ns_c)], axis=1)
+        lobes_c = _take_lobes(lobes, can)
+        f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes_c, wo[can], wi_local)
+        # Same geometric-side rule as BSDF sampling: reflection only towards wo's side, transmission across.
+        transmit = (cos_o_geo[can] > 0) != (_dot(wi, ng_c) > 0)
+        pdf_l = ls.pdf
+        if self.mis:
+            w = np.where(ls.delta, 1.0, pdf_l * pdf_l / np.maximum(pdf_l * pdf_l + pdf_b * pdf_b, 1e-30))
+        else:
+            w = np.ones(len(can), np.float32)
+        scale = np.where(pdf_l > 0, w / np.maximum(pdf_l, 1e-30), 0).astype(np.float32)
+        contrib = throughput[can] * f_cos * ls.radiance * scale[:, None]
+        # A transmitted light direction only counts for materials that transmit.
+        contrib = np.where((transmit & ~ps.materials.has_transmission[mat[can]])[:, None], 0, contrib)
+        live = np.flatnonzero(contrib.max(axis=1) > 0)
+        if len(live) == 0:
+            return
+        wi_l = wi[live]
+        o = offset_ray_origin(p_c[live], ng_c[live], wi_l, mag[can][live])
+        dist = ls.dist[live]
+        tmax = np.where(np.isfinite(dist), dist * (1 - SHADOW_EPSILON), np.float32(3e38)).astype(np.float32)
+        blocked = self.accel.occluded(o, wi_l, tmax)
+        vis = live[~blocked]
+        self._add(radiance, idx[can][vis], contrib[vis])
+
+    def _add(self, radiance: np.ndarray, idx: np.ndarray, value: np.ndarray) -> None:
+        """Add contributions to their samples, catching NaN/Inf (counted, dropped) and clamping if asked."""
+        bad = ~np.all(np.isfinite(value), axis=1)
+        if bad.any():
+            self.stats.nonfinite += int(bad.sum())
+            value = np.where(bad[:, None], 0, value)
+        if self.settings.clamp > 0:
+            peak = value.max(axis=1)
+            over = peak > self.settings.clamp
+            if over.any():
+                self.stats.clamped += int(over.sum())
+                value = value * np.where(over, self.settings.clamp / np.maximum(peak, 1e-30), 1)[:, None]
+        radiance[idx] += value.astype(np.float32)  # idx holds each live path once

@@ -1,0 +1,476 @@
+"""Monte's scene model: plain, validated dataclasses of NumPy arrays.
+
+Conventions (Blender's): right-handed world, Z up, metres. Colours are linear Rec.709 RGB. Angles are radians.
+Triangles are wound counter-clockwise seen from the side their geometric normal points to ("outside"): the
+face normal is normalize(cross(v1 - v0, v2 - v0)). Shading normals are per triangle corner.
+
+Units follow Blender/Cycles (see each light's docstring): mesh emission is radiance (colour x strength, emitted
+from both faces); point/spot/area light power is in watts; sun strength is irradiance in W/m^2; the world
+background is radiance (colour x strength).
+
+`Scene.validate()` turns bad input into either a clear `SceneError` naming the object, or a dropped element
+counted in `Scene.warnings` -- never a crash deep inside NumPy or Embree.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+LobeKind = Literal["diffuse", "glossy", "glass", "refraction"]
+FresnelMode = Literal["none", "schlick", "dielectric"]
+AreaShape = Literal["SQUARE", "RECTANGLE", "DISK", "ELLIPSE"]
+
+
+class SceneError(ValueError):
+    """Invalid scene input that cannot be rendered; the message names the offending element."""
+
+
+def _as_rgb(value, what: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.size == 1:
+        arr = np.repeat(arr, 3)
+    if arr.size != 3:
+        raise SceneError(f"{what}: expected an RGB triple, got {arr.size} values")
+    if not np.all(np.isfinite(arr)):
+        raise SceneError(f"{what}: colour has NaN or Inf components {arr.tolist()}")
+    if np.any(arr < 0):
+        raise SceneError(f"{what}: negative colour/radiance {arr.tolist()} is not physical")
+    return arr
+
+
+def _as_vec3(value, what: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.size != 3 or not np.all(np.isfinite(arr)):
+        raise SceneError(f"{what}: expected a finite 3-vector, got {np.asarray(value).tolist()}")
+    return arr
+
+
+def _as_matrix(value, what: str) -> np.ndarray:
+    m = np.asarray(value, dtype=np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise SceneError(f"{what}: expected a finite 4x4 matrix")
+    return m
+
+
+# --------------------------------------------------------------------------------------------------- materials
+@dataclass
+class Lobe:
+    """One BSDF lobe of a material (a Cycles closure), weighted by `color`.
+
+    kind:
+      - "diffuse": Lambertian, reflectance `color`.
+      - "glossy": GGX microfacet reflection (alpha = roughness^2, Cycles' mapping); roughness 0 is a perfect
+        mirror. `fresnel` chooses the reflectance: "none" = `color` at every angle (Blender's Glossy BSDF),
+        "schlick" = Schlick's F0 = ((ior-1)/(ior+1))^2 times `color` (the seed's mirror), "dielectric" = exact
+        dielectric Fresnel from `ior` times `color`, reflection only (a Principled specular layer).
+      - "glass": smooth or GGX-rough dielectric with exact Fresnel and total internal reflection (Blender's
+        Glass BSDF); `ior` is inside/outside, outside is where the geometric normal points.
+      - "refraction": the transmission part of "glass" only (Blender's Refraction BSDF).
+    color_texture: index into `Scene.textures` that multiplies `color` at the hit's UV, or -1.
+    """
+
+    kind: LobeKind
+    color: np.ndarray = field(default_factory=lambda: np.ones(3))
+    roughness: float = 0.0
+    ior: float = 1.5
+    fresnel: FresnelMode = "none"
+    color_texture: int = -1
+
+    def validate(self, owner: str) -> None:
+        if self.kind not in ("diffuse", "glossy", "glass", "refraction"):
+            raise SceneError(f"{owner}: unknown lobe kind {self.kind!r}")
+        self.color = _as_rgb(self.color, f"{owner} {self.kind} colour")
+        if not (math.isfinite(self.roughness) and 0.0 <= self.roughness <= 1.0):
+            raise SceneError(f"{owner}: roughness {self.roughness} outside [0, 1]")
+        if not (math.isfinite(self.ior) and self.ior > 0.0):
+            raise SceneError(f"{owner}: IOR {self.ior} must be a positive number")
+        if self.fresnel not in ("none", "schlick", "dielectric"):
+            raise SceneError(f"{owner}: unknown Fresnel mode {self.fresnel!r}")
+
+
+@dataclass
+class Material:
+    """A surface: a sum of BSDF lobes plus two-sided emission.
+
+    emission: emitted radiance in W/(sr m^2) per colour unit (Blender's Emission colour x strength),
+    emitted from both faces of the triangle, as Cycles' mesh emission is.
+    """
+
+    name: str
+    lobes: list[Lobe] = field(default_factory=list)
+    emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def validate(self, n_textures: int) -> None:
+        owner = f"material {self.name!r}"
+        self.emission = _as_rgb(self.emission, f"{owner} emission")
+        for lobe in self.lobes:
+            lobe.validate(owner)
+            if not (-1 <= lobe.color_texture < n_textures):
+                raise SceneError(f"{owner}: texture index {lobe.color_texture} out of range")
+
+    @property
+    def is_emissive(self) -> bool:
+        return bool(np.any(np.asarray(self.emission) > 0))
+
+
+@dataclass
+class Texture:
+    """An RGB image in linear colour, (H, W, 3) float32, row 0 at the top; sampled with UV in [0, 1]
+    (v = 0 at the bottom, Blender's convention), repeat wrapping, bilinear filtering."""
+
+    name: str
+    pixels: np.ndarray
+
+    def validate(self) -> None:
+        px = np.asarray(self.pixels, dtype=np.float32)
+        if px.ndim != 3 or px.shape[2] not in (3, 4) or px.shape[0] < 1 or px.shape[1] < 1:
+            raise SceneError(f"texture {self.name!r}: expected an (H, W, 3) image, got shape {px.shape}")
+        px = np.ascontiguousarray(px[..., :3])
+        bad = ~np.isfinite(px)
+        if bad.any():
+            raise SceneError(f"texture {self.name!r}: {int(bad.sum())} NaN/Inf texel values")
+        self.pixels = px
+
+
+# ------------------------------------------------------------------------------------------------------ meshes
+@dataclass
+class Mesh:
+    """A triangle mesh in world space.
+
+    vertices: (V, 3) float32/float64 world positions. triangles: (T, 3) int vertex indices.
+    normals: optional (T, 3, 3) per-corner shading normals (smooth/flat/sharp edges already resolved);
+      None means flat shading (the geometric normal).
+    uvs: optional (T, 3, 2) per-corner texture coordinates.
+    material_index: (T,) int index into `Scene.materials` (a single int broadcasts).
+    """
+
+    name: str
+    vertices: np.ndarray
+    triangles: np.ndarray
+    material_index: np.ndarray | int = 0
+    normals: np.ndarray | None = None
+    uvs: np.ndarray | None = None
+
+    @property
+    def triangle_count(self) -> int:
+        return int(np.asarray(self.triangles).shape[0])
+
+    def validate(self, n_materials: int, warnings: list[str]) -> None:
+        """Check shapes and indices; drop degenerate or non-finite triangles with a counted warning."""
+        owner = f"mesh {self.name!r}"
+        v = np.asarray(self.vertices)
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise SceneError(f"{owner}: vertices must have shape (V, 3), got {v.shape}")
+        v = v.astype(np.float64, copy=False)
+        tri = np.asarray(self.triangles)
+        if tri.size == 0:
+            tri = tri.reshape(0, 3)
+        if tri.ndim != 2 or tri.shape[1] != 3:
+            raise SceneError(f"{owner}: triangles must have shape (T, 3), got {tri.shape}")
+        if not np.issubdtype(tri.dtype, np.integer):
+            raise SceneError(f"{owner}: triangle indices must be integers, got {tri.dtype}")
+        tri = tri.astype(np.int64, copy=False)
+        if tri.size and (tri.min() < 0 or tri.max() >= len(v)):
+            raise SceneError(
+                f"{owner}: triangle vertex index out of range [0, {len(v) - 1}]: "
+                f"min {int(tri.min())}, max {int(tri.max())}"
+            )
+        n_tri = tri.shape[0]
+        mat = np.broadcast_to(np.asarray(self.material_index), (n_tri,)).astype(np.int64)
+        if n_tri and (mat.min() < 0 or mat.max() >= n_materials):
+            raise SceneError(
+                f"{owner}: material index out of range [0, {n_materials - 1}]: "
+                f"min {int(mat.min())}, max {int(mat.max())}"
+            )
+        normals = None if self.normals is None else np.asarray(self.normals, dtype=np.float32)
+        if normals is not None and normals.shape != (n_tri, 3, 3):
+            raise SceneError(f"{owner}: normals must have shape (T, 3, 3) = ({n_tri}, 3, 3), got {normals.shape}")
+        uvs = None if self.uvs is None else np.asarray(self.uvs, dtype=np.float32)
+        if uvs is not None and uvs.shape != (n_tri, 3, 2):
+            raise SceneError(f"{owner}: uvs must have shape (T, 3, 2) = ({n_tri}, 3, 2), got {uvs.shape}")
+
+        # Drop triangles with non-finite or degenerate (zero-area) geometry: counted, never fatal.
+        p = v[tri]  # (T, 3, 3)
+        finite = np.all(np.isfinite(p), axis=(1, 2))
+        with np.errstate(invalid="ignore", over="ignore"):
+            cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+            area2 = np.linalg.norm(cross, axis=1)
+            # zero area relative to the triangle's own size: collinear or repeated vertices
+            edge = np.max(np.abs(p - p[:, :1]), axis=(1, 2))
+            degenerate = ~(area2 > 1e-12 * np.maximum(edge, 1e-300) ** 2) | (area2 == 0)
+        keep = finite & ~degenerate
+        if normals is not None:
+            bad_n = ~np.all(np.isfinite(normals), axis=(1, 2)) | np.any(np.linalg.norm(normals, axis=2) < 1e-12, axis=1)
+            if bad_n.any():
+                warnings.append(f"{owner}: {int(bad_n.sum())} triangles with invalid shading normals use flat shading")
+                normals = normals.copy()
+                flat = (cross[bad_n] / np.maximum(area2[bad_n], 1e-300)[:, None]).astype(np.float32)
+                normals[bad_n] = flat[:, None, :]
+        if uvs is not None and not np.all(np.isfinite(uvs)):
+            warnings.append(f"{owner}: non-finite UVs replaced by 0")
+            uvs = np.nan_to_num(uvs, nan=0.0, posinf=0.0, neginf=0.0)
+        n_nonfinite = int((~finite).sum())
+        n_degenerate = int((finite & degenerate).sum())
+        if n_nonfinite:
+            warnings.append(f"{owner}: dropped {n_nonfinite} triangles with NaN/Inf vertex coordinates")
+        if n_degenerate:
+            warnings.append(f"{owner}: dropped {n_degenerate} zero-area (degenerate) triangles")
+        if not keep.all():
+            tri, mat = tri[keep], mat[keep]
+            normals = None if normals is None else normals[keep]
+            uvs = None if uvs is None else uvs[keep]
+        # Non-finite vertices that no kept triangle uses are harmless; replace them so later arithmetic is clean.
+        if not np.all(np.isfinite(v)):
+            v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
+        self.vertices, self.triangles, self.material_index = v, tri.astype(np.int32), mat.astype(np.int32)
+        self.normals, self.uvs = normals, uvs
+
+
+# ------------------------------------------------------------------------------------------------------ lights
+@dataclass
+class PointLight:
+    """Blender point light. power: watts x colour (RGB). radius: sphere radius in metres (soft falloff).
+
+    Radiant intensity I = power / (4 pi) W/sr; with radius r > 0 it is a sphere light (see notes)."""
+
+    name: str
+    position: np.ndarray
+    power: np.ndarray
+    radius: float = 0.0
+
+
+@dataclass
+class SpotLight:
+    """Blender spot light: a point light restricted to a cone around `direction` (the light's local -Z).
+
+    spot_size: full cone angle (radians); spot_blend: fraction of the cone edge smoothed (0..1)."""
+
+    name: str
+    position: np.ndarray
+    direction: np.ndarray
+    power: np.ndarray
+    radius: float = 0.0
+    spot_size: float = math.radians(45.0)
+    spot_blend: float = 0.15
+
+
+@dataclass
+class SunLight:
+    """Blender sun: strength is irradiance in W/m^2 x colour on a surface facing the sun.
+
+    direction: the way the light travels (the light's local -Z in world space). angle: angular diameter."""
+
+    name: str
+    direction: np.ndarray
+    strength: np.ndarray
+    angle: float = math.radians(0.526)
+
+
+@dataclass
+class AreaLight:
+    """Blender area light, one-sided, emitting along its local -Z.
+
+    matrix_world: 4x4 light-to-world (scale included, as Blender's). size_x/size_y: extent in local units
+    (SQUARE and DISK use size_x for both). power: watts x colour; radiance L = power / (pi A) with A the world
+    area. spread: radians, pi is Lambertian."""
+
+    name: str
+    matrix_world: np.ndarray
+    power: np.ndarray
+    shape: AreaShape = "SQUARE"
+    size_x: float = 1.0
+    size_y: float = 1.0
+    spread: float = math.pi
+
+
+Light = PointLight | SpotLight | SunLight | AreaLight
+
+
+@dataclass
+class World:
+    """Uniform background radiance (Blender's Background colour x strength), seen by every ray that escapes."""
+
+    color: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def is_black(self) -> bool:
+        return not bool(np.any(np.asarray(self.color) > 0))
+
+
+# ------------------------------------------------------------------------------------------------------ camera
+@dataclass
+class Camera:
+    """Blender camera. matrix_world: camera-to-world 4x4; the camera looks along its local -Z with +Y up.
+
+    kind "PERSP": lens (focal length, mm) and sensor (mm) with Blender's sensor fit: "AUTO" applies
+    sensor_width to the larger image side, "HORIZONTAL" sensor_width to the width, "VERTICAL" sensor_height
+    to the height. kind "ORTHO": ortho_scale is the extent of the fitted side in metres. shift_x/shift_y move
+    the frame in units of the fitted side. clip_start/clip_end bound the visible depth along the ray.
+    """
+
+    matrix_world: np.ndarray
+    resolution: tuple[int, int] = (256, 256)
+    kind: Literal["PERSP", "ORTHO"] = "PERSP"
+    lens: float = 50.0
+    sensor_width: float = 36.0
+    sensor_height: float = 24.0
+    sensor_fit: Literal["AUTO", "HORIZONTAL", "VERTICAL"] = "AUTO"
+    ortho_scale: float = 7.0
+    shift_x: float = 0.0
+    shift_y: float = 0.0
+    clip_start: float = 1e-6
+    clip_end: float = 1e30
+
+    @classmethod
+    def look_at(
+        cls,
+        eye,
+        target,
+        up=(0.0, 0.0, 1.0),
+        horizontal_fov: float = math.radians(39.0),
+        resolution: tuple[int, int] = (256, 256),
+        **kwargs,
+    ) -> "Camera":
+        """A perspective camera at `eye` looking at `target`, with the given horizontal field of view."""
+        eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
+        forward = target - eye
+        forward /= np.linalg.norm(forward)
+        right = np.cross(forward, up)
+        right /= np.linalg.norm(right)
+        true_up = np.cross(right, forward)
+        m = np.eye(4)
+        m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, true_up, -forward, eye
+        sensor_width = kwargs.pop("sensor_width", 36.0)
+        lens = sensor_width / (2.0 * math.tan(horizontal_fov / 2.0))
+        return cls(matrix_world=m, resolution=resolution, lens=lens, sensor_width=sensor_width,
+                   sensor_fit="HORIZONTAL", **kwargs)
+
+    @property
+    def position(self) -> np.ndarray:
+        return np.asarray(self.matrix_world, dtype=np.float64)[:3, 3]
+
+    def frame(self) -> tuple[float, float, float, float]:
+        """The image frame on the plane at distance 1 in front of the camera (perspective) or at the camera
+        (orthographic), in camera-local units: (xmin, xmax, ymin, ymax). Follows Blender's
+        BKE_camera_params_compute_viewplane: the fitted side spans the sensor, shift is in fitted-side units."""
+        w, h = self.resolution
+        fit = self.sensor_fit
+        if fit == "AUTO":
+            fit = "HORIZONTAL" if w >= h else "VERTICAL"
+            sensor = self.sensor_width
+        else:
+            sensor = self.sensor_width if fit == "HORIZONTAL" else self.sensor_height
+        extent = self.ortho_scale if self.kind == "ORTHO" else sensor / self.lens
+        view = w if fit == "HORIZONTAL" else h
+        pixel = extent / view
+        dx, dy = self.shift_x * view, self.shift_y * view
+        return ((-0.5 * w + dx) * pixel, (0.5 * w + dx) * pixel, (-0.5 * h + dy) * pixel, (0.5 * h + dy) * pixel)
+
+    def validate(self) -> None:
+        self.matrix_world = _as_matrix(self.matrix_world, "camera matrix")
+        w, h = self.resolution
+        if int(w) != w or int(h) != h or w < 1 or h < 1:
+            raise SceneError(f"camera: resolution must be at least 1x1 pixels, got {w}x{h}")
+        self.resolution = (int(w), int(h))
+        if w * h > 2**31 - 1:
+            raise SceneError(f"camera: resolution {w}x{h} has too many pixels")
+        if self.kind not in ("PERSP", "ORTHO"):
+            raise SceneError(f"camera: unknown camera type {self.kind!r} (PERSP or ORTHO)")
+        if self.kind == "PERSP" and not (self.lens > 0 and self.sensor_width > 0 and self.sensor_height > 0):
+            raise SceneError(f"camera: lens {self.lens} mm and sensor size must be positive")
+        if self.kind == "ORTHO" and not self.ortho_scale > 0:
+            raise SceneError(f"camera: orthographic scale {self.ortho_scale} must be positive")
+        if self.sensor_fit not in ("AUTO", "HORIZONTAL", "VERTICAL"):
+            raise SceneError(f"camera: unknown sensor fit {self.sensor_fit!r}")
+        if not (0 <= self.clip_start < self.clip_end):
+            raise SceneError(f"camera: clipping range [{self.clip_start}, {self.clip_end}] is empty")
+        basis = self.matrix_world[:3, :3]
+        if abs(np.linalg.det(basis)) < 1e-12:
+            raise SceneError("camera: matrix is singular (zero scale)")
+
+
+# ------------------------------------------------------------------------------------------------------- scene
+@dataclass
+class Scene:
+    """Everything a render needs. Build it, then call `validate()` (render does it for you)."""
+
+    camera: Camera
+    meshes: list[Mesh] = field(default_factory=list)
+    materials: list[Material] = field(default_factory=list)
+    lights: list[Light] = field(default_factory=list)
+    world: World = field(default_factory=World)
+    textures: list[Texture] = field(default_factory=list)
+    name: str = "scene"
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def triangle_count(self) -> int:
+        return sum(m.triangle_count for m in self.meshes)
+
+    def validate(self) -> "Scene":
+        """Validate in place; raise SceneError for what cannot be rendered, drop and count what can be."""
+        self.camera.validate()
+        for tex in self.textures:
+            tex.validate()
+        if not self.materials:
+            raise SceneError("scene has no materials: add at least one (meshes index into the material list)")
+        for mat in self.materials:
+            mat.validate(len(self.textures))
+        for mesh in self.meshes:
+            mesh.validate(len(self.materials), self.warnings)
+        self.world.color = _as_rgb(self.world.color, "world background")
+        kept: list[Light] = []
+        for light in self.lights:
+            if _validate_light(light, self.warnings):
+                kept.append(light)
+        self.lights = kept
+        return self
+
+
+def _validate_light(light: Light, warnings: list[str]) -> bool:
+    """Normalise a light's fields; return False (with a warning) for a light that emits nothing."""
+    owner = f"{type(light).__name__} {light.name!r}"
+    if isinstance(light, SunLight):
+        light.strength = _as_rgb(light.strength, f"{owner} strength")
+        d = _as_vec3(light.direction, f"{owner} direction")
+        if np.linalg.norm(d) == 0:
+            raise SceneError(f"{owner}: direction is the zero vector")
+        light.direction = d / np.linalg.norm(d)
+        if not (0.0 <= light.angle < math.pi):
+            raise SceneError(f"{owner}: angle {light.angle} rad must be in [0, pi)")
+        emits = np.any(light.strength > 0)
+    else:
+        light.power = _as_rgb(light.power, f"{owner} power")
+        emits = np.any(light.power > 0)
+        if isinstance(light, (PointLight, SpotLight)):
+            light.position = _as_vec3(light.position, f"{owner} position")
+            if not (light.radius >= 0 and math.isfinite(light.radius)):
+                raise SceneError(f"{owner}: radius {light.radius} must be >= 0")
+        if isinstance(light, SpotLight):
+            d = _as_vec3(light.direction, f"{owner} direction")
+            if np.linalg.norm(d) == 0:
+                raise SceneError(f"{owner}: direction is the zero vector")
+            light.direction = d / np.linalg.norm(d)
+            if not (0.0 < light.spot_size <= math.pi):
+                raise SceneError(f"{owner}: spot size {light.spot_size} rad must be in (0, pi]")
+            if not (0.0 <= light.spot_blend <= 1.0):
+                raise SceneError(f"{owner}: spot blend {light.spot_blend} must be in [0, 1]")
+        if isinstance(light, AreaLight):
+            light.matrix_world = _as_matrix(light.matrix_world, f"{owner} matrix")
+            if light.shape not in ("SQUARE", "RECTANGLE", "DISK", "ELLIPSE"):
+                raise SceneError(f"{owner}: unknown area shape {light.shape!r}")
+            if light.shape in ("SQUARE", "DISK"):
+                light.size_y = light.size_x
+            if not (light.size_x > 0 and light.size_y > 0):
+                warnings.append(f"{owner}: zero size, dropped")
+                return False
+            if not (0.0 < light.spread <= math.pi):
+                raise SceneError(f"{owner}: spread {light.spread} rad must be in (0, pi]")
+    if not emits:
+        warnings.append(f"{owner}: emits nothing (zero power), dropped from light selection")
+        return False
+    return True

@@ -1,0 +1,84 @@
+"""Render settings shared by the CLI, the Blender add-on and the tests (defaults match both)."""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, fields
+from typing import Literal
+
+SAMPLERS = ("sobol", "stratified", "independent")
+FILTERS = ("blackman-harris", "gaussian", "tent", "box")
+
+
+@dataclass
+class RenderSettings:
+    """How to render. Bounce counting follows Cycles: max_bounces = 0 still gives direct light at the first hit.
+
+    spp: samples per pixel. seed: every random number is a pure function of (seed, pixel, sample, dimension).
+    sampler: "sobol" (Owen-scrambled Sobol), "stratified" (the seed's 2x2 strata per pixel), "independent".
+    filter_type/filter_width: pixel filter importance-sampled as Cycles does (width in pixels, Cycles' meaning).
+    rr_depth: Russian roulette starts after this many bounces. clamp: max sample value (0 = off, unbiased).
+    threads: ray-casting threads (0 = all cores). batch_paths: paths alive at once (bounds memory).
+    tile_size: square tile edge in pixels. time_limit: seconds, 0 = none (stops between sample batches).
+    light_sampling: "mis" (default), "bsdf" (BSDF sampling only) or "light" (next-event estimation only; for
+    the unbiasedness tests). aovs: also produce albedo, normal and depth passes.
+    """
+
+    spp: int = 64
+    seed: int = 0
+    sampler: Literal["sobol", "stratified", "independent"] = "sobol"
+    filter_type: Literal["blackman-harris", "gaussian", "tent", "box"] = "blackman-harris"
+    filter_width: float = 1.5
+    max_bounces: int = 16
+    rr_depth: int = 1
+    clamp: float = 0.0
+    threads: int = 0
+    batch_paths: int = 1 << 18
+    tile_size: int = 64
+    time_limit: float = 0.0
+    light_sampling: Literal["mis", "bsdf", "light"] = "mis"
+    aovs: bool = True
+
+    def validate(self) -> "RenderSettings":
+        """Raise ValueError naming the setting for absurd values."""
+        if int(self.spp) != self.spp or self.spp < 0:
+            raise ValueError(f"samples per pixel must be a non-negative integer, got {self.spp}")
+        if self.sampler not in SAMPLERS:
+            raise ValueError(f"unknown sampler {self.sampler!r}; choose one of {', '.join(SAMPLERS)}")
+        if self.filter_type not in FILTERS:
+            raise ValueError(f"unknown filter {self.filter_type!r}; choose one of {', '.join(FILTERS)}")
+        if not (math.isfinite(self.filter_width) and self.filter_width > 0):
+            raise ValueError(f"filter width must be a positive number of pixels, got {self.filter_width}")
+        if self.filter_width > 64:
+            raise ValueError(f"filter width {self.filter_width} px is absurd (at most 64)")
+        if int(self.max_bounces) != self.max_bounces or self.max_bounces < 0:
+            raise ValueError(f"max bounces must be a non-negative integer, got {self.max_bounces}")
+        if self.rr_depth < 0:
+            raise ValueError(f"Russian roulette depth must be >= 0, got {self.rr_depth}")
+        if not (math.isfinite(self.clamp) and self.clamp >= 0):
+            raise ValueError(f"clamp must be >= 0 (0 = off), got {self.clamp}")
+        if self.threads < 0:
+            raise ValueError(f"threads must be >= 0 (0 = all cores), got {self.threads}")
+        if self.batch_paths < 1024:
+            raise ValueError(f"batch size must be at least 1024 paths, got {self.batch_paths}")
+        if self.tile_size < 1:
+            raise ValueError(f"tile size must be at least 1 pixel, got {self.tile_size}")
+        if not (math.isfinite(self.time_limit) and self.time_limit >= 0):
+            raise ValueError(f"time limit must be >= 0 seconds, got {self.time_limit}")
+        if self.light_sampling not in ("mis", "bsdf", "light"):
+            raise ValueError(f"unknown light sampling {self.light_sampling!r}")
+        if not (0 <= self.seed < 2**32):
+            raise ValueError(f"seed must be in [0, 2^32), got {self.seed}")
+        return self
+
+    @property
+    def thread_count(self) -> int:
+        return self.threads or (os.cpu_count() or 1)
+
+    def replace(self, **changes) -> "RenderSettings":
+        known = {f.name for f in fields(self)}
+        unknown = set(changes) - known
+        if unknown:
+            raise ValueError(f"unknown render settings: {', '.join(sorted(unknown))}")
+        return RenderSettings(**{**{f.name: getattr(self, f.name) for f in fields(self)}, **changes})
