@@ -1,0 +1,195 @@
+"""The `monte` command: render built-in scenes through the core, .blend files through the add-on (bpy).
+
+Examples:
+  monte render cornell -o cornell.exr --spp 64
+  monte render --list
+  monte render scene.blend -o out.exr --spp 128      (needs the bpy module)
+  monte bench
+  monte mc-study -o study/
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from .core.settings import FILTERS, SAMPLERS, RenderSettings
+
+
+def _resolution(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"resolution must look like 256x256, got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"resolution must be at least 1x1, got {text!r}")
+    return w, h
+
+
+def _add_render_options(p: argparse.ArgumentParser) -> None:
+    """Options shared by render and bench; defaults None mean 'the scene's or RenderSettings' default'."""
+    p.add_argument("--spp", type=int, help="samples per pixel (default 64)")
+    p.add_argument("--seed", type=int, help="random seed; the same seed gives the same image bit for bit")
+    p.add_argument("--sampler", choices=SAMPLERS, help="sample generator (default sobol)")
+    p.add_argument("--filter", dest="filter_type", choices=FILTERS, help="pixel filter (default blackman-harris)")
+    p.add_argument("--filter-width", type=float, help="pixel filter width in pixels, Cycles' meaning (default 1.5)")
+    p.add_argument("--max-bounces", type=int, help="maximum bounces, Cycles' counting (default 16)")
+    p.add_argument("--rr-depth", type=int, help="bounces before Russian roulette starts (default 1)")
+    p.add_argument("--clamp", type=float, help="clamp sample values above this (0 = off, unbiased; default 0)")
+    p.add_argument("--threads", type=int, help="ray-casting threads (0 = all cores)")
+    p.add_argument("--batch", dest="batch_paths", type=int, help="paths traced at once; bounds memory")
+    p.add_argument("--tile", dest="tile_size", type=int, help="tile edge in pixels (default 64)")
+    p.add_argument("--time-limit", type=float, help="stop after this many seconds (0 = no limit)")
+    p.add_argument("--resolution", type=_resolution, help="image size WxH (built-in scenes)")
+
+
+def _settings_from(args: argparse.Namespace) -> dict:
+    keys = ("spp", "seed", "sampler", "filter_type", "filter_width", "max_bounces", "rr_depth", "clamp",
+            "threads", "batch_paths", "tile_size", "time_limit")
+    return {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
+
+
+class ProgressBar:
+    """A one-line progress bar on stderr (no dependency); silent when stderr is not a terminal unless forced."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
+        self.last = 0.0
+
+    def __call__(self, p) -> None:
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        if now - self.last < 0.2 and p.fraction < 1:
+            return
+        self.last = now
+        bar = "#" * int(30 * p.fraction)
+        sys.stderr.write(f"\r[{bar:<30}] {100 * p.fraction:5.1f}%  {p.stats_line()}   ")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            sys.stderr.write("\n")
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from .core.scenes import BUILTIN_SCENES
+
+    if args.list:
+        for name, (_, description) in BUILTIN_SCENES.items():
+            print(f"{name:18s} {description}")
+        return 0
+    if not args.scene:
+        print("monte render: name a built-in scene (see --list) or a .blend file", file=sys.stderr)
+        return 2
+    overrides = _settings_from(args)
+    output = Path(args.output)
+    if args.scene.endswith(".blend") or Path(args.scene).suffix == ".blend":
+        try:
+            from .addon.headless import render_blend_file
+        except ImportError as exc:
+            print(f"monte render: rendering a .blend needs the bpy module (pip install bpy==5.0.1): {exc}",
+                  file=sys.stderr)
+            return 2
+        if args.resolution:
+            overrides["resolution"] = args.resolution
+        render_blend_file(args.scene, output, overrides)
+        print(f"wrote {output}")
+        return 0
+
+    from .core import exr
+    from .core.render import render
+    from .core.scenes import builtin_scene
+
+    scene = builtin_scene(args.scene, args.resolution)
+    settings = RenderSettings(**overrides).validate()
+    if output.suffix.lower() != ".exr":
+        print(f"monte render: output must be an .exr file, got {output}", file=sys.stderr)
+        return 2
+    bar = ProgressBar(not args.quiet)
+    log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
+    result = render(scene, settings, on_progress=bar, log=log)
+    bar.close()
+    exr.write_exr(output, exr.image_channels(result.color, result.variance, result.albedo, result.normal,
+                                             result.depth))
+    written = [str(output)]
+    if not args.no_png:
+        png = output.with_suffix(".png")
+        exr.write_png(png, result.color)
+        written.append(str(png))
+    st = result.stats
+    mean = result.color[..., :3].reshape(-1, 3).mean(axis=0)
+    print(f"wrote {', '.join(written)}: {st['samples']} samples in {st['seconds']:.2f} s "
+          f"({st['samples_per_second'] / 1e3:.0f} k samples/s, {st['rays_per_second'] / 1e6:.2f} M rays/s); "
+          f"mean RGB {mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f}")
+    if result.cancelled:
+        print("render stopped early (time limit or cancel): the image holds the samples taken", file=sys.stderr)
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from .core.bench import run_bench
+
+    report = run_bench(args)
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=2))
+    return 0
+
+
+def cmd_mc_study(args: argparse.Namespace) -> int:
+    from .core.mc_study import main
+
+    return main(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="monte", description="Monte: a physically based Monte Carlo path tracer.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("render", help="render a built-in scene or a .blend file to an EXR (+ PNG preview)")
+    p.add_argument("scene", nargs="?", help="built-in scene name (see --list) or path to a .blend file")
+    p.add_argument("-o", "--output", default="render.exr", help="output EXR path (default render.exr)")
+    p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
+    p.add_argument("--no-png", action="store_true", help="don't write the sRGB PNG preview next to the EXR")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or log")
+    _add_render_options(p)
+    p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("bench", help="benchmark the Cornell box: samples/s, rays/s, Embree share, memory, RMSE")
+    p.add_argument("--json", help="also write the numbers to this JSON file")
+    p.add_argument("--reference", help="reference EXR for RMSE (default: the bundled converged Cycles render)")
+    _add_render_options(p)
+    p.set_defaults(func=cmd_bench)
+
+    try:
+        from .core.mc_study import add_arguments
+    except ImportError:  # the study module is optional at import time
+        add_arguments = None
+    if add_arguments is not None:
+        p = sub.add_parser("mc-study", help="the seed's Monte Carlo study: estimators, error, efficiency, MSE")
+        add_arguments(p)
+        p.set_defaults(func=cmd_mc_study)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from .core.exr import OutputError
+    from .core.scene import SceneError
+
+    try:
+        return int(args.func(args) or 0)
+    except (SceneError, OutputError, ValueError, FileNotFoundError) as exc:
+        print(f"monte {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"\nmonte {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
