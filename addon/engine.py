@@ -1,0 +1,181 @@
+"""MonteRenderEngine: Blender's render engine entry point. Thin on purpose: export, call core.render, copy
+tiles into Blender's render result, forward progress and cancel.
+
+Blender facts this relies on (see docs/addon.md and the project's notes): an exception escaping render()
+is swallowed and can crash Blender when the still is saved, so render() catches everything and reports it
+with self.report({'ERROR'}) (the render operator then fails cleanly); a render() that writes no result also
+crashes at save time, so a cancelled export still writes a (black) result; render results are row 0 at the
+bottom, core's tiles row 0 at the top.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+
+import bpy
+import numpy as np
+
+from ..core.scene import SceneError
+from .export import export_scene, render_region, render_resolution
+from .properties import render_settings
+
+# Pass name -> (channels, chanid, type). Combined is always there; the others when the view layer asks.
+PASSES = {
+    "Combined": (4, "RGBA", "COLOR"),
+    "Depth": (1, "Z", "VALUE"),
+    "Normal": (3, "XYZ", "VECTOR"),
+    "Albedo": (3, "RGB", "COLOR"),
+    "Variance": (3, "RGB", "COLOR"),
+}
+
+
+def requested_passes(view_layer) -> list[str]:
+    """The passes Monte fills for this view layer."""
+    names = ["Combined"]
+    if view_layer is None:
+        return names
+    if view_layer.use_pass_z:
+        names.append("Depth")
+    if view_layer.use_pass_normal:
+        names.append("Normal")
+    monte = getattr(view_layer, "monte", None)
+    if monte is not None and monte.use_pass_albedo:
+        names.append("Albedo")
+    if monte is not None and monte.use_pass_variance:
+        names.append("Variance")
+    return names
+
+
+class _Cancelled(Exception):
+    pass
+
+
+class MonteRenderEngine(bpy.types.RenderEngine):
+    bl_idname = "MONTE"
+    bl_label = "Monte"
+    bl_use_preview = False  # material previews would be slow in NumPy; Blender draws them with EEVEE
+    bl_use_postprocess = True  # compositing and sequencer stay available
+    bl_use_shading_nodes_custom = False  # Blender's own material/light/world node panels
+    bl_use_eevee_viewport = True  # Material Preview in the viewport uses EEVEE
+
+    # ------------------------------------------------------------------------------------------ passes
+    def update_render_passes(self, scene=None, renderlayer=None):
+        for name in requested_passes(renderlayer):
+            channels, chanid, kind = PASSES[name]
+            self.register_pass(scene, renderlayer, name, channels, chanid, kind)
+
+    # ------------------------------------------------------------------------------------------ render
+    def _cancel_requested(self) -> bool:
+        """Polled between sample batches (and during export). Tests replace this to simulate Esc."""
+        return bool(self.test_break())
+
+    def _log(self, message: str) -> None:
+        print(f"Monte: {message}", flush=True)
+
+    def render(self, depsgraph):
+        self._wrote_result = False
+        try:
+            self._render(depsgraph)
+        except _Cancelled:
+            self._log("cancelled during export")
+            self._write_black(depsgraph)
+        except Exception as exc:  # noqa: BLE001 - anything escaping would crash Blender at save time
+            self._log("render failed:\n" + traceback.format_exc())
+            message = str(exc) if isinstance(exc, (SceneError, ValueError, OSError)) else \
+                f"{type(exc).__name__}: {exc}"
+            self.report({"ERROR"}, f"Monte: {message}")
+
+    def _render(self, depsgraph) -> None:
+        from ..core.render import render as core_render
+
+        scene = depsgraph.scene
+        view_layer = depsgraph.view_layer
+        passes = requested_passes(view_layer)
+        self.update_stats("", "Monte | Exporting scene")
+
+        def cancel_export() -> bool:
+            if self._cancel_requested():
+                raise _Cancelled()
+            return False
+
+        core_scene, stats = export_scene(depsgraph, self.camera_override, log=self._log,
+                                         should_cancel=cancel_export)
+        for w in core_scene.warnings:
+            self.report({"WARNING"}, f"Monte: {w}")
+        self.report({"INFO"}, f"Monte: {stats.line()}")
+        settings = render_settings(scene, {"aovs": any(p in passes for p in ("Depth", "Normal", "Albedo"))})
+
+        width, height = render_resolution(scene)
+        region = render_region(scene)
+        rx, ry, rw, rh = region if region is not None else (0, 0, width, height)
+        layer_name = view_layer.name
+        t0 = time.perf_counter()
+
+        def on_tile(tile) -> None:
+            lx, ly = tile.x0 - rx, tile.y0 - ry
+            self._write(lx, rh - (ly + tile.height), tile.width, tile.height, tile, passes, layer_name)
+
+        def on_progress(p) -> None:
+            self.update_stats("", f"Monte | {p.stats_line()}")
+            self.update_progress(min(max(p.fraction, 0.0), 1.0))
+
+        result = core_render(core_scene, settings, region=region, on_tile=on_tile, on_progress=on_progress,
+                             should_cancel=self._cancel_requested, log=self._log)
+        # The whole region once more, all passes from the final accumulation: consistent even after a cancel.
+        self._write(0, 0, rw, rh, result, passes, layer_name)
+        seconds = time.perf_counter() - t0
+        samples = int(np.asarray(result.sample_count).sum())
+        summary = (f"{'cancelled, ' if result.cancelled else ''}{samples:,} samples in {seconds:.2f} s, "
+                   f"{result.stats.get('rays_per_second', 0.0) / 1e6:.2f} M rays/s")
+        self.update_stats("", f"Monte | {summary}")
+        self._log(summary)
+        if result.cancelled:
+            self.report({"WARNING"}, f"Monte: render stopped early ({summary}); the image holds the samples taken")
+
+    # ------------------------------------------------------------------------------------------ results
+    def _write(self, x: int, y: int, w: int, h: int, src, passes: list[str], layer_name: str) -> None:
+        """Copy a tile/result (row 0 at the top) into Blender's render result at region-local (x, y) with
+        y from the bottom; every declared pass in one result so none is reset."""
+        result = self.begin_result(x, y, w, h, layer=layer_name)
+        try:
+            layer = result.layers[0]
+            for rpass in layer.passes:
+                data = _pass_pixels(rpass.name, src, h, w, rpass.channels)
+                rpass.rect.foreach_set(data)
+        finally:
+            self.end_result(result)
+        self._wrote_result = True
+
+    def _write_black(self, depsgraph) -> None:
+        scene = depsgraph.scene
+        width, height = render_resolution(scene)
+        region = render_region(scene)
+        rw, rh = (region[2], region[3]) if region is not None else (width, height)
+        result = self.begin_result(0, 0, rw, rh, layer=depsgraph.view_layer.name)
+        self.end_result(result)
+
+
+def _pass_pixels(name: str, src, h: int, w: int, channels: int) -> np.ndarray:
+    """Flattened float32 pixels of one pass, flipped to Blender's bottom-up rows."""
+    arr = None
+    if name == "Combined":
+        arr = src.color
+    elif name == "Depth":
+        arr = src.depth
+    elif name == "Normal":
+        arr = src.normal
+    elif name == "Albedo":
+        arr = src.albedo
+    elif name == "Variance":
+        arr = src.variance
+    if arr is None:
+        fill = 1e10 if name == "Depth" else 0.0
+        return np.full(h * w * channels, fill, dtype=np.float32)
+    arr = np.asarray(arr, dtype=np.float32).reshape(h, w, -1)
+    if arr.shape[2] != channels:
+        out = np.zeros((h, w, channels), np.float32)
+        c = min(channels, arr.shape[2])
+        out[..., :c] = arr[..., :c]
+        arr = out
+    return np.ascontiguousarray(arr[::-1]).ravel()

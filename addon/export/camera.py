@@ -1,0 +1,85 @@
+"""Blender camera -> core Camera (perspective and orthographic, Blender's sensor fit, shift and clipping).
+
+core.Camera.frame() reproduces BKE_camera_params_compute_viewplane, so the fields are copied as they are;
+tests compare the frame with `camera.data.view_frame(scene=scene)`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...core.scene import Camera, SceneError
+
+
+def render_resolution(scene) -> tuple[int, int]:
+    """The rendered size in pixels: resolution x percentage, as Blender rounds it (integer division)."""
+    r = scene.render
+    pct = int(r.resolution_percentage)
+    return max(1, (int(r.resolution_x) * pct) // 100), max(1, (int(r.resolution_y) * pct) // 100)
+
+
+def render_region(scene) -> tuple[int, int, int, int] | None:
+    """The render border as core's region (x0, y0 from the TOP, width, height), None for the full frame.
+
+    Blender truncates the border's fractions times the resolution (checked against its render result)."""
+    r = scene.render
+    if not r.use_border:
+        return None
+    w, h = render_resolution(scene)
+    xmin, xmax = int(r.border_min_x * w), int(r.border_max_x * w)
+    ymin, ymax = int(r.border_min_y * h), int(r.border_max_y * h)  # from the bottom
+    xmin, xmax = max(0, min(xmin, w)), max(0, min(xmax, w))
+    ymin, ymax = max(0, min(ymin, h)), max(0, min(ymax, h))
+    if xmax - xmin < 1 or ymax - ymin < 1:
+        # Blender renders the whole frame when the border is empty.
+        return None
+    if (xmin, ymin, xmax, ymax) == (0, 0, w, h):
+        return None
+    return xmin, h - ymax, xmax - xmin, ymax - ymin
+
+
+def _normalized(matrix) -> np.ndarray:
+    """Camera-to-world 4x4 with the scale removed (Blender renders cameras without their object scale)."""
+    m = np.array(matrix, dtype=np.float64).reshape(4, 4)
+    for axis in range(3):
+        n = np.linalg.norm(m[:3, axis])
+        if n > 0:
+            m[:3, axis] /= n
+    return m
+
+
+def export_camera(camera_object, scene, warnings: list[str]) -> Camera:
+    """Build core's Camera from an evaluated camera object and the scene's render settings."""
+    if camera_object is None:
+        raise SceneError("scene has no camera: add a camera and make it the scene's active camera")
+    if camera_object.type != "CAMERA":
+        raise SceneError(f"the scene camera {camera_object.name!r} is a {camera_object.type.lower()}, not a camera")
+    cam = camera_object.data
+    name = camera_object.name
+    if cam.type == "PANO":
+        raise SceneError(f"camera {name!r}: panoramic cameras are not supported by Monte (use perspective "
+                         "or orthographic)")
+    if cam.type not in ("PERSP", "ORTHO"):
+        raise SceneError(f"camera {name!r}: camera type {cam.type} is not supported by Monte")
+    if getattr(cam, "dof", None) is not None and cam.dof.use_dof:
+        warnings.append(f"camera {name!r}: depth of field is not supported; rendering it in focus")
+    r = scene.render
+    if abs(r.pixel_aspect_x - r.pixel_aspect_y) > 1e-6:
+        warnings.append(f"render: non-square pixel aspect {r.pixel_aspect_x:g}:{r.pixel_aspect_y:g} is not "
+                        "supported; rendering square pixels")
+    if r.use_motion_blur:
+        warnings.append("render: motion blur is not supported; rendering the frame's instant")
+    return Camera(
+        matrix_world=_normalized(camera_object.matrix_world),
+        resolution=render_resolution(scene),
+        kind=cam.type,
+        lens=float(cam.lens),
+        sensor_width=float(cam.sensor_width),
+        sensor_height=float(cam.sensor_height),
+        sensor_fit=cam.sensor_fit,
+        ortho_scale=float(cam.ortho_scale),
+        shift_x=float(cam.shift_x),
+        shift_y=float(cam.shift_y),
+        clip_start=float(cam.clip_start),
+        clip_end=float(cam.clip_end),
+    )

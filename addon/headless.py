@@ -1,0 +1,197 @@
+"""Render a .blend file with Monte from plain Python (the `bpy` module), as `monte render scene.blend -o out.exr`.
+
+`render_blend_file(blend_path, output_path, overrides)` loads the file, registers the engine in this process,
+applies the overrides to the loaded scene (the file on disk is never saved, so they last for this run only),
+renders through the engine exactly as F12 does, and writes the EXR atomically: to a temporary file beside
+the target, then os.replace, so an existing file is either kept whole or replaced whole.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Callable
+
+from ..core.settings import RenderSettings
+
+# override key -> scene.monte property
+_MONTE_KEYS = {
+    "spp": "samples",
+    "samples": "samples",
+    "seed": "seed",
+    "sampler": "sampler",
+    "filter": "filter_type",
+    "filter_type": "filter_type",
+    "filter_width": "filter_width",
+    "max_bounces": "max_bounces",
+    "rr_depth": "rr_depth",
+    "clamp": "clamp",
+    "threads": "threads",
+    "batch_paths": "batch_paths",
+    "tile_size": "tile_size",
+    "time_limit": "time_limit",
+    "light_sampling": "light_sampling",
+}
+# override key -> what it sets outside scene.monte
+_OTHER_KEYS = {
+    "resolution": "(width, height) in pixels",
+    "resolution_percentage": "resolution scale in percent",
+    "frame": "frame number to render",
+    "camera": "name of the camera object to render from",
+    "scene": "name of the scene to render (default: the file's active scene)",
+    "multilayer": "write a multilayer EXR with every enabled pass (default: RGBA of Combined)",
+}
+
+_BLEND_MAGIC = (b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd")  # plain, gzip, zstd
+
+
+class HeadlessError(RuntimeError):
+    """A headless render failed; the message names the file and the reason."""
+
+
+def known_overrides() -> dict[str, str]:
+    out = {k: f"Monte setting {v}" for k, v in _MONTE_KEYS.items()}
+    out.update(_OTHER_KEYS)
+    return out
+
+
+def _check_blend(path: Path) -> None:
+    if not path.exists():
+        raise FileNotFoundError(f"no such .blend file: {path}")
+    if not path.is_file():
+        raise HeadlessError(f"{path} is not a file")
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError as exc:
+        raise HeadlessError(f"cannot read {path}: {exc}") from exc
+    if not any(head.startswith(m) for m in _BLEND_MAGIC):
+        raise HeadlessError(f"{path} is not a Blender file (it does not start with a .blend header)")
+
+
+def _validate_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
+    clean = {k: v for k, v in (overrides or {}).items() if v is not None}
+    unknown = sorted(set(clean) - set(_MONTE_KEYS) - set(_OTHER_KEYS))
+    if unknown:
+        raise ValueError(f"unknown render override(s) {', '.join(unknown)}; known: "
+                         f"{', '.join(sorted(set(_MONTE_KEYS) | set(_OTHER_KEYS)))}")
+    # Check the Monte settings with core's own validation before touching Blender.
+    fields = {}
+    for key, prop in _MONTE_KEYS.items():
+        if key in clean:
+            fields["spp" if prop == "samples" else prop] = clean[key]
+    RenderSettings().replace(**fields).validate()
+    return clean
+
+
+def _apply_overrides(bpy, scene, overrides: dict[str, Any]) -> None:
+    monte = scene.monte
+    for key, value in overrides.items():
+        if key in _MONTE_KEYS:
+            prop = _MONTE_KEYS[key]
+            try:
+                setattr(monte, prop, value)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"override {key}={value!r}: {exc}") from exc
+    r = scene.render
+    if "resolution" in overrides:
+        w, h = overrides["resolution"]
+        r.resolution_x, r.resolution_y = int(w), int(h)
+        if "resolution_percentage" not in overrides:
+            r.resolution_percentage = 100
+    if "resolution_percentage" in overrides:
+        r.resolution_percentage = int(overrides["resolution_percentage"])
+    if "camera" in overrides:
+        cam = bpy.data.objects.get(overrides["camera"])
+        if cam is None or cam.type != "CAMERA":
+            raise ValueError(f"override camera={overrides['camera']!r}: no camera object of that name")
+        scene.camera = cam
+    if "frame" in overrides:
+        scene.frame_set(int(overrides["frame"]))
+
+
+def _configure_output(scene, multilayer: bool) -> None:
+    settings = scene.render.image_settings
+    if multilayer:
+        if hasattr(settings, "media_type"):  # Blender 5.0+
+            settings.media_type = "MULTI_LAYER_IMAGE"
+        settings.file_format = "OPEN_EXR_MULTILAYER"
+    else:
+        if hasattr(settings, "media_type"):
+            settings.media_type = "IMAGE"
+        settings.file_format = "OPEN_EXR"
+        settings.color_mode = "RGBA"
+    settings.color_depth = "32"
+    settings.exr_codec = "ZIP"
+
+
+def render_blend_file(
+    blend_path: str | os.PathLike,
+    output_path: str | os.PathLike,
+    overrides: dict[str, Any] | None = None,
+    *,
+    log: Callable[[str], None] | None = None,
+) -> None:
+    """Render `blend_path` with Monte and write the image to `output_path` (OpenEXR, 32-bit float, linear).
+
+    overrides: Monte settings for this run (spp, seed, sampler, filter/filter_type, filter_width, max_bounces,
+    rr_depth, clamp, threads, batch_paths, tile_size, time_limit, light_sampling) and resolution,
+    resolution_percentage, frame, camera, scene, multilayer; None values are ignored.
+    Raises FileNotFoundError / HeadlessError naming the file, ValueError for bad overrides.
+    """
+    say = log or (lambda msg: print(msg, flush=True))
+    blend = Path(blend_path).expanduser().resolve()
+    out = Path(output_path).expanduser().resolve()
+    _check_blend(blend)
+    clean = _validate_overrides(dict(overrides or {}))
+    if not out.parent.is_dir():
+        raise HeadlessError(f"cannot write {out}: folder {out.parent} does not exist")
+    if out.suffix.lower() != ".exr":
+        raise HeadlessError(f"cannot write {out}: Monte writes OpenEXR; use a .exr file name")
+
+    import bpy
+
+    from . import register
+
+    register()
+    try:
+        result = bpy.ops.wm.open_mainfile(filepath=str(blend), load_ui=False)
+    except RuntimeError as exc:
+        raise HeadlessError(f"could not open {blend}: {str(exc).strip()}") from exc
+    if "FINISHED" not in result:
+        raise HeadlessError(f"could not open {blend}")
+    scene = bpy.context.scene
+    if "scene" in clean:
+        scene = bpy.data.scenes.get(clean["scene"])
+        if scene is None:
+            raise ValueError(f"{blend} has no scene named {clean['scene']!r}; scenes: "
+                             f"{', '.join(s.name for s in bpy.data.scenes)}")
+    scene.render.engine = "MONTE"
+    _apply_overrides(bpy, scene, clean)
+    _configure_output(scene, bool(clean.get("multilayer", False)))
+    say(f"Monte: rendering {blend.name} (scene {scene.name!r}, frame {scene.frame_current}) to {out}")
+    try:
+        bpy.ops.render.render(write_still=False, scene=scene.name)
+    except RuntimeError as exc:
+        message = str(exc).strip()
+        if message.startswith("Error: "):
+            message = message[len("Error: "):]
+        raise HeadlessError(f"rendering {blend} failed: {message}") from exc
+    image = bpy.data.images.get("Render Result")
+    if image is None:
+        raise HeadlessError(f"rendering {blend} produced no image")
+    tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}.exr")
+    try:
+        image.save_render(str(tmp), scene=scene)
+        if not tmp.is_file():
+            raise HeadlessError(f"Blender did not write {tmp}")
+        os.replace(tmp, out)
+    except RuntimeError as exc:
+        raise HeadlessError(f"could not write {out}: {str(exc).strip()}") from exc
+    finally:
+        if tmp.exists():
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+    say(f"Monte: wrote {out}")

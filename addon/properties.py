@@ -1,0 +1,158 @@
+"""Monte's settings in Blender: `scene.monte` (render settings) and `view_layer.monte` (extra passes).
+
+Every default is read from `core.settings.RenderSettings()`, so Blender, the CLI and the tests agree by
+construction; `render_settings(scene)` turns the properties back into a validated `RenderSettings`.
+"""
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
+
+from ..core.settings import RenderSettings
+
+_DEFAULTS = RenderSettings()
+
+SAMPLER_ITEMS = [
+    ("sobol", "Sobol", "Owen-scrambled Sobol sequence: the lowest noise for most scenes"),
+    ("stratified", "Stratified", "Jittered strata per pixel (the seed's 2x2 sub-pixel strata)"),
+    ("independent", "Independent", "Independent uniform random numbers (for reference and tests)"),
+]
+FILTER_ITEMS = [
+    ("blackman-harris", "Blackman-Harris", "Cycles' default pixel filter (width 1.5 px)"),
+    ("gaussian", "Gaussian", "Gaussian pixel filter"),
+    ("tent", "Tent", "Triangular pixel filter (the seed's tent-distributed sub-pixel offsets)"),
+    ("box", "Box", "Box pixel filter: each sample stays inside its pixel"),
+]
+LIGHT_SAMPLING_ITEMS = [
+    ("mis", "Multiple Importance", "Light and BSDF sampling combined with multiple importance sampling"),
+    ("bsdf", "BSDF Only", "BSDF sampling only (reference and tests; noisy with small lights)"),
+    ("light", "Lights Only", "Next-event estimation only (reference and tests; misses sharp reflections)"),
+]
+
+# scene.monte property name -> RenderSettings field
+SETTING_FIELDS = {
+    "samples": "spp",
+    "seed": "seed",
+    "sampler": "sampler",
+    "filter_type": "filter_type",
+    "filter_width": "filter_width",
+    "max_bounces": "max_bounces",
+    "rr_depth": "rr_depth",
+    "clamp": "clamp",
+    "threads": "threads",
+    "batch_paths": "batch_paths",
+    "tile_size": "tile_size",
+    "time_limit": "time_limit",
+    "light_sampling": "light_sampling",
+}
+
+
+def _passes_changed(_self, context) -> None:
+    # The compositor's Render Layers node lists the passes update_render_passes declares: refresh it.
+    view_layer = getattr(context, "view_layer", None)
+    if view_layer is not None:
+        view_layer.update_render_passes()
+
+
+class MonteRenderSettings(bpy.types.PropertyGroup):
+    """Render settings for Monte, stored per scene (scene.monte)."""
+
+    samples: IntProperty(
+        name="Samples", description="Samples per pixel", default=_DEFAULTS.spp, min=1, soft_max=4096,
+    )
+    seed: IntProperty(
+        name="Seed", description="Seed of every random number: the same seed renders the same image",
+        default=_DEFAULTS.seed, min=0,
+    )
+    sampler: EnumProperty(
+        name="Sampler", description="How sample positions are generated", items=SAMPLER_ITEMS,
+        default=_DEFAULTS.sampler,
+    )
+    filter_type: EnumProperty(
+        name="Pixel Filter", description="Reconstruction filter, importance sampled as Cycles does",
+        items=FILTER_ITEMS, default=_DEFAULTS.filter_type,
+    )
+    filter_width: FloatProperty(
+        name="Width", description="Pixel filter width in pixels (Cycles' meaning)",
+        default=_DEFAULTS.filter_width, min=0.01, max=64.0, soft_max=10.0, subtype="PIXEL",
+    )
+    max_bounces: IntProperty(
+        name="Max Bounces",
+        description="Longest path, Cycles' counting (0 still gives direct light at the first hit)",
+        default=_DEFAULTS.max_bounces, min=0, max=1024, soft_max=64,
+    )
+    rr_depth: IntProperty(
+        name="Russian Roulette Depth",
+        description="Bounces before paths may be ended at random by their throughput (unbiased)",
+        default=_DEFAULTS.rr_depth, min=0, max=1024, soft_max=64,
+    )
+    clamp: FloatProperty(
+        name="Clamp", description="Largest value a sample may add (0 disables clamping; clamping is biased)",
+        default=_DEFAULTS.clamp, min=0.0,
+    )
+    time_limit: FloatProperty(
+        name="Time Limit",
+        description="Stop after this many seconds, between sample batches (0 = no limit)",
+        default=_DEFAULTS.time_limit, min=0.0, subtype="TIME_ABSOLUTE", unit="TIME_ABSOLUTE",
+    )
+    light_sampling: EnumProperty(
+        name="Light Sampling", description="Which light transport estimator to use",
+        items=LIGHT_SAMPLING_ITEMS, default=_DEFAULTS.light_sampling,
+    )
+    threads: IntProperty(
+        name="Threads", description="Ray-casting threads (0 = all cores)", default=_DEFAULTS.threads, min=0,
+        max=1024,
+    )
+    batch_paths: IntProperty(
+        name="Batch Size",
+        description="Paths traced at once: larger is faster up to a point and uses more memory; "
+        "Esc takes effect between batches",
+        default=_DEFAULTS.batch_paths, min=1024, max=1 << 26,
+    )
+    tile_size: IntProperty(
+        name="Tile Size", description="Edge of the square tiles shown as they finish, in pixels",
+        default=_DEFAULTS.tile_size, min=8, max=4096, subtype="PIXEL",
+    )
+
+
+class MonteViewLayerSettings(bpy.types.PropertyGroup):
+    """Monte's passes beyond Blender's own Depth and Normal flags (view_layer.monte)."""
+
+    use_pass_albedo: BoolProperty(
+        name="Albedo", description="First-hit surface colour (for denoisers and compositing)", default=False,
+        update=_passes_changed,
+    )
+    use_pass_variance: BoolProperty(
+        name="Variance", description="Estimated variance of each pixel's mean (noise map)", default=False,
+        update=_passes_changed,
+    )
+
+
+def render_settings(scene, overrides=None) -> RenderSettings:
+    """A validated RenderSettings from scene.monte (plus RenderSettings-named overrides, for one run)."""
+    props = scene.monte
+    values = {field: getattr(props, prop) for prop, field in SETTING_FIELDS.items()}
+    values.update(overrides or {})
+    return RenderSettings(**{**_field_defaults(), **values}).validate()
+
+
+def _field_defaults() -> dict:
+    from dataclasses import fields
+
+    return {f.name: getattr(_DEFAULTS, f.name) for f in fields(_DEFAULTS)}
+
+
+classes = (MonteRenderSettings, MonteViewLayerSettings)
+
+
+def register() -> None:
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.Scene.monte = PointerProperty(type=MonteRenderSettings, name="Monte Render Settings")
+    bpy.types.ViewLayer.monte = PointerProperty(type=MonteViewLayerSettings, name="Monte Passes")
+
+
+def unregister() -> None:
+    del bpy.types.ViewLayer.monte
+    del bpy.types.Scene.monte
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

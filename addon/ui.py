@@ -1,0 +1,251 @@
+"""Monte's panels, where Cycles users look for them, and Blender's own panels opted in for Monte.
+
+Render properties: Sampling (samples, sampler, seed, clamp, time limit, light sampling), Light Paths (max
+bounces, Russian roulette depth), Film (pixel filter and width), Performance (threads, batch size, tiles).
+View layer properties: Passes (Depth, Normal, Albedo, Variance). Material, world and light properties: the
+node inputs Monte reads (the active output for Cycles/All) and the light settings Monte uses.
+Blender's generic panels (those that list 'BLENDER_RENDER' in COMPAT_ENGINES: dimensions, output, camera
+lens, colour management, ...) get 'MONTE' added, except the few that describe features Monte lacks.
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.types import Panel
+
+ENGINE = "MONTE"
+
+# Generic panels that would show settings Monte does not use.
+_EXCLUDED_PANELS = {
+    "DATA_PT_light",  # replaced by MONTE_LIGHT_PT_light
+    "NODE_DATA_PT_light",
+    "DATA_PT_preview",  # no material/light previews (bl_use_preview = False)
+    "DATA_PT_camera_dof",  # depth of field is not supported
+    "DATA_PT_camera_dof_aperture",
+    "RENDER_PT_simplify",
+    "DATA_PT_lightprobe",
+    "DATA_PT_lightprobe_display",
+    "DATA_PT_lightprobe_visibility",
+    "DATA_PT_lightprobe_parallax",
+    "DATA_PT_context_lightprobe",
+}
+# Panels from EEVEE's set that fit Monte as they are.
+_EXTRA_PANELS = {
+    "EEVEE_MATERIAL_PT_context_material",
+    "DATA_PT_spot",
+}
+
+
+def compat_panels() -> list[type]:
+    panels = []
+    for panel in bpy.types.Panel.__subclasses__():
+        engines = getattr(panel, "COMPAT_ENGINES", None)
+        if not isinstance(engines, set):
+            continue
+        name = panel.__name__
+        if name in _EXCLUDED_PANELS:
+            continue
+        if "BLENDER_RENDER" in engines or name in _EXTRA_PANELS:
+            panels.append(panel)
+    return panels
+
+
+class MonteButtonsPanel:
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+    COMPAT_ENGINES = {ENGINE}
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES
+
+
+class MONTE_RENDER_PT_sampling(MonteButtonsPanel, Panel):
+    bl_label = "Sampling"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        monte = context.scene.monte
+        col = layout.column(align=True)
+        col.prop(monte, "samples")
+        col.prop(monte, "time_limit")
+        col = layout.column()
+        col.prop(monte, "sampler")
+        col.prop(monte, "seed")
+        col.prop(monte, "clamp")
+        col.prop(monte, "light_sampling")
+
+
+class MONTE_RENDER_PT_light_paths(MonteButtonsPanel, Panel):
+    bl_label = "Light Paths"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        monte = context.scene.monte
+        col = layout.column(align=True)
+        col.prop(monte, "max_bounces")
+        col.prop(monte, "rr_depth")
+
+
+class MONTE_RENDER_PT_film(MonteButtonsPanel, Panel):
+    bl_label = "Film"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        monte = context.scene.monte
+        col = layout.column(align=True)
+        col.prop(monte, "filter_type")
+        col.prop(monte, "filter_width")
+
+
+class MONTE_RENDER_PT_performance(MonteButtonsPanel, Panel):
+    bl_label = "Performance"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        monte = context.scene.monte
+        col = layout.column(align=True)
+        col.prop(monte, "threads")
+        col.prop(monte, "batch_paths")
+        col.prop(monte, "tile_size")
+
+
+class MONTE_VIEWLAYER_PT_passes(MonteButtonsPanel, Panel):
+    bl_label = "Passes"
+    bl_context = "view_layer"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        view_layer = context.view_layer
+        col = layout.column(heading="Include", align=True)
+        col.prop(view_layer, "use_pass_combined")
+        col.prop(view_layer, "use_pass_z")
+        col.prop(view_layer, "use_pass_normal")
+        col.prop(view_layer.monte, "use_pass_albedo")
+        col.prop(view_layer.monte, "use_pass_variance")
+
+
+def _draw_node_input(layout, tree, input_name: str) -> None:
+    output = tree.get_output_node("CYCLES") if tree is not None else None
+    if output is None:
+        layout.label(text="No output node")
+        return
+    sock = output.inputs.get(input_name)
+    if sock is None:
+        layout.label(text="Incompatible output node")
+        return
+    layout.template_node_view(tree, output, sock)
+
+
+class MONTE_MATERIAL_PT_surface(MonteButtonsPanel, Panel):
+    bl_label = "Surface"
+    bl_context = "material"
+
+    @classmethod
+    def poll(cls, context):
+        return context.material is not None and context.engine in cls.COMPAT_ENGINES
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        mat = context.material
+        if mat.node_tree is None:
+            layout.prop(mat, "diffuse_color", text="Color")
+            return
+        _draw_node_input(layout, mat.node_tree, "Surface")
+
+
+class MONTE_WORLD_PT_surface(MonteButtonsPanel, Panel):
+    bl_label = "Surface"
+    bl_context = "world"
+
+    @classmethod
+    def poll(cls, context):
+        return context.world is not None and context.engine in cls.COMPAT_ENGINES
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        world = context.world
+        if world.node_tree is None:
+            layout.prop(world, "color")
+            return
+        _draw_node_input(layout, world.node_tree, "Surface")
+
+
+class MONTE_LIGHT_PT_light(MonteButtonsPanel, Panel):
+    bl_label = "Light"
+    bl_context = "data"
+
+    @classmethod
+    def poll(cls, context):
+        return context.light is not None and context.engine in cls.COMPAT_ENGINES
+
+    def draw(self, context):
+        layout = self.layout
+        light = context.light
+        layout.row().prop(light, "type", expand=True)
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        col = layout.column()
+        col.prop(light, "color")
+        row = col.row(heading="Temperature")
+        row.prop(light, "use_temperature", text="")
+        sub = row.row()
+        sub.active = light.use_temperature
+        sub.prop(light, "temperature", text="")
+        col.prop(light, "energy")
+        col.prop(light, "exposure")
+        col.separator()
+        if light.type in {"POINT", "SPOT"}:
+            col.prop(light, "shadow_soft_size", text="Radius")
+        elif light.type == "SUN":
+            col.prop(light, "angle")
+        elif light.type == "AREA":
+            col.prop(light, "shape")
+            sub = col.column(align=True)
+            if light.shape in {"SQUARE", "DISK"}:
+                sub.prop(light, "size")
+            else:
+                sub.prop(light, "size", text="Size X")
+                sub.prop(light, "size_y", text="Y")
+            col.prop(light, "spread")
+            col.prop(light, "normalize")
+
+
+classes = (
+    MONTE_RENDER_PT_sampling,
+    MONTE_RENDER_PT_light_paths,
+    MONTE_RENDER_PT_film,
+    MONTE_RENDER_PT_performance,
+    MONTE_VIEWLAYER_PT_passes,
+    MONTE_MATERIAL_PT_surface,
+    MONTE_WORLD_PT_surface,
+    MONTE_LIGHT_PT_light,
+)
+
+
+def register() -> None:
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    for panel in compat_panels():
+        panel.COMPAT_ENGINES.add(ENGINE)
+
+
+def unregister() -> None:
+    for panel in compat_panels():
+        panel.COMPAT_ENGINES.discard(ENGINE)
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)
