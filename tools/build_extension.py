@@ -1,0 +1,200 @@
+#!/usr/bin/env python3
+"""Build Monte's Blender extension zips: download the bundled wheels, validate, build one zip per platform.
+
+    python tools/build_extension.py                 # all platforms -> dist/monte-<version>-<platform>.zip
+    python tools/build_extension.py --platform linux-x64
+    python tools/build_extension.py --single        # one zip with every platform's wheels
+
+Wheels listed in blender_manifest.toml are downloaded into wheels/ with `pip download --only-binary=:all:`
+(exact versions taken from the file names; files already there are reused). The zips are made by Blender's
+own extension builder, shipped inside the `bpy` wheel (bpy/<ver>/scripts/addons_core/bl_pkg/cli/
+blender_ext.py), with plain Python: no Blender binary needed. Each zip is then checked to hold only the
+add-on (the package __init__.py, core/, addon/, the manifest and its wheels).
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import importlib.util
+import os
+import re
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+MANIFEST = ROOT / "blender_manifest.toml"
+PYTHON_VERSION = "3.11"  # Blender 4.2 - 5.0 bundle CPython 3.11
+
+# Blender platform -> pip --platform tags that select its wheels (the newest tag first; pip accepts older ones
+# for manylinux/macOS when given the newest, but listing them is explicit).
+PIP_PLATFORMS = {
+    "linux-x64": ["manylinux_2_28_x86_64"],
+    "windows-x64": ["win_amd64"],
+    "macos-x64": ["macosx_13_0_x86_64"],
+    "macos-arm64": ["macosx_13_0_arm64"],
+}
+# Top-level entries a built zip may hold.
+ALLOWED_TOP = {"__init__.py", "blender_manifest.toml", "core", "addon", "wheels"}
+
+
+class BuildError(RuntimeError):
+    pass
+
+
+def log(msg: str) -> None:
+    print(f"build_extension: {msg}", flush=True)
+
+
+def load_manifest() -> dict:
+    with open(MANIFEST, "rb") as fh:
+        return tomllib.load(fh)
+
+
+def wheel_requirements(wheels: list[str]) -> dict[str, str]:
+    """{'embreex': '4.4.0.post1', 'openexr': '3.5.3'} from the manifest's wheel file names."""
+    pins: dict[str, str] = {}
+    for w in wheels:
+        name, version = Path(w).name.split("-")[:2]
+        if pins.get(name, version) != version:
+            raise BuildError(f"the manifest lists two versions of {name}: {pins[name]} and {version}")
+        pins[name] = version
+    return pins
+
+
+def wheel_platform(wheel: str) -> str:
+    """The Blender platform a wheel file is for (from its platform tag)."""
+    tag = Path(wheel).stem.split("-")[-1]
+    if "manylinux" in tag and "x86_64" in tag:
+        return "linux-x64"
+    if tag == "win_amd64":
+        return "windows-x64"
+    if tag.startswith("macosx") and tag.endswith("x86_64"):
+        return "macos-x64"
+    if tag.startswith("macosx") and tag.endswith("arm64"):
+        return "macos-arm64"
+    raise BuildError(f"unknown wheel platform tag {tag!r} in {wheel}")
+
+
+def download_wheels(manifest: dict, platforms: list[str], refresh: bool) -> None:
+    wheels = manifest.get("wheels", [])
+    pins = wheel_requirements(wheels)
+    dest = ROOT / "wheels"
+    dest.mkdir(exist_ok=True)
+    for platform in platforms:
+        wanted = [w for w in wheels if wheel_platform(w) == platform]
+        missing = [w for w in wanted if not (ROOT / w).is_file()]
+        if not missing and not refresh:
+            log(f"{platform}: wheels present ({', '.join(Path(w).name for w in wanted)})")
+            continue
+        cmd = [sys.executable, "-m", "pip", "download", "--only-binary=:all:", "--no-deps",
+               "--python-version", PYTHON_VERSION, "--implementation", "cp", "-d", str(dest)]
+        for tag in PIP_PLATFORMS[platform]:
+            cmd += ["--platform", tag]
+        cmd += [f"{name}=={version}" for name, version in sorted(pins.items())]
+        log(f"{platform}: " + " ".join(cmd[3:]))
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise BuildError(f"pip download failed for {platform}:\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
+        still = [w for w in wanted if not (ROOT / w).is_file()]
+        if still:
+            have = sorted(p.name for p in dest.glob("*.whl"))
+            raise BuildError(
+                f"{platform}: pip did not produce {', '.join(Path(w).name for w in still)}; wheels/ holds "
+                f"{', '.join(have)}. If PyPI now serves other file names, update blender_manifest.toml's wheels.")
+
+
+def find_blender_ext() -> Path:
+    env = os.environ.get("BLENDER_EXT")
+    if env:
+        return Path(env)
+    spec = importlib.util.find_spec("bpy")
+    if spec is None or not spec.submodule_search_locations:
+        raise BuildError("the bpy module is not installed (pip install bpy==5.0.1), and BLENDER_EXT is not set to "
+                         "Blender's scripts/addons_core/bl_pkg/cli/blender_ext.py")
+    for base in spec.submodule_search_locations:
+        hits = sorted(glob.glob(os.path.join(base, "*", "scripts", "addons_core", "bl_pkg", "cli",
+                                             "blender_ext.py")))
+        if hits:
+            return Path(hits[-1])
+    raise BuildError("blender_ext.py not found inside the bpy package")
+
+
+def run_blender_ext(tool: Path, *args: str) -> str:
+    cmd = [sys.executable, str(tool), *args]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    out = (proc.stdout + proc.stderr).strip()
+    if proc.returncode != 0:
+        raise BuildError(f"{' '.join(cmd[1:3])} failed:\n{out}")
+    return out
+
+
+def check_zip(path: Path, manifest: dict) -> None:
+    with zipfile.ZipFile(path) as zf:
+        names = zf.namelist()
+    tops = {n.split("/", 1)[0] for n in names}
+    unexpected = sorted(tops - ALLOWED_TOP)
+    if unexpected:
+        raise BuildError(f"{path.name} holds files the add-on does not need: {', '.join(unexpected)} "
+                         "(extend [build] paths_exclude_pattern in blender_manifest.toml)")
+    junk = [n for n in names if "__pycache__" in n or n.endswith(".pyc")]
+    if junk:
+        raise BuildError(f"{path.name} holds compiled Python files: {junk[:5]}")
+    for required in ("__init__.py", "blender_manifest.toml", "core/render.py", "addon/engine.py"):
+        if required not in names:
+            raise BuildError(f"{path.name} lacks {required}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--platform", action="append", choices=sorted(PIP_PLATFORMS),
+                        help="build only this platform (repeatable; default: every platform in the manifest)")
+    parser.add_argument("--single", action="store_true",
+                        help="one zip holding every platform's wheels instead of one zip per platform")
+    parser.add_argument("--output-dir", default=str(ROOT / "dist"), help="where the zips go (default dist/)")
+    parser.add_argument("--refresh", action="store_true", help="download the wheels again")
+    parser.add_argument("--no-download", action="store_true", help="use the wheels already in wheels/")
+    args = parser.parse_args(argv)
+
+    try:
+        manifest = load_manifest()
+        platforms = args.platform or list(manifest.get("platforms", PIP_PLATFORMS))
+        if args.single:
+            platforms = list(manifest.get("platforms", PIP_PLATFORMS))
+        if not args.no_download:
+            download_wheels(manifest, platforms, args.refresh)
+        tool = find_blender_ext()
+        log(f"using {tool}")
+        log(run_blender_ext(tool, "validate", str(ROOT)).splitlines()[-1])
+        out_dir = Path(args.output_dir).resolve()
+        out_dir.mkdir(parents=True, exist_ok=True)  # the builder needs it to exist
+        version = manifest["version"]
+        before = {p: p.stat().st_mtime for p in out_dir.glob(f"{manifest['id']}-{version}*.zip")}
+        build_args = ["build", "--source-dir", str(ROOT), "--output-dir", str(out_dir)]
+        if not args.single:
+            build_args.append("--split-platforms")
+        log(run_blender_ext(tool, *build_args).splitlines()[-1])
+        built = sorted(p for p in out_dir.glob(f"{manifest['id']}-{version}*.zip")
+                       if before.get(p) != p.stat().st_mtime)
+        if args.platform and not args.single:
+            keep = {p.replace("-", "_") for p in args.platform}
+            for p in built:
+                if not any(p.stem.endswith(k) for k in keep):
+                    p.unlink()
+            built = [p for p in built if p.exists()]
+        if not built:
+            raise BuildError(f"the builder wrote no zip into {out_dir}")
+        for p in built:
+            check_zip(p, manifest)
+            log(f"built {p} ({p.stat().st_size / 1e6:.1f} MB)")
+    except BuildError as exc:
+        print(f"build_extension: error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
