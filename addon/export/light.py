@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from ...core.scene import AreaLight, PointLight, SpotLight, SunLight
+from .material import node_tree
 
 
 def light_color_power(light) -> np.ndarray:
@@ -32,7 +33,7 @@ def export_light(name: str, light, matrix_world, warnings: list[str]):
     direction = down / norm if norm > 0 else np.array([0.0, 0.0, -1.0])
     power = light_color_power(light)
     owner = f"light {name!r}"
-    if getattr(light, "use_nodes", False) and light.node_tree is not None:
+    if node_tree(light) is not None:
         _warn_light_nodes(light, owner, warnings)
     normalize = bool(getattr(light, "normalize", True))
     if light.type == "POINT":
@@ -43,7 +44,7 @@ def export_light(name: str, light, matrix_world, warnings: list[str]):
         if not normalize:
             warnings.append(f"{owner}: 'Normalize' off is only supported for area lights; rendered normalized")
         return SpotLight(name, position, direction, power, radius=float(light.shadow_soft_size),
-                         spot_size=float(light.spot_size), spot_blend=float(light.spot_blend))
+                         spot_size=min(float(light.spot_size), math.pi), spot_blend=float(light.spot_blend))
     if light.type == "SUN":
         return SunLight(name, direction, power, angle=float(light.angle))
     if light.type == "AREA":
@@ -55,13 +56,13 @@ def export_light(name: str, light, matrix_world, warnings: list[str]):
             area = size_x * sx * size_y * sy * (math.pi / 4 if light.shape in ("DISK", "ELLIPSE") else 1.0)
             power = power * area
         return AreaLight(name, m, power, shape=light.shape, size_x=size_x, size_y=size_y,
-                         spread=float(getattr(light, "spread", math.pi)))
+                         spread=min(float(getattr(light, "spread", math.pi)), math.pi))
     warnings.append(f"{owner}: light type {light.type} is not supported and is skipped")
     return None
 
 
 def _warn_light_nodes(light, owner: str, warnings: list[str]) -> None:
-    tree = light.node_tree
+    tree = node_tree(light)
     out = tree.get_output_node("CYCLES")
     if out is None:
         return

@@ -37,6 +37,19 @@ import numpy as np
 from ...core.scene import Lobe, Material, Texture
 
 DEFAULT_GREY = 0.8
+
+
+def node_tree(idblock):
+    """The node tree Blender renders with: in Blender < 5 only when "Use Nodes" is on (5.0 deprecates the
+    flag: node trees are always used)."""
+    tree = getattr(idblock, "node_tree", None)
+    if tree is None:
+        return None
+    import bpy
+
+    if bpy.app.version < (5, 0, 0) and not getattr(idblock, "use_nodes", True):
+        return None
+    return tree
 _MAX_DEPTH = 64
 
 
@@ -180,7 +193,7 @@ class MaterialExporter:
         name = material.name
         owner = f"material {name!r}"
         viewport = np.array(material.diffuse_color[:3], dtype=np.float64)
-        tree = material.node_tree if getattr(material, "use_nodes", True) else None
+        tree = node_tree(material)
         if tree is None:
             return Material(name, [Lobe("diffuse", viewport)])
         output = tree.get_output_node("CYCLES")

@@ -10,14 +10,14 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.scene import World
-from .material import image_average_color, socket_value, follow_link
+from .material import follow_link, image_average_color, node_tree, socket_value
 
 
 def export_world(world, warnings: list[str]) -> World:
     if world is None:
         return World(np.zeros(3))
     name = world.name
-    tree = world.node_tree if getattr(world, "use_nodes", True) else None
+    tree = node_tree(world)
     if tree is None:
         return World(np.array(world.color[:3], dtype=np.float64))
     output = tree.get_output_node("CYCLES")

@@ -1,0 +1,194 @@
+"""Helpers for the add-on tests (tests/test_addon_*.py): scene builders in bpy and EXR reading.
+
+Not a test module. Import it with `from blender_fixtures import ...` after putting this folder on sys.path
+(pytest runs with --import-mode=importlib, so tests do that explicitly). bpy is imported once per process;
+`reset()` returns Blender to an empty factory scene with Monte registered.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+TESTS = Path(__file__).resolve().parent
+ROOT = TESTS.parent
+
+
+def bpy_module():
+    import bpy
+
+    from monte.addon import register
+
+    register()
+    return bpy
+
+
+def reset():
+    """Empty factory scene, Monte registered and selected; returns the scene."""
+    bpy = bpy_module()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.engine = "MONTE"
+    return scene
+
+
+# --------------------------------------------------------------------------------------------- materials
+def node_material(name: str, shader: str, **inputs):
+    """A material whose Material Output is fed by one shader node with the given input values."""
+    bpy = bpy_module()
+    mat = bpy.data.materials.new(name)
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    node = tree.nodes.new(shader)
+    for key, value in inputs.items():
+        sock = node.inputs[key.replace("_", " ")]
+        if sock.type == "RGBA" and len(value) == 3:
+            value = (*value, 1.0)
+        sock.default_value = value
+    tree.links.new(node.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def diffuse(name: str, rgb) -> object:
+    return node_material(name, "ShaderNodeBsdfDiffuse", Color=tuple(rgb))
+
+
+def set_world(scene, rgb, strength: float = 1.0):
+    bpy = bpy_module()
+    world = bpy.data.worlds.new("World")
+    scene.world = world
+    tree = world.node_tree
+    if tree is None:  # Blender < 5 worlds need use_nodes
+        world.use_nodes = True
+        tree = world.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputWorld")
+    bg = tree.nodes.new("ShaderNodeBackground")
+    bg.inputs["Color"].default_value = (*rgb, 1.0)
+    bg.inputs["Strength"].default_value = strength
+    tree.links.new(bg.outputs[0], out.inputs["Surface"])
+    return world
+
+
+# --------------------------------------------------------------------------------------------- objects
+def mesh_object(name: str, vertices, faces, material=None, collection=None, smooth=False):
+    bpy = bpy_module()
+    me = bpy.data.meshes.new(name)
+    me.from_pydata([tuple(v) for v in vertices], [], [tuple(f) for f in faces])
+    if material is not None:
+        me.materials.append(material)
+    if smooth:
+        me.shade_smooth()
+    ob = bpy.data.objects.new(name, me)
+    (collection or bpy.context.scene.collection).objects.link(ob)
+    return ob
+
+
+def icosphere_object(name: str, center, radius: float, material=None, subdivisions: int = 5):
+    import bmesh
+
+    bpy = bpy_module()
+    me = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    bmesh.ops.create_icosphere(bm, subdivisions=subdivisions, radius=radius)
+    bm.to_mesh(me)
+    bm.free()
+    if material is not None:
+        me.materials.append(material)
+    me.shade_smooth()
+    ob = bpy.data.objects.new(name, me)
+    ob.location = center
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def camera_object(scene, location, rotation_euler, lens=50.0, sensor_fit="AUTO", kind="PERSP", **data):
+    bpy = bpy_module()
+    cam = bpy.data.cameras.new("Camera")
+    cam.type = kind
+    cam.lens = lens
+    cam.sensor_fit = sensor_fit
+    for key, value in data.items():
+        setattr(cam, key, value)
+    ob = bpy.data.objects.new("Camera", cam)
+    ob.location = location
+    ob.rotation_euler = rotation_euler
+    scene.collection.objects.link(ob)
+    scene.camera = ob
+    return ob
+
+
+def cornell_box(resolution=(256, 256)):
+    """The seed's Cornell box as DESIGN.md describes it (and core.scenes.cornell_box builds it), in bpy:
+    the same triangles (quads split along 0-2), materials and camera."""
+    bpy = bpy_module()
+    scene = reset()
+    white = diffuse("white", (0.75, 0.75, 0.75))
+    red = diffuse("red", (0.75, 0.25, 0.25))
+    blue = diffuse("blue", (0.25, 0.25, 0.75))
+    lamp = node_material("lamp", "ShaderNodeEmission", Color=(1.0, 1.0, 1.0), Strength=12.0)
+    mirror = node_material("mirror", "ShaderNodeBsdfGlossy", Color=(0.999, 0.999, 0.999), Roughness=0.0)
+    glass = node_material("glass", "ShaderNodeBsdfGlass", Color=(0.999, 0.999, 0.999), Roughness=0.0, IOR=1.5)
+    quads = [
+        ("floor", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], white),
+        ("ceiling", [(-1, -1, 2), (-1, 1, 2), (1, 1, 2), (1, -1, 2)], white),
+        ("back", [(-1, 1, 0), (1, 1, 0), (1, 1, 2), (-1, 1, 2)], white),
+        ("left", [(-1, -1, 0), (-1, 1, 0), (-1, 1, 2), (-1, -1, 2)], red),
+        ("right", [(1, -1, 0), (1, -1, 2), (1, 1, 2), (1, 1, 0)], blue),
+        ("lamp", [(-0.3, -0.3, 1.98), (-0.3, 0.3, 1.98), (0.3, 0.3, 1.98), (0.3, -0.3, 1.98)], lamp),
+    ]
+    for name, verts, mat in quads:
+        mesh_object(name, verts, [(0, 1, 2), (0, 2, 3)], mat)
+    icosphere_object("mirror_sphere", (-0.45, 0.35, 0.35), 0.35, mirror)
+    icosphere_object("glass_sphere", (0.45, -0.2, 0.35), 0.35, glass)
+    lens = 36.0 / (2.0 * math.tan(math.radians(39.0) / 2.0))
+    camera_object(scene, (0, -3.9, 1), (math.pi / 2, 0, 0), lens=lens, sensor_fit="HORIZONTAL", sensor_width=36.0)
+    scene.render.resolution_x, scene.render.resolution_y = resolution
+    scene.render.resolution_percentage = 100
+    set_world(scene, (0.0, 0.0, 0.0), 0.0)
+    return scene
+
+
+def plane_under_world(albedo: float = 0.5, world: float = 1.0, resolution=(16, 16), height: float = 1.0):
+    """A large diffuse plane at z = 0 under a uniform world, seen from straight above (radiance albedo x world)."""
+    scene = reset()
+    s = 1000.0
+    mesh_object("plane", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)],
+                diffuse("plane", (albedo,) * 3))
+    camera_object(scene, (0, 0, height), (0, 0, 0), lens=50.0)
+    set_world(scene, (world, world, world), 1.0)
+    scene.render.resolution_x, scene.render.resolution_y = resolution
+    scene.render.resolution_percentage = 100
+    m = scene.monte
+    m.samples, m.seed, m.threads, m.filter_type, m.filter_width = 16, 1, 2, "box", 1.0
+    return scene
+
+
+# --------------------------------------------------------------------------------------------- images
+def read_exr_layers(path) -> dict[str, np.ndarray]:
+    """Every channel of every part of an EXR (Blender's multilayer files are multi-part), name -> (H, W)."""
+    import OpenEXR
+
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        return {name: np.asarray(ch.pixels, dtype=np.float32) for part in f.parts
+                for name, ch in part.channels.items()}
+
+
+def save_render_exr(scene, path, multilayer: bool = True) -> dict[str, np.ndarray]:
+    """Save Blender's Render Result as a 32-bit EXR and read it back."""
+    bpy = bpy_module()
+    settings = scene.render.image_settings
+    if multilayer:
+        if hasattr(settings, "media_type"):
+            settings.media_type = "MULTI_LAYER_IMAGE"
+        settings.file_format = "OPEN_EXR_MULTILAYER"
+    else:
+        if hasattr(settings, "media_type"):
+            settings.media_type = "IMAGE"
+        settings.file_format = "OPEN_EXR"
+    settings.color_depth = "32"
+    bpy.data.images["Render Result"].save_render(str(path), scene=scene)
+    return read_exr_layers(path)
