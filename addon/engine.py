@@ -70,6 +70,11 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         """Polled between sample batches (and during export). Tests replace this to simulate Esc."""
         return bool(self.test_break())
 
+    def _progress(self, p) -> None:
+        """After every sample batch: status bar stats line (sample, rays/s, time left) and progress."""
+        self.update_stats("", f"Monte | {p.stats_line()}")
+        self.update_progress(min(max(p.fraction, 0.0), 1.0))
+
     def _log(self, message: str) -> None:
         print(f"Monte: {message}", flush=True)
 
@@ -116,11 +121,7 @@ class MonteRenderEngine(bpy.types.RenderEngine):
             lx, ly = tile.x0 - rx, tile.y0 - ry
             self._write(lx, rh - (ly + tile.height), tile.width, tile.height, tile, passes, layer_name)
 
-        def on_progress(p) -> None:
-            self.update_stats("", f"Monte | {p.stats_line()}")
-            self.update_progress(min(max(p.fraction, 0.0), 1.0))
-
-        result = core_render(core_scene, settings, region=region, on_tile=on_tile, on_progress=on_progress,
+        result = core_render(core_scene, settings, region=region, on_tile=on_tile, on_progress=self._progress,
                              should_cancel=self._cancel_requested, log=self._log)
         # The whole region once more, all passes from the final accumulation: consistent even after a cancel.
         self._write(0, 0, rw, rh, result, passes, layer_name)

@@ -168,6 +168,8 @@ def render_blend_file(
                              f"{', '.join(s.name for s in bpy.data.scenes)}")
     scene.render.engine = "MONTE"
     _apply_overrides(bpy, scene, clean)
+    if scene.camera is None:
+        raise HeadlessError(f"cannot render {blend}: scene {scene.name!r} has no camera")
     _configure_output(scene, bool(clean.get("multilayer", False)))
     say(f"Monte: rendering {blend.name} (scene {scene.name!r}, frame {scene.frame_current}) to {out}")
     try:

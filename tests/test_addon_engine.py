@@ -1,0 +1,283 @@
+"""The MONTE render engine inside Blender (bpy module): F12-style renders, passes, border, cancel, errors,
+the headless entry point, and the panels."""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import blender_fixtures as bf  # noqa: E402
+
+from monte.addon import engine as engine_mod  # noqa: E402
+from monte.addon.headless import HeadlessError, render_blend_file  # noqa: E402
+
+pytestmark = pytest.mark.blender
+Engine = engine_mod.MonteRenderEngine
+
+
+def render_still(scene, tmp_path, name="out"):
+    """bpy.ops.render.render(write_still=True) into a multilayer EXR; returns its channels."""
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+    scene.render.filepath = str(tmp_path / name)
+    scene.render.use_file_extension = True
+    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+    path = tmp_path / f"{name}.exr"  # a still has no frame number
+    assert path.is_file()
+    return bf.read_exr_layers(path)
+
+
+def rgb(ch, layer="ViewLayer", name="Combined"):
+    return np.stack([ch[f"{layer}.{name}.{c}"] for c in "RGB"], axis=-1)
+
+
+# ---------------------------------------------------------------------------------------------- rendering
+def test_plane_under_world_radiance_and_passes(tmp_path):
+    scene = bf.plane_under_world(albedo=0.5, world=1.0, resolution=(16, 12))
+    vl = scene.view_layers[0]
+    vl.use_pass_z = vl.use_pass_normal = True
+    vl.monte.use_pass_albedo = vl.monte.use_pass_variance = True
+    ch = render_still(scene, tmp_path)
+    combined = rgb(ch)
+    assert combined.shape == (12, 16, 3)
+    assert np.all(np.isfinite(combined)) and np.allclose(ch["ViewLayer.Combined.A"], 1.0)
+    var = rgb(ch, name="Variance")
+    assert np.all(var >= 0) and var.max() > 0
+    # radiance = albedo x world, within the noise the Variance pass reports
+    sigma = math.sqrt(var[..., 0].sum()) / var[..., 0].size
+    assert abs(combined[..., 0].mean() - 0.5) < 5 * sigma + 0.01
+    assert np.allclose(ch["ViewLayer.Depth.Z"], 1.0, atol=1e-4)  # camera 1 m above, looking straight down
+    normal = np.stack([ch[f"ViewLayer.Normal.{c}"] for c in "XYZ"], axis=-1)
+    assert np.allclose(normal, (0, 0, 1), atol=1e-4)
+    assert np.allclose(rgb(ch, name="Albedo"), 0.5, atol=1e-4)
+
+
+def test_only_requested_passes_are_declared(tmp_path):
+    scene = bf.plane_under_world(resolution=(8, 8))
+    scene.monte.samples = 2
+    ch = render_still(scene, tmp_path)
+    assert {k.split(".")[1] for k in ch} == {"Combined"}
+
+
+def test_resolution_percentage_and_border(tmp_path):
+    scene = bf.plane_under_world(resolution=(40, 30))
+    scene.monte.samples = 4
+    scene.render.resolution_percentage = 50  # 20 x 15
+    r = scene.render
+    r.use_border = True
+    r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = 0.25, 0.75, 0.1, 0.5
+    r.use_crop_to_border = False
+    full = rgb(render_still(scene, tmp_path, "uncropped"))
+    assert full.shape == (15, 20, 3)
+    # Blender's border in pixels: x 5..15, y 1..7 from the bottom -> rows 8..13 from the top
+    inside = np.zeros(full.shape[:2], bool)
+    inside[8:14, 5:15] = True
+    assert np.all(full[~inside] == 0)
+    assert np.all(full[inside] > 0.2)
+    r.use_crop_to_border = True
+    crop = rgb(render_still(scene, tmp_path, "cropped"))
+    assert crop.shape == (6, 10, 3)
+    assert np.allclose(crop, full[8:14, 5:15], atol=1e-6)  # same pixels, same samples: same values
+
+
+def test_exported_cornell_box_renders_like_core(fast_settings):
+    from monte.addon.export import export_scene
+    from monte.core.render import render
+    from monte.core.scenes import cornell_box
+
+    bf.cornell_box((24, 24))
+    exported, _ = export_scene(bpy.context.evaluated_depsgraph_get())
+    settings = fast_settings(spp=16)
+    a = render(exported, settings)
+    b = render(cornell_box((24, 24)), settings)
+    n = a.color[..., :3].size
+    sigma = math.sqrt(a.variance.sum() + b.variance.sum()) / n
+    assert abs(a.color[..., :3].mean() - b.color[..., :3].mean()) < 5 * sigma
+
+
+# ---------------------------------------------------------------------------------------------- cancel, errors
+@pytest.fixture
+def patch_engine():
+    saved = {}
+
+    def patch(name, value):
+        saved.setdefault(name, Engine.__dict__.get(name))
+        setattr(Engine, name, value)
+
+    yield patch
+    for name, value in saved.items():
+        if value is None:
+            delattr(Engine, name)
+        else:
+            setattr(Engine, name, value)
+
+
+def test_cancel_stops_within_a_batch_and_keeps_a_valid_partial_image(tmp_path, patch_engine):
+    scene = bf.plane_under_world(resolution=(32, 32))
+    scene.monte.samples = 64
+    scene.monte.batch_paths = 4096  # 16 batches for this image
+    scene.monte.tile_size = 32
+    events = []
+
+    def cancel(self):
+        polls = sum(1 for e in events if e == "poll")
+        events.append("poll")
+        return polls >= 6  # Esc after a few batches
+
+    original_progress = Engine._progress
+
+    def progress(self, p):
+        events.append(("progress", p.fraction))
+        original_progress(self, p)
+
+    patch_engine("_cancel_requested", cancel)
+    patch_engine("_progress", progress)
+    ch = render_still(scene, tmp_path)
+    first_true = [i for i, e in enumerate(events) if e == "poll"][6]
+    assert not any(isinstance(e, tuple) for e in events[first_true + 1:]), "a batch ran after the cancel"
+    fractions = [e[1] for e in events if isinstance(e, tuple)]
+    assert 0 < max(fractions) < 0.6
+    img = rgb(ch)
+    assert np.all(np.isfinite(img)) and np.all(img >= 0)
+    # Every pixel has samples (progressive passes over the tiles): the partial image is a noisier version of
+    # the full render, not a half-black one.
+    patch_engine("_cancel_requested", lambda self: False)
+    full = rgb(render_still(scene, tmp_path, "full"))
+    assert img[..., 0].min() > 0
+    assert abs(img[..., 0].mean() - full[..., 0].mean()) < 0.05 * full[..., 0].mean()
+
+
+def test_errors_are_reported_and_nothing_is_saved(tmp_path, patch_engine, monkeypatch):
+    scene = bf.plane_under_world(resolution=(8, 8))
+    bpy.data.objects.remove(bpy.data.objects["plane"])
+    scene.render.filepath = str(tmp_path / "err_")
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    with pytest.raises(RuntimeError, match="no visible objects"):
+        bpy.ops.render.render(write_still=True)
+    assert not list(tmp_path.iterdir())
+
+    bf.plane_under_world(resolution=(8, 8))
+    import monte.core.render as core_render
+
+    def boom(*args, **kwargs):
+        raise ZeroDivisionError("simulated failure deep in the core")
+
+    monkeypatch.setattr(core_render, "render", boom)
+    bpy.context.scene.render.filepath = str(tmp_path / "err_")
+    with pytest.raises(RuntimeError, match="ZeroDivisionError: simulated failure"):
+        bpy.ops.render.render(write_still=True)
+    assert not list(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------------------------------------- headless
+def test_headless_render_blend_file(tmp_path):
+    scene = bf.plane_under_world(albedo=0.5, world=2.0, resolution=(12, 10))
+    scene.monte.samples = 16
+    blend = tmp_path / "plane.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp_path / "plane.exr"
+    render_blend_file(blend, out, {"spp": 8, "seed": 7, "filter": "tent", "max_bounces": 2, "threads": None},
+                      log=lambda _m: None)
+    from monte.core.exr import read_rgb
+
+    img = read_rgb(out)
+    assert img.shape == (10, 12, 3)
+    assert abs(img.mean() - 1.0) < 0.1
+    # The overrides were for that run only: the file on disk is untouched.
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    assert bpy.context.scene.monte.samples == 16 and bpy.context.scene.monte.filter_type == "box"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plane.blend", "plane.exr"]
+
+
+def test_headless_errors_name_the_file_and_never_clobber_output(tmp_path):
+    out = tmp_path / "keep.exr"
+    out.write_bytes(b"previous image")
+    with pytest.raises(FileNotFoundError, match="missing.blend"):
+        render_blend_file(tmp_path / "missing.blend", out, {})
+    junk = tmp_path / "junk.blend"
+    junk.write_bytes(b"this is not a blend file")
+    with pytest.raises(HeadlessError, match="junk.blend"):
+        render_blend_file(junk, out, {})
+    corrupt = tmp_path / "corrupt.blend"
+    corrupt.write_bytes(b"BLENDER-v500" + os.urandom(64))
+    with pytest.raises(HeadlessError, match="corrupt.blend"):
+        render_blend_file(corrupt, out, {})
+    scene = bf.plane_under_world(resolution=(8, 8))
+    bpy.data.objects.remove(bpy.data.objects["plane"])
+    empty = tmp_path / "empty.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(empty))
+    with pytest.raises(HeadlessError, match="empty.blend.*no visible objects"):
+        render_blend_file(empty, out, {}, log=lambda _m: None)
+    with pytest.raises(ValueError, match="unknown render override"):
+        render_blend_file(empty, out, {"sppp": 3})
+    assert out.read_bytes() == b"previous image"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["corrupt.blend", "empty.blend", "junk.blend", "keep.exr"]
+    del scene
+
+
+# ---------------------------------------------------------------------------------------------- UI
+class _Recorder:
+    """Stands in for a UILayout: checks that every prop() names a real RNA property."""
+
+    def __init__(self, log):
+        self._log = log
+
+    def __getattr__(self, name):
+        if name in ("column", "row", "split", "box"):
+            return lambda *a, **k: _Recorder(self._log)
+        if name == "prop":
+            return self._prop
+        return lambda *a, **k: None
+
+    def __setattr__(self, name, value):
+        object.__setattr__(self, name, value)
+
+    def _prop(self, data, name, **_kw):
+        assert name in data.bl_rna.properties.keys(), f"{type(data).__name__} has no property {name!r}"
+        self._log.append(name)
+
+
+def test_panels_draw_real_properties_and_blender_panels_are_opted_in():
+    from monte.addon import ui
+
+    scene = bf.reset()
+    mat = bf.diffuse("m", (0.5, 0.5, 0.5))
+    light = bpy.data.lights.new("L", "AREA")
+    world = bf.set_world(scene, (0.1, 0.1, 0.1))
+    ctx = types.SimpleNamespace(scene=scene, view_layer=scene.view_layers[0], material=mat, world=world,
+                                light=light, engine="MONTE")
+    drawn = []
+    for cls in ui.classes:
+        assert cls.poll(ctx)
+        panel = types.SimpleNamespace(layout=_Recorder(drawn), bl_space_type="PROPERTIES")
+        cls.draw(panel, ctx)
+    assert {"samples", "seed", "sampler", "clamp", "time_limit", "max_bounces", "rr_depth", "filter_type",
+            "filter_width", "threads", "batch_paths", "use_pass_z", "use_pass_albedo", "energy"} <= set(drawn)
+    for name in ("RENDER_PT_format", "RENDER_PT_output", "DATA_PT_lens", "DATA_PT_camera",
+                 "EEVEE_MATERIAL_PT_context_material", "DATA_PT_spot", "RENDER_PT_color_management"):
+        assert "MONTE" in getattr(bpy.types, name).COMPAT_ENGINES, name
+    assert "MONTE" not in bpy.types.DATA_PT_camera_dof.COMPAT_ENGINES
+    engines = {getattr(c, "bl_idname", None) for c in bpy.types.RenderEngine.__subclasses__()}
+    assert "MONTE" in engines
+
+
+def test_each_view_layer_renders_with_its_own_passes(tmp_path):
+    scene = bf.plane_under_world(resolution=(8, 8))
+    scene.monte.samples = 4
+    second = scene.view_layers.new("Second")
+    second.use_pass_z = True
+    ch = render_still(scene, tmp_path)
+    layers = {k.rsplit(".", 2)[0] + "." + k.rsplit(".", 2)[1] for k in ch}
+    assert layers == {"ViewLayer.Combined", "Second.Combined", "Second.Depth"}
+    assert np.allclose(rgb(ch), rgb(ch, layer="Second"))  # same scene, same seed: same pixels

@@ -1,0 +1,128 @@
+"""The built extension zip installs and works the way a user gets it: Blender's extension machinery, a fresh
+user repository, F12 with write_still. Runs Blender (the bpy module) in a subprocess, since
+BLENDER_USER_RESOURCES must be set before bpy is first imported and this process may have imported it."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("bpy")
+pytestmark = pytest.mark.blender
+ROOT = Path(__file__).resolve().parent.parent
+
+_THIS_PLATFORM = {("Linux", "x86_64"): "linux-x64", ("Windows", "AMD64"): "windows-x64",
+                  ("Darwin", "x86_64"): "macos-x64", ("Darwin", "arm64"): "macos-arm64"}.get(
+    (platform.system(), platform.machine()))
+
+SCRIPT = textwrap.dedent(r"""
+    import json, os, sys
+    import bpy  # BLENDER_USER_RESOURCES is already set in the environment
+    zip_path, out_dir = sys.argv[1], sys.argv[2]
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    res = bpy.ops.extensions.package_install_files(repo="user_default", filepath=zip_path, enable_on_install=True)
+    engines = sorted(str(getattr(c, "bl_idname", None)) for c in bpy.types.RenderEngine.__subclasses__())
+    module = sys.modules.get("bl_ext.user_default.monte")
+
+    scene = bpy.context.scene
+    scene.render.engine = "MONTE"
+    mat = bpy.data.materials.new("grey")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    dif = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    dif.inputs["Color"].default_value = (0.5, 0.5, 0.5, 1.0)
+    tree.links.new(dif.outputs[0], out.inputs["Surface"])
+    s = 1000.0
+    me = bpy.data.meshes.new("plane")
+    me.from_pydata([(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [], [(0, 1, 2, 3)])
+    me.materials.append(mat)
+    scene.collection.objects.link(bpy.data.objects.new("plane", me))
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    cam.location = (0, 0, 1)
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    world = bpy.data.worlds.new("sky")
+    scene.world = world
+    wt = world.node_tree
+    if wt is None:
+        world.use_nodes = True
+        wt = world.node_tree
+    wt.nodes["Background"].inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    wt.nodes["Background"].inputs["Strength"].default_value = 1.0
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 16, 16, 100
+    scene.monte.samples, scene.monte.threads = 16, 2
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.image_settings.color_depth = "32"
+    scene.render.filepath = os.path.join(out_dir, "plane")
+    rendered = bpy.ops.render.render(write_still=True)
+
+    import numpy as np, OpenEXR
+    with OpenEXR.File(os.path.join(out_dir, "plane.exr")) as f:
+        px = np.asarray(f.channels()["RGBA"].pixels, dtype=np.float64)
+    bpy.ops.preferences.addon_disable(module="bl_ext.user_default.monte")
+    after = sorted(str(getattr(c, "bl_idname", None)) for c in bpy.types.RenderEngine.__subclasses__())
+    print("RESULT " + json.dumps({
+        "install": sorted(res), "engines": engines, "module_file": getattr(module, "__file__", None),
+        "render": sorted(rendered), "shape": list(px.shape), "mean_rgb": px[..., :3].mean(),
+        "alpha": px[..., 3].mean(), "engines_after_disable": after,
+    }))
+""")
+
+
+@pytest.fixture(scope="module")
+def built_zip(tmp_path_factory):
+    if _THIS_PLATFORM is None:
+        pytest.skip(f"no Monte extension build for {platform.system()} {platform.machine()}")
+    out = tmp_path_factory.mktemp("dist")
+    proc = subprocess.run([sys.executable, str(ROOT / "tools" / "build_extension.py"), "--platform", _THIS_PLATFORM,
+                           "--output-dir", str(out)], capture_output=True, text=True, timeout=900)
+    if proc.returncode != 0:
+        if "pip download failed" in proc.stderr:
+            pytest.skip(f"the bundled wheels could not be downloaded (offline?):\n{proc.stderr[-800:]}")
+        pytest.fail(f"build_extension.py failed:\n{proc.stdout}\n{proc.stderr}")
+    zips = sorted(out.glob(f"monte-*-{_THIS_PLATFORM.replace('-', '_')}.zip"))
+    assert len(zips) == 1, proc.stdout
+    return zips[0]
+
+
+def test_zip_holds_only_the_add_on(built_zip):
+    import zipfile
+
+    names = zipfile.ZipFile(built_zip).namelist()
+    tops = {n.split("/", 1)[0] for n in names}
+    assert tops == {"__init__.py", "blender_manifest.toml", "core", "addon", "wheels"}
+    wheels = sorted(n for n in names if n.endswith(".whl"))
+    assert [Path(w).name.split("-")[0] for w in wheels] == ["embreex", "openexr"]
+    assert not any(n.startswith(("tests/", "tools/", ".venv", "dist/")) or "__pycache__" in n for n in names)
+
+
+def test_zip_installs_enables_and_renders(built_zip, tmp_path):
+    user = tmp_path / "user"
+    out = tmp_path / "out"
+    user.mkdir()
+    out.mkdir()
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(user))
+    env.pop("PYTHONPATH", None)
+    proc = subprocess.run([sys.executable, "-c", SCRIPT, str(built_zip), str(out)], capture_output=True, text=True,
+                          timeout=600, env=env, cwd=str(tmp_path))
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, f"exit {proc.returncode}\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
+    result = json.loads(lines[-1][len("RESULT "):])
+    assert result["install"] == ["FINISHED"]
+    assert "MONTE" in result["engines"]
+    # The engine came from the installed zip, not from this checkout.
+    assert result["module_file"] and str(user) in result["module_file"]
+    assert result["render"] == ["FINISHED"]
+    assert result["shape"] == [16, 16, 4]
+    assert result["alpha"] == pytest.approx(1.0)
+    # A diffuse plane of albedo 0.5 under a uniform white world: radiance 0.5 (16 spp of noise allowed).
+    assert result["mean_rgb"] == pytest.approx(0.5, abs=0.03)
+    assert "MONTE" not in result["engines_after_disable"]
