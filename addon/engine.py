@@ -51,6 +51,10 @@ class _Cancelled(Exception):
     pass
 
 
+# Extra progress callbacks (core.render.Progress -> None), e.g. the headless command's progress bar.
+progress_listeners: list = []
+
+
 class MonteRenderEngine(bpy.types.RenderEngine):
     bl_idname = "MONTE"
     bl_label = "Monte"
@@ -74,6 +78,8 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         """After every sample batch: status bar stats line (sample, rays/s, time left) and progress."""
         self.update_stats("", f"Monte | {p.stats_line()}")
         self.update_progress(min(max(p.fraction, 0.0), 1.0))
+        for listener in list(progress_listeners):
+            listener(p)
 
     def _log(self, message: str) -> None:
         print(f"Monte: {message}", flush=True)

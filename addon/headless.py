@@ -12,6 +12,8 @@ import os
 from pathlib import Path
 from typing import Any, Callable
 
+import bpy  # at import time, so that callers without the bpy module get an ImportError up front
+
 from ..core.settings import RenderSettings
 
 # override key -> scene.monte property
@@ -131,12 +133,14 @@ def render_blend_file(
     overrides: dict[str, Any] | None = None,
     *,
     log: Callable[[str], None] | None = None,
+    on_progress: Callable[[Any], None] | None = None,
 ) -> None:
     """Render `blend_path` with Monte and write the image to `output_path` (OpenEXR, 32-bit float, linear).
 
     overrides: Monte settings for this run (spp, seed, sampler, filter/filter_type, filter_width, max_bounces,
     rr_depth, clamp, threads, batch_paths, tile_size, time_limit, light_sampling) and resolution,
     resolution_percentage, frame, camera, scene, multilayer; None values are ignored.
+    on_progress: called with core.render.Progress after every sample batch (e.g. a progress bar).
     Raises FileNotFoundError / HeadlessError naming the file, ValueError for bad overrides.
     """
     say = log or (lambda msg: print(msg, flush=True))
@@ -148,8 +152,6 @@ def render_blend_file(
         raise HeadlessError(f"cannot write {out}: folder {out.parent} does not exist")
     if out.suffix.lower() != ".exr":
         raise HeadlessError(f"cannot write {out}: Monte writes OpenEXR; use a .exr file name")
-
-    import bpy
 
     from . import register
 
@@ -172,6 +174,10 @@ def render_blend_file(
         raise HeadlessError(f"cannot render {blend}: scene {scene.name!r} has no camera")
     _configure_output(scene, bool(clean.get("multilayer", False)))
     say(f"Monte: rendering {blend.name} (scene {scene.name!r}, frame {scene.frame_current}) to {out}")
+    from . import engine
+
+    if on_progress is not None:
+        engine.progress_listeners.append(on_progress)
     try:
         bpy.ops.render.render(write_still=False, scene=scene.name)
     except RuntimeError as exc:
@@ -179,6 +185,9 @@ def render_blend_file(
         if message.startswith("Error: "):
             message = message[len("Error: "):]
         raise HeadlessError(f"rendering {blend} failed: {message}") from exc
+    finally:
+        if on_progress is not None:
+            engine.progress_listeners.remove(on_progress)
     image = bpy.data.images.get("Render Result")
     if image is None:
         raise HeadlessError(f"rendering {blend} produced no image")

@@ -187,8 +187,10 @@ def test_headless_render_blend_file(tmp_path):
     blend = tmp_path / "plane.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     out = tmp_path / "plane.exr"
+    progress = []
     render_blend_file(blend, out, {"spp": 8, "seed": 7, "filter": "tent", "max_bounces": 2, "threads": None},
-                      log=lambda _m: None)
+                      log=lambda _m: None, on_progress=progress.append)
+    assert progress and progress[-1].fraction == pytest.approx(1.0) and progress[-1].spp == 8
     from monte.core.exr import read_rgb
 
     img = read_rgb(out)
