@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 
 from ..core.scene import SceneError
-from .export import export_scene, render_region, render_resolution
+from .export import ExportCancelled, export_scene, render_region, render_resolution
 from .properties import render_settings
 
 # Pass name -> (channels, chanid, type). Combined is always there; the others when the view layer asks.
@@ -45,10 +45,6 @@ def requested_passes(view_layer) -> list[str]:
     if monte is not None and monte.use_pass_variance:
         names.append("Variance")
     return names
-
-
-class _Cancelled(Exception):
-    pass
 
 
 # Extra progress callbacks (core.render.Progress -> None), e.g. the headless command's progress bar.
@@ -88,7 +84,7 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         self._wrote_result = False
         try:
             self._render(depsgraph)
-        except _Cancelled:
+        except ExportCancelled:
             self._log("cancelled during export")
             self._write_black(depsgraph)
         except Exception as exc:  # noqa: BLE001 - anything escaping would crash Blender at save time
@@ -105,13 +101,8 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         passes = requested_passes(view_layer)
         self.update_stats("", "Monte | Exporting scene")
 
-        def cancel_export() -> bool:
-            if self._cancel_requested():
-                raise _Cancelled()
-            return False
-
         core_scene, stats = export_scene(depsgraph, self.camera_override, log=self._log,
-                                         should_cancel=cancel_export)
+                                         should_cancel=self._cancel_requested)
         for w in core_scene.warnings:
             self.report({"WARNING"}, f"Monte: {w}")
         self.report({"INFO"}, f"Monte: {stats.line()}")

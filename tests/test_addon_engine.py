@@ -158,6 +158,15 @@ def test_cancel_stops_within_a_batch_and_keeps_a_valid_partial_image(tmp_path, p
     assert abs(img[..., 0].mean() - full[..., 0].mean()) < 0.05 * full[..., 0].mean()
 
 
+def test_cancel_during_export_leaves_a_black_image_and_no_crash(tmp_path, patch_engine):
+    scene = bf.plane_under_world(resolution=(8, 8))
+    for i in range(1100):  # enough instances that the export polls for cancel
+        bf.mesh_object(f"tri{i}", [(0, 0, i), (1, 0, i), (0, 1, i)], [(0, 1, 2)])
+    patch_engine("_cancel_requested", lambda self: True)
+    img = rgb(render_still(scene, tmp_path))
+    assert img.shape == (8, 8, 3) and np.all(img == 0)
+
+
 def test_errors_are_reported_and_nothing_is_saved(tmp_path, patch_engine, monkeypatch):
     scene = bf.plane_under_world(resolution=(8, 8))
     bpy.data.objects.remove(bpy.data.objects["plane"])

@@ -53,6 +53,43 @@ def _matrix(m) -> np.ndarray:
     return np.array(m, dtype=np.float64).reshape(4, 4)
 
 
+class ExportCancelled(Exception):
+    """should_cancel returned True during the export."""
+
+
+def _prototype_for(obj, kind, prototypes, materials, warnings, stats):
+    """The prototype key for an (object, data) pair seen for the first time, converting its mesh if new;
+    None when it has nothing to render."""
+    original = obj.original
+    if _special_visibility(obj):
+        msg = (f"object {original.name!r}: ray visibility and holdout settings are not supported; "
+               "rendered fully visible")
+        if msg not in warnings:
+            warnings.append(msg)
+    slots = tuple(slot.material for slot in obj.material_slots)
+    slot_key = tuple(0 if m is None else m.as_pointer() for m in slots)
+    if kind == "MESH" and obj.data is not None:
+        key = ("mesh", obj.data.as_pointer(), slot_key)
+    else:
+        key = ("object", original.as_pointer(), slot_key)
+    proto = prototypes.get(key)
+    if proto is not None:
+        return key if proto.local is not None else None
+    local = _read_geometry(obj, warnings)
+    if local is None or local.triangle_count == 0:
+        prototypes[key] = _Prototype(None, np.zeros(0, np.int32), original.name)
+        return None
+    # Only the slots some triangle uses become materials (geometry nodes often leave empty slots).
+    n_slots = max(len(slots), 1)
+    used = np.unique(np.clip(local.slots, 0, n_slots - 1))
+    lut = np.zeros(n_slots, dtype=np.int32)
+    for slot in used:
+        lut[slot] = materials.index(slots[slot] if slot < len(slots) else None)
+    prototypes[key] = _Prototype(local, lut, original.name)
+    stats.meshes_converted += 1
+    return key
+
+
 def _special_visibility(obj) -> bool:
     flags = ("visible_camera", "visible_shadow", "visible_diffuse", "visible_glossy", "visible_transmission")
     return not all(getattr(obj, f, True) for f in flags) or bool(getattr(obj, "is_holdout", False))
@@ -94,20 +131,21 @@ def export_scene(
 
     materials = MaterialExporter(warnings)
     prototypes: dict[tuple, _Prototype] = {}
+    # (object pointer, data pointer) -> prototype key or None (skip). Blender reuses one temporary object
+    # for many geometry-node instances, so this keeps the per-instance work to a few attribute reads.
+    resolved: dict[tuple[int, int], tuple | None] = {}
     lights = []
     unsupported: dict[str, int] = {}
-    visibility_warned: set[str] = set()
     for i, inst in enumerate(depsgraph.object_instances):
         if should_cancel is not None and i % 1024 == 1023 and should_cancel():
-            raise KeyboardInterrupt("export cancelled")
+            raise ExportCancelled()
         obj = inst.object
         kind = obj.type
         if kind == "LIGHT":
-            if not inst.show_self:
-                continue
-            light = export_light(obj.name, obj.data, _matrix(inst.matrix_world), warnings)
-            if light is not None:
-                lights.append(light)
+            if inst.show_self:
+                light = export_light(obj.name, obj.data, _matrix(inst.matrix_world), warnings)
+                if light is not None:
+                    lights.append(light)
             continue
         if kind not in GEOMETRY_TYPES:
             if kind in ("CURVES", "POINTCLOUD", "VOLUME", "GREASEPENCIL"):
@@ -115,29 +153,14 @@ def export_scene(
             continue
         if not inst.show_self:
             continue
-        original = obj.original
-        if original.name not in visibility_warned and _special_visibility(obj):
-            visibility_warned.add(original.name)
-            warnings.append(f"object {original.name!r}: ray visibility and holdout settings are not supported; "
-                            "rendered fully visible")
-        slots = tuple(slot.material for slot in obj.material_slots)
-        slot_key = tuple(0 if m is None else m.as_pointer() for m in slots)
-        if kind == "MESH" and obj.data is not None:
-            key = ("mesh", obj.data.as_pointer(), slot_key)
+        data = obj.data
+        rkey = (obj.as_pointer(), 0 if data is None else data.as_pointer())
+        if rkey in resolved:
+            key = resolved[rkey]
         else:
-            key = ("object", original.as_pointer(), slot_key)
-        proto = prototypes.get(key)
-        if proto is None:
-            local = _read_geometry(obj, warnings)
-            if local is None or local.triangle_count == 0:
-                prototypes[key] = proto = _Prototype(None, np.zeros(0, np.int32), obj.name)
-            else:
-                lut = [materials.index(m) for m in slots] or [materials.index(None)]
-                proto = _Prototype(local, np.asarray(lut, dtype=np.int32), original.name)
-                prototypes[key] = proto
-                stats.meshes_converted += 1
-        if proto.local is not None:
-            proto.matrices.append(_matrix(inst.matrix_world))
+            key = resolved[rkey] = _prototype_for(obj, kind, prototypes, materials, warnings, stats)
+        if key is not None:
+            prototypes[key].matrices.append(inst.matrix_world.copy())
 
     for kind, count in unsupported.items():
         warnings.append(f"{count} {kind.lower()} object(s) are not supported by Monte and are skipped")
@@ -152,7 +175,8 @@ def export_scene(
         if proto.local.uvs is None and any(int(m) in materials.textured for m in proto.slot_materials):
             warnings.append(f"mesh {proto.name!r} has an image-textured material but no UV map; the texture is "
                             "sampled at UV (0, 0)")
-        meshes.append(instances_to_mesh(proto.local, np.stack(proto.matrices), proto.slot_materials, name))
+        matrices = np.array(proto.matrices, dtype=np.float64).reshape(k, 4, 4)
+        meshes.append(instances_to_mesh(proto.local, matrices, proto.slot_materials, name))
 
     if not materials.materials:
         materials.index(None)  # core needs at least one material
