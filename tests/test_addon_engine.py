@@ -292,3 +292,29 @@ def test_each_view_layer_renders_with_its_own_passes(tmp_path):
     layers = {k.rsplit(".", 2)[0] + "." + k.rsplit(".", 2)[1] for k in ch}
     assert layers == {"ViewLayer.Combined", "Second.Combined", "Second.Depth"}
     assert np.allclose(rgb(ch), rgb(ch, layer="Second"))  # same scene, same seed: same pixels
+
+
+def test_image_texture_orientation_end_to_end(tmp_path):
+    """An image whose top half is red and bottom half green, UV-mapped onto a plane seen from above with the
+    image's up along +y, renders red at the top of the frame: rows and UVs are flipped exactly once."""
+    scene = bf.reset()
+    img = bpy.data.images.new("TopRed", 8, 8, float_buffer=True)
+    px = np.zeros((8, 8, 4), np.float32)
+    px[:4] = (0.0, 1.0, 0.0, 1.0)  # Blender's rows 0-3 are the bottom half
+    px[4:] = (1.0, 0.0, 0.0, 1.0)
+    img.pixels.foreach_set(px.ravel())
+    mat = bf.node_material("tex", "ShaderNodeBsdfDiffuse")
+    tex = mat.node_tree.nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    tex.interpolation = "Closest"
+    mat.node_tree.links.new(tex.outputs["Color"], mat.node_tree.nodes["Diffuse BSDF"].inputs["Color"])
+    ob = bf.mesh_object("plane", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], [(0, 1, 2, 3)], mat)
+    uv = ob.data.uv_layers.new(name="UVMap")
+    uv.uv.foreach_set("vector", np.array([0, 0, 1, 0, 1, 1, 0, 1], np.float32))
+    bf.camera_object(scene, (0, 0, 2), (0, 0, 0), kind="ORTHO", ortho_scale=2.0)
+    bf.set_world(scene, (1.0, 1.0, 1.0))
+    scene.render.resolution_x = scene.render.resolution_y = 8
+    scene.monte.samples, scene.monte.filter_type, scene.monte.filter_width = 8, "box", 1.0
+    out = rgb(render_still(scene, tmp_path))
+    top, bottom = out[:3].mean(axis=(0, 1)), out[-3:].mean(axis=(0, 1))
+    assert top[0] > 5 * top[1] and bottom[1] > 5 * bottom[0], (top, bottom)

@@ -394,6 +394,9 @@ class MaterialExporter:
         if node.projection != "FLAT":
             self.warnings.append(f"{owner}: {node.name!r}: {node.projection.lower()} projection is not supported; "
                                  "using UV mapping")
+        if image.source not in ("FILE", "GENERATED"):
+            self.warnings.append(f"{owner}: image {image.name!r} is a {image.source.lower()} image; Monte reads its "
+                                 "first frame/tile only")
         key = image.original.as_pointer() if getattr(image, "original", None) else image.as_pointer()
         if key in self._tex_by_key:
             return self._tex_by_key[key]
