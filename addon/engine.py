@@ -101,7 +101,7 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         passes = requested_passes(view_layer)
         self.update_stats("", "Monte | Exporting scene")
 
-        core_scene, stats = export_scene(depsgraph, self.camera_override, log=self._log,
+        core_scene, stats = export_scene(depsgraph, self.camera_override,
                                          should_cancel=self._cancel_requested)
         for w in core_scene.warnings:
             self.report({"WARNING"}, f"Monte: {w}")

@@ -19,8 +19,10 @@ import glob
 import importlib.util
 import os
 import re
+import shutil
 import subprocess
 import sys
+import tempfile
 import tomllib
 import zipfile
 from pathlib import Path
@@ -132,6 +134,27 @@ def run_blender_ext(tool: Path, *args: str) -> str:
     return out
 
 
+def stage_subset(manifest: dict, platforms: list[str], stage: Path) -> Path:
+    """A copy of the source tree whose manifest lists only `platforms` and their wheels (Blender's builder
+    wants every listed wheel on disk, and one platform's build should not need the others' wheels)."""
+    src = stage / "src"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(
+        ".git", ".venv", "dist", "build", "wheels", "__pycache__", ".pytest_cache", "*.egg-info", "out"))
+    wheels = [w for w in manifest.get("wheels", []) if wheel_platform(w) in platforms]
+    (src / "wheels").mkdir()
+    for w in wheels:
+        shutil.copy2(ROOT / w, src / w)
+    text = (ROOT / "blender_manifest.toml").read_text()
+    text, n1 = re.subn(r"(?ms)^platforms\s*=\s*\[.*?\]", "platforms = [" + ", ".join(f'"{p}"' for p in platforms)
+                       + "]", text, count=1)
+    text, n2 = re.subn(r"(?ms)^wheels\s*=\s*\[.*?\]", "wheels = [" + ", ".join(f'"{w}"' for w in wheels) + "]",
+                       text, count=1)
+    if n1 != 1 or n2 != 1:
+        raise BuildError("could not rewrite platforms/wheels in a copy of blender_manifest.toml")
+    (src / "blender_manifest.toml").write_text(text)
+    return src
+
+
 def check_zip(path: Path, manifest: dict) -> None:
     with zipfile.ZipFile(path) as zf:
         names = zf.namelist()
@@ -168,23 +191,20 @@ def main(argv: list[str] | None = None) -> int:
             download_wheels(manifest, platforms, args.refresh)
         tool = find_blender_ext()
         log(f"using {tool}")
-        log(run_blender_ext(tool, "validate", str(ROOT)).splitlines()[-1])
         out_dir = Path(args.output_dir).resolve()
         out_dir.mkdir(parents=True, exist_ok=True)  # the builder needs it to exist
         version = manifest["version"]
         before = {p: p.stat().st_mtime for p in out_dir.glob(f"{manifest['id']}-{version}*.zip")}
-        build_args = ["build", "--source-dir", str(ROOT), "--output-dir", str(out_dir)]
-        if not args.single:
-            build_args.append("--split-platforms")
-        log(run_blender_ext(tool, *build_args).splitlines()[-1])
+        subset = not args.single and sorted(platforms) != sorted(manifest.get("platforms", []))
+        with tempfile.TemporaryDirectory(prefix="monte-ext-") as tmp:
+            source = stage_subset(manifest, platforms, Path(tmp)) if subset else ROOT
+            log(run_blender_ext(tool, "validate", str(source)).splitlines()[-1])
+            build_args = ["build", "--source-dir", str(source), "--output-dir", str(out_dir)]
+            if not args.single:
+                build_args.append("--split-platforms")
+            log(run_blender_ext(tool, *build_args).splitlines()[-1])
         built = sorted(p for p in out_dir.glob(f"{manifest['id']}-{version}*.zip")
                        if before.get(p) != p.stat().st_mtime)
-        if args.platform and not args.single:
-            keep = {p.replace("-", "_") for p in args.platform}
-            for p in built:
-                if not any(p.stem.endswith(k) for k in keep):
-                    p.unlink()
-            built = [p for p in built if p.exists()]
         if not built:
             raise BuildError(f"the builder wrote no zip into {out_dir}")
         for p in built:
