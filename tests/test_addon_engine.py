@@ -232,8 +232,15 @@ def test_headless_errors_name_the_file_and_never_clobber_output(tmp_path):
         render_blend_file(empty, out, {}, log=lambda _m: None)
     with pytest.raises(ValueError, match="unknown render override"):
         render_blend_file(empty, out, {"sppp": 3})
+    bf.plane_under_world(resolution=(8, 8))
+    bpy.data.objects.remove(bpy.data.objects["Camera"])
+    nocam = tmp_path / "nocam.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(nocam))
+    with pytest.raises(HeadlessError, match="nocam.blend.*has no camera"):
+        render_blend_file(nocam, out, {}, log=lambda _m: None)
     assert out.read_bytes() == b"previous image"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["corrupt.blend", "empty.blend", "junk.blend", "keep.exr"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["corrupt.blend", "empty.blend", "junk.blend", "keep.exr",
+                                                          "nocam.blend"]
     del scene
 
 
