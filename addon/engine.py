@@ -49,6 +49,9 @@ def requested_passes(view_layer) -> list[str]:
 
 # Extra progress callbacks (core.render.Progress -> None), e.g. the headless command's progress bar.
 progress_listeners: list = []
+# Callbacks for each finished view layer: (view_layer_name, core RenderResult, region, (width, height)),
+# region = (x0, y0 from the top, w, h) or None; used by the headless entry point to write Monte's EXR layout.
+result_listeners: list = []
 
 
 class MonteRenderEngine(bpy.types.RenderEngine):
@@ -122,6 +125,8 @@ class MonteRenderEngine(bpy.types.RenderEngine):
                              should_cancel=self._cancel_requested, log=self._log)
         # The whole region once more, all passes from the final accumulation: consistent even after a cancel.
         self._write(0, 0, rw, rh, result, passes, layer_name)
+        for listener in list(result_listeners):
+            listener(layer_name, result, region, (width, height))
         seconds = time.perf_counter() - t0
         samples = int(np.asarray(result.sample_count).sum())
         summary = (f"{'cancelled, ' if result.cancelled else ''}{samples:,} samples in {seconds:.2f} s, "

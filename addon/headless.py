@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import bpy  # at import time, so that callers without the bpy module get an ImportError up front
+import numpy as np
 
 from ..core.settings import RenderSettings
 
@@ -41,7 +42,8 @@ _OTHER_KEYS = {
     "frame": "frame number to render",
     "camera": "name of the camera object to render from",
     "scene": "name of the scene to render (default: the file's active scene)",
-    "multilayer": "write a multilayer EXR with every enabled pass (default: RGBA of Combined)",
+    "multilayer": "write Blender's multilayer EXR (every view layer and pass, after compositing) instead of "
+                  "Monte's channel layout",
 }
 
 _BLEND_MAGIC = (b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd")  # plain, gzip, zstd
@@ -113,18 +115,38 @@ def _apply_overrides(bpy, scene, overrides: dict[str, Any]) -> None:
 
 
 def _configure_output(scene, multilayer: bool) -> None:
+    for layer in scene.view_layers:  # every pass Monte has: Monte's layout carries them all
+        layer.use_pass_z = layer.use_pass_normal = True
+        layer.monte.use_pass_albedo = layer.monte.use_pass_variance = True
+    if not multilayer:
+        return
     settings = scene.render.image_settings
-    if multilayer:
-        if hasattr(settings, "media_type"):  # Blender 5.0+
-            settings.media_type = "MULTI_LAYER_IMAGE"
-        settings.file_format = "OPEN_EXR_MULTILAYER"
-    else:
-        if hasattr(settings, "media_type"):
-            settings.media_type = "IMAGE"
-        settings.file_format = "OPEN_EXR"
-        settings.color_mode = "RGBA"
+    if hasattr(settings, "media_type"):  # Blender 5.0+
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
     settings.color_depth = "32"
     settings.exr_codec = "ZIP"
+
+
+def _monte_channels(result, region, size) -> dict:
+    """core.exr's channel layout (R G B A, variance.*, albedo.*, normal.*, Z), the same as `monte render` of a
+    built-in scene; with a region, padded to the full frame (black, depth 1e10) as an uncropped border."""
+    from ..core.exr import image_channels
+
+    arrays = [result.color, result.variance, result.albedo, result.normal, result.depth]
+    if region is not None:
+        x0, y0, w, h = region
+        width, height = size
+        padded = []
+        for arr, fill in zip(arrays, (0.0, 0.0, 0.0, 0.0, 1e10)):
+            if arr is None:
+                padded.append(None)
+                continue
+            full = np.full((height, width) + arr.shape[2:], fill, dtype=np.float32)
+            full[y0:y0 + h, x0:x0 + w] = arr
+            padded.append(full)
+        arrays = padded
+    return image_channels(*arrays)
 
 
 def render_blend_file(
@@ -176,6 +198,12 @@ def render_blend_file(
     say(f"Monte: rendering {blend.name} (scene {scene.name!r}, frame {scene.frame_current}) to {out}")
     from . import engine
 
+    captured: list = []
+
+    def capture(layer_name, result, region, size) -> None:
+        captured.append((layer_name, result, region, size))
+
+    engine.result_listeners.append(capture)
     if on_progress is not None:
         engine.progress_listeners.append(on_progress)
     try:
@@ -186,8 +214,29 @@ def render_blend_file(
             message = message[len("Error: "):]
         raise HeadlessError(f"rendering {blend} failed: {message}") from exc
     finally:
+        engine.result_listeners.remove(capture)
         if on_progress is not None:
             engine.progress_listeners.remove(on_progress)
+    if clean.get("multilayer"):
+        _save_blender_multilayer(bpy, scene, blend, out)
+    else:
+        if not captured:
+            raise HeadlessError(f"rendering {blend} produced no image (no view layer is enabled for rendering)")
+        from ..core.exr import write_exr
+
+        layer_name, result, region, size = captured[0]
+        if len(captured) > 1:
+            say(f"Monte: {len(captured)} view layers rendered; writing {layer_name!r} (multilayer=True writes all)")
+        if result.cancelled:
+            say("Monte: the render stopped early (time limit); the image holds the samples taken")
+        if scene.render.use_crop_to_border:
+            region = None  # the region alone, as Blender's cropped render
+        write_exr(out, _monte_channels(result, region, size))
+    say(f"Monte: wrote {out}")
+
+
+def _save_blender_multilayer(bpy, scene, blend: Path, out: Path) -> None:
+    """Blender's own multilayer EXR of the Render Result, written beside the target and renamed onto it."""
     image = bpy.data.images.get("Render Result")
     if image is None:
         raise HeadlessError(f"rendering {blend} produced no image")
@@ -205,4 +254,3 @@ def render_blend_file(
                 tmp.unlink()
             except OSError:
                 pass
-    say(f"Monte: wrote {out}")

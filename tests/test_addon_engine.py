@@ -200,15 +200,27 @@ def test_headless_render_blend_file(tmp_path):
     render_blend_file(blend, out, {"spp": 8, "seed": 7, "filter": "tent", "max_bounces": 2, "threads": None},
                       log=lambda _m: None, on_progress=progress.append)
     assert progress and progress[-1].fraction == pytest.approx(1.0) and progress[-1].spp == 8
-    from monte.core.exr import read_rgb
+    from monte.core.exr import read_exr, read_rgb
 
     img = read_rgb(out)
     assert img.shape == (10, 12, 3)
     assert abs(img.mean() - 1.0) < 0.1
+    # Monte's channel layout, as `monte render` writes for built-in scenes
+    channels = read_exr(out)
+    assert {"R", "G", "B", "A", "variance.R", "albedo.G", "normal.Z", "Z"} <= set(channels)
+    assert np.allclose(channels["Z"], 1.0, atol=1e-4) and np.allclose(channels["albedo.R"], 0.5, atol=1e-4)
     # The overrides were for that run only: the file on disk is untouched.
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     assert bpy.context.scene.monte.samples == 16 and bpy.context.scene.monte.filter_type == "box"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plane.blend", "plane.exr"]
+    # Blender's multilayer file instead, with a cropped border
+    bpy.context.scene.render.use_border = bpy.context.scene.render.use_crop_to_border = True
+    bpy.context.scene.render.border_max_x = 0.5
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    render_blend_file(blend, out, {"spp": 2, "multilayer": True}, log=lambda _m: None)
+    layers = bf.read_exr_layers(out)
+    assert {"ViewLayer.Combined.R", "ViewLayer.Depth.Z", "ViewLayer.Albedo.R", "ViewLayer.Variance.R"} <= set(layers)
+    assert layers["ViewLayer.Combined.R"].shape == (10, 6)
 
 
 def test_headless_errors_name_the_file_and_never_clobber_output(tmp_path):
