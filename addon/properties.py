@@ -63,6 +63,11 @@ class MonteRenderSettings(bpy.types.PropertyGroup):
         name="Seed", description="Seed of every random number: the same seed renders the same image",
         default=_DEFAULTS.seed, min=0,
     )
+    use_animated_seed: BoolProperty(
+        name="Animated Seed",
+        description="Add the frame number to the seed, so that the noise pattern changes from frame to frame",
+        default=False,
+    )
     sampler: EnumProperty(
         name="Sampler", description="How sample positions are generated", items=SAMPLER_ITEMS,
         default=_DEFAULTS.sampler,
@@ -131,6 +136,8 @@ def render_settings(scene, overrides=None) -> RenderSettings:
     """A validated RenderSettings from scene.monte (plus RenderSettings-named overrides, for one run)."""
     props = scene.monte
     values = {field: getattr(props, prop) for prop, field in SETTING_FIELDS.items()}
+    if props.use_animated_seed:
+        values["seed"] = (values["seed"] + scene.frame_current) % (2**32)
     values.update(overrides or {})
     return RenderSettings(**{**_field_defaults(), **values}).validate()
 

@@ -74,7 +74,9 @@ class MONTE_RENDER_PT_sampling(MonteButtonsPanel, Panel):
         col.prop(monte, "time_limit")
         col = layout.column()
         col.prop(monte, "sampler")
-        col.prop(monte, "seed")
+        row = col.row(align=True)
+        row.prop(monte, "seed")
+        row.prop(monte, "use_animated_seed", text="", icon="TIME")
         col.prop(monte, "clamp")
         col.prop(monte, "light_sampling")
 

@@ -495,3 +495,6 @@ def test_properties_defaults_match_render_settings(scene):
     for prop, field in SETTING_FIELDS.items():
         assert getattr(scene.monte, prop) == pytest.approx(getattr(defaults, field)), prop
     assert render_settings(scene) == defaults
+    scene.monte.seed, scene.monte.use_animated_seed = 5, True
+    scene.frame_set(12)
+    assert render_settings(scene).seed == 17
