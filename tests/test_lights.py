@@ -553,6 +553,49 @@ def test_intersect_agrees_with_sample_and_mis_sums(case):
     np.testing.assert_allclose(le_delta, le, rtol=1e-6)
 
 
+def ray_triangles(o, d, tris):
+    """Closest hit of rays (N, 3) over a few triangles (Moller-Trumbore, float64): (t, index), inf / -1 if none."""
+    best, idx = np.full(o.shape[0], np.inf), np.full(o.shape[0], -1)
+    for k, (a, b, c) in enumerate(np.asarray(tris, np.float64)):
+        e1, e2 = b - a, c - a
+        pv = np.cross(d, e2)
+        inv = 1.0 / (pv @ e1)
+        tv = o - a
+        qv = np.cross(tv, e1)
+        u, v, t = (tv * pv).sum(1) * inv, (d * qv).sum(1) * inv, (qv @ e2) * inv
+        hit = (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & (t < best)
+        best, idx = np.where(hit, t, best), np.where(hit, k, idx)
+    return best, idx
+
+
+def test_triangle_mis_with_pdf_triangle_sums_to_the_closed_form():
+    """What the integrator does for an emissive triangle hit by a BSDF ray, against light sampling."""
+    c, half, Le = np.array([0.2, -0.1, 1.0]), 0.4, 2.0
+    tris = two_triangle_quad(c, half)
+    et = lights.EmissiveTriangles.from_mesh_arrays(tris, np.zeros(2, int), np.array([[Le] * 3]))
+    s = make_sampler([PointLight("p", W([0, 0, 2.0]), np.full(3, 30.0))], tris=et)
+    expected = (parallel_rect_irradiance(Le, c[0] - half, c[0] + half, c[1] - half, c[1] + half, c[2])
+                + 30 / (4 * math.pi) / 4)
+    rng = np.random.default_rng(4)
+    N = 300_000
+    p, nn = np.zeros((N, 3), np.float32), np.tile(UP.astype(np.float32), (N, 1))
+    ls = s.sample(p, nn, rng.random(N), rng.random((N, 2)))
+    cos_l = np.maximum(ls.wi[:, 2].astype(np.float64), 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f_l = np.where(ls.pdf > 0, ls.radiance[:, 0] * cos_l / ls.pdf, 0)
+    pl, pb = ls.pdf.astype(np.float64), cos_l / math.pi
+    f_l *= np.where(ls.delta, 1.0, pl * pl / (pl * pl + pb * pb))
+    d, pdf_b = cosine_directions(UP, N, rng)
+    t, k = ray_triangles(np.zeros((N, 3)), d.astype(np.float64), tris)
+    hit = k >= 0
+    pdf_t = s.pdf_triangle(np.where(hit, et.emitter_of_triangle[np.maximum(k, 0)], -1), t * t, np.abs(d[:, 2]))
+    pb2 = pdf_b.astype(np.float64) ** 2
+    f_b = np.where(hit, Le * math.pi * pb2 / (pb2 + pdf_t.astype(np.float64) ** 2), 0)
+    est = f_l.mean() + f_b.mean()
+    se = math.hypot(f_l.std(), f_b.std()) / math.sqrt(N)
+    assert_close(est, se, expected)
+
+
 def test_intersect_needs_the_normal_that_sample_got():
     s = make_sampler([], world=1.0)
     p, nn = np.zeros((2, 3), np.float32), np.tile(UP.astype(np.float32), (2, 1))
