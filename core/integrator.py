@@ -11,7 +11,7 @@ is best where the camera looks, wherever the scene sits in the world.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -48,11 +48,6 @@ def _onb(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t = np.stack([1.0 + sign * n[:, 0] * n[:, 0] * a, sign * b, -sign * n[:, 0]], axis=1)
     bt = np.stack([b, sign + n[:, 1] * n[:, 1] * a, -n[:, 1]], axis=1)
     return t.astype(np.float32), bt.astype(np.float32)
-
-
-def _take_lobes(lobes, rows: np.ndarray):
-    """The LobeBatch rows `rows` (every per-hit array of the batch indexed the same way)."""
-    return type(lobes)(**{f.name: getattr(lobes, f.name)[rows] for f in fields(lobes)})
 
 
 @dataclass
@@ -193,6 +188,7 @@ class PathTracer:
         throughput = np.ones((n, 3), np.float32)
         prev_pdf = np.zeros(n, np.float32)
         prev_delta = np.ones(n, bool)  # camera rays: emission seen directly gets weight 1
+        prev_normal = None  # shading normal at each ray's origin (light sampling and MIS use it)
         pix, smp = pixel_id, sample_id
         self.stats.paths += n
 
@@ -204,16 +200,12 @@ class PathTracer:
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
             if ps.lights.has_lights:
                 mis_here = self.mis and depth > 0
-                if self.use_bsdf_emission or depth == 0:
-                    le = ps.lights.intersect(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf,
-                                             prev_delta, mis_here)
-                    if depth > 0 and not self.use_bsdf_emission:
-                        le = np.where(prev_delta[:, None], le, 0)
-                    self._add(radiance, idx, throughput * le)
-                elif s.light_sampling == "light":
-                    le = ps.lights.intersect(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf,
-                                             prev_delta, False)
-                    self._add(radiance, idx, np.where(prev_delta[:, None], throughput * le, 0))
+                le = ps.lights.intersect(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf, prev_delta,
+                                         mis_here, n=prev_normal, camera=depth == 0)
+                if depth > 0 and not self.use_bsdf_emission:
+                    # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
+                    le = np.where(prev_delta[:, None], le, np.float32(0))
+                self._add(radiance, idx, throughput * le)
             if not hit.all():
                 keep = np.flatnonzero(hit)
                 idx, o, d, throughput = idx[keep], o[keep], d[keep], throughput[keep]
@@ -277,10 +269,12 @@ class PathTracer:
             wo = np.stack([_dot(wo_world, tangent), _dot(wo_world, bitangent), _dot(wo_world, ns)], axis=1)
             lobes = ps.materials.gather(mat, uv)
             mag = np.maximum(ps.tri_magnitude[prim], np.abs(p).max(axis=1))
+            # The normal on the viewer's side: light sampling (world, inside sphere lights) and MIS use it.
+            n_view = np.where((wo[:, 2] < 0)[:, None], -ns, ns)
 
             if self.use_nee:
-                self._next_event(depth, idx, pix, smp, p, ng, ns, tangent, bitangent, wo, cos_o_geo, mag, mat,
-                                 lobes, throughput, radiance)
+                self._next_event(depth, idx, pix, smp, p, ng, ns, n_view, tangent, bitangent, wo, cos_o_geo,
+                                 mag, mat, lobes, throughput, radiance)
 
             # Sample the BSDF for the next direction.
             u_lobe = self.sampler.get_1d(pix, smp, self._dim(depth, _D_LOBE))
@@ -293,7 +287,7 @@ class PathTracer:
             ok = bs.valid & np.where(bs.transmitted, side_o != side_i, side_o == side_i)
             throughput = throughput * bs.weight
             # Russian roulette by throughput after rr_depth bounces.
-            if depth + 1 >= s.rr_depth:
+            if depth >= s.rr_depth:
                 q = np.minimum(throughput.max(axis=1), np.float32(1.0))
                 u_rr = self.sampler.get_1d(pix, smp, self._dim(depth, _D_RR))
                 survive = u_rr < q
@@ -307,24 +301,24 @@ class PathTracer:
             tm = np.full(len(keep), np.float32(3e38))
             idx, throughput, pix, smp = idx[keep], throughput[keep], pix[keep], smp[keep]
             prev_pdf, prev_delta = bs.pdf[keep].astype(np.float32), bs.delta[keep]
+            prev_normal = n_view[keep]
             self.stats.bounces.append(len(keep))
         return radiance, first
 
-    def _next_event(self, depth, idx, pix, smp, p, ng, ns, tangent, bitangent, wo, cos_o_geo, mag, mat, lobes,
-                    throughput, radiance) -> None:
+    def _next_event(self, depth, idx, pix, smp, p, ng, ns, n_view, tangent, bitangent, wo, cos_o_geo, mag, mat,
+                    lobes, throughput, radiance) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
             return
-        sub = lambda a: a[can]  # noqa: E731
-        p_c, ng_c, ns_c = sub(p), sub(ng), sub(ns)
+        p_c, ng_c, ns_c = p[can], ng[can], ns[can]
         u_sel = self.sampler.get_1d(pix[can], smp[can], self._dim(depth, _D_LIGHT_SELECT))
         u_l = self.sampler.get_2d(pix[can], smp[can], self._dim(depth, _D_LIGHT))
-        ls = ps.lights.sample(p_c, ns_c, u_sel, u_l)
+        ls = ps.lights.sample(p_c, n_view[can], u_sel, u_l)
         wi = ls.wi
         wi_local = np.stack([_dot(wi, tangent[can]), _dot(wi, bitangent[can]), _dot(wi, ns_c)], axis=1)
-        lobes_c = _take_lobes(lobes, can)
+        lobes_c = lobes.take(can)
         f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes_c, wo[can], wi_local)
         # Same geometric-side rule as BSDF sampling: reflection only towards wo's side, transmission across.
         transmit = (cos_o_geo[can] > 0) != (_dot(wi, ng_c) > 0)
@@ -340,11 +334,17 @@ class PathTracer:
         live = np.flatnonzero(contrib.max(axis=1) > 0)
         if len(live) == 0:
             return
-        wi_l = wi[live]
-        o = offset_ray_origin(p_c[live], ng_c[live], wi_l, mag[can][live])
-        dist = ls.dist[live]
-        tmax = np.where(np.isfinite(dist), dist * (1 - SHADOW_EPSILON), np.float32(3e38)).astype(np.float32)
-        blocked = self.accel.occluded(o, wi_l, tmax)
+        wi_l, p_l, dist = wi[live], p_c[live], ls.dist[live]
+        o = offset_ray_origin(p_l, ng_c[live], wi_l, mag[can][live])
+        # Aim the shadow ray from the offset origin at the sampled light point itself: the offset moves the
+        # origin towards the light by up to eps / cos, which near a light at grazing angles exceeds the
+        # SHADOW_EPSILON margin and would make the light occlude itself.
+        finite = np.isfinite(dist)
+        to_light = np.where(finite[:, None], p_l + wi_l * np.where(finite, dist, 0)[:, None] - o, wi_l)
+        length = np.sqrt(_dot(to_light, to_light))
+        shadow_dir = np.where(finite[:, None], to_light / np.maximum(length, 1e-30)[:, None], wi_l)
+        tmax = np.where(finite, length * (1 - SHADOW_EPSILON), np.float32(3e38)).astype(np.float32)
+        blocked = self.accel.occluded(o, shadow_dir.astype(np.float32), tmax)
         vis = live[~blocked]
         self._add(radiance, idx[can][vis], contrib[vis])
 
