@@ -297,6 +297,9 @@ def test_principled_bsdf_mapping(scene):
     assert kinds[("glossy", "dielectric")].ior == pytest.approx(1.45) and kinds[("glossy", "none")].roughness == \
         pytest.approx(0.3)
     assert np.allclose(kinds[("glossy", "none")].color, a * 0.25 * base, atol=1e-6)
+    # metal: Schlick on the base colour = base (no Fresnel) + (1 - base) x Schlick with F0 = 0
+    assert np.allclose(kinds[("glossy", "schlick")].color, a * 0.25 * (1 - base), atol=1e-6)
+    assert kinds[("glossy", "schlick")].ior == 1.0
     assert np.allclose(kinds[("glass", "none")].color, a * 0.75 * 0.2 * base, atol=1e-6)
     assert np.allclose(kinds[("refraction", "none")].color, 0.5) and kinds[("refraction", "none")].ior == 1.0
     assert np.allclose(m.emission, a * 2.0 * np.array([1.0, 0.5, 0.0]))

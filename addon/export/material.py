@@ -6,9 +6,9 @@ What is read, starting from the active Material Output (target Cycles/All) Surfa
     diffuse   base colour x (1 - metallic)(1 - transmission) x (1 - F_avg)
     specular  glossy GGX, exact dielectric Fresnel from IOR, colour (1 - metallic)(1 - transmission)
               x Specular Tint x 2 x Specular IOR Level (1 at the default level 0.5)
-    metal     glossy GGX, no Fresnel, colour base colour x metallic (Blender's F82 model with a white tint
-              reduces to Schlick on the base colour; Monte uses the base colour at every angle, which is
-              darker only near grazing angles)
+    metal     Schlick's Fresnel on the base colour (what Blender's F82 model reduces to with a white tint):
+              a glossy GGX lobe of base colour x metallic without Fresnel plus one with Schlick F0 = 0 tinted
+              (1 - base colour) x metallic; with a textured base colour only the first (darker at grazing)
     glass     glass GGX with IOR, colour base colour x (1 - metallic) x transmission
     alpha     refraction with IOR 1 (a straight pass-through) weighted 1 - alpha
     emission  Emission Color x Emission Strength
@@ -321,7 +321,13 @@ class MaterialExporter:
             if np.any(spec > 0):
                 lobes.append(Lobe("glossy", spec, roughness=rough, ior=ior, fresnel="dielectric"))
         if a * metallic > 0:
+            # Schlick on the base colour, F = base + (1 - base)(1 - cos)^5, as the sum of a Fresnel-free lobe
+            # (base) and a Schlick lobe with F0 = 0 (IOR 1) tinted 1 - base. A textured base colour cannot
+            # tint by 1 - texture: it keeps the first lobe only (darker near grazing angles).
             lobes.append(Lobe("glossy", a * metallic * base, roughness=rough, fresnel="none", color_texture=tex))
+            if tex < 0 and np.any(base < 1):
+                lobes.append(Lobe("glossy", a * metallic * np.clip(1.0 - base, 0.0, 1.0), roughness=rough,
+                                  ior=1.0, fresnel="schlick"))
         if a * (1.0 - metallic) * transmission > 0:
             lobes.append(Lobe("glass", a * (1.0 - metallic) * transmission * base, roughness=rough, ior=ior,
                               color_texture=tex))
