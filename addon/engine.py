@@ -84,7 +84,6 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         print(f"Monte: {message}", flush=True)
 
     def render(self, depsgraph):
-        self._wrote_result = False
         try:
             self._render(depsgraph)
         except ExportCancelled:
@@ -110,6 +109,9 @@ class MonteRenderEngine(bpy.types.RenderEngine):
             self.report({"WARNING"}, f"Monte: {w}")
         self.report({"INFO"}, f"Monte: {stats.line()}")
         settings = render_settings(scene, {"aovs": any(p in passes for p in ("Depth", "Normal", "Albedo"))})
+        if settings.threads == 0:
+            # Blender's own thread count: all cores, or Performance > Threads > Fixed, or `blender -t N`.
+            settings = settings.replace(threads=max(1, int(scene.render.threads)))
 
         width, height = render_resolution(scene)
         region = render_region(scene)
@@ -148,7 +150,6 @@ class MonteRenderEngine(bpy.types.RenderEngine):
                 rpass.rect.foreach_set(data)
         finally:
             self.end_result(result)
-        self._wrote_result = True
 
     def _write_black(self, depsgraph) -> None:
         scene = depsgraph.scene

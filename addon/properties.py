@@ -104,7 +104,9 @@ class MonteRenderSettings(bpy.types.PropertyGroup):
         items=LIGHT_SAMPLING_ITEMS, default=_DEFAULTS.light_sampling,
     )
     threads: IntProperty(
-        name="Threads", description="Ray-casting threads (0 = all cores)", default=_DEFAULTS.threads, min=0,
+        name="Threads",
+        description="Ray-casting threads (0 = Blender's thread count: all cores, or the fixed number set in "
+        "Blender's Performance panel or with blender -t)", default=_DEFAULTS.threads, min=0,
         max=1024,
     )
     batch_paths: IntProperty(
