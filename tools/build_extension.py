@@ -184,6 +184,11 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         manifest = load_manifest()
+        with open(ROOT / "pyproject.toml", "rb") as fh:
+            package_version = tomllib.load(fh)["project"]["version"]
+        if package_version != manifest["version"]:
+            raise BuildError(f"blender_manifest.toml says version {manifest['version']} but pyproject.toml says "
+                             f"{package_version}: make them agree")
         platforms = args.platform or list(manifest.get("platforms", PIP_PLATFORMS))
         if args.single:
             platforms = list(manifest.get("platforms", PIP_PLATFORMS))
