@@ -86,7 +86,10 @@ def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray]) -> Path:
 
 
 def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Read every channel of an EXR as float32 (H, W) arrays (interleaved groups like 'RGB' split into R, G, B)."""
+    """Read every channel of an EXR as float32 (H, W) arrays (interleaved groups like 'RGB' split into R, G, B).
+
+    A multi-part file (Blender's multilayer EXR) yields every part's channels; where parts repeat a channel
+    name, the later part's channel is named "<part name>.<channel>"."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such EXR file: {path}")
@@ -95,7 +98,12 @@ def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
     except Exception as exc:  # OpenEXR raises plain exceptions for corrupt files
         raise ValueError(f"{path} is not a readable OpenEXR file: {exc}") from exc
     with f:
-        return {name: np.asarray(ch.pixels, dtype=np.float32) for name, ch in f.channels().items()}
+        channels: dict[str, np.ndarray] = {}
+        for part in f.parts:
+            for name, ch in part.channels.items():
+                key = name if name not in channels else f"{part.name()}.{name}"
+                channels[key] = np.asarray(ch.pixels, dtype=np.float32)
+        return channels
 
 
 def read_rgb(path: str | os.PathLike) -> np.ndarray:

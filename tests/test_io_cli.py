@@ -24,6 +24,21 @@ def test_exr_round_trip_with_named_channels(tmp_path):
     np.testing.assert_array_equal(exr.read_rgb(path), color[..., :3])
 
 
+def test_multipart_exr_reads_every_part(tmp_path):
+    import OpenEXR
+
+    def header():  # one dict per part: Part stores its name in the header it is given
+        return {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+
+    parts = [OpenEXR.Part(header(), {"R": np.zeros((2, 3), np.float32)}, "ViewLayer.Combined"),
+             OpenEXR.Part(header(), {"Z": np.full((2, 3), 7.0, np.float32)}, "ViewLayer.Depth"),
+             OpenEXR.Part(header(), {"R": np.ones((2, 3), np.float32)}, "ViewLayer.Albedo")]
+    OpenEXR.File(parts).write(str(tmp_path / "mp.exr"))
+    channels = exr.read_exr(tmp_path / "mp.exr")
+    assert sorted(channels) == ["R", "ViewLayer.Albedo.R", "Z"]
+    assert channels["Z"][0, 0] == 7.0 and channels["ViewLayer.Albedo.R"][0, 0] == 1.0
+
+
 def test_failed_write_keeps_the_existing_file_and_leaves_no_temp(tmp_path, monkeypatch):
     target = tmp_path / "keep.exr"
     target.write_bytes(b"precious")
