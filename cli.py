@@ -96,8 +96,7 @@ def cmd_render(args: argparse.Namespace) -> int:
             return 2
         if args.resolution:
             overrides["resolution"] = args.resolution
-        render_blend_file(args.scene, output, overrides)
-        print(f"wrote {output}")
+        render_blend_file(args.scene, output, overrides)  # reports what it wrote
         return 0
 
     from .core import exr

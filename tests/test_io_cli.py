@@ -1,6 +1,7 @@
 """Files, the command line, the camera and scale invariance."""
 
 import math
+import os
 import subprocess
 import sys
 
@@ -22,6 +23,9 @@ def test_exr_round_trip_with_named_channels(tmp_path):
     assert set(channels) == {"R", "G", "B", "A", "variance.R", "variance.G", "variance.B", "Z"}
     np.testing.assert_array_equal(channels["G"], color[..., 1])
     np.testing.assert_array_equal(exr.read_rgb(path), color[..., :3])
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's 0600
 
 
 def test_multipart_exr_reads_every_part(tmp_path):
