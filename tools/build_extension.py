@@ -9,7 +9,7 @@ Wheels listed in blender_manifest.toml are downloaded into wheels/ with `pip dow
 (exact versions taken from the file names; files already there are reused). The zips are made by Blender's
 own extension builder, shipped inside the `bpy` wheel (bpy/<ver>/scripts/addons_core/bl_pkg/cli/
 blender_ext.py), with plain Python: no Blender binary needed. Each zip is then checked to hold only the
-add-on (the package __init__.py, core/, addon/, the manifest and its wheels).
+add-on (the package __init__.py, core/, addon/, the manifest, LICENSE and its wheels).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ PIP_PLATFORMS = {
     "macos-arm64": ["macosx_13_0_arm64"],
 }
 # Top-level entries a built zip may hold.
-ALLOWED_TOP = {"__init__.py", "blender_manifest.toml", "core", "addon", "wheels"}
+ALLOWED_TOP = {"__init__.py", "blender_manifest.toml", "LICENSE", "core", "addon", "wheels"}  # the GPL travels with the code
 
 
 class BuildError(RuntimeError):
