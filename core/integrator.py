@@ -28,7 +28,6 @@ DIM_STRIDE = 8
 _D_LOBE, _D_BSDF, _D_LIGHT_SELECT, _D_LIGHT, _D_RR = 0, 1, 3, 4, 6
 
 SHADOW_EPSILON = np.float32(1e-4)  # shadow rays stop this fraction short of the light (its own surface)
-_LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -137,7 +136,6 @@ class PathStats:
     rays_shadow: int = 0
     nonfinite: int = 0
     clamped: int = 0
-    bounces: list = field(default_factory=list)
 
 
 @dataclass
@@ -302,7 +300,6 @@ class PathTracer:
             idx, throughput, pix, smp = idx[keep], throughput[keep], pix[keep], smp[keep]
             prev_pdf, prev_delta = bs.pdf[keep].astype(np.float32), bs.delta[keep]
             prev_normal = n_view[keep]
-            self.stats.bounces.append(len(keep))
         return radiance, first
 
     def _next_event(self, depth, idx, pix, smp, p, ng, ns, n_view, tangent, bitangent, wo, cos_o_geo, mag, mat,
