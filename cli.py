@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from .core.settings import FILTERS, SAMPLERS, RenderSettings
+from .core.settings import CLI_SETTINGS, FILTERS, SAMPLERS, RenderSettings
 
 
 def _resolution(text: str) -> tuple[int, int]:
@@ -47,9 +47,7 @@ def _add_render_options(p: argparse.ArgumentParser) -> None:
 
 
 def _settings_from(args: argparse.Namespace) -> dict:
-    keys = ("spp", "seed", "sampler", "filter_type", "filter_width", "max_bounces", "rr_depth", "clamp",
-            "threads", "batch_paths", "tile_size", "time_limit")
-    return {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
+    return {k: getattr(args, k) for k in CLI_SETTINGS if getattr(args, k, None) is not None}
 
 
 class ProgressBar:

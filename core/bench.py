@@ -15,7 +15,7 @@ from . import metrics
 from .exr import read_rgb
 from .render import render
 from .scenes import cornell_box
-from .settings import RenderSettings
+from .settings import CLI_SETTINGS, RenderSettings
 
 REFERENCE_MEANS = (0.39494, 0.33119, 0.39700)  # the bundled Cycles reference (4 x 1024 spp, BH 1.5 px)
 REFERENCE_OWN_RMSE = 0.007  # the reference's own noise: RMSE against it is biased up by this in quadrature
@@ -28,9 +28,7 @@ def bundled_reference() -> np.ndarray:
 
 
 def run_bench(args: argparse.Namespace) -> dict:
-    keys = ("spp", "seed", "sampler", "filter_type", "filter_width", "max_bounces", "rr_depth", "clamp",
-            "threads", "batch_paths", "tile_size", "time_limit")
-    overrides = {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
+    overrides = {k: getattr(args, k) for k in CLI_SETTINGS if getattr(args, k, None) is not None}
     settings = RenderSettings(**{"spp": 64, **overrides}).validate()
     resolution = getattr(args, "resolution", None) or (256, 256)
     scene = cornell_box(resolution)

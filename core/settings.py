@@ -9,6 +9,9 @@ from typing import Literal
 
 SAMPLERS = ("sobol", "stratified", "independent")
 FILTERS = ("blackman-harris", "gaussian", "tent", "box")
+# Settings a user overrides from the command line (`monte render`, `monte bench`).
+CLI_SETTINGS = ("spp", "seed", "sampler", "filter_type", "filter_width", "max_bounces", "rr_depth", "clamp",
+                "threads", "batch_paths", "tile_size", "time_limit")
 
 
 @dataclass
