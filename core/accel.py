@@ -7,6 +7,7 @@ All coordinates are float32 in the integrator's shifted frame (world minus the c
 
 from __future__ import annotations
 
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -49,6 +50,7 @@ class Accelerator:
         self.rays_closest = 0
         self.rays_shadow = 0
         self.seconds = 0.0
+        self._count_lock = threading.Lock()  # render workers share this accelerator
 
     def close(self) -> None:
         if self._pool is not None:
@@ -91,8 +93,9 @@ class Accelerator:
 
         start = time.perf_counter()
         self._map(work, n)
-        self.seconds += time.perf_counter() - start
-        self.rays_closest += n
+        with self._count_lock:
+            self.seconds += time.perf_counter() - start
+            self.rays_closest += n
         t[prim < 0] = np.inf
         return Hits(prim, u, v, t)
 
@@ -112,8 +115,9 @@ class Accelerator:
 
         start = time.perf_counter()
         self._map(work, n)
-        self.seconds += time.perf_counter() - start
-        self.rays_shadow += n
+        with self._count_lock:
+            self.seconds += time.perf_counter() - start
+            self.rays_shadow += n
         return result
 
 

@@ -6,7 +6,10 @@ Image convention for every array here: row 0 is the TOP of the image, shape (hei
 
 from __future__ import annotations
 
+import threading
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -129,7 +132,7 @@ def render(
     from .camera import camera_rays
     from .film import TileFilm
     from .filters import PixelFilter
-    from .integrator import DIM_FILM, PathTracer, PreparedScene
+    from .integrator import DIM_FILM, PathStats, PathTracer, PreparedScene
     from .sampling import make_sampler
 
     settings.validate()
@@ -145,7 +148,8 @@ def render(
 
     t0 = time.perf_counter()
     prepared = PreparedScene.build(scene)
-    accel = Accelerator(prepared.vertices, prepared.triangles, settings.thread_count)
+    # Parallelism is across batches (see below), so each Embree call runs on the worker that makes it.
+    accel = Accelerator(prepared.vertices, prepared.triangles, 1)
     t_prepare = time.perf_counter() - t0
     for w in scene.warnings:
         say(f"warning: {w}")
@@ -154,7 +158,6 @@ def render(
 
     sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1))
     pixel_filter = PixelFilter(settings.filter_type, settings.filter_width)
-    tracer = PathTracer(prepared, accel, settings, sampler)
     tiles = _tiles(rx, ry, rw, rh, settings.tile_size)
     if tile_order is not None:
         if sorted(tile_order) != list(range(len(tiles))):
@@ -190,45 +193,99 @@ def render(
             albedo, normal, depth = film.aov_images()
         return Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
 
-    try:
-        while done_paths < total_paths and not cancelled:
+    def batches():
+        """Sample batches in pass order: (tile index, tile, local pixel indices, sample indices, sample end, last
+        chunk of this tile's pass). A pass gives every tile as many samples as fit in one batch."""
+        started = samples_started.copy()
+        while True:
+            any_left = False
             for ti, tile in enumerate(tiles):
                 tx, ty, tw, th = tile
                 n_pix = tw * th
-                first_sample = int(samples_started[ti])
+                first_sample = int(started[ti])
                 if first_sample >= spp:
                     continue
+                any_left = True
                 per_batch = max(1, settings.batch_paths // n_pix)
                 count = min(per_batch, spp - first_sample)
                 # Pixel chunks keep a batch within batch_paths even when one tile has more pixels than that.
                 pix_chunk = max(1, settings.batch_paths // count)
                 local = np.arange(n_pix, dtype=np.int64)
                 for c0 in range(0, n_pix, pix_chunk):
-                    if stop_requested():
-                        cancelled = True
-                        break
                     loc = np.repeat(local[c0:c0 + pix_chunk], count)
                     smp = np.tile(np.arange(first_sample, first_sample + count, dtype=np.uint32),
                                   min(pix_chunk, n_pix - c0))
-                    px = tx + loc % tw
-                    py = ty + loc // tw
-                    pixel_id = (py * width + px).astype(np.uint32)
-                    offsets = pixel_filter.sample(sampler.get_2d(pixel_id, smp, DIM_FILM))
-                    rays = camera_rays(scene.camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1])
-                    radiance, first = tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax,
-                                                   rays.depth_scale, rays.t_start, settings.aovs)
-                    film = films[tile]
-                    film.add(loc, radiance)
-                    if first is not None:
-                        film.add_aovs(loc, first.albedo, first.normal, first.depth)
-                    done_paths += len(loc)
-                    progress(ti, first_sample + count)
-                if cancelled:
-                    break
-                samples_started[ti] = first_sample + count
-                if on_tile is not None:
-                    on_tile(tile_result(tile, films[tile], first_sample + count))
+                    yield ti, tile, loc, smp, first_sample + count, c0 + pix_chunk >= n_pix
+                started[ti] = first_sample + count
+            if not any_left:
+                return
+
+    tracers: list[PathTracer] = []
+    local_state = threading.local()
+    tracers_lock = threading.Lock()
+
+    def trace_batch(tile, loc: np.ndarray, smp: np.ndarray):
+        """Camera rays and paths of one batch (runs on a worker thread; touches no shared mutable state but
+        the counters, which are locked)."""
+        tracer = getattr(local_state, "tracer", None)
+        if tracer is None:
+            tracer = local_state.tracer = PathTracer(prepared, accel, settings, sampler)
+            with tracers_lock:
+                tracers.append(tracer)
+        tx, ty, tw, _ = tile
+        t0 = time.perf_counter()
+        px = tx + loc % tw
+        py = ty + loc // tw
+        pixel_id = (py * width + px).astype(np.uint32)
+        offsets = pixel_filter.sample(sampler.get_2d(pixel_id, smp, DIM_FILM))
+        rays = camera_rays(scene.camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1])
+        tracer.stats.seconds_camera += time.perf_counter() - t0
+        return tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
+                            rays.t_start, settings.aovs)
+
+    # Batches run on `workers` threads (NumPy and Embree release the GIL), at most `workers + 1` in flight,
+    # and are accumulated in submission order on this thread: the image does not depend on thread timing.
+    workers = settings.thread_count
+    pool = ThreadPoolExecutor(workers) if workers > 1 else None
+    in_flight: deque = deque()
+    film_seconds = 0.0
+
+    def finish_one() -> None:
+        nonlocal done_paths, film_seconds
+        ti, tile, loc, sample_end, last_chunk, future = in_flight.popleft()
+        radiance, first = future.result() if pool is not None else future()
+        t0 = time.perf_counter()
+        film = films[tile]
+        film.add(loc, radiance)
+        if first is not None:
+            film.add_aovs(loc, first.albedo, first.normal, first.depth)
+        film_seconds += time.perf_counter() - t0
+        done_paths += len(loc)
+        progress(ti, sample_end)
+        if last_chunk:
+            samples_started[ti] = sample_end
+            if on_tile is not None:
+                on_tile(tile_result(tile, film, sample_end))
+
+    try:
+        for ti, tile, loc, smp, sample_end, last_chunk in batches():
+            if stop_requested():
+                cancelled = True
+                break
+            if pool is not None:
+                job = pool.submit(trace_batch, tile, loc, smp)
+            else:
+                job = (lambda tile=tile, loc=loc, smp=smp: trace_batch(tile, loc, smp))
+            in_flight.append((ti, tile, loc, sample_end, last_chunk, job))
+            if len(in_flight) > (workers if pool is not None else 0):
+                finish_one()
+        while in_flight:  # batches already running finish and count, also after a cancel
+            finish_one()
     finally:
+        if pool is not None:
+            for *_, job in in_flight:
+                job.cancel()
+            pool.shutdown(wait=True)
         accel.close()
 
     # Assemble the region's image from the tiles.
@@ -248,7 +305,7 @@ def render(
         if settings.aovs:
             albedo[sl], normal[sl], depth[sl] = tr.albedo, tr.normal, tr.depth
     elapsed = time.perf_counter() - t_start
-    st = tracer.stats
+    st = PathStats.total([t.stats for t in tracers])
     rays = accel.rays_closest + accel.rays_shadow
     stats = {
         "scene": scene.name,
@@ -262,8 +319,10 @@ def render(
         "rays_closest": accel.rays_closest,
         "rays_shadow": accel.rays_shadow,
         "rays_per_second": rays / max(elapsed, 1e-9),
-        "embree_seconds": accel.seconds,
-        "embree_share": accel.seconds / max(elapsed, 1e-9),
+        "embree_seconds": st.seconds_intersect + st.seconds_occluded,
+        # Share of all worker thread-time (wall time x workers) spent inside Embree.
+        "embree_share": (st.seconds_intersect + st.seconds_occluded) / max(elapsed * workers, 1e-9),
+        "stage_seconds": {**st.stage_seconds(), "film": film_seconds},
         "nonfinite_samples": st.nonfinite,
         "clamped_contributions": st.clamped,
         "peak_memory_mb": _peak_memory_mb(),
