@@ -43,6 +43,10 @@ def _add_render_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batch", dest="batch_paths", type=int, help="paths traced at once; bounds memory")
     p.add_argument("--tile", dest="tile_size", type=int, help="tile edge in pixels (default 64)")
     p.add_argument("--time-limit", type=float, help="stop after this many seconds (0 = no limit)")
+    p.add_argument("--adaptive-threshold", type=float,
+                   help="adaptive sampling noise threshold, Cycles' scale (0 = off, default; try 0.01)")
+    p.add_argument("--adaptive-min-samples", type=int,
+                   help="samples before adaptive sampling may stop a pixel (0 = automatic)")
     p.add_argument("--resolution", type=_resolution, help="image size WxH (built-in scenes)")
 
 

@@ -60,6 +60,28 @@ class TileFilm:
         var = np.where(n > 1, np.maximum(var, 0.0), 0.0)
         return self._image(var)
 
+    def active_pixels(self, threshold: float) -> np.ndarray:
+        """Tile-local indices of pixels that still need samples under adaptive sampling.
+
+        A pixel's error is the sum over R, G, B of the standard error of its mean, divided by the square root of
+        its summed mean (Cycles' metric: relative to sqrt(intensity), so dark pixels are judged as a display
+        transform would show them). A pixel is converged when its error is below `threshold`, and stays active
+        while any of its 8 neighbours in the tile is active (Cycles dilates the same way), so noise at the edge
+        of a converged region keeps being sampled.
+        """
+        n = self.count.astype(np.float64)
+        mean = self.sum / np.maximum(n, 1)[:, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            var = np.where(n[:, None] > 1, (self.sum_sq - self.sum * mean) / (n[:, None] - 1) / n[:, None], np.inf)
+        err = np.sqrt(np.maximum(var, 0.0)).sum(axis=1) / (1e-4 + np.sqrt(np.maximum(mean.sum(axis=1), 0.0)))
+        active = (err >= threshold).reshape(self.height, self.width)
+        grown = np.pad(active, 1)
+        dilated = np.zeros_like(active)
+        for dy in range(3):
+            for dx in range(3):
+                dilated |= grown[dy:dy + self.height, dx:dx + self.width]
+        return np.flatnonzero(dilated.reshape(-1))
+
     def aov_images(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(albedo (h,w,3), normal (h,w,3) unit where hit, depth (h,w) with 1e10 where nothing was hit)."""
         n = np.maximum(self.count, 1)[:, None]

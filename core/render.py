@@ -124,8 +124,11 @@ def render(
     the tiles (a pass gives every tile as many samples as fit in one batch), so long renders refine the whole
     image progressively and a time limit or cancel leaves a complete, noisier image.
     on_tile is called with each tile after each pass over it (its current state); on_progress after every
-    batch; should_cancel is polled between batches: when it returns True the render stops and the result
-    (cancelled=True) holds every sample taken so far (pixels no batch reached yet are 0).
+    batch; should_cancel is polled before each batch is queued: when it returns True the render stops and the
+    result (cancelled=True) holds every sample taken so far (pixels no batch reached yet are 0); batches
+    running on other threads at that moment finish and count, silently (no callback after the cancel).
+    Batches run on settings.thread_count worker threads and are accumulated in the order they were queued, so
+    the image does not depend on the thread count. adaptive_threshold > 0 turns on adaptive sampling.
     tile_order: a permutation of the tile list (for testing that images don't depend on it).
     """
     from .accel import Accelerator
@@ -170,6 +173,7 @@ def render(
     done_paths = 0
     cancelled = False
     samples_started = np.zeros(len(tiles), np.int64)
+    pixels_converged = np.zeros(len(tiles), np.int64)  # adaptive sampling: pixels that stopped early
 
     def progress(tiles_done: int, sample: int) -> None:
         if on_progress is None:
@@ -193,29 +197,26 @@ def render(
             albedo, normal, depth = film.aov_images()
         return Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
 
-    def batches():
-        """Sample batches in pass order: (tile index, tile, local pixel indices, sample indices, sample end, last
-        chunk of this tile's pass). A pass gives every tile as many samples as fit in one batch."""
+    adaptive = settings.adaptive_threshold > 0
+    min_samples = settings.adaptive_min_samples_for(spp) if adaptive else spp
+
+    def passes():
+        """(tile index, tile, first sample, sample count) in pass order: a pass gives every tile as many samples
+        as fit in one batch (with adaptive sampling: at most min_samples, then half of that, so convergence is
+        checked often)."""
         started = samples_started.copy()
         while True:
             any_left = False
             for ti, tile in enumerate(tiles):
-                tx, ty, tw, th = tile
-                n_pix = tw * th
                 first_sample = int(started[ti])
                 if first_sample >= spp:
                     continue
                 any_left = True
-                per_batch = max(1, settings.batch_paths // n_pix)
-                count = min(per_batch, spp - first_sample)
-                # Pixel chunks keep a batch within batch_paths even when one tile has more pixels than that.
-                pix_chunk = max(1, settings.batch_paths // count)
-                local = np.arange(n_pix, dtype=np.int64)
-                for c0 in range(0, n_pix, pix_chunk):
-                    loc = np.repeat(local[c0:c0 + pix_chunk], count)
-                    smp = np.tile(np.arange(first_sample, first_sample + count, dtype=np.uint32),
-                                  min(pix_chunk, n_pix - c0))
-                    yield ti, tile, loc, smp, first_sample + count, c0 + pix_chunk >= n_pix
+                n_pix = tile[2] * tile[3]
+                count = min(max(1, settings.batch_paths // n_pix), spp - first_sample)
+                if adaptive:
+                    count = min(count, min_samples if first_sample < min_samples else max(1, min_samples // 2))
+                yield ti, tile, first_sample, count
                 started[ti] = first_sample + count
             if not any_left:
                 return
@@ -250,7 +251,7 @@ def render(
     in_flight: deque = deque()
     film_seconds = 0.0
 
-    def finish_one() -> None:
+    def finish_one(quiet: bool = False) -> None:
         nonlocal done_paths, film_seconds
         ti, tile, loc, sample_end, last_chunk, future = in_flight.popleft()
         radiance, first = future.result() if pool is not None else future()
@@ -261,25 +262,60 @@ def render(
             film.add_aovs(loc, first.albedo, first.normal, first.depth)
         film_seconds += time.perf_counter() - t0
         done_paths += len(loc)
-        progress(ti, sample_end)
+        if not quiet:
+            progress(ti, sample_end)
         if last_chunk:
             samples_started[ti] = sample_end
-            if on_tile is not None:
+            if on_tile is not None and not quiet:
                 on_tile(tile_result(tile, film, sample_end))
 
+    def tile_busy(ti: int) -> bool:
+        return any(item[0] == ti for item in in_flight)
+
     try:
-        for ti, tile, loc, smp, sample_end, last_chunk in batches():
-            if stop_requested():
-                cancelled = True
+        for ti, tile, first_sample, count in passes():
+            n_pix = tile[2] * tile[3]
+            pixels = np.arange(n_pix, dtype=np.int64)
+            if adaptive and first_sample >= min_samples:
+                while tile_busy(ti):  # the convergence test needs this tile's earlier samples
+                    finish_one()
+                pixels = films[tile].active_pixels(settings.adaptive_threshold)
+                pixels_converged[ti] = n_pix - len(pixels)
+                done_paths += (n_pix - len(pixels)) * count  # samples converged pixels no longer need
+                if len(pixels) == 0:
+                    samples_started[ti] = first_sample + count
+                    progress(ti, first_sample + count)
+                    if on_tile is not None:
+                        on_tile(tile_result(tile, films[tile], first_sample + count))
+                    continue
+            # Pixel chunks keep a batch within batch_paths even when one tile has more pixels than that.
+            pix_chunk = max(1, settings.batch_paths // count)
+            chunks = [pixels[c0:c0 + pix_chunk] for c0 in range(0, len(pixels), pix_chunk)] or [pixels]
+            for k, chunk in enumerate(chunks):
+                if stop_requested():
+                    cancelled = True
+                    break
+                loc = np.repeat(chunk, count)
+                smp = np.tile(np.arange(first_sample, first_sample + count, dtype=np.uint32), len(chunk))
+                if pool is not None:
+                    job = pool.submit(trace_batch, tile, loc, smp)
+                else:
+                    job = (lambda tile=tile, loc=loc, smp=smp: trace_batch(tile, loc, smp))
+                in_flight.append((ti, tile, loc, first_sample + count, k == len(chunks) - 1, job))
+                if len(in_flight) > (workers if pool is not None else 0):
+                    finish_one()
+            if cancelled:
                 break
-            if pool is not None:
-                job = pool.submit(trace_batch, tile, loc, smp)
-            else:
-                job = (lambda tile=tile, loc=loc, smp=smp: trace_batch(tile, loc, smp))
-            in_flight.append((ti, tile, loc, sample_end, last_chunk, job))
-            if len(in_flight) > (workers if pool is not None else 0):
-                finish_one()
-        while in_flight:  # batches already running finish and count, also after a cancel
+        if cancelled:
+            # Batches still queued never start; ones already running finish (a path batch cannot stop halfway
+            # without bias) and their samples are kept, but no callback reports anything after the cancel.
+            while in_flight:
+                job = in_flight[0][-1]
+                if pool is not None and job.cancel():
+                    in_flight.popleft()
+                else:
+                    finish_one(quiet=True)
+        while in_flight:
             finish_one()
     finally:
         if pool is not None:
@@ -327,6 +363,7 @@ def render(
         "clamped_contributions": st.clamped,
         "peak_memory_mb": _peak_memory_mb(),
         "threads": settings.thread_count,
+        "adaptive_pixels_converged": int(pixels_converged.sum()) if adaptive else 0,
         "features": prepared.features,
     }
     if st.nonfinite:

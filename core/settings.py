@@ -11,7 +11,7 @@ SAMPLERS = ("sobol", "stratified", "independent")
 FILTERS = ("blackman-harris", "gaussian", "tent", "box")
 # Settings a user overrides from the command line (`monte render`, `monte bench`).
 CLI_SETTINGS = ("spp", "seed", "sampler", "filter_type", "filter_width", "max_bounces", "rr_depth", "clamp",
-                "threads", "batch_paths", "tile_size", "time_limit")
+                "threads", "batch_paths", "tile_size", "time_limit", "adaptive_threshold", "adaptive_min_samples")
 
 
 @dataclass
@@ -26,6 +26,10 @@ class RenderSettings:
     tile_size: square tile edge in pixels. time_limit: seconds, 0 = none (stops between sample batches).
     light_sampling: "mis" (default), "bsdf" (BSDF sampling only) or "light" (next-event estimation only; for
     the unbiasedness tests). aovs: also produce albedo, normal and depth passes.
+    adaptive_threshold: adaptive sampling's noise threshold, Cycles' meaning and scale (0 = off, the default;
+    Cycles suggests 0.01): a pixel stops taking samples once the sum of its channels' standard errors divided by
+    sqrt of its summed value is below it. adaptive_min_samples: samples every pixel gets before the test
+    (0 = automatic: 4 / sqrt(threshold), at least 16, at most spp).
     """
 
     spp: int = 64
@@ -42,6 +46,8 @@ class RenderSettings:
     time_limit: float = 0.0
     light_sampling: Literal["mis", "bsdf", "light"] = "mis"
     aovs: bool = True
+    adaptive_threshold: float = 0.0
+    adaptive_min_samples: int = 0
 
     def validate(self) -> "RenderSettings":
         """Raise ValueError naming the setting for absurd values."""
@@ -71,9 +77,20 @@ class RenderSettings:
             raise ValueError(f"time limit must be >= 0 seconds, got {self.time_limit}")
         if self.light_sampling not in ("mis", "bsdf", "light"):
             raise ValueError(f"unknown light sampling {self.light_sampling!r}")
+        if not (math.isfinite(self.adaptive_threshold) and 0 <= self.adaptive_threshold < 1):
+            raise ValueError(f"adaptive threshold must be in [0, 1) (0 = off), got {self.adaptive_threshold}")
+        if int(self.adaptive_min_samples) != self.adaptive_min_samples or self.adaptive_min_samples < 0:
+            raise ValueError(f"adaptive min samples must be a non-negative integer (0 = automatic), "
+                             f"got {self.adaptive_min_samples}")
         if not (0 <= self.seed < 2**32):
             raise ValueError(f"seed must be in [0, 2^32), got {self.seed}")
         return self
+
+    def adaptive_min_samples_for(self, spp: int) -> int:
+        """Samples every pixel takes before adaptive sampling may stop it."""
+        if self.adaptive_min_samples > 0:
+            return min(int(self.adaptive_min_samples), spp)
+        return min(max(16, math.ceil(4 / math.sqrt(self.adaptive_threshold))), spp)
 
     @property
     def thread_count(self) -> int:

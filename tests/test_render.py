@@ -198,3 +198,35 @@ def test_cornell_box_matches_cycles_channel_means():
     mean, sigma = image_mean_and_sigma(result)
     assert np.all(np.abs(mean - expected) <= 0.01 * expected), f"{mean} vs Cycles {expected} (sigma {sigma})"
     assert result.stats["nonfinite_samples"] == 0
+
+
+def test_adaptive_sampling_stops_converged_pixels_and_keeps_the_mean(fast_settings):
+    """A plane under a uniform sky: sky pixels have zero variance and stop at the minimum sample count; the
+    image mean stays within the noise of a full render; threshold 0 keeps every pixel at spp."""
+    scene = scenes.plane_under_world((24, 24))
+    full = render(scene, fast_settings(spp=64, tile_size=8))
+    assert (full.sample_count == 64).all()
+    adaptive = render(scenes.plane_under_world((24, 24)),
+                      fast_settings(spp=64, tile_size=8, adaptive_threshold=0.05, adaptive_min_samples=8))
+    counts = adaptive.sample_count
+    assert counts.min() == 8 and counts.max() <= 64
+    assert adaptive.stats["adaptive_pixels_converged"] > 0
+    assert counts.sum() < full.sample_count.sum()
+    # Pixels that stopped early: their estimated error is below the threshold (Cycles' metric).
+    stopped = counts < 64
+    mean = adaptive.color[..., :3]
+    err = np.sqrt(adaptive.variance).sum(-1) / (1e-4 + np.sqrt(mean.sum(-1)))
+    assert (err[stopped] < 0.05).mean() > 0.95  # dilation keeps a few below-threshold pixels running
+    sigma = np.sqrt(full.variance.sum() + adaptive.variance.sum()) / full.variance[..., 0].size
+    assert abs(full.color[..., :3].mean() - mean.mean()) < 5 * sigma + 1e-6
+
+
+def test_adaptive_settings_are_validated():
+    from monte.core.settings import RenderSettings
+
+    with pytest.raises(ValueError, match="adaptive threshold"):
+        RenderSettings(adaptive_threshold=-0.1).validate()
+    with pytest.raises(ValueError, match="adaptive min samples"):
+        RenderSettings(adaptive_min_samples=-1).validate()
+    assert RenderSettings(adaptive_threshold=0.01).adaptive_min_samples_for(1024) == 40
+    assert RenderSettings(adaptive_threshold=0.01).adaptive_min_samples_for(20) == 20
