@@ -140,6 +140,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_perf(args: argparse.Namespace) -> int:
+    from .core.perf import run_perf
+
+    run_perf(args)
+    return 0
+
+
 def cmd_mc_study(args: argparse.Namespace) -> int:
     from .core.mc_study import main
 
@@ -164,6 +171,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference", help="reference EXR for RMSE (default: the bundled converged Cycles render)")
     _add_render_options(p)
     p.set_defaults(func=cmd_bench)
+
+    from .core.perf import add_arguments as add_perf_arguments
+
+    p = sub.add_parser("perf", help="where time and memory go: stage profile, thread scaling, memory per batch, "
+                                    "unused-feature cost, adaptive sampling savings")
+    add_perf_arguments(p)
+    p.set_defaults(func=cmd_perf)
 
     try:
         from .core.mc_study import add_arguments

@@ -94,6 +94,9 @@ def _tiles(x0: int, y0: int, w: int, h: int, size: int) -> list[tuple[int, int, 
             for y in range(y0, y0 + h, size) for x in range(x0, x0 + w, size)]
 
 
+_MIN_BATCH = 1 << 14  # paths: below this NumPy's per-call overhead dominates a batch
+
+
 def _peak_memory_mb() -> float:
     try:
         import resource
@@ -174,6 +177,7 @@ def render(
     cancelled = False
     samples_started = np.zeros(len(tiles), np.int64)
     pixels_converged = np.zeros(len(tiles), np.int64)  # adaptive sampling: pixels that stopped early
+    largest_batch = 0  # paths in the largest batch traced (memory scales with it, times the worker threads)
 
     def progress(tiles_done: int, sample: int) -> None:
         if on_progress is None:
@@ -215,7 +219,7 @@ def render(
                 n_pix = tile[2] * tile[3]
                 count = min(max(1, settings.batch_paths // n_pix), spp - first_sample)
                 if adaptive:
-                    count = min(count, min_samples if first_sample < min_samples else max(1, min_samples // 2))
+                    count = min(count, min_samples if first_sample < min_samples else max(16, min_samples // 2))
                 yield ti, tile, first_sample, count
                 started[ti] = first_sample + count
             if not any_left:
@@ -288,14 +292,20 @@ def render(
                     if on_tile is not None:
                         on_tile(tile_result(tile, films[tile], first_sample + count))
                     continue
-            # Pixel chunks keep a batch within batch_paths even when one tile has more pixels than that.
-            pix_chunk = max(1, settings.batch_paths // count)
+            # Pixel chunks keep a batch within batch_paths even when one tile has more pixels than that; with
+            # fewer than 8 tiles a pass is split further (batches of at least _MIN_BATCH paths) so that worker
+            # threads share even a one-tile image. The split does not depend on the thread count, so neither
+            # does the image.
+            split = -(-8 // len(tiles))
+            pix_chunk = max(1, min(settings.batch_paths // count,
+                                   max(-(-_MIN_BATCH // count), -(-len(pixels) // split))))
             chunks = [pixels[c0:c0 + pix_chunk] for c0 in range(0, len(pixels), pix_chunk)] or [pixels]
             for k, chunk in enumerate(chunks):
                 if stop_requested():
                     cancelled = True
                     break
                 loc = np.repeat(chunk, count)
+                largest_batch = max(largest_batch, len(loc))
                 smp = np.tile(np.arange(first_sample, first_sample + count, dtype=np.uint32), len(chunk))
                 if pool is not None:
                     job = pool.submit(trace_batch, tile, loc, smp)
@@ -363,6 +373,7 @@ def render(
         "clamped_contributions": st.clamped,
         "peak_memory_mb": _peak_memory_mb(),
         "threads": settings.thread_count,
+        "largest_batch": largest_batch,
         "adaptive_pixels_converged": int(pixels_converged.sum()) if adaptive else 0,
         "features": prepared.features,
     }

@@ -230,3 +230,27 @@ def test_adaptive_settings_are_validated():
         RenderSettings(adaptive_min_samples=-1).validate()
     assert RenderSettings(adaptive_threshold=0.01).adaptive_min_samples_for(1024) == 40
     assert RenderSettings(adaptive_threshold=0.01).adaptive_min_samples_for(20) == 20
+
+
+def test_stats_break_time_into_stages_and_bound_batches(fast_settings):
+    result = render(scenes.cornell_box((32, 32)), fast_settings(spp=8, batch_paths=4096, threads=2))
+    st = result.stats
+    stages = st["stage_seconds"]
+    assert set(stages) == {"camera", "intersect", "occluded", "emission", "nee", "scatter", "film"}
+    assert all(v > 0 for v in stages.values())
+    # Embree's share is of all worker thread-time, so it is a fraction whatever the thread count.
+    assert 0 < st["embree_share"] < 1
+    assert 0 < st["largest_batch"] <= 4096
+
+
+def test_perf_command_reports_stages_and_unused_feature_cost(tmp_path):
+    import json
+
+    from monte.cli import main
+
+    out = tmp_path / "perf.json"
+    assert main(["perf", "--sections", "stages", "skip", "--resolution", "16", "--spp", "2", "--repeat", "1",
+                 "--threads", "1", "--json", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert sum(report["stages"]["stage_share"].values()) == pytest.approx(1.0)
+    assert report["skip"]["seconds_plain"] > 0 and report["skip"]["seconds_unused_glass"] > 0

@@ -1,0 +1,159 @@
+"""`monte perf`: where render time and memory go, measured on the built-in scenes. Prints numbers only.
+
+Sections (each a short run; all in one process, interleaved where two variants are compared):
+- stages: thread-seconds per wavefront stage (camera rays, Embree closest hits, Embree shadow rays, emission and
+  surface interaction, next-event estimation, BSDF sampling and compaction, film) and Embree's share of the
+  worker thread-time.
+- threads: samples/s at 1, 2, ... N worker threads and the speed-up over 1 (alternating runs, best of `repeat`).
+- memory: peak NumPy allocation (tracemalloc) per batch size, and MB per million paths in flight.
+- skip: the diffuse-only Cornell box with and without an unused glass material (features a scene does not use
+  cost nothing: the times should agree within noise).
+- adaptive: the Cornell box at a fixed spp with adaptive sampling off and on, RMSE against a long render of
+  the same scene, and the time saved.
+Nothing here asserts a time: machines are shared and noisy; compare ratios within one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+import tracemalloc
+
+import numpy as np
+
+from .render import render
+from .scene import Lobe, Material
+from .scenes import cornell_box, cornell_diffuse
+from .settings import RenderSettings
+
+SECTIONS = ("stages", "threads", "memory", "skip", "adaptive")
+
+
+def _settings(**kw) -> RenderSettings:
+    return RenderSettings(**kw).validate()
+
+
+def stage_profile(resolution: int, spp: int, threads: int) -> dict:
+    """Thread-seconds per stage of one Cornell box render."""
+    result = render(cornell_box((resolution, resolution)), _settings(spp=spp, threads=threads))
+    st = result.stats
+    stages = st["stage_seconds"]
+    total = sum(stages.values())
+    return {"seconds": st["seconds"], "samples_per_second": st["samples_per_second"],
+            "rays_per_second": st["rays_per_second"], "embree_share": st["embree_share"],
+            "stage_seconds": stages, "stage_share": {k: v / max(total, 1e-9) for k, v in stages.items()}}
+
+
+def thread_scaling(resolution: int, spp: int, max_threads: int, repeat: int) -> dict:
+    """Samples/s per worker-thread count, alternating the counts so load changes hit all of them."""
+    counts = sorted({1, 2, max_threads} | ({4, 8, 16} & set(range(1, max_threads + 1))))
+    best: dict[int, float] = {}
+    for _ in range(repeat):
+        for n in counts:
+            st = render(cornell_box((resolution, resolution)), _settings(spp=spp, threads=n)).stats
+            best[n] = max(best.get(n, 0.0), st["samples_per_second"])
+    return {"samples_per_second": {str(n): best[n] for n in counts},
+            "speedup": {str(n): best[n] / best[1] for n in counts}}
+
+
+def memory_per_batch(resolution: int, spp: int, batches: list[int]) -> dict:
+    """Peak traced allocation (NumPy reports to tracemalloc) per batch size, one worker thread."""
+    rows = []
+    for batch in batches:
+        scene = cornell_box((resolution, resolution))
+        tracemalloc.start()
+        tracemalloc.reset_peak()
+        st = render(scene, _settings(spp=spp, threads=1, batch_paths=batch, tile_size=64)).stats
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        rows.append({"batch_paths": batch, "largest_batch": st["largest_batch"], "peak_mb": peak / 2**20})
+    # Slope of peak memory against paths in flight: the per-path cost, independent of image and spp.
+    x = np.array([r["largest_batch"] for r in rows], float)
+    y = np.array([r["peak_mb"] for r in rows], float)
+    slope = float(np.polyfit(x / 1e6, y, 1)[0]) if len(rows) > 1 else float(y[0] / (x[0] / 1e6))
+    return {"rows": rows, "mb_per_million_paths": slope}
+
+
+def _with_unused_glass(scene):
+    scene.materials.append(Material("unused_glass", [Lobe("glass", np.full(3, 0.999), roughness=0.0, ior=1.5)]))
+    scene.name += "+unused-glass"
+    return scene
+
+
+def feature_skip(resolution: int, spp: int, threads: int, repeat: int) -> dict:
+    """Diffuse-only box with and without an unused glass material: best-of times, alternating."""
+    times = {"plain": [], "unused_glass": []}
+    for _ in range(repeat):
+        for key in times:
+            scene = cornell_diffuse((resolution, resolution))
+            if key == "unused_glass":
+                scene = _with_unused_glass(scene)
+            times[key].append(render(scene, _settings(spp=spp, threads=threads)).stats["seconds"])
+    plain, glass = min(times["plain"]), min(times["unused_glass"])
+    return {"seconds_plain": plain, "seconds_unused_glass": glass, "ratio": glass / plain, "all": times}
+
+
+def adaptive_saving(resolution: int, spp: int, threads: int, threshold: float) -> dict:
+    """Adaptive sampling off vs on at the same spp: time, samples taken and RMSE against a 4x longer render."""
+    size = (resolution, resolution)
+    reference = render(cornell_box(size), _settings(spp=4 * spp, threads=threads, seed=99)).color[..., :3]
+    out = {}
+    for name, thr in (("off", 0.0), ("on", threshold)):
+        r = render(cornell_box(size), _settings(spp=spp, threads=threads, adaptive_threshold=thr))
+        err = float(np.sqrt(np.mean((r.color[..., :3] - reference) ** 2)))
+        out[name] = {"seconds": r.stats["seconds"], "samples": int(r.sample_count.sum()), "rmse": err,
+                     "efficiency": 1.0 / (r.stats["seconds"] * err * err)}
+    out["threshold"] = threshold
+    out["time_saved"] = 1 - out["on"]["seconds"] / out["off"]["seconds"]
+    return out
+
+
+def run_perf(args: argparse.Namespace) -> dict:
+    sections = args.sections or list(SECTIONS)
+    res, spp = args.resolution, args.spp
+    threads = args.threads or (os.cpu_count() or 1)
+    report: dict = {"resolution": res, "spp": spp, "threads": threads}
+    if "stages" in sections:
+        r = report["stages"] = stage_profile(res, spp, threads)
+        print(f"Stages (Cornell box {res}x{res}, {spp} spp, {threads} threads): {r['seconds']:.2f} s, "
+              f"{r['samples_per_second'] / 1e3:.0f} k samples/s, {r['rays_per_second'] / 1e6:.2f} M rays/s, "
+              f"Embree {100 * r['embree_share']:.0f}% of worker time")
+        for k, v in r["stage_seconds"].items():
+            print(f"  {k:10s} {v:7.2f} thread-s  {100 * r['stage_share'][k]:5.1f}%")
+    if "threads" in sections:
+        r = report["threads"] = thread_scaling(res, spp, threads, args.repeat)
+        print("Thread scaling (best of %d): " % args.repeat + ", ".join(
+            f"{n}: {v / 1e3:.0f} k/s ({r['speedup'][n]:.2f}x)" for n, v in r["samples_per_second"].items()))
+    if "memory" in sections:
+        r = report["memory"] = memory_per_batch(256, 32, [1 << 14, 1 << 16, 1 << 17])
+        print("Peak NumPy memory by batch size: " + ", ".join(
+            f"{row['largest_batch']} paths: {row['peak_mb']:.0f} MB" for row in r["rows"])
+            + f"; {r['mb_per_million_paths']:.0f} MB per million paths in flight (x worker threads)")
+    if "skip" in sections:
+        r = report["skip"] = feature_skip(res, spp, threads, args.repeat)
+        print(f"Unused glass material: {r['seconds_plain']:.2f} s without, {r['seconds_unused_glass']:.2f} s with "
+              f"(ratio {r['ratio']:.3f})")
+    if "adaptive" in sections:
+        r = report["adaptive"] = adaptive_saving(64, args.adaptive_spp, threads, args.adaptive_threshold)
+        print(f"Adaptive sampling (threshold {r['threshold']}): off {r['off']['seconds']:.2f} s, RMSE "
+              f"{r['off']['rmse']:.4f}, efficiency {r['off']['efficiency']:.1f}; on {r['on']['seconds']:.2f} s, "
+              f"RMSE {r['on']['rmse']:.4f}, efficiency {r['on']['efficiency']:.1f}, "
+              f"{r['on']['samples'] / r['off']['samples']:.0%} of the samples; time saved {r['time_saved']:.0%}")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(report, fh, indent=2)
+    return report
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sections", nargs="*", choices=SECTIONS, help="which measurements (default: all)")
+    p.add_argument("--resolution", type=int, default=128, help="square image size (default 128)")
+    p.add_argument("--spp", type=int, default=16, help="samples per pixel per run (default 16)")
+    p.add_argument("--threads", type=int, default=0, help="most worker threads (0 = all cores)")
+    p.add_argument("--repeat", type=int, default=2, help="alternating repeats for timing comparisons")
+    p.add_argument("--adaptive-threshold", type=float, default=0.1,
+                   help="adaptive threshold to measure (default 0.1: the Cornell box reaches it near 256 spp)")
+    p.add_argument("--adaptive-spp", type=int, default=256, help="spp of the adaptive comparison (64x64 image)")
+    p.add_argument("--json", help="also write the numbers to this JSON file")
