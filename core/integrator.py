@@ -18,7 +18,8 @@ import time
 import numpy as np
 
 from . import bsdf as bsdf_mod
-from .accel import Accelerator, offset_ray_origin
+from . import kernels
+from .accel import Accelerator
 from .lights import EmissiveTriangles, LightSampler
 from .scene import Scene
 from .settings import RenderSettings
@@ -43,19 +44,35 @@ def _max3(v: np.ndarray) -> np.ndarray:
     return np.maximum(np.maximum(v[:, 0], v[:, 1]), v[:, 2])
 
 
-def _normalize(v: np.ndarray) -> np.ndarray:
-    length = np.sqrt(_dot(v, v))
-    return v / np.maximum(length, np.float32(1e-30))[:, None]
+@dataclass
+class SurfaceBatch:
+    """Surface interactions of M path vertices (see core.kernels.surface for each array's meaning)."""
 
+    p: np.ndarray
+    ng: np.ndarray
+    ns_raw: np.ndarray
+    ns: np.ndarray
+    tangent: np.ndarray
+    bitangent: np.ndarray
+    wo: np.ndarray
+    n_view: np.ndarray
+    mag: np.ndarray
+    cos_o_geo: np.ndarray
+    uv_buffer: np.ndarray  # (M, 2), or (0, 2) when the scene has no UVs
 
-def _onb(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Branchless orthonormal basis (Duff et al. 2017) around unit normals n (N,3)."""
-    sign = np.where(n[:, 2] >= 0, np.float32(1), np.float32(-1))
-    a = -1.0 / (sign + n[:, 2])
-    b = n[:, 0] * n[:, 1] * a
-    t = np.stack([1.0 + sign * n[:, 0] * n[:, 0] * a, sign * b, -sign * n[:, 0]], axis=1)
-    bt = np.stack([b, sign + n[:, 1] * n[:, 1] * a, -n[:, 1]], axis=1)
-    return t.astype(np.float32), bt.astype(np.float32)
+    @classmethod
+    def empty(cls, m: int, with_uvs: bool) -> "SurfaceBatch":
+        v = [np.empty((m, 3), np.float32) for _ in range(8)]
+        return cls(*v, np.empty(m, np.float32), np.empty(m, np.float32),
+                   np.empty((m if with_uvs else 0, 2), np.float32))
+
+    @property
+    def uv(self) -> np.ndarray | None:
+        return self.uv_buffer if len(self.uv_buffer) else None
+
+    def take(self, rows: np.ndarray) -> "SurfaceBatch":
+        out = {name: getattr(self, name)[rows] for name in self.__dataclass_fields__ if name != "uv_buffer"}
+        return SurfaceBatch(**out, uv_buffer=self.uv_buffer[rows] if len(self.uv_buffer) else self.uv_buffer)
 
 
 @dataclass
@@ -79,6 +96,19 @@ class PreparedScene:
     has_nondelta: np.ndarray  # (M,) bool: material has a lobe that next-event estimation can reach
     radius: float
     features: dict = field(default_factory=dict)
+
+    # The same per-triangle data as the compiled kernels take it: empty arrays instead of None.
+    @property
+    def kernel_corner_normals(self) -> np.ndarray:
+        return self.corner_normals if self.corner_normals is not None else np.zeros((0, 3, 3), np.float32)
+
+    @property
+    def kernel_smooth(self) -> np.ndarray:
+        return self.smooth if self.smooth is not None else np.zeros(0, bool)
+
+    @property
+    def kernel_uvs(self) -> np.ndarray:
+        return self.uvs if self.uvs is not None else np.zeros((0, 3, 2), np.float32)
 
     @classmethod
     def build(cls, scene: Scene) -> "PreparedScene":
@@ -244,24 +274,7 @@ class PathTracer:
             if len(idx) == 0:
                 break
 
-            # Surface point from barycentrics (precision of the triangle itself, not of origin + t d).
-            tv = ps.tri_vertices[prim]
-            bw = (1.0 - bu - bv).astype(np.float32)
-            p = tv[:, 0] * bw[:, None] + tv[:, 1] * bu[:, None] + tv[:, 2] * bv[:, None]
-            ng = ps.face_normals[prim]
-            if ps.corner_normals is not None:
-                cn = ps.corner_normals[prim]
-                ns = cn[:, 0] * bw[:, None] + cn[:, 1] * bu[:, None] + cn[:, 2] * bv[:, None]
-                ns = np.where(ps.smooth[prim][:, None], _normalize(ns), ng)
-            else:
-                ns = ng
-            uv = None
-            if ps.uvs is not None:
-                tuv = ps.uvs[prim]
-                uv = tuv[:, 0] * bw[:, None] + tuv[:, 1] * bu[:, None] + tuv[:, 2] * bv[:, None]
             mat = ps.material_index[prim]
-            wo_world = -d
-            cos_o_geo = _dot(wo_world, ng)
 
             # Emission of an emissive triangle hit (two-sided), MIS-weighted against light sampling.
             if ps.emissive is not None:
@@ -275,78 +288,78 @@ class PathTracer:
                     elif not self.use_bsdf_emission:
                         w = prev_delta[e].astype(np.float32)
                     else:
-                        pdf_l = ps.lights.pdf_triangle(em_idx[e], t[e] * t[e], np.abs(cos_o_geo[e]))
+                        cos_e = np.abs(_dot(d[e], ps.face_normals[prim[e]]))
+                        pdf_l = ps.lights.pdf_triangle(em_idx[e], t[e] * t[e], cos_e)
                         pb = prev_pdf[e]
                         w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
                     self._add(radiance, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
-
-            if want_aovs and depth == 0:
-                lobes0 = ps.materials.gather(mat, uv)
-                first.albedo[idx] = bsdf_mod.albedo(lobes0)
-                first.normal[idx] = ns
-                first.depth[idx] = (t_start + t) * depth_scale
 
             if depth == s.max_bounces + 1:
                 self._lap("emission", clock)
                 break  # this vertex only contributes emission (Cycles' bounce counting)
 
+            # Russian roulette as Cycles does it, before any work at this vertex: survive with probability
+            # min(1, sqrt(max throughput)); the square root ends paths later than the throughput itself would
+            # (measured on the Cornell box: MSE at equal samples 0.0115 without RR, 0.0201 with q = throughput,
+            # 0.0165 with sqrt), and a terminated path casts no shadow ray here.
+            rows = None
             if depth >= s.rr_depth:
-                # Russian roulette as Cycles does it, before any work at this vertex: survive with probability
-                # min(1, sqrt(max throughput)); the square root ends paths later than the throughput itself would
-                # (measured on the Cornell box: MSE at equal samples 0.0115 without RR, 0.0201 with q = throughput,
-                # about Cycles' with sqrt), and a terminated path casts no shadow ray here.
                 q = np.minimum(np.sqrt(_max3(throughput)), np.float32(1.0))
                 u_rr = self.sampler.get_1d(pix, smp, self._dim(depth, _D_RR))
-                survive = np.flatnonzero(u_rr < q)
-                if len(survive) < len(idx):
-                    idx, d, pix, smp, prev_pdf, prev_delta = (idx[survive], d[survive], pix[survive],
-                                                              smp[survive], prev_pdf[survive], prev_delta[survive])
-                    prim, bu, bv, t, p, ng, ns, mat = (prim[survive], bu[survive], bv[survive], t[survive],
-                                                       p[survive], ng[survive], ns[survive], mat[survive])
-                    wo_world, cos_o_geo, throughput, q = (wo_world[survive], cos_o_geo[survive],
-                                                         throughput[survive], q[survive])
-                    if uv is not None:
-                        uv = uv[survive]
-                throughput = throughput / q[:, None]
+                survive = u_rr < q
+                throughput = throughput / np.where(survive, q, np.float32(1.0))[:, None]
+                if not survive.all():
+                    rows = np.flatnonzero(survive)
+            aov_here = want_aovs and depth == 0
+            g = self._surface(np.arange(len(idx)) if rows is None or aov_here else rows, prim, bu, bv, d)
+            if aov_here:
+                first.albedo[idx] = bsdf_mod.albedo(ps.materials.gather(mat, g.uv))
+                first.normal[idx] = g.ns_raw
+                first.depth[idx] = (t_start + t) * depth_scale
+                if rows is not None:
+                    g = g.take(rows)
+            if rows is not None:
+                idx, pix, smp, mat, throughput = idx[rows], pix[rows], smp[rows], mat[rows], throughput[rows]
                 if len(idx) == 0:
                     break
-
-            # Shading frame: +z = shading normal on the side the face normal points to ("outside").
-            ns = np.where((_dot(ns, ng) < 0)[:, None], -ns, ns)
-            tangent, bitangent = _onb(ns)
-            wo = np.stack([_dot(wo_world, tangent), _dot(wo_world, bitangent), _dot(wo_world, ns)], axis=1)
-            lobes = ps.materials.gather(mat, uv)
-            mag = np.maximum(ps.tri_magnitude[prim], _max3(np.abs(p)))
-            # The normal on the viewer's side: light sampling (world, inside sphere lights) and MIS use it.
-            n_view = np.where((wo[:, 2] < 0)[:, None], -ns, ns)
+            lobes = ps.materials.gather(mat, g.uv)
 
             clock = self._lap("emission", clock)
             if self.use_nee:
-                self._next_event(depth, idx, pix, smp, p, ng, ns, n_view, tangent, bitangent, wo, cos_o_geo,
-                                 mag, mat, lobes, throughput, radiance)
+                self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance)
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction.
             u_bsdf = self.sampler.get_3d(pix, smp, self._dim(depth, _D_BSDF))
             u_dir, u_lobe = np.ascontiguousarray(u_bsdf[:, :2]), np.ascontiguousarray(u_bsdf[:, 2])
-            bs = bsdf_mod.sample_bsdf(lobes, wo, u_lobe, u_dir)
-            wi = bs.wi[:, :1] * tangent + bs.wi[:, 1:2] * bitangent + bs.wi[:, 2:3] * ns
-            # Geometric consistency: reflection stays on wo's side of the true surface, transmission crosses.
-            side_o = cos_o_geo > 0
-            side_i = _dot(wi, ng) > 0
-            ok = bs.valid & np.where(bs.transmitted, side_o != side_i, side_o == side_i)
-            throughput = throughput * bs.weight
-            ok &= _max3(throughput) > 0
+            bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir)
+            m = len(idx)
+            ok = np.empty(m, bool)
+            origin = np.empty((m, 3), np.float32)
+            direction = np.empty((m, 3), np.float32)
+            throughput = np.ascontiguousarray(throughput, dtype=np.float32)
+            kernels.scatter(np.ascontiguousarray(bs.wi, dtype=np.float32), g.tangent, g.bitangent, g.ns, g.ng,
+                            g.cos_o_geo, bs.valid, bs.transmitted, np.ascontiguousarray(bs.weight, np.float32),
+                            throughput, g.p, g.mag, ok, origin, direction)
             keep = np.flatnonzero(ok)
-            wi, p_keep, ng_keep, mag_keep = wi[keep], p[keep], ng[keep], mag[keep]
-            o = offset_ray_origin(p_keep, ng_keep, wi, mag_keep)
-            d = _normalize(wi).astype(np.float32)
+            o, d = origin[keep], direction[keep]
             tm = np.full(len(keep), np.float32(3e38))
             idx, throughput, pix, smp = idx[keep], throughput[keep], pix[keep], smp[keep]
             prev_pdf, prev_delta = bs.pdf[keep].astype(np.float32), bs.delta[keep]
-            prev_normal = n_view[keep]
+            prev_normal = g.n_view[keep]
             self._lap("scatter", clock)
         return radiance, first
+
+    def _surface(self, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
+        """Surface interactions of the hits `rows` (see core.kernels.surface)."""
+        ps = self.ps
+        m = len(rows)
+        g = SurfaceBatch.empty(m, ps.uvs is not None)
+        kernels.surface(rows.astype(np.int64), prim, bu, bv, np.ascontiguousarray(d, dtype=np.float32),
+                        ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth,
+                        ps.kernel_uvs, ps.tri_magnitude, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
+                        g.n_view, g.mag, g.cos_o_geo, g.uv_buffer)
+        return g
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""
@@ -354,47 +367,36 @@ class PathTracer:
         setattr(self.stats, f"seconds_{stage}", getattr(self.stats, f"seconds_{stage}") + now - since)
         return now
 
-    def _next_event(self, depth, idx, pix, smp, p, ng, ns, n_view, tangent, bitangent, wo, cos_o_geo, mag, mat,
-                    lobes, throughput, radiance) -> None:
+    def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
             return
-        p_c, ng_c, ns_c = p[can], ng[can], ns[can]
+        gc = g.take(can) if len(can) < len(idx) else g
         u_light = self.sampler.get_3d(pix[can], smp[can], self._dim(depth, _D_LIGHT))
         u_l, u_sel = np.ascontiguousarray(u_light[:, :2]), np.ascontiguousarray(u_light[:, 2])
-        ls = ps.lights.sample(p_c, n_view[can], u_sel, u_l)
-        wi = ls.wi
-        wi_local = np.stack([_dot(wi, tangent[can]), _dot(wi, bitangent[can]), _dot(wi, ns_c)], axis=1)
-        lobes_c = lobes.take(can)
-        f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes_c, wo[can], wi_local)
-        # Same geometric-side rule as BSDF sampling: reflection only towards wo's side, transmission across.
-        transmit = (cos_o_geo[can] > 0) != (_dot(wi, ng_c) > 0)
-        pdf_l = ls.pdf
-        if self.mis:
-            w = np.where(ls.delta, 1.0, pdf_l * pdf_l / np.maximum(pdf_l * pdf_l + pdf_b * pdf_b, 1e-30))
-        else:
-            w = np.ones(len(can), np.float32)
-        scale = np.where(pdf_l > 0, w / np.maximum(pdf_l, 1e-30), 0).astype(np.float32)
-        contrib = throughput[can] * f_cos * ls.radiance * scale[:, None]
-        # A transmitted light direction only counts for materials that transmit.
-        contrib = np.where((transmit & ~ps.materials.has_transmission[mat[can]])[:, None], 0, contrib)
-        live = np.flatnonzero(_max3(contrib) > 0)
+        ls = ps.lights.sample(gc.p, gc.n_view, u_sel, u_l)
+        wi = np.ascontiguousarray(ls.wi, dtype=np.float32)
+        m = len(can)
+        wi_local = np.empty((m, 3), np.float32)
+        kernels.to_local(wi, gc.tangent, gc.bitangent, gc.ns, wi_local)
+        f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes.take(can), gc.wo, wi_local)
+        contrib = np.empty((m, 3), np.float32)
+        origin = np.empty((m, 3), np.float32)
+        direction = np.empty((m, 3), np.float32)
+        tmax = np.empty(m, np.float32)
+        live = np.empty(m, bool)
+        kernels.shadow_rays(np.ascontiguousarray(throughput[can], np.float32), np.ascontiguousarray(f_cos, np.float32),
+                            np.ascontiguousarray(ls.radiance, np.float32), np.asarray(ls.pdf, np.float32),
+                            np.asarray(pdf_b, np.float32), np.asarray(ls.delta, bool), self.mis, gc.cos_o_geo, gc.ng,
+                            ps.materials.has_transmission[mat[can]], gc.p, gc.mag, wi,
+                            np.asarray(ls.dist, np.float32), SHADOW_EPSILON, contrib, origin, direction, tmax, live)
+        live = np.flatnonzero(live)
         if len(live) == 0:
             return
-        wi_l, p_l, dist = wi[live], p_c[live], ls.dist[live]
-        o = offset_ray_origin(p_l, ng_c[live], wi_l, mag[can][live])
-        # Aim the shadow ray from the offset origin at the sampled light point itself: the offset moves the
-        # origin towards the light by up to eps / cos, which near a light at grazing angles exceeds the
-        # SHADOW_EPSILON margin and would make the light occlude itself.
-        finite = np.isfinite(dist)
-        to_light = np.where(finite[:, None], p_l + wi_l * np.where(finite, dist, 0)[:, None] - o, wi_l)
-        length = np.sqrt(_dot(to_light, to_light))
-        shadow_dir = np.where(finite[:, None], to_light / np.maximum(length, 1e-30)[:, None], wi_l)
-        tmax = np.where(finite, length * (1 - SHADOW_EPSILON), np.float32(3e38)).astype(np.float32)
         clock = time.perf_counter()
-        blocked = self.accel.occluded(o, shadow_dir.astype(np.float32), tmax)
+        blocked = self.accel.occluded(origin[live], direction[live], tmax[live])
         self.stats.seconds_occluded += time.perf_counter() - clock
         self.stats.seconds_nee -= time.perf_counter() - clock  # counted once, as shadow rays
         vis = live[~blocked]
@@ -402,14 +404,8 @@ class PathTracer:
 
     def _add(self, radiance: np.ndarray, idx: np.ndarray, value: np.ndarray) -> None:
         """Add contributions to their samples, catching NaN/Inf (counted, dropped) and clamping if asked."""
-        bad = ~np.all(np.isfinite(value), axis=1)
-        if bad.any():
-            self.stats.nonfinite += int(bad.sum())
-            value = np.where(bad[:, None], 0, value)
-        if self.settings.clamp > 0:
-            peak = _max3(value)
-            over = peak > self.settings.clamp
-            if over.any():
-                self.stats.clamped += int(over.sum())
-                value = value * np.where(over, self.settings.clamp / np.maximum(peak, 1e-30), 1)[:, None]
-        radiance[idx] += value.astype(np.float32)  # idx holds each live path once
+        counters = np.zeros(2, np.int64)
+        kernels.accumulate(radiance, np.asarray(idx, np.int64), np.ascontiguousarray(value, dtype=np.float32),
+                           np.float32(self.settings.clamp), counters)
+        self.stats.nonfinite += int(counters[0])
+        self.stats.clamped += int(counters[1])

@@ -108,7 +108,7 @@ def test_zip_holds_only_the_add_on(built_zip):
     tops = {n.split("/", 1)[0] for n in names}
     assert tops == {"__init__.py", "blender_manifest.toml", "LICENSE", "core", "addon", "wheels"}
     wheels = sorted(n for n in names if n.endswith(".whl"))
-    assert [Path(w).name.split("-")[0] for w in wheels] == ["embreex", "openexr"]
+    assert [Path(w).name.split("-")[0] for w in wheels] == ["embreex", "llvmlite", "numba", "openexr"]
     assert not any(n.startswith(("tests/", "tools/", ".venv", "dist/")) or "__pycache__" in n for n in names)
 
 

@@ -34,7 +34,7 @@ PYTHON_VERSION = "3.11"  # Blender 4.2 - 5.0 bundle CPython 3.11
 # Blender platform -> pip --platform tags that select its wheels (the newest tag first; pip accepts older ones
 # for manylinux/macOS when given the newest, but listing them is explicit).
 PIP_PLATFORMS = {
-    "linux-x64": ["manylinux_2_28_x86_64"],
+    "linux-x64": ["manylinux_2_28_x86_64", "manylinux_2_17_x86_64"],  # numba/llvmlite ship manylinux2014 wheels
     "windows-x64": ["win_amd64"],
     "macos-x64": ["macosx_13_0_x86_64"],
     "macos-arm64": ["macosx_13_0_arm64"],

@@ -1,0 +1,202 @@
+"""Compiled (numba) kernels for the integrator's per-path geometry: one pass over the paths instead of dozens
+of NumPy array operations, each of which would stream every array through memory again.
+
+Profiling the NumPy wavefront (`monte perf`, line profiles) showed ~40% of render time in this glue: surface
+points and shading frames from barycentrics, ray origins offset off surfaces, shadow-ray set-up and MIS weights.
+BSDFs, lights and the sampler stay vectorised NumPy (core.bsdf, core.lights, core.sampling).
+
+Conventions as in core.integrator: float32 (N, 3) row vectors in the camera-shifted frame; face normals follow
+the winding; the shading frame's +z is the shading normal flipped to the face normal's side ("outside").
+Kernels release the GIL (render worker threads run them in parallel) and are compiled once, cached on disk.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False)
+
+_F0 = np.float32(0.0)
+_F1 = np.float32(1.0)
+_OFFSET_SCALE = np.float32(2.0**-19)  # see core.accel.offset_ray_origin
+_TINY = np.float32(1e-30)
+_FAR = np.float32(3e38)
+
+
+@_jit
+def _offset(px, py, pz, nx, ny, nz, wx, wy, wz, magnitude):
+    """core.accel.offset_ray_origin for one point: off the surface along ng, to the side of w."""
+    eps = max(magnitude * _OFFSET_SCALE, _TINY)
+    if nx * wx + ny * wy + nz * wz < _F0:
+        eps = -eps
+    return px + nx * eps, py + ny * eps, pz + nz * eps
+
+
+@_jit
+def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, smooth, tri_uvs, tri_magnitude,
+            p, ng, ns_raw, ns, tangent, bitangent, wo, n_view, mag, cos_o_geo, uv):
+    """Surface interaction of the hits `rows` (indices into prim/bu/bv/d); writes row k of each output.
+
+    p: point from barycentrics (the triangle's own precision). ng: face normal. ns_raw: interpolated shading
+    normal as the mesh gives it (the normal AOV). ns: the same flipped to ng's side; tangent, bitangent: Duff et
+    al.'s branchless basis around ns. wo: direction to the viewer (-d) in that frame. n_view: ns on the viewer's
+    side. mag: largest |coordinate| of p and its triangle (ray offset scale). cos_o_geo: -d . ng.
+    corner_normals/smooth and tri_uvs may be empty arrays (flat shading, no UVs).
+    """
+    has_normals = corner_normals.shape[0] > 0
+    has_uvs = tri_uvs.shape[0] > 0
+    for k in range(rows.shape[0]):
+        i = rows[k]
+        t = prim[i]
+        b1 = bu[i]
+        b2 = bv[i]
+        b0 = _F1 - b1 - b2
+        m = tri_magnitude[t]
+        for c in range(3):
+            pc = tri_vertices[t, 0, c] * b0 + tri_vertices[t, 1, c] * b1 + tri_vertices[t, 2, c] * b2
+            p[k, c] = pc
+            m = max(m, abs(pc))
+            ng[k, c] = face_normals[t, c]
+        mag[k] = m
+        gx, gy, gz = face_normals[t, 0], face_normals[t, 1], face_normals[t, 2]
+        sx, sy, sz = gx, gy, gz
+        if has_normals and smooth[t]:
+            sx = corner_normals[t, 0, 0] * b0 + corner_normals[t, 1, 0] * b1 + corner_normals[t, 2, 0] * b2
+            sy = corner_normals[t, 0, 1] * b0 + corner_normals[t, 1, 1] * b1 + corner_normals[t, 2, 1] * b2
+            sz = corner_normals[t, 0, 2] * b0 + corner_normals[t, 1, 2] * b1 + corner_normals[t, 2, 2] * b2
+            length = max(np.float32(math.sqrt(sx * sx + sy * sy + sz * sz)), _TINY)
+            sx, sy, sz = sx / length, sy / length, sz / length
+        ns_raw[k, 0], ns_raw[k, 1], ns_raw[k, 2] = sx, sy, sz
+        if has_uvs:
+            for c in range(2):
+                uv[k, c] = tri_uvs[t, 0, c] * b0 + tri_uvs[t, 1, c] * b1 + tri_uvs[t, 2, c] * b2
+        ox, oy, oz = -d[i, 0], -d[i, 1], -d[i, 2]
+        cos_o_geo[k] = ox * gx + oy * gy + oz * gz
+        if sx * gx + sy * gy + sz * gz < _F0:
+            sx, sy, sz = -sx, -sy, -sz
+        ns[k, 0], ns[k, 1], ns[k, 2] = sx, sy, sz
+        sign = _F1 if sz >= _F0 else -_F1
+        a = -_F1 / (sign + sz)
+        b = sx * sy * a
+        tx, ty, tz = _F1 + sign * sx * sx * a, sign * b, -sign * sx
+        bx, by, bz = b, sign + sy * sy * a, -sy
+        tangent[k, 0], tangent[k, 1], tangent[k, 2] = tx, ty, tz
+        bitangent[k, 0], bitangent[k, 1], bitangent[k, 2] = bx, by, bz
+        wz = ox * sx + oy * sy + oz * sz
+        wo[k, 0] = ox * tx + oy * ty + oz * tz
+        wo[k, 1] = ox * bx + oy * by + oz * bz
+        wo[k, 2] = wz
+        flip = -_F1 if wz < _F0 else _F1
+        n_view[k, 0], n_view[k, 1], n_view[k, 2] = sx * flip, sy * flip, sz * flip
+
+
+@_jit
+def to_local(w, tangent, bitangent, normal, out):
+    """World directions w (N, 3) in each row's frame: out = (w . t, w . b, w . n)."""
+    for k in range(w.shape[0]):
+        wx, wy, wz = w[k, 0], w[k, 1], w[k, 2]
+        out[k, 0] = wx * tangent[k, 0] + wy * tangent[k, 1] + wz * tangent[k, 2]
+        out[k, 1] = wx * bitangent[k, 0] + wy * bitangent[k, 1] + wz * bitangent[k, 2]
+        out[k, 2] = wx * normal[k, 0] + wy * normal[k, 1] + wz * normal[k, 2]
+
+
+@_jit
+def scatter(wi_local, tangent, bitangent, ns, ng, cos_o_geo, valid, transmitted, weight, throughput, p, mag,
+            ok, origin, direction):
+    """Turn sampled BSDF directions into next rays, in place of the path state.
+
+    Reflection must stay on wo's side of the true surface and transmission must cross it (else the path ends);
+    throughput *= weight; origin: p offset off the surface to the new direction's side; direction: unit wi.
+    Writes ok (the path continues), throughput, origin, direction row by row.
+    """
+    for k in range(wi_local.shape[0]):
+        lx, ly, lz = wi_local[k, 0], wi_local[k, 1], wi_local[k, 2]
+        wx = lx * tangent[k, 0] + ly * bitangent[k, 0] + lz * ns[k, 0]
+        wy = lx * tangent[k, 1] + ly * bitangent[k, 1] + lz * ns[k, 1]
+        wz = lx * tangent[k, 2] + ly * bitangent[k, 2] + lz * ns[k, 2]
+        side_o = cos_o_geo[k] > _F0
+        side_i = wx * ng[k, 0] + wy * ng[k, 1] + wz * ng[k, 2] > _F0
+        good = valid[k] and ((side_o != side_i) if transmitted[k] else (side_o == side_i))
+        peak = _F0
+        for c in range(3):
+            v = throughput[k, c] * weight[k, c]
+            throughput[k, c] = v
+            peak = max(peak, v)
+        good = good and peak > _F0
+        ok[k] = good
+        if good:
+            ox, oy, oz = _offset(p[k, 0], p[k, 1], p[k, 2], ng[k, 0], ng[k, 1], ng[k, 2], wx, wy, wz, mag[k])
+            origin[k, 0], origin[k, 1], origin[k, 2] = ox, oy, oz
+            length = max(np.float32(math.sqrt(wx * wx + wy * wy + wz * wz)), _TINY)
+            direction[k, 0], direction[k, 1], direction[k, 2] = wx / length, wy / length, wz / length
+
+
+@_jit
+def shadow_rays(throughput, f_cos, radiance, pdf_light, pdf_bsdf, delta, use_mis, cos_o_geo, ng, transmits, p,
+                mag, wi, dist, shadow_epsilon, contrib, origin, direction, tmax, live):
+    """Next-event estimation's contribution (if unoccluded) and shadow ray per light sample.
+
+    contrib = throughput f cos L w / pdf_light, with w the power-heuristic MIS weight (1 for delta lights or
+    without MIS); 0 where pdf_light is 0 or where wi crosses the surface of a material that does not transmit.
+    The shadow ray leaves p offset to wi's side and is aimed at the sampled light point itself (the offset moves
+    the origin; aiming from the new origin keeps a light near a grazing surface from occluding itself); it stops
+    shadow_epsilon short of the light. Lights at infinity (dist = inf) get direction wi and tmax 3e38.
+    """
+    for k in range(throughput.shape[0]):
+        pl = pdf_light[k]
+        scale = _F0
+        if pl > _F0:
+            w = _F1
+            if use_mis and not delta[k]:
+                pb = pdf_bsdf[k]
+                w = pl * pl / max(pl * pl + pb * pb, _TINY)
+            scale = w / max(pl, _TINY)
+        wx, wy, wz = wi[k, 0], wi[k, 1], wi[k, 2]
+        crosses = (cos_o_geo[k] > _F0) != (wx * ng[k, 0] + wy * ng[k, 1] + wz * ng[k, 2] > _F0)
+        if crosses and not transmits[k]:
+            scale = _F0
+        peak = _F0
+        for c in range(3):
+            v = throughput[k, c] * f_cos[k, c] * radiance[k, c] * scale
+            contrib[k, c] = v
+            peak = max(peak, v)
+        live[k] = peak > _F0
+        if not live[k]:
+            continue
+        px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+        ox, oy, oz = _offset(px, py, pz, ng[k, 0], ng[k, 1], ng[k, 2], wx, wy, wz, mag[k])
+        origin[k, 0], origin[k, 1], origin[k, 2] = ox, oy, oz
+        dk = dist[k]
+        if math.isfinite(dk):
+            tx, ty, tz = px + wx * dk - ox, py + wy * dk - oy, pz + wz * dk - oz
+            length = np.float32(math.sqrt(tx * tx + ty * ty + tz * tz))
+            inv = _F1 / max(length, _TINY)
+            direction[k, 0], direction[k, 1], direction[k, 2] = tx * inv, ty * inv, tz * inv
+            tmax[k] = length * (_F1 - shadow_epsilon)
+        else:
+            direction[k, 0], direction[k, 1], direction[k, 2] = wx, wy, wz
+            tmax[k] = _FAR
+
+
+@_jit
+def accumulate(radiance, rows, value, clamp, counters):
+    """radiance[rows[k]] += value[k], dropping NaN/Inf rows (counters[0]) and scaling rows whose largest
+    component exceeds clamp > 0 down to it (counters[1])."""
+    for k in range(rows.shape[0]):
+        v0, v1, v2 = value[k, 0], value[k, 1], value[k, 2]
+        if not (math.isfinite(v0) and math.isfinite(v1) and math.isfinite(v2)):
+            counters[0] += 1
+            continue
+        if clamp > 0:
+            peak = max(v0, v1, v2)
+            if peak > clamp:
+                counters[1] += 1
+                s = clamp / peak
+                v0, v1, v2 = v0 * s, v1 * s, v2 * s
+        r = rows[k]
+        radiance[r, 0] += v0
+        radiance[r, 1] += v1
+        radiance[r, 2] += v2
