@@ -483,6 +483,19 @@ def _sample(lobes: LobeBatch, wo, u_lobe, u) -> BsdfSample:
 
     # non-delta samples: MIS-consistent sums over all non-delta lobes at the sampled direction
     m = valid & ~delta
+    if L == 1 and m.any():
+        # A lone diffuse lobe needs no mixture sum: f cos / pdf = colour / select, pdf = select cos / pi.
+        dm = m & (k_c == DIFFUSE)
+        if dm.any():
+            dr = np.flatnonzero(dm)
+            c = np.maximum(iz[dr], F32(0.0)) * INV_PI
+            sc = sel_c[dr]
+            p = sc * c
+            good = p > 0
+            weight[dr] = np.where(good[:, None], lobes.weight[dr, 0] / np.maximum(sc, F32(1e-30))[:, None], F32(0))
+            pdf[dr] = p
+            valid[dr] = good
+            m &= ~dm
     if m.any():
         nd = _rows(m)
         f, p = _eval_core(lobes, nd, ox[nd], oy[nd], oz[nd], back[nd], ix[nd], iy[nd], iz[nd])

@@ -28,9 +28,9 @@ from .settings import RenderSettings
 DIM_FILM = 0
 DIM_BOUNCE_BASE = 2
 DIM_STRIDE = 8
-# One 3-D set for the BSDF (direction in the stratified pair, lobe choice third), one for the light (point in the
-# pair, which light third), one 1-D for Russian roulette: fewer, larger sampler calls.
-_D_BSDF, _D_LIGHT, _D_RR = 1, 4, 6
+# Two sampler calls per bounce: a 4-D set for the vertex (BSDF direction in the stratified pair, lobe choice third,
+# Russian roulette fourth) and a 3-D set for the light (point in the pair, which light third).
+_D_VERTEX, _D_LIGHT = 1, 4
 
 SHADOW_EPSILON = np.float32(1e-4)  # shadow rays stop this fraction short of the light (its own surface)
 
@@ -303,10 +303,10 @@ class PathTracer:
             # (measured on the Cornell box: MSE at equal samples 0.0115 without RR, 0.0201 with q = throughput,
             # 0.0165 with sqrt), and a terminated path casts no shadow ray here.
             rows = None
+            u_vertex = self.sampler.get_4d(pix, smp, self._dim(depth, _D_VERTEX))
             if depth >= s.rr_depth:
                 q = np.minimum(np.sqrt(_max3(throughput)), np.float32(1.0))
-                u_rr = self.sampler.get_1d(pix, smp, self._dim(depth, _D_RR))
-                survive = u_rr < q
+                survive = u_vertex[:, 3] < q
                 throughput = throughput / np.where(survive, q, np.float32(1.0))[:, None]
                 if not survive.all():
                     rows = np.flatnonzero(survive)
@@ -320,6 +320,7 @@ class PathTracer:
                     g = g.take(rows)
             if rows is not None:
                 idx, pix, smp, mat, throughput = idx[rows], pix[rows], smp[rows], mat[rows], throughput[rows]
+                u_vertex = u_vertex[rows]
                 if len(idx) == 0:
                     break
             lobes = ps.materials.gather(mat, g.uv)
@@ -330,8 +331,7 @@ class PathTracer:
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction.
-            u_bsdf = self.sampler.get_3d(pix, smp, self._dim(depth, _D_BSDF))
-            u_dir, u_lobe = np.ascontiguousarray(u_bsdf[:, :2]), np.ascontiguousarray(u_bsdf[:, 2])
+            u_dir, u_lobe = np.ascontiguousarray(u_vertex[:, :2]), np.ascontiguousarray(u_vertex[:, 2])
             bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir)
             m = len(idx)
             ok = np.empty(m, bool)

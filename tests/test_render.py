@@ -64,8 +64,9 @@ def test_mis_light_only_and_bsdf_only_agree(fast_settings):
     """BSDF-sampling-only, light-sampling-only and MIS estimators are all unbiased: same mean within noise."""
     scene_res = (24, 24)
     means, sigmas = {}, {}
+    # 128 spp: light-only NEE is heavy-tailed near the lamp, and at 64 spp its sample sigma under-estimates the spread.
     for mode in ("mis", "light", "bsdf"):
-        r = render(scenes.cornell_diffuse(scene_res), fast_settings(spp=64, light_sampling=mode, max_bounces=4))
+        r = render(scenes.cornell_diffuse(scene_res), fast_settings(spp=128, light_sampling=mode, max_bounces=4))
         means[mode], sigmas[mode] = image_mean_and_sigma(r)
     for a, b in (("mis", "light"), ("mis", "bsdf"), ("light", "bsdf")):
         tol = Z * np.hypot(sigmas[a], sigmas[b])
