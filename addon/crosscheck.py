@@ -259,7 +259,7 @@ class _Session:
         return rgb, var, time.perf_counter() - t0
 
     def cycles(self, material_index: bool = False):
-        """K Cycles renders: (mean, per-pixel variance of the mean, pooled variance, material index, seconds)."""
+        """K Cycles renders: (mean, per-pixel variance of the mean, material index, seconds)."""
         o = _Overrides()
         layer = _render_layer(self.scene)
         t0 = time.perf_counter()
@@ -275,8 +275,8 @@ class _Session:
                 index = idx if idx is not None else index
         finally:
             o.restore()
-        mean, var, pooled = cmp.runs_mean_and_variance(np.stack(runs))
-        return mean, var, pooled, index, time.perf_counter() - t0
+        mean, var = cmp.runs_mean_and_variance(np.stack(runs))
+        return mean, var, index, time.perf_counter() - t0
 
 
 def crosscheck_scene(scene, out_dir: str | os.PathLike, options: CrosscheckOptions | None = None,
@@ -309,8 +309,8 @@ def crosscheck_scene(scene, out_dir: str | os.PathLike, options: CrosscheckOptio
             say(f"Cross-check: Monte, {session.spp} spp ...")
             monte_rgb, monte_var, monte_s = session.monte()
             say(f"Cross-check: Cycles, {session.runs} x {session.cycles_spp_per_run} spp ...")
-            cyc_rgb, cyc_var, cyc_pooled, index, cyc_s = session.cycles(material_index=True)
-            result = cmp.compare(monte_rgb, monte_var, cyc_rgb, cyc_var, cyc_pooled, rel_floor=options.rel_floor)
+            cyc_rgb, cyc_var, index, cyc_s = session.cycles(material_index=True)
+            result = cmp.compare(monte_rgb, monte_var, cyc_rgb, cyc_var, rel_floor=options.rel_floor)
             agree, reasons = result.verdict()
             attribution: dict[str, Any] = {}
             if options.attribute and not agree:
@@ -354,12 +354,12 @@ def _light_attribution(session: _Session) -> list[dict]:
             elif scene.world is None:
                 continue
             monte_rgb, monte_var, _ = session.monte()
-            cyc_rgb, cyc_var, cyc_pooled, _, _ = session.cycles()
+            cyc_rgb, cyc_var, _, _ = session.cycles()
         finally:
             o.restore()
         if max(monte_rgb.max(), cyc_rgb.max()) <= 0.0:
             continue  # nothing emits in this case (no emitting surfaces, a black world)
-        c = cmp.compare(monte_rgb, monte_var, cyc_rgb, cyc_var, cyc_pooled, rel_floor=session.options.rel_floor)
+        c = cmp.compare(monte_rgb, monte_var, cyc_rgb, cyc_var, rel_floor=session.options.rel_floor)
         sig = c.difference / np.maximum(c.sigma, 1e-30)
         rows.append({"source": name, "monte_mean": c.mean_a.tolist(), "cycles_mean": c.mean_b.tolist(),
                      "relative_difference": c.relative_difference.tolist(), "sigmas": sig.tolist(),

@@ -9,12 +9,14 @@ Cycles reports no variance, so it is estimated from K independent renders (diffe
 `runs_mean_and_variance` returns their mean and the per-pixel variance of that mean, s^2 / K with K - 1
 degrees of freedom. With K = 4 a z-score built on it follows Student's t with 3 degrees of freedom, whose
 tails are far heavier than a Gaussian's (P(|t3| > 3) = 5.8 %, P(|t3| > 5) = 1.5 %), so agreeing images would
-look like disagreeing ones. The per-pixel estimate is therefore pooled over a 3x3 neighbourhood (noise
-varies slowly across most of an image): about 9 (K - 1) = 27 degrees of freedom for K = 4, which brings
-P(|t| > 3) to 0.6 % and P(|t| > 5) to 3e-5. Where the variance changes sharply (a light's edge) pooling
-spreads it over neighbours; that errs in both directions by at most a factor ~2 on a few pixels. The image
-mean's sigma uses the unpooled per-pixel estimates (unbiased, and summing n of them leaves many degrees
-of freedom).
+look like disagreeing ones. For the per-pixel z-scores both renderers' variance estimates are therefore
+pooled over a 3x3 neighbourhood (noise varies slowly across most of an image): about 9 (K - 1) = 27 degrees
+of freedom for Cycles with K = 4, which brings P(|t| > 3) to 0.6 % and P(|t| > 5) to 3e-5. Monte's own
+estimate has n - 1 degrees of freedom but is heavy-tailed where paths are (caustics, light seen through
+glass): most pixels miss the rare bright paths and underestimate their variance while a few overestimate
+it; pooling averages that too. Where the variance changes sharply (a light's edge) pooling spreads it over
+neighbours, erring by at most a factor ~2 either way on a few pixels. The image means' sigmas use the
+unpooled per-pixel estimates (unbiased, and summing n of them leaves many degrees of freedom).
 """
 
 from __future__ import annotations
@@ -32,16 +34,14 @@ REL_FLOOR = 0.005
 Z5_FRACTION = 0.01  # at most 1 % of per-pixel z-scores beyond 5 (Gaussian: 6e-7; pooled t27: 3e-5)
 
 
-def runs_mean_and_variance(runs: np.ndarray, pool: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """From K >= 2 independent renders (K, H, W, 3): (mean image, per-pixel variance of the mean, the same
-    pooled over a pool x pool neighbourhood, edges replicated)."""
+def runs_mean_and_variance(runs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """From K >= 2 independent renders (K, H, W, 3): (mean image, per-pixel variance of the mean)."""
     runs = np.asarray(runs, np.float64)
     if runs.ndim != 4 or runs.shape[0] < 2:
         raise ValueError(f"need K >= 2 renders shaped (K, H, W, C), got {runs.shape}")
     k = runs.shape[0]
     mean = runs.mean(axis=0)
-    var = runs.var(axis=0, ddof=1) / k
-    return mean, var, box_smooth(var, pool)
+    return mean, runs.var(axis=0, ddof=1) / k
 
 
 def box_smooth(image: np.ndarray, size: int = 3) -> np.ndarray:
@@ -119,22 +119,21 @@ def compare(
     image_a: np.ndarray,
     var_a: np.ndarray,
     image_b: np.ndarray,
-    var_b_pixel: np.ndarray,
-    var_b_pooled: np.ndarray | None = None,
+    var_b: np.ndarray,
     *,
     rel_floor: float = REL_FLOOR,
     sigmas: float = MEAN_SIGMAS,
+    pool: int = 3,
 ) -> Comparison:
-    """Compare image_a (variance var_a) with image_b: var_b_pixel is the unpooled per-pixel variance of b's
-    mean (used for the image-mean sigma), var_b_pooled the pooled one for z-scores (default: unpooled).
-    Channel means agree when |difference| <= max(sigmas x sigma, rel_floor x |mean_b|)."""
+    """Compare image_a with image_b, given the per-pixel variances of their means. Channel means agree when
+    |difference| <= max(sigmas x sigma, rel_floor x |mean_b|); per-pixel z-scores use both variances pooled
+    over pool x pool pixels (1 = no pooling)."""
     a = np.asarray(image_a, np.float64)[..., :3]
     b = np.asarray(image_b, np.float64)[..., :3]
     va = np.maximum(np.asarray(var_a, np.float64)[..., :3], 0.0)
-    vb = np.maximum(np.asarray(var_b_pixel, np.float64)[..., :3], 0.0)
-    vbz = vb if var_b_pooled is None else np.maximum(np.asarray(var_b_pooled, np.float64)[..., :3], 0.0)
-    if a.shape != b.shape or va.shape != a.shape or vb.shape != a.shape or vbz.shape != a.shape:
-        raise ValueError(f"image shapes differ: {a.shape}, {va.shape}, {b.shape}, {vb.shape}, {vbz.shape}")
+    vb = np.maximum(np.asarray(var_b, np.float64)[..., :3], 0.0)
+    if a.shape != b.shape or va.shape != a.shape or vb.shape != a.shape:
+        raise ValueError(f"image shapes differ: {a.shape}, {va.shape}, {b.shape}, {vb.shape}")
     n = a.shape[0] * a.shape[1]
     mean_a = a.reshape(-1, 3).mean(axis=0)
     mean_b = b.reshape(-1, 3).mean(axis=0)
@@ -145,10 +144,11 @@ def compare(
     # float32 rounding of noise-free pixels (a plain background) is not a difference: floor the error scale
     # at 1e-5 of the value (float32 carries ~6e-8), and at 1e-12 absolute.
     floor = (1e-5 * np.maximum(np.abs(a), np.abs(b))) ** 2 + 1e-24
-    z = diff / np.sqrt(va + vbz + floor)
+    pooled = box_smooth(va + vb, pool)
+    z = diff / np.sqrt(pooled + floor)
     return Comparison(mean_a, mean_b, sigma_a, sigma_b, tolerance, z,
                       rmse=float(np.sqrt(np.mean(diff * diff))),
-                      rmse_noise=float(np.sqrt(np.mean(va + vbz))), pixels=n, rel_floor=rel_floor, sigmas=sigmas)
+                      rmse_noise=float(np.sqrt(np.mean(va + vb))), pixels=n, rel_floor=rel_floor, sigmas=sigmas)
 
 
 def region_attribution(comparison: Comparison, labels: np.ndarray, names: dict[int, str],

@@ -223,10 +223,11 @@ def floor_scene(size=(48, 48), world: float = 0.0):
     return scene
 
 
-def sphere_scene(material, size=(48, 48), world: float = 1.0):
-    """A unit icosphere with `material` at the origin under a uniform white world, seen from -y."""
+def sphere_scene(make_material, size=(48, 48), world: float = 1.0):
+    """A unit icosphere with the material make_material() returns (made after the reset) at the origin under
+    a uniform white world, seen from -y."""
     scene = reset()
-    icosphere_object("ball", (0, 0, 0), 1.0, material, subdivisions=5)
+    icosphere_object("ball", (0, 0, 0), 1.0, make_material(), subdivisions=5)
     camera_object(scene, (0, -5, 0), (math.pi / 2, 0, 0), lens=50.0)
     set_world(scene, (world, world, world), 1.0)
     scene.render.resolution_x, scene.render.resolution_y = size
@@ -234,8 +235,8 @@ def sphere_scene(material, size=(48, 48), world: float = 1.0):
     return scene
 
 
-def stage_scene(material, size=(32, 32), world: float = 0.1):
-    """A sphere with `material` on a two-coloured floor (red and green halves) in front of a white wall, lit
+def stage_scene(make_material, size=(32, 32), world: float = 0.1):
+    """A sphere with the material make_material() returns (made after the reset) on a two-coloured floor (red and green halves) in front of a white wall, lit
     by a tilted square area light and a dim world: reflections and refractions have something to show."""
     scene = reset()
     s = 3.0
@@ -245,8 +246,9 @@ def stage_scene(material, size=(32, 32), world: float = 0.1):
                 diffuse("green", (0.15, 0.6, 0.2)))
     mesh_object("wall", [(-s, 1.5, 0), (s, 1.5, 0), (s, 1.5, 3), (-s, 1.5, 3)], [(0, 1, 2, 3)],
                 diffuse("wall", (0.8, 0.8, 0.8)))
-    icosphere_object("ball", (0, 0, 0.8), 0.8, material, subdivisions=4)
-    add_light(scene, "AREA", (1.5, -1.5, 3.0), (0.6, 0.0, 0.8), energy=300.0, shape="SQUARE", size=1.0)
+    icosphere_object("ball", (0, 0, 0.8), 0.8, make_material(), subdivisions=4)
+    # A large light: caustics through the sphere (found only by BSDF sampling) stay moderately noisy.
+    add_light(scene, "AREA", (1.5, -1.5, 3.0), (0.6, 0.0, 0.8), energy=600.0, shape="SQUARE", size=2.5)
     camera_object(scene, (0, -4.5, 1.6), (math.radians(80), 0, 0), lens=35.0)
     set_world(scene, (world, world, world), 1.0)
     scene.render.resolution_x, scene.render.resolution_y = size

@@ -4,7 +4,7 @@ Each test renders the scene with both engines and asserts that the channel means
 max(4 sigma, 0.5 %) (sigma from Monte's own variance estimate and from the spread of K Cycles renders) and
 that no more than 1 % of per-pixel z-scores exceed 5 (the cross-check's verdict). Where Monte approximates the
 Principled BSDF on purpose the floor is the gap docs/addon.md states. "small" runs in the default suite
-(32x32 pixels); "large" (96x96, 8x the samples) is marked slow: `make crosscheck` runs it.
+(32x32 pixels); "large" (64x64, 4x the samples) is marked slow: `make crosscheck` runs it.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from monte.addon import crosscheck as cc  # noqa: E402
 pytestmark = pytest.mark.blender
 
 # size name -> (pixels per side, Monte spp, Cycles spp in total)
-SIZES = {"small": (32, 128, 256), "large": (96, 1024, 2048)}
+SIZES = {"small": (32, 256, 512), "large": (64, 1024, 2048)}
 SIZE_PARAMS = [pytest.param("small"), pytest.param("large", marks=pytest.mark.slow)]
 
 
@@ -93,7 +93,7 @@ MATERIALS = {
 @pytest.mark.parametrize("name", list(MATERIALS))
 def test_material(name, size, tmp_path):
     shader, inputs = MATERIALS[name]
-    scene = bf.stage_scene(bf.node_material(name, shader, **inputs))
+    scene = bf.stage_scene(lambda: bf.node_material(name, shader, **inputs))
     check(scene, tmp_path, size, max_bounces=8)
 
 
@@ -112,18 +112,22 @@ PRINCIPLED = {
 @pytest.mark.parametrize("name", list(PRINCIPLED))
 def test_principled(name, size, tmp_path):
     inputs, floor = PRINCIPLED[name]
-    mat = bf.node_material(f"principled-{name}", "ShaderNodeBsdfPrincipled")
-    node = mat.node_tree.nodes["Principled BSDF"]
-    for key, value in inputs.items():
-        node.inputs[key].default_value = value
-    scene = bf.stage_scene(mat)
+
+    def make():
+        mat = bf.node_material(f"principled-{name}", "ShaderNodeBsdfPrincipled")
+        node = mat.node_tree.nodes["Principled BSDF"]
+        for key, value in inputs.items():
+            node.inputs[key].default_value = value
+        return mat
+
+    scene = bf.stage_scene(make)
     check(scene, tmp_path, size, rel_floor=floor, max_bounces=8)
 
 
 # ------------------------------------------------------------------------------------------ world, instances
 @pytest.mark.parametrize("size", SIZE_PARAMS)
 def test_world_light(size, tmp_path):
-    scene = bf.sphere_scene(bf.diffuse("ball", (0.7, 0.7, 0.7)), world=0.8)
+    scene = bf.sphere_scene(lambda: bf.diffuse("ball", (0.7, 0.7, 0.7)), world=0.8)
     s = 4.0
     bf.mesh_object("floor", [(-s, -s, -1), (s, -s, -1), (s, s, -1), (-s, s, -1)], [(0, 1, 2, 3)],
                    bf.diffuse("floor", (0.5, 0.4, 0.3)))
