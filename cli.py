@@ -6,6 +6,7 @@ Examples:
   monte render scene.blend -o out.exr --spp 128      (needs the bpy module)
   monte bench
   monte mc-study -o study/
+  monte crosscheck scene.blend -o check/ --spp 256   (needs the bpy module)
 """
 
 from __future__ import annotations
@@ -153,6 +154,24 @@ def cmd_mc_study(args: argparse.Namespace) -> int:
     return main(args)
 
 
+def cmd_crosscheck(args: argparse.Namespace) -> int:
+    """Exit status 0 when Monte and Cycles agree within noise, 3 when they do not (see report.txt)."""
+    try:
+        from .addon.crosscheck import CrosscheckError, CrosscheckOptions, crosscheck_blend_file
+        from .addon.headless import HeadlessError
+    except ImportError as exc:
+        print(f"monte crosscheck: needs the bpy module (pip install bpy==5.0.1): {exc}", file=sys.stderr)
+        return 2
+    options = CrosscheckOptions(spp=args.spp, cycles_spp=args.cycles_spp, resolution=args.resolution,
+                                threads=args.threads or 0, max_bounces=args.max_bounces)
+    try:
+        report = crosscheck_blend_file(args.blend, args.output, options)
+    except (CrosscheckError, HeadlessError) as exc:
+        print(f"monte crosscheck: error: {exc}", file=sys.stderr)
+        return 1
+    return 0 if report["verdict"]["agree"] else 3
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="monte", description="Monte: a physically based Monte Carlo path tracer.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -178,6 +197,16 @@ def build_parser() -> argparse.ArgumentParser:
                                     "unused-feature cost, adaptive sampling savings")
     add_perf_arguments(p)
     p.set_defaults(func=cmd_perf)
+
+    p = sub.add_parser("crosscheck", help="render a .blend with Monte and Cycles and compare them within noise")
+    p.add_argument("blend", help="path to a .blend file (its active scene and camera)")
+    p.add_argument("-o", "--output", required=True, help="folder for the EXRs, difference PNG and reports")
+    p.add_argument("--spp", type=int, help="Monte's samples per pixel (default: the scene's)")
+    p.add_argument("--cycles-spp", type=int, help="Cycles' samples per pixel over its 4 seeds (default: --spp)")
+    p.add_argument("--resolution", type=_resolution, help="image size WxH (default: the scene's)")
+    p.add_argument("--threads", type=int, help="threads for both renderers (default: all cores)")
+    p.add_argument("--max-bounces", type=int, help="bounce limit for both (default: the scene's Monte setting)")
+    p.set_defaults(func=cmd_crosscheck)
 
     try:
         from .core.mc_study import add_arguments

@@ -15,10 +15,11 @@ def register() -> None:
         return
     import bpy
 
-    from . import engine, properties, ui
+    from . import engine, operators, properties, ui
 
     properties.register()
     bpy.utils.register_class(engine.MonteRenderEngine)
+    operators.register()
     ui.register()
     _registered = True
 
@@ -29,9 +30,10 @@ def unregister() -> None:
         return
     import bpy
 
-    from . import engine, properties, ui
+    from . import engine, operators, properties, ui
 
     ui.unregister()
+    operators.unregister()
     bpy.utils.unregister_class(engine.MonteRenderEngine)
     properties.unregister()
     _registered = False

@@ -122,6 +122,16 @@ class MONTE_RENDER_PT_performance(MonteButtonsPanel, Panel):
         col.prop(monte, "tile_size")
 
 
+class MONTE_RENDER_PT_crosscheck(MonteButtonsPanel, Panel):
+    bl_label = "Cross-check"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.label(text="Render this frame with Cycles too and compare")
+        layout.operator("monte.crosscheck", icon="IMAGE")
+
+
 class MONTE_VIEWLAYER_PT_passes(MonteButtonsPanel, Panel):
     bl_label = "Passes"
     bl_context = "view_layer"
@@ -232,6 +242,7 @@ classes = (
     MONTE_RENDER_PT_light_paths,
     MONTE_RENDER_PT_film,
     MONTE_RENDER_PT_performance,
+    MONTE_RENDER_PT_crosscheck,
     MONTE_VIEWLAYER_PT_passes,
     MONTE_MATERIAL_PT_surface,
     MONTE_WORLD_PT_surface,

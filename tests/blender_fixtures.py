@@ -192,3 +192,65 @@ def save_render_exr(scene, path, multilayer: bool = True) -> dict[str, np.ndarra
     settings.color_depth = "32"
     bpy.data.images["Render Result"].save_render(str(path), scene=scene)
     return read_exr_layers(path)
+
+
+# --------------------------------------------------------------------------------------------- cross-check scenes
+def add_light(scene, kind: str, location, rotation=(0, 0, 0), name: str | None = None, **props):
+    """A light object of Blender type `kind` (POINT, SPOT, SUN, AREA) with light-data properties `props`."""
+    bpy = bpy_module()
+    data = bpy.data.lights.new(name or kind.lower(), kind)
+    for key, value in props.items():
+        setattr(data, key, value)
+    ob = bpy.data.objects.new(name or kind.lower(), data)
+    ob.location = location
+    ob.rotation_euler = rotation
+    scene.collection.objects.link(ob)
+    return ob
+
+
+def floor_scene(size=(48, 48), world: float = 0.0):
+    """A 10 x 10 diffuse floor (albedo 0.8) at z = 0 seen by an orthographic camera from above; world
+    radiance `world` (0 = black). For direct-light checks of each light kind."""
+    scene = reset()
+    s = 5.0
+    mesh_object("floor", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)],
+                diffuse("floor", (0.8, 0.8, 0.8)))
+    camera_object(scene, (0, 0, 6), (0, 0, 0), kind="ORTHO", ortho_scale=10.0)
+    set_world(scene, (world, world, world), 1.0)
+    scene.render.resolution_x, scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    scene.render.film_transparent = False
+    return scene
+
+
+def sphere_scene(make_material, size=(48, 48), world: float = 1.0):
+    """A unit icosphere with the material make_material() returns (made after the reset) at the origin under
+    a uniform white world, seen from -y."""
+    scene = reset()
+    icosphere_object("ball", (0, 0, 0), 1.0, make_material(), subdivisions=5)
+    camera_object(scene, (0, -5, 0), (math.pi / 2, 0, 0), lens=50.0)
+    set_world(scene, (world, world, world), 1.0)
+    scene.render.resolution_x, scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    return scene
+
+
+def stage_scene(make_material, size=(32, 32), world: float = 0.1):
+    """A sphere with the material make_material() returns (made after the reset) on a two-coloured floor (red and green halves) in front of a white wall, lit
+    by a tilted square area light and a dim world: reflections and refractions have something to show."""
+    scene = reset()
+    s = 3.0
+    mesh_object("floor_red", [(-s, -s, 0), (0, -s, 0), (0, s, 0), (-s, s, 0)], [(0, 1, 2, 3)],
+                diffuse("red", (0.7, 0.15, 0.1)))
+    mesh_object("floor_green", [(0, -s, 0), (s, -s, 0), (s, s, 0), (0, s, 0)], [(0, 1, 2, 3)],
+                diffuse("green", (0.15, 0.6, 0.2)))
+    mesh_object("wall", [(-s, 1.5, 0), (s, 1.5, 0), (s, 1.5, 3), (-s, 1.5, 3)], [(0, 1, 2, 3)],
+                diffuse("wall", (0.8, 0.8, 0.8)))
+    icosphere_object("ball", (0, 0, 0.8), 0.8, make_material(), subdivisions=4)
+    # A large light: caustics through the sphere (found only by BSDF sampling) stay moderately noisy.
+    add_light(scene, "AREA", (1.5, -1.5, 3.0), (0.6, 0.0, 0.8), energy=600.0, shape="SQUARE", size=2.5)
+    camera_object(scene, (0, -4.5, 1.6), (math.radians(80), 0, 0), lens=35.0)
+    set_world(scene, (world, world, world), 1.0)
+    scene.render.resolution_x, scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    return scene

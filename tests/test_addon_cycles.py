@@ -19,31 +19,19 @@ bpy = pytest.importorskip("bpy")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import blender_fixtures as bf  # noqa: E402
 
+from monte.addon import crosscheck as cc  # noqa: E402
+
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 
 
 def render(scene, engine: str, tmp_path, spp: int, bounces: int) -> np.ndarray:
-    scene.render.engine = engine
+    """The scene rendered by one engine, (H, W, 3) linear RGB; Cycles as the cross-check's unbiased reference."""
     if engine == "CYCLES":
-        c = scene.cycles
-        c.device = "CPU"
-        c.samples = spp
-        c.use_adaptive_sampling = False
-        c.use_denoising = False
-        c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
-        c.blur_glossy = 0.0
-        c.caustics_reflective = c.caustics_refractive = True
-        c.max_bounces = c.diffuse_bounces = c.glossy_bounces = c.transmission_bounces = bounces
-        c.transparent_max_bounces = max(bounces, 8)
-        c.seed = 1
-        scene.render.threads_mode = "FIXED"
-        scene.render.threads = 2
-    else:
-        m = scene.monte
-        m.samples, m.max_bounces, m.seed, m.threads = spp, bounces, 1, 2
-    bpy.ops.render.render()
-    ch = bf.save_render_exr(scene, tmp_path / f"{engine}.exr")
-    return np.stack([ch[f"ViewLayer.Combined.{c}"] for c in "RGB"], axis=-1)
+        cc.configure_cycles(scene, spp, bounces, threads=2, seed=1)
+        return cc.render_cycles(scene, tmp_path)[0]
+    m = scene.monte
+    m.samples, m.max_bounces, m.seed, m.threads = spp, bounces, 1, 2
+    return cc.render_monte(scene)[0]
 
 
 def blocks(img: np.ndarray, n: int = 4) -> np.ndarray:
@@ -51,27 +39,8 @@ def blocks(img: np.ndarray, n: int = 4) -> np.ndarray:
     return img[: h - h % n, : w - w % n].reshape(n, h // n, n, w // n, 3).mean(axis=(1, 3))
 
 
-def floor_scene(size=(48, 48)):
-    scene = bf.reset()
-    s = 5.0
-    bf.mesh_object("floor", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)],
-                   bf.diffuse("floor", (0.8, 0.8, 0.8)))
-    bf.camera_object(scene, (0, 0, 6), (0, 0, 0), kind="ORTHO", ortho_scale=10.0)
-    bf.set_world(scene, (0.0, 0.0, 0.0), 0.0)
-    scene.render.resolution_x, scene.render.resolution_y = size
-    scene.render.film_transparent = False
-    return scene
-
-
-def add_light(scene, kind, location, rotation=(0, 0, 0), **props):
-    data = bpy.data.lights.new(kind.lower(), kind)
-    for k, v in props.items():
-        setattr(data, k, v)
-    ob = bpy.data.objects.new(kind.lower(), data)
-    ob.location = location
-    ob.rotation_euler = rotation
-    scene.collection.objects.link(ob)
-    return ob
+floor_scene = bf.floor_scene
+add_light = bf.add_light
 
 
 LIGHTS = {
@@ -105,13 +74,7 @@ def test_lights_match_cycles(name, tmp_path):
     assert np.median(rel) < 0.04
 
 
-def sphere_scene(make_material, size=(48, 48)):
-    scene = bf.reset()
-    bf.icosphere_object("ball", (0, 0, 0), 1.0, make_material(), subdivisions=5)
-    bf.camera_object(scene, (0, -5, 0), (math.pi / 2, 0, 0), lens=50.0)
-    bf.set_world(scene, (1.0, 1.0, 1.0), 1.0)
-    scene.render.resolution_x, scene.render.resolution_y = size
-    return scene
+sphere_scene = bf.sphere_scene
 
 
 # name: (inputs, relative tolerance on the sphere's mean colour). Measured at 128 spp, 48x48 under a white
