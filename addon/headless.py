@@ -34,6 +34,7 @@ _MONTE_KEYS = {
     "tile_size": "tile_size",
     "time_limit": "time_limit",
     "light_sampling": "light_sampling",
+    "adaptive_min_samples": "adaptive_min_samples",
 }
 # override key -> what it sets outside scene.monte
 _OTHER_KEYS = {
@@ -42,6 +43,7 @@ _OTHER_KEYS = {
     "frame": "frame number to render",
     "camera": "name of the camera object to render from",
     "scene": "name of the scene to render (default: the file's active scene)",
+    "adaptive_threshold": "adaptive sampling's noise threshold (0 turns adaptive sampling off)",
     "multilayer": "write Blender's multilayer EXR (every view layer and pass, after compositing) instead of "
                   "Monte's channel layout",
 }
@@ -84,6 +86,8 @@ def _validate_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
     for key, prop in _MONTE_KEYS.items():
         if key in clean:
             fields["spp" if prop == "samples" else prop] = clean[key]
+    if "adaptive_threshold" in clean:
+        fields["adaptive_threshold"] = clean["adaptive_threshold"]
     RenderSettings().replace(**fields).validate()
     return clean
 
@@ -97,6 +101,11 @@ def _apply_overrides(bpy, scene, overrides: dict[str, Any]) -> None:
                 setattr(monte, prop, value)
             except (TypeError, ValueError) as exc:
                 raise ValueError(f"override {key}={value!r}: {exc}") from exc
+    if "adaptive_threshold" in overrides:
+        threshold = float(overrides["adaptive_threshold"])
+        monte.use_adaptive_sampling = threshold > 0
+        if threshold > 0:
+            monte.adaptive_threshold = threshold
     r = scene.render
     if "resolution" in overrides:
         w, h = overrides["resolution"]

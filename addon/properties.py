@@ -43,6 +43,7 @@ SETTING_FIELDS = {
     "tile_size": "tile_size",
     "time_limit": "time_limit",
     "light_sampling": "light_sampling",
+    "adaptive_min_samples": "adaptive_min_samples",
 }
 
 
@@ -103,6 +104,22 @@ class MonteRenderSettings(bpy.types.PropertyGroup):
         name="Light Sampling", description="Which light transport estimator to use",
         items=LIGHT_SAMPLING_ITEMS, default=_DEFAULTS.light_sampling,
     )
+    use_adaptive_sampling: BoolProperty(
+        name="Adaptive Sampling",
+        description="Stop sampling pixels whose noise is below the threshold (Cycles' noise metric and scale)",
+        default=_DEFAULTS.adaptive_threshold > 0,
+    )
+    adaptive_threshold: FloatProperty(
+        name="Noise Threshold",
+        description="Noise level at which a pixel stops taking samples: its standard error summed over R, G, B "
+        "divided by the square root of its value (lower is cleaner and slower; Cycles' scale)",
+        default=_DEFAULTS.adaptive_threshold or 0.01, min=0.0001, max=0.999, precision=4, step=0.1,
+    )
+    adaptive_min_samples: IntProperty(
+        name="Min Samples",
+        description="Samples every pixel takes before it may stop (0 = automatic: 4 / sqrt(threshold), at "
+        "least 16)", default=_DEFAULTS.adaptive_min_samples, min=0, max=1 << 24,
+    )
     threads: IntProperty(
         name="Threads",
         description="Ray-casting threads (0 = Blender's thread count: all cores, or the fixed number set in "
@@ -140,6 +157,7 @@ def render_settings(scene, overrides=None) -> RenderSettings:
     values = {field: getattr(props, prop) for prop, field in SETTING_FIELDS.items()}
     if props.use_animated_seed:
         values["seed"] = (values["seed"] + scene.frame_current) % (2**32)
+    values["adaptive_threshold"] = props.adaptive_threshold if props.use_adaptive_sampling else 0.0
     values.update(overrides or {})
     return RenderSettings(**{**_field_defaults(), **values}).validate()
 

@@ -72,6 +72,15 @@ class MONTE_RENDER_PT_sampling(MonteButtonsPanel, Panel):
         col = layout.column(align=True)
         col.prop(monte, "samples")
         col.prop(monte, "time_limit")
+        heading = layout.column(align=True, heading="Noise Threshold")
+        row = heading.row(align=True)
+        row.prop(monte, "use_adaptive_sampling", text="")
+        sub = row.row()
+        sub.active = monte.use_adaptive_sampling
+        sub.prop(monte, "adaptive_threshold", text="")
+        sub = layout.column(align=True)
+        sub.active = monte.use_adaptive_sampling
+        sub.prop(monte, "adaptive_min_samples")
         col = layout.column()
         col.prop(monte, "sampler")
         row = col.row(align=True)

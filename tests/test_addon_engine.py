@@ -337,3 +337,28 @@ def test_image_texture_orientation_end_to_end(tmp_path):
     out = rgb(render_still(scene, tmp_path))
     top, bottom = out[:3].mean(axis=(0, 1)), out[-3:].mean(axis=(0, 1))
     assert top[0] > 5 * top[1] and bottom[1] > 5 * bottom[0], (top, bottom)
+
+
+def test_adaptive_sampling_settings_reach_the_renderer(tmp_path):
+    """Blender's Noise Threshold checkbox and value map to RenderSettings; off means threshold 0."""
+    from monte.addon.properties import render_settings
+
+    scene = bf.plane_under_world(albedo=0.5, world=1.0, resolution=(16, 12))
+    assert render_settings(scene).adaptive_threshold == 0.0
+    scene.monte.use_adaptive_sampling = True
+    scene.monte.adaptive_threshold = 0.05
+    scene.monte.adaptive_min_samples = 8
+    settings = render_settings(scene)
+    assert settings.adaptive_threshold == pytest.approx(0.05) and settings.adaptive_min_samples == 8
+    scene.monte.samples = 64
+    ch = render_still(scene, tmp_path)  # renders (the sky-lit plane converges early) and stays right
+    assert abs(rgb(ch)[..., 0].mean() - 0.5) < 0.02
+    blend = tmp_path / "adaptive.blend"
+    scene.monte.use_adaptive_sampling = False
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp_path / "adaptive.exr"
+    render_blend_file(blend, out, {"spp": 32, "adaptive_threshold": 0.05, "adaptive_min_samples": 8},
+                      log=lambda _m: None)
+    assert out.exists()
+    with pytest.raises(ValueError, match="adaptive threshold"):
+        render_blend_file(blend, out, {"adaptive_threshold": -1.0}, log=lambda _m: None)
