@@ -289,7 +289,7 @@ class PathTracer:
                         w = prev_delta[e].astype(np.float32)
                     else:
                         cos_e = np.abs(_dot(d[e], ps.face_normals[prim[e]]))
-                        pdf_l = ps.lights.pdf_triangle(em_idx[e], t[e] * t[e], cos_e)
+                        pdf_l = ps.lights.pdf_triangle(em_idx[e], o[e], t[e] * t[e], cos_e)
                         pb = prev_pdf[e]
                         w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
                     self._add(radiance, idx[e], throughput[e] * le * w[:, None].astype(np.float32))

@@ -59,8 +59,13 @@ Cost (2-core machine here, per million shading points): `sample` about 30 ms for
 for discs, suns, the world and ellipses, 250-300 ms for rectangles (float64 spherical rectangles, for accuracy
 on tiny or distant lights); `intersect` about N x (number of analytic lights) of similar work.
 
+Emissive triangles are sampled uniformly in area, or uniformly in the solid angle they subtend (Arvo's spherical
+triangle sampling) where the triangle is near and large (longest edge longer than the distance to its plane,
+Cycles' rule): the seed's lamp hangs 2 cm under the ceiling, where area sampling's 1/d^2 makes fireflies.
+`pdf_triangle` applies the same rule from the ray origin.
+
 Light selection (one emitter per shading point, probability proportional to a power estimate, fixed over the
-scene, so `pdf_triangle` needs no shading point): luminance (Rec. 709 Y) of
+scene): luminance (Rec. 709 Y) of
   emissive triangle: emission x area x 2 pi (both faces), point: P, spot: P (1 - cos(size / 2)) / 2 (the
   fraction of the sphere inside the cone), area: P, sun: S x pi R^2 (what crosses the scene's bounding disc),
   world: L x 4 pi^2 R^2 (irradiance pi L over the bounding sphere of area 4 pi R^2), R = scene_radius.
@@ -111,6 +116,59 @@ def _rm(a) -> np.ndarray:
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+_MIN_SPHERICAL_OMEGA = 1e-6  # sr: below this a spherical triangle is numerically flat; sample by area instead
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.sqrt(_dot(v, v))
+
+
+def _solid_angle(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Solid angle (sr) of triangles with corners a, b, c (3, N) relative to the viewer (Van Oosterom and
+    Strackee 1983), float64."""
+    la, lb, lc = (np.sqrt(_dot(v, v)) for v in (a, b, c))
+    num = np.abs(_dot(a, _cross(b, c)))
+    den = la * lb * lc + _dot(a, b) * lc + _dot(a, c) * lb + _dot(b, c) * la
+    return 2.0 * np.arctan2(num, den) % (2.0 * np.pi)
+
+
+def _angle_between(v1: np.ndarray, v2: np.ndarray) -> np.ndarray:
+    """Angle between unit vectors, accurate near 0 and pi."""
+    s = np.where(_dot(v1, v2) < 0, np.sqrt(_dot(v1 + v2, v1 + v2)), np.sqrt(_dot(v2 - v1, v2 - v1))) / 2
+    ang = 2.0 * np.arcsin(np.minimum(s, 1.0))
+    return np.where(_dot(v1, v2) < 0, np.pi - ang, ang)
+
+
+def _sample_spherical_triangle(a, b, c, u0, u1) -> np.ndarray:
+    """Directions (3, N) uniform in the solid angle of triangles a, b, c (3, N, relative to the viewer), from
+    uniform u0, u1 (N,): Arvo 1995, "Stratified sampling of spherical triangles" (as pbrt-v4 writes it)."""
+    a, b, c = _unit(a), _unit(b), _unit(c)
+    n_ab, n_bc, n_ca = _unit(_cross(a, b)), _unit(_cross(b, c)), _unit(_cross(c, a))
+    alpha = _angle_between(n_ab, -n_ca)
+    beta = _angle_between(n_bc, -n_ab)
+    gamma = _angle_between(n_ca, -n_bc)
+    a_pi = np.pi + u0 * (alpha + beta + gamma - np.pi)  # sub-triangle area A' plus pi
+    cos_alpha, sin_alpha = np.cos(alpha), np.sin(alpha)
+    sin_phi = np.sin(a_pi) * cos_alpha - np.cos(a_pi) * sin_alpha
+    cos_phi = np.cos(a_pi) * cos_alpha + np.sin(a_pi) * sin_alpha
+    k1 = cos_phi + cos_alpha
+    k2 = sin_phi - sin_alpha * _dot(a, b)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_bp = (k2 + (k2 * cos_phi - k1 * sin_phi) * cos_alpha) / ((k2 * sin_phi + k1 * cos_phi) * sin_alpha)
+    cos_bp = np.clip(np.nan_to_num(cos_bp, nan=1.0), -1.0, 1.0)
+    sin_bp = np.sqrt(1.0 - cos_bp * cos_bp)
+    cp = cos_bp * a + sin_bp * _unit(c - _dot(c, a) * a)
+    cos_t = 1.0 - u1 * (1.0 - _dot(cp, b))
+    sin_t = np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0))
+    w = cos_t * b + sin_t * _unit(cp - _dot(cp, b) * b)
+    return np.nan_to_num(w)
 
 
 def _basis(nz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -441,6 +499,8 @@ class LightSampler:
             self._t_n = _cm(tris.normal)
             self._t_L = _cm(tris.emission)
             self._t_pdf_area = (self._t_sel / tris.area).astype(_F32)
+            edges = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 1], v[:, 0] - v[:, 2]], axis=1).astype(np.float64)
+            self._t_edge2 = (edges * edges).sum(axis=2).max(axis=1)  # longest edge squared
 
         present = set()
         if np.any(self._t_sel > 0):
@@ -625,6 +685,24 @@ class LightSampler:
         return LightSample(wi=_rm(out[0]), dist=out[1], radiance=_rm(out[2]), pdf=out[3], delta=out[4])
 
     # triangles --------------------------------------------------------------------------------------------
+    def _triangle_corners(self, p, li):
+        """Corners of triangles li relative to points p (both (3, N)), float64: a, b, c (3, N) each."""
+        a = np.take(self._t_v0, li, axis=1).astype(np.float64) - p
+        return a, a + np.take(self._t_e1, li, axis=1), a + np.take(self._t_e2, li, axis=1)
+
+    def _spherical(self, p, li):
+        """Which (point, triangle) pairs are sampled by solid angle, and the solid angles (N,) (0 elsewhere).
+
+        As Cycles: a triangle is sampled uniformly in the solid angle it subtends when its longest edge is longer
+        than its plane's distance from p (near and large: area sampling's 1/d^2 would make fireflies), else
+        uniformly in area. Both `sample` and `pdf_triangle` decide with this function."""
+        a, b, c = self._triangle_corners(p, li)
+        plane = np.abs(_dot(np.take(self._t_n, li, axis=1).astype(np.float64), a))
+        edge2 = np.take(self._t_edge2, li)
+        omega = _solid_angle(a, b, c)
+        use = (edge2 > plane * plane) & (omega > _MIN_SPHERICAL_OMEGA)
+        return use, np.where(use, omega, 0.0)
+
     def _sample_triangles(self, p, n, u, li):
         su = np.sqrt(u[0])
         b1 = 1.0 - su
@@ -638,6 +716,19 @@ class LightSampler:
             wi = w / dist
             cos_l = np.abs(_dot(np.take(self._t_n, li, axis=1), wi))
             pdf = np.where(cos_l > 0, self._t_pdf_area[li] * d2 / cos_l, 0.0)
+        use, omega = self._spherical(p, li)
+        if use.any():
+            rows = np.flatnonzero(use)
+            pr, lr = p[:, rows], li[rows]
+            a, b, c = self._triangle_corners(pr, lr)
+            ws = _sample_spherical_triangle(a, b, c, u[0][rows].astype(np.float64), u[1][rows].astype(np.float64))
+            nrm = np.take(self._t_n, lr, axis=1).astype(np.float64)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                t = _dot(nrm, a) / _dot(nrm, ws)  # distance along ws to the triangle's plane
+            ok = np.isfinite(t) & (t > 0)
+            wi[:, rows] = ws
+            dist[rows] = np.where(ok, t, 0.0)
+            pdf[rows] = np.where(ok, self._t_sel[lr] / omega[rows], 0.0)
         return wi, dist, np.take(self._t_L, li, axis=1), pdf, np.zeros(p.shape[1], bool)
 
     # point and spot lights --------------------------------------------------------------------------------
@@ -801,18 +892,22 @@ class LightSampler:
         return wi, np.full(N, np.inf, _F32), self.world_radiance[:, None], pdf, np.zeros(N, bool)
 
     # ------------------------------------------------------------------------------------------ evaluation
-    def pdf_triangle(self, emitter: np.ndarray, dist2: np.ndarray, abs_cos_light: np.ndarray) -> np.ndarray:
+    def pdf_triangle(self, emitter: np.ndarray, origin: np.ndarray, dist2: np.ndarray,
+                     abs_cos_light: np.ndarray) -> np.ndarray:
         """Solid-angle pdf (selection included) with which `sample` produces the emissive-triangle point that a
-        BSDF ray hit: emitter (N,) index into `triangles` (from `emitter_of_triangle`), dist2 (N,) squared
-        distance from the ray origin, abs_cos_light (N,) |cos| at the triangle. 0 where the cosine is 0 or the
-        emitter is -1."""
+        BSDF ray hit: emitter (N,) index into `triangles` (from `emitter_of_triangle`), origin (N, 3) the ray
+        origins (the shading points `sample` would get, same frame), dist2 (N,) squared distance from the origin,
+        abs_cos_light (N,) |cos| at the triangle. 0 where the cosine is 0 or the emitter is -1."""
         emitter = np.asarray(emitter).reshape(-1)
         if self.triangles is None or emitter.size == 0:
             return np.zeros(emitter.shape[0], _F32)
         ok = emitter >= 0
+        li = np.where(ok, emitter, 0)
         cos_l = np.asarray(abs_cos_light, dtype=_F32).reshape(-1)
         with np.errstate(invalid="ignore", divide="ignore"):
-            pdf = self._t_pdf_area[np.where(ok, emitter, 0)] * np.asarray(dist2, dtype=_F32).reshape(-1) / cos_l
+            pdf = self._t_pdf_area[li] * np.asarray(dist2, dtype=_F32).reshape(-1) / cos_l
+            use, omega = self._spherical(_cm(np.asarray(origin).reshape(-1, 3), np.float64), li)
+            pdf = np.where(use, self._t_sel[li] / np.where(use, omega, 1.0), pdf)
         return np.where(ok & (cos_l > 0) & np.isfinite(pdf), pdf, 0).astype(_F32)
 
     def intersect(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, bsdf_pdf: np.ndarray,

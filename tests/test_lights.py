@@ -396,9 +396,9 @@ def test_pdf_triangle_matches_sample():
     is_tri = ~ls.delta & (ls.pdf > 0)
     emitter = np.where(on_first, 0, 1)
     cos = np.abs(np.einsum("ij,ij->i", ls.wi, et.normal[emitter]))
-    pdf = s.pdf_triangle(emitter[is_tri], ls.dist[is_tri] ** 2, cos[is_tri])
+    pdf = s.pdf_triangle(emitter[is_tri], p[is_tri], ls.dist[is_tri] ** 2, cos[is_tri])
     np.testing.assert_allclose(pdf, ls.pdf[is_tri], rtol=2e-4)
-    assert s.pdf_triangle(np.array([-1]), np.ones(1), np.ones(1))[0] == 0
+    assert s.pdf_triangle(np.array([-1]), np.zeros((1, 3)), np.ones(1), np.ones(1))[0] == 0
 
 
 def test_selection_proportional_to_power_and_mixture():
@@ -568,9 +568,11 @@ def ray_triangles(o, d, tris):
     return best, idx
 
 
-def test_triangle_mis_with_pdf_triangle_sums_to_the_closed_form():
-    """What the integrator does for an emissive triangle hit by a BSDF ray, against light sampling."""
-    c, half, Le = np.array([0.2, -0.1, 1.0]), 0.4, 2.0
+@pytest.mark.parametrize("height", [1.0, 0.05])
+def test_triangle_mis_with_pdf_triangle_sums_to_the_closed_form(height):
+    """What the integrator does for an emissive triangle hit by a BSDF ray, against light sampling. At height
+    1.0 the quad is sampled by area, at 0.05 (edges longer than the distance) by solid angle."""
+    c, half, Le = np.array([0.2, -0.1, height]), 0.4, 2.0
     tris = two_triangle_quad(c, half)
     et = lights.EmissiveTriangles.from_mesh_arrays(tris, np.zeros(2, int), np.array([[Le] * 3]))
     s = make_sampler([PointLight("p", W([0, 0, 2.0]), np.full(3, 30.0))], tris=et)
@@ -588,7 +590,8 @@ def test_triangle_mis_with_pdf_triangle_sums_to_the_closed_form():
     d, pdf_b = cosine_directions(UP, N, rng)
     t, k = ray_triangles(np.zeros((N, 3)), d.astype(np.float64), tris)
     hit = k >= 0
-    pdf_t = s.pdf_triangle(np.where(hit, et.emitter_of_triangle[np.maximum(k, 0)], -1), t * t, np.abs(d[:, 2]))
+    pdf_t = s.pdf_triangle(np.where(hit, et.emitter_of_triangle[np.maximum(k, 0)], -1), np.zeros((N, 3)), t * t,
+                           np.abs(d[:, 2]))
     pb2 = pdf_b.astype(np.float64) ** 2
     f_b = np.where(hit, Le * math.pi * pb2 / (pb2 + pdf_t.astype(np.float64) ** 2), 0)
     est = f_l.mean() + f_b.mean()
@@ -865,3 +868,27 @@ def test_cycles_units(cycles_images, name):
     specs, images = cycles_images
     spec = next(s for s in specs if s["name"] == name)
     compare(name, images[name], spec)
+
+
+def test_near_triangles_are_sampled_by_solid_angle_without_fireflies():
+    """A quad 1 cm above the shading point: light sampling alone gives the closed-form irradiance, and every
+    sample has the same weight (uniform in solid angle: radiance / pdf = Le x solid angle / selection)."""
+    c, half, Le = np.array([0.0, 0.0, 0.01]), 0.3, 1.5
+    tris = two_triangle_quad(c, half)
+    et = lights.EmissiveTriangles.from_mesh_arrays(tris, np.zeros(2, int), np.array([[Le] * 3]))
+    s = make_sampler([], tris=et)
+    rng = np.random.default_rng(5)
+    N = 200_000
+    p = np.zeros((N, 3), np.float32)
+    ls = s.sample(p, np.tile(UP.astype(np.float32), (N, 1)), rng.random(N), rng.random((N, 2)))
+    assert np.all(ls.pdf > 0) and np.all(np.isfinite(ls.dist)) and np.all(ls.dist > 0)
+    q = ls.wi * ls.dist[:, None]
+    np.testing.assert_allclose(q[:, 2], 0.01, atol=1e-5)  # the sampled points lie on the quad
+    assert np.all(np.abs(q[:, :2]) <= half + 1e-4)
+    weight = ls.radiance[:, 0] / ls.pdf
+    for side in (q[:, 0] > q[:, 1] + 1e-3, q[:, 0] < q[:, 1] - 1e-3):  # the two triangles of the quad
+        assert np.ptp(weight[side]) < 1e-3 * weight[side].mean()  # constant weight within a triangle
+    f = weight * np.maximum(ls.wi[:, 2], 0)
+    expected = parallel_rect_irradiance(Le, -half, half, -half, half, 0.01)
+    assert_close(f.mean(), f.std() / math.sqrt(N), expected)
+
