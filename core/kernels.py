@@ -200,3 +200,118 @@ def accumulate(radiance, rows, value, clamp, counters):
         radiance[r, 0] += v0
         radiance[r, 1] += v1
         radiance[r, 2] += v2
+
+
+# ------------------------------------------------------------------ emissive triangles sampled by solid angle
+@_jit
+def _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Solid angle (sr) of a triangle with corners a, b, c relative to the viewer (Van Oosterom-Strackee)."""
+    la = math.sqrt(ax * ax + ay * ay + az * az)
+    lb = math.sqrt(bx * bx + by * by + bz * bz)
+    lc = math.sqrt(cx * cx + cy * cy + cz * cz)
+    num = abs(ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx))
+    den = la * lb * lc + (ax * bx + ay * by + az * bz) * lc + (ax * cx + ay * cy + az * cz) * lb \
+        + (bx * cx + by * cy + bz * cz) * la
+    return (2.0 * math.atan2(num, den)) % (2.0 * math.pi)
+
+
+@_jit
+def _near_triangle(k, p, li, v0, e1, e2, normal, edge2, min_omega):
+    """Corners of triangle li[k] relative to p[:, k] (float64), and its solid angle if it is sampled by solid
+    angle there (Cycles' rule: longest edge longer than the distance to its plane), else 0."""
+    t = li[k]
+    ax = np.float64(v0[0, t]) - p[0, k]
+    ay = np.float64(v0[1, t]) - p[1, k]
+    az = np.float64(v0[2, t]) - p[2, k]
+    bx, by, bz = ax + e1[0, t], ay + e1[1, t], az + e1[2, t]
+    cx, cy, cz = ax + e2[0, t], ay + e2[1, t], az + e2[2, t]
+    plane = abs(normal[0, t] * ax + normal[1, t] * ay + normal[2, t] * az)
+    omega = 0.0
+    if edge2[t] > plane * plane:
+        omega = _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz)
+        if omega <= min_omega:
+            omega = 0.0
+    return ax, ay, az, bx, by, bz, cx, cy, cz, omega
+
+
+@_jit
+def triangle_solid_angles(p, li, v0, e1, e2, normal, edge2, min_omega, omega):
+    """omega[k]: solid angle of triangle li[k] seen from p[:, k] where it is sampled by solid angle, else 0.
+    p (3, N); v0, e1, e2, normal (3, T) component-major; edge2 (T,) longest edge squared."""
+    for k in range(li.shape[0]):
+        omega[k] = _near_triangle(k, p, li, v0, e1, e2, normal, edge2, min_omega)[9]
+
+
+@_jit
+def _unit3(x, y, z):
+    length = math.sqrt(x * x + y * y + z * z)
+    if length > 0.0:
+        return x / length, y / length, z / length
+    return 0.0, 0.0, 0.0
+
+
+@_jit
+def _cross3(ax, ay, az, bx, by, bz):
+    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+
+
+@_jit
+def _angle_between(x1, y1, z1, x2, y2, z2):
+    """Angle between unit vectors, accurate near 0 and pi."""
+    if x1 * x2 + y1 * y2 + z1 * z2 < 0.0:
+        s = math.sqrt((x1 + x2) ** 2 + (y1 + y2) ** 2 + (z1 + z2) ** 2) / 2.0
+        return math.pi - 2.0 * math.asin(min(s, 1.0))
+    s = math.sqrt((x2 - x1) ** 2 + (y2 - y1) ** 2 + (z2 - z1) ** 2) / 2.0
+    return 2.0 * math.asin(min(s, 1.0))
+
+
+@_jit
+def sample_near_triangles(p, li, v0, e1, e2, normal, edge2, min_omega, u0, u1, wi, dist, omega):
+    """For each k whose triangle li[k] is near p[:, k] (see triangle_solid_angles), a direction uniform in its
+    solid angle (Arvo 1995, "Stratified sampling of spherical triangles", as pbrt-v4 writes it) into wi[:, k]
+    and the distance to the triangle's plane along it into dist[k]; omega[k] = the solid angle (0: not near,
+    wi and dist untouched)."""
+    for k in range(li.shape[0]):
+        ax, ay, az, bx, by, bz, cx, cy, cz, om = _near_triangle(k, p, li, v0, e1, e2, normal, edge2, min_omega)
+        omega[k] = om
+        if om == 0.0:
+            continue
+        t = li[k]
+        ax, ay, az = _unit3(ax, ay, az)
+        bx, by, bz = _unit3(bx, by, bz)
+        cx, cy, cz = _unit3(cx, cy, cz)
+        abx, aby, abz = _unit3(*_cross3(ax, ay, az, bx, by, bz))
+        bcx, bcy, bcz = _unit3(*_cross3(bx, by, bz, cx, cy, cz))
+        cax, cay, caz = _unit3(*_cross3(cx, cy, cz, ax, ay, az))
+        alpha = _angle_between(abx, aby, abz, -cax, -cay, -caz)
+        beta = _angle_between(bcx, bcy, bcz, -abx, -aby, -abz)
+        gamma = _angle_between(cax, cay, caz, -bcx, -bcy, -bcz)
+        a_pi = math.pi + u0[k] * (alpha + beta + gamma - math.pi)  # sub-triangle area plus pi
+        cos_alpha, sin_alpha = math.cos(alpha), math.sin(alpha)
+        sin_phi = math.sin(a_pi) * cos_alpha - math.cos(a_pi) * sin_alpha
+        cos_phi = math.cos(a_pi) * cos_alpha + math.sin(a_pi) * sin_alpha
+        k1 = cos_phi + cos_alpha
+        k2 = sin_phi - sin_alpha * (ax * bx + ay * by + az * bz)
+        den = (k2 * sin_phi + k1 * cos_phi) * sin_alpha
+        cos_bp = (k2 + (k2 * cos_phi - k1 * sin_phi) * cos_alpha) / den if den != 0.0 else 1.0
+        cos_bp = min(max(cos_bp, -1.0), 1.0)
+        sin_bp = math.sqrt(1.0 - cos_bp * cos_bp)
+        ca = cx * ax + cy * ay + cz * az
+        qx, qy, qz = _unit3(cx - ca * ax, cy - ca * ay, cz - ca * az)
+        px, py, pz = cos_bp * ax + sin_bp * qx, cos_bp * ay + sin_bp * qy, cos_bp * az + sin_bp * qz  # c'
+        cos_t = 1.0 - u1[k] * (1.0 - (px * bx + py * by + pz * bz))
+        sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
+        pb = px * bx + py * by + pz * bz
+        rx, ry, rz = _unit3(px - pb * bx, py - pb * by, pz - pb * bz)
+        wx, wy, wz = cos_t * bx + sin_t * rx, cos_t * by + sin_t * ry, cos_t * bz + sin_t * rz
+        # distance to the plane: (n . (v0 - p)) / (n . w), v0 - p = the unnormalised corner a
+        nx, ny, nz = normal[0, t], normal[1, t], normal[2, t]
+        num = nx * (np.float64(v0[0, t]) - p[0, k]) + ny * (np.float64(v0[1, t]) - p[1, k]) \
+            + nz * (np.float64(v0[2, t]) - p[2, k])
+        den_w = nx * wx + ny * wy + nz * wz
+        d = num / den_w if den_w != 0.0 else 0.0
+        if not (d > 0.0 and math.isfinite(d)):
+            omega[k] = -1.0  # sampled direction missed the plane (numerically): no contribution
+            continue
+        wi[0, k], wi[1, k], wi[2, k] = wx, wy, wz
+        dist[k] = d

@@ -79,6 +79,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
 from .scene import AreaLight, PointLight, Scene, SpotLight, SunLight
 
 __all__ = ["EmissiveTriangles", "LightSample", "LightSampler", "luminance"]
@@ -119,56 +120,6 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 _MIN_SPHERICAL_OMEGA = 1e-6  # sr: below this a spherical triangle is numerically flat; sample by area instead
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return v / np.sqrt(_dot(v, v))
-
-
-def _solid_angle(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Solid angle (sr) of triangles with corners a, b, c (3, N) relative to the viewer (Van Oosterom and
-    Strackee 1983), float64."""
-    la, lb, lc = (np.sqrt(_dot(v, v)) for v in (a, b, c))
-    num = np.abs(_dot(a, _cross(b, c)))
-    den = la * lb * lc + _dot(a, b) * lc + _dot(a, c) * lb + _dot(b, c) * la
-    return 2.0 * np.arctan2(num, den) % (2.0 * np.pi)
-
-
-def _angle_between(v1: np.ndarray, v2: np.ndarray) -> np.ndarray:
-    """Angle between unit vectors, accurate near 0 and pi."""
-    s = np.where(_dot(v1, v2) < 0, np.sqrt(_dot(v1 + v2, v1 + v2)), np.sqrt(_dot(v2 - v1, v2 - v1))) / 2
-    ang = 2.0 * np.arcsin(np.minimum(s, 1.0))
-    return np.where(_dot(v1, v2) < 0, np.pi - ang, ang)
-
-
-def _sample_spherical_triangle(a, b, c, u0, u1) -> np.ndarray:
-    """Directions (3, N) uniform in the solid angle of triangles a, b, c (3, N, relative to the viewer), from
-    uniform u0, u1 (N,): Arvo 1995, "Stratified sampling of spherical triangles" (as pbrt-v4 writes it)."""
-    a, b, c = _unit(a), _unit(b), _unit(c)
-    n_ab, n_bc, n_ca = _unit(_cross(a, b)), _unit(_cross(b, c)), _unit(_cross(c, a))
-    alpha = _angle_between(n_ab, -n_ca)
-    beta = _angle_between(n_bc, -n_ab)
-    gamma = _angle_between(n_ca, -n_bc)
-    a_pi = np.pi + u0 * (alpha + beta + gamma - np.pi)  # sub-triangle area A' plus pi
-    cos_alpha, sin_alpha = np.cos(alpha), np.sin(alpha)
-    sin_phi = np.sin(a_pi) * cos_alpha - np.cos(a_pi) * sin_alpha
-    cos_phi = np.cos(a_pi) * cos_alpha + np.sin(a_pi) * sin_alpha
-    k1 = cos_phi + cos_alpha
-    k2 = sin_phi - sin_alpha * _dot(a, b)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cos_bp = (k2 + (k2 * cos_phi - k1 * sin_phi) * cos_alpha) / ((k2 * sin_phi + k1 * cos_phi) * sin_alpha)
-    cos_bp = np.clip(np.nan_to_num(cos_bp, nan=1.0), -1.0, 1.0)
-    sin_bp = np.sqrt(1.0 - cos_bp * cos_bp)
-    cp = cos_bp * a + sin_bp * _unit(c - _dot(c, a) * a)
-    cos_t = 1.0 - u1 * (1.0 - _dot(cp, b))
-    sin_t = np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0))
-    w = cos_t * b + sin_t * _unit(cp - _dot(cp, b) * b)
-    return np.nan_to_num(w)
 
 
 def _basis(nz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -685,25 +636,13 @@ class LightSampler:
         return LightSample(wi=_rm(out[0]), dist=out[1], radiance=_rm(out[2]), pdf=out[3], delta=out[4])
 
     # triangles --------------------------------------------------------------------------------------------
-    def _triangle_corners(self, p, li):
-        """Corners of triangles li relative to points p (both (3, N)), float64: a, b, c (3, N) each."""
-        a = np.take(self._t_v0, li, axis=1).astype(np.float64) - p
-        return a, a + np.take(self._t_e1, li, axis=1), a + np.take(self._t_e2, li, axis=1)
-
-    def _spherical(self, p, li):
-        """Which (point, triangle) pairs are sampled by solid angle, and the solid angles (N,) (0 elsewhere).
-
-        As Cycles: a triangle is sampled uniformly in the solid angle it subtends when its longest edge is longer
-        than its plane's distance from p (near and large: area sampling's 1/d^2 would make fireflies), else
-        uniformly in area. Both `sample` and `pdf_triangle` decide with this function."""
-        a, b, c = self._triangle_corners(p, li)
-        plane = np.abs(_dot(np.take(self._t_n, li, axis=1).astype(np.float64), a))
-        edge2 = np.take(self._t_edge2, li)
-        omega = _solid_angle(a, b, c)
-        use = (edge2 > plane * plane) & (omega > _MIN_SPHERICAL_OMEGA)
-        return use, np.where(use, omega, 0.0)
+    def _near_args(self, p, li):
+        return (np.ascontiguousarray(p, dtype=np.float32), np.ascontiguousarray(li, dtype=np.int64), self._t_v0,
+                self._t_e1, self._t_e2, self._t_n, self._t_edge2, _MIN_SPHERICAL_OMEGA)
 
     def _sample_triangles(self, p, n, u, li):
+        """Area sampling, or (near and large triangles, Cycles' rule) uniform solid-angle sampling: the seed's
+        lamp hangs 2 cm under the ceiling, where area sampling's 1/d^2 weight makes fireflies."""
         su = np.sqrt(u[0])
         b1 = 1.0 - su
         b2 = u[1] * su
@@ -716,19 +655,13 @@ class LightSampler:
             wi = w / dist
             cos_l = np.abs(_dot(np.take(self._t_n, li, axis=1), wi))
             pdf = np.where(cos_l > 0, self._t_pdf_area[li] * d2 / cos_l, 0.0)
-        use, omega = self._spherical(p, li)
-        if use.any():
-            rows = np.flatnonzero(use)
-            pr, lr = p[:, rows], li[rows]
-            a, b, c = self._triangle_corners(pr, lr)
-            ws = _sample_spherical_triangle(a, b, c, u[0][rows].astype(np.float64), u[1][rows].astype(np.float64))
-            nrm = np.take(self._t_n, lr, axis=1).astype(np.float64)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                t = _dot(nrm, a) / _dot(nrm, ws)  # distance along ws to the triangle's plane
-            ok = np.isfinite(t) & (t > 0)
-            wi[:, rows] = ws
-            dist[rows] = np.where(ok, t, 0.0)
-            pdf[rows] = np.where(ok, self._t_sel[lr] / omega[rows], 0.0)
+        wi, dist = np.ascontiguousarray(wi, np.float32), np.ascontiguousarray(dist, np.float32)
+        omega = np.empty(li.shape[0])
+        kernels.sample_near_triangles(*self._near_args(p, li), np.ascontiguousarray(u[0], np.float64),
+                                      np.ascontiguousarray(u[1], np.float64), wi, dist, omega)
+        near = omega != 0
+        if near.any():
+            pdf = np.where(near, np.where(omega > 0, self._t_sel[li] / np.where(near, omega, 1.0), 0.0), pdf)
         return wi, dist, np.take(self._t_L, li, axis=1), pdf, np.zeros(p.shape[1], bool)
 
     # point and spot lights --------------------------------------------------------------------------------
@@ -906,8 +839,10 @@ class LightSampler:
         cos_l = np.asarray(abs_cos_light, dtype=_F32).reshape(-1)
         with np.errstate(invalid="ignore", divide="ignore"):
             pdf = self._t_pdf_area[li] * np.asarray(dist2, dtype=_F32).reshape(-1) / cos_l
-            use, omega = self._spherical(_cm(np.asarray(origin).reshape(-1, 3), np.float64), li)
-            pdf = np.where(use, self._t_sel[li] / np.where(use, omega, 1.0), pdf)
+            omega = np.empty(li.shape[0])
+            kernels.triangle_solid_angles(*self._near_args(_cm(np.asarray(origin).reshape(-1, 3)), li), omega)
+            near = omega > 0
+            pdf = np.where(near, self._t_sel[li] / np.where(near, omega, 1.0), pdf)
         return np.where(ok & (cos_l > 0) & np.isfinite(pdf), pdf, 0).astype(_F32)
 
     def intersect(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, bsdf_pdf: np.ndarray,
