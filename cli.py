@@ -142,6 +142,27 @@ def cmd_mc_study(args: argparse.Namespace) -> int:
     return main(args)
 
 
+def cmd_stress(args: argparse.Namespace) -> int:
+    from .core.stress import StressConfig, run_suite, write_report
+
+    cfg = StressConfig.quick_run() if args.quick else StressConfig.full()
+    if args.threads is not None:
+        cfg.threads = args.threads
+    log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    results = run_suite(cfg, only=args.only, log=log)
+    extra = {}
+    if args.cycles:
+        from .core.stress import add_cycles
+
+        extra = add_cycles(results, cfg, args.output, log=log)
+    json_path, md_path = write_report(results, args.output, cfg, extra)
+    failed = [c.name for c in results if c.required and not c.passed]
+    print(f"wrote {json_path}, {md_path}: {sum(c.passed for c in results if c.required)}/"
+          f"{sum(c.required for c in results)} required cases pass"
+          + (f"; FAILED: {', '.join(failed)}" if failed else ""))
+    return 1 if failed else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="monte", description="Monte: a physically based Monte Carlo path tracer.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -160,6 +181,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference", help="reference EXR for RMSE (default: the bundled converged Cycles render)")
     _add_render_options(p)
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("stress", help="the numerical stress suite: scale, grazing, degenerate geometry, glass, "
+                                      "fireflies, extreme resolutions; writes report.json and report.md")
+    p.add_argument("-o", "--output", required=True, help="folder for report.json and report.md")
+    p.add_argument("--quick", action="store_true", help="smaller images and fewer samples (about a minute)")
+    p.add_argument("--cycles", action="store_true", help="also render the cases Cycles can answer (needs bpy)")
+    p.add_argument("--only", nargs="+", metavar="GROUP", help="run only these case groups (e.g. scale dielectric)")
+    p.add_argument("--threads", type=int, help="ray-casting threads (0 = all cores)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no per-case log")
+    p.set_defaults(func=cmd_stress)
 
     try:
         from .core.mc_study import add_arguments
@@ -180,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return int(args.func(args) or 0)
-    except (SceneError, OutputError, ValueError, FileNotFoundError) as exc:
+    except (SceneError, OutputError, ValueError, FileNotFoundError, MemoryError) as exc:
         print(f"monte {args.command}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
