@@ -92,9 +92,15 @@ def cmd_render(args: argparse.Namespace) -> int:
             print(f"monte render: rendering a .blend needs the bpy module (pip install bpy==5.0.1): {exc}",
                   file=sys.stderr)
             return 2
+        from .addon.headless import HeadlessError
+
         if args.resolution:
             overrides["resolution"] = args.resolution
-        render_blend_file(args.scene, output, overrides)  # reports what it wrote
+        try:
+            render_blend_file(args.scene, output, overrides)  # reports what it wrote
+        except HeadlessError as exc:
+            print(f"monte render: error: {exc}", file=sys.stderr)
+            return 1
         return 0
 
     from .core import exr
@@ -106,6 +112,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     if output.suffix.lower() != ".exr":
         print(f"monte render: output must be an .exr file, got {output}", file=sys.stderr)
         return 2
+    exr.check_writable(output)  # fail now, not after the render
+    if not args.no_png:
+        exr.check_writable(output.with_suffix(".png"))
     bar = ProgressBar(not args.quiet)
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
     result = render(scene, settings, on_progress=bar, log=log)
