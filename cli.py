@@ -159,12 +159,7 @@ def cmd_stress(args: argparse.Namespace) -> int:
         cfg.threads = args.threads
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     results = run_suite(cfg, only=args.only, log=log)
-    extra = {}
-    if args.cycles:
-        from .core.stress import add_cycles
-
-        extra = add_cycles(results, cfg, args.output, log=log)
-    json_path, md_path = write_report(results, args.output, cfg, extra)
+    json_path, md_path = write_report(results, args.output, cfg)
     failed = [c.name for c in results if c.required and not c.passed]
     print(f"wrote {json_path}, {md_path}: {sum(c.passed for c in results if c.required)}/"
           f"{sum(c.required for c in results)} required cases pass"
@@ -195,7 +190,6 @@ def build_parser() -> argparse.ArgumentParser:
                                       "fireflies, extreme resolutions; writes report.json and report.md")
     p.add_argument("-o", "--output", required=True, help="folder for report.json and report.md")
     p.add_argument("--quick", action="store_true", help="smaller images and fewer samples (about a minute)")
-    p.add_argument("--cycles", action="store_true", help="also render the cases Cycles can answer (needs bpy)")
     p.add_argument("--only", nargs="+", metavar="GROUP", help="run only these case groups (e.g. scale dielectric)")
     p.add_argument("--threads", type=int, help="ray-casting threads (0 = all cores)")
     p.add_argument("-q", "--quiet", action="store_true", help="no per-case log")

@@ -94,3 +94,13 @@ def test_report_files(ctx, tmp_path):
     assert [c["name"] for c in data["cases"]] == [c.name for c in cases]
     table = md_path.read_text()
     assert table.count("\n| ") == len(cases) + 1 and "| 0 spp | pass |" in table
+
+
+def test_cli_stress_writes_the_report(tmp_path, capsys):
+    from monte import cli
+
+    code = cli.main(["stress", "-o", str(tmp_path), "--quick", "--only", "samples", "cancel", "--threads", "2",
+                     "--quiet"])
+    assert code == 0
+    assert (tmp_path / "report.json").is_file() and "| cancel mid-render | pass |" in (tmp_path / "report.md").read_text()
+    assert "4/4 required cases pass" in capsys.readouterr().out
