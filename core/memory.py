@@ -110,6 +110,23 @@ def available_memory() -> int | None:
     return max(min(candidates), 0) if candidates else None
 
 
+def peak_rss_bytes() -> int | None:
+    """This process's peak resident set size: VmHWM from /proc/self/status (reset by exec, unlike
+    getrusage's ru_maxrss, which a child process inherits from its parent on Linux); None where unavailable."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    except (ImportError, OSError):
+        return None
+
+
 def check_render_memory(scene: Scene, settings: RenderSettings, pixels: int | None = None,
                         available: int | None = None) -> MemoryEstimate:
     """Raise RenderMemoryError if the render's estimate exceeds SAFETY_SHARE of the available memory

@@ -165,12 +165,12 @@ def test_memory_estimate_bounds_a_measured_render():
     import json
     import subprocess
 
-    code = ("import json, resource; from monte.core import scenes, memory; from monte.core.render import render; "
+    code = ("import json; from monte.core import scenes, memory; from monte.core.render import render; "
             "from monte.core.settings import RenderSettings as R; import monte.core.accel, monte.core.integrator; "
             "s = scenes.cornell_box((512, 512)); st = R(spp=1, threads=2); "
-            "base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024; "
+            "base = memory.peak_rss_bytes(); "
             "e = memory.estimate_render_memory(s, st).total; render(s, st); "
-            "peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024; "
+            "peak = memory.peak_rss_bytes(); "
             "print(json.dumps([base, peak, e]))")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
