@@ -38,7 +38,7 @@ import numpy as np
 
 from . import metrics, scenes
 from .render import RenderResult, render
-from .scene import AreaLight, Camera, Lobe, Material, Mesh, Scene, SunLight, World
+from .scene import Camera, Lobe, Material, Mesh, Scene, SunLight, World
 from .settings import RenderSettings
 
 K_SIGMA = 5.0  # tolerance in standard errors: ~40 cases, so a false alarm at 5 sigma is negligible
@@ -589,7 +589,7 @@ def case_fireflies(ctx: Context) -> list[CaseResult]:
             unclamped_var = var
             out.append(measure(ctx, "tiny bright lamp, unbiased", "fireflies", "lamp 1/400 the area, 400x radiance "
                                "(12 x 400); default estimator", r, ref_m, ref_s, checks=checks,
-                               reference_kind=f"same scene, 4x spp, other seed"))
+                               reference_kind="same scene, 4x spp, other seed"))
         else:
             checks["ok_variance_reduced"] = var < unclamped_var
             checks["ok_biased_down"] = bias <= K_SIGMA * float((ref_s @ metrics.BT709) / (ref_m @ metrics.BT709))
