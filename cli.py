@@ -97,9 +97,15 @@ def cmd_render(args: argparse.Namespace) -> int:
             print(f"monte render: rendering a .blend needs the bpy module (pip install bpy==5.0.1): {exc}",
                   file=sys.stderr)
             return 2
+        from .addon.headless import HeadlessError
+
         if args.resolution:
             overrides["resolution"] = args.resolution
-        render_blend_file(args.scene, output, overrides)  # reports what it wrote
+        try:
+            render_blend_file(args.scene, output, overrides)  # reports what it wrote
+        except HeadlessError as exc:
+            print(f"monte render: error: {exc}", file=sys.stderr)
+            return 1
         return 0
 
     from .core import exr
@@ -111,6 +117,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     if output.suffix.lower() != ".exr":
         print(f"monte render: output must be an .exr file, got {output}", file=sys.stderr)
         return 2
+    exr.check_writable(output)  # fail now, not after the render
+    if not args.no_png:
+        exr.check_writable(output.with_suffix(".png"))
     bar = ProgressBar(not args.quiet)
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
     result = render(scene, settings, on_progress=bar, log=log)
@@ -171,6 +180,21 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         return 1
     return 0 if report["verdict"]["agree"] else 3
 
+def cmd_stress(args: argparse.Namespace) -> int:
+    from .core.stress import StressConfig, run_suite, write_report
+
+    cfg = StressConfig.quick_run() if args.quick else StressConfig.full()
+    if args.threads is not None:
+        cfg.threads = args.threads
+    log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    results = run_suite(cfg, only=args.only, log=log)
+    json_path, md_path = write_report(results, args.output, cfg)
+    failed = [c.name for c in results if c.required and not c.passed]
+    print(f"wrote {json_path}, {md_path}: {sum(c.passed for c in results if c.required)}/"
+          f"{sum(c.required for c in results)} required cases pass"
+          + (f"; FAILED: {', '.join(failed)}" if failed else ""))
+    return 1 if failed else 0
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="monte", description="Monte: a physically based Monte Carlo path tracer.")
@@ -208,6 +232,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-bounces", type=int, help="bounce limit for both (default: the scene's Monte setting)")
     p.set_defaults(func=cmd_crosscheck)
 
+    p = sub.add_parser("stress", help="the numerical stress suite: scale, grazing, degenerate geometry, glass, "
+                                      "fireflies, extreme resolutions; writes report.json and report.md")
+    p.add_argument("-o", "--output", required=True, help="folder for report.json and report.md")
+    p.add_argument("--quick", action="store_true", help="smaller images and fewer samples (about a minute)")
+    p.add_argument("--only", nargs="+", metavar="GROUP", help="run only these case groups (e.g. scale dielectric)")
+    p.add_argument("--threads", type=int, help="ray-casting threads (0 = all cores)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no per-case log")
+    p.set_defaults(func=cmd_stress)
+
     try:
         from .core.mc_study import add_arguments
     except ImportError:  # the study module is optional at import time
@@ -227,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return int(args.func(args) or 0)
-    except (SceneError, OutputError, ValueError, FileNotFoundError) as exc:
+    except (SceneError, OutputError, ValueError, FileNotFoundError, MemoryError) as exc:
         print(f"monte {args.command}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -183,6 +183,12 @@ def render_blend_file(
         raise HeadlessError(f"cannot write {out}: folder {out.parent} does not exist")
     if out.suffix.lower() != ".exr":
         raise HeadlessError(f"cannot write {out}: Monte writes OpenEXR; use a .exr file name")
+    from ..core.exr import OutputError, check_writable
+
+    try:  # before loading and rendering: a read-only folder must not cost a whole render
+        check_writable(out)
+    except OutputError as exc:
+        raise HeadlessError(str(exc)) from exc
 
     from . import register
 

@@ -20,6 +20,24 @@ class OutputError(OSError):
     """The output file cannot be written; the message names the path and the reason."""
 
 
+def check_writable(path: str | os.PathLike) -> Path:
+    """Raise OutputError now if `path` cannot be written later (missing folder, a folder in its place, no write
+    permission, a read-only file system): called before a render so that no work is lost at the end."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise OutputError(f"cannot write {path}: folder {folder} does not exist")
+    if path.is_dir():
+        raise OutputError(f"cannot write {path}: it is a folder")
+    try:  # the real test: create (and remove) a temporary file where the output will go
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".check", dir=folder)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from exc
+    os.close(fd)
+    os.unlink(tmp)
+    return path
+
+
 def _atomic_write(path: str | os.PathLike, suffix: str, write) -> Path:
     """Call write(tmp_path) for a temporary file beside `path`, then rename it onto `path`."""
     path = Path(path)

@@ -151,6 +151,9 @@ def render(
     rx, ry, rw, rh = (int(v) for v in region)
     if rw < 1 or rh < 1 or rx < 0 or ry < 0 or rx + rw > width or ry + rh > height:
         raise ValueError(f"render region {region} is not inside the {width}x{height} frame")
+    # Issue 6: estimate memory before allocating anything; a clear error instead of an out-of-memory kill.
+    from .memory import check_render_memory
+    check_render_memory(scene, settings, rw * rh)
 
     t0 = time.perf_counter()
     prepared = PreparedScene.build(scene)

@@ -380,6 +380,11 @@ class Camera:
             raise SceneError(f"camera: resolution {w}x{h} has too many pixels")
         if self.kind not in ("PERSP", "ORTHO"):
             raise SceneError(f"camera: unknown camera type {self.kind!r} (PERSP or ORTHO)")
+        for name in ("lens", "sensor_width", "sensor_height", "ortho_scale", "shift_x", "shift_y", "clip_start"):
+            if not math.isfinite(float(getattr(self, name))):
+                raise SceneError(f"camera: {name} is {getattr(self, name)}, it must be a finite number")
+        if math.isnan(float(self.clip_end)):
+            raise SceneError("camera: clip_end is NaN")
         if self.kind == "PERSP" and not (self.lens > 0 and self.sensor_width > 0 and self.sensor_height > 0):
             raise SceneError(f"camera: lens {self.lens} mm and sensor size must be positive")
         if self.kind == "ORTHO" and not self.ortho_scale > 0:

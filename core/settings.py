@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 import os
 from dataclasses import dataclass, fields
 from typing import Literal
@@ -12,6 +13,11 @@ FILTERS = ("blackman-harris", "gaussian", "tent", "box")
 # Settings a user overrides from the command line (`monte render`, `monte bench`).
 CLI_SETTINGS = ("spp", "seed", "sampler", "filter_type", "filter_width", "max_bounces", "rr_depth", "clamp",
                 "threads", "batch_paths", "tile_size", "time_limit", "adaptive_threshold", "adaptive_min_samples")
+
+_LABELS = {"spp": "samples per pixel (spp)", "max_bounces": "max bounces", "rr_depth": "Russian roulette depth",
+           "batch_paths": "batch size (batch_paths)", "tile_size": "tile size", "filter_width": "filter width",
+           "time_limit": "time limit", "adaptive_threshold": "adaptive threshold",
+           "adaptive_min_samples": "adaptive min samples"}
 
 
 @dataclass
@@ -50,7 +56,17 @@ class RenderSettings:
     adaptive_min_samples: int = 0
 
     def validate(self) -> "RenderSettings":
-        """Raise ValueError naming the setting for absurd values."""
+        """Raise ValueError naming the setting for absurd values (NaN, Inf and non-numbers included)."""
+        for name in ("spp", "seed", "max_bounces", "rr_depth", "threads", "batch_paths", "tile_size",
+                     "adaptive_min_samples"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) \
+                    or int(value) != value:
+                raise ValueError(f"{_LABELS.get(name, name)} must be a whole number, got {value!r}")
+        for name in ("filter_width", "clamp", "time_limit", "adaptive_threshold"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+                raise ValueError(f"{_LABELS.get(name, name)} must be a finite number, got {value!r}")
         if int(self.spp) != self.spp or self.spp < 0:
             raise ValueError(f"samples per pixel must be a non-negative integer, got {self.spp}")
         if self.sampler not in SAMPLERS:

@@ -1,0 +1,142 @@
+"""How much memory a render will need, estimated before anything is allocated, against what the machine has.
+
+The estimate (bytes), measured on this renderer (see docs/stress.md for the calibration):
+
+    total = pixels x (FILM_BYTES [+ FILM_AOV_BYTES] + RESULT_BYTES [+ RESULT_AOV_BYTES])
+          + min(batch_paths, min(tile_size^2, pixels) x spp) x PATH_BYTES
+          + triangles x TRIANGLE_BYTES + texels x TEXEL_BYTES
+
+- film: per pixel float64 sum and sum of squares (48 B) and an int64 count (8 B); with AOVs float64 albedo and
+  normal sums (48 B), a depth sum and count (16 B);
+- result: the assembled float32 colour RGBA (16 B), variance (12 B), int32 sample count (4 B); with AOVs
+  albedo, normal (24 B) and depth (4 B);
+- batch: the integrator's float32 structure-of-arrays for every path in flight, ray buffers and temporaries
+  (measured: about 800 B per path at 2^18 paths);
+- scene: the camera-shifted float32 triangle soup, face and corner normals, UVs, material indices and the Embree
+  BVH (about 400 B per triangle), and textures (float32 RGB, kept twice during preparation).
+
+The interpreter, NumPy and Embree themselves (about 70 MB) are not counted: they are there before a render.
+`check_render_memory` raises RenderMemoryError when the estimate exceeds the memory available to this process
+(MemAvailable, or a cgroup limit if lower), instead of letting the kernel kill the process halfway.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from .scene import Scene
+from .settings import RenderSettings
+
+FILM_BYTES = 56
+FILM_AOV_BYTES = 64
+RESULT_BYTES = 32
+RESULT_AOV_BYTES = 28
+PATH_BYTES = 800
+TRIANGLE_BYTES = 400
+TEXEL_BYTES = 24
+# Refuse when the estimate exceeds this share of the available memory (the rest: fragmentation, the EXR writer).
+SAFETY_SHARE = 0.9
+
+
+class RenderMemoryError(MemoryError):
+    """The render would need more memory than the machine has; the message gives both numbers and what to
+    change."""
+
+
+@dataclass
+class MemoryEstimate:
+    """Bytes a render needs, by part (see the module docstring for the formula)."""
+
+    film: int
+    result: int
+    batch: int
+    scene: int
+
+    @property
+    def total(self) -> int:
+        return self.film + self.result + self.batch + self.scene
+
+    def describe(self) -> str:
+        mb = 2**20
+        return (f"{self.total / mb:,.0f} MB (film {self.film / mb:,.0f} MB, result {self.result / mb:,.0f} MB, "
+                f"path batch {self.batch / mb:,.0f} MB, scene {self.scene / mb:,.0f} MB)")
+
+
+def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int | None = None) -> MemoryEstimate:
+    """Estimate the bytes `render(scene, settings)` allocates; pixels: the region's pixel count (default: the
+    whole frame)."""
+    if pixels is None:
+        w, h = scene.camera.resolution
+        pixels = int(w) * int(h)
+    aovs = bool(settings.aovs)
+    film = pixels * (FILM_BYTES + (FILM_AOV_BYTES if aovs else 0))
+    result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0))
+    # a batch covers one tile (or part of one): at most tile pixels x spp paths
+    tile_pixels = min(int(settings.tile_size) ** 2, pixels)
+    paths = min(int(settings.batch_paths), tile_pixels * max(int(settings.spp), 0))
+    texels = sum(int(t.pixels.shape[0]) * int(t.pixels.shape[1]) for t in scene.textures)
+    scene_bytes = scene.triangle_count * TRIANGLE_BYTES + texels * TEXEL_BYTES
+    return MemoryEstimate(film, result, paths * PATH_BYTES, scene_bytes)
+
+
+def available_memory() -> int | None:
+    """Bytes this process can still allocate: the smaller of /proc/meminfo's MemAvailable and the cgroup's
+    remaining limit; None where neither can be read (then no check is made)."""
+    candidates = []
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                candidates.append(int(line.split()[1]) * 1024)
+                break
+    except (OSError, ValueError, IndexError):
+        pass
+    for limit_file, usage_file in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                                   ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                                    "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+        try:
+            limit = Path(limit_file).read_text().strip()
+            if limit != "max" and int(limit) < 2**60:
+                candidates.append(int(limit) - int(Path(usage_file).read_text().strip()))
+            break
+        except (OSError, ValueError):
+            continue
+    if not candidates and hasattr(os, "sysconf"):
+        try:
+            candidates.append(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        except (ValueError, OSError):
+            pass
+    return max(min(candidates), 0) if candidates else None
+
+
+def peak_rss_bytes() -> int | None:
+    """This process's peak resident set size: VmHWM from /proc/self/status (reset by exec, unlike
+    getrusage's ru_maxrss, which a child process inherits from its parent on Linux); None where unavailable."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    except (ImportError, OSError):
+        return None
+
+
+def check_render_memory(scene: Scene, settings: RenderSettings, pixels: int | None = None,
+                        available: int | None = None) -> MemoryEstimate:
+    """Raise RenderMemoryError if the render's estimate exceeds SAFETY_SHARE of the available memory
+    (`available` bytes, default: measured now). Returns the estimate."""
+    est = estimate_render_memory(scene, settings, pixels)
+    avail = available_memory() if available is None else available
+    if avail is not None and est.total > SAFETY_SHARE * avail:
+        w, h = scene.camera.resolution
+        raise RenderMemoryError(
+            f"scene {scene.name!r} at {w}x{h} needs about {est.describe()}, but only "
+            f"{avail / 2**20:,.0f} MB of memory is available: lower the resolution, render a region, turn off "
+            f"the AOV passes, or lower the batch size (--batch)")
+    return est
