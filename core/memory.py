@@ -3,7 +3,7 @@
 The estimate (bytes), measured on this renderer (see docs/stress.md for the calibration):
 
     total = pixels x (FILM_BYTES [+ FILM_AOV_BYTES] + RESULT_BYTES [+ RESULT_AOV_BYTES])
-          + min(batch_paths, min(tile_size^2, pixels) x spp) x PATH_BYTES
+          + threads x min(batch, pixels x spp) x PATH_BYTES      (batch: core.render.batch_target)
           + triangles x TRIANGLE_BYTES + texels x TEXEL_BYTES
 
 - film: per pixel float64 sum and sum of squares (48 B) and an int64 count (8 B); with AOVs float64 albedo and
@@ -73,9 +73,11 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     aovs = bool(settings.aovs)
     film = pixels * (FILM_BYTES + (FILM_AOV_BYTES if aovs else 0))
     result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0))
-    # a batch covers one tile (or part of one): at most tile pixels x spp paths
-    tile_pixels = min(int(settings.tile_size) ** 2, pixels)
-    paths = min(int(settings.batch_paths), tile_pixels * max(int(settings.spp), 0))
+    # every worker thread traces one batch at a time (see core.render.batch_target)
+    from .render import batch_target
+
+    total_paths = pixels * max(int(settings.spp), 0)
+    paths = min(batch_target(settings, total_paths), total_paths) * settings.thread_count
     texels = sum(int(t.pixels.shape[0]) * int(t.pixels.shape[1]) for t in scene.textures)
     scene_bytes = scene.triangle_count * TRIANGLE_BYTES + texels * TEXEL_BYTES
     return MemoryEstimate(film, result, paths * PATH_BYTES, scene_bytes)

@@ -97,6 +97,25 @@ def _tiles(x0: int, y0: int, w: int, h: int, size: int) -> list[tuple[int, int, 
 _MIN_BATCH = 1 << 14  # paths: below this NumPy's per-call overhead dominates a batch
 
 
+def batch_target(settings: RenderSettings, total_paths: int) -> int:
+    """Paths per batch for a render of total_paths paths: settings.batch_paths, or fewer so that a small render
+    still makes 8 batches for the worker threads to share (but never fewer than _MIN_BATCH paths)."""
+    return max(1, min(settings.batch_paths, max(_MIN_BATCH, -(-total_paths // 8))))
+
+
+@dataclass
+class Segment:
+    """Part of a batch: samples [sample_end - count, sample_end) of some pixels of one tile. loc: tile-local
+    pixel index per path; smp: sample index per path; last_chunk: the last segment of this tile's pass."""
+
+    tile_index: int
+    tile: tuple[int, int, int, int]
+    loc: np.ndarray
+    smp: np.ndarray
+    sample_end: int
+    last_chunk: bool
+
+
 def _peak_memory_mb() -> float:
     try:
         import resource
@@ -232,18 +251,18 @@ def render(
     local_state = threading.local()
     tracers_lock = threading.Lock()
 
-    def trace_batch(tile, loc: np.ndarray, smp: np.ndarray):
-        """Camera rays and paths of one batch (runs on a worker thread; touches no shared mutable state but
-        the counters, which are locked)."""
+    def trace_batch(segments: list[Segment]):
+        """Camera rays and paths of one batch, which may span several tiles (runs on a worker thread; touches no
+        shared mutable state but the counters, which are locked)."""
         tracer = getattr(local_state, "tracer", None)
         if tracer is None:
             tracer = local_state.tracer = PathTracer(prepared, accel, settings, sampler)
             with tracers_lock:
                 tracers.append(tracer)
-        tx, ty, tw, _ = tile
         t0 = time.perf_counter()
-        px = tx + loc % tw
-        py = ty + loc // tw
+        px = np.concatenate([seg.tile[0] + seg.loc % seg.tile[2] for seg in segments])
+        py = np.concatenate([seg.tile[1] + seg.loc // seg.tile[2] for seg in segments])
+        smp = np.concatenate([seg.smp for seg in segments])
         pixel_id = (py * width + px).astype(np.uint32)
         offsets = pixel_filter.sample(sampler.get_2d(pixel_id, smp, DIM_FILM))
         rays = camera_rays(scene.camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1])
@@ -251,39 +270,61 @@ def render(
         return tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
                             rays.t_start, settings.aovs)
 
-    # Batches run on `workers` threads (NumPy and Embree release the GIL), at most `workers + 1` in flight,
-    # and are accumulated in submission order on this thread: the image does not depend on thread timing.
+    # Batches run on `workers` threads (NumPy, numba and Embree release the GIL), at most `workers + 1` in
+    # flight, and are accumulated in submission order on this thread: the image does not depend on timing.
+    # A batch holds about `target` paths, gathered from as many tile passes as it takes (at 1 spp a 64x64 tile is
+    # only 4096 paths, far too few to amortise NumPy's per-call cost); small images are split into at least 8
+    # batches (of at least _MIN_BATCH paths) so that threads share them. None of this depends on the thread count.
     workers = settings.thread_count
+    target = batch_target(settings, total_paths)
     pool = ThreadPoolExecutor(workers) if workers > 1 else None
-    in_flight: deque = deque()
+    in_flight: deque = deque()  # (segments, job)
+    group: list[Segment] = []
     film_seconds = 0.0
+
+    def submit() -> None:
+        nonlocal group, largest_batch
+        if not group:
+            return
+        segments, group = group, []
+        largest_batch = max(largest_batch, sum(len(seg.loc) for seg in segments))
+        job = pool.submit(trace_batch, segments) if pool is not None else (lambda: trace_batch(segments))
+        in_flight.append((segments, job))
+        if len(in_flight) > (workers if pool is not None else 0):
+            finish_one()
 
     def finish_one(quiet: bool = False) -> None:
         nonlocal done_paths, film_seconds
-        ti, tile, loc, sample_end, last_chunk, future = in_flight.popleft()
-        radiance, first = future.result() if pool is not None else future()
-        t0 = time.perf_counter()
-        film = films[tile]
-        film.add(loc, radiance)
-        if first is not None:
-            film.add_aovs(loc, first.albedo, first.normal, first.depth)
-        film_seconds += time.perf_counter() - t0
-        done_paths += len(loc)
-        if not quiet:
-            progress(ti, sample_end)
-        if last_chunk:
-            samples_started[ti] = sample_end
-            if on_tile is not None and not quiet:
-                on_tile(tile_result(tile, film, sample_end))
+        segments, job = in_flight.popleft()
+        radiance, first = job.result() if pool is not None else job()
+        start = 0
+        for seg in segments:
+            rows = slice(start, start + len(seg.loc))
+            start = rows.stop
+            t0 = time.perf_counter()
+            film = films[seg.tile]
+            film.add(seg.loc, radiance[rows])
+            if first is not None:
+                film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
+            film_seconds += time.perf_counter() - t0
+            done_paths += len(seg.loc)
+            if not quiet:
+                progress(seg.tile_index, seg.sample_end)
+            if seg.last_chunk:
+                samples_started[seg.tile_index] = seg.sample_end
+                if on_tile is not None and not quiet:
+                    on_tile(tile_result(seg.tile, film, seg.sample_end))
 
     def tile_busy(ti: int) -> bool:
-        return any(item[0] == ti for item in in_flight)
+        return any(seg.tile_index == ti for segments, _ in in_flight for seg in segments)
 
     try:
         for ti, tile, first_sample, count in passes():
             n_pix = tile[2] * tile[3]
             pixels = np.arange(n_pix, dtype=np.int64)
             if adaptive and first_sample >= min_samples:
+                if any(seg.tile_index == ti for seg in group):
+                    submit()
                 while tile_busy(ti):  # the convergence test needs this tile's earlier samples
                     finish_one()
                 pixels = films[tile].active_pixels(settings.adaptive_threshold)
@@ -295,44 +336,35 @@ def render(
                     if on_tile is not None:
                         on_tile(tile_result(tile, films[tile], first_sample + count))
                     continue
-            # Pixel chunks keep a batch within batch_paths even when one tile has more pixels than that; with
-            # fewer than 8 tiles a pass is split further (batches of at least _MIN_BATCH paths) so that worker
-            # threads share even a one-tile image. The split does not depend on the thread count, so neither
-            # does the image.
-            split = -(-8 // len(tiles))
-            pix_chunk = max(1, min(settings.batch_paths // count,
-                                   max(-(-_MIN_BATCH // count), -(-len(pixels) // split))))
-            chunks = [pixels[c0:c0 + pix_chunk] for c0 in range(0, len(pixels), pix_chunk)] or [pixels]
+            pix_chunk = max(1, target // count)
+            chunks = [pixels[c0:c0 + pix_chunk] for c0 in range(0, len(pixels), pix_chunk)]
             for k, chunk in enumerate(chunks):
                 if stop_requested():
                     cancelled = True
                     break
                 loc = np.repeat(chunk, count)
-                largest_batch = max(largest_batch, len(loc))
                 smp = np.tile(np.arange(first_sample, first_sample + count, dtype=np.uint32), len(chunk))
-                if pool is not None:
-                    job = pool.submit(trace_batch, tile, loc, smp)
-                else:
-                    job = (lambda tile=tile, loc=loc, smp=smp: trace_batch(tile, loc, smp))
-                in_flight.append((ti, tile, loc, first_sample + count, k == len(chunks) - 1, job))
-                if len(in_flight) > (workers if pool is not None else 0):
-                    finish_one()
+                group.append(Segment(ti, tile, loc, smp, first_sample + count, k == len(chunks) - 1))
+                if sum(len(seg.loc) for seg in group) >= target:
+                    submit()
             if cancelled:
                 break
         if cancelled:
             # Batches still queued never start; ones already running finish (a path batch cannot stop halfway
             # without bias) and their samples are kept, but no callback reports anything after the cancel.
+            group = []
             while in_flight:
                 job = in_flight[0][-1]
                 if pool is not None and job.cancel():
                     in_flight.popleft()
                 else:
                     finish_one(quiet=True)
+        submit()
         while in_flight:
             finish_one()
     finally:
         if pool is not None:
-            for *_, job in in_flight:
+            for _, job in in_flight:
                 job.cancel()
             pool.shutdown(wait=True)
         accel.close()

@@ -125,12 +125,14 @@ def test_corrupt_exr_reads_as_a_clear_error(tmp_path):
 # ----------------------------------------------------------------------------------------- memory
 def test_memory_estimate_follows_the_documented_formula():
     scene = scenes.cornell_box((100, 50))
-    s = RenderSettings(spp=4, batch_paths=1 << 14)
+    s = RenderSettings(spp=4, batch_paths=1 << 14, threads=3)
     est = memory.estimate_render_memory(scene, s)
     pixels = 100 * 50
     assert est.film == pixels * (memory.FILM_BYTES + memory.FILM_AOV_BYTES)
     assert est.result == pixels * (memory.RESULT_BYTES + memory.RESULT_AOV_BYTES)
-    assert est.batch == min(1 << 14, 64 * 64 * 4) * memory.PATH_BYTES
+    # each of the 3 worker threads traces one batch of min(batch_paths, all paths) paths at a time
+    assert est.batch == 3 * min(1 << 14, pixels * 4) * memory.PATH_BYTES
+    assert memory.estimate_render_memory(scene, s.replace(spp=1)).batch == 3 * pixels * memory.PATH_BYTES
     assert est.scene == scene.triangle_count * memory.TRIANGLE_BYTES
     no_aov = memory.estimate_render_memory(scene, s.replace(aovs=False))
     assert no_aov.total < est.total

@@ -107,7 +107,9 @@ def test_cancel_returns_a_valid_partial_image(fast_settings):
         calls["n"] += 1
         return calls["n"] > 2
 
-    result = render(scenes.cornell_box((32, 32)), fast_settings(spp=8, tile_size=8), should_cancel=cancel_after_two)
+    # batch_paths 1024: 8 batches, so that a cancel after two polls leaves some and misses others
+    result = render(scenes.cornell_box((32, 32)), fast_settings(spp=8, tile_size=8, batch_paths=1024),
+                    should_cancel=cancel_after_two)
     assert result.cancelled
     assert np.all(np.isfinite(result.color))
     done = result.sample_count > 0
