@@ -178,14 +178,14 @@ def plot_rmse_vs_seconds(panels: Sequence[dict], path: str | os.PathLike) -> Pat
     rows = math.ceil(n / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 4.2 * rows), squeeze=False)
     for ax, panel in zip(axes.ravel(), panels):
-        for series in panel["series"]:
+        for k, series in enumerate(panel["series"]):
             t, e = _valid_points(series["seconds"], series["rmse"])
             if len(t) == 0:
                 continue
             line, = ax.loglog(t, e, "o-", label=series["label"])
             guide = np.array([t.min(), t.max()])
             ax.loglog(guide, e[np.argmin(t)] * np.sqrt(guide.min() / guide), ":", color=line.get_color(),
-                      alpha=0.5)
+                      alpha=0.5, label="slope -1/2" if k == 0 else None)
             for ti, ei, s in zip(series["seconds"], series["rmse"], series.get("spp") or []):
                 if ti > 0 and ei > 0:
                     ax.annotate(str(s), (ti, ei), textcoords="offset points", xytext=(4, 4), fontsize=7,
