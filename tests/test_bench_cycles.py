@@ -68,3 +68,16 @@ def test_bench_vs_cycles_errors(tmp_path):
         run_from_args(build_parser().parse_args(["bench", "--vs", "cycles", "-o", str(tmp_path)]), {})
     assert main(["bench", "--vs", "cycles", "--reference-dir", str(tmp_path), "-o", str(tmp_path),
                  "--spp", "8"]) == 1  # --spp is the ladder's job: a clear error, not a silent override
+
+
+def test_bench_vs_cycles_time_ladder(tmp_path):
+    out = tmp_path / "out"
+    assert main(["bench", "--vs", "cycles", "--resolution", "16x16", "--time-ladder", "0.3",
+                 "--reference-dir", str(tmp_path / "refs"), "-o", str(out), "--reference-spp", "8",
+                 "--reference-seeds", "2", "--threads", "2"]) == 0
+    (scene,) = json.loads((out / "bench.json").read_text())["scenes"]
+    assert scene["ladder_kind"] == "seconds"
+    monte, cycles = scene["points"]
+    # Each renderer stopped at its budget, not at the 65536 spp asked for (16x16 pixels).
+    assert 0 < monte["samples"] < 65536 * 256
+    assert monte["rmse"] > 0 and cycles["rmse"] > 0  # (corrected may be 0: the tiny reference is noisier)
