@@ -142,9 +142,21 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from .core.bench import run_bench
+    if args.vs:
+        try:
+            from .addon.bench_cycles import run_from_args
+        except ImportError as exc:
+            print(f"monte bench --vs cycles needs the bpy module (pip install bpy==5.0.1): {exc}", file=sys.stderr)
+            return 2
+        report = run_from_args(args, _settings_from(args))
+    elif args.samplers or args.batch_sizes or args.seed_table:
+        from .core.bench_ladders import run_ladders
 
-    report = run_bench(args)
+        report = run_ladders(args, _settings_from(args), make_reference=_cycles_reference_maker(args))
+    else:
+        from .core.bench import run_bench
+
+        report = run_bench(args)
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=2))
     return 0
@@ -155,6 +167,17 @@ def cmd_perf(args: argparse.Namespace) -> int:
 
     run_perf(args)
     return 0
+
+
+def _cycles_reference_maker(args: argparse.Namespace):
+    """With --reference-dir and the bpy module: a function rendering a missing Cornell reference with Cycles."""
+    if not args.reference_dir:
+        return None
+    try:
+        from .addon.bench_cycles import cornell_reference_maker
+    except ImportError:
+        return None
+    return cornell_reference_maker(args)
 
 
 def cmd_mc_study(args: argparse.Namespace) -> int:
@@ -209,8 +232,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_render_options(p)
     p.set_defaults(func=cmd_render)
 
-    p = sub.add_parser("bench", help="benchmark the Cornell box: samples/s, rays/s, Embree share, memory, RMSE")
+    p = sub.add_parser("bench", help="benchmark the Cornell box: samples/s, rays/s, Embree share, memory, RMSE; "
+                                     "--vs cycles, --samplers, --batch-sizes, --seed-table: run time against error")
     p.add_argument("--json", help="also write the numbers to this JSON file")
+    from .core.bench_args import add_bench_arguments
+
+    add_bench_arguments(p)
     p.add_argument("--reference", help="reference EXR for RMSE (default: the bundled converged Cycles render)")
     _add_render_options(p)
     p.set_defaults(func=cmd_bench)

@@ -7,7 +7,6 @@ Not a test module. Import it with `from blender_fixtures import ...` after putti
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -122,34 +121,12 @@ def camera_object(scene, location, rotation_euler, lens=50.0, sensor_fit="AUTO",
 
 
 def cornell_box(resolution=(256, 256)):
-    """The seed's Cornell box as DESIGN.md describes it (and core.scenes.cornell_box builds it), in bpy:
-    the same triangles (quads split along 0-2), materials and camera."""
-    bpy = bpy_module()
-    scene = reset()
-    white = diffuse("white", (0.75, 0.75, 0.75))
-    red = diffuse("red", (0.75, 0.25, 0.25))
-    blue = diffuse("blue", (0.25, 0.25, 0.75))
-    lamp = node_material("lamp", "ShaderNodeEmission", Color=(1.0, 1.0, 1.0), Strength=12.0)
-    mirror = node_material("mirror", "ShaderNodeBsdfGlossy", Color=(0.999, 0.999, 0.999), Roughness=0.0)
-    glass = node_material("glass", "ShaderNodeBsdfGlass", Color=(0.999, 0.999, 0.999), Roughness=0.0, IOR=1.5)
-    quads = [
-        ("floor", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], white),
-        ("ceiling", [(-1, -1, 2), (-1, 1, 2), (1, 1, 2), (1, -1, 2)], white),
-        ("back", [(-1, 1, 0), (1, 1, 0), (1, 1, 2), (-1, 1, 2)], white),
-        ("left", [(-1, -1, 0), (-1, 1, 0), (-1, 1, 2), (-1, -1, 2)], red),
-        ("right", [(1, -1, 0), (1, -1, 2), (1, 1, 2), (1, 1, 0)], blue),
-        ("lamp", [(-0.3, -0.3, 1.98), (-0.3, 0.3, 1.98), (0.3, 0.3, 1.98), (0.3, -0.3, 1.98)], lamp),
-    ]
-    for name, verts, mat in quads:
-        mesh_object(name, verts, [(0, 1, 2), (0, 2, 3)], mat)
-    icosphere_object("mirror_sphere", (-0.45, 0.35, 0.35), 0.35, mirror)
-    icosphere_object("glass_sphere", (0.45, -0.2, 0.35), 0.35, glass)
-    lens = 36.0 / (2.0 * math.tan(math.radians(39.0) / 2.0))
-    camera_object(scene, (0, -3.9, 1), (math.pi / 2, 0, 0), lens=lens, sensor_fit="HORIZONTAL", sensor_width=36.0)
-    scene.render.resolution_x, scene.render.resolution_y = resolution
-    scene.render.resolution_percentage = 100
-    set_world(scene, (0.0, 0.0, 0.0), 0.0)
-    return scene
+    """The seed's Cornell box in bpy (built by monte.addon.bpy_scenes.cornell_box, which the benchmark uses too):
+    the same triangles as core.scenes.cornell_box (quads split along 0-2), materials and camera."""
+    bpy_module()
+    from monte.addon import bpy_scenes
+
+    return bpy_scenes.cornell_box(resolution)
 
 
 def plane_under_world(albedo: float = 0.5, world: float = 1.0, resolution=(16, 16), height: float = 1.0):

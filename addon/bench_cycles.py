@@ -1,0 +1,309 @@
+"""`monte bench --vs cycles`: Monte against Cycles, run time against error, on the same bpy scenes.
+
+For each scene (a builder from bpy_scenes, or a user's .blend): the scene is exported to a core Scene once
+through the add-on's export, then Monte (core.render.render) and Cycles (bpy.ops.render.render, CPU) render
+it at each rung of a ladder of sample counts (or time budgets), interleaved (Monte 16, Cycles 16, Monte 32,
+...), in this one process, with the same resolution, bounce limit, pixel filter and thread count; Cycles
+with no denoising, no adaptive sampling, no clamping, blur_glossy 0 and caustics on. The time measured is
+the render call itself (for Monte: Embree build + render, not the export; for Cycles: its sync + render,
+not saving the image). Errors are RMSE against a converged Cycles reference from a ReferenceCache (rendered
+here when missing), with the reference's own noise removed in quadrature.
+
+Writes OUTDIR/bench.json and one log-log PNG (bench_vs_cycles.png, a panel per scene), and returns the report.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+import bpy
+import numpy as np
+
+from ..core import exr, metrics
+from ..core.bench_math import (corrected_rmse, efficiency, equal_error_ratio, format_table,
+                               plot_rmse_vs_seconds, reference_from_seeds, write_json)
+from ..core.bench_reference import Reference, ReferenceCache, file_digest
+from ..core.render import render as monte_render
+from ..core.settings import RenderSettings
+from . import bpy_scenes
+from .export import export_scene
+
+DEFAULT_LADDER = (16, 32, 64, 128, 256)
+BIG_SPP = 1 << 16  # sample count for time-budget rungs (the budget stops the render first)
+
+
+def configure_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0) -> None:
+    """Cycles on the CPU as an unbiased rival: no denoising, adaptive sampling or clamping, sharp glossy,
+    caustics on, every bounce limit = max_bounces, a fixed seed and thread count."""
+    scene.render.engine = "CYCLES"
+    c = scene.cycles
+    c.device = "CPU"
+    c.samples = int(spp)
+    c.time_limit = float(time_limit)
+    c.use_adaptive_sampling = False
+    c.use_denoising = False
+    c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
+    c.blur_glossy = 0.0
+    c.caustics_reflective = c.caustics_refractive = True
+    c.max_bounces = c.diffuse_bounces = c.glossy_bounces = c.transmission_bounces = int(max_bounces)
+    c.volume_bounces = 0
+    c.transparent_max_bounces = max(int(max_bounces), 8)
+    c.seed = int(seed)
+    c.use_animated_seed = False
+    scene.render.threads_mode = "FIXED"
+    scene.render.threads = int(threads)
+    for layer in scene.view_layers:
+        if hasattr(layer, "cycles"):
+            layer.cycles.denoising_store_passes = False
+
+
+def _read_combined(path: Path) -> np.ndarray:
+    ch = exr.read_exr(path)
+    for prefix in ("ViewLayer.Combined.", "Combined.", ""):
+        if all(prefix + c in ch for c in "RGB"):
+            return np.stack([ch[prefix + c] for c in "RGB"], axis=-1)
+    combined = sorted(k for k in ch if k.endswith("Combined.R"))
+    if combined:
+        p = combined[0][:-1]
+        return np.stack([ch[p + c] for c in "RGB"], axis=-1)
+    raise RuntimeError(f"Cycles' render result has no Combined pass (channels: {', '.join(sorted(ch))})")
+
+
+def render_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0
+                  ) -> tuple[np.ndarray, float]:
+    """One Cycles render: (linear RGB (H, W, 3) with row 0 at the top, seconds of the render call)."""
+    configure_cycles(scene, spp, seed, threads, max_bounces, time_limit)
+    t0 = time.perf_counter()
+    bpy.ops.render.render(write_still=False, scene=scene.name)
+    seconds = time.perf_counter() - t0
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+    fd, tmp = tempfile.mkstemp(suffix=".exr", prefix="monte-bench-")
+    os.close(fd)
+    try:
+        bpy.data.images["Render Result"].save_render(tmp, scene=scene)
+        image = _read_combined(Path(tmp))
+    finally:
+        os.unlink(tmp)
+    # OpenEXR stores the top row first; Blender writes the image upright, so no flip is needed.
+    return image, seconds
+
+
+def monte_settings(spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0,
+                   **extra) -> RenderSettings:
+    """Monte's settings matching configure_cycles: Blackman-Harris 1.5 px, no clamp, no AOV passes."""
+    return RenderSettings(spp=int(spp), seed=int(seed), threads=int(threads), max_bounces=int(max_bounces),
+                          filter_type="blackman-harris", filter_width=1.5, clamp=0.0, time_limit=time_limit,
+                          aovs=False, **extra).validate()
+
+
+def _load_scene(spec: str, resolution: tuple[int, int] | None) -> tuple[object, str, str]:
+    """Build a named bench scene or open a .blend; returns (bpy scene, name, version string for the key)."""
+    if spec.endswith(".blend") or os.path.sep in spec:
+        path = Path(spec).expanduser().resolve()
+        if not path.is_file():
+            raise FileNotFoundError(f"no such .blend file: {path}")
+        bpy_scenes.reset()
+        bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
+        scene = bpy.context.scene
+        if scene.camera is None:
+            raise ValueError(f"{path} has no camera in scene {scene.name!r}")
+        if resolution is not None:
+            scene.render.resolution_x, scene.render.resolution_y = resolution
+            scene.render.resolution_percentage = 100
+        return scene, path.stem, "blend:" + file_digest(path)
+    scene = bpy_scenes.build(spec, resolution or (256, 256))
+    return scene, spec, f"bpy_scenes:{bpy_scenes.SCENES_VERSION}"
+
+
+def _resolution_of(scene) -> tuple[int, int]:
+    r = scene.render
+    return (r.resolution_x * r.resolution_percentage // 100, r.resolution_y * r.resolution_percentage // 100)
+
+
+def reference_params(name: str, version: str, resolution, max_bounces: int, spp: int, seeds: int) -> dict:
+    return {"scene": name, "scene_version": version, "resolution": [int(resolution[0]), int(resolution[1])],
+            "max_bounces": int(max_bounces), "filter_type": "blackman-harris", "filter_width": 1.5,
+            "spp_per_seed": int(spp), "seeds": int(seeds), "renderer": f"cycles {bpy.app.version_string}"}
+
+
+def ensure_reference(scene, params: dict, cache: ReferenceCache, threads: int,
+                     log: Callable[[str], None]) -> Reference:
+    """The cached reference for params, or render it now with Cycles (seeds 1..K) and cache it."""
+    ref = cache.load(params)
+    if ref is not None:
+        log(f"  reference: {ref.source} {ref.path} (own RMSE {np.sqrt(ref.own_mse):.4g})")
+        return ref
+    k, n = params["seeds"], params["spp_per_seed"]
+    log(f"  reference: rendering with Cycles, {k} seeds x {n} spp (cached for next time) ...")
+    t0 = time.perf_counter()
+    images = [render_cycles(scene, n, 1000 + s, threads, params["max_bounces"])[0] for s in range(k)]
+    mean, own_mse = reference_from_seeds(images)
+    path = cache.store(mean, own_mse, params, note=f"Cycles, {k} seeds x {n} spp, "
+                                                   f"{time.perf_counter() - t0:.0f} s")
+    log(f"  reference: wrote {path} (own RMSE {np.sqrt(own_mse):.4g}, {time.perf_counter() - t0:.0f} s)")
+    return Reference(mean, own_mse, params, path, "rendered")
+
+
+def _point(renderer: str, rung, image: np.ndarray, seconds: float, ref: Reference, samples: int) -> dict:
+    err = metrics.rmse(image, ref.image)
+    err_c = corrected_rmse(err, ref.own_mse)
+    return {"renderer": renderer, "rung": rung, "seconds": seconds, "samples": samples,
+            "samples_per_second": samples / seconds if seconds > 0 else float("nan"),
+            "rmse": err, "rmse_corrected": err_c, "efficiency": efficiency(seconds, err_c)}
+
+
+def bench_scene(spec: str, *, cache: ReferenceCache, ladder: Sequence[int] = DEFAULT_LADDER,
+                time_ladder: Sequence[float] | None = None, threads: int = 2, max_bounces: int = 16,
+                resolution: tuple[int, int] | None = None, reference_spp: int = 1024, reference_seeds: int = 4,
+                seed: int = 1, log: Callable[[str], None] = print) -> dict:
+    """Monte and Cycles on one scene at each rung, interleaved; returns the scene's report."""
+    scene, name, version = _load_scene(spec, resolution)
+    res = _resolution_of(scene)
+    log(f"{name} {res[0]}x{res[1]}, {threads} threads, max bounces {max_bounces}")
+    params = reference_params(name, version, res, max_bounces, reference_spp, reference_seeds)
+    ref = ensure_reference(scene, params, cache, threads, log)
+
+    scene.render.engine = "MONTE"
+    core_scene, stats = export_scene(bpy.context.evaluated_depsgraph_get())
+    log(f"  monte export: {stats.line()}")
+    # Warm-up, untimed: first calls load kernels, tables and caches in both renderers.
+    monte_render(core_scene, monte_settings(1, seed, threads, max_bounces))
+    render_cycles(scene, 1, seed, threads, max_bounces)
+
+    points = []
+    rungs = list(time_ladder) if time_ladder else list(ladder)
+    n_pix = res[0] * res[1]
+    for rung in rungs:
+        if time_ladder:
+            m_set = monte_settings(BIG_SPP, seed, threads, max_bounces, time_limit=float(rung))
+        else:
+            m_set = monte_settings(int(rung), seed, threads, max_bounces)
+        t0 = time.perf_counter()
+        result = monte_render(core_scene, m_set)
+        m_sec = time.perf_counter() - t0
+        points.append(_point("monte", rung, result.color[..., :3], m_sec, ref, int(result.sample_count.sum())))
+        if time_ladder:
+            c_img, c_sec = render_cycles(scene, BIG_SPP, seed, threads, max_bounces, time_limit=float(rung))
+            c_samples = -1  # Cycles does not report how many samples fit in the budget
+        else:
+            c_img, c_sec = render_cycles(scene, int(rung), seed, threads, max_bounces)
+            c_samples = int(rung) * n_pix
+        points.append(_point("cycles", rung, c_img, c_sec, ref, c_samples))
+        m, c = points[-2], points[-1]
+        log(f"  {rung:>6} {'s' if time_ladder else 'spp'}: monte {m['seconds']:7.2f} s RMSE "
+            f"{m['rmse_corrected']:.4f} eff {m['efficiency']:7.1f} | cycles {c['seconds']:7.2f} s RMSE "
+            f"{c['rmse_corrected']:.4f} eff {c['efficiency']:7.1f}")
+    mon = [p for p in points if p["renderer"] == "monte"]
+    cyc = [p for p in points if p["renderer"] == "cycles"]
+    ratio = equal_error_ratio(([p["seconds"] for p in mon], [p["rmse_corrected"] for p in mon]),
+                              ([p["seconds"] for p in cyc], [p["rmse_corrected"] for p in cyc]))
+    return {"scene": name, "source": spec, "resolution": list(res), "threads": threads,
+            "max_bounces": max_bounces, "ladder_kind": "seconds" if time_ladder else "spp",
+            "triangles": stats.triangles, "instances": stats.instances,
+            "reference": {"path": str(ref.path) if ref.path else None, "source": ref.source,
+                          "own_rmse": float(np.sqrt(ref.own_mse)), "params": ref.params},
+            "points": points, "equal_error": ratio,
+            "monte_over_cycles_efficiency": ratio["ratio"]}
+
+
+def summary_table(scenes: list[dict]) -> str:
+    headers = ["scene", "rung", "monte s", "monte RMSE", "monte eff", "cycles s", "cycles RMSE", "cycles eff"]
+    rows = []
+    for s in scenes:
+        mon = [p for p in s["points"] if p["renderer"] == "monte"]
+        cyc = [p for p in s["points"] if p["renderer"] == "cycles"]
+        for m, c in zip(mon, cyc):
+            rows.append([s["scene"], m["rung"], m["seconds"], m["rmse_corrected"], m["efficiency"],
+                         c["seconds"], c["rmse_corrected"], c["efficiency"]])
+    return format_table(headers, rows)
+
+
+def ratio_lines(scenes: list[dict]) -> list[str]:
+    out = []
+    for s in scenes:
+        r = s["equal_error"]
+        where = "extrapolated" if r["extrapolated"] else \
+            (f"RMSE {min(r['levels']):.4f}..{max(r['levels']):.4f}" if r["levels"] else "no common error")
+        out.append(f"{s['scene']}: Monte/Cycles efficiency at equal error = {r['ratio']:.3g} ({where})")
+    return out
+
+
+def run_vs_cycles(specs: Sequence[str], reference_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
+                  log: Callable[[str], None] = print, **options) -> dict:
+    """Bench every scene in specs (names from bpy_scenes.SCENES or .blend paths); write OUTDIR/bench.json
+    and OUTDIR/bench_vs_cycles.png; print a table. options: see bench_scene."""
+    out = Path(out_dir).expanduser()
+    out.mkdir(parents=True, exist_ok=True)
+    cache = ReferenceCache(reference_dir)
+    scenes = [bench_scene(spec, cache=cache, log=log, **options) for spec in specs]
+    report = {"kind": "monte-vs-cycles", "blender": bpy.app.version_string, "cpu_count": os.cpu_count(),
+              "time": time.strftime("%Y-%m-%d %H:%M:%S"), "scenes": scenes}
+    write_json(out / "bench.json", report)
+    panels = [{"title": f"{s['scene']} {s['resolution'][0]}x{s['resolution'][1]}, {s['threads']} threads "
+                        f"(Monte/Cycles eff. {s['monte_over_cycles_efficiency']:.2g})",
+               "series": [{"label": r, "seconds": [p["seconds"] for p in s["points"] if p["renderer"] == r],
+                           "rmse": [p["rmse_corrected"] for p in s["points"] if p["renderer"] == r],
+                           "spp": [p["rung"] for p in s["points"] if p["renderer"] == r]}
+                          for r in ("monte", "cycles")]} for s in scenes]
+    plot_rmse_vs_seconds(panels, out / "bench_vs_cycles.png")
+    log("")
+    log(summary_table(scenes))
+    for line in ratio_lines(scenes):
+        log(line)
+    log(f"wrote {out / 'bench.json'}, {out / 'bench_vs_cycles.png'}")
+    return report
+
+
+def _scene_specs(args) -> list[str]:
+    from ..core.bench_args import BENCH_SCENES
+
+    choice = args.scene or ("none" if args.blend else "cornell")
+    names = list(BENCH_SCENES) if choice == "all" else [] if choice == "none" else [choice]
+    return names + list(args.blend)
+
+
+def run_from_args(args, overrides: dict) -> dict:
+    """`monte bench --vs cycles ...` (cli.py): check the arguments, then run_vs_cycles."""
+    specs = _scene_specs(args)
+    if not specs:
+        raise ValueError("nothing to bench: name --scene or give .blend files")
+    if not args.reference_dir:
+        raise ValueError("--vs cycles needs --reference-dir DIR (converged references are cached there)")
+    if not args.output_dir:
+        raise ValueError("--vs cycles needs -o OUTDIR (bench.json and the plot go there)")
+    if args.ladder and args.time_ladder:
+        raise ValueError("give either --ladder (sample counts) or --time-ladder (seconds), not both")
+    if args.reference_seeds < 2 or args.reference_spp < 1:
+        raise ValueError("the reference needs --reference-seeds >= 2 (to estimate its own noise) and "
+                         "--reference-spp >= 1")
+    unsupported = sorted(set(overrides) - {"threads", "max_bounces", "seed"})
+    if unsupported:
+        raise ValueError(f"--vs cycles fixes these settings for a fair comparison: {', '.join(unsupported)}")
+    return run_vs_cycles(specs, args.reference_dir, args.output_dir,
+                         ladder=args.ladder or DEFAULT_LADDER, time_ladder=args.time_ladder,
+                         threads=overrides.get("threads") or 2, max_bounces=overrides.get("max_bounces", 16),
+                         resolution=tuple(args.resolution) if args.resolution else None,
+                         reference_spp=args.reference_spp, reference_seeds=args.reference_seeds,
+                         seed=overrides.get("seed", 1))
+
+
+def cornell_reference_maker(args) -> Callable[[tuple[int, int]], Reference]:
+    """For the Monte-only ladders: render (or load) the Cornell reference at a resolution into
+    --reference-dir with Cycles."""
+    def make(resolution: tuple[int, int]) -> Reference:
+        threads = args.threads or 2
+        max_bounces = args.max_bounces if args.max_bounces is not None else 16
+        scene, name, version = _load_scene("cornell", tuple(resolution))
+        params = reference_params(name, version, _resolution_of(scene), max_bounces, args.reference_spp,
+                                  args.reference_seeds)
+        return ensure_reference(scene, params, ReferenceCache(args.reference_dir), threads, print)
+
+    return make

@@ -1,0 +1,305 @@
+"""Benchmark scenes built in bpy, so that Monte (through the add-on's export) and Cycles render the same data.
+
+Each builder resets Blender to an empty factory scene with Monte registered, builds the scene and returns it.
+All render at 256x256 by default with Blackman-Harris 1.5 px, the default of both Monte and Cycles.
+
+- `cornell_box`: the seed's Cornell box (DESIGN.md; the same triangles as core.scenes.cornell_box).
+- `interior`: a diffuse-only room with furniture-like boxes, lit by one ceiling area light and a small lamp.
+- `glass`: glass and rough-glass objects on a floor under a tilted area light (caustics on the floor).
+- `instances`: 4096 small spheres scattered by geometry nodes (Instance on Points) on a ground plane.
+
+`SCENES` maps the names `monte bench --scene` accepts to the builders. `SCENES_VERSION` is part of the
+reference cache key: bump it whenever a builder changes what it renders.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import bpy
+
+SCENES_VERSION = 1
+
+
+def reset():
+    """Empty factory scene, Monte registered and selected; returns the scene."""
+    from . import register
+
+    register()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.engine = "MONTE"
+    return scene
+
+
+# --------------------------------------------------------------------------------------------- materials
+def node_material(name: str, shader: str, **inputs):
+    """A material whose Material Output is fed by one shader node with the given input values
+    (keyword names with '_' for spaces: Base_Color -> 'Base Color')."""
+    mat = bpy.data.materials.new(name)
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    node = tree.nodes.new(shader)
+    for key, value in inputs.items():
+        sock = node.inputs[key.replace("_", " ")]
+        if sock.type == "RGBA" and len(value) == 3:
+            value = (*value, 1.0)
+        sock.default_value = value
+    tree.links.new(node.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def diffuse(name: str, rgb) -> object:
+    return node_material(name, "ShaderNodeBsdfDiffuse", Color=tuple(rgb))
+
+
+def set_world(scene, rgb, strength: float = 1.0):
+    world = bpy.data.worlds.new("World")
+    scene.world = world
+    tree = world.node_tree
+    if tree is None:  # Blender < 5 worlds need use_nodes
+        world.use_nodes = True
+        tree = world.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputWorld")
+    bg = tree.nodes.new("ShaderNodeBackground")
+    bg.inputs["Color"].default_value = (*rgb, 1.0)
+    bg.inputs["Strength"].default_value = strength
+    tree.links.new(bg.outputs[0], out.inputs["Surface"])
+    return world
+
+
+# --------------------------------------------------------------------------------------------- objects
+def mesh_object(name: str, vertices, faces, material=None, collection=None, smooth=False):
+    me = bpy.data.meshes.new(name)
+    me.from_pydata([tuple(v) for v in vertices], [], [tuple(f) for f in faces])
+    if material is not None:
+        me.materials.append(material)
+    if smooth:
+        me.shade_smooth()
+    ob = bpy.data.objects.new(name, me)
+    (collection or bpy.context.scene.collection).objects.link(ob)
+    return ob
+
+
+def icosphere_object(name: str, center, radius: float, material=None, subdivisions: int = 5):
+    import bmesh
+
+    me = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    bmesh.ops.create_icosphere(bm, subdivisions=subdivisions, radius=radius)
+    bm.to_mesh(me)
+    bm.free()
+    if material is not None:
+        me.materials.append(material)
+    me.shade_smooth()
+    ob = bpy.data.objects.new(name, me)
+    ob.location = center
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def box_object(name: str, lo, hi, material=None, inward: bool = False):
+    """An axis-aligned box from corner lo to corner hi (6 quads, outward normals; inward=True for a room)."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    v = [(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0),
+         (x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)]
+    faces = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
+    if inward:
+        faces = [tuple(reversed(f)) for f in faces]
+    return mesh_object(name, v, faces, material)
+
+
+def camera_object(scene, location, rotation_euler, lens=50.0, sensor_fit="AUTO", kind="PERSP", **data):
+    cam = bpy.data.cameras.new("Camera")
+    cam.type = kind
+    cam.lens = lens
+    cam.sensor_fit = sensor_fit
+    for key, value in data.items():
+        setattr(cam, key, value)
+    ob = bpy.data.objects.new("Camera", cam)
+    ob.location = location
+    ob.rotation_euler = rotation_euler
+    scene.collection.objects.link(ob)
+    scene.camera = ob
+    return ob
+
+
+def light_object(scene, kind: str, location, rotation=(0.0, 0.0, 0.0), **props):
+    data = bpy.data.lights.new(kind.lower(), kind)
+    for key, value in props.items():
+        setattr(data, key, value)
+    ob = bpy.data.objects.new(kind.lower(), data)
+    ob.location = location
+    ob.rotation_euler = rotation
+    scene.collection.objects.link(ob)
+    return ob
+
+
+def _finish(scene, resolution) -> None:
+    scene.render.resolution_x, scene.render.resolution_y = (int(v) for v in resolution)
+    scene.render.resolution_percentage = 100
+    scene.render.film_transparent = False
+    # Blackman-Harris 1.5 px: Monte's and Cycles' default, set explicitly so a changed default shows.
+    scene.monte.filter_type, scene.monte.filter_width = "blackman-harris", 1.5
+    scene.cycles.pixel_filter_type, scene.cycles.filter_width = "BLACKMAN_HARRIS", 1.5
+
+
+# --------------------------------------------------------------------------------------------- scenes
+def cornell_box(resolution=(256, 256)):
+    """The seed's Cornell box as DESIGN.md describes it (and core.scenes.cornell_box builds it), in bpy:
+    the same triangles (quads split along 0-2), materials and camera."""
+    scene = reset()
+    white = diffuse("white", (0.75, 0.75, 0.75))
+    red = diffuse("red", (0.75, 0.25, 0.25))
+    blue = diffuse("blue", (0.25, 0.25, 0.75))
+    lamp = node_material("lamp", "ShaderNodeEmission", Color=(1.0, 1.0, 1.0), Strength=12.0)
+    mirror = node_material("mirror", "ShaderNodeBsdfGlossy", Color=(0.999, 0.999, 0.999), Roughness=0.0)
+    glass = node_material("glass", "ShaderNodeBsdfGlass", Color=(0.999, 0.999, 0.999), Roughness=0.0, IOR=1.5)
+    quads = [
+        ("floor", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], white),
+        ("ceiling", [(-1, -1, 2), (-1, 1, 2), (1, 1, 2), (1, -1, 2)], white),
+        ("back", [(-1, 1, 0), (1, 1, 0), (1, 1, 2), (-1, 1, 2)], white),
+        ("left", [(-1, -1, 0), (-1, 1, 0), (-1, 1, 2), (-1, -1, 2)], red),
+        ("right", [(1, -1, 0), (1, -1, 2), (1, 1, 2), (1, 1, 0)], blue),
+        ("lamp", [(-0.3, -0.3, 1.98), (-0.3, 0.3, 1.98), (0.3, 0.3, 1.98), (0.3, -0.3, 1.98)], lamp),
+    ]
+    for name, verts, mat in quads:
+        mesh_object(name, verts, [(0, 1, 2), (0, 2, 3)], mat)
+    icosphere_object("mirror_sphere", (-0.45, 0.35, 0.35), 0.35, mirror)
+    icosphere_object("glass_sphere", (0.45, -0.2, 0.35), 0.35, glass)
+    lens = 36.0 / (2.0 * math.tan(math.radians(39.0) / 2.0))
+    camera_object(scene, (0, -3.9, 1), (math.pi / 2, 0, 0), lens=lens, sensor_fit="HORIZONTAL", sensor_width=36.0)
+    scene.render.resolution_x, scene.render.resolution_y = resolution
+    scene.render.resolution_percentage = 100
+    set_world(scene, (0.0, 0.0, 0.0), 0.0)
+    return scene
+
+
+def interior(resolution=(256, 256)):
+    """A closed diffuse room (6 x 4 x 2.8 m) with furniture-like boxes: a table, a cabinet, a sofa and a shelf.
+    Lit only from inside: a 1.2 x 0.8 m ceiling area light (60 W) and a small warm point lamp (15 W) on the
+    shelf; every surface Lambertian, so most light arrives after several diffuse bounces."""
+    scene = reset()
+    wall = diffuse("wall", (0.8, 0.78, 0.72))
+    floor = diffuse("floor", (0.45, 0.3, 0.2))
+    wood = diffuse("wood", (0.55, 0.35, 0.2))
+    fabric = diffuse("fabric", (0.2, 0.35, 0.6))
+    pale = diffuse("pale", (0.85, 0.85, 0.85))
+    box_object("room", (-3, -2, 0), (3, 2, 2.8), wall, inward=True)
+    mesh_object("floor", [(-3, -2, 0.001), (3, -2, 0.001), (3, 2, 0.001), (-3, 2, 0.001)], [(0, 1, 2, 3)], floor)
+    box_object("table_top", (-0.9, -0.3, 0.72), (0.5, 0.5, 0.77), wood)
+    for i, (x, y) in enumerate([(-0.85, -0.25), (0.45, -0.25), (-0.85, 0.45), (0.45, 0.45)]):
+        box_object(f"table_leg{i}", (x - 0.03, y - 0.03, 0.0), (x + 0.03, y + 0.03, 0.72), wood)
+    box_object("cabinet", (2.2, 0.8, 0.0), (2.95, 1.95, 1.9), pale)
+    box_object("sofa_seat", (-2.9, -1.2, 0.0), (-2.1, 1.0, 0.45), fabric)
+    box_object("sofa_back", (-2.95, -1.2, 0.0), (-2.7, 1.0, 0.9), fabric)
+    box_object("shelf", (-1.0, 1.75, 1.2), (1.0, 1.98, 1.25), wood)
+    for i in range(5):
+        x = -0.9 + 0.38 * i
+        box_object(f"book{i}", (x, 1.8, 1.25), (x + 0.25, 1.95, 1.25 + 0.18 + 0.04 * (i % 3)),
+                   (pale if i % 2 else fabric))
+    light_object(scene, "AREA", (0.5, 0.0, 2.78), energy=60.0, shape="RECTANGLE", size=1.2, size_y=0.8)
+    light_object(scene, "POINT", (0.8, 1.85, 1.5), energy=15.0, color=(1.0, 0.8, 0.6), shadow_soft_size=0.05)
+    camera_object(scene, (2.7, -1.8, 1.5), (math.radians(82), 0, math.radians(52)), lens=18.0)
+    set_world(scene, (0.0, 0.0, 0.0), 0.0)
+    _finish(scene, resolution)
+    return scene
+
+
+def glass(resolution=(256, 256)):
+    """Glass-heavy: a smooth glass sphere, a rough glass sphere (roughness 0.2), a smooth glass cube, a rough
+    glass slab and a small glass sphere cluster on a white floor against a grey backdrop, under a tilted 0.5 m
+    square area light (60 W) and a dim grey world: the floor shows caustics through every object."""
+    scene = reset()
+    floor = diffuse("floor", (0.8, 0.8, 0.8))
+    backdrop = diffuse("backdrop", (0.5, 0.5, 0.55))
+    clear = node_material("glass", "ShaderNodeBsdfGlass", Color=(1.0, 1.0, 1.0), Roughness=0.0, IOR=1.5)
+    rough = node_material("rough_glass", "ShaderNodeBsdfGlass", Color=(0.9, 0.95, 1.0), Roughness=0.2, IOR=1.5)
+    tinted = node_material("tinted_glass", "ShaderNodeBsdfGlass", Color=(1.0, 0.75, 0.5), Roughness=0.0, IOR=1.45)
+    mesh_object("floor", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], [(0, 1, 2, 3)], floor)
+    mesh_object("backdrop", [(-4, 2, 0), (4, 2, 0), (4, 2, 3), (-4, 2, 3)], [(0, 1, 2, 3)], backdrop)
+    icosphere_object("glass_sphere", (-0.8, 0.2, 0.45), 0.45, clear)
+    icosphere_object("rough_sphere", (0.5, 0.6, 0.4), 0.4, rough)
+    box_object("glass_cube", (0.9, -0.6, 0.0), (1.5, 0.0, 0.6), tinted)
+    box_object("rough_slab", (-0.3, -0.9, 0.0), (0.3, -0.8, 0.8), rough)
+    for i in range(5):
+        a = 2 * math.pi * i / 5
+        icosphere_object(f"bead{i}", (-0.1 + 0.35 * math.cos(a), -0.2 + 0.35 * math.sin(a), 0.12), 0.12, clear,
+                         subdivisions=3)
+    light_object(scene, "AREA", (-1.5, -1.0, 3.0), (math.radians(30), math.radians(-25), 0), energy=60.0,
+                 shape="SQUARE", size=0.5)
+    camera_object(scene, (0.0, -4.2, 2.0), (math.radians(68), 0, 0), lens=35.0)
+    set_world(scene, (0.05, 0.05, 0.06), 1.0)
+    _finish(scene, resolution)
+    return scene
+
+
+def _scatter_node_group(count_side: int, radius: float, material):
+    """Geometry nodes: a count_side^2 grid of points, each an instance of one small icosphere with a random
+    scale in [0.5, 1.5] x radius (Instance on Points keeps them instances, not realized geometry)."""
+    ng = bpy.data.node_groups.new("Scatter", "GeometryNodeTree")
+    ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    nodes, links = ng.nodes, ng.links
+    gin = nodes.new("NodeGroupInput")
+    gout = nodes.new("NodeGroupOutput")
+    grid = nodes.new("GeometryNodeMeshGrid")
+    grid.inputs["Size X"].default_value = grid.inputs["Size Y"].default_value = 7.0
+    grid.inputs["Vertices X"].default_value = grid.inputs["Vertices Y"].default_value = count_side
+    sphere = nodes.new("GeometryNodeMeshIcoSphere")
+    sphere.inputs["Radius"].default_value = radius
+    sphere.inputs["Subdivisions"].default_value = 2
+    set_mat = nodes.new("GeometryNodeSetMaterial")
+    set_mat.inputs["Material"].default_value = material
+    rand = nodes.new("FunctionNodeRandomValue")
+    rand.data_type = "FLOAT"
+    rand.inputs["Min"].default_value = 0.5
+    rand.inputs["Max"].default_value = 1.5
+    rand.inputs["Seed"].default_value = 7
+    inst = nodes.new("GeometryNodeInstanceOnPoints")
+    join = nodes.new("GeometryNodeJoinGeometry")
+    links.new(sphere.outputs["Mesh"], set_mat.inputs["Geometry"])
+    links.new(grid.outputs["Mesh"], inst.inputs["Points"])
+    links.new(set_mat.outputs["Geometry"], inst.inputs["Instance"])
+    links.new(rand.outputs["Value"], inst.inputs["Scale"])
+    links.new(inst.outputs["Instances"], join.inputs["Geometry"])
+    links.new(gin.outputs[0], join.inputs["Geometry"])
+    links.new(join.outputs["Geometry"], gout.inputs[0])
+    return ng
+
+
+def instances(resolution=(256, 256)):
+    """An instanced scene: 64 x 64 = 4096 instances of a 320-triangle icosphere (random scale) over a 7 m square,
+    made by a geometry-nodes modifier on the ground plane; a sun (3 W/m^2, 3 degrees) and a blue-grey sky."""
+    scene = reset()
+    ground = diffuse("ground", (0.6, 0.55, 0.5))
+    balls = node_material("balls", "ShaderNodeBsdfPrincipled", Base_Color=(0.7, 0.2, 0.15), Roughness=0.5)
+    plane = mesh_object("ground", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], [(0, 1, 2, 3)], ground)
+    mod = plane.modifiers.new("Scatter", "NODES")
+    mod.node_group = _scatter_node_group(64, 0.03, balls)
+    light_object(scene, "SUN", (0, 0, 5), (math.radians(40), math.radians(20), 0), energy=3.0,
+                 angle=math.radians(3.0))
+    camera_object(scene, (0.0, -5.5, 3.0), (math.radians(62), 0, 0), lens=30.0)
+    set_world(scene, (0.35, 0.45, 0.6), 1.0)
+    _finish(scene, resolution)
+    return scene
+
+
+SCENES: dict[str, Callable] = {
+    "cornell": cornell_box,
+    "interior": interior,
+    "glass": glass,
+    "instances": instances,
+}
+
+
+def build(name: str, resolution=(256, 256)):
+    """Build the named benchmark scene; ValueError for an unknown name."""
+    try:
+        builder = SCENES[name]
+    except KeyError:
+        raise ValueError(f"unknown benchmark scene {name!r}; choose one of {', '.join(SCENES)}") from None
+    return builder(resolution)

@@ -1,0 +1,83 @@
+"""`monte bench --vs cycles` end to end with the real bpy and Cycles at a tiny size, and the bench scenes."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from monte.cli import main  # noqa: E402
+
+pytestmark = pytest.mark.blender
+
+
+@pytest.mark.parametrize("name, triangles, instances, lights", [
+    ("cornell", 10252, 8, 0), ("interior", 182, 16, 2), ("glass", 11868, 11, 1), ("instances", 327682, 4097, 1)])
+def test_bench_scenes_export(name, triangles, instances, lights):
+    from monte.addon import bpy_scenes
+    from monte.addon.export import export_scene
+
+    scene = bpy_scenes.build(name, (24, 16))
+    assert (scene.render.resolution_x, scene.render.resolution_y) == (24, 16)
+    core_scene, stats = export_scene(bpy.context.evaluated_depsgraph_get())
+    assert (stats.triangles, stats.instances, stats.lights) == (triangles, instances, lights)
+    assert core_scene.warnings == []
+
+
+def test_bench_vs_cycles_tiny_end_to_end(tmp_path, capsys):
+    refs, out = tmp_path / "refs", tmp_path / "out"
+    args = ["bench", "--vs", "cycles", "--scene", "cornell", "--resolution", "32x32", "--ladder", "2,4",
+            "--reference-dir", str(refs), "-o", str(out), "--reference-spp", "8", "--reference-seeds", "2",
+            "--threads", "2"]
+    assert main(args) == 0
+    report = json.loads((out / "bench.json").read_text())
+    (scene,) = report["scenes"]
+    assert scene["scene"] == "cornell" and scene["resolution"] == [32, 32] and scene["threads"] == 2
+    assert scene["reference"]["source"] == "rendered" and scene["reference"]["own_rmse"] > 0
+    # Interleaved: Monte 2, Cycles 2, Monte 4, Cycles 4.
+    assert [(p["renderer"], p["rung"]) for p in scene["points"]] == [
+        ("monte", 2), ("cycles", 2), ("monte", 4), ("cycles", 4)]
+    for p in scene["points"]:
+        assert p["seconds"] > 0 and p["rmse"] > p["rmse_corrected"] > 0
+        assert p["efficiency"] == pytest.approx(1 / (p["seconds"] * p["rmse_corrected"] ** 2))
+    # Same scene, both unbiased, similar per-sample noise: equal-spp errors are close (a flipped or
+    # mismatched image would be far off). Both renderers are deterministic at a fixed seed.
+    for m, c in zip(scene["points"][0::2], scene["points"][1::2]):
+        assert 0.6 < m["rmse_corrected"] / c["rmse_corrected"] < 1.6
+    assert scene["equal_error"]["ratio"] > 0
+    png = out / "bench_vs_cycles.png"
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    (ref_file,) = refs.glob("cornell-32x32-*.exr")
+    stamp = ref_file.stat().st_mtime_ns
+    assert "rendering with Cycles" in capsys.readouterr().out
+
+    assert main([*args[:8], "2", *args[9:]]) == 0  # ladder 2 only; the reference is reused
+    report = json.loads((out / "bench.json").read_text())
+    assert report["scenes"][0]["reference"]["source"] == "cache"
+    assert ref_file.stat().st_mtime_ns == stamp
+    assert "rendering with Cycles" not in capsys.readouterr().out
+
+
+def test_bench_vs_cycles_errors(tmp_path):
+    with pytest.raises(ValueError, match="reference-dir"):
+        from monte.addon.bench_cycles import run_from_args
+        from monte.cli import build_parser
+
+        run_from_args(build_parser().parse_args(["bench", "--vs", "cycles", "-o", str(tmp_path)]), {})
+    assert main(["bench", "--vs", "cycles", "--reference-dir", str(tmp_path), "-o", str(tmp_path),
+                 "--spp", "8"]) == 1  # --spp is the ladder's job: a clear error, not a silent override
+
+
+def test_bench_vs_cycles_time_ladder(tmp_path):
+    out = tmp_path / "out"
+    assert main(["bench", "--vs", "cycles", "--resolution", "16x16", "--time-ladder", "0.3",
+                 "--reference-dir", str(tmp_path / "refs"), "-o", str(out), "--reference-spp", "8",
+                 "--reference-seeds", "2", "--threads", "2"]) == 0
+    (scene,) = json.loads((out / "bench.json").read_text())["scenes"]
+    assert scene["ladder_kind"] == "seconds"
+    monte, cycles = scene["points"]
+    # Each renderer stopped at its budget, not at the 65536 spp asked for (16x16 pixels).
+    assert 0 < monte["samples"] < 65536 * 256
+    assert monte["rmse"] > 0 and cycles["rmse"] > 0  # (corrected may be 0: the tiny reference is noisier)
