@@ -7,6 +7,7 @@ Not a test module. Import it with `from blender_fixtures import ...` after putti
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
