@@ -95,6 +95,7 @@ class PreparedScene:
     emissive: EmissiveTriangles | None
     has_nondelta: np.ndarray  # (M,) bool: material has a lobe that next-event estimation can reach
     radius: float
+    specular: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (M,) has a glossy/glass lobe
     features: dict = field(default_factory=dict)
 
     # The same per-triangle data as the compiled kernels take it: empty arrays instead of None.
@@ -162,8 +163,10 @@ class PreparedScene:
             "textures": bool(scene.textures),
             "smooth_normals": corner_normals is not None,
         }
+        specular = np.array([any(lobe.kind != "diffuse" for lobe in m.lobes) for m in scene.materials], bool)
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
-                   smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius, features)
+                   smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
+                   specular, features)
 
 
 @dataclass
@@ -357,7 +360,7 @@ class PathTracer:
         g = SurfaceBatch.empty(m, ps.uvs is not None)
         kernels.surface(rows.astype(np.int64), prim, bu, bv, np.ascontiguousarray(d, dtype=np.float32),
                         ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth,
-                        ps.kernel_uvs, ps.tri_magnitude, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
+                        ps.kernel_uvs, ps.tri_magnitude, ps.material_index, ps.specular, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
                         g.n_view, g.mag, g.cos_o_geo, g.uv_buffer)
         return g
 

@@ -36,15 +36,51 @@ def _offset(px, py, pz, nx, ny, nz, wx, wy, wz, magnitude):
 
 
 @_jit
+def _valid_reflection_normal(gx, gy, gz, ix, iy, iz, nx, ny, nz):
+    """Cycles' ensure_valid_specular_reflection: the shading normal N (unit, on the viewer's side of the face
+    normal G) tilted towards G just enough that the mirror reflection of the viewer direction I about it leaves
+    the true surface at least min(0.9 I.G, 0.01) above the tangent plane. Else, at silhouettes of smooth-shaded
+    meshes, mirror and glass paths would be sent below the surface and lost."""
+    i_z = ix * gx + iy * gy + iz * gz
+    n_z = nx * gx + ny * gy + nz * gz
+    n_i = nx * ix + ny * iy + nz * iz
+    threshold = min(0.9 * i_z, 0.01)
+    if 2.0 * n_i * n_z - i_z >= threshold:
+        return nx, ny, nz
+    xx, xy, xz = nx - n_z * gx, ny - n_z * gy, nz - n_z * gz  # N's part in the tangent plane
+    length = math.sqrt(xx * xx + xy * xy + xz * xz)
+    if length <= 0.0:
+        return nx, ny, nz
+    xx, xy, xz = xx / length, xy / length, xz / length
+    i_x = ix * xx + iy * xy + iz * xz
+    # N' = sin(t) X + cos(t) G reflects I to height i_x sin(2t) + i_z cos(2t): solve for that = threshold.
+    rho = math.sqrt(i_x * i_x + i_z * i_z)
+    if rho <= 0.0:
+        return nx, ny, nz
+    psi = math.atan2(i_x, i_z)
+    delta = math.acos(min(max(threshold / rho, -1.0), 1.0))
+    theta0 = math.atan2(length, n_z)
+    best = 0.0
+    best_gap = 1e30
+    for phi in (psi - delta, psi + delta):
+        theta = 0.5 * phi
+        if abs(theta) < 0.5 * math.pi and abs(theta - theta0) < best_gap:
+            best, best_gap = theta, abs(theta - theta0)
+    st, ct = math.sin(best), math.cos(best)
+    return st * xx + ct * gx, st * xy + ct * gy, st * xz + ct * gz
+
+
+@_jit
 def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, smooth, tri_uvs, tri_magnitude,
-            p, ng, ns_raw, ns, tangent, bitangent, wo, n_view, mag, cos_o_geo, uv):
+            material_index, specular, p, ng, ns_raw, ns, tangent, bitangent, wo, n_view, mag, cos_o_geo, uv):
     """Surface interaction of the hits `rows` (indices into prim/bu/bv/d); writes row k of each output.
 
     p: point from barycentrics (the triangle's own precision). ng: face normal. ns_raw: interpolated shading
     normal as the mesh gives it (the normal AOV). ns: the same flipped to ng's side; tangent, bitangent: Duff et
     al.'s branchless basis around ns. wo: direction to the viewer (-d) in that frame. n_view: ns on the viewer's
     side. mag: largest |coordinate| of p and its triangle (ray offset scale). cos_o_geo: -d . ng.
-    corner_normals/smooth and tri_uvs may be empty arrays (flat shading, no UVs).
+    corner_normals/smooth and tri_uvs may be empty arrays (flat shading, no UVs). specular (M,): materials
+    with a glossy, glass or refraction lobe, whose smooth shading normals are kept valid for reflection.
     """
     has_normals = corner_normals.shape[0] > 0
     has_uvs = tri_uvs.shape[0] > 0
@@ -77,6 +113,11 @@ def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, s
         cos_o_geo[k] = ox * gx + oy * gy + oz * gz
         if sx * gx + sy * gy + sz * gz < _F0:
             sx, sy, sz = -sx, -sy, -sz
+        if has_normals and smooth[t] and specular[material_index[t]]:
+            side = _F1 if cos_o_geo[k] >= _F0 else -_F1  # work on the viewer's side of the surface
+            bx, by, bz = _valid_reflection_normal(gx * side, gy * side, gz * side, ox, oy, oz,
+                                                  sx * side, sy * side, sz * side)
+            sx, sy, sz = np.float32(bx * side), np.float32(by * side), np.float32(bz * side)
         ns[k, 0], ns[k, 1], ns[k, 2] = sx, sy, sz
         sign = _F1 if sz >= _F0 else -_F1
         a = -_F1 / (sign + sz)
