@@ -140,32 +140,20 @@ def _render_layer(scene):
     return layers[0]
 
 
-def _render(scene, what: str) -> None:
+def _render(scene, what: str) -> list:
+    from .engine import render_with_operator
+
     try:
-        bpy.ops.render.render(write_still=False, scene=scene.name)
+        return render_with_operator(scene)
     except RuntimeError as exc:
-        message = str(exc).strip()
-        if message.startswith("Error: "):
-            message = message[len("Error: "):]
-        raise CrosscheckError(f"{what} render of scene {scene.name!r} failed: {message}") from exc
+        raise CrosscheckError(f"{what} render of scene {scene.name!r} failed: {exc}") from exc
 
 
 def render_monte(scene) -> tuple[np.ndarray, np.ndarray]:
     """Render the scene with Monte as F12 does: (colour (H, W, 3), variance of each pixel's mean (H, W, 3)),
     row 0 at the top. scene.monte and scene.render must already hold the wanted settings."""
-    from . import engine
-
-    captured: list = []
-
-    def capture(layer_name, result, region, size) -> None:
-        captured.append((layer_name, result))
-
     scene.render.engine = "MONTE"
-    engine.result_listeners.append(capture)
-    try:
-        _render(scene, "Monte")
-    finally:
-        engine.result_listeners.remove(capture)
+    captured = _render(scene, "Monte")
     if not captured:
         raise CrosscheckError(f"Monte produced no image for scene {scene.name!r}")
     result = captured[0][1]

@@ -54,6 +54,30 @@ progress_listeners: list = []
 result_listeners: list = []
 
 
+def render_with_operator(scene, on_progress=None) -> list:
+    """Run Blender's render operator on `scene` (F12, without saving) and return what Monte rendered:
+    [(view_layer_name, core RenderResult, region, (width, height)), ...] (empty for other engines).
+    Raises RuntimeError with Blender's message (without its "Error: " prefix) when the render fails."""
+    captured: list = []
+
+    def capture(layer_name, result, region, size) -> None:
+        captured.append((layer_name, result, region, size))
+
+    result_listeners.append(capture)
+    if on_progress is not None:
+        progress_listeners.append(on_progress)
+    try:
+        bpy.ops.render.render(write_still=False, scene=scene.name)
+    except RuntimeError as exc:
+        message = str(exc).strip()
+        raise RuntimeError(message[len("Error: "):] if message.startswith("Error: ") else message) from exc
+    finally:
+        result_listeners.remove(capture)
+        if on_progress is not None:
+            progress_listeners.remove(on_progress)
+    return captured
+
+
 class MonteRenderEngine(bpy.types.RenderEngine):
     bl_idname = "MONTE"
     bl_label = "Monte"

@@ -211,27 +211,12 @@ def render_blend_file(
         raise HeadlessError(f"cannot render {blend}: scene {scene.name!r} has no camera")
     _configure_output(scene, bool(clean.get("multilayer", False)))
     say(f"Monte: rendering {blend.name} (scene {scene.name!r}, frame {scene.frame_current}) to {out}")
-    from . import engine
+    from .engine import render_with_operator
 
-    captured: list = []
-
-    def capture(layer_name, result, region, size) -> None:
-        captured.append((layer_name, result, region, size))
-
-    engine.result_listeners.append(capture)
-    if on_progress is not None:
-        engine.progress_listeners.append(on_progress)
     try:
-        bpy.ops.render.render(write_still=False, scene=scene.name)
+        captured = render_with_operator(scene, on_progress)
     except RuntimeError as exc:
-        message = str(exc).strip()
-        if message.startswith("Error: "):
-            message = message[len("Error: "):]
-        raise HeadlessError(f"rendering {blend} failed: {message}") from exc
-    finally:
-        engine.result_listeners.remove(capture)
-        if on_progress is not None:
-            engine.progress_listeners.remove(on_progress)
+        raise HeadlessError(f"rendering {blend} failed: {exc}") from exc
     if clean.get("multilayer"):
         _save_blender_multilayer(bpy, scene, blend, out)
     else:

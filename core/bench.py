@@ -29,7 +29,7 @@ def bundled_reference() -> np.ndarray:
 
 def run_bench(args: argparse.Namespace) -> dict:
     overrides = {k: getattr(args, k) for k in CLI_SETTINGS if getattr(args, k, None) is not None}
-    settings = RenderSettings(**{"spp": 64, **overrides}).validate()
+    settings = RenderSettings(**{"spp": 64, "aovs": False, **overrides}).validate()  # Cycles: Combined only
     resolution = getattr(args, "resolution", None) or (256, 256)
     scene = cornell_box(resolution)
     result = render(scene, settings)

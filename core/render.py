@@ -277,6 +277,11 @@ def render(
     # batches (of at least _MIN_BATCH paths) so that threads share them. None of this depends on the thread count.
     workers = settings.thread_count
     target = batch_target(settings, total_paths)
+    if adaptive:
+        # A pass's convergence test waits for the tile's previous pass: keep each pass in >= 8 batches so that
+        # the threads still share it.
+        step = max(16, min_samples // 2)
+        target = min(target, max(_MIN_BATCH, -(-rw * rh * step // 8)))
     pool = ThreadPoolExecutor(workers) if workers > 1 else None
     in_flight: deque = deque()  # (segments, job)
     group: list[Segment] = []

@@ -25,102 +25,19 @@ def bpy_module():
     return bpy
 
 
-def reset():
-    """Empty factory scene, Monte registered and selected; returns the scene."""
-    bpy = bpy_module()
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    scene.render.engine = "MONTE"
-    return scene
+# The scene-building helpers the benchmark scenes use too (one implementation, in the add-on).
+from monte.addon.bpy_scenes import (  # noqa: E402
+    camera_object,
+    diffuse,
+    icosphere_object,
+    mesh_object,
+    node_material,
+    reset,
+    set_world,
+)
 
 
-# --------------------------------------------------------------------------------------------- materials
-def node_material(name: str, shader: str, **inputs):
-    """A material whose Material Output is fed by one shader node with the given input values."""
-    bpy = bpy_module()
-    mat = bpy.data.materials.new(name)
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    node = tree.nodes.new(shader)
-    for key, value in inputs.items():
-        sock = node.inputs[key.replace("_", " ")]
-        if sock.type == "RGBA" and len(value) == 3:
-            value = (*value, 1.0)
-        sock.default_value = value
-    tree.links.new(node.outputs[0], out.inputs["Surface"])
-    return mat
-
-
-def diffuse(name: str, rgb) -> object:
-    return node_material(name, "ShaderNodeBsdfDiffuse", Color=tuple(rgb))
-
-
-def set_world(scene, rgb, strength: float = 1.0):
-    bpy = bpy_module()
-    world = bpy.data.worlds.new("World")
-    scene.world = world
-    tree = world.node_tree
-    if tree is None:  # Blender < 5 worlds need use_nodes
-        world.use_nodes = True
-        tree = world.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputWorld")
-    bg = tree.nodes.new("ShaderNodeBackground")
-    bg.inputs["Color"].default_value = (*rgb, 1.0)
-    bg.inputs["Strength"].default_value = strength
-    tree.links.new(bg.outputs[0], out.inputs["Surface"])
-    return world
-
-
-# --------------------------------------------------------------------------------------------- objects
-def mesh_object(name: str, vertices, faces, material=None, collection=None, smooth=False):
-    bpy = bpy_module()
-    me = bpy.data.meshes.new(name)
-    me.from_pydata([tuple(v) for v in vertices], [], [tuple(f) for f in faces])
-    if material is not None:
-        me.materials.append(material)
-    if smooth:
-        me.shade_smooth()
-    ob = bpy.data.objects.new(name, me)
-    (collection or bpy.context.scene.collection).objects.link(ob)
-    return ob
-
-
-def icosphere_object(name: str, center, radius: float, material=None, subdivisions: int = 5):
-    import bmesh
-
-    bpy = bpy_module()
-    me = bpy.data.meshes.new(name)
-    bm = bmesh.new()
-    bmesh.ops.create_icosphere(bm, subdivisions=subdivisions, radius=radius)
-    bm.to_mesh(me)
-    bm.free()
-    if material is not None:
-        me.materials.append(material)
-    me.shade_smooth()
-    ob = bpy.data.objects.new(name, me)
-    ob.location = center
-    bpy.context.scene.collection.objects.link(ob)
-    return ob
-
-
-def camera_object(scene, location, rotation_euler, lens=50.0, sensor_fit="AUTO", kind="PERSP", **data):
-    bpy = bpy_module()
-    cam = bpy.data.cameras.new("Camera")
-    cam.type = kind
-    cam.lens = lens
-    cam.sensor_fit = sensor_fit
-    for key, value in data.items():
-        setattr(cam, key, value)
-    ob = bpy.data.objects.new("Camera", cam)
-    ob.location = location
-    ob.rotation_euler = rotation_euler
-    scene.collection.objects.link(ob)
-    scene.camera = ob
-    return ob
-
-
+# --------------------------------------------------------------------------------------------- scenes
 def cornell_box(resolution=(256, 256)):
     """The seed's Cornell box in bpy (built by monte.addon.bpy_scenes.cornell_box, which the benchmark uses too):
     the same triangles as core.scenes.cornell_box (quads split along 0-2), materials and camera."""
