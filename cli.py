@@ -209,6 +209,13 @@ def cmd_stress(args: argparse.Namespace) -> int:
     cfg = StressConfig.quick_run() if args.quick else StressConfig.full()
     if args.threads is not None:
         cfg.threads = args.threads
+    if args.cycles:
+        try:
+            from .addon.core_to_bpy import cycles_renderer
+        except ImportError as exc:
+            print(f"monte stress --cycles needs the bpy module (pip install bpy==5.0.1): {exc}", file=sys.stderr)
+            return 2
+        cfg.cycles = cycles_renderer(cfg.threads)
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     results = run_suite(cfg, only=args.only, log=log)
     json_path, md_path = write_report(results, args.output, cfg)
@@ -265,6 +272,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="smaller images and fewer samples (about a minute)")
     p.add_argument("--only", nargs="+", metavar="GROUP", help="run only these case groups (e.g. scale dielectric)")
     p.add_argument("--threads", type=int, help="ray-casting threads (0 = all cores)")
+    p.add_argument("--cycles", action="store_true",
+                   help="also render each case with Cycles (needs bpy) and report its means beside Monte's")
     p.add_argument("-q", "--quiet", action="store_true", help="no per-case log")
     p.set_defaults(func=cmd_stress)
 
