@@ -459,18 +459,10 @@ def crosscheck_blend_file(blend_path: str | os.PathLike, out_dir: str | os.PathL
                           log: Callable[[str], None] | None = None) -> dict:
     """Open a .blend (never saved back) and cross-check its active scene; see crosscheck_scene.
     Raises FileNotFoundError / HeadlessError for a missing or unreadable file."""
-    from .headless import HeadlessError, _check_blend
+    from .headless import _check_blend, open_blend
 
     options = (options or CrosscheckOptions()).validate()
     blend = Path(blend_path).expanduser().resolve()
     _check_blend(blend)
-    from . import register
-
-    register()
-    try:
-        result = bpy.ops.wm.open_mainfile(filepath=str(blend), load_ui=False)
-    except RuntimeError as exc:
-        raise HeadlessError(f"could not open {blend}: {str(exc).strip()}") from exc
-    if "FINISHED" not in result:
-        raise HeadlessError(f"could not open {blend}")
+    open_blend(blend)
     return crosscheck_scene(bpy.context.scene, out_dir, options, log)

@@ -75,6 +75,19 @@ def _check_blend(path: Path) -> None:
         raise HeadlessError(f"{path} is not a Blender file (it does not start with a .blend header)")
 
 
+def open_blend(blend: Path) -> None:
+    """Open a checked .blend as Blender's main file with Monte registered; HeadlessError if Blender cannot."""
+    from . import register
+
+    register()
+    try:
+        result = bpy.ops.wm.open_mainfile(filepath=str(blend), load_ui=False)
+    except RuntimeError as exc:
+        raise HeadlessError(f"could not open {blend}: {str(exc).strip()}") from exc
+    if "FINISHED" not in result:
+        raise HeadlessError(f"could not open {blend}")
+
+
 def _validate_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
     clean = {k: v for k, v in (overrides or {}).items() if v is not None}
     unknown = sorted(set(clean) - set(_MONTE_KEYS) - set(_OTHER_KEYS))
@@ -190,15 +203,7 @@ def render_blend_file(
     except OutputError as exc:
         raise HeadlessError(str(exc)) from exc
 
-    from . import register
-
-    register()
-    try:
-        result = bpy.ops.wm.open_mainfile(filepath=str(blend), load_ui=False)
-    except RuntimeError as exc:
-        raise HeadlessError(f"could not open {blend}: {str(exc).strip()}") from exc
-    if "FINISHED" not in result:
-        raise HeadlessError(f"could not open {blend}")
+    open_blend(blend)
     scene = bpy.context.scene
     if "scene" in clean:
         scene = bpy.data.scenes.get(clean["scene"])

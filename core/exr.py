@@ -20,15 +20,21 @@ class OutputError(OSError):
     """The output file cannot be written; the message names the path and the reason."""
 
 
-def check_writable(path: str | os.PathLike) -> Path:
-    """Raise OutputError now if `path` cannot be written later (missing folder, a folder in its place, no write
-    permission, a read-only file system): called before a render so that no work is lost at the end."""
+def _output_folder(path: str | os.PathLike) -> tuple[Path, Path]:
+    """(path, its folder), or OutputError when the folder is missing or the path is a folder."""
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise OutputError(f"cannot write {path}: folder {folder} does not exist")
     if path.is_dir():
         raise OutputError(f"cannot write {path}: it is a folder")
+    return path, folder
+
+
+def check_writable(path: str | os.PathLike) -> Path:
+    """Raise OutputError now if `path` cannot be written later (missing folder, a folder in its place, no write
+    permission, a read-only file system): called before a render so that no work is lost at the end."""
+    path, folder = _output_folder(path)
     try:  # the real test: create (and remove) a temporary file where the output will go
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".check", dir=folder)
     except OSError as exc:
@@ -40,12 +46,7 @@ def check_writable(path: str | os.PathLike) -> Path:
 
 def _atomic_write(path: str | os.PathLike, suffix: str, write) -> Path:
     """Call write(tmp_path) for a temporary file beside `path`, then rename it onto `path`."""
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise OutputError(f"cannot write {path}: folder {folder} does not exist")
-    if path.is_dir():
-        raise OutputError(f"cannot write {path}: it is a folder")
+    path, folder = _output_folder(path)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=folder)
     except OSError as exc:

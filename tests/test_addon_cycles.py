@@ -43,18 +43,8 @@ floor_scene = bf.floor_scene
 add_light = bf.add_light
 
 
-LIGHTS = {
-    "point": dict(kind="POINT", location=(0.5, 0, 2), energy=200.0, shadow_soft_size=0.3, color=(1.0, 0.7, 0.4)),
-    "spot": dict(kind="SPOT", location=(0, 0, 3), rotation=(0.3, 0, 0), energy=500.0, spot_size=math.radians(50),
-                 spot_blend=0.4, shadow_soft_size=0.1, exposure=1.0),
-    "sun": dict(kind="SUN", location=(0, 0, 5), rotation=(0.5, 0.2, 0), energy=2.0, angle=math.radians(10)),
-    "area-square": dict(kind="AREA", location=(0, 0, 1.5), energy=100.0, shape="SQUARE", size=1.0),
-    "area-ellipse": dict(kind="AREA", location=(0, 0, 1.5), rotation=(0.4, 0, 0), energy=100.0, shape="ELLIPSE",
-                         size=2.0, size_y=0.5),
-    "area-unnormalized": dict(kind="AREA", location=(0, 0, 1.5), energy=40.0, shape="RECTANGLE", size=1.5,
-                              size_y=0.5, normalize=False),
-    "temperature": dict(kind="POINT", location=(0, 0, 2), energy=200.0, use_temperature=True, temperature=3000.0),
-}
+LIGHTS = {k: bf.LIGHTS[k] for k in ("point", "spot", "sun", "area-square", "area-ellipse", "area-unnormalized",
+                                   "temperature")}
 
 
 @pytest.mark.parametrize("name", list(LIGHTS))
@@ -79,13 +69,7 @@ sphere_scene = bf.sphere_scene
 
 # name: (inputs, relative tolerance on the sphere's mean colour). Measured at 128 spp, 48x48 under a white
 # sky: dielectric rough -2.4 %, smooth +0.2 %, metal -0.2 %, glass +0.6 %, alpha 0.5 -1.9 %.
-PRINCIPLED = {
-    "dielectric-rough": ({"Base Color": (0.8, 0.3, 0.2, 1), "Roughness": 0.5}, 0.04),
-    "dielectric-smooth": ({"Base Color": (0.2, 0.5, 0.8, 1), "Roughness": 0.05}, 0.02),
-    "metal": ({"Base Color": (0.9, 0.6, 0.3, 1), "Metallic": 1.0, "Roughness": 0.3}, 0.02),
-    "glass": ({"Base Color": (1, 1, 1, 1), "Transmission Weight": 1.0, "Roughness": 0.0}, 0.02),
-    "half-alpha": ({"Base Color": (0.8, 0.8, 0.8, 1), "Alpha": 0.5, "Roughness": 0.5}, 0.04),
-}
+PRINCIPLED = bf.PRINCIPLED
 
 
 @pytest.mark.parametrize("name", list(PRINCIPLED))

@@ -49,18 +49,8 @@ def check(scene, tmp_path, size: str, rel_floor: float = 0.005, max_bounces: int
 
 
 # ------------------------------------------------------------------------------------------ lights
-LIGHTS = {
-    "point": dict(kind="POINT", location=(0.5, 0, 2), energy=200.0, shadow_soft_size=0.3, color=(1.0, 0.7, 0.4)),
-    "spot": dict(kind="SPOT", location=(0, 0, 3), rotation=(0.3, 0, 0), energy=500.0, spot_size=math.radians(50),
-                 spot_blend=0.4, shadow_soft_size=0.1, exposure=1.0),
-    "sun": dict(kind="SUN", location=(0, 0, 5), rotation=(0.5, 0.2, 0), energy=2.0, angle=math.radians(10)),
-    "area-square": dict(kind="AREA", location=(0, 0, 1.5), energy=100.0, shape="SQUARE", size=1.0),
-    "area-rectangle": dict(kind="AREA", location=(0, 0, 1.5), rotation=(0.3, 0, 0), energy=80.0,
-                           shape="RECTANGLE", size=1.5, size_y=0.5),
-    "area-disk": dict(kind="AREA", location=(0.3, 0, 1.2), energy=60.0, shape="DISK", size=1.2),
-    "area-ellipse": dict(kind="AREA", location=(0, 0, 1.5), rotation=(0.4, 0, 0), energy=100.0, shape="ELLIPSE",
-                         size=2.0, size_y=0.5),
-}
+LIGHTS = {k: bf.LIGHTS[k] for k in ("point", "spot", "sun", "area-square", "area-rectangle", "area-disk",
+                                   "area-ellipse")}
 
 
 @pytest.mark.parametrize("size", SIZE_PARAMS)
@@ -99,13 +89,7 @@ def test_material(name, size, tmp_path):
 
 # name: (Principled inputs, relative tolerance floor). Monte approximates the Principled BSDF (docs/addon.md):
 # the floors are the gaps measured on a sphere under a white sky (tests/test_addon_cycles.py) plus margin.
-PRINCIPLED = {
-    "dielectric-rough": ({"Base Color": (0.8, 0.3, 0.2, 1), "Roughness": 0.5}, 0.04),
-    "dielectric-smooth": ({"Base Color": (0.2, 0.5, 0.8, 1), "Roughness": 0.05}, 0.02),
-    "metal": ({"Base Color": (0.9, 0.6, 0.3, 1), "Metallic": 1.0, "Roughness": 0.3}, 0.02),
-    "glass": ({"Base Color": (1, 1, 1, 1), "Transmission Weight": 1.0, "Roughness": 0.0}, 0.02),
-    "half-alpha": ({"Base Color": (0.8, 0.8, 0.8, 1), "Alpha": 0.5, "Roughness": 0.5}, 0.04),
-}
+PRINCIPLED = bf.PRINCIPLED
 
 
 @pytest.mark.parametrize("size", SIZE_PARAMS)
