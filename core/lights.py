@@ -68,7 +68,7 @@ Light selection (one emitter per shading point, probability proportional to a po
 scene): luminance (Rec. 709 Y) of
   emissive triangle: emission x area x 2 pi (both faces), point: P, spot: P (1 - cos(size / 2)) / 2 (the
   fraction of the sphere inside the cone), area: P, sun: S x pi R^2 (what crosses the scene's bounding disc),
-  world: L x 4 pi^2 R^2 (irradiance pi L over the bounding sphere of area 4 pi R^2), R = scene_radius.
+  world: L x pi^2 R^2 (irradiance pi L through the scene's cross-section disc, like the sun), R = scene_radius.
 Emitters with zero power are never selected.
 """
 
@@ -409,7 +409,10 @@ class LightSampler:
         wc = np.asarray(scene.world.color, dtype=np.float64).reshape(-1)
         wc = np.repeat(wc, 3) if wc.size == 1 else wc
         self.world_radiance = wc.astype(_F32)
-        world_power = float(luminance(wc)) * 4.0 * math.pi ** 2 * R * R
+        # Flux through the scene's cross-section disc, as for the sun: irradiance pi L on a disc of area pi R^2.
+        # (Counting the flux into the whole bounding sphere, 4 pi^2 L R^2, picked the world 4x too often next to
+        # a sun: on the instanced bench scene that was 2.2x the MSE at equal samples.)
+        world_power = float(luminance(wc)) * math.pi ** 2 * R * R
 
         # One table over all emitters (kind, index within the kind, power); zero power is left out.
         kinds, local, power = [], [], []

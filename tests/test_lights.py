@@ -420,7 +420,7 @@ def test_selection_proportional_to_power_and_mixture():
     lum = lights.luminance
     powers = np.array([lum([3.0] * 3) * 0.08 * 2 * math.pi] * 2 + [lum([30.0] * 3), lum([80.0, 20.0, 5.0]),
                                                                    lum([2.0] * 3) * math.pi * R * R,
-                                                                   lum([0.1] * 3) * 4 * math.pi ** 2 * R * R])
+                                                                   lum([0.1] * 3) * math.pi ** 2 * R * R])
     rng = np.random.default_rng(5)
     N = 400_000
     ls = s.sample(np.zeros((N, 3), np.float32), np.tile(UP, (N, 1)), rng.random(N), rng.random((N, 2)))
