@@ -16,26 +16,13 @@ import bpy  # at import time, so that callers without the bpy module get an Impo
 import numpy as np
 
 from ..core.settings import RenderSettings
+from .properties import SETTING_FIELDS
 
-# override key -> scene.monte property
-_MONTE_KEYS = {
-    "spp": "samples",
-    "samples": "samples",
-    "seed": "seed",
-    "sampler": "sampler",
-    "filter": "filter_type",
-    "filter_type": "filter_type",
-    "filter_width": "filter_width",
-    "max_bounces": "max_bounces",
-    "rr_depth": "rr_depth",
-    "clamp": "clamp",
-    "threads": "threads",
-    "batch_paths": "batch_paths",
-    "tile_size": "tile_size",
-    "time_limit": "time_limit",
-    "light_sampling": "light_sampling",
-    "adaptive_min_samples": "adaptive_min_samples",
-}
+# override key -> scene.monte property: the property's own name, the RenderSettings field it maps to
+# (properties.SETTING_FIELDS), and "filter" as the CLI spells it.
+_MONTE_KEYS = {**{prop: prop for prop in SETTING_FIELDS},
+               **{field: prop for prop, field in SETTING_FIELDS.items()},
+               "filter": "filter_type"}
 # override key -> what it sets outside scene.monte
 _OTHER_KEYS = {
     "resolution": "(width, height) in pixels",
@@ -98,7 +85,7 @@ def _validate_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
     fields = {}
     for key, prop in _MONTE_KEYS.items():
         if key in clean:
-            fields["spp" if prop == "samples" else prop] = clean[key]
+            fields[SETTING_FIELDS[prop]] = clean[key]
     if "adaptive_threshold" in clean:
         fields["adaptive_threshold"] = clean["adaptive_threshold"]
     RenderSettings().replace(**fields).validate()

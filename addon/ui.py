@@ -50,24 +50,40 @@ def compat_panels() -> list[type]:
     return panels
 
 
+def split_layout(layout, decorate: bool = False):
+    """`layout` with Blender's property-split look (labels left, values right)."""
+    layout.use_property_split = True
+    layout.use_property_decorate = decorate
+    return layout
+
+
 class MonteButtonsPanel:
     bl_space_type = "PROPERTIES"
     bl_region_type = "WINDOW"
     bl_context = "render"
     COMPAT_ENGINES = {ENGINE}
+    # The context member the panel is about (e.g. "material"): the panel shows only where it is set.
+    CONTEXT_MEMBER = None
+    # scene.monte properties the default draw() lists in one aligned column.
+    SCENE_PROPS = ()
 
     @classmethod
     def poll(cls, context):
+        if cls.CONTEXT_MEMBER is not None and getattr(context, cls.CONTEXT_MEMBER, None) is None:
+            return False
         return context.engine in cls.COMPAT_ENGINES
+
+    def draw(self, context):
+        col = split_layout(self.layout).column(align=True)
+        for name in self.SCENE_PROPS:
+            col.prop(context.scene.monte, name)
 
 
 class MONTE_RENDER_PT_sampling(MonteButtonsPanel, Panel):
     bl_label = "Sampling"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         monte = context.scene.monte
         col = layout.column(align=True)
         col.prop(monte, "samples")
@@ -92,43 +108,18 @@ class MONTE_RENDER_PT_sampling(MonteButtonsPanel, Panel):
 
 class MONTE_RENDER_PT_light_paths(MonteButtonsPanel, Panel):
     bl_label = "Light Paths"
-
-    def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        monte = context.scene.monte
-        col = layout.column(align=True)
-        col.prop(monte, "max_bounces")
-        col.prop(monte, "rr_depth")
+    SCENE_PROPS = ("max_bounces", "rr_depth")
 
 
 class MONTE_RENDER_PT_film(MonteButtonsPanel, Panel):
     bl_label = "Film"
-
-    def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        monte = context.scene.monte
-        col = layout.column(align=True)
-        col.prop(monte, "filter_type")
-        col.prop(monte, "filter_width")
+    SCENE_PROPS = ("filter_type", "filter_width")
 
 
 class MONTE_RENDER_PT_performance(MonteButtonsPanel, Panel):
     bl_label = "Performance"
     bl_options = {"DEFAULT_CLOSED"}
-
-    def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        monte = context.scene.monte
-        col = layout.column(align=True)
-        col.prop(monte, "threads")
-        col.prop(monte, "batch_paths")
-        col.prop(monte, "tile_size")
+    SCENE_PROPS = ("threads", "batch_paths", "tile_size")
 
 
 class MONTE_RENDER_PT_crosscheck(MonteButtonsPanel, Panel):
@@ -146,9 +137,7 @@ class MONTE_VIEWLAYER_PT_passes(MonteButtonsPanel, Panel):
     bl_context = "view_layer"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         view_layer = context.view_layer
         col = layout.column(heading="Include", align=True)
         col.prop(view_layer, "use_pass_combined")
@@ -173,14 +162,10 @@ def _draw_node_input(layout, tree, input_name: str) -> None:
 class MONTE_MATERIAL_PT_surface(MonteButtonsPanel, Panel):
     bl_label = "Surface"
     bl_context = "material"
-
-    @classmethod
-    def poll(cls, context):
-        return context.material is not None and context.engine in cls.COMPAT_ENGINES
+    CONTEXT_MEMBER = "material"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
+        layout = split_layout(self.layout, decorate=True)
         mat = context.material
         if mat.node_tree is None:
             layout.prop(mat, "diffuse_color", text="Color")
@@ -191,14 +176,10 @@ class MONTE_MATERIAL_PT_surface(MonteButtonsPanel, Panel):
 class MONTE_WORLD_PT_surface(MonteButtonsPanel, Panel):
     bl_label = "Surface"
     bl_context = "world"
-
-    @classmethod
-    def poll(cls, context):
-        return context.world is not None and context.engine in cls.COMPAT_ENGINES
+    CONTEXT_MEMBER = "world"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
+        layout = split_layout(self.layout, decorate=True)
         world = context.world
         if world.node_tree is None:
             layout.prop(world, "color")
@@ -209,18 +190,13 @@ class MONTE_WORLD_PT_surface(MonteButtonsPanel, Panel):
 class MONTE_LIGHT_PT_light(MonteButtonsPanel, Panel):
     bl_label = "Light"
     bl_context = "data"
-
-    @classmethod
-    def poll(cls, context):
-        return context.light is not None and context.engine in cls.COMPAT_ENGINES
+    CONTEXT_MEMBER = "light"
 
     def draw(self, context):
         layout = self.layout
         light = context.light
         layout.row().prop(light, "type", expand=True)
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        col = layout.column()
+        col = split_layout(layout).column()
         col.prop(light, "color")
         row = col.row(heading="Temperature")
         row.prop(light, "use_temperature", text="")

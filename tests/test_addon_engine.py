@@ -290,7 +290,8 @@ def test_panels_draw_real_properties_and_blender_panels_are_opted_in():
     drawn = []
     for cls in ui.classes:
         assert cls.poll(ctx)
-        panel = types.SimpleNamespace(layout=_Recorder(drawn), bl_space_type="PROPERTIES")
+        panel = types.SimpleNamespace(layout=_Recorder(drawn), bl_space_type="PROPERTIES",
+                                      SCENE_PROPS=cls.SCENE_PROPS)
         cls.draw(panel, ctx)
     assert {"samples", "seed", "sampler", "clamp", "time_limit", "max_bounces", "rr_depth", "filter_type",
             "filter_width", "threads", "batch_paths", "use_pass_z", "use_pass_albedo", "energy"} <= set(drawn)
