@@ -21,14 +21,20 @@ _jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False
 
 _F0 = np.float32(0.0)
 _F1 = np.float32(1.0)
-_OFFSET_SCALE = np.float32(2.0**-19)  # see core.accel.offset_ray_origin
+_OFFSET_SCALE = np.float32(2.0**-19)  # of the coordinates' magnitude: see _offset
 _TINY = np.float32(1e-30)
 _FAR = np.float32(3e38)
 
 
 @_jit
 def _offset(px, py, pz, nx, ny, nz, wx, wy, wz, magnitude):
-    """core.accel.offset_ray_origin for one point: off the surface along ng, to the side of w."""
+    """Move point p off its surface along the unit geometric normal n to the side of direction w, by an amount
+    proportional to the coordinates' float32 rounding error.
+
+    magnitude: the largest absolute coordinate involved in computing p (of p itself and of the hit triangle's
+    vertices). A point interpolated from float32 vertices is wrong by a few ulps of that magnitude (pbrt-v4's
+    error bounds; Wachter & Binder, Ray Tracing Gems ch. 6). An offset of 2^-19 (~64 ulps) of it clears the error
+    with margin at any scale; the floor keeps points at the origin from a zero offset."""
     eps = max(magnitude * _OFFSET_SCALE, _TINY)
     if nx * wx + ny * wy + nz * wz < _F0:
         eps = -eps

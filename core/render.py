@@ -177,7 +177,7 @@ def render(
     t0 = time.perf_counter()
     prepared = PreparedScene.build(scene)
     # Parallelism is across batches (see below), so each Embree call runs on the worker that makes it.
-    accel = Accelerator(prepared.vertices, prepared.triangles, 1)
+    accel = Accelerator(prepared.vertices, prepared.triangles)
     t_prepare = time.perf_counter() - t0
     for w in scene.warnings:
         say(f"warning: {w}")
@@ -285,14 +285,16 @@ def render(
     pool = ThreadPoolExecutor(workers) if workers > 1 else None
     in_flight: deque = deque()  # (segments, job)
     group: list[Segment] = []
+    group_paths = 0
     film_seconds = 0.0
 
     def submit() -> None:
-        nonlocal group, largest_batch
+        nonlocal group, group_paths, largest_batch
         if not group:
             return
         segments, group = group, []
-        largest_batch = max(largest_batch, sum(len(seg.loc) for seg in segments))
+        largest_batch = max(largest_batch, group_paths)
+        group_paths = 0
         job = pool.submit(trace_batch, segments) if pool is not None else (lambda: trace_batch(segments))
         in_flight.append((segments, job))
         if len(in_flight) > (workers if pool is not None else 0):
@@ -350,14 +352,15 @@ def render(
                 loc = np.repeat(chunk, count)
                 smp = np.tile(np.arange(first_sample, first_sample + count, dtype=np.uint32), len(chunk))
                 group.append(Segment(ti, tile, loc, smp, first_sample + count, k == len(chunks) - 1))
-                if sum(len(seg.loc) for seg in group) >= target:
+                group_paths += len(loc)
+                if group_paths >= target:
                     submit()
             if cancelled:
                 break
         if cancelled:
             # Batches still queued never start; ones already running finish (a path batch cannot stop halfway
             # without bias) and their samples are kept, but no callback reports anything after the cancel.
-            group = []
+            group, group_paths = [], 0
             while in_flight:
                 job = in_flight[0][-1]
                 if pool is not None and job.cancel():
@@ -372,7 +375,6 @@ def render(
             for _, job in in_flight:
                 job.cancel()
             pool.shutdown(wait=True)
-        accel.close()
 
     # Assemble the region's image from the tiles.
     color = np.zeros((rh, rw, 4), np.float32)
