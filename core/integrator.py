@@ -44,35 +44,40 @@ def _max3(v: np.ndarray) -> np.ndarray:
     return np.maximum(np.maximum(v[:, 0], v[:, 1]), v[:, 2])
 
 
-@dataclass
 class SurfaceBatch:
-    """Surface interactions of M path vertices (see core.kernels.surface for each array's meaning)."""
+    """Surface interactions of M path vertices (see core.kernels.surface for each array's meaning).
 
-    p: np.ndarray
-    ng: np.ndarray
-    ns_raw: np.ndarray
-    ns: np.ndarray
-    tangent: np.ndarray
-    bitangent: np.ndarray
-    wo: np.ndarray
-    n_view: np.ndarray
-    mag: np.ndarray
-    cos_o_geo: np.ndarray
-    uv_buffer: np.ndarray  # (M, 2), or (0, 2) when the scene has no UVs
+    All of a vertex's values are one row of a single (M, K) float32 array, each field a column view of it, so
+    that selecting the vertices that continue (`take`) is one row gather instead of one per field."""
+
+    _VECTORS = ("p", "ng", "ns_raw", "ns", "tangent", "bitangent", "wo", "n_view")  # (M, 3) views
+    _SCALARS = ("mag", "cos_o_geo")  # (M,) views
+    _UV = 3 * len(_VECTORS) + len(_SCALARS)  # first uv column
+
+    def __init__(self, data: np.ndarray) -> None:
+        self.data = data
 
     @classmethod
     def empty(cls, m: int, with_uvs: bool) -> "SurfaceBatch":
-        v = [np.empty((m, 3), np.float32) for _ in range(8)]
-        return cls(*v, np.empty(m, np.float32), np.empty(m, np.float32),
-                   np.empty((m if with_uvs else 0, 2), np.float32))
+        return cls(np.empty((m, cls._UV + (2 if with_uvs else 0)), np.float32))
+
+    @property
+    def uv_buffer(self) -> np.ndarray:
+        """(M, 2) texture coordinates, or (M, 0) when the scene has no UVs."""
+        return self.data[:, self._UV:self._UV + 2]
 
     @property
     def uv(self) -> np.ndarray | None:
-        return self.uv_buffer if len(self.uv_buffer) else None
+        return self.uv_buffer if self.data.shape[1] > self._UV else None
 
     def take(self, rows: np.ndarray) -> "SurfaceBatch":
-        out = {name: getattr(self, name)[rows] for name in self.__dataclass_fields__ if name != "uv_buffer"}
-        return SurfaceBatch(**out, uv_buffer=self.uv_buffer[rows] if len(self.uv_buffer) else self.uv_buffer)
+        return SurfaceBatch(self.data[rows])
+
+
+for _i, _name in enumerate(SurfaceBatch._VECTORS):
+    setattr(SurfaceBatch, _name, property(lambda self, c=3 * _i: self.data[:, c:c + 3]))
+for _i, _name in enumerate(SurfaceBatch._SCALARS):
+    setattr(SurfaceBatch, _name, property(lambda self, c=3 * len(SurfaceBatch._VECTORS) + _i: self.data[:, c]))
 
 
 @dataclass
