@@ -295,6 +295,39 @@ def test_sobol_first_2k_samples_are_nets():
     assert not _is_net(ind.get_2d(0, np.arange(256), 0), 8)
 
 
+# Exact outputs (as 24-bit integers k, value = k * 2**-24) of get_4d for fixed inputs,
+# computed by the NumPy implementation that preceded the compiled kernels: any change of
+# bits (which would change every rendered image) fails here.  Sample indices cover the
+# one-byte, 17-bit and 32-bit Sobol table paths; pixels the full uint32 range.
+_PIN_PIX = [0, 1, 12345, 2**32 - 1]
+_PIN_SMP = [0, 1, 70000, 2**31 + 5]
+_PINNED = {
+    ("sobol", 0, 0): [[9716246, 9202080, 3421760, 16597025], [11487410, 13995584, 10732916, 1650613],
+                      [15608323, 16306805, 10496111, 13976333], [2841833, 10146559, 14058097, 9385288]],
+    ("sobol", 7, 13): [[16698001, 5577791, 659912, 13605886], [1750658, 8624143, 13344401, 11552603],
+                       [15478837, 8307377, 53198, 8253968], [5643409, 15940699, 3775786, 15338419]],
+    ("stratified", 7, 13): [[5740685, 9101119, 13965648, 9581711], [8261025, 5153083, 3257263, 9097521],
+                            [2454587, 224350, 1856239, 7279092], [7217532, 12130586, 4278192, 7168330]],
+    ("independent", 7, 13): [[11481370, 1425023, 11154081, 2386207], [16522051, 10306167, 6514526, 1417827],
+                             [4909175, 448700, 3712479, 14558184], [14435065, 7483956, 8556385, 14336661]],
+}
+
+
+@pytest.mark.parametrize("kind, seed, dim", list(_PINNED))
+def test_sampler_bits_are_pinned(kind, seed, dim):
+    s = sampling.make_sampler(kind, seed)
+    u = s.get_4d(np.array(_PIN_PIX, dtype=np.uint32), np.array(_PIN_SMP, dtype=np.uint32), dim)
+    expected = np.array(_PINNED[kind, seed, dim], dtype=np.float64) * 2.0**-24
+    assert u.dtype == np.float32
+    assert np.array_equal(u.astype(np.float64), expected), (u * 2**24).astype(np.int64).tolist()
+    # the same rows come back one path at a time and inside a long batch (several kernel blocks)
+    for i in range(4):
+        assert np.array_equal(s.get_4d(_PIN_PIX[i], _PIN_SMP[i], dim)[0], u[i])
+    long_pix = np.repeat(np.array(_PIN_PIX, dtype=np.uint32), 700)
+    long_smp = np.repeat(np.array(_PIN_SMP, dtype=np.uint32), 700)
+    assert np.array_equal(s.get_4d(long_pix, long_smp, dim)[::700], u)
+
+
 def test_sobol_matrices_match_joe_kuo_reference():
     from scipy.stats import qmc
 
