@@ -12,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from .scene import Camera, Lobe, Material, Mesh, PointLight, Scene, World
+from .scene import Camera, Lobe, Material, Mesh, PointLight, Scene, SunLight, World
 
 
 @lru_cache(maxsize=1)
@@ -112,12 +112,37 @@ def point_in_sphere(resolution: tuple[int, int] = (32, 32), albedo: float = 0.5,
     return Scene(camera=camera, meshes=[mesh], materials=[mat], lights=[light], name="point-in-sphere")
 
 
+def spheres_under_sky(resolution: tuple[int, int] = (256, 256)) -> Scene:
+    """Three spheres (red and white diffuse, rough glossy) on a 40 m diffuse ground under a sun (3 W/m^2,
+    2 degrees) and a pale blue sky, seen so that the sky fills the top third: pixels converge at very different
+    rates (the sky after the first samples, sun-lit ground soon, shadows and the glossy sphere last), the case
+    adaptive sampling is for. No glass or mirror: their sun caustics would be fireflies that swamp the error."""
+    materials = [
+        Material("ground", [Lobe("diffuse", np.array((0.5, 0.48, 0.45)))]),
+        Material("clay", [Lobe("diffuse", np.array((0.7, 0.25, 0.15)))]),
+        Material("metal", [Lobe("glossy", np.array((0.9, 0.8, 0.5)), roughness=0.3)]),
+        Material("white", [Lobe("diffuse", np.full(3, 0.8))]),
+    ]
+    meshes = [
+        quad("ground", [(-20, -20, 0), (20, -20, 0), (20, 20, 0), (-20, 20, 0)], 0),
+        icosphere("clay_sphere", (-1.1, 0.3, 0.5), 0.5, 1),
+        icosphere("metal_sphere", (0.0, 0.8, 0.5), 0.5, 2),
+        icosphere("white_sphere", (1.1, 0.0, 0.5), 0.5, 3),
+    ]
+    sun_dir = -np.array((0.4, -0.3, 0.85)) / np.linalg.norm((0.4, -0.3, 0.85))
+    lights = [SunLight("sun", sun_dir, np.full(3, 3.0), angle=math.radians(2.0))]
+    camera = Camera.look_at((0, -5.5, 1.6), (0, 0.5, 0.9), horizontal_fov=math.radians(50.0), resolution=resolution)
+    return Scene(camera=camera, meshes=meshes, materials=materials, lights=lights,
+                 world=World(np.array((0.35, 0.45, 0.6))), name="spheres-sky")
+
+
 BUILTIN_SCENES: dict[str, tuple[Callable[..., Scene], str]] = {
     "cornell": (cornell_box, "the seed's Cornell box: diffuse walls, square lamp, mirror and glass spheres"),
     "cornell-diffuse": (cornell_diffuse, "the Cornell box with both spheres diffuse (diffuse-only interior)"),
     "furnace": (furnace, "closed diffuse emitting sphere: radiance Le/(1-albedo) everywhere"),
     "plane-world": (plane_under_world, "diffuse plane under a uniform sky: radiance albedo x sky"),
     "point-in-sphere": (point_in_sphere, "point light inside a closed diffuse sphere"),
+    "spheres-sky": (spheres_under_sky, "diffuse and glossy spheres on a ground under sun and sky"),
 }
 
 

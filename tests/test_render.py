@@ -224,6 +224,17 @@ def test_adaptive_sampling_stops_converged_pixels_and_keeps_the_mean(fast_settin
     assert abs(full.color[..., :3].mean() - mean.mean()) < 5 * sigma + 1e-6
 
 
+def test_adaptive_sampling_spends_samples_where_the_noise_is(fast_settings):
+    """spheres-sky: the top rows see only the uniform sky and stop at the minimum; the ground under the spheres
+    (shadows, indirect light) keeps sampling, so the mean count there is well above the sky's."""
+    result = render(scenes.spheres_under_sky((48, 32)),
+                    fast_settings(spp=64, tile_size=16, adaptive_threshold=0.1, adaptive_min_samples=8))
+    counts = result.sample_count
+    assert (counts[:4] == 8).all(), counts[:4]
+    assert counts[20:].mean() > 2 * 8, counts[20:].mean()
+    assert counts.max() == 64
+
+
 def test_adaptive_settings_are_validated():
     from monte.core.settings import RenderSettings
 
