@@ -1,4 +1,7 @@
-"""Vectorised BSDFs: materials as weighted sums of lobes, evaluated and sampled for N hits at once.
+"""BSDFs: materials as weighted sums of lobes, evaluated and sampled for N hits at once.
+
+This module is the API (LobeBatch, MaterialTable, eval_bsdf, sample_bsdf, albedo) and the model's documentation;
+the per-path work runs in compiled numba kernels (core.bsdf_kernels), which a fused per-bounce kernel can also call.
 
 Frame and direction conventions
 -------------------------------
