@@ -222,6 +222,8 @@ class MaterialTable:
         """Per-hit lobes for (N,) material indices; `uv` (N, 2) for colour textures (missing UVs read (0, 0))."""
         mi = np.ascontiguousarray(np.asarray(material_index).reshape(-1), dtype=np.int64)
         n, l = len(mi), self.max_lobes
+        if n and (mi.min() < 0 or mi.max() >= self.kind.shape[0]):  # the kernel does not bounds-check
+            raise IndexError(f"material index out of range [0, {self.kind.shape[0]}): {mi.min()}..{mi.max()}")
         kind = np.empty((n, l), np.int8)
         weight = np.empty((n, l, 3), F32)
         rough = np.empty((n, l), F32)

@@ -629,3 +629,10 @@ def test_eval_sample_reject_mismatched_shapes():
         bsdf.eval_bsdf(lb, d[:2], d[:2], rows=np.array([0]))
     with pytest.raises(ValueError, match="hits"):
         bsdf.sample_bsdf(lb, d[:9], np.zeros(9, F32), np.zeros((9, 2), F32))
+
+
+def test_gather_rejects_bad_material_index():
+    mt = bsdf.MaterialTable.build([Material("m", [Lobe("diffuse")])])
+    for bad in ([0, 1], [-1]):
+        with pytest.raises(IndexError, match="material index"):
+            mt.gather(np.array(bad))
