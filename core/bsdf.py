@@ -1,4 +1,7 @@
-"""Vectorised BSDFs: materials as weighted sums of lobes, evaluated and sampled for N hits at once.
+"""BSDFs: materials as weighted sums of lobes, evaluated and sampled for N hits at once.
+
+This module is the API (LobeBatch, MaterialTable, eval_bsdf, sample_bsdf, albedo) and the model's documentation;
+the per-path work runs in compiled numba kernels (core.bsdf_kernels), which a fused per-bounce kernel can also call.
 
 Frame and direction conventions
 -------------------------------
@@ -67,19 +70,16 @@ from typing import Sequence
 
 import numpy as np
 
+from . import bsdf_kernels as bk
 from . import microfacet as mf
+from .bsdf_kernels import DIFFUSE, EMPTY, F_DIELECTRIC, F_NONE, F_SCHLICK, GLASS, GLOSSY, REFRACTION  # noqa: F401
 from .scene import Material, Texture
-from .texture import sample_texture
 
 F32 = np.float32
-INV_PI = F32(1.0 / math.pi)
 
 KINDS = ("diffuse", "glossy", "glass", "refraction")
 KIND_CODE = {k: i for i, k in enumerate(KINDS)}
-DIFFUSE, GLOSSY, GLASS, REFRACTION = range(4)
-EMPTY = -1
 FRESNEL_CODE = {"none": 0, "schlick": 1, "dielectric": 2}
-F_NONE, F_SCHLICK, F_DIELECTRIC = range(3)
 
 
 # --------------------------------------------------------------------------------------------------- batches
@@ -105,6 +105,12 @@ class LobeBatch:
 
     def __len__(self) -> int:
         return int(self.kind.shape[0])
+
+    def arrays(self) -> tuple:
+        """The lobe arrays as the compiled kernels take them (core.bsdf_kernels), C-contiguous."""
+        return (np.ascontiguousarray(self.kind, np.int8), np.ascontiguousarray(self.weight, F32),
+                np.ascontiguousarray(self.roughness, F32), np.ascontiguousarray(self.ior, F32),
+                np.ascontiguousarray(self.fresnel, np.int8), np.ascontiguousarray(self.select, F32))
 
     def take(self, rows: np.ndarray) -> "LobeBatch":
         """The sub-batch of the given hit rows (copies)."""
@@ -139,12 +145,7 @@ class BsdfSample:
 # -------------------------------------------------------------------------------------------------- materials
 def _lobe_select_scale(kind: int, fresnel: int, ior: float) -> float:
     """wo-independent estimate of a lobe's albedo relative to its colour (for lobe selection and Fss)."""
-    if kind != GLOSSY or fresnel == F_NONE:
-        return 1.0
-    if fresnel == F_SCHLICK:
-        f0 = float(mf.schlick_f0(np.float64(ior)))
-        return f0 + (1.0 - f0) / 21.0  # 2 int_0^1 mu (1-mu)^5 dmu = 1/21
-    return float(mf.fresnel_dielectric_avg(np.float32(ior)))
+    return float(bk.glossy_fresnel_avg(fresnel, float(ior))) if kind == GLOSSY else 1.0
 
 
 class MaterialTable:
@@ -170,6 +171,18 @@ class MaterialTable:
         self.kinds_present: frozenset[str] = frozenset(KINDS[k] for k in np.unique(self.kind) if k >= 0)
         self.has_transmission: np.ndarray = np.any((self.kind == GLASS) | (self.kind == REFRACTION), axis=1)
         self._texture_ids = sorted(int(t) for t in np.unique(self.texture) if t >= 0)
+        self._texture_pack = self._pack_textures(self.textures)
+
+    @staticmethod
+    def _pack_textures(textures: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """All texture images in one flat float32 buffer for the gather kernel: (pixels, offset, height, width)."""
+        sizes = [t.shape[0] * t.shape[1] * 3 for t in textures]
+        offset = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) if textures else np.zeros(0, np.int64)
+        pixels = (np.concatenate([np.ascontiguousarray(t).reshape(-1) for t in textures]) if textures
+                  else np.zeros(0, F32)).astype(F32)
+        h = np.array([t.shape[0] for t in textures], np.int64)
+        w = np.array([t.shape[1] for t in textures], np.int64)
+        return pixels, offset, h, w
 
     @property
     def max_lobes(self) -> int:
@@ -207,315 +220,82 @@ class MaterialTable:
 
     def gather(self, material_index: np.ndarray, uv: np.ndarray | None = None) -> LobeBatch:
         """Per-hit lobes for (N,) material indices; `uv` (N, 2) for colour textures (missing UVs read (0, 0))."""
-        mi = np.asarray(material_index, dtype=np.intp).reshape(-1)
-        kind = self.kind.take(mi, axis=0)
-        weight = self.color.take(mi, axis=0)
-        rough = self.roughness.take(mi, axis=0)
-        ior = self.ior.take(mi, axis=0)
-        fres = self.fresnel.take(mi, axis=0)
-        if not self._texture_ids:
-            sel = self._select.take(mi, axis=0)
-        else:
-            tex = self.texture.take(mi, axis=0)
-            uvs = np.zeros((len(mi), 2), F32) if uv is None else np.asarray(uv, dtype=F32).reshape(-1, 2)
-            for t in self._texture_ids:
-                r, s = np.nonzero(tex == t)
-                if r.size:
-                    weight[r, s] *= sample_texture(self.textures[t], uvs[r])
-            sel = self._selection(kind, weight, self._select_scale.take(mi, axis=0))
+        mi = np.ascontiguousarray(np.asarray(material_index).reshape(-1), dtype=np.int64)
+        n, l = len(mi), self.max_lobes
+        if n and (mi.min() < 0 or mi.max() >= self.kind.shape[0]):  # the kernel does not bounds-check
+            raise IndexError(f"material index out of range [0, {self.kind.shape[0]}): {mi.min()}..{mi.max()}")
+        kind = np.empty((n, l), np.int8)
+        weight = np.empty((n, l, 3), F32)
+        rough = np.empty((n, l), F32)
+        ior = np.empty((n, l), F32)
+        fres = np.empty((n, l), np.int8)
+        sel = np.empty((n, l), F32)
+        has_uv = uv is not None and bool(self._texture_ids)
+        uvs = np.ascontiguousarray(np.asarray(uv).reshape(-1, 2), dtype=F32) if has_uv else np.zeros((0, 2), F32)
+        bk.gather_batch(mi, uvs, has_uv, self.kind, self.color, self.roughness, self.ior, self.fresnel,
+                        self.texture, self._select, self._select_scale, *self._texture_pack,
+                        kind, weight, rough, ior, fres, sel)
         return LobeBatch(kind, weight, rough, ior, fres, sel, self.multiscatter)
 
     @staticmethod
     def _selection(kind: np.ndarray, weight: np.ndarray, scale: np.ndarray) -> np.ndarray:
         """Lobe-choice probabilities: mean colour x albedo estimate, normalised over the present lobes."""
-        sel = weight[..., 0] + weight[..., 1]
-        sel += weight[..., 2]
-        sel *= scale
-        tot = sel.sum(axis=1)
-        zero = ~(tot > 0)
-        if zero.any():  # black material: pick among its lobes uniformly (their weights are 0 anyway)
-            sel[zero] = kind[zero] >= 0
-            tot[zero] = np.maximum(sel[zero].sum(axis=1), 1.0)
-        sel /= tot[:, None]
-        return sel.astype(F32, copy=False)
+        sel = np.empty(kind.shape, F32)
+        bk.selection_batch(np.ascontiguousarray(kind, np.int8), np.ascontiguousarray(weight, F32),
+                           np.ascontiguousarray(scale, F32), sel)
+        return sel
 
 
-# ----------------------------------------------------------------------------------------------- evaluation
-def _rows(mask: np.ndarray):
-    """Index for a boolean mask: a full slice when everything is selected (no copies), else the row indices."""
-    if mask.all():
-        return slice(None)
-    return np.flatnonzero(mask)
+# --------------------------------------------------------------------------------- evaluation and sampling
+def _f32_rows(a: np.ndarray, cols: int) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(a, dtype=F32).reshape(-1, cols))
 
 
-def _split(wo: np.ndarray):
-    """Contiguous float32 components of wo with z flipped to the upper hemisphere, and the flip sign (1 / -1)."""
-    wo = np.asarray(wo, dtype=F32)
-    ox = np.ascontiguousarray(wo[:, 0])
-    oy = np.ascontiguousarray(wo[:, 1])
-    oz = np.array(wo[:, 2], dtype=F32)
-    back = oz < 0
-    s = np.where(back, F32(-1.0), F32(1.0))
-    np.abs(oz, out=oz)
-    return ox, oy, oz, s, back
-
-
-def _glossy_fresnel(mode: np.ndarray, ior: np.ndarray, cos_oh: np.ndarray) -> np.ndarray | None:
-    """Fresnel factor of glossy lobes (None when all are 'none')."""
-    if not np.any(mode):
-        return None
-    out = np.ones_like(cos_oh)
-    m = mode == F_SCHLICK
-    if m.any():
-        out[m] = mf.fresnel_schlick(cos_oh[m], mf.schlick_f0(ior[m]))
-    m = mode == F_DIELECTRIC
-    if m.any():
-        out[m] = mf.fresnel_dielectric(cos_oh[m], ior[m])
-    return out
-
-
-def _ms_factor(kind: int, color, rough, ior_eff, mode, mu) -> np.ndarray:
-    """Per-channel multiscatter energy-compensation factor (n, 3) for glossy / glass lobes."""
-    if kind == GLOSSY:
-        E = mf.ggx_E(rough, mu)
-        Eavg = mf.ggx_Eavg(rough)
-        fss = color
-        if np.any(mode):
-            scale = np.ones_like(rough)
-            m = mode == F_SCHLICK
-            if m.any():
-                f0 = mf.schlick_f0(ior_eff[m])
-                scale[m] = f0 + (1.0 - f0) / F32(21.0)
-            m = mode == F_DIELECTRIC
-            if m.any():
-                scale[m] = mf.fresnel_dielectric_avg(ior_eff[m])
-            fss = color * scale[:, None]
-    else:  # glass: Cycles uses the transmission tint (the colour) as Fss
-        E = mf.glass_E(rough, mu, ior_eff)
-        Eavg = mf.glass_Eavg(rough, ior_eff)
-        fss = color
-    return mf.multiscatter_factor(E, Eavg, np.clip(fss, 0.0, 1.0))
-
-
-def _eval_core(lobes: LobeBatch, rows, ox, oy, oz, back, ix, iy, iz):
-    """f |cos wi| (n, 3) and mixture pdf (n,) over non-delta lobes. Directions are in the flipped frame
-    (oz >= 0); `rows` selects the hits of `lobes` that the direction arrays belong to (slice or indices)."""
-    n = ox.shape[0]
-    f_out = np.zeros((n, 3), F32)
-    pdf_out = np.zeros(n, F32)
-    base = None if isinstance(rows, slice) else rows
-    kind_all = lobes.kind[rows]
-    for l in range(kind_all.shape[1]):
-        kl = kind_all[:, l]
-        rough_l = lobes.roughness[rows, l]
-        for k in (DIFFUSE, GLOSSY, GLASS, REFRACTION):
-            m = kl == k
-            if k != DIFFUSE:
-                m &= rough_l > 0
-            if not m.any():
-                continue
-            sub = _rows(m)  # rows of the direction arrays
-            grow = sub if base is None else base[sub]  # rows of `lobes`
-            color = lobes.weight[grow, l]
-            sel = lobes.select[grow, l]
-            if k == DIFFUSE:
-                c = np.maximum(iz[sub], 0.0) * INV_PI
-                f_out[sub] += color * c[:, None]
-                pdf_out[sub] += sel * c
-                continue
-            rough = rough_l[sub]
-            ior = lobes.ior[grow, l]
-            if k == GLOSSY:
-                eta = np.ones_like(rough)
-            else:
-                eta = np.where(back[sub], 1.0 / ior, ior).astype(F32)
-            o_z = oz[sub]
-            which = "reflect" if k == GLOSSY else ("transmit" if k == REFRACTION else "both")
-            fc, pdf, cos_oh, refl = mf.microfacet_eval(
-                rough * rough, eta, ox[sub], oy[sub], o_z, ix[sub], iy[sub], iz[sub], which)
-            if k == GLOSSY:
-                fr = _glossy_fresnel(lobes.fresnel[grow, l], ior, cos_oh)
-                if fr is not None:
-                    fc *= fr
-            elif k == GLASS:
-                F = mf.fresnel_dielectric(cos_oh, eta)
-                fr = np.where(refl, F, 1.0 - F)
-                fc *= fr
-                pdf *= fr
-            # refraction: transmission only, no Fresnel factor (Cycles' Refraction BSDF)
-            if lobes.multiscatter and k != REFRACTION:
-                ior_eff = ior if k == GLOSSY else eta
-                fac = _ms_factor(k, color, rough, ior_eff, lobes.fresnel[grow, l], o_z)
-                fac *= color
-                fac *= fc[:, None]
-                f_out[sub] += fac
-            else:
-                f_out[sub] += color * fc[:, None]
-            pdf_out[sub] += sel * pdf
-    return f_out, pdf_out
-
-
-def eval_bsdf(lobes: LobeBatch, wo: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def eval_bsdf(lobes: LobeBatch, wo: np.ndarray, wi: np.ndarray,
+              rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """f(wo, wi) |cos wi| summed over the non-delta lobes (N, 3) and the pdf of `sample_bsdf` producing wi through a
-    non-delta lobe (N,): sum_l select_l pdf_l (solid angle)."""
-    ox, oy, oz, s, back = _split(wo)
-    wi = np.asarray(wi, dtype=F32)
-    ix = np.ascontiguousarray(wi[:, 0])
-    iy = np.ascontiguousarray(wi[:, 1])
-    iz = wi[:, 2] * s
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        return _eval_core(lobes, slice(None), ox, oy, oz, back, ix, iy, iz)
+    non-delta lobe (N,): sum_l select_l pdf_l (solid angle).
 
-
-def _cosine_hemisphere(u1, u2):
-    r = np.sqrt(u1)
-    phi = F32(2.0 * math.pi) * u2
-    return r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u1, 0.0))
+    rows: optional (N,) indices into `lobes` giving the hit of each direction pair (same as `lobes.take(rows)`,
+    without the copy); else wo and wi have one row per hit."""
+    wo = _f32_rows(wo, 3)
+    wi = _f32_rows(wi, 3)
+    n = wo.shape[0]
+    if wi.shape[0] != n:
+        raise ValueError(f"eval_bsdf: wo has {n} rows, wi {wi.shape[0]}")
+    if rows is None:
+        if len(lobes) != n:
+            raise ValueError(f"eval_bsdf: {len(lobes)} hits but {n} directions")
+        idx = np.zeros(0, np.int64)
+    else:
+        idx = np.ascontiguousarray(rows, dtype=np.int64).reshape(-1)
+        if idx.shape[0] != n:
+            raise ValueError(f"eval_bsdf: {idx.shape[0]} rows but {n} directions")
+        if n and (idx.min() < 0 or idx.max() >= len(lobes)):
+            raise IndexError(f"eval_bsdf: rows out of range for {len(lobes)} hits")
+    f = np.empty((n, 3), F32)
+    pdf = np.empty(n, F32)
+    bk.eval_batch(lobes.arrays(), idx, rows is not None, lobes.multiscatter, mf.kernel_tables(), wo, wi, f, pdf)
+    return f, pdf
 
 
 def sample_bsdf(lobes: LobeBatch, wo: np.ndarray, u_lobe: np.ndarray, u: np.ndarray) -> BsdfSample:
     """Sample wi for each hit: pick a lobe with `select` (u_lobe), sample it (u (N, 2)); the remainder of u_lobe
     picks reflection vs refraction for glass. See the module docstring for the weight convention."""
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        return _sample(lobes, wo, u_lobe, u)
-
-
-def _sample(lobes: LobeBatch, wo, u_lobe, u) -> BsdfSample:
-    n, L = lobes.kind.shape
-    ox, oy, oz, s, back = _split(wo)
-    u_lobe = np.asarray(u_lobe, dtype=F32).reshape(-1)
-    u = np.asarray(u, dtype=F32).reshape(-1, 2)
-    u1 = np.ascontiguousarray(u[:, 0])
-    u2 = np.ascontiguousarray(u[:, 1])
-
-    sel = lobes.select
-    if L == 1:
-        chosen = None
-        sel_c = sel[:, 0]
-        has = sel_c > 0
-        u_rem = u_lobe
-        k_c = np.where(has, lobes.kind[:, 0], np.int8(EMPTY))
-    else:
-        rr = np.arange(n)
-        cdf = np.cumsum(sel, axis=1)
-        chosen = (cdf <= u_lobe[:, None]).sum(axis=1)
-        pos = sel > 0
-        has = pos.any(axis=1)
-        last = (L - 1) - np.argmax(pos[:, ::-1], axis=1)
-        np.minimum(chosen, last, out=chosen)
-        sel_c = sel[rr, chosen]
-        u_rem = np.clip((u_lobe - (cdf[rr, chosen] - sel_c)) / np.maximum(sel_c, F32(1e-30)), 0.0, F32(0.99999994))
-        k_c = np.where(has, lobes.kind[rr, chosen], np.int8(EMPTY))
-
-    def pick(a, idx):
-        """a[hit, chosen lobe] for the hits idx (a slice for all hits, or indices)."""
-        if chosen is None:
-            return a[idx, 0]
-        if isinstance(idx, slice):
-            return a[rr, chosen]
-        return a[idx, chosen[idx]]
-
-    ix = np.zeros(n, F32)
-    iy = np.zeros(n, F32)
-    iz = np.ones(n, F32)
-    valid = np.zeros(n, bool)
-    delta = np.zeros(n, bool)
-    weight = np.zeros((n, 3), F32)
-    pdf = np.zeros(n, F32)
-
-    for k in (DIFFUSE, GLOSSY, GLASS, REFRACTION):
-        m = k_c == k
-        if not m.any():
-            continue
-        idx = _rows(m)
-        if k == DIFFUSE:
-            x, y, z = _cosine_hemisphere(u1[idx], u2[idx])
-            ix[idx], iy[idx], iz[idx] = x, y, z
-            valid[idx] = z > 0
-            continue
-        rough = pick(lobes.roughness, idx)
-        ior = pick(lobes.ior, idx)
-        a_ox, a_oy, a_oz = ox[idx], oy[idx], oz[idx]
-        is_delta = rough <= 0
-        any_delta = bool(is_delta.any())
-        hx, hy, hz = mf.sample_vndf(a_ox, a_oy, a_oz, rough * rough, u1[idx], u2[idx])
-        if any_delta:
-            hx[is_delta], hy[is_delta], hz[is_delta] = 0.0, 0.0, 1.0
-        cos_oh = a_ox * hx + a_oy * hy + a_oz * hz
-        ok = (a_oz > 0) & (cos_oh > 0)
-        if k == GLOSSY:
-            c2 = 2.0 * cos_oh
-            x, y, z = c2 * hx - a_ox, c2 * hy - a_oy, c2 * hz - a_oz
-            ok &= z > 0
-            p_event = None
-        else:
-            eta = np.where(back[idx], 1.0 / ior, ior).astype(F32)
-            tx, ty, tz, tir = mf.refract(a_ox, a_oy, a_oz, hx, hy, hz, eta)
-            if k == GLASS:
-                F = mf.fresnel_dielectric(cos_oh, eta)
-                do_refl = u_rem[idx] < F
-                c2 = 2.0 * cos_oh
-                x = np.where(do_refl, c2 * hx - a_ox, tx)
-                y = np.where(do_refl, c2 * hy - a_oy, ty)
-                z = np.where(do_refl, c2 * hz - a_oz, tz)
-                ok &= np.where(do_refl, z > 0, (z < 0) & ~tir)
-                p_event = np.where(do_refl, F, 1.0 - F)
-            else:
-                x, y, z = tx, ty, tz
-                ok &= (z < 0) & ~tir
-                p_event = None
-        ix[idx], iy[idx], iz[idx] = x, y, z
-        valid[idx] = ok
-        if any_delta:
-            # delta lobes: weight = value / (select * event probability) * event probability
-            d = np.flatnonzero(is_delta)
-            rows = d if isinstance(idx, slice) else idx[d]
-            color = pick(lobes.weight, rows)
-            sc = sel_c[rows]
-            wd = color / sc[:, None]
-            if k == GLOSSY:
-                fr = _glossy_fresnel(pick(lobes.fresnel, rows), ior[d], a_oz[d])
-                if fr is not None:
-                    wd *= fr[:, None]
-            delta[rows] = True
-            weight[rows] = wd
-            pdf[rows] = sc if p_event is None else sc * p_event[d]
-
-    # non-delta samples: MIS-consistent sums over all non-delta lobes at the sampled direction
-    m = valid & ~delta
-    if L == 1 and m.any():
-        # A lone diffuse lobe needs no mixture sum: f cos / pdf = colour / select, pdf = select cos / pi.
-        dm = m & (k_c == DIFFUSE)
-        if dm.any():
-            dr = np.flatnonzero(dm)
-            c = np.maximum(iz[dr], F32(0.0)) * INV_PI
-            sc = sel_c[dr]
-            p = sc * c
-            good = p > 0
-            weight[dr] = np.where(good[:, None], lobes.weight[dr, 0] / np.maximum(sc, F32(1e-30))[:, None], F32(0))
-            pdf[dr] = p
-            valid[dr] = good
-            m &= ~dm
-    if m.any():
-        nd = _rows(m)
-        f, p = _eval_core(lobes, nd, ox[nd], oy[nd], oz[nd], back[nd], ix[nd], iy[nd], iz[nd])
-        good = p > 0
-        f /= np.where(good, p, F32(1.0))[:, None]
-        f[~good] = 0.0
-        weight[nd] = f
-        pdf[nd] = p
-        valid[nd] = good
-    valid &= (weight > 0).any(axis=1)
-    transmitted = valid & (iz < 0)
-    iz *= s
-    if not valid.all():
-        inv = ~valid
-        ix[inv], iy[inv], iz[inv] = 0.0, 0.0, 1.0
-        weight[inv] = 0.0
-        pdf[inv] = 0.0
-        delta &= valid
+    n = len(lobes)
+    wo = _f32_rows(wo, 3)
+    u_lobe = np.ascontiguousarray(np.asarray(u_lobe, dtype=F32).reshape(-1))
+    u = _f32_rows(u, 2)
+    if not (wo.shape[0] == u_lobe.shape[0] == u.shape[0] == n):
+        raise ValueError(f"sample_bsdf: {n} hits, wo {wo.shape[0]}, u_lobe {u_lobe.shape[0]}, u {u.shape[0]} rows")
     wi = np.empty((n, 3), F32)
-    wi[:, 0], wi[:, 1], wi[:, 2] = ix, iy, iz
+    weight = np.empty((n, 3), F32)
+    pdf = np.empty(n, F32)
+    delta = np.empty(n, bool)
+    transmitted = np.empty(n, bool)
+    valid = np.empty(n, bool)
+    bk.sample_batch(lobes.arrays(), lobes.multiscatter, mf.kernel_tables(), wo, u_lobe, u, wi, weight, pdf, delta,
+                    transmitted, valid)
     return BsdfSample(wi=wi, weight=weight, pdf=pdf, delta=delta, transmitted=transmitted, valid=valid)
 
 
@@ -523,24 +303,8 @@ def albedo(lobes: LobeBatch, wo: np.ndarray | None = None) -> np.ndarray:
     """Albedo AOV (N, 3): sum of lobe colours, Fresnel-weighted glossy lobes scaled by their Fresnel estimate --
     F(cos wo) when `wo` is given (as Cycles' `bsdf_microfacet_estimate_fresnel` at the shading normal), else the
     hemispherical average. Glass counts R + T = 1, refraction its colour."""
-    n, L = lobes.kind.shape
-    out = np.zeros((n, 3), F32)
-    mu = None if wo is None else np.abs(np.asarray(wo, dtype=F32)[:, 2])
-    for l in range(L):
-        k = lobes.kind[:, l]
-        present = k >= 0
-        if not present.any():
-            continue
-        scale = present.astype(F32)
-        fm = (k == GLOSSY) & (lobes.fresnel[:, l] != F_NONE)
-        if fm.any():
-            r = np.flatnonzero(fm)
-            ior = lobes.ior[r, l]
-            mode = lobes.fresnel[r, l]
-            if mu is not None:
-                scale[r] = _glossy_fresnel(mode, ior, mu[r])
-            else:
-                f0 = mf.schlick_f0(ior)
-                scale[r] = np.where(mode == F_SCHLICK, f0 + (1.0 - f0) / F32(21.0), mf.fresnel_dielectric_avg(ior))
-        out += lobes.weight[:, l] * scale[:, None]
+    n = len(lobes)
+    out = np.empty((n, 3), F32)
+    w = _f32_rows(wo, 3) if wo is not None else np.zeros((0, 3), F32)
+    bk.albedo_batch(lobes.arrays(), w, wo is not None, out)
     return out

@@ -3,7 +3,7 @@ of NumPy array operations, each of which would stream every array through memory
 
 Profiling the NumPy wavefront (`monte perf`, line profiles) showed ~40% of render time in this glue: surface
 points and shading frames from barycentrics, ray origins offset off surfaces, shadow-ray set-up and MIS weights.
-The sampler (core.sampling) is compiled too; BSDFs and lights stay vectorised NumPy (core.bsdf, core.lights).
+The sampler (core.sampling) and BSDFs (core.bsdf_kernels) are compiled too; lights stay vectorised NumPy.
 
 Conventions as in core.integrator: float32 (N, 3) row vectors in the camera-shifted frame; face normals follow
 the winding; the shading frame's +z is the shading normal flipped to the face normal's side ("outside").

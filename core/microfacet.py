@@ -1,7 +1,10 @@
-"""GGX microfacet building blocks and the multiscatter energy-compensation tables (Cycles 4.x/5.0 style).
+"""GGX microfacet model and the multiscatter energy-compensation tables (Cycles 4.x/5.0 style).
 
-All functions are vectorised over 1-D float32 arrays of direction components in the local shading frame
-(normal = +z) and assume the *view* direction `wo` is in the upper hemisphere (callers flip the frame).
+Rendering evaluates and samples the model in compiled scalar code (core.bsdf_kernels: `microfacet_eval`,
+`sample_vndf`, `refract`, the Fresnel terms, the table lookups). This module holds the tables (`tables`,
+`ggx_E`, `ggx_Eavg`) and their generator; the NumPy primitives below (`ggx_lambda`, `fresnel_dielectric`,
+`sample_vndf`, `refract`) are vectorised over 1-D arrays of direction components in the local shading frame
+(normal = +z, view direction wo in the upper hemisphere) and serve the generator, which integrates in float64.
 
 Model (what Cycles' `bsdf_microfacet.h` does since Blender 4.0, re-derived from the papers):
   - Isotropic GGX / Trowbridge-Reitz NDF, alpha = roughness^2, height-correlated Smith masking-shadowing
@@ -29,8 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
+from . import bsdf_kernels as bk
+
 F32 = np.float32
-INV_PI = F32(1.0 / math.pi)
 TWO_PI = F32(2.0 * math.pi)
 # Cycles treats a microfacet lobe as singular (a delta) when alpha_x * alpha_y <= 5e-7.
 SINGULAR_ALPHA2 = 5e-7
@@ -42,12 +46,6 @@ GLASS_N = 16  # glass_E is GLASS_N^3 (z, mu, rough)
 
 
 # ------------------------------------------------------------------------------------------ GGX primitives
-def ggx_D(alpha2: np.ndarray, cos_h: np.ndarray) -> np.ndarray:
-    """GGX normal distribution D(h) for cos(theta_h) = cos_h (only cos_h^2 matters)."""
-    t = 1.0 + (alpha2 - 1.0) * (cos_h * cos_h)
-    return alpha2 * INV_PI / (t * t)
-
-
 def ggx_lambda(alpha2: np.ndarray, cos_w: np.ndarray) -> np.ndarray:
     """Smith Lambda for GGX; symmetric in the sign of cos_w; +inf at grazing (cos_w = 0)."""
     c2 = cos_w * cos_w
@@ -70,29 +68,6 @@ def fresnel_dielectric(cos_i: np.ndarray, eta: np.ndarray) -> np.ndarray:
         f = 0.5 * a * a * (1.0 + b * b)
     f = np.where(g2 > 0.0, f, 1.0)
     return np.nan_to_num(f, nan=0.0).astype(np.result_type(cos_i, F32), copy=False)
-
-
-def fresnel_schlick(cos_i: np.ndarray, f0: np.ndarray) -> np.ndarray:
-    """Schlick's approximation F0 + (1 - F0)(1 - cos)^5."""
-    m = np.clip(1.0 - cos_i, 0.0, 1.0)
-    m2 = m * m
-    return f0 + (1.0 - f0) * (m2 * m2 * m)
-
-
-def schlick_f0(ior: np.ndarray) -> np.ndarray:
-    r = (ior - 1.0) / (ior + 1.0)
-    return r * r
-
-
-def fresnel_dielectric_avg(eta: np.ndarray) -> np.ndarray:
-    """Cosine-weighted hemispherical average 2 int_0^1 F(mu, eta) mu dmu of the exact dielectric Fresnel.
-
-    The numerical fit of Kulla & Conty 2017 ("Revisiting Physically Based Shading at Imageworks"), which is also
-    what Cycles uses for the multi-bounce Fresnel tint of a dielectric specular layer (accurate to ~1e-3)."""
-    eta = np.asarray(eta, dtype=F32)
-    below = 0.997118 + eta * (0.1014 - eta * (0.965241 + eta * 0.130607))
-    above = (eta - 1.0) / (4.08567 + 1.00071 * eta)
-    return np.clip(np.where(eta < 1.0, below, above), 0.0, 1.0).astype(F32)
 
 
 def sample_vndf(ox, oy, oz, alpha, u1, u2):
@@ -128,124 +103,7 @@ def refract(ox, oy, oz, hx, hy, hz, eta):
     return -ox * inv_eta + k * hx, -oy * inv_eta + k * hy, -oz * inv_eta + k * hz, tir
 
 
-def microfacet_eval(alpha, eta, ox, oy, oz, ix, iy, iz, lobes: str = "both"):
-    """Single-scatter GGX terms for a view direction wo (oz > 0) and a light direction wi, without Fresnel.
-
-    Reflection when iz > 0 (h = normalize(wo + wi)); transmission when iz < 0 (generalised half vector
-    h = -normalize(wo + eta wi) oriented to +z, eta = n_wi_side / n_wo_side).
-    Returns (f_cos, pdf, cos_oh, reflect):
-      f_cos = D G2 / (4 oz)                                         (reflection)
-            = D G2 eta^2 |wo.h| |wi.h| / (oz (wo.h + eta wi.h)^2)   (transmission), i.e. f |cos(wi)| / Fresnel;
-      pdf   = the same with G2 replaced by G1(wo): the solid-angle pdf of VNDF sampling followed by
-              reflection/refraction at h (before the reflect/refract choice);
-      cos_oh = wo.h (for the Fresnel term); zero f and pdf where the configuration is impossible.
-    lobes: "both", "reflect" (transmission configurations give 0) or "transmit" (reflections give 0)."""
-    reflect = iz > 0.0
-    if lobes == "reflect":
-        hx, hy, hz = ox + ix, oy + iy, oz + iz
-    else:
-        e = eta if lobes == "transmit" else np.where(reflect, F32(1.0), eta)
-        hx = e * ix
-        hx += ox
-        hy = e * iy
-        hy += oy
-        hz = e * iz
-        hz += oz
-    hl = hx * hx
-    hl += hy * hy
-    hl += hz * hz
-    np.sqrt(hl, out=hl)
-    np.maximum(hl, 1e-30, out=hl)
-    if lobes != "reflect":  # orient the generalised half vector to +z
-        hl[hz < 0.0] *= -1.0
-    hx /= hl
-    hy /= hl
-    hz /= hl
-    cos_oh = ox * hx
-    cos_oh += oy * hy
-    cos_oh += oz * hz
-    cos_ih = ix * hx
-    cos_ih += iy * hy
-    cos_ih += iz * hz
-    alpha2 = alpha * alpha
-    d = ggx_D(alpha2, hz)
-    lam_o = ggx_lambda(alpha2, oz)
-    g1 = lam_o + 1.0
-    g2 = ggx_lambda(alpha2, iz)
-    g2 += g1
-    ok = (oz > 0.0) & (cos_oh > 0.0)
-    if lobes == "reflect":
-        ok &= reflect & (cos_ih > 0.0)
-        d *= 0.25
-        d /= oz
-    else:
-        t = eta * cos_ih
-        t += cos_oh
-        t *= t
-        t *= oz
-        tr = d * (eta * eta)
-        tr *= np.abs(cos_oh * cos_ih)
-        tr /= t
-        if lobes == "transmit":
-            ok &= (iz < 0.0) & (cos_ih < 0.0)
-            d = tr
-        else:
-            ok &= np.where(reflect, cos_ih > 0.0, (iz < 0.0) & (cos_ih < 0.0))
-            d *= 0.25
-            d /= oz
-            d = np.where(reflect, d, tr)
-    ok &= np.isfinite(d)
-    common = np.where(ok, d, F32(0.0))
-    pdf = common / g1
-    common /= g2
-    return common.astype(F32, copy=False), pdf.astype(F32, copy=False), cos_oh, reflect
-
-
 # ------------------------------------------------------------------------------------------------- tables
-def _lerp_coords(x, n):
-    """Grid index i0 (int32, <= n - 2) and fraction for x in [0, 1] on the grid i / (n - 1)."""
-    x = np.clip(x, 0.0, 1.0).astype(F32, copy=False) * F32(n - 1)
-    i0 = np.minimum(x.astype(np.int32), n - 2)
-    x -= i0
-    return i0, x
-
-
-def _lookup_flat(flat, shape, coords, base=None):
-    """Multilinear read of a C-ordered table (flattened) with `shape` at coordinates in [0, 1], one per axis
-    (coords[0] along the last axis, as Cycles' lookup_table_read_2D/3D(x, y, z)); grids at i / (n - 1).
-    `base` (int array) adds a per-element offset into `flat` (to select one of several stacked tables)."""
-    idx = None
-    fracs = []
-    stride = 1
-    strides = []
-    for c, n in zip(coords, reversed(shape)):
-        i0, f = _lerp_coords(c, n)
-        i0 = i0 * np.int32(stride)
-        idx = i0 if idx is None else idx + i0
-        fracs.append(f)
-        strides.append(stride)
-        stride *= n
-    if base is not None:
-        idx = idx + base
-    # accumulate the 2^d corners
-    out = None
-    d = len(coords)
-    for corner in range(1 << d):
-        off = 0
-        w = None
-        for a in range(d):
-            if corner >> a & 1:
-                off += strides[a]
-                wa = fracs[a]
-            else:
-                wa = 1.0 - fracs[a]
-            w = wa if w is None else w * wa
-        v = flat.take(idx + off if off else idx)
-        v *= w
-        out = v if out is None else out + v
-    return out
-
-
 @lru_cache(maxsize=1)
 def tables() -> dict[str, np.ndarray]:
     """The shipped energy-compensation tables (float32), loaded on first use (~40 KB). The glass tables are also
@@ -257,51 +115,27 @@ def tables() -> dict[str, np.ndarray]:
     return t
 
 
-def ior_to_z(ior: np.ndarray) -> np.ndarray:
-    """Glass-table IOR axis: z = sqrt(|ior - 1| / (ior + 1)) = F0^(1/4); the same z for ior and 1/ior."""
-    return np.sqrt(np.abs((ior - 1.0) / (ior + 1.0)))
+def kernel_tables() -> tuple[np.ndarray, ...]:
+    """The tables as core.bsdf_kernels takes them: (ggx_E, ggx_Eavg, glass_E2, glass_Eavg2)."""
+    t = tables()
+    return t["ggx_E"], t["ggx_Eavg"], t["glass_E2"], t["glass_Eavg2"]
 
 
-def ggx_E(rough, mu):
-    """Directional albedo of the white single-scatter GGX reflection lobe, E(roughness, cos(wo))."""
-    t = tables()["ggx_E"]
-    return _lookup_flat(t.ravel(), t.shape, (rough, mu))
+def ggx_E(rough: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """Directional albedo of the white single-scatter GGX reflection lobe, E(roughness, cos(wo)), read from the
+    table with bilinear interpolation (what the compiled BSDF uses; float32 (n,))."""
+    rough, mu = np.broadcast_arrays(np.asarray(rough, np.float64).ravel(), np.asarray(mu, np.float64).ravel())
+    out = np.empty(rough.shape, F32)
+    bk.ggx_E_batch(kernel_tables(), np.ascontiguousarray(rough), np.ascontiguousarray(mu), out)
+    return out
 
 
-def ggx_Eavg(rough):
-    t = tables()["ggx_Eavg"]
-    return _lookup_flat(t, t.shape, (rough,))
-
-
-def glass_E(rough, mu, eta):
-    """Directional albedo (R + T) of the white single-scatter GGX glass lobe seen from a medium with relative
-    IOR eta = n_other / n_view (eta < 1: leaving the denser medium, Cycles' 'inv' table)."""
-    t = tables()["glass_E2"]
-    base = np.where(eta < 1.0, np.int32(t[0].size), np.int32(0))
-    return _lookup_flat(t.ravel(), t.shape[1:], (rough, mu, ior_to_z(eta)), base)
-
-
-def glass_Eavg(rough, eta):
-    t = tables()["glass_Eavg2"]
-    base = np.where(eta < 1.0, np.int32(t[0].size), np.int32(0))
-    return _lookup_flat(t.ravel(), t.shape[1:], (rough, ior_to_z(eta)), base)
-
-
-def multiscatter_factor(E, Eavg, Fss):
-    """Cycles' energy preservation as one per-channel multiplier on the single-scatter lobe:
-    (1 + Fms (1 - E)/E) with Fms = Fss Eavg / (1 - Fss (1 - Eavg)); for Fss = 1 this is exactly 1/E.
-    E, Eavg: (n,); Fss: (n, 3) in [0, 1]. Returns (n, 3)."""
-    E = np.maximum(E, F32(1e-4))
-    miss = (1.0 - E) / E
-    Eavg = Eavg[:, None]
-    fms = Fss * Eavg
-    den = Fss * (Eavg - 1.0)
-    den += 1.0
-    np.maximum(den, 1e-6, out=den)
-    fms /= den
-    fms *= miss[:, None]
-    fms += 1.0
-    return fms.astype(F32, copy=False)
+def ggx_Eavg(rough: np.ndarray) -> np.ndarray:
+    """Cosine-weighted average of ggx_E over cos(wo), linear in roughness (float32 (n,))."""
+    rough = np.ascontiguousarray(np.asarray(rough, np.float64).ravel())
+    out = np.empty(rough.shape, F32)
+    bk.ggx_Eavg_batch(kernel_tables(), rough, out)
+    return out
 
 
 # ------------------------------------------------------------------------------------- table generation

@@ -514,19 +514,6 @@ def test_material_table_build_and_gather():
     assert alb[2, 0] > 0.5 and alb[2, 0] < 0.6  # 0.5 white texel + ~0.09 dielectric specular
 
 
-def test_only_present_kinds_do_work(monkeypatch):
-    """No dielectric code runs when there is no glass/refraction lobe."""
-    calls = []
-    monkeypatch.setattr(mf, "fresnel_dielectric", lambda *a: calls.append(1) or (_ for _ in ()).throw(AssertionError))
-    monkeypatch.setattr(mf, "refract", lambda *a: calls.append(1) or (_ for _ in ()).throw(AssertionError))
-    lb = batch([Lobe("diffuse"), Lobe("glossy", roughness=0.3)], 1000)
-    rng = np.random.default_rng(0)
-    wo = random_dirs(rng, 1000)
-    draw(lb, wo, 0)
-    bsdf.eval_bsdf(lb, wo, random_dirs(rng, 1000))
-    assert not calls
-
-
 # ---------------------------------------------------------------------------------------------- texture
 def test_sample_texture_conventions():
     h, w = 4, 8
@@ -591,3 +578,48 @@ def test_matches_cycles_coloured_multiscatter_glossy(tmp_path):
     e, se, _ = mc_albedo(batch([Lobe("glossy", roughness=1.0, color=(0.5, 0.5, 0.5))], n),
                          direction(math.cos(math.radians(60)), n=n))
     assert abs(e[0] - cycles) < 4 * math.hypot(se[0], cycles_se) + 2e-3, (e[0], cycles)
+
+
+# ------------------------------------------------------------------------------------ compiled-kernel API
+def test_eval_rows_equals_take():
+    """eval_bsdf(lobes, wo, wi, rows=r) evaluates hit r[k] for direction pair k, exactly as lobes.take(r) does."""
+    rng = np.random.default_rng(31)
+    n = 4000
+    tex = Texture("t", rng.random((3, 5, 3)).astype(F32))
+    tex.validate()
+    mats = [Material("a", [Lobe("diffuse", color=(0.5, 0.4, 0.3), color_texture=0),
+                           Lobe("glossy", roughness=0.3, fresnel="dielectric")]),
+            Material("b", [Lobe("glass", roughness=0.5, ior=1.5)]),
+            Material("c", [Lobe("refraction", roughness=0.2, ior=1.3), Lobe("glossy", roughness=0.0)])]
+    for m in mats:
+        m.validate(1)
+    lb = bsdf.MaterialTable.build(mats, [tex]).gather(rng.integers(0, 3, n), rng.random((n, 2)).astype(F32))
+    rows = rng.integers(0, n, 3000)
+    wo, wi = random_dirs(rng, len(rows)), random_dirs(rng, len(rows))
+    f1, p1 = bsdf.eval_bsdf(lb, wo, wi, rows=rows)
+    f2, p2 = bsdf.eval_bsdf(lb.take(rows), wo, wi)
+    np.testing.assert_array_equal(f1, f2)
+    np.testing.assert_array_equal(p1, p2)
+    assert np.any(f1 > 0) and np.any(p1 > 0)
+
+
+def test_eval_sample_reject_mismatched_shapes():
+    lb = batch([Lobe("diffuse")], 10)
+    d = direction(0.5, n=10)
+    with pytest.raises(ValueError, match="rows"):
+        bsdf.eval_bsdf(lb, d, d[:9])
+    with pytest.raises(ValueError, match="directions"):
+        bsdf.eval_bsdf(lb, d[:9], d[:9])
+    with pytest.raises(IndexError, match="out of range"):
+        bsdf.eval_bsdf(lb, d[:2], d[:2], rows=np.array([0, 10]))
+    with pytest.raises(ValueError, match="rows"):
+        bsdf.eval_bsdf(lb, d[:2], d[:2], rows=np.array([0]))
+    with pytest.raises(ValueError, match="hits"):
+        bsdf.sample_bsdf(lb, d[:9], np.zeros(9, F32), np.zeros((9, 2), F32))
+
+
+def test_gather_rejects_bad_material_index():
+    mt = bsdf.MaterialTable.build([Material("m", [Lobe("diffuse")])])
+    for bad in ([0, 1], [-1]):
+        with pytest.raises(IndexError, match="material index"):
+            mt.gather(np.array(bad))

@@ -1,0 +1,609 @@
+"""Compiled (numba) BSDF evaluation and sampling, material gathering and texture lookup.
+
+Profiling the Cornell box showed ~20% of render time in the NumPy BSDF code: dozens of small array operations
+per lobe kind, each streaming every path's arrays through memory again, plus fancy-index copies of the lobe
+arrays. Here each path is one pass of scalar code.
+
+Layout: scalar per-path device functions (`eval_path`, `sample_path`, the GGX and Fresnel helpers, the table
+lookups) that a fused per-bounce kernel can call, and batch kernels looping over paths (`eval_batch`,
+`sample_batch`, `albedo_batch`, `gather_batch`, `texture_batch`, `selection_batch`). The model, the frame and
+weight conventions are documented in core.bsdf and core.microfacet; this module only implements them.
+
+Arguments shared by the kernels:
+  lobes = (kind (N, L) int8, weight (N, L, 3) float32, roughness (N, L) float32, ior (N, L) float32,
+           fresnel (N, L) int8, select (N, L) float32)  -- a LobeBatch's arrays, C-contiguous.
+  tabs = (ggx_E (32, 32), ggx_Eavg (32,), glass_E2 (2, 16, 16, 16), glass_Eavg2 (2, 16, 16)) float32: the
+         multiscatter tables of core.microfacet.tables().
+  row: which hit of `lobes` a path reads (lets callers evaluate a subset without copying the lobe arrays).
+Arithmetic is float64 (inputs and outputs are float32), so results agree with the former float32 NumPy code to its
+rounding; lobe selection and texture filtering stay float32 (bit-identical selection probabilities, cdf and
+texels), and a sampled direction is rounded to float32 before the mixture is evaluated there, so a sample's pdf is
+the pdf `eval_path` gives for the direction returned.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+# core.kernels' _jit options without NRT reference counting: unpacking the lobe and table tuples and passing arrays
+# to device functions otherwise costs atomic incref/decref calls per path (measured 2-4x slower); these kernels
+# never allocate. The device functions that take arrays are inlined into their callers (numba IR inlining), for
+# the same reason; the scalar-only ones are left to LLVM, which keeps first-compile time down (~10 s, cached).
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False, _nrt=False)
+_inline = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False, _nrt=False, inline="always")
+
+# lobe kinds and glossy Fresnel modes (core.bsdf re-exports these)
+EMPTY, DIFFUSE, GLOSSY, GLASS, REFRACTION = -1, 0, 1, 2, 3
+F_NONE, F_SCHLICK, F_DIELECTRIC = 0, 1, 2
+# microfacet configurations a lobe admits
+_REFLECT, _TRANSMIT, _BOTH = 0, 1, 2
+
+_INV_PI = 1.0 / math.pi
+_F32_0 = np.float32(0.0)
+_F32_1 = np.float32(1.0)
+_F32_HALF = np.float32(0.5)
+_F32_TINY = np.float32(1e-30)
+_F32_BELOW_1 = np.float32(0.99999994)  # largest float32 below 1
+
+
+# ------------------------------------------------------------------------------------------------ Fresnel
+@_jit
+def fresnel_dielectric(cos_i, eta):
+    """Exact unpolarised dielectric Fresnel reflectance; cos_i on the incident side (its sign is ignored),
+    eta = n_transmitted / n_incident. 1 under total internal reflection."""
+    c = abs(cos_i)
+    g2 = eta * eta - 1.0 + c * c
+    if not g2 > 0.0:
+        return 1.0
+    g = math.sqrt(g2)
+    a = (g - c) / (g + c)
+    b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
+    f = 0.5 * a * a * (1.0 + b * b)
+    return f if f == f else 0.0
+
+
+@_jit
+def schlick_f0(ior):
+    r = (ior - 1.0) / (ior + 1.0)
+    return r * r
+
+
+@_jit
+def fresnel_schlick(cos_i, f0):
+    """Schlick's approximation F0 + (1 - F0)(1 - cos)^5."""
+    m = min(max(1.0 - cos_i, 0.0), 1.0)
+    m2 = m * m
+    return f0 + (1.0 - f0) * (m2 * m2 * m)
+
+
+@_jit
+def fresnel_dielectric_avg(eta):
+    """Cosine-weighted hemispherical average of the dielectric Fresnel, Kulla & Conty 2017's fit (as Cycles)."""
+    if eta < 1.0:
+        v = 0.997118 + eta * (0.1014 - eta * (0.965241 + eta * 0.130607))
+    else:
+        v = (eta - 1.0) / (4.08567 + 1.00071 * eta)
+    return min(max(v, 0.0), 1.0)
+
+
+@_jit
+def glossy_fresnel(mode, ior, cos_oh):
+    """Fresnel factor of a glossy lobe at wo.h."""
+    if mode == F_SCHLICK:
+        return fresnel_schlick(cos_oh, schlick_f0(ior))
+    if mode == F_DIELECTRIC:
+        return fresnel_dielectric(cos_oh, ior)
+    return 1.0
+
+
+@_jit
+def glossy_fresnel_avg(mode, ior):
+    """wo-independent albedo estimate of a glossy lobe relative to its colour: 1, the Schlick average
+    F0 + (1 - F0)/21 (2 int_0^1 mu (1 - mu)^5 dmu = 1/21) or the dielectric average. Used for lobe selection,
+    the multiscatter Fss and the albedo AOV."""
+    if mode == F_SCHLICK:
+        f0 = schlick_f0(ior)
+        return f0 + (1.0 - f0) / 21.0
+    if mode == F_DIELECTRIC:
+        return fresnel_dielectric_avg(ior)
+    return 1.0
+
+
+# -------------------------------------------------------------------------------------------------- GGX
+@_jit
+def ggx_lambda(alpha2, cos_w):
+    """Smith Lambda for GGX; +inf at grazing (cos_w = 0)."""
+    c2 = cos_w * cos_w
+    tan2 = max((1.0 - c2) / c2, 0.0) if c2 > 0.0 else math.inf
+    return 0.5 * (math.sqrt(1.0 + alpha2 * tan2) - 1.0)
+
+
+@_jit
+def sample_vndf(ox, oy, oz, alpha, u1, u2):
+    """GGX visible-normal sample h (hz >= 0) for wo (oz > 0): the spherical-cap mapping of Dupuy & Benyoub 2023."""
+    vx = alpha * ox
+    vy = alpha * oy
+    inv = 1.0 / math.sqrt(vx * vx + vy * vy + oz * oz)
+    vx *= inv
+    vy *= inv
+    vz = oz * inv
+    phi = 2.0 * math.pi * u1
+    z = (1.0 - u2) * (1.0 + vz) - vz
+    s = math.sqrt(min(max(1.0 - z * z, 0.0), 1.0))
+    hx = (s * math.cos(phi) + vx) * alpha
+    hy = (s * math.sin(phi) + vy) * alpha
+    hz = max(z + vz, 0.0)
+    inv = 1.0 / max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-30)
+    return hx * inv, hy * inv, hz * inv
+
+
+@_jit
+def refract(ox, oy, oz, hx, hy, hz, eta):
+    """Refract wo (wo.h > 0) through microfacet h, eta = n_t / n_i: (ix, iy, iz, total internal reflection)."""
+    c = ox * hx + oy * hy + oz * hz
+    inv_eta = 1.0 / eta
+    s2t = (1.0 - c * c) * (inv_eta * inv_eta)
+    tir = s2t >= 1.0
+    ct = math.sqrt(max(1.0 - s2t, 0.0))
+    k = c * inv_eta - ct
+    return -ox * inv_eta + k * hx, -oy * inv_eta + k * hy, -oz * inv_eta + k * hz, tir
+
+
+@_jit
+def microfacet_eval(alpha, eta, ox, oy, oz, ix, iy, iz, which):
+    """Single-scatter GGX terms without Fresnel for wo (oz > 0) and wi: (f |cos wi| / Fresnel, pdf of VNDF
+    sampling + reflection/refraction at h, wo.h, wi is a reflection). Reflection when iz > 0
+    (h = normalize(wo + wi)), transmission when iz < 0 (h = -normalize(wo + eta wi) oriented to +z);
+    which: _REFLECT / _TRANSMIT (the other configuration gives 0) or _BOTH. See core.microfacet."""
+    reflect = iz > 0.0
+    if which == _REFLECT:
+        hx, hy, hz = ox + ix, oy + iy, oz + iz
+    else:
+        e = eta if (which == _TRANSMIT or not reflect) else 1.0
+        hx, hy, hz = e * ix + ox, e * iy + oy, e * iz + oz
+    hl = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-30)
+    if which != _REFLECT and hz < 0.0:
+        hl = -hl
+    hx, hy, hz = hx / hl, hy / hl, hz / hl
+    cos_oh = ox * hx + oy * hy + oz * hz
+    cos_ih = ix * hx + iy * hy + iz * hz
+    ok = oz > 0.0 and cos_oh > 0.0
+    if not ok:
+        return 0.0, 0.0, cos_oh, reflect
+    alpha2 = alpha * alpha
+    t = 1.0 + (alpha2 - 1.0) * (hz * hz)
+    d = alpha2 * _INV_PI / (t * t)
+    g1 = ggx_lambda(alpha2, oz) + 1.0
+    g2 = ggx_lambda(alpha2, iz) + g1
+    if which == _REFLECT or (which == _BOTH and reflect):
+        ok = reflect and cos_ih > 0.0
+        d = d * 0.25 / oz
+    else:
+        ok = iz < 0.0 and cos_ih < 0.0
+        den = eta * cos_ih + cos_oh
+        d = d * (eta * eta) * abs(cos_oh * cos_ih) / (den * den * oz)
+    if not (ok and math.isfinite(d)):
+        return 0.0, 0.0, cos_oh, reflect
+    return d / g2, d / g1, cos_oh, reflect
+
+
+# --------------------------------------------------------------------------------- multiscatter tables
+@_jit
+def _grid(x, n):
+    """Cell index (<= n - 2) and fraction of x in [0, 1] on the grid i / (n - 1)."""
+    x = min(max(x, 0.0), 1.0) * (n - 1)
+    i = min(int(x), n - 2)
+    return i, x - i
+
+
+@_inline
+def ggx_E(tabs, rough, mu):
+    """Directional albedo of the white single-scatter GGX reflection lobe, bilinear in (roughness, cos wo)."""
+    t = tabs[0]
+    n = t.shape[0]
+    ir, fr = _grid(rough, n)
+    im, fm = _grid(mu, n)
+    a = t[im, ir] * (1.0 - fr) + t[im, ir + 1] * fr
+    b = t[im + 1, ir] * (1.0 - fr) + t[im + 1, ir + 1] * fr
+    return a * (1.0 - fm) + b * fm
+
+
+@_inline
+def ggx_Eavg(tabs, rough):
+    t = tabs[1]
+    ir, fr = _grid(rough, t.shape[0])
+    return t[ir] * (1.0 - fr) + t[ir + 1] * fr
+
+
+@_jit
+def _glass_axes(eta):
+    """Stacked-table index (0: entering, eta > 1; 1: leaving) and the IOR axis z = sqrt(|eta - 1| / (eta + 1))."""
+    return (1 if eta < 1.0 else 0), math.sqrt(abs((eta - 1.0) / (eta + 1.0)))
+
+
+@_inline
+def glass_E(tabs, rough, mu, eta):
+    """Directional albedo (R + T) of the white single-scatter GGX glass lobe, trilinear in (roughness, cos, z)."""
+    t = tabs[2]
+    n = t.shape[1]
+    s, z = _glass_axes(eta)
+    ir, fr = _grid(rough, n)
+    im, fm = _grid(mu, n)
+    iz, fz = _grid(z, n)
+    out = 0.0
+    for cz in range(2):
+        wz = fz if cz else 1.0 - fz
+        for cm in range(2):
+            wm = fm if cm else 1.0 - fm
+            row = t[s, iz + cz, im + cm]
+            out += wz * wm * (row[ir] * (1.0 - fr) + row[ir + 1] * fr)
+    return out
+
+
+@_inline
+def glass_Eavg(tabs, rough, eta):
+    t = tabs[3]
+    n = t.shape[1]
+    s, z = _glass_axes(eta)
+    ir, fr = _grid(rough, n)
+    iz, fz = _grid(z, n)
+    a = t[s, iz, ir] * (1.0 - fr) + t[s, iz, ir + 1] * fr
+    b = t[s, iz + 1, ir] * (1.0 - fr) + t[s, iz + 1, ir + 1] * fr
+    return a * (1.0 - fz) + b * fz
+
+
+@_jit
+def ggx_E_batch(tabs, rough, mu, out):
+    for k in range(out.shape[0]):
+        out[k] = ggx_E(tabs, rough[k], mu[k])
+
+
+@_jit
+def ggx_Eavg_batch(tabs, rough, out):
+    for k in range(out.shape[0]):
+        out[k] = ggx_Eavg(tabs, rough[k])
+
+
+@_jit
+def multiscatter_tint(E, Eavg, fss):
+    """Cycles' energy preservation for one channel: 1 + Fms (1 - E)/E, Fms = Fss Eavg / (1 - Fss (1 - Eavg));
+    1/E for Fss = 1."""
+    E = max(E, 1e-4)
+    fss = min(max(fss, 0.0), 1.0)
+    fms = fss * Eavg / max(fss * (Eavg - 1.0) + 1.0, 1e-6)
+    return 1.0 + fms * ((1.0 - E) / E)
+
+
+# ------------------------------------------------------------------------------------------------ lobes
+@_jit
+def _relative_ior(ior_f32, back):
+    """eta = n_other_side / n_wo_side of a glass / refraction lobe: ior entering, 1/ior leaving (rounded to
+    float32, as the lobe arrays are)."""
+    return np.float64(np.float32(_F32_1 / ior_f32) if back else ior_f32)
+
+
+@_inline
+def eval_path(lobes, row, multiscatter, tabs, ox, oy, oz, back, ix, iy, iz):
+    """f |cos wi| (3 channels) and the mixture pdf over the non-delta lobes of hit `row`, in the frame flipped so
+    that oz >= 0 (`back`: wo was below the surface); (f0, f1, f2, pdf)."""
+    kind, weight, rough, ior, fresnel, select = lobes
+    f0 = f1 = f2 = pdf = 0.0
+    for l in range(kind.shape[1]):
+        k = kind[row, l]
+        if k == DIFFUSE:
+            c = max(iz, 0.0) * _INV_PI
+            f0 += weight[row, l, 0] * c
+            f1 += weight[row, l, 1] * c
+            f2 += weight[row, l, 2] * c
+            pdf += select[row, l] * c
+            continue
+        r = np.float64(rough[row, l])
+        if k < GLOSSY or not r > 0.0:  # empty slot or delta lobe
+            continue
+        lobe_ior = np.float64(ior[row, l])
+        if k == GLOSSY:
+            eta = 1.0
+            which = _REFLECT
+        else:
+            eta = _relative_ior(ior[row, l], back)
+            which = _BOTH if k == GLASS else _TRANSMIT
+        fc, p, cos_oh, refl = microfacet_eval(r * r, eta, ox, oy, oz, ix, iy, iz, which)
+        if p == 0.0 and fc == 0.0:
+            continue
+        mode = fresnel[row, l]
+        if k == GLOSSY:
+            fc *= glossy_fresnel(mode, lobe_ior, cos_oh)
+        elif k == GLASS:
+            F = fresnel_dielectric(cos_oh, eta)
+            fr = F if refl else 1.0 - F
+            fc *= fr
+            p *= fr
+        # refraction: transmission only, no Fresnel factor (Cycles' Refraction BSDF)
+        c0 = np.float64(weight[row, l, 0])
+        c1 = np.float64(weight[row, l, 1])
+        c2 = np.float64(weight[row, l, 2])
+        if multiscatter and k != REFRACTION:
+            if k == GLOSSY:
+                E = ggx_E(tabs, r, oz)
+                Eavg = ggx_Eavg(tabs, r)
+                scale = glossy_fresnel_avg(mode, lobe_ior)  # Fss: colour x Fresnel average
+            else:
+                E = glass_E(tabs, r, oz, eta)
+                Eavg = glass_Eavg(tabs, r, eta)
+                scale = 1.0  # glass: the transmission tint (the colour)
+            f0 += c0 * multiscatter_tint(E, Eavg, c0 * scale) * fc
+            f1 += c1 * multiscatter_tint(E, Eavg, c1 * scale) * fc
+            f2 += c2 * multiscatter_tint(E, Eavg, c2 * scale) * fc
+        else:
+            f0 += c0 * fc
+            f1 += c1 * fc
+            f2 += c2 * fc
+        pdf += select[row, l] * p
+    return f0, f1, f2, pdf
+
+
+@_inline
+def _choose_lobe(kind, select, row, u_lobe):
+    """Lobe slot picked by u_lobe with the select probabilities (-1: none), its probability and the remainder of
+    u_lobe rescaled to [0, 1) (float32 arithmetic, as the NumPy cumsum selection it replaces)."""
+    L = kind.shape[1]
+    if L == 1:
+        s = select[row, 0]
+        return (0 if s > _F32_0 else -1), s, u_lobe
+    cdf = _F32_0
+    chosen = 0
+    last = -1
+    for l in range(L):
+        s = select[row, l]
+        cdf = np.float32(cdf + s)
+        if cdf <= u_lobe:
+            chosen += 1
+        if s > _F32_0:
+            last = l
+    if last < 0:
+        return -1, _F32_0, u_lobe
+    chosen = min(chosen, last)
+    cdf = _F32_0
+    for l in range(chosen + 1):
+        cdf = np.float32(cdf + select[row, l])
+    s = select[row, chosen]
+    u_rem = np.float32(np.float32(u_lobe - np.float32(cdf - s)) / max(s, _F32_TINY))
+    return chosen, s, min(max(u_rem, _F32_0), _F32_BELOW_1)
+
+
+@_inline
+def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, u_lobe, u1, u2):
+    """Sample wi for hit `row` seen from wo (local frame, unflipped): pick a lobe with `select` (u_lobe), sample
+    it with (u1, u2), the remainder of u_lobe choosing reflection vs refraction for glass.
+    Returns (wix, wiy, wiz, weight0, weight1, weight2, pdf, delta, transmitted, valid); wi is rounded to float32
+    before the mixture is evaluated there. Invalid samples have wi = +z, zero weight and pdf."""
+    kind, weight, rough, ior, fresnel, select = lobes
+    back = woz < 0.0
+    s = -1.0 if back else 1.0
+    ox = np.float64(wox)
+    oy = np.float64(woy)
+    oz = abs(np.float64(woz))
+    c, sel_c, u_rem = _choose_lobe(kind, select, row, u_lobe)
+    k = kind[row, c] if c >= 0 else EMPTY
+    if k == EMPTY:
+        return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, False, False
+    is_delta = False
+    p_event = 1.0
+    if k == DIFFUSE:
+        r = math.sqrt(np.float64(u1))
+        phi = 2.0 * math.pi * np.float64(u2)
+        x, y, z = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(1.0 - np.float64(u1), 0.0))
+        ok = z > 0.0
+    else:
+        rough_c = np.float64(rough[row, c])
+        ior_c = np.float64(ior[row, c])
+        is_delta = not rough_c > 0.0
+        if is_delta:
+            hx, hy, hz = 0.0, 0.0, 1.0
+        else:
+            hx, hy, hz = sample_vndf(ox, oy, oz, rough_c * rough_c, np.float64(u1), np.float64(u2))
+        cos_oh = ox * hx + oy * hy + oz * hz
+        ok = oz > 0.0 and cos_oh > 0.0
+        if k == GLOSSY:
+            c2 = 2.0 * cos_oh
+            x, y, z = c2 * hx - ox, c2 * hy - oy, c2 * hz - oz
+            ok = ok and z > 0.0
+        else:
+            eta = _relative_ior(ior[row, c], back)
+            x, y, z, tir = refract(ox, oy, oz, hx, hy, hz, eta)
+            reflect = False
+            if k == GLASS:
+                F = fresnel_dielectric(cos_oh, eta)
+                reflect = u_rem < F
+                p_event = F if reflect else 1.0 - F
+                if reflect:
+                    c2 = 2.0 * cos_oh
+                    x, y, z = c2 * hx - ox, c2 * hy - oy, c2 * hz - oz
+            ok = ok and (z > 0.0 if reflect else (z < 0.0 and not tir))
+    # the direction as it is returned (float32), flipped back below
+    x = np.float64(np.float32(x))
+    y = np.float64(np.float32(y))
+    z = np.float64(np.float32(z))
+    if not ok:
+        return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, False, False
+    if is_delta:
+        # weight = value / (select x event probability) x event probability
+        inv = 1.0 / np.float64(sel_c)
+        fr = glossy_fresnel(fresnel[row, c], np.float64(ior[row, c]), oz) if k == GLOSSY else 1.0
+        w0 = weight[row, c, 0] * inv * fr
+        w1 = weight[row, c, 1] * inv * fr
+        w2 = weight[row, c, 2] * inv * fr
+        pdf = sel_c * p_event
+    elif kind.shape[1] == 1 and k == DIFFUSE:
+        # a lone diffuse lobe needs no mixture sum: f cos / pdf = colour / select, pdf = select cos / pi
+        pdf = sel_c * (max(z, 0.0) * _INV_PI)
+        inv = 1.0 / max(np.float64(sel_c), 1e-30)
+        w0, w1, w2 = weight[row, c, 0] * inv, weight[row, c, 1] * inv, weight[row, c, 2] * inv
+    else:
+        # MIS-consistent: f and pdf summed over all non-delta lobes at the sampled direction
+        f0, f1, f2, pdf = eval_path(lobes, row, multiscatter, tabs, ox, oy, oz, back, x, y, z)
+        if pdf > 0.0:
+            w0, w1, w2 = f0 / pdf, f1 / pdf, f2 / pdf
+        else:
+            w0 = w1 = w2 = 0.0
+    if not (pdf > 0.0 and (w0 > 0.0 or w1 > 0.0 or w2 > 0.0)):
+        return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, False, False
+    return x, y, z * s, w0, w1, w2, pdf, is_delta, z < 0.0, True
+
+
+# ------------------------------------------------------------------------------------------ batch kernels
+@_jit
+def eval_batch(lobes, rows, use_rows, multiscatter, tabs, wo, wi, f_out, pdf_out):
+    """eval_path for each direction pair k (hit rows[k] if use_rows else k); wo, wi (n, 3) local frame."""
+    for k in range(wo.shape[0]):
+        row = rows[k] if use_rows else k
+        woz = wo[k, 2]
+        back = woz < 0.0
+        s = -1.0 if back else 1.0
+        f0, f1, f2, pdf = eval_path(lobes, row, multiscatter, tabs, np.float64(wo[k, 0]), np.float64(wo[k, 1]),
+                                    abs(np.float64(woz)), back, np.float64(wi[k, 0]), np.float64(wi[k, 1]),
+                                    np.float64(wi[k, 2]) * s)
+        f_out[k, 0] = f0
+        f_out[k, 1] = f1
+        f_out[k, 2] = f2
+        pdf_out[k] = pdf
+
+
+@_jit
+def sample_batch(lobes, multiscatter, tabs, wo, u_lobe, u, wi, weight, pdf, delta, transmitted, valid):
+    """sample_path for every hit."""
+    for k in range(wo.shape[0]):
+        x, y, z, w0, w1, w2, p, d, t, v = sample_path(lobes, k, multiscatter, tabs, wo[k, 0], wo[k, 1], wo[k, 2],
+                                                      u_lobe[k], u[k, 0], u[k, 1])
+        wi[k, 0] = x
+        wi[k, 1] = y
+        wi[k, 2] = z
+        weight[k, 0] = w0
+        weight[k, 1] = w1
+        weight[k, 2] = w2
+        pdf[k] = p
+        delta[k] = d
+        transmitted[k] = t
+        valid[k] = v
+
+
+@_jit
+def albedo_batch(lobes, wo, use_wo, out):
+    """Albedo AOV: sum of lobe colours, Fresnel-weighted glossy lobes scaled by F(|wo.z|) (use_wo) or their
+    hemispherical average."""
+    kind, weight, rough, ior, fresnel, select = lobes
+    for k in range(kind.shape[0]):
+        a0 = a1 = a2 = 0.0
+        for l in range(kind.shape[1]):
+            kl = kind[k, l]
+            if kl < 0:
+                continue
+            scale = 1.0
+            if kl == GLOSSY and fresnel[k, l] != F_NONE:
+                if use_wo:
+                    scale = glossy_fresnel(fresnel[k, l], np.float64(ior[k, l]), abs(np.float64(wo[k, 2])))
+                else:
+                    scale = glossy_fresnel_avg(fresnel[k, l], np.float64(ior[k, l]))
+            a0 += weight[k, l, 0] * scale
+            a1 += weight[k, l, 1] * scale
+            a2 += weight[k, l, 2] * scale
+        out[k, 0] = a0
+        out[k, 1] = a1
+        out[k, 2] = a2
+
+
+@_inline
+def _select_row(kind, weight, scale, m, k, select):
+    """Lobe-choice probabilities of hit k (float32): mean colour x albedo estimate (scale[m, l]), normalised over
+    the present lobes; a black material picks among its lobes uniformly (their weights are 0 anyway)."""
+    L = kind.shape[1]
+    tot = _F32_0
+    for l in range(L):
+        s = np.float32(np.float32(weight[k, l, 0] + weight[k, l, 1]) + weight[k, l, 2]) * scale[m, l]
+        select[k, l] = s
+        tot = np.float32(tot + s)
+    if not tot > _F32_0:
+        tot = _F32_0
+        for l in range(L):
+            select[k, l] = _F32_1 if kind[k, l] >= 0 else _F32_0
+            tot = np.float32(tot + select[k, l])
+        tot = max(tot, _F32_1)
+    for l in range(L):
+        select[k, l] = np.float32(select[k, l] / tot)
+
+
+@_jit
+def selection_batch(kind, weight, scale, select):
+    for k in range(kind.shape[0]):
+        _select_row(kind, weight, scale, k, k, select)
+
+
+@_inline
+def texel_bilinear(pixels, offset, h, w, u, v, channel):
+    """Bilinear, repeat-wrapped lookup of one channel of an H x W x 3 image stored flat from `offset`, in
+    Blender's UV convention (texel (r, c) centred at ((c + 0.5)/W, 1 - (r + 0.5)/H)); float32 arithmetic.
+    Non-finite coordinates read as 0."""
+    if not math.isfinite(u):
+        u = _F32_0
+    if not math.isfinite(v):
+        v = _F32_0
+    x = np.float32(u * np.float32(w)) - _F32_HALF
+    y = np.float32(np.float32(_F32_1 - v) * np.float32(h)) - _F32_HALF
+    xf = np.float32(math.floor(x))
+    yf = np.float32(math.floor(y))
+    fx = np.float32(x - xf)
+    fy = np.float32(y - yf)
+    xi0 = np.int64(xf) % w
+    yi0 = np.int64(yf) % h
+    xi1 = xi0 + 1 if xi0 + 1 < w else 0
+    yi1 = yi0 + 1 if yi0 + 1 < h else 0
+    gx = np.float32(_F32_1 - fx)
+    p00 = pixels[offset + (yi0 * w + xi0) * 3 + channel]
+    p01 = pixels[offset + (yi0 * w + xi1) * 3 + channel]
+    p10 = pixels[offset + (yi1 * w + xi0) * 3 + channel]
+    p11 = pixels[offset + (yi1 * w + xi1) * 3 + channel]
+    top = np.float32(np.float32(p00 * gx) + np.float32(p01 * fx))
+    bot = np.float32(np.float32(p10 * gx) + np.float32(p11 * fx))
+    return np.float32(top + np.float32(np.float32(bot - top) * fy))
+
+
+@_jit
+def texture_batch(pixels, h, w, uv, out):
+    """texel_bilinear of an (H, W, 3) image (flattened) at (n, 2) UVs into out (n, 3)."""
+    for k in range(uv.shape[0]):
+        for c in range(3):
+            out[k, c] = texel_bilinear(pixels, 0, h, w, uv[k, 0], uv[k, 1], c)
+
+
+@_jit
+def gather_batch(mi, uv, has_uv, t_kind, t_color, t_rough, t_ior, t_fresnel, t_texture, t_select, t_scale,
+                 tex_pixels, tex_offset, tex_h, tex_w, kind, weight, rough, ior, fresnel, select):
+    """Per-hit lobe arrays of material indices mi from the (M, L) material tables. Lobes with a colour texture
+    (t_texture >= 0) are tinted by it at the hit's uv (missing UVs read (0, 0)) and the hit's selection
+    probabilities recomputed; otherwise they are copied from t_select."""
+    L = t_kind.shape[1]
+    for k in range(mi.shape[0]):
+        m = mi[k]
+        textured = False
+        for l in range(L):
+            kind[k, l] = t_kind[m, l]
+            rough[k, l] = t_rough[m, l]
+            ior[k, l] = t_ior[m, l]
+            fresnel[k, l] = t_fresnel[m, l]
+            select[k, l] = t_select[m, l]
+            t = t_texture[m, l]
+            if t >= 0:
+                textured = True
+                u = uv[k, 0] if has_uv else _F32_0
+                v = uv[k, 1] if has_uv else _F32_0
+                for c in range(3):
+                    weight[k, l, c] = t_color[m, l, c] * texel_bilinear(tex_pixels, tex_offset[t], tex_h[t],
+                                                                        tex_w[t], u, v, c)
+            else:
+                for c in range(3):
+                    weight[k, l, c] = t_color[m, l, c]
+        if textured:
+            _select_row(kind, weight, t_scale, m, k, select)
