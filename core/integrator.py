@@ -389,7 +389,7 @@ class PathTracer:
         m = len(can)
         wi_local = np.empty((m, 3), np.float32)
         kernels.to_local(wi, gc.tangent, gc.bitangent, gc.ns, wi_local)
-        f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes.take(can), gc.wo, wi_local)
+        f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes, gc.wo, wi_local, rows=can)
         contrib = np.empty((m, 3), np.float32)
         origin = np.empty((m, 3), np.float32)
         direction = np.empty((m, 3), np.float32)
