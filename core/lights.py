@@ -64,12 +64,33 @@ triangle sampling) where the triangle is near and large (longest edge longer tha
 Cycles' rule): the seed's lamp hangs 2 cm under the ceiling, where area sampling's 1/d^2 makes fireflies.
 `pdf_triangle` applies the same rule from the ray origin.
 
-Light selection (one emitter per shading point, probability proportional to a power estimate, fixed over the
-scene): luminance (Rec. 709 Y) of
-  emissive triangle: emission x area x 2 pi (both faces), point: P, spot: P (1 - cos(size / 2)) / 2 (the
-  fraction of the sphere inside the cone), area: P, sun: S x pi R^2 (what crosses the scene's bounding disc),
-  world: L x pi^2 R^2 (irradiance pi L through the scene's cross-section disc, like the sun), R = scene_radius.
-Emitters with zero power are never selected.
+Light selection (one emitter per shading point, chosen per point, like Cycles' light tree for a handful of
+lights). The selectable units are each analytic light (point, spot, area, sun), the world, and the emissive
+triangles in up to 8 spatial groups (split at centroid medians; groups under 16 triangles, such as a quad lamp,
+are not split); inside a group a triangle is picked by power (luminance(emission) x area). At a shading point p
+with shading normal n (the viewer's side) each unit gets an importance, an estimate of the irradiance it gives
+(W/m^2, Rec. 709 luminance):
+  finite units (bounding sphere centre c, radius r; d = |c - p|):
+    intensity x emitter-cone factor x receiver factor / max(d^2, r^2)
+    intensity: point and spot P / (4 pi); area P / pi (Lambertian peak); triangle group L A (its power / 2 pi).
+    emitter cone, with theta_u = asin(r / d) the angle the bounds subtend (no cone test when p is inside them):
+    spot 1 inside its cone widened by theta_u, else 0; area cos(theta') x its spread attenuation, theta' =
+    max(angle(normal, p - c) - theta_u, 0), and 0 behind its plane or outside its spread; triangle group
+    the same about its two-sided normal cone (widened by the group's normal spread), never 0.
+  sun: S x receiver factor (theta_u its half-angle); world: pi L.
+  receiver factor: cos(max(angle(n, c - p) - theta_u, 0)), or its |cos| version where the material transmits
+  (the `transmits` flag) or 1 without n; a unit entirely below a surface that only reflects gets 0.
+Probability of a unit: 0.9 x importance / sum of importances + 0.1 (SELECTION_POWER_FLOOR) x power / sum of
+powers, both over the units that are not provably dark at p (importance 0: one-sided area light from behind,
+outside a spot cone or area spread, wholly below a reflect-only surface; 0.06 degree margin), so every unit that
+can contribute keeps a probability > 0 and the estimator stays unbiased; the power shares alone where no unit
+is lit. Powers: emissive triangle L x area x 2 pi (both faces), point P, spot P (1 - cos(size / 2)) / 2 (the
+fraction of the sphere inside the cone), area P, sun S x pi R^2 (what crosses the scene's bounding disc), world
+L x pi^2 R^2 (irradiance pi L through the scene's cross-section disc, like the sun), R = scene_radius. Emitters
+with zero power are never selected. One unit (a single lamp) has probability 1 and costs nothing per point;
+otherwise the selection is a compiled pass over points x units (core.light_kernels), about 50-100 ns per point
+for two units. `intersect` and `pdf_triangle` evaluate the same probability at the ray origin with the normal
+and transmission flag `sample` got there (they raise if those are missing), so MIS weights match.
 """
 
 from __future__ import annotations
