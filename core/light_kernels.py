@@ -33,11 +33,12 @@ _DEAD_MARGIN = 1e-3
 
 
 @_jit
-def _cos_minus(cos_a, sin_a, cos_b, sin_b):
-    """cos(max(a - b, 0)) for angles a, b in [0, pi] given by their cosines and sines."""
+def _cos_minus(cos_a, cos_b, sin_b):
+    """cos(max(a - b, 0)) for angles a, b in [0, pi] given by cos a and by cos b, sin b (sin a only computed
+    where needed: the square root is most of the cost)."""
     if cos_a >= cos_b:
         return 1.0
-    return cos_a * cos_b + sin_a * sin_b
+    return cos_a * cos_b + math.sqrt(max(1.0 - cos_a * cos_a, 0.0)) * sin_b
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False, inline="always")
@@ -68,10 +69,11 @@ def _importance(t, k, kind, px, py, pz, nx, ny, nz, has_n, transmits):
         if d2 <= r2 * 1.000001 or d2 <= 0.0:
             inside = True  # p within the light's bounds: no direction-based bound holds
         else:
-            d = math.sqrt(d2)
-            vx, vy, vz = vx / d, vy / d, vz / d
-            sin_u = r / d
-            cos_u = math.sqrt(max(1.0 - sin_u * sin_u, 0.0))
+            inv_d = 1.0 / math.sqrt(d2)
+            vx, vy, vz = vx * inv_d, vy * inv_d, vz * inv_d
+            if r > 0.0:
+                sin_u = r * inv_d
+                cos_u = math.sqrt(max(1.0 - sin_u * sin_u, 0.0))
         if kind == AREA:
             # one-sided: nothing reaches points behind the plane (the same test `sample` applies)
             if t[k, C_AX] * (px - t[k, C_X]) + t[k, C_AY] * (py - t[k, C_Y]) + t[k, C_AZ] * (pz - t[k, C_Z]) <= 0.0:
@@ -83,11 +85,10 @@ def _importance(t, k, kind, px, py, pz, nx, ny, nz, has_n, transmits):
             if kind == TRI_GROUP:
                 cos_t = abs(cos_t)  # emits from both faces
             cos_t = min(max(cos_t, -1.0), 1.0)
-            sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
             cos_o, sin_o = t[k, C_COS_O], t[k, C_SIN_O]
             cos_ou = cos_o * cos_u - sin_o * sin_u  # theta_o + theta_u (both <= pi / 2)
             sin_ou = sin_o * cos_u + cos_o * sin_u
-            cos_tp = _cos_minus(cos_t, sin_t, cos_ou, sin_ou)
+            cos_tp = _cos_minus(cos_t, cos_ou, sin_ou)
             if cos_tp < t[k, C_COS_E] - _DEAD_MARGIN:
                 return 0.0, False  # outside the spot cone / the area light's spread
             if kind == SPOT:
@@ -103,8 +104,7 @@ def _importance(t, k, kind, px, py, pz, nx, ny, nz, has_n, transmits):
         if transmits:
             cos_i = abs(cos_i)
         cos_i = min(max(cos_i, -1.0), 1.0)
-        sin_i = math.sqrt(max(1.0 - cos_i * cos_i, 0.0))
-        cos_ip = _cos_minus(cos_i, sin_i, cos_u, sin_u)
+        cos_ip = _cos_minus(cos_i, cos_u, sin_u)
         if cos_ip < -_DEAD_MARGIN and not transmits:
             return 0.0, False  # the whole light is below the surface, which only reflects
         intensity *= max(cos_ip, 0.0)
