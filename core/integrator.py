@@ -251,6 +251,7 @@ class PathTracer:
         prev_pdf = np.zeros(n, np.float32)
         prev_delta = np.ones(n, bool)  # camera rays: emission seen directly gets weight 1
         prev_normal = None  # shading normal at each ray's origin (light sampling and MIS use it)
+        prev_transmits = None  # whether the material at each ray's origin transmits (weighs light selection)
         pix, smp = pixel_id, sample_id
         self.stats.paths += n
 
@@ -265,7 +266,7 @@ class PathTracer:
             if ps.lights.has_lights:
                 mis_here = self.mis and depth > 0
                 le = ps.lights.intersect(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf, prev_delta,
-                                         mis_here, n=prev_normal, camera=depth == 0)
+                                         mis_here, n=prev_normal, camera=depth == 0, transmits=prev_transmits)
                 if depth > 0 and not self.use_bsdf_emission:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
@@ -274,6 +275,8 @@ class PathTracer:
                 keep = np.flatnonzero(hit)
                 idx, o, d, throughput = idx[keep], o[keep], d[keep], throughput[keep]
                 prev_pdf, prev_delta, pix, smp = prev_pdf[keep], prev_delta[keep], pix[keep], smp[keep]
+                if prev_normal is not None:
+                    prev_normal, prev_transmits = prev_normal[keep], prev_transmits[keep]
                 prim, bu, bv, t = hits.prim[keep], hits.u[keep], hits.v[keep], hits.t[keep]
                 if depth == 0:
                     depth_scale, t_start = depth_scale[keep], t_start[keep]
@@ -297,7 +300,8 @@ class PathTracer:
                         w = prev_delta[e].astype(np.float32)
                     else:
                         cos_e = np.abs(_dot(d[e], ps.face_normals[prim[e]]))
-                        pdf_l = ps.lights.pdf_triangle(em_idx[e], o[e], t[e] * t[e], cos_e)
+                        pdf_l = ps.lights.pdf_triangle(em_idx[e], o[e], t[e] * t[e], cos_e, n=prev_normal[e],
+                                                       transmits=prev_transmits[e])
                         pb = prev_pdf[e]
                         w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
                     self._add(radiance, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
@@ -355,6 +359,7 @@ class PathTracer:
             idx, throughput, pix, smp = idx[keep], throughput[keep], pix[keep], smp[keep]
             prev_pdf, prev_delta = bs.pdf[keep].astype(np.float32), bs.delta[keep]
             prev_normal = g.n_view[keep]
+            prev_transmits = ps.materials.has_transmission[mat][keep]
             self._lap("scatter", clock)
         return radiance, first
 
@@ -384,7 +389,7 @@ class PathTracer:
         gc = g.take(can) if len(can) < len(idx) else g
         u_light = self.sampler.get_3d(pix[can], smp[can], self._dim(depth, _D_LIGHT))
         u_l, u_sel = np.ascontiguousarray(u_light[:, :2]), np.ascontiguousarray(u_light[:, 2])
-        ls = ps.lights.sample(gc.p, gc.n_view, u_sel, u_l)
+        ls = ps.lights.sample(gc.p, gc.n_view, u_sel, u_l, transmits=ps.materials.has_transmission[mat[can]])
         wi = np.ascontiguousarray(ls.wi, dtype=np.float32)
         m = len(can)
         wi_local = np.empty((m, 3), np.float32)

@@ -68,6 +68,26 @@ def test_light(name, size, tmp_path):
     check(scene, tmp_path, size, max_bounces=4)
 
 
+@pytest.mark.parametrize("size", SIZE_PARAMS)
+def test_several_lights_selected_per_shading_point(size, tmp_path):
+    """A low area light, a spot, a point light and an emissive box in different corners, a box between them and
+    a dim world: Monte picks the light to sample per shading point (core/lights.py), so the choice changes
+    across the floor; the image must still match Cycles."""
+    scene = bf.floor_scene(world=0.05)
+    bf.mesh_object("box", [(-0.6, -0.6, 0), (0.6, -0.6, 0), (0.6, 0.6, 0), (-0.6, 0.6, 0),
+                           (-0.6, -0.6, 0.5), (0.6, -0.6, 0.5), (0.6, 0.6, 0.5), (-0.6, 0.6, 0.5)],
+                   [(4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)],
+                   bf.diffuse("box", (0.3, 0.5, 0.8)))
+    bf.add_light(scene, "AREA", (-2.5, -2.5, 0.6), name="low area", energy=40.0, shape="SQUARE", size=0.6)
+    bf.add_light(scene, "POINT", (2.5, 2.5, 1.0), name="point", energy=150.0, shadow_soft_size=0.2,
+                 color=(1.0, 0.7, 0.4))
+    bf.add_light(scene, "SPOT", (2.5, -2.5, 2.0), (0.4, 0.4, 0), name="spot", energy=300.0,
+                 spot_size=math.radians(45), spot_blend=0.3, shadow_soft_size=0.1)
+    bf.mesh_object("glow", [(-3.0, 2.0, 0.3), (-2.0, 2.0, 0.3), (-2.0, 3.0, 0.3), (-3.0, 3.0, 0.3)],
+                   [(0, 1, 2, 3)], bf.node_material("glow", "ShaderNodeEmission", Color=(0.6, 0.8, 1.0), Strength=4.0))
+    check(scene, tmp_path, size, max_bounces=4)
+
+
 # ------------------------------------------------------------------------------------------ materials
 MATERIALS = {
     "diffuse": ("ShaderNodeBsdfDiffuse", {"Color": (0.8, 0.5, 0.3)}),

@@ -401,7 +401,7 @@ def test_pdf_triangle_matches_sample():
     assert s.pdf_triangle(np.array([-1]), np.zeros((1, 3)), np.ones(1), np.ones(1))[0] == 0
 
 
-def test_selection_proportional_to_power_and_mixture():
+def test_selection_floor_and_mixture():
     m = area_matrix([0.5, 0, 1.5], [0, 0, -1])
     m[:3, 3] = W(m[:3, 3])
     tris = two_triangle_quad(np.array([-0.5, 0.3, 1.2]), 0.2)
@@ -424,10 +424,17 @@ def test_selection_proportional_to_power_and_mixture():
     rng = np.random.default_rng(5)
     N = 400_000
     ls = s.sample(np.zeros((N, 3), np.float32), np.tile(UP, (N, 1)), rng.random(N), rng.random((N, 2)))
-    # the selection probability of the punctual and sun picks shows in their pdfs
+    probs = s.selection_probabilities(np.zeros((1, 3), np.float32), UP[None])
+    assert set(probs) == {"triangles 0", "point 0", "area 0", "sun 0", "world"}  # the zero-power light: no unit
+    assert abs(sum(float(v[0]) for v in probs.values()) - 1.0) < 1e-9
+    # the power floor: every unit lit at the point keeps at least its share of SELECTION_POWER_FLOOR by power
+    floor = lights.SELECTION_POWER_FLOOR * np.array([2 * powers[0]] + list(powers[2:])) / powers.sum()
+    assert np.all(np.array([probs[k][0] for k in ("triangles 0", "point 0", "area 0", "sun 0", "world")]) >= floor)
+    # the selection probability of the point light shows in its pdf and in how often it is picked
+    p_point = float(probs["point 0"][0])
     frac_point = np.mean(ls.delta)
-    assert abs(frac_point - powers[2] / powers.sum()) < 4 * math.sqrt(frac_point / N) + 1e-4
-    np.testing.assert_allclose(ls.pdf[ls.delta], powers[2] / powers.sum(), rtol=1e-5)
+    assert abs(frac_point - p_point) < 4 * math.sqrt(p_point * (1 - p_point) / N)
+    np.testing.assert_allclose(ls.pdf[ls.delta], p_point, rtol=1e-5)
     # the mixture estimate is the sum of the parts' closed forms
     expected = (30.0 / (4 * math.pi) / 4  # point at distance 2 overhead
                 + parallel_rect_irradiance(80.0 / (math.pi * 0.25), 0.25, 0.75, -0.25, 0.25, 1.5)  # area light
@@ -436,6 +443,231 @@ def test_selection_proportional_to_power_and_mixture():
                 + math.pi * 0.1)  # world
     est, se = estimate(s, np.zeros(3), count=400_000, seed=11)
     assert_close(est, se, expected)
+
+
+# ------------------------------------------------------------------------------------- per-point selection
+def selection(s, p, n=None, transmits=None):
+    return {k: float(v[0]) for k, v in s.selection_probabilities(np.asarray([p], np.float32),
+                                                                 None if n is None else np.asarray([n], np.float32),
+                                                                 None if transmits is None else [transmits]).items()}
+
+
+def test_selection_weighs_distance_orientation_and_cuts_what_cannot_contribute():
+    a = lights.SELECTION_POWER_FLOOR
+    near, far = PointLight("near", W([0, 0, 1.0]), np.full(3, P)), PointLight("far", W([0, 0, 3.0]), np.full(3, P))
+    s = make_sampler([near, far])
+    # equal powers straight above: importance I / d^2 -> 9 : 1, then the power floor
+    got = selection(s, [0, 0, 0], UP, False)
+    np.testing.assert_allclose([got["point 0"], got["point 1"]], [(1 - a) * 0.9 + a / 2, (1 - a) * 0.1 + a / 2],
+                               rtol=1e-9)
+    # a receiver cosine: the far light moved sideways to 45 degrees (distance 3) counts cos 45 as much
+    side = make_sampler([near, PointLight("far", W([3 / math.sqrt(2), 0, 3 / math.sqrt(2)]), np.full(3, P))])
+    got = selection(side, [0, 0, 0], UP, False)
+    share = (1 / 9 * math.sqrt(0.5)) / (1 + 1 / 9 * math.sqrt(0.5))
+    assert got["point 1"] == pytest.approx((1 - a) * share + a / 2, rel=1e-6)
+    # both below a surface that only reflects: nothing can arrive; fall back to the power shares
+    got = selection(s, [0, 0, 0], -UP, False)
+    assert got["point 0"] == pytest.approx(0.5) and got["point 1"] == pytest.approx(0.5)
+    # one above, one below: the one below is never picked; a transmitting surface sees both
+    below = make_sampler([near, PointLight("below", W([0, 0, -3.0]), np.full(3, P))])
+    assert selection(below, [0, 0, 0], UP, False) == {"point 0": 1.0, "point 1": 0.0}
+    got = selection(below, [0, 0, 0], UP, True)
+    assert got["point 1"] == pytest.approx((1 - a) * 0.1 + a / 2, rel=1e-6)
+    # without a normal there is no hemisphere cut either
+    assert selection(below, [0, 0, 0])["point 1"] == pytest.approx((1 - a) * 0.1 + a / 2, rel=1e-6)
+    # a one-sided area light seen from behind, a spot seen from outside its cone: never picked
+    m = area_matrix([0, 0, 1.0], [0, 0, 1])  # faces up, the point is below it
+    m[:3, 3] = W(m[:3, 3])
+    spot = spot_light(np.array([2.0, 0, 1.0]), [4.0, 0, 0], P, size=math.radians(40))
+    s = make_sampler([near, AreaLight("a", m, np.full(3, P), "SQUARE", 0.5), spot])
+    got = selection(s, [0, 0, 0])
+    assert got["area 0"] == 0.0 and got["spot 1"] == 0.0 and got["point 0"] == 1.0
+    assert selection(s, [0, 0, 2.0])["area 0"] > 0.5  # above the area light it is the nearest
+    assert selection(s, [4.0, 0, 0])["spot 1"] > 0.5  # inside the cone
+
+
+def test_one_unit_needs_no_per_point_work():
+    s = make_sampler([PointLight("p", W([0, 0, 2.0]), np.full(3, P))])
+    assert not s._per_point
+    ls = s.sample(np.zeros((4, 3), np.float32), np.tile(-UP, (4, 1)), np.zeros(4), np.zeros((4, 2)),
+                  transmits=np.zeros(4, bool))
+    np.testing.assert_array_equal(ls.pdf, 1.0)  # even below the surface: probability 1, no importance computed
+    tris = two_triangle_quad(np.array([0.0, 0.0, 1.0]), 0.3)
+    et = lights.EmissiveTriangles.from_mesh_arrays(tris, np.zeros(2, int), np.array([[2.0] * 3]))
+    assert not make_sampler([], tris=et)._per_point  # a quad lamp: one group of two triangles
+
+
+def test_emissive_triangles_form_a_few_spatial_groups():
+    verts, faces = lights_icosphere(4)
+    tri = np.concatenate([verts[faces] * 0.2 + [-2.0, 0, 1], verts[faces] * 0.2 + [2.0, 0, 1]]).astype(np.float32)
+    et = lights.EmissiveTriangles.from_mesh_arrays(tri, np.zeros(len(tri), int), np.array([[1.0] * 3]))
+    s = make_sampler([], tris=et)
+    groups = np.unique(s._t_unit)
+    assert 2 <= groups.size <= lights._MAX_TRIANGLE_GROUPS
+    # no group straddles the two spheres, and the shares inside each group add up to 1
+    for g in groups:
+        x = tri[s._t_unit == g][:, :, 0]
+        assert np.all(x < 0) or np.all(x > 0)
+        assert s._t_sel[s._t_unit == g].sum() == pytest.approx(1.0)
+    # next to the left sphere its groups are picked far more often than the right sphere's
+    probs = s.selection_probabilities(np.array([[-1.5, 0, 1]], np.float32), np.array([[-1.0, 0, 0]], np.float32),
+                                      [False])
+    left = sum(float(v[0]) for k, v in probs.items() if np.all(tri[s._t_unit == int(k.split()[1])][:, :, 0] < 0))
+    assert left > 0.9
+
+
+def lights_icosphere(subdivisions):
+    """A unit icosphere (vertices, faces) by subdividing an icosahedron."""
+    t = (1 + math.sqrt(5)) / 2
+    v = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
+         (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
+    f = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6),
+         (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10),
+         (8, 6, 7), (9, 8, 1)]
+    verts = [np.array(x, float) / np.linalg.norm(x) for x in v]
+    for _ in range(subdivisions):
+        cache, nf = {}, []
+        def mid(a, b):
+            key = (min(a, b), max(a, b))
+            if key not in cache:
+                m = verts[a] + verts[b]
+                verts.append(m / np.linalg.norm(m))
+                cache[key] = len(verts) - 1
+            return cache[key]
+        for a, b, c in f:
+            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
+            nf += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        f = nf
+    return np.array(verts), np.array(f)
+
+
+def consistency_cases():
+    """Each light kind beside a delta point light (so that the selection is per point): (lights, world)."""
+    r = 0.4
+    sphere = PointLight("sphere", W([0.2, 0.1, 1.5]), np.full(3, P), radius=r)
+    sphere.soft_falloff = False
+    inside = PointLight("inside", W([0.1, 0, 0.1]), np.full(3, P), radius=r)
+    inside.soft_falloff = False
+    m = area_matrix([0.3, -0.1, 1.0], [0, 0, -1])
+    m[:3, 3] = W(m[:3, 3])
+    me = area_matrix([-0.2, 0.1, 0.8], [0.3, 0, -1], scale=(1.0, 0.6, 1.0))
+    me[:3, 3] = W(me[:3, 3])
+    sun_d = np.array([0.2, 0.1, -1.0]) / np.linalg.norm([0.2, 0.1, -1.0])
+    return {
+        "disc point": [PointLight("p", W([0.3, 0, 1.5]), np.full(3, P), radius=r)],
+        "sphere point": [sphere],
+        "inside sphere": [inside],
+        "spot disc": [spot_light(np.array([0.4, 0.2, 1.2]), [0, 0, 0], P, radius=0.3, size=math.radians(70))],
+        "area rectangle": [AreaLight("a", m, np.full(3, P), "RECTANGLE", 0.8, 0.5)],
+        "area ellipse spread": [AreaLight("a", me, np.full(3, P), "ELLIPSE", 0.9, 0.7, spread=math.radians(90))],
+        "sun": [SunLight("s", sun_d, np.full(3, 3.0), angle=math.radians(30))],
+        "world": [],
+    }
+
+
+@pytest.mark.parametrize("case", list(consistency_cases()))
+def test_intersect_pdf_is_the_sample_pdf_at_every_point(case):
+    """MIS needs the light pdf of a direction twice: from `sample` and, when a BSDF ray hits the light, from
+    `intersect`. With per-point selection both must use the same point, normal and transmission flag. Weighing
+    each hit against a BSDF pdf equal to the sample's own pdf must give exactly 1/2."""
+    delta = PointLight("delta", W([-0.6, 0.3, 0.7]), np.full(3, 2 * P))
+    s = make_sampler(consistency_cases()[case] + [delta], world=0.5 if case == "world" else 0.0)
+    assert s._per_point
+    rng = np.random.default_rng(8)
+    N = 40_000
+    p = (rng.random((N, 3)) * [2.0, 2.0, 1.0] - [1.0, 1.0, 0.5]).astype(np.float32)
+    nn = rng.normal(size=(N, 3))
+    nn = (nn / np.linalg.norm(nn, axis=1)[:, None]).astype(np.float32)
+    tr = rng.random(N) < 0.3
+    ls = s.sample(p, nn, rng.random(N, dtype=np.float32), rng.random((N, 2), dtype=np.float32), transmits=tr)
+    rows = np.nonzero(~ls.delta & (ls.pdf > 0) & (ls.radiance[:, 0] > 0))[0]
+    assert rows.size > N // 10
+    tmax = np.where(np.isinf(ls.dist[rows]), np.inf, ls.dist[rows] * 1.001).astype(np.float32)
+    le = s.intersect(p[rows], ls.wi[rows], tmax, ls.pdf[rows], np.zeros(rows.size, bool), True, n=nn[rows],
+                     transmits=tr[rows])
+    w = le[:, 0].astype(np.float64) / ls.radiance[rows, 0]
+    np.testing.assert_allclose(np.median(w), 0.5, rtol=1e-6)
+    assert np.mean(np.abs(w - 0.5) < 1e-3) > 0.999, np.sort(w)[[0, -1]]
+    # the selection really varies from point to point (else this test would not test it)
+    punctual = case in ("disc point", "sphere point", "inside sphere", "spot disc")
+    pick = s.selection_probabilities(p[:2000], nn[:2000], tr[:2000])["point 1" if punctual else "point 0"]
+    assert pick.max() - pick.min() > 0.3
+    # and leaving the flags out where `sample` had them is an error, not a silent bias
+    with pytest.raises(ValueError, match="transmission flags"):
+        s.intersect(p[rows], ls.wi[rows], tmax, ls.pdf[rows], np.zeros(rows.size, bool), True, n=nn[rows])
+
+
+def test_pdf_triangle_is_the_sample_pdf_at_every_point():
+    verts, faces = lights_icosphere(3)
+    tri = np.concatenate([verts[faces] * 0.3 + [-1.0, 0, 1], verts[faces] * 0.3 + [1.0, 0.5, 1.2]]).astype(np.float32)
+    et = lights.EmissiveTriangles.from_mesh_arrays(tri, np.zeros(len(tri), int), np.array([[1.0, 2.0, 3.0]]))
+    s = make_sampler([PointLight("delta", W([0, 0, 2.0]), np.full(3, P))], tris=et)
+    assert s._per_point and np.unique(s._t_unit).size > 2
+    rng = np.random.default_rng(9)
+    N = 20_000
+    p = (rng.random((N, 3)) * [4.0, 2.0, 0.5] - [2.0, 1.0, 0.5]).astype(np.float32)
+    nn = rng.normal(size=(N, 3))
+    nn = (nn / np.linalg.norm(nn, axis=1)[:, None]).astype(np.float32)
+    tr = rng.random(N) < 0.3
+    ls = s.sample(p, nn, rng.random(N), rng.random((N, 2)), transmits=tr)
+    rows = np.nonzero(~ls.delta & (ls.pdf > 0))[0]
+    q = p[rows].astype(np.float64) + ls.wi[rows] * ls.dist[rows, None]
+    # the emitter each sample landed on: the triangle whose plane holds q and whose corners enclose it
+    v = tri.astype(np.float64)
+    nrm = et.normal.astype(np.float64)
+    emitter = np.full(rows.size, -1)
+    for e in range(len(tri)):
+        a, b, c = v[e]
+        on = np.abs((q - a) @ nrm[e]) < 1e-4
+        if not on.any():
+            continue
+        w0 = np.cross(b - a, q[on] - a) @ nrm[e]
+        w1 = np.cross(c - b, q[on] - b) @ nrm[e]
+        w2 = np.cross(a - c, q[on] - c) @ nrm[e]
+        inside = (w0 >= -1e-7) & (w1 >= -1e-7) & (w2 >= -1e-7)
+        idx = np.nonzero(on)[0][inside]
+        emitter[idx] = e
+    found = emitter >= 0
+    assert found.mean() > 0.99
+    r = rows[found]
+    cos = np.abs(np.einsum("ij,ij->i", ls.wi[r], et.normal[emitter[found]]))
+    pdf = s.pdf_triangle(emitter[found], p[r], ls.dist[r] ** 2, cos, n=nn[r], transmits=tr[r])
+    # (a point on a shared edge may be credited to the neighbour, which can differ in group or sampling mode)
+    assert np.mean(np.abs(pdf / ls.pdf[r] - 1) < 1e-3) > 0.999
+
+
+def test_per_point_selection_is_unbiased_where_it_changes_strongly():
+    """Two area lights far apart over a floor: next to each, the selection favours it ~10:1. Light sampling,
+    and MIS of light sampling with cosine-sampled BSDF rays, both give the closed-form irradiance at every point."""
+    La, Lb = 40.0, 10.0
+    ma = area_matrix([-1.5, 0, 0.5], [0, 0, -1])
+    ma[:3, 3] = W(ma[:3, 3])
+    mb = area_matrix([1.5, 0, 1.5], [0, 0, -1])
+    mb[:3, 3] = W(mb[:3, 3])
+    s = make_sampler([AreaLight("a", ma, np.full(3, La * math.pi * 0.16), "SQUARE", 0.4),
+                      AreaLight("b", mb, np.full(3, Lb * math.pi * 0.64), "SQUARE", 0.8)])
+    rng = np.random.default_rng(12)
+    N = 60_000
+    picks = []
+    for x in (-1.5, -0.5, 0.5, 1.5):
+        expected = (parallel_rect_irradiance(La, -1.7 - x, -1.3 - x, -0.2, 0.2, 0.5)
+                    + parallel_rect_irradiance(Lb, 1.1 - x, 1.9 - x, -0.4, 0.4, 1.5))
+        p = np.tile(np.float32([x, 0, 0]), (N, 1))
+        nn = np.tile(UP.astype(np.float32), (N, 1))
+        tr = np.zeros(N, bool)
+        picks.append(selection(s, [x, 0, 0], UP, False)["area 0"])
+        ls = s.sample(p, nn, rng.random(N), rng.random((N, 2)), transmits=tr)
+        cos_l = np.maximum(ls.wi[:, 2].astype(np.float64), 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            f_l = np.where(ls.pdf > 0, ls.radiance[:, 0] * cos_l / ls.pdf, 0)
+        assert_close(f_l.mean(), f_l.std() / math.sqrt(N), expected)
+        pl, pb = ls.pdf.astype(np.float64), cos_l / math.pi
+        f_l *= np.where(pl > 0, pl * pl / (pl * pl + pb * pb), 0)
+        d, pdf_b = cosine_directions(UP, N, rng)
+        le = s.intersect(p, d, np.full(N, np.inf, np.float32), pdf_b, np.zeros(N, bool), True, n=nn, transmits=tr)
+        f_b = le[:, 0].astype(np.float64) * math.pi
+        assert_close(f_l.mean() + f_b.mean(), math.hypot(f_l.std(), f_b.std()) / math.sqrt(N), expected)
+    assert picks[0] > 0.8 and picks[-1] < 0.3  # the selection does change strongly across the floor
 
 
 def test_single_emitter_beside_zero_power_lights():
@@ -591,7 +823,7 @@ def test_triangle_mis_with_pdf_triangle_sums_to_the_closed_form(height):
     t, k = ray_triangles(np.zeros((N, 3)), d.astype(np.float64), tris)
     hit = k >= 0
     pdf_t = s.pdf_triangle(np.where(hit, et.emitter_of_triangle[np.maximum(k, 0)], -1), np.zeros((N, 3)), t * t,
-                           np.abs(d[:, 2]))
+                           np.abs(d[:, 2]), n=nn)
     pb2 = pdf_b.astype(np.float64) ** 2
     f_b = np.where(hit, Le * math.pi * pb2 / (pb2 + pdf_t.astype(np.float64) ** 2), 0)
     est = f_l.mean() + f_b.mean()

@@ -75,6 +75,54 @@ def test_mis_light_only_and_bsdf_only_agree(fast_settings):
     assert np.all(sigmas["mis"] < sigmas["bsdf"])
 
 
+def _two_corner_lights_scene(resolution):
+    """A floor seen from above with an area light low over its left side, a sphere light over its right side,
+    a small emissive ball (many triangles: several selection groups) at the back, a rough glass ball (a
+    transmitting material) and a sky: the per-point light selection changes strongly across the image."""
+    from monte.core.scene import AreaLight, Camera, PointLight, Scene, World
+
+    materials = [Material("floor", [Lobe("diffuse", np.full(3, 0.7))]),
+                 Material("glow", [Lobe("diffuse", np.zeros(3))], emission=np.full(3, 4.0)),
+                 Material("rough glass", [Lobe("glass", np.full(3, 0.95), roughness=0.4, ior=1.5)])]
+    meshes = [scenes.quad("floor", [(-2, -2, 0), (2, -2, 0), (2, 2, 0), (-2, 2, 0)], 0),
+              scenes.icosphere("glow", (0.0, 1.3, 0.25), 0.2, 1),
+              scenes.icosphere("glass", (0.0, -0.6, 0.35), 0.35, 2)]
+    m = np.eye(4)
+    m[:3, 3] = (-1.3, 0.0, 0.4)  # faces down (-Z)
+    area = AreaLight("low", m, np.full(3, 15.0), "SQUARE", 0.5)
+    lamp = PointLight("lamp", np.array([1.3, 0.0, 0.6]), np.full(3, 25.0), radius=0.25)
+    camera = Camera.look_at((0, 0, 4.5), (0, 0, 0), up=(0, 1, 0), horizontal_fov=math.radians(50.0),
+                            resolution=resolution)
+    return Scene(camera=camera, meshes=meshes, materials=materials, lights=[area, lamp],
+                 world=World(np.full(3, 0.05)), name="two-lights")
+
+
+def test_per_point_light_selection_is_unbiased_across_the_image(fast_settings):
+    """MIS, light-only and BSDF-only estimators agree on each half of an image whose light selection changes
+    strongly from the left half (area light) to the right (sphere light); MIS must use the same per-point
+    selection probability when a BSDF ray hits a light as when the light was sampled."""
+    scene = _two_corner_lights_scene((24, 24))
+    from monte.core.integrator import PreparedScene
+
+    ps = PreparedScene.build(scene.validate())
+    probs = ps.lights.selection_probabilities(np.array([[-1.3, 0, 0], [1.3, 0, 0]]) - ps.shift,
+                                              np.array([[0, 0, 1.0], [0, 0, 1.0]]), [False, False])
+    assert probs["area 0"][0] > 0.6 and probs["area 0"][1] < 0.2  # the selection does change across the image
+    halves = {}
+    for mode in ("mis", "light", "bsdf"):
+        r = render(scene, fast_settings(spp=128, light_sampling=mode, max_bounces=3))
+        halves[mode] = [image_mean_and_sigma_of(r, cols) for cols in (slice(0, 12), slice(12, 24))]
+    for a, b in (("mis", "light"), ("mis", "bsdf"), ("light", "bsdf")):
+        for h in range(2):
+            (ma, sa), (mb, sb) = halves[a][h], halves[b][h]
+            tol = Z * np.hypot(sa, sb)
+            assert np.all(np.abs(ma - mb) <= tol), f"half {h}: {a} {ma} vs {b} {mb} (tol {tol})"
+
+
+def image_mean_and_sigma_of(result, cols):
+    return metrics.channel_means(result.color[:, cols]), metrics.channel_mean_sigma(result.variance[:, cols])
+
+
 def test_same_seed_same_image_in_any_tile_order_or_thread_count(fast_settings):
     scene = scenes.cornell_box((24, 20))
     base = render(scene, fast_settings(spp=8, tile_size=8, threads=1))
