@@ -271,36 +271,22 @@ class PathTracer:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
                 self._add(radiance, idx, throughput * le)
-            if not hit.all():
-                keep = np.flatnonzero(hit)
-                idx, o, d, throughput = idx[keep], o[keep], d[keep], throughput[keep]
-                prev_pdf, prev_delta, pix, smp = prev_pdf[keep], prev_delta[keep], pix[keep], smp[keep]
-                if prev_normal is not None:
-                    prev_normal, prev_transmits = prev_normal[keep], prev_transmits[keep]
-                prim, bu, bv, t = hits.prim[keep], hits.u[keep], hits.v[keep], hits.t[keep]
-                if depth == 0:
-                    depth_scale, t_start = depth_scale[keep], t_start[keep]
-            else:
-                prim, bu, bv, t = hits.prim, hits.u, hits.v, hits.t
-            if len(idx) == 0:
-                break
-
-            mat = ps.material_index[prim]
+            prim = hits.prim
 
             # Emission of an emissive triangle hit (two-sided), MIS-weighted against light sampling.
             if ps.emissive is not None:
-                em_idx = ps.emissive.emitter_of_triangle[prim]
-                is_em = em_idx >= 0
-                if is_em.any():
-                    e = np.flatnonzero(is_em)
-                    le = ps.materials.emission[mat[e]]
+                em_idx = ps.emissive.emitter_of_triangle[prim]  # prim -1 (a miss) reads a value masked out here
+                e = np.flatnonzero(hit & (em_idx >= 0))
+                if len(e):
+                    em_idx, t_e = em_idx[e], hits.t[e]
+                    le = ps.materials.emission[ps.material_index[prim[e]]]
                     if depth == 0 or not self.use_nee:
                         w = np.ones(len(e), np.float32)
                     elif not self.use_bsdf_emission:
                         w = prev_delta[e].astype(np.float32)
                     else:
                         cos_e = np.abs(_dot(d[e], ps.face_normals[prim[e]]))
-                        pdf_l = ps.lights.pdf_triangle(em_idx[e], o[e], t[e] * t[e], cos_e, n=prev_normal[e],
+                        pdf_l = ps.lights.pdf_triangle(em_idx, o[e], t_e * t_e, cos_e, n=prev_normal[e],
                                                        transmits=prev_transmits[e])
                         pb = prev_pdf[e]
                         w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
@@ -313,28 +299,33 @@ class PathTracer:
             # Russian roulette as Cycles does it, before any work at this vertex: survive with probability
             # min(1, sqrt(max throughput)); the square root ends paths later than the throughput itself would
             # (measured on the Cornell box: MSE at equal samples 0.0115 without RR, 0.0201 with q = throughput,
-            # 0.0165 with sqrt), and a terminated path casts no shadow ray here.
-            rows = None
+            # 0.0165 with sqrt), and a terminated path casts no shadow ray here. The paths that go on (hit and
+            # survived) are selected once, here; random numbers of paths that missed are drawn and unused (they
+            # depend only on pixel, sample and dimension).
             u_vertex = self.sampler.get_4d(pix, smp, self._dim(depth, _D_VERTEX))
+            survive = hit
             if depth >= s.rr_depth:
                 q = np.minimum(np.sqrt(_max3(throughput)), np.float32(1.0))
-                survive = u_vertex[:, 3] < q
-                throughput = throughput / np.where(survive, q, np.float32(1.0))[:, None]
-                if not survive.all():
-                    rows = np.flatnonzero(survive)
-            aov_here = want_aovs and depth == 0
-            g = self._surface(np.arange(len(idx)) if rows is None or aov_here else rows, prim, bu, bv, d)
-            if aov_here:
-                first.albedo[idx] = bsdf_mod.albedo(ps.materials.gather(mat, g.uv))
-                first.normal[idx] = g.ns_raw
-                first.depth[idx] = (t_start + t) * depth_scale
-                if rows is not None:
-                    g = g.take(rows)
-            if rows is not None:
-                idx, pix, smp, mat, throughput = idx[rows], pix[rows], smp[rows], mat[rows], throughput[rows]
-                u_vertex = u_vertex[rows]
-                if len(idx) == 0:
-                    break
+                survive = hit & (u_vertex[:, 3] < q)
+            rows = np.flatnonzero(survive)
+            if want_aovs and depth == 0:
+                hit_rows = np.flatnonzero(hit)
+                g = self._surface(hit_rows, prim, hits.u, hits.v, d)
+                first.albedo[idx[hit_rows]] = bsdf_mod.albedo(ps.materials.gather(ps.material_index[prim[hit_rows]],
+                                                                                   g.uv))
+                first.normal[idx[hit_rows]] = g.ns_raw
+                first.depth[idx[hit_rows]] = (t_start[hit_rows] + hits.t[hit_rows]) * depth_scale[hit_rows]
+                if len(rows) < len(hit_rows):
+                    g = g.take(np.flatnonzero(survive[hit_rows]))
+            elif len(rows):
+                g = self._surface(rows, prim, hits.u, hits.v, d)
+            if len(rows) == 0:
+                break
+            idx, pix, smp, u_vertex = idx[rows], pix[rows], smp[rows], u_vertex[rows]
+            throughput = throughput[rows]
+            if depth >= s.rr_depth:
+                throughput /= q[rows][:, None]
+            mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
 
             clock = self._lap("emission", clock)
@@ -342,24 +333,27 @@ class PathTracer:
                 self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance)
                 clock = self._lap("nee", clock)
 
-            # Sample the BSDF for the next direction.
+            # Sample the BSDF for the next direction; the paths that go on are written compacted.
             u_dir, u_lobe = np.ascontiguousarray(u_vertex[:, :2]), np.ascontiguousarray(u_vertex[:, 2])
             bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir)
             m = len(idx)
-            ok = np.empty(m, bool)
-            origin = np.empty((m, 3), np.float32)
-            direction = np.empty((m, 3), np.float32)
-            throughput = np.ascontiguousarray(throughput, dtype=np.float32)
-            kernels.scatter(np.ascontiguousarray(bs.wi, dtype=np.float32), g.tangent, g.bitangent, g.ns, g.ng,
-                            g.cos_o_geo, bs.valid, bs.transmitted, np.ascontiguousarray(bs.weight, np.float32),
-                            throughput, g.p, g.mag, ok, origin, direction)
-            keep = np.flatnonzero(ok)
-            o, d = origin[keep], direction[keep]
-            tm = np.full(len(keep), np.float32(3e38))
-            idx, throughput, pix, smp = idx[keep], throughput[keep], pix[keep], smp[keep]
-            prev_pdf, prev_delta = bs.pdf[keep].astype(np.float32), bs.delta[keep]
-            prev_normal = g.n_view[keep]
-            prev_transmits = ps.materials.has_transmission[mat][keep]
+            o, d = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
+            next_throughput, prev_pdf, prev_delta = np.empty((m, 3), np.float32), np.empty(m, np.float32), np.empty(m, bool)
+            prev_normal, prev_transmits = np.empty((m, 3), np.float32), np.empty(m, bool)
+            next_idx, next_pix, next_smp = np.empty(m, idx.dtype), np.empty(m, pix.dtype), np.empty(m, smp.dtype)
+            count = kernels.scatter(np.ascontiguousarray(bs.wi, dtype=np.float32), g.tangent, g.bitangent, g.ns,
+                                    g.ng, g.cos_o_geo, bs.valid, bs.transmitted,
+                                    np.ascontiguousarray(bs.weight, np.float32),
+                                    np.ascontiguousarray(throughput, dtype=np.float32), g.p, g.mag,
+                                    np.asarray(bs.pdf, np.float32), bs.delta, g.n_view,
+                                    ps.materials.has_transmission[mat], idx, pix, smp,
+                                    o, d, next_throughput, prev_pdf, prev_delta, prev_normal, prev_transmits,
+                                    next_idx, next_pix, next_smp)
+            o, d, throughput, prev_pdf, prev_delta = o[:count], d[:count], next_throughput[:count], \
+                prev_pdf[:count], prev_delta[:count]
+            prev_normal, prev_transmits = prev_normal[:count], prev_transmits[:count]
+            idx, pix, smp = next_idx[:count], next_pix[:count], next_smp[:count]
+            tm = np.full(count, np.float32(3e38))
             self._lap("scatter", clock)
         return radiance, first
 

@@ -152,13 +152,18 @@ def to_local(w, tangent, bitangent, normal, out):
 
 @_jit
 def scatter(wi_local, tangent, bitangent, ns, ng, cos_o_geo, valid, transmitted, weight, throughput, p, mag,
-            ok, origin, direction):
-    """Turn sampled BSDF directions into next rays, in place of the path state.
+            pdf, delta, n_view, transmits, idx, pix, smp,
+            out_origin, out_direction, out_throughput, out_pdf, out_delta, out_normal, out_transmits, out_idx,
+            out_pix, out_smp):
+    """Turn sampled BSDF directions into the next rays and write the paths that continue, compacted, to out_*.
 
     Reflection must stay on wo's side of the true surface and transmission must cross it (else the path ends);
-    throughput *= weight; origin: p offset off the surface to the new direction's side; direction: unit wi.
-    Writes ok (the path continues), throughput, origin, direction row by row.
+    throughput *= weight (a path whose throughput became 0 ends); origin: p offset off the surface to the new
+    direction's side; direction: unit wi. The other per-path values (BSDF pdf and delta flag of the sample, the
+    shading normal on the viewer's side, whether the material transmits, sample/pixel/sample ids) are copied
+    along. Returns the number of paths written (rows [0, count) of every out_* array).
     """
+    count = 0
     for k in range(wi_local.shape[0]):
         lx, ly, lz = wi_local[k, 0], wi_local[k, 1], wi_local[k, 2]
         wx = lx * tangent[k, 0] + ly * bitangent[k, 0] + lz * ns[k, 0]
@@ -166,19 +171,28 @@ def scatter(wi_local, tangent, bitangent, ns, ng, cos_o_geo, valid, transmitted,
         wz = lx * tangent[k, 2] + ly * bitangent[k, 2] + lz * ns[k, 2]
         side_o = cos_o_geo[k] > _F0
         side_i = wx * ng[k, 0] + wy * ng[k, 1] + wz * ng[k, 2] > _F0
-        good = valid[k] and ((side_o != side_i) if transmitted[k] else (side_o == side_i))
-        peak = _F0
-        for c in range(3):
-            v = throughput[k, c] * weight[k, c]
-            throughput[k, c] = v
-            peak = max(peak, v)
-        good = good and peak > _F0
-        ok[k] = good
-        if good:
-            ox, oy, oz = _offset(p[k, 0], p[k, 1], p[k, 2], ng[k, 0], ng[k, 1], ng[k, 2], wx, wy, wz, mag[k])
-            origin[k, 0], origin[k, 1], origin[k, 2] = ox, oy, oz
-            length = max(np.float32(math.sqrt(wx * wx + wy * wy + wz * wz)), _TINY)
-            direction[k, 0], direction[k, 1], direction[k, 2] = wx / length, wy / length, wz / length
+        if not (valid[k] and ((side_o != side_i) if transmitted[k] else (side_o == side_i))):
+            continue
+        t0 = throughput[k, 0] * weight[k, 0]
+        t1 = throughput[k, 1] * weight[k, 1]
+        t2 = throughput[k, 2] * weight[k, 2]
+        if not max(t0, t1, t2) > _F0:
+            continue
+        j = count
+        count += 1
+        out_throughput[j, 0], out_throughput[j, 1], out_throughput[j, 2] = t0, t1, t2
+        ox, oy, oz = _offset(p[k, 0], p[k, 1], p[k, 2], ng[k, 0], ng[k, 1], ng[k, 2], wx, wy, wz, mag[k])
+        out_origin[j, 0], out_origin[j, 1], out_origin[j, 2] = ox, oy, oz
+        length = max(np.float32(math.sqrt(wx * wx + wy * wy + wz * wz)), _TINY)
+        out_direction[j, 0], out_direction[j, 1], out_direction[j, 2] = wx / length, wy / length, wz / length
+        out_pdf[j] = pdf[k]
+        out_delta[j] = delta[k]
+        out_normal[j, 0], out_normal[j, 1], out_normal[j, 2] = n_view[k, 0], n_view[k, 1], n_view[k, 2]
+        out_transmits[j] = transmits[k]
+        out_idx[j] = idx[k]
+        out_pix[j] = pix[k]
+        out_smp[j] = smp[k]
+    return count
 
 
 @_jit
