@@ -383,31 +383,29 @@ class PathTracer:
         gc = g.take(can) if len(can) < len(idx) else g
         u_light = self.sampler.get_3d(pix[can], smp[can], self._dim(depth, _D_LIGHT))
         u_l, u_sel = np.ascontiguousarray(u_light[:, :2]), np.ascontiguousarray(u_light[:, 2])
-        ls = ps.lights.sample(gc.p, gc.n_view, u_sel, u_l, transmits=ps.materials.has_transmission[mat[can]])
+        transmits = ps.materials.has_transmission[mat[can]]
+        ls = ps.lights.sample(gc.p, gc.n_view, u_sel, u_l, transmits=transmits)
         wi = np.ascontiguousarray(ls.wi, dtype=np.float32)
         m = len(can)
         wi_local = np.empty((m, 3), np.float32)
         kernels.to_local(wi, gc.tangent, gc.bitangent, gc.ns, wi_local)
         f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes, gc.wo, wi_local, rows=can)
-        contrib = np.empty((m, 3), np.float32)
-        origin = np.empty((m, 3), np.float32)
-        direction = np.empty((m, 3), np.float32)
-        tmax = np.empty(m, np.float32)
-        live = np.empty(m, bool)
-        kernels.shadow_rays(np.ascontiguousarray(throughput[can], np.float32), np.ascontiguousarray(f_cos, np.float32),
-                            np.ascontiguousarray(ls.radiance, np.float32), np.asarray(ls.pdf, np.float32),
-                            np.asarray(pdf_b, np.float32), np.asarray(ls.delta, bool), self.mis, gc.cos_o_geo, gc.ng,
-                            ps.materials.has_transmission[mat[can]], gc.p, gc.mag, wi,
-                            np.asarray(ls.dist, np.float32), SHADOW_EPSILON, contrib, origin, direction, tmax, live)
-        live = np.flatnonzero(live)
-        if len(live) == 0:
+        contrib, origin, direction = (np.empty((m, 3), np.float32) for _ in range(3))
+        tmax, sample_of = np.empty(m, np.float32), np.empty(m, idx.dtype)
+        count = kernels.shadow_rays(can, np.ascontiguousarray(throughput, np.float32), idx,
+                                    np.ascontiguousarray(f_cos, np.float32), np.ascontiguousarray(ls.radiance, np.float32),
+                                    np.asarray(ls.pdf, np.float32), np.asarray(pdf_b, np.float32),
+                                    np.asarray(ls.delta, bool), self.mis, gc.cos_o_geo, gc.ng, transmits, gc.p, gc.mag,
+                                    wi, np.asarray(ls.dist, np.float32), SHADOW_EPSILON, contrib, origin, direction,
+                                    tmax, sample_of)
+        if count == 0:
             return
         clock = time.perf_counter()
-        blocked = self.accel.occluded(origin[live], direction[live], tmax[live])
+        blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count])
         self.stats.seconds_occluded += time.perf_counter() - clock
         self.stats.seconds_nee -= time.perf_counter() - clock  # counted once, as shadow rays
-        vis = live[~blocked]
-        self._add(radiance, idx[can][vis], contrib[vis])
+        vis = np.flatnonzero(~blocked)
+        self._add(radiance, sample_of[vis], contrib[vis])
 
     def _add(self, radiance: np.ndarray, idx: np.ndarray, value: np.ndarray) -> None:
         """Add contributions to their samples, catching NaN/Inf (counted, dropped) and clamping if asked."""

@@ -196,8 +196,8 @@ def scatter(wi_local, tangent, bitangent, ns, ng, cos_o_geo, valid, transmitted,
 
 
 @_jit
-def shadow_rays(throughput, f_cos, radiance, pdf_light, pdf_bsdf, delta, use_mis, cos_o_geo, ng, transmits, p,
-                mag, wi, dist, shadow_epsilon, contrib, origin, direction, tmax, live):
+def shadow_rays(rows, throughput, idx, f_cos, radiance, pdf_light, pdf_bsdf, delta, use_mis, cos_o_geo, ng,
+                transmits, p, mag, wi, dist, shadow_epsilon, contrib, origin, direction, tmax, out_idx):
     """Next-event estimation's contribution (if unoccluded) and shadow ray per light sample.
 
     contrib = throughput f cos L w / pdf_light, with w the power-heuristic MIS weight (1 for delta lights or
@@ -205,8 +205,13 @@ def shadow_rays(throughput, f_cos, radiance, pdf_light, pdf_bsdf, delta, use_mis
     The shadow ray leaves p offset to wi's side and is aimed at the sampled light point itself (the offset moves
     the origin; aiming from the new origin keeps a light near a grazing surface from occluding itself); it stops
     shadow_epsilon short of the light. Lights at infinity (dist = inf) get direction wi and tmax 3e38.
+    Light sample k belongs to path rows[k] (its throughput and sample id idx). Only samples that would contribute
+    get a shadow ray: they are written compacted (contrib, origin, direction, tmax, out_idx rows [0, count));
+    returns count.
     """
-    for k in range(throughput.shape[0]):
+    count = 0
+    for k in range(rows.shape[0]):
+        r = rows[k]
         pl = pdf_light[k]
         scale = _F0
         if pl > _F0:
@@ -221,25 +226,28 @@ def shadow_rays(throughput, f_cos, radiance, pdf_light, pdf_bsdf, delta, use_mis
             scale = _F0
         peak = _F0
         for c in range(3):
-            v = throughput[k, c] * f_cos[k, c] * radiance[k, c] * scale
-            contrib[k, c] = v
+            v = throughput[r, c] * f_cos[k, c] * radiance[k, c] * scale
+            contrib[count, c] = v
             peak = max(peak, v)
-        live[k] = peak > _F0
-        if not live[k]:
+        if not peak > _F0:
             continue
+        j = count
+        count += 1
+        out_idx[j] = idx[r]
         px, py, pz = p[k, 0], p[k, 1], p[k, 2]
         ox, oy, oz = _offset(px, py, pz, ng[k, 0], ng[k, 1], ng[k, 2], wx, wy, wz, mag[k])
-        origin[k, 0], origin[k, 1], origin[k, 2] = ox, oy, oz
+        origin[j, 0], origin[j, 1], origin[j, 2] = ox, oy, oz
         dk = dist[k]
         if math.isfinite(dk):
             tx, ty, tz = px + wx * dk - ox, py + wy * dk - oy, pz + wz * dk - oz
             length = np.float32(math.sqrt(tx * tx + ty * ty + tz * tz))
             inv = _F1 / max(length, _TINY)
-            direction[k, 0], direction[k, 1], direction[k, 2] = tx * inv, ty * inv, tz * inv
-            tmax[k] = length * (_F1 - shadow_epsilon)
+            direction[j, 0], direction[j, 1], direction[j, 2] = tx * inv, ty * inv, tz * inv
+            tmax[j] = length * (_F1 - shadow_epsilon)
         else:
-            direction[k, 0], direction[k, 1], direction[k, 2] = wx, wy, wz
-            tmax[k] = _FAR
+            direction[j, 0], direction[j, 1], direction[j, 2] = wx, wy, wz
+            tmax[j] = _FAR
+    return count
 
 
 @_jit
