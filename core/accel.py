@@ -48,26 +48,19 @@ class Accelerator:
     def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | None = None) -> Hits:
         """Closest hit along each ray within (0, tmax]. origins, directions: (N, 3) float32 (unit directions)."""
         n = len(origins)
-        prim = np.full(n, -1, np.int32)
-        u = np.zeros(n, np.float32)
-        v = np.zeros(n, np.float32)
-        t = np.full(n, np.inf, np.float32)
         if n == 0 or self.triangle_count == 0:
-            return Hits(prim, u, v, t)
+            return Hits(np.full(n, -1, np.int32), np.zeros(n, np.float32), np.zeros(n, np.float32),
+                        np.full(n, np.inf, np.float32))
         origins = np.ascontiguousarray(origins, dtype=np.float32)
         directions = np.ascontiguousarray(directions, dtype=np.float32)
-        if tmax is not None:
-            tmax = np.ascontiguousarray(np.minimum(tmax, 3.0e38), dtype=np.float32)
-
-        r = self._scene.run(origins, directions, dists=tmax, output=1)  # embreex overwrites dists in place
-        prim[:] = r["primID"]
-        u[:] = r["u"]
-        v[:] = r["v"]
-        t[:] = r["tfar"]
+        # embreex overwrites dists in place: always hand it a fresh array
+        dists = np.full(n, 3.0e38, np.float32) if tmax is None else np.minimum(tmax, np.float32(3.0e38), dtype=np.float32)
+        r = self._scene.run(origins, directions, dists=dists, output=1)
         with self._count_lock:
             self.rays_closest += n
+        prim, t = r["primID"], r["tfar"]  # fresh arrays of this call
         t[prim < 0] = np.inf
-        return Hits(prim, u, v, t)
+        return Hits(prim, r["u"], r["v"], t)
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray) -> np.ndarray:
         """True where something lies along the ray within (0, tmax). (N,) bool."""
