@@ -17,8 +17,15 @@ Lobes (Cycles 5.0 closures they mirror)
 - diffuse: Lambert, f = colour / pi.
 - glossy (Glossy BSDF, Multiscatter GGX; or a specular layer): GGX reflection with alpha = roughness^2,
   height-correlated Smith G2 = 1/(1 + Lambda_o + Lambda_i), Fresnel "none" (colour at every angle),
-  "schlick" (F0 = ((ior-1)/(ior+1))^2, F = F0 + (1-F0)(1-cos)^5) or "dielectric" (exact, from ior), all times
-  colour, evaluated at wo.h.
+  "schlick" (F0 = ((ior-1)/(ior+1))^2, F = F0 + (1-F0)(1-cos)^5), "dielectric" (exact, from ior) or
+  "generalized_schlick" (Cycles' Principled specular: per channel f0 + (1 - f0) s with s the exact dielectric
+  Fresnel remapped from [F0(ior), 1] to [0, 1]), all times colour, evaluated at wo.h.
+- layering (Cycles' Principled, `closure_layering_weight`): a lobe whose `under` names a generalized-Schlick
+  glossy lobe j is scaled by saturate(1 - max_c A_c(wo)), A_c = (E + Fms_c (1 - E)) (f0_c + (1 - f0_c) s(wo)) the
+  layer's albedo estimate relative to its colour (without multiscatter: f0_c + (1 - f0_c) s), s read from the
+  ggx_gen_schlick_ior_s table at (roughness_j, |cos wo|, sqrt(|ior_j - 1| / (ior_j + 1))). The factor scales
+  the lobe's value in eval and sample and its albedo, never its pdf or selection probability, so the estimator
+  stays unbiased; it depends on wo only (not reciprocal, as in Cycles).
 - glass (Glass BSDF, Multiscatter GGX): exact dielectric Fresnel at wo.h, reflection tinted and transmission
   tinted by colour, total internal reflection; reflection/refraction chosen with probability F (Cycles does this
   for non-camera rays; it clamps F to [0.125, 0.875] for camera rays -- a variance choice only).
@@ -356,7 +363,8 @@ def sample_bsdf(lobes: LobeBatch, wo: np.ndarray, u_lobe: np.ndarray, u: np.ndar
 def albedo(lobes: LobeBatch, wo: np.ndarray | None = None) -> np.ndarray:
     """Albedo AOV (N, 3): sum of lobe colours, Fresnel-weighted glossy lobes scaled by their Fresnel estimate --
     F(cos wo) when `wo` is given (as Cycles' `bsdf_microfacet_estimate_fresnel` at the shading normal), else the
-    hemispherical average. Glass counts R + T = 1, refraction its colour."""
+    hemispherical average; generalized-Schlick lobes by their albedo estimate A(wo) (else their Fss) and lobes
+    under them by the layering factor (else 1 - max Fss). Glass counts R + T = 1, refraction its colour."""
     n = len(lobes)
     out = np.empty((n, 3), F32)
     w = _f32_rows(wo, 3) if wo is not None else np.zeros((0, 3), F32)

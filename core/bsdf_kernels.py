@@ -312,22 +312,36 @@ def multiscatter_tint(E, Eavg, fss):
 
 
 @_inline
-def gen_schlick_albedo(lobes, row, j, multiscatter, tabs, mu, c):
-    """Cycles' albedo estimate of the generalized-Schlick glossy lobe in slot j, channel c, relative to its colour,
-    seen from cos wo = mu: (E + Fms (1 - E)) (f0 + (1 - f0) s(roughness, mu, z)) with the multiscatter darkening,
-    f0 + (1 - f0) s without (bsdf_microfacet_estimate_albedo x microfacet_ggx_preserve_energy's weight)."""
-    kind, weight, rough, ior, fresnel, select, f0, under = lobes
-    r = np.float64(rough[row, j])
-    eta = np.float64(ior[row, j])
-    f0c = np.float64(f0[row, j, c])
-    est = f0c + (1.0 - f0c) * gen_schlick_table_s(tabs, r, mu, eta)
+def _layer_terms(lobes, row, j, multiscatter, tabs, mu):
+    """Channel-independent terms of the generalized-Schlick lobe j's albedo estimate at cos wo = mu:
+    (s from the table, E, Eavg, s_avg of Fss)."""
+    r = np.float64(lobes[2][row, j])
+    eta = np.float64(lobes[3][row, j])
+    s = gen_schlick_table_s(tabs, r, mu, eta)
+    if not multiscatter:
+        return s, 1.0, 1.0, 1.0
+    return s, max(ggx_E(tabs, r, mu), 1e-4), ggx_Eavg(tabs, r), gen_schlick_s_avg(eta)
+
+
+@_jit
+def _layer_albedo(f0c, s, E, Eavg, sa, multiscatter):
+    """One channel of the layer's albedo estimate relative to its colour: (E + Fms (1 - E)) (f0 + (1 - f0) s)
+    with the multiscatter darkening (Fss = f0 + (1 - f0) s_avg; none when Fss = 1), f0 + (1 - f0) s without."""
+    est = f0c + (1.0 - f0c) * s
     if not multiscatter:
         return est
-    E = max(ggx_E(tabs, r, mu), 1e-4)
-    fss = f0c + (1.0 - f0c) * gen_schlick_s_avg(eta)
+    fss = f0c + (1.0 - f0c) * sa
     if fss >= 1.0:
         return est
-    return E * multiscatter_tint(E, ggx_Eavg(tabs, r), fss) * est
+    return E * multiscatter_tint(E, Eavg, fss) * est
+
+
+@_inline
+def gen_schlick_albedo(lobes, row, j, multiscatter, tabs, mu, c):
+    """Cycles' albedo estimate of the generalized-Schlick glossy lobe in slot j, channel c, relative to its colour,
+    seen from cos wo = mu (bsdf_microfacet_estimate_albedo x microfacet_ggx_preserve_energy's weight)."""
+    s, E, Eavg, sa = _layer_terms(lobes, row, j, multiscatter, tabs, mu)
+    return _layer_albedo(np.float64(lobes[6][row, j, c]), s, E, Eavg, sa, multiscatter)
 
 
 @_inline
@@ -335,10 +349,12 @@ def layer_factor(lobes, row, j, multiscatter, tabs, mu):
     """Weight factor of a lobe lying under the generalized-Schlick glossy lobe in slot j, seen from cos wo = mu:
     saturate(1 - max_c albedo_c / colour_c) (Cycles' closure_layering_weight; channels of zero colour count 0)."""
     weight = lobes[1]
+    f0 = lobes[6]
+    s, E, Eavg, sa = _layer_terms(lobes, row, j, multiscatter, tabs, mu)
     m = 0.0
     for c in range(3):
         if weight[row, j, c] > 0.0:
-            m = max(m, gen_schlick_albedo(lobes, row, j, multiscatter, tabs, mu, c))
+            m = max(m, _layer_albedo(np.float64(f0[row, j, c]), s, E, Eavg, sa, multiscatter))
     return min(max(1.0 - m, 0.0), 1.0)
 
 
