@@ -17,8 +17,15 @@ Lobes (Cycles 5.0 closures they mirror)
 - diffuse: Lambert, f = colour / pi.
 - glossy (Glossy BSDF, Multiscatter GGX; or a specular layer): GGX reflection with alpha = roughness^2,
   height-correlated Smith G2 = 1/(1 + Lambda_o + Lambda_i), Fresnel "none" (colour at every angle),
-  "schlick" (F0 = ((ior-1)/(ior+1))^2, F = F0 + (1-F0)(1-cos)^5) or "dielectric" (exact, from ior), all times
-  colour, evaluated at wo.h.
+  "schlick" (F0 = ((ior-1)/(ior+1))^2, F = F0 + (1-F0)(1-cos)^5), "dielectric" (exact, from ior) or
+  "generalized_schlick" (Cycles' Principled specular: per channel f0 + (1 - f0) s with s the exact dielectric
+  Fresnel remapped from [F0(ior), 1] to [0, 1]), all times colour, evaluated at wo.h.
+- layering (Cycles' Principled, `closure_layering_weight`): a lobe whose `under` names a generalized-Schlick
+  glossy lobe j is scaled by saturate(1 - max_c A_c(wo)), A_c = (E + Fms_c (1 - E)) (f0_c + (1 - f0_c) s(wo)) the
+  layer's albedo estimate relative to its colour (without multiscatter: f0_c + (1 - f0_c) s), s read from the
+  ggx_gen_schlick_ior_s table at (roughness_j, |cos wo|, sqrt(|ior_j - 1| / (ior_j + 1))). The factor scales
+  the lobe's value in eval and sample and its albedo, never its pdf or selection probability, so the estimator
+  stays unbiased; it depends on wo only (not reciprocal, as in Cycles).
 - glass (Glass BSDF, Multiscatter GGX): exact dielectric Fresnel at wo.h, reflection tinted and transmission
   tinted by colour, total internal reflection; reflection/refraction chosen with probability F (Cycles does this
   for non-camera rays; it clamps F to [0.125, 0.875] for camera rays -- a variance choice only).
@@ -72,14 +79,15 @@ import numpy as np
 
 from . import bsdf_kernels as bk
 from . import microfacet as mf
-from .bsdf_kernels import DIFFUSE, EMPTY, F_DIELECTRIC, F_NONE, F_SCHLICK, GLASS, GLOSSY, REFRACTION  # noqa: F401
-from .scene import Material, Texture
+from .bsdf_kernels import (DIFFUSE, EMPTY, F_DIELECTRIC, F_GEN_SCHLICK, F_NONE, F_SCHLICK, GLASS,  # noqa: F401
+                           GLOSSY, REFRACTION)
+from .scene import Material, SceneError, Texture
 
 F32 = np.float32
 
 KINDS = ("diffuse", "glossy", "glass", "refraction")
 KIND_CODE = {k: i for i, k in enumerate(KINDS)}
-FRESNEL_CODE = {"none": 0, "schlick": 1, "dielectric": 2}
+FRESNEL_CODE = {"none": 0, "schlick": 1, "dielectric": 2, "generalized_schlick": 3}
 
 
 # --------------------------------------------------------------------------------------------------- batches
@@ -93,6 +101,9 @@ class LobeBatch:
     fresnel (N, L) int8: 0 none, 1 schlick, 2 dielectric (glossy only).
     select (N, L) float32: lobe-choice probabilities, summing to 1 over the present lobes of a hit.
     multiscatter: apply Cycles' multiscatter-GGX energy compensation to glossy and glass lobes.
+    f0 (N, L, 3) float32: reflectance at normal incidence of generalized-Schlick glossy lobes (else unused).
+    under (N, L) int8: slot of the generalized-Schlick glossy lobe this lobe lies beneath, or -1 (see `Lobe.under`).
+    f0 and under default to F0(ior) and -1.
     """
 
     kind: np.ndarray
@@ -102,6 +113,15 @@ class LobeBatch:
     fresnel: np.ndarray
     select: np.ndarray
     multiscatter: bool = True
+    f0: np.ndarray | None = None
+    under: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.f0 is None:
+            r = (np.asarray(self.ior, F32) - 1.0) / (np.asarray(self.ior, F32) + 1.0)
+            self.f0 = np.repeat((r * r)[..., None], 3, axis=-1).astype(F32)
+        if self.under is None:
+            self.under = np.full(np.shape(self.kind), -1, np.int8)
 
     def __len__(self) -> int:
         return int(self.kind.shape[0])
@@ -110,7 +130,8 @@ class LobeBatch:
         """The lobe arrays as the compiled kernels take them (core.bsdf_kernels), C-contiguous."""
         return (np.ascontiguousarray(self.kind, np.int8), np.ascontiguousarray(self.weight, F32),
                 np.ascontiguousarray(self.roughness, F32), np.ascontiguousarray(self.ior, F32),
-                np.ascontiguousarray(self.fresnel, np.int8), np.ascontiguousarray(self.select, F32))
+                np.ascontiguousarray(self.fresnel, np.int8), np.ascontiguousarray(self.select, F32),
+                np.ascontiguousarray(self.f0, F32), np.ascontiguousarray(self.under, np.int8))
 
     def take(self, rows: np.ndarray) -> "LobeBatch":
         """The sub-batch of the given hit rows (copies)."""
@@ -122,6 +143,8 @@ class LobeBatch:
             ior=self.ior[rows],
             fresnel=self.fresnel[rows],
             select=self.select[rows],
+            f0=self.f0[rows],
+            under=self.under[rows],
         )
 
 
@@ -143,20 +166,39 @@ class BsdfSample:
 
 
 # -------------------------------------------------------------------------------------------------- materials
-def _lobe_select_scale(kind: int, fresnel: int, ior: float) -> float:
-    """wo-independent estimate of a lobe's albedo relative to its colour (for lobe selection and Fss)."""
-    return float(bk.glossy_fresnel_avg(fresnel, float(ior))) if kind == GLOSSY else 1.0
+def _gen_schlick_fss(f0: np.ndarray, ior: float) -> np.ndarray:
+    """Per-channel hemispherical Fresnel average of a generalized-Schlick lobe: f0 + (1 - f0) s_avg (Cycles' Fss)."""
+    sa = float(bk.gen_schlick_s_avg(float(ior)))
+    return np.asarray(f0, np.float64) + (1.0 - np.asarray(f0, np.float64)) * sa
+
+
+def _lobe_select_scale(kind: int, fresnel: int, ior: float, f0: np.ndarray, layer: tuple | None) -> float:
+    """wo-independent estimate of a lobe's albedo relative to its colour (for lobe selection): the Fresnel average
+    of a glossy lobe; for a lobe under a layer (layer = (f0, ior) of that layer) 1 - max_c Fss_c of the layer."""
+    scale = 1.0
+    if kind == GLOSSY and fresnel == F_GEN_SCHLICK:
+        scale = float(np.mean(_gen_schlick_fss(f0, ior)))
+    elif kind == GLOSSY:
+        scale = float(bk.glossy_fresnel_avg(fresnel, float(ior)))
+    if layer is not None:
+        scale *= min(max(1.0 - float(np.max(_gen_schlick_fss(*layer))), 0.0), 1.0)
+    return scale
 
 
 class MaterialTable:
     """All scene materials packed into (M, L) arrays; `gather` expands them per hit with textures applied."""
 
-    def __init__(self, kind, color, roughness, ior, fresnel, texture, textures, emission, multiscatter=True):
+    def __init__(self, kind, color, roughness, ior, fresnel, texture, textures, emission, multiscatter=True,
+                 f0=None, under=None):
         self.kind = np.ascontiguousarray(kind, dtype=np.int8)
         self.color = np.ascontiguousarray(color, dtype=F32)
         self.roughness = np.ascontiguousarray(roughness, dtype=F32)
         self.ior = np.ascontiguousarray(ior, dtype=F32)
         self.fresnel = np.ascontiguousarray(fresnel, dtype=np.int8)
+        defaults = LobeBatch(self.kind, self.color, self.roughness, self.ior, self.fresnel, self.roughness,
+                             f0=f0, under=under)
+        self.f0 = np.ascontiguousarray(defaults.f0, dtype=F32)
+        self.under = np.ascontiguousarray(defaults.under, dtype=np.int8)
         self.texture = np.ascontiguousarray(texture, dtype=np.int32)
         self.textures = [np.ascontiguousarray(getattr(t, "pixels", t), dtype=F32)[..., :3] for t in textures]
         self.emission = np.ascontiguousarray(emission, dtype=F32).reshape(-1, 3)
@@ -165,7 +207,10 @@ class MaterialTable:
         scale = np.ones((m, l), F32)
         for i in range(m):
             for j in range(l):
-                scale[i, j] = _lobe_select_scale(int(self.kind[i, j]), int(self.fresnel[i, j]), float(self.ior[i, j]))
+                u = int(self.under[i, j])
+                layer = (self.f0[i, u], float(self.ior[i, u])) if u >= 0 else None
+                scale[i, j] = _lobe_select_scale(int(self.kind[i, j]), int(self.fresnel[i, j]), float(self.ior[i, j]),
+                                                 self.f0[i, j], layer)
         self._select_scale = scale
         self._select = self._selection(self.kind, self.color, scale)
         self.kinds_present: frozenset[str] = frozenset(KINDS[k] for k in np.unique(self.kind) if k >= 0)
@@ -193,7 +238,9 @@ class MaterialTable:
         cls, materials: Sequence[Material], textures: Sequence[Texture] = (), multiscatter: bool = True
     ) -> "MaterialTable":
         """Pack validated materials. Roughness <= 0.0266 (Cycles' singular threshold) becomes 0 (delta), as does
-        rough glass/refraction with |ior - 1| < 1e-4 (Cycles treats that transmission as singular)."""
+        rough glass/refraction with |ior - 1| < 1e-4 (Cycles treats that transmission as singular).
+        Raises SceneError when a lobe's `under` is not another lobe of its material with Fresnel
+        "generalized_schlick"."""
         m = len(materials)
         l = max([1] + [len(mat.lobes) for mat in materials])
         kind = np.full((m, l), EMPTY, np.int8)
@@ -202,6 +249,8 @@ class MaterialTable:
         ior = np.ones((m, l), F32)
         fres = np.zeros((m, l), np.int8)
         tex = np.full((m, l), -1, np.int32)
+        f0 = np.zeros((m, l, 3), F32)
+        under = np.full((m, l), -1, np.int8)
         emission = np.zeros((m, 3), F32)
         for i, mat in enumerate(materials):
             emission[i] = np.broadcast_to(np.asarray(mat.emission, dtype=F32).reshape(-1), (3,))
@@ -216,7 +265,17 @@ class MaterialTable:
                 ior[i, j] = max(float(lobe.ior), 1e-5)
                 fres[i, j] = FRESNEL_CODE[lobe.fresnel]
                 tex[i, j] = int(lobe.color_texture)
-        return cls(kind, color, rough, ior, fres, tex, list(textures), emission, multiscatter)
+                r0 = (ior[i, j] - 1.0) / (ior[i, j] + 1.0)
+                lf0 = r0 * r0 if lobe.f0 is None else lobe.f0
+                f0[i, j] = np.clip(np.broadcast_to(np.asarray(lf0, dtype=F32).reshape(-1), (3,)), 0.0, 1.0)
+                u = int(lobe.under)
+                if u >= 0:
+                    if u >= len(mat.lobes) or u == j or mat.lobes[u].kind != "glossy" or \
+                            mat.lobes[u].fresnel != "generalized_schlick":
+                        raise SceneError(f"material {mat.name!r}: lobe {j} lies under lobe {u}, which is not a "
+                                         "generalized-Schlick glossy lobe of the same material")
+                    under[i, j] = u
+        return cls(kind, color, rough, ior, fres, tex, list(textures), emission, multiscatter, f0, under)
 
     def gather(self, material_index: np.ndarray, uv: np.ndarray | None = None) -> LobeBatch:
         """Per-hit lobes for (N,) material indices; `uv` (N, 2) for colour textures (missing UVs read (0, 0))."""
@@ -230,12 +289,14 @@ class MaterialTable:
         ior = np.empty((n, l), F32)
         fres = np.empty((n, l), np.int8)
         sel = np.empty((n, l), F32)
+        f0 = np.empty((n, l, 3), F32)
+        under = np.empty((n, l), np.int8)
         has_uv = uv is not None and bool(self._texture_ids)
         uvs = np.ascontiguousarray(np.asarray(uv).reshape(-1, 2), dtype=F32) if has_uv else np.zeros((0, 2), F32)
-        bk.gather_batch(mi, uvs, has_uv, self.kind, self.color, self.roughness, self.ior, self.fresnel,
-                        self.texture, self._select, self._select_scale, *self._texture_pack,
-                        kind, weight, rough, ior, fres, sel)
-        return LobeBatch(kind, weight, rough, ior, fres, sel, self.multiscatter)
+        bk.gather_batch(mi, uvs, has_uv, self.kind, self.color, self.roughness, self.ior, self.fresnel, self.f0,
+                        self.under, self.texture, self._select, self._select_scale, *self._texture_pack,
+                        kind, weight, rough, ior, fres, sel, f0, under)
+        return LobeBatch(kind, weight, rough, ior, fres, sel, self.multiscatter, f0, under)
 
     @staticmethod
     def _selection(kind: np.ndarray, weight: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -302,9 +363,10 @@ def sample_bsdf(lobes: LobeBatch, wo: np.ndarray, u_lobe: np.ndarray, u: np.ndar
 def albedo(lobes: LobeBatch, wo: np.ndarray | None = None) -> np.ndarray:
     """Albedo AOV (N, 3): sum of lobe colours, Fresnel-weighted glossy lobes scaled by their Fresnel estimate --
     F(cos wo) when `wo` is given (as Cycles' `bsdf_microfacet_estimate_fresnel` at the shading normal), else the
-    hemispherical average. Glass counts R + T = 1, refraction its colour."""
+    hemispherical average; generalized-Schlick lobes by their albedo estimate A(wo) (else their Fss) and lobes
+    under them by the layering factor (else 1 - max Fss). Glass counts R + T = 1, refraction its colour."""
     n = len(lobes)
     out = np.empty((n, 3), F32)
     w = _f32_rows(wo, 3) if wo is not None else np.zeros((0, 3), F32)
-    bk.albedo_batch(lobes.arrays(), w, wo is not None, out)
+    bk.albedo_batch(lobes.arrays(), lobes.multiscatter, mf.kernel_tables(), w, wo is not None, out)
     return out

@@ -11,9 +11,11 @@ weight conventions are documented in core.bsdf and core.microfacet; this module 
 
 Arguments shared by the kernels:
   lobes = (kind (N, L) int8, weight (N, L, 3) float32, roughness (N, L) float32, ior (N, L) float32,
-           fresnel (N, L) int8, select (N, L) float32)  -- a LobeBatch's arrays, C-contiguous.
-  tabs = (ggx_E (32, 32), ggx_Eavg (32,), glass_E2 (2, 16, 16, 16), glass_Eavg2 (2, 16, 16)) float32: the
-         multiscatter tables of core.microfacet.tables().
+           fresnel (N, L) int8, select (N, L) float32, f0 (N, L, 3) float32, under (N, L) int8)  -- a LobeBatch's
+           arrays, C-contiguous. f0: reflectance at normal incidence of a generalized-Schlick glossy lobe; under:
+           slot of the generalized-Schlick glossy lobe this lobe lies beneath (-1: none), see `layer_factor`.
+  tabs = (ggx_E (32, 32), ggx_Eavg (32,), glass_E2 (2, 16, 16, 16), glass_Eavg2 (2, 16, 16),
+          gen_schlick_s (16, 16, 16)) float32: the tables of core.microfacet.tables().
   row: which hit of `lobes` a path reads (lets callers evaluate a subset without copying the lobe arrays).
 Arithmetic is float64 (inputs and outputs are float32), so results agree with the former float32 NumPy code to its
 rounding; lobe selection and texture filtering stay float32 (bit-identical selection probabilities, cdf and
@@ -37,7 +39,7 @@ _inline = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=Fa
 
 # lobe kinds and glossy Fresnel modes (core.bsdf re-exports these)
 EMPTY, DIFFUSE, GLOSSY, GLASS, REFRACTION = -1, 0, 1, 2, 3
-F_NONE, F_SCHLICK, F_DIELECTRIC = 0, 1, 2
+F_NONE, F_SCHLICK, F_DIELECTRIC, F_GEN_SCHLICK = 0, 1, 2, 3
 # microfacet configurations a lobe admits
 _REFLECT, _TRANSMIT, _BOTH = 0, 1, 2
 
@@ -110,6 +112,26 @@ def glossy_fresnel_avg(mode, ior):
     if mode == F_DIELECTRIC:
         return fresnel_dielectric_avg(ior)
     return 1.0
+
+
+@_jit
+def gen_schlick_s(cos_i, eta):
+    """Cycles' generalized Schlick with a negative exponent: the real dielectric Fresnel at cos_i remapped from
+    [F0(eta), 1] to [0, 1]; the lobe's Fresnel is then f0 + (1 - f0) s per channel (f90 = 1)."""
+    f0r = schlick_f0(eta)
+    if not f0r < 1.0:
+        return 1.0
+    return min(max((fresnel_dielectric(cos_i, eta) - f0r) / (1.0 - f0r), 0.0), 1.0)
+
+
+@_jit
+def gen_schlick_s_avg(eta):
+    """The remap factor of the Kulla-Conty dielectric Fresnel average: Cycles' Fss = f0 + (1 - f0) s_avg of a
+    generalized-Schlick lobe (multiscatter tint, lobe selection)."""
+    f0r = schlick_f0(eta)
+    if not f0r < 1.0:
+        return 1.0
+    return min(max((fresnel_dielectric_avg(eta) - f0r) / (1.0 - f0r), 0.0), 1.0)
 
 
 # -------------------------------------------------------------------------------------------------- GGX
@@ -225,22 +247,34 @@ def _glass_axes(eta):
 
 
 @_inline
-def glass_E(tabs, rough, mu, eta):
-    """Directional albedo (R + T) of the white single-scatter GGX glass lobe, trilinear in (roughness, cos, z)."""
-    t = tabs[2]
-    n = t.shape[1]
-    s, z = _glass_axes(eta)
-    ir, fr = _grid(rough, n)
-    im, fm = _grid(mu, n)
+def _read3(t, rough, mu, z):
+    """Trilinear read of a (z, mu, rough) table on the grid i / (n - 1) (Cycles' lookup_table_read_3D)."""
+    n = t.shape[0]
+    ir, fr = _grid(rough, t.shape[2])
+    im, fm = _grid(mu, t.shape[1])
     iz, fz = _grid(z, n)
     out = 0.0
     for cz in range(2):
         wz = fz if cz else 1.0 - fz
         for cm in range(2):
             wm = fm if cm else 1.0 - fm
-            row = t[s, iz + cz, im + cm]
+            row = t[iz + cz, im + cm]
             out += wz * wm * (row[ir] * (1.0 - fr) + row[ir + 1] * fr)
     return out
+
+
+@_inline
+def glass_E(tabs, rough, mu, eta):
+    """Directional albedo (R + T) of the white single-scatter GGX glass lobe, trilinear in (roughness, cos, z)."""
+    s, z = _glass_axes(eta)
+    return _read3(tabs[2][s], rough, mu, z)
+
+
+@_inline
+def gen_schlick_table_s(tabs, rough, mu, eta):
+    """Cycles' ggx_gen_schlick_ior_s(roughness, cos wo, z = F0(eta)^(1/4)): the VNDF average of `gen_schlick_s`
+    at h.wo over valid reflections, trilinear."""
+    return _read3(tabs[4], rough, mu, math.sqrt(abs((eta - 1.0) / (eta + 1.0))))
 
 
 @_inline
@@ -277,6 +311,53 @@ def multiscatter_tint(E, Eavg, fss):
     return 1.0 + fms * ((1.0 - E) / E)
 
 
+@_inline
+def _layer_terms(lobes, row, j, multiscatter, tabs, mu):
+    """Channel-independent terms of the generalized-Schlick lobe j's albedo estimate at cos wo = mu:
+    (s from the table, E, Eavg, s_avg of Fss)."""
+    r = np.float64(lobes[2][row, j])
+    eta = np.float64(lobes[3][row, j])
+    s = gen_schlick_table_s(tabs, r, mu, eta)
+    if not multiscatter:
+        return s, 1.0, 1.0, 1.0
+    return s, max(ggx_E(tabs, r, mu), 1e-4), ggx_Eavg(tabs, r), gen_schlick_s_avg(eta)
+
+
+@_jit
+def _layer_albedo(f0c, s, E, Eavg, sa, multiscatter):
+    """One channel of the layer's albedo estimate relative to its colour: (E + Fms (1 - E)) (f0 + (1 - f0) s)
+    with the multiscatter darkening (Fss = f0 + (1 - f0) s_avg; none when Fss = 1), f0 + (1 - f0) s without."""
+    est = f0c + (1.0 - f0c) * s
+    if not multiscatter:
+        return est
+    fss = f0c + (1.0 - f0c) * sa
+    if fss >= 1.0:
+        return est
+    return E * multiscatter_tint(E, Eavg, fss) * est
+
+
+@_inline
+def gen_schlick_albedo(lobes, row, j, multiscatter, tabs, mu, c):
+    """Cycles' albedo estimate of the generalized-Schlick glossy lobe in slot j, channel c, relative to its colour,
+    seen from cos wo = mu (bsdf_microfacet_estimate_albedo x microfacet_ggx_preserve_energy's weight)."""
+    s, E, Eavg, sa = _layer_terms(lobes, row, j, multiscatter, tabs, mu)
+    return _layer_albedo(np.float64(lobes[6][row, j, c]), s, E, Eavg, sa, multiscatter)
+
+
+@_inline
+def layer_factor(lobes, row, j, multiscatter, tabs, mu):
+    """Weight factor of a lobe lying under the generalized-Schlick glossy lobe in slot j, seen from cos wo = mu:
+    saturate(1 - max_c albedo_c / colour_c) (Cycles' closure_layering_weight; channels of zero colour count 0)."""
+    weight = lobes[1]
+    f0 = lobes[6]
+    s, E, Eavg, sa = _layer_terms(lobes, row, j, multiscatter, tabs, mu)
+    m = 0.0
+    for c in range(3):
+        if weight[row, j, c] > 0.0:
+            m = max(m, _layer_albedo(np.float64(f0[row, j, c]), s, E, Eavg, sa, multiscatter))
+    return min(max(1.0 - m, 0.0), 1.0)
+
+
 # ------------------------------------------------------------------------------------------------ lobes
 @_jit
 def _relative_ior(ior_f32, back):
@@ -288,17 +369,21 @@ def _relative_ior(ior_f32, back):
 @_inline
 def eval_path(lobes, row, multiscatter, tabs, ox, oy, oz, back, ix, iy, iz):
     """f |cos wi| (3 channels) and the mixture pdf over the non-delta lobes of hit `row`, in the frame flipped so
-    that oz >= 0 (`back`: wo was below the surface); (f0, f1, f2, pdf)."""
-    kind, weight, rough, ior, fresnel, select = lobes
+    that oz >= 0 (`back`: wo was below the surface); (f0, f1, f2, pdf). A lobe with under >= 0 is scaled by
+    `layer_factor` at cos wo (its value only: the pdf stays select x lobe pdf)."""
+    kind, weight, rough, ior, fresnel, select, f0s, under = lobes
     f0 = f1 = f2 = pdf = 0.0
     for l in range(kind.shape[1]):
         k = kind[row, l]
         if k == DIFFUSE:
             c = max(iz, 0.0) * _INV_PI
+            pdf += select[row, l] * c
+            j = under[row, l]
+            if j >= 0:
+                c *= layer_factor(lobes, row, j, multiscatter, tabs, oz)
             f0 += weight[row, l, 0] * c
             f1 += weight[row, l, 1] * c
             f2 += weight[row, l, 2] * c
-            pdf += select[row, l] * c
             continue
         r = np.float64(rough[row, l])
         if k < GLOSSY or not r > 0.0:  # empty slot or delta lobe
@@ -314,33 +399,49 @@ def eval_path(lobes, row, multiscatter, tabs, ox, oy, oz, back, ix, iy, iz):
         if p == 0.0 and fc == 0.0:
             continue
         mode = fresnel[row, l]
-        if k == GLOSSY:
-            fc *= glossy_fresnel(mode, lobe_ior, cos_oh)
-        elif k == GLASS:
-            F = fresnel_dielectric(cos_oh, eta)
-            fr = F if refl else 1.0 - F
-            fc *= fr
-            p *= fr
-        # refraction: transmission only, no Fresnel factor (Cycles' Refraction BSDF)
         c0 = np.float64(weight[row, l, 0])
         c1 = np.float64(weight[row, l, 1])
         c2 = np.float64(weight[row, l, 2])
+        # per-channel Fresnel (generalized Schlick) and multiscatter Fss
+        fr0 = fr1 = fr2 = 1.0
+        if k == GLOSSY and mode == F_GEN_SCHLICK:
+            sv = gen_schlick_s(cos_oh, lobe_ior)
+            g0 = np.float64(f0s[row, l, 0])
+            g1 = np.float64(f0s[row, l, 1])
+            g2 = np.float64(f0s[row, l, 2])
+            fr0, fr1, fr2 = g0 + (1.0 - g0) * sv, g1 + (1.0 - g1) * sv, g2 + (1.0 - g2) * sv
+            sa = gen_schlick_s_avg(lobe_ior)
+            fss0, fss1, fss2 = g0 + (1.0 - g0) * sa, g1 + (1.0 - g1) * sa, g2 + (1.0 - g2) * sa
+        elif k == GLOSSY:
+            fc *= glossy_fresnel(mode, lobe_ior, cos_oh)
+            scale = glossy_fresnel_avg(mode, lobe_ior)  # Fss: colour x Fresnel average
+            fss0, fss1, fss2 = c0 * scale, c1 * scale, c2 * scale
+        else:
+            if k == GLASS:
+                F = fresnel_dielectric(cos_oh, eta)
+                fr = F if refl else 1.0 - F
+                fc *= fr
+                p *= fr
+            # glass: Fss is the transmission tint (the colour); refraction: transmission only, no Fresnel factor
+            # and no compensation (Cycles' Refraction BSDF)
+            fss0, fss1, fss2 = c0, c1, c2
+        j = under[row, l]
+        if j >= 0:
+            fc *= layer_factor(lobes, row, j, multiscatter, tabs, oz)
         if multiscatter and k != REFRACTION:
             if k == GLOSSY:
                 E = ggx_E(tabs, r, oz)
                 Eavg = ggx_Eavg(tabs, r)
-                scale = glossy_fresnel_avg(mode, lobe_ior)  # Fss: colour x Fresnel average
             else:
                 E = glass_E(tabs, r, oz, eta)
                 Eavg = glass_Eavg(tabs, r, eta)
-                scale = 1.0  # glass: the transmission tint (the colour)
-            f0 += c0 * multiscatter_tint(E, Eavg, c0 * scale) * fc
-            f1 += c1 * multiscatter_tint(E, Eavg, c1 * scale) * fc
-            f2 += c2 * multiscatter_tint(E, Eavg, c2 * scale) * fc
+            f0 += c0 * fr0 * multiscatter_tint(E, Eavg, fss0) * fc
+            f1 += c1 * fr1 * multiscatter_tint(E, Eavg, fss1) * fc
+            f2 += c2 * fr2 * multiscatter_tint(E, Eavg, fss2) * fc
         else:
-            f0 += c0 * fc
-            f1 += c1 * fc
-            f2 += c2 * fc
+            f0 += c0 * fr0 * fc
+            f1 += c1 * fr1 * fc
+            f2 += c2 * fr2 * fc
         pdf += select[row, l] * p
     return f0, f1, f2, pdf
 
@@ -380,7 +481,7 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, u_lobe, u1, u2):
     it with (u1, u2), the remainder of u_lobe choosing reflection vs refraction for glass.
     Returns (wix, wiy, wiz, weight0, weight1, weight2, pdf, delta, transmitted, valid); wi is rounded to float32
     before the mixture is evaluated there. Invalid samples have wi = +z, zero weight and pdf."""
-    kind, weight, rough, ior, fresnel, select = lobes
+    kind, weight, rough, ior, fresnel, select, f0s, under = lobes
     back = woz < 0.0
     s = -1.0 if back else 1.0
     ox = np.float64(wox)
@@ -432,12 +533,22 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, u_lobe, u1, u2):
     if is_delta:
         # weight = value / (select x event probability) x event probability
         inv = 1.0 / np.float64(sel_c)
-        fr = glossy_fresnel(fresnel[row, c], np.float64(ior[row, c]), oz) if k == GLOSSY else 1.0
-        w0 = weight[row, c, 0] * inv * fr
-        w1 = weight[row, c, 1] * inv * fr
-        w2 = weight[row, c, 2] * inv * fr
+        fr0 = fr1 = fr2 = 1.0
+        if k == GLOSSY and fresnel[row, c] == F_GEN_SCHLICK:
+            sv = gen_schlick_s(oz, np.float64(ior[row, c]))
+            fr0 = f0s[row, c, 0] + (1.0 - f0s[row, c, 0]) * sv
+            fr1 = f0s[row, c, 1] + (1.0 - f0s[row, c, 1]) * sv
+            fr2 = f0s[row, c, 2] + (1.0 - f0s[row, c, 2]) * sv
+        elif k == GLOSSY:
+            fr0 = fr1 = fr2 = glossy_fresnel(fresnel[row, c], np.float64(ior[row, c]), oz)
+        j = under[row, c]
+        if j >= 0:
+            inv *= layer_factor(lobes, row, j, multiscatter, tabs, oz)
+        w0 = weight[row, c, 0] * inv * fr0
+        w1 = weight[row, c, 1] * inv * fr1
+        w2 = weight[row, c, 2] * inv * fr2
         pdf = sel_c * p_event
-    elif kind.shape[1] == 1 and k == DIFFUSE:
+    elif kind.shape[1] == 1 and k == DIFFUSE and under[row, c] < 0:
         # a lone diffuse lobe needs no mixture sum: f cos / pdf = colour / select, pdf = select cos / pi
         pdf = sel_c * (max(z, 0.0) * _INV_PI)
         inv = 1.0 / max(np.float64(sel_c), 1e-30)
@@ -491,25 +602,51 @@ def sample_batch(lobes, multiscatter, tabs, wo, u_lobe, u, wi, weight, pdf, delt
 
 
 @_jit
-def albedo_batch(lobes, wo, use_wo, out):
-    """Albedo AOV: sum of lobe colours, Fresnel-weighted glossy lobes scaled by F(|wo.z|) (use_wo) or their
-    hemispherical average."""
-    kind, weight, rough, ior, fresnel, select = lobes
+def albedo_batch(lobes, multiscatter, tabs, wo, use_wo, out):
+    """Albedo AOV: sum of lobe colours; Fresnel-weighted glossy lobes scaled by F(|wo.z|) (use_wo) or their
+    hemispherical average; generalized-Schlick lobes by their albedo estimate at |wo.z| (`gen_schlick_albedo`) or
+    their Fss; lobes under a layer by its `layer_factor` at |wo.z| or 1 - max_c Fss_c of the layer."""
+    kind, weight, rough, ior, fresnel, select, f0s, under = lobes
     for k in range(kind.shape[0]):
+        mu = abs(np.float64(wo[k, 2])) if use_wo else 1.0
         a0 = a1 = a2 = 0.0
         for l in range(kind.shape[1]):
             kl = kind[k, l]
             if kl < 0:
                 continue
-            scale = 1.0
-            if kl == GLOSSY and fresnel[k, l] != F_NONE:
+            s0 = s1 = s2 = 1.0
+            if kl == GLOSSY and fresnel[k, l] == F_GEN_SCHLICK:
                 if use_wo:
-                    scale = glossy_fresnel(fresnel[k, l], np.float64(ior[k, l]), abs(np.float64(wo[k, 2])))
+                    s0 = gen_schlick_albedo(lobes, k, l, multiscatter, tabs, mu, 0)
+                    s1 = gen_schlick_albedo(lobes, k, l, multiscatter, tabs, mu, 1)
+                    s2 = gen_schlick_albedo(lobes, k, l, multiscatter, tabs, mu, 2)
                 else:
-                    scale = glossy_fresnel_avg(fresnel[k, l], np.float64(ior[k, l]))
-            a0 += weight[k, l, 0] * scale
-            a1 += weight[k, l, 1] * scale
-            a2 += weight[k, l, 2] * scale
+                    sa = gen_schlick_s_avg(np.float64(ior[k, l]))
+                    s0 = f0s[k, l, 0] + (1.0 - f0s[k, l, 0]) * sa
+                    s1 = f0s[k, l, 1] + (1.0 - f0s[k, l, 1]) * sa
+                    s2 = f0s[k, l, 2] + (1.0 - f0s[k, l, 2]) * sa
+            elif kl == GLOSSY and fresnel[k, l] != F_NONE:
+                if use_wo:
+                    s0 = glossy_fresnel(fresnel[k, l], np.float64(ior[k, l]), mu)
+                else:
+                    s0 = glossy_fresnel_avg(fresnel[k, l], np.float64(ior[k, l]))
+                s1 = s2 = s0
+            j = under[k, l]
+            if j >= 0:
+                if use_wo:
+                    lf = layer_factor(lobes, k, j, multiscatter, tabs, mu)
+                else:
+                    sa = gen_schlick_s_avg(np.float64(ior[k, j]))
+                    m = 0.0
+                    for c in range(3):
+                        m = max(m, f0s[k, j, c] + (1.0 - f0s[k, j, c]) * sa)
+                    lf = min(max(1.0 - m, 0.0), 1.0)
+                s0 *= lf
+                s1 *= lf
+                s2 *= lf
+            a0 += weight[k, l, 0] * s0
+            a1 += weight[k, l, 1] * s1
+            a2 += weight[k, l, 2] * s2
         out[k, 0] = a0
         out[k, 1] = a1
         out[k, 2] = a2
@@ -579,8 +716,8 @@ def texture_batch(pixels, h, w, uv, out):
 
 
 @_jit
-def gather_batch(mi, uv, has_uv, t_kind, t_color, t_rough, t_ior, t_fresnel, t_texture, t_select, t_scale,
-                 tex_pixels, tex_offset, tex_h, tex_w, kind, weight, rough, ior, fresnel, select):
+def gather_batch(mi, uv, has_uv, t_kind, t_color, t_rough, t_ior, t_fresnel, t_f0, t_under, t_texture, t_select,
+                 t_scale, tex_pixels, tex_offset, tex_h, tex_w, kind, weight, rough, ior, fresnel, select, f0, under):
     """Per-hit lobe arrays of material indices mi from the (M, L) material tables. Lobes with a colour texture
     (t_texture >= 0) are tinted by it at the hit's uv (missing UVs read (0, 0)) and the hit's selection
     probabilities recomputed; otherwise they are copied from t_select."""
@@ -594,6 +731,9 @@ def gather_batch(mi, uv, has_uv, t_kind, t_color, t_rough, t_ior, t_fresnel, t_t
             ior[k, l] = t_ior[m, l]
             fresnel[k, l] = t_fresnel[m, l]
             select[k, l] = t_select[m, l]
+            under[k, l] = t_under[m, l]
+            for c in range(3):
+                f0[k, l, c] = t_f0[m, l, c]
             t = t_texture[m, l]
             if t >= 0:
                 textured = True

@@ -19,6 +19,12 @@ Model (what Cycles' `bsdf_microfacet.h` does since Blender 4.0, re-derived from 
       glass_E(rough, mu, z) 16^3 + glass_Eavg(rough, z) 16^2, and an "inv" pair for ior < 1 (Glass)
     with rough = roughness = sqrt(alpha), mu = cos(wo), z = sqrt(|ior - 1| / (ior + 1)), all axes sampled at
     i / (n - 1) and read with (bi/tri)linear interpolation (Cycles' `lookup_table_read_*`).
+  - Principled BSDF layering (Cycles' `closure_layering_weight`): the diffuse base under the specular layer is
+    scaled by 1 - max_c albedo_c(wo) of that layer, estimated from a third table
+      gen_schlick_s(rough, mu, z) 16^3 (Cycles' ggx_gen_schlick_ior_s)
+    = the VNDF average, over reflections that stay above the horizon (others count 0), of the generalized-Schlick
+    remap s = saturate((F_dielectric(h.wo, ior) - F0(ior)) / (1 - F0(ior))), so the layer's Fresnel albedo
+    estimate is f0 + (1 - f0) s (the lobe energy E is not included; the multiscatter weight adds it).
     The tables here are *our own* numerical integration of our own single-scatter sampler (a deterministic
     midpoint quadrature over the 2-D sample space, see `compute_tables`), generated once into
     core/data/ggx_tables.npz (`python -m monte.core.microfacet` regenerates it).
@@ -106,7 +112,7 @@ def refract(ox, oy, oz, hx, hy, hz, eta):
 # ------------------------------------------------------------------------------------------------- tables
 @lru_cache(maxsize=1)
 def tables() -> dict[str, np.ndarray]:
-    """The shipped energy-compensation tables (float32), loaded on first use (~40 KB). The glass tables are also
+    """The shipped tables (float32), loaded on first use (~60 KB). The glass tables are also
     stacked as 'glass_E2' (2, 16, 16, 16) and 'glass_Eavg2' (2, 16, 16): [0] entering (ior > 1), [1] leaving."""
     with np.load(TABLE_PATH) as z:
         t = {k: np.ascontiguousarray(z[k], dtype=F32) for k in z.files}
@@ -115,10 +121,11 @@ def tables() -> dict[str, np.ndarray]:
     return t
 
 
+@lru_cache(maxsize=1)
 def kernel_tables() -> tuple[np.ndarray, ...]:
-    """The tables as core.bsdf_kernels takes them: (ggx_E, ggx_Eavg, glass_E2, glass_Eavg2)."""
+    """The tables as core.bsdf_kernels takes them: (ggx_E, ggx_Eavg, glass_E2, glass_Eavg2, gen_schlick_s)."""
     t = tables()
-    return t["ggx_E"], t["ggx_Eavg"], t["glass_E2"], t["glass_Eavg2"]
+    return t["ggx_E"], t["ggx_Eavg"], t["glass_E2"], t["glass_Eavg2"], t["gen_schlick_s"]
 
 
 def ggx_E(rough: np.ndarray, mu: np.ndarray) -> np.ndarray:
@@ -171,6 +178,45 @@ def _single_scatter_albedo(rough, mu, eta, n_u, glass):
     return np.clip(out, 0.0, 1.0)
 
 
+def _gen_schlick_s(rough, mu, eta, n_u):
+    """Mean over a midpoint n_u x n_u grid of the VNDF sample space of the generalized-Schlick remap factor
+    saturate((F(h.wo, eta) - F0(eta)) / (1 - F0(eta))), 0 where the reflection leaves below the horizon (Cycles'
+    `precompute_ggx_gen_schlick_s` with exponent -1: the eval ratio of an f0 = 0 and an f0 = 1 lobe, so neither the
+    masking weight nor the lobe energy enters). rough, mu, eta: 1-D float64 arrays of cells."""
+    g = (np.arange(n_u) + 0.5) / n_u
+    u1, u2 = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    alpha = np.maximum(rough, 1e-4) ** 2
+    out = np.empty(len(rough))
+    for c in range(len(rough)):
+        a, m, e = alpha[c], mu[c], eta[c]
+        ox, oy, oz = math.sqrt(1.0 - m * m), 0.0, m
+        f0 = ((e - 1.0) / (e + 1.0)) ** 2
+        if a * a <= SINGULAR_ALPHA2:  # a mirror: h = n
+            hx, hy, hz = np.zeros(1), np.zeros(1), np.ones(1)
+        else:
+            hx, hy, hz = sample_vndf(ox, oy, oz, a, u1, u2)
+        c_oh = ox * hx + oy * hy + oz * hz
+        iz = 2.0 * c_oh * hz - oz
+        s = np.clip((fresnel_dielectric(c_oh, e) - f0) / (1.0 - f0), 0.0, 1.0)
+        out[c] = np.where(iz > 0.0, s, 0.0).mean()
+    return np.clip(out, 0.0, 1.0)
+
+
+def compute_gen_schlick_table(n_u: int = 128) -> np.ndarray:
+    """ggx_gen_schlick_ior_s on Cycles' axes: [z, mu, rough] 16^3 with rough = clamp(i/15, 1e-4, 1),
+    mu = clamp(j/15, 1e-4, 1), z = clamp(k/15, 1e-4, 0.99), ior = (1 + z^2)/(1 - z^2) (F0 = z^4). float32."""
+    def axis(n, hi=1.0):
+        return np.clip(np.arange(n) / (n - 1), 1e-4, hi)
+
+    zs = axis(GLASS_N, 0.99)
+    iors = (1.0 + zs**2) / (1.0 - zs**2)
+    R, M = np.meshgrid(axis(GLASS_N), axis(GLASS_N), indexing="xy")  # [mu, rough]
+    out = np.empty((GLASS_N, GLASS_N, GLASS_N))
+    for k, eta in enumerate(iors):
+        out[k] = _gen_schlick_s(R.ravel(), M.ravel(), np.full(R.size, eta), n_u).reshape(GLASS_N, GLASS_N)
+    return out.astype(np.float32)
+
+
 def compute_tables(n_u: int = 128, n_u_glass: int = 128, n_mu_avg: int = 24, progress: bool = False):
     """Compute all energy-compensation tables with the same axes as Cycles' `cycles_precompute.cpp`:
     rough = clamp(i/(n-1), 1e-4, 1), mu = clamp(j/(n-1), 1e-4, 1), z = clamp(k/(n-1), 1e-4, 0.99) with
@@ -208,14 +254,22 @@ def compute_tables(n_u: int = 128, n_u_glass: int = 128, n_mu_avg: int = 24, pro
             if progress:
                 print(name, k, flush=True)
         out[f"{name}_E"], out[f"{name}_Eavg"] = E, Eavg
+    out["gen_schlick_s"] = compute_gen_schlick_table(n_u_glass)
     return {k: v.astype(np.float32) for k, v in out.items()}
 
 
 def main() -> None:  # pragma: no cover - regeneration tool
+    """`python -m monte.core.microfacet` regenerates every table; `... gen_schlick` only the Principled one."""
+    import sys
     import time
 
     t0 = time.time()
-    tabs = compute_tables(progress=True)
+    if sys.argv[1:] == ["gen_schlick"]:
+        with np.load(TABLE_PATH) as z:
+            tabs = {k: z[k] for k in z.files}
+        tabs["gen_schlick_s"] = compute_gen_schlick_table()
+    else:
+        tabs = compute_tables(progress=True)
     TABLE_PATH.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(TABLE_PATH, **tabs)
     print(f"wrote {TABLE_PATH} in {time.time() - t0:.1f} s")

@@ -21,7 +21,7 @@ from typing import Literal
 import numpy as np
 
 LobeKind = Literal["diffuse", "glossy", "glass", "refraction"]
-FresnelMode = Literal["none", "schlick", "dielectric"]
+FresnelMode = Literal["none", "schlick", "dielectric", "generalized_schlick"]
 AreaShape = Literal["SQUARE", "RECTANGLE", "DISK", "ELLIPSE"]
 
 
@@ -66,11 +66,18 @@ class Lobe:
       - "glossy": GGX microfacet reflection (alpha = roughness^2, Cycles' mapping); roughness 0 is a perfect
         mirror. `fresnel` chooses the reflectance: "none" = `color` at every angle (Blender's Glossy BSDF),
         "schlick" = Schlick's F0 = ((ior-1)/(ior+1))^2 times `color` (the seed's mirror), "dielectric" = exact
-        dielectric Fresnel from `ior` times `color`, reflection only (a Principled specular layer).
+        dielectric Fresnel from `ior` times `color`, reflection only; "generalized_schlick" = Cycles' Principled
+        specular layer: the exact dielectric Fresnel of `ior` remapped from [F0(ior), 1] to [`f0`, 1] per
+        channel, times `color` (the layer weight), with Cycles' Fss = f0 + (1 - f0) s_avg for multiscatter.
       - "glass": smooth or GGX-rough dielectric with exact Fresnel and total internal reflection (Blender's
         Glass BSDF); `ior` is inside/outside, outside is where the geometric normal points.
       - "refraction": the transmission part of "glass" only (Blender's Refraction BSDF).
     color_texture: index into `Scene.textures` that multiplies `color` at the hit's UV, or -1.
+    f0: RGB reflectance at normal incidence of a "generalized_schlick" lobe (clamped to [0, 1]); None = F0(ior).
+    under: index, in the material's lobe list, of a "generalized_schlick" glossy lobe this lobe lies beneath
+      (a Principled base under its specular layer), or -1. The lobe's weight is then scaled per hit by
+      saturate(1 - max_c A_c(wo) / color_c of that layer), A its albedo estimate at cos(wo) (Cycles'
+      closure_layering_weight); see core.bsdf.
     """
 
     kind: LobeKind
@@ -79,6 +86,8 @@ class Lobe:
     ior: float = 1.5
     fresnel: FresnelMode = "none"
     color_texture: int = -1
+    f0: np.ndarray | None = None
+    under: int = -1
 
     def validate(self, owner: str) -> None:
         if self.kind not in ("diffuse", "glossy", "glass", "refraction"):
@@ -88,8 +97,12 @@ class Lobe:
             raise SceneError(f"{owner}: roughness {self.roughness} outside [0, 1]")
         if not (math.isfinite(self.ior) and self.ior > 0.0):
             raise SceneError(f"{owner}: IOR {self.ior} must be a positive number")
-        if self.fresnel not in ("none", "schlick", "dielectric"):
+        if self.fresnel not in ("none", "schlick", "dielectric", "generalized_schlick"):
             raise SceneError(f"{owner}: unknown Fresnel mode {self.fresnel!r}")
+        if self.f0 is not None:
+            self.f0 = _as_rgb(self.f0, f"{owner} {self.kind} f0")
+        if not (isinstance(self.under, (int, np.integer)) and -1 <= self.under < 127):
+            raise SceneError(f"{owner}: `under` must be a lobe index or -1, got {self.under!r}")
 
 
 @dataclass

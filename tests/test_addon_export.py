@@ -288,14 +288,15 @@ def test_principled_bsdf_mapping(scene):
     m = got.materials[0]
     kinds = {(l.kind, l.fresnel): l for l in m.lobes}
     base = np.array([0.8, 0.4, 0.2])
-    from monte.addon.export.material import average_dielectric_fresnel
-
-    favg = average_dielectric_fresnel(1.45)
     a = 0.5
-    assert np.allclose(kinds[("diffuse", "none")].color, a * 0.75 * 0.8 * (1 - favg) * base, atol=1e-6)
-    assert np.allclose(kinds[("glossy", "dielectric")].color, a * 0.75 * 0.8, atol=1e-6)
-    assert kinds[("glossy", "dielectric")].ior == pytest.approx(1.45) and kinds[("glossy", "none")].roughness == \
-        pytest.approx(0.3)
+    # dielectric: the diffuse base lies under the generalized-Schlick specular layer (Cycles' layering)
+    spec = kinds[("glossy", "generalized_schlick")]
+    assert np.allclose(spec.color, a * 0.75 * 0.8, atol=1e-6)
+    assert spec.ior == pytest.approx(1.45) and spec.roughness == pytest.approx(0.3)
+    assert np.allclose(spec.f0, ((1.45 - 1) / (1.45 + 1)) ** 2, atol=1e-6)
+    assert np.allclose(kinds[("diffuse", "none")].color, a * 0.75 * 0.8 * base, atol=1e-6)
+    assert m.lobes[kinds[("diffuse", "none")].under] is spec
+    assert kinds[("glossy", "none")].roughness == pytest.approx(0.3)
     assert np.allclose(kinds[("glossy", "none")].color, a * 0.25 * base, atol=1e-6)
     # metal: Schlick on the base colour = base (no Fresnel) + (1 - base) x Schlick with F0 = 0
     assert np.allclose(kinds[("glossy", "schlick")].color, a * 0.25 * (1 - base), atol=1e-6)
@@ -303,7 +304,20 @@ def test_principled_bsdf_mapping(scene):
     assert np.allclose(kinds[("glass", "none")].color, a * 0.75 * 0.2 * base, atol=1e-6)
     assert np.allclose(kinds[("refraction", "none")].color, 0.5) and kinds[("refraction", "none")].ior == 1.0
     assert np.allclose(m.emission, a * 2.0 * np.array([1.0, 0.5, 0.0]))
-    assert 0.05 < favg < 0.12
+
+
+def test_principled_specular_level_and_tint():
+    """Specular IOR Level scales F0 and re-derives eta from it (Cycles' closure.h); level 0 drops the layer."""
+    from monte.addon.export.material import specular_layer
+
+    f0, eta = specular_layer(1.5, 0.5)
+    assert (f0, eta) == (pytest.approx(0.04), 1.5)
+    f0, eta = specular_layer(1.5, 1.0)
+    assert f0 == pytest.approx(0.08) and ((eta - 1) / (eta + 1)) ** 2 == pytest.approx(0.08)
+    f0, eta = specular_layer(1.5, 0.0)
+    assert f0 == 0.0 and eta == 1.0
+    f0, eta = specular_layer(1 / 1.5, 0.25)
+    assert f0 == pytest.approx(0.02) and eta < 1.0
 
 
 def test_mix_and_add_shader_weights_multiply(scene):

@@ -3,17 +3,18 @@
 What is read, starting from the active Material Output (target Cycles/All) Surface socket:
 
 - Principled BSDF, approximated by a sum of Monte lobes (all multiplied by Alpha):
-    diffuse   base colour x (1 - metallic)(1 - transmission) x (1 - F_avg)
-    specular  glossy GGX, exact dielectric Fresnel from IOR, colour (1 - metallic)(1 - transmission)
-              x Specular Tint x 2 x Specular IOR Level (1 at the default level 0.5)
+    specular  glossy GGX, weight (1 - metallic)(1 - transmission), Cycles' generalized-Schlick Fresnel: the
+              exact dielectric Fresnel of eta remapped from [F0(eta), 1] to [f0 x Specular Tint, 1], with
+              f0 = F0(IOR) x 2 x Specular IOR Level and eta the IOR of that f0 (eta = IOR at the default 0.5);
+              absent when f0 = 0 (eta = 1), as in Cycles
+    diffuse   base colour x (1 - metallic)(1 - transmission), lying `under` the specular lobe: scaled per hit
+              by 1 - max_c of the specular layer's albedo estimate at the view angle (Cycles 4.x/5.0 layering)
     metal     Schlick's Fresnel on the base colour (what Blender's F82 model reduces to with a white tint):
               a glossy GGX lobe of base colour x metallic without Fresnel plus one with Schlick F0 = 0 tinted
               (1 - base colour) x metallic; with a textured base colour only the first (darker at grazing)
     glass     glass GGX with IOR, colour base colour x (1 - metallic) x transmission
     alpha     refraction with IOR 1 (a straight pass-through) weighted 1 - alpha
     emission  Emission Color x Emission Strength
-  F_avg is the hemispherical average of the dielectric Fresnel reflectance for the IOR: the diffuse base loses
-  what the specular layer reflects on average, an energy-conserving stand-in for Cycles' albedo scaling.
   Coat, sheen, subsurface (rendered as diffuse), anisotropy, thin film and normal/bump maps are not
   supported: a warning names each one that is in use.
 - Diffuse, Glossy (no Fresnel), Glass, Refraction, Transparent and Emission shaders.
@@ -145,18 +146,34 @@ def image_average_color(image) -> np.ndarray:
         return np.zeros(3)
 
 
-def average_dielectric_fresnel(ior: float) -> float:
-    """Hemispherical average of the unpolarised dielectric Fresnel reflectance, 2 int F(mu) mu dmu."""
-    if abs(ior - 1.0) < 1e-6:
-        return 0.0
-    mu = (np.arange(256) + 0.5) / 256
+def specular_layer(ior: float, level: float) -> tuple[float, float]:
+    """(f0, eta) of the Principled specular layer, as Cycles' closure.h adjusts them: f0 = F0(IOR) x 2 x Specular
+    IOR Level and, when the level is not 0.5, eta re-derived from that f0 (clamped to 0.99), inverted for IOR < 1.
+    eta = 1 means there is no specular layer."""
+    r = (ior - 1.0) / (ior + 1.0)
+    f0 = r * r
     eta = ior
-    sin2_t = (1.0 - mu * mu) / (eta * eta)
-    cos_t = np.sqrt(np.maximum(1.0 - sin2_t, 0.0))
-    rs = (mu - eta * cos_t) / (mu + eta * cos_t)
-    rp = (eta * mu - cos_t) / (eta * mu + cos_t)
-    f = np.where(sin2_t >= 1.0, 1.0, 0.5 * (rs * rs + rp * rp))
-    return float(2.0 * np.mean(f * mu))
+    if level != 0.5:
+        f0 *= 2.0 * level
+        c = math.sqrt(min(max(f0, 0.0), 0.99))
+        eta = (1.0 + c) / (1.0 - c)
+        if ior < 1.0:
+            eta = 1.0 / eta
+    return f0, eta
+
+
+def _drop_black_lobes(lobes: list[Lobe]) -> list[Lobe]:
+    """The lobes with some non-zero colour, their `under` indices renumbered (a lobe under a dropped layer keeps
+    its full weight, as it would with a black layer above)."""
+    keep = [i for i, lobe in enumerate(lobes) if np.any(lobe.color > 0)]
+    new_index = {old: new for new, old in enumerate(keep)}
+    out = []
+    for i in keep:
+        lobe = lobes[i]
+        if lobe.under >= 0:
+            lobe.under = new_index.get(lobe.under, -1)
+        out.append(lobe)
+    return out
 
 
 class MaterialExporter:
@@ -216,8 +233,7 @@ class MaterialExporter:
             self.warnings.append(f"{owner}: {exc}; falling back to a diffuse of the material's viewport colour "
                                  f"{np.round(viewport, 4).tolist()}")
             return Material(name, [Lobe("diffuse", viewport)])
-        lobes = [lobe for lobe in lobes if np.any(lobe.color > 0)]
-        return Material(name, lobes, emission=np.maximum(emission, 0.0))
+        return Material(name, _drop_black_lobes(lobes), emission=np.maximum(emission, 0.0))
 
     # ----------------------------------------------------------------------------------------- internals
     def _add(self, mat: Material) -> int:
@@ -313,13 +329,14 @@ class MaterialExporter:
 
         a = weight * alpha
         dielectric = (1.0 - metallic) * (1.0 - transmission)
-        spec_scale = 2.0 * level
-        f_avg = min(average_dielectric_fresnel(ior) * spec_scale * float(np.max(tint)), 1.0)
         if a * dielectric > 0:
-            lobes.append(Lobe("diffuse", a * dielectric * (1.0 - f_avg) * base, color_texture=tex))
-            spec = a * dielectric * spec_scale * tint
-            if np.any(spec > 0):
-                lobes.append(Lobe("glossy", spec, roughness=rough, ior=ior, fresnel="dielectric"))
+            f0, eta = specular_layer(ior, level)
+            spec = -1
+            if eta != 1.0:
+                spec = len(lobes)
+                lobes.append(Lobe("glossy", np.full(3, a * dielectric), roughness=rough, ior=eta,
+                                  fresnel="generalized_schlick", f0=np.clip(f0 * tint, 0.0, 1.0)))
+            lobes.append(Lobe("diffuse", a * dielectric * base, color_texture=tex, under=spec))
         if a * metallic > 0:
             # Schlick on the base colour, F = base + (1 - base)(1 - cos)^5, as the sum of a Fresnel-free lobe
             # (base) and a Schlick lobe with F0 = 0 (IOR 1) tinted 1 - base. A textured base colour cannot
