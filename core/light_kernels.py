@@ -115,7 +115,8 @@ def _importance(t, k, kind, px, py, pz, nx, ny, nz, has_n, transmits):
     return intensity / dist2, True
 
 
-@_inline
+@_jit  # not inlined: seven call sites, each a loop over the units (a call costs little beside it; inlining
+# each copy tripled the first compile time)
 def probabilities_at(px, py, pz, nx, ny, nz, has_n, transmits, table, kinds, fallback, floor_weight, out):
     """Selection probability of every unit at point p (float64 of the float32 point; n likewise, has_n False: no
     normal; transmits: the material there transmits) into out (K,): (1 - floor_weight) x importance share +
