@@ -55,9 +55,11 @@ same formulas `sample` uses; it needs the same n for the world (it raises if `sa
 `intersect` none). Delta lights (r = 0, sun angle 0): `pdf` is the selection probability and `radiance` the
 value to divide by it (I / d^2, S).
 
-Cost (2-core machine here, per million shading points): `sample` about 30 ms for a point light, 50-100 ms
-for discs, suns, the world and ellipses, 250-300 ms for rectangles (float64 spherical rectangles, for accuracy
-on tiny or distant lights); `intersect` about N x (number of analytic lights) of similar work.
+Implementation: the tables below are flattened once per scene into the arrays of core.light_kernels, where
+`sample`, `intersect` and `pdf_triangle` are compiled per-path code (one pass over the points, float64 inside).
+Cost (2-core machine here, process time per 2^18 points): `sample` about 20 ms for a sun + the world, 50 ms for
+the Cornell lamp (two near triangles: spherical triangle sampling) and 60 ms for a rectangle + the world (float64
+spherical rectangles, for accuracy on tiny or distant lights); `intersect` 5-20 ms for one to three lights.
 
 Emissive triangles are sampled uniformly in area, or uniformly in the solid angle they subtend (Arvo's spherical
 triangle sampling) where the triangle is near and large (longest edge longer than the distance to its plane,
@@ -101,7 +103,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import kernels
 from . import light_kernels as lk
 from .scene import AreaLight, PointLight, Scene, SpotLight, SunLight
 
@@ -112,9 +113,8 @@ _TWO_PI = 2.0 * math.pi
 _INV_PI = 1.0 / math.pi
 _INV_4PI = 1.0 / (4.0 * math.pi)
 _LUM = np.array([0.2126, 0.7152, 0.0722])
-_RECT_MIN_SOLID_ANGLE = 1e-9  # below this a rectangle's solid angle is unreliable even in float64: sample by area
 
-_KIND_TRI, _KIND_PUNCT, _KIND_AREA, _KIND_SUN, _KIND_WORLD = range(5)
+_KIND_TRI, _KIND_PUNCT, _KIND_AREA, _KIND_SUN, _KIND_WORLD = lk.K_TRI, lk.K_PUNCT, lk.K_AREA, lk.K_SUN, lk.K_WORLD
 # Share of the per-point selection given by power alone (among the units not provably dark at the point): keeps
 # a light that the importance estimate underrates (its rival occluded there) from being sampled too rarely.
 SELECTION_POWER_FLOOR = 0.1
@@ -130,203 +130,23 @@ def luminance(rgb) -> np.ndarray:
     return np.asarray(rgb, dtype=np.float64) @ _LUM
 
 
-# -------------------------------------------------------------------------------------------- vector helpers
-# Internally vectors are component-major, (3, N): NumPy broadcasts (3, N) against (3, 1) with an inner loop of
-# length N, about ten times faster than (N, 3) against (3,) (inner loop of length 3). The public API is (N, 3).
+# -------------------------------------------------------------------------------------------- array helpers
 def _cm(a, dtype=_F32) -> np.ndarray:
-    """(N, k) -> contiguous (k, N)."""
+    """(N, k) -> contiguous (k, N) (the triangle tables are component-major)."""
     return np.ascontiguousarray(np.asarray(a, dtype=dtype).T)
 
 
-def _rm(a) -> np.ndarray:
-    """(k, N) (or (k, 1), broadcast) -> contiguous (N, k) float32 (column copies are faster than a transpose)."""
-    out = np.empty((a.shape[1], a.shape[0]), _F32)
-    for i in range(a.shape[0]):
-        out[:, i] = a[i]
-    return out
+def _rows(a, N: int | None = None) -> np.ndarray:
+    """(N, 3) contiguous float32, as the kernels take points, normals and directions."""
+    a = np.asarray(a, dtype=_F32).reshape(-1, 3)
+    if N is not None and a.shape[0] != N:
+        a = np.broadcast_to(a, (N, 3))
+    return np.ascontiguousarray(a)
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-_MIN_SPHERICAL_OMEGA = 1e-6  # sr: below this a spherical triangle is numerically flat; sample by area instead
-
-
-def _basis(nz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors completing the unit vectors nz (3, N) to orthonormal frames (Duff et al. 2017)."""
-    x, y, z = nz
-    s = np.where(z >= 0, 1.0, -1.0).astype(nz.dtype)
-    a = -1.0 / (s + z)
-    b = x * y * a
-    t = np.stack([1.0 + s * x * x * a, s * b, -s * x])
-    bb = np.stack([b, s + y * y * a, -y])
-    return t, bb
-
-
-def _sample_cone(axis: np.ndarray, one_minus_cos_max, u: np.ndarray):
-    """Uniform directions in the cones about unit axis (3, N) whose 1 - cos(half-angle) is given; u (2, N).
-
-    Returns (wi (3, N), cos_theta). Works in 1 - cos so that tiny cones (the sun, far spheres) keep their
-    precision in float32."""
-    x = u[0] * one_minus_cos_max
-    cos_t = 1.0 - x
-    sin_t = np.sqrt(np.maximum(x * (2.0 - x), 0.0))
-    phi = _TWO_PI * u[1]
-    t, b = _basis(axis)
-    wi = axis * cos_t + t * (sin_t * np.cos(phi)) + b * (sin_t * np.sin(phi))
-    return wi.astype(_F32, copy=False), cos_t
-
-
-def _sample_cos_hemisphere(n: np.ndarray, u: np.ndarray):
-    """Cosine-weighted directions about unit n (3, N); returns (wi, cos_theta)."""
-    r = np.sqrt(u[0])
-    phi = _TWO_PI * u[1]
-    cos_t = np.sqrt(np.maximum(1.0 - u[0], 0.0))
-    t, b = _basis(n)
-    wi = n * cos_t + t * (r * np.cos(phi)) + b * (r * np.sin(phi))
-    return wi.astype(_F32, copy=False), cos_t
-
-
-def _sample_sphere(u: np.ndarray) -> np.ndarray:
-    z = 1.0 - 2.0 * u[0]
-    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
-    phi = _TWO_PI * u[1]
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z]).astype(_F32)
-
-
-def _one_minus_cos_from_sin2(sin2):
-    """1 - sqrt(1 - sin2) without cancellation."""
-    return sin2 / (1.0 + np.sqrt(np.maximum(1.0 - sin2, 0.0)))
-
-
-def _smoothstep(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
-
-def _mis_power(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
-    """Power-heuristic weight of strategy a against b (solid-angle pdfs); 1 where b is 0, 0 where only b."""
-    a2 = np.square(pdf_a.astype(np.float64))
-    b2 = np.square(pdf_b.astype(np.float64))
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        w = a2 / (a2 + b2)
-    w = np.where(b2 > 0, w, 1.0)
-    return np.where(np.isfinite(w), w, np.where(np.isinf(a2), 1.0, 0.0)).astype(_F32)
-
-
-# ---------------------------------------------------------------------------------------- spherical rectangle
-def _rect_frame(o, c, ax, ay, z, lx, ly):
-    """One rectangle (centre c, unit axes ax, ay, z = ax x ay, side lengths lx, ly; (3,) float64) seen from the
-    points o (3, N), in the frame of Urena et al. 2013, "An Area-Preserving Parametrization for Spherical
-    Rectangles" (float64).
-
-    Returns the rectangle's extent (x0, x1, y0, y1) along (ax, ay) relative to o, the distance z0 <= 0 along
-    the normal zs (z flipped away from o), the constants b0, b1, the solid angle S and the offset a2 + a3 used
-    by the sampler. The paper's internal angles g_i = acos(-n_i . n_i+1) are written as pi/2 - a_i with
-    a_i = asin(-n_i . n_i+1), so that S = sum(g) - 2 pi = -(a0 + a1 + a2 + a3) has no cancellation for small
-    rectangles."""
-    dvec = c[:, None] - o.astype(np.float64)
-    z0 = z @ dvec
-    flip = z0 > 0
-    z0 = -np.abs(z0)
-    xc = ax @ dvec
-    yc = ay @ dvec
-    x0, x1 = xc - 0.5 * lx, xc + 0.5 * lx
-    y0, y1 = yc - 0.5 * ly, yc + 0.5 * ly
-    z2 = z0 * z0
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r_y0, r_x1 = np.sqrt(z2 + y0 * y0), np.sqrt(z2 + x1 * x1)
-        r_y1, r_x0 = np.sqrt(z2 + y1 * y1), np.sqrt(z2 + x0 * x0)
-        # edge-plane normals n0..n3: (0, z0, -y0)/r_y0, (-z0, 0, x1)/r_x1, (0, -z0, y1)/r_y1, (z0, 0, -x0)/r_x0
-        a0 = np.arcsin(np.clip(y0 * x1 / (r_y0 * r_x1), -1, 1))
-        a1 = np.arcsin(np.clip(-x1 * y1 / (r_x1 * r_y1), -1, 1))
-        a2 = np.arcsin(np.clip(x0 * y1 / (r_y1 * r_x0), -1, 1))
-        a3 = np.arcsin(np.clip(-x0 * y0 / (r_x0 * r_y0), -1, 1))
-        b0 = -y0 / r_y0
-        b1 = y1 / r_y1
-    S = -(a0 + a1 + a2 + a3)
-    S = np.where(np.isfinite(S), S, 0.0)
-    return dict(x0=x0, x1=x1, y0=y0, y1=y1, z0=z0, flip=flip, b0=b0, b1=b1, S=S, a23=a2 + a3)
-
-
-def _rect_sample(o, f, ax, ay, z, u):
-    """Points (3, N) float64 on the rectangle of frame f (from _rect_frame), uniform in solid angle from o.
-
-    The paper's au = u S + k with k = 2 pi - g2 - g3 is pi + (u S + a2 + a3) here; the pi flips the signs of
-    cos(au) and sin(au), which is folded into fu."""
-    S, z0, b0, b1 = f["S"], f["z0"], f["b0"], f["b1"]
-    phi = u[0].astype(np.float64) * S + f["a23"]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        fu = (np.cos(phi) * b0 + b1) / np.sin(phi)
-        cu = np.clip(np.copysign(1.0, fu) / np.sqrt(fu * fu + b0 * b0), -1.0, 1.0)
-        xu = -(cu * z0) / np.maximum(np.sqrt(1.0 - cu * cu), 1e-12)
-    xu = np.clip(np.nan_to_num(xu), f["x0"], f["x1"])
-    d2 = xu * xu + z0 * z0
-    y0, y1 = f["y0"], f["y1"]
-    h0 = y0 / np.sqrt(d2 + y0 * y0)
-    h1 = y1 / np.sqrt(d2 + y1 * y1)
-    hv = h0 + u[1].astype(np.float64) * (h1 - h0)
-    hv2 = hv * hv
-    with np.errstate(invalid="ignore", divide="ignore"):
-        yv = np.where(hv2 < 1.0 - 1e-12, hv * np.sqrt(d2 / np.maximum(1.0 - hv2, 1e-300)), y1)
-    yv = np.clip(yv, y0, y1)
-    zc = np.where(f["flip"], -z0, z0)  # z0 along z itself
-    return o.astype(np.float64) + ax[:, None] * xu + ay[:, None] * yv + z[:, None] * zc
-
-
-# ---------------------------------------------------------------------------------------------- row grouping
-def _groups(li: np.ndarray, count: int):
-    """(k, rows) for every light k that occurs in li; rows is slice(None) when k is the only one."""
-    if li.size == 0:
-        return
-    lo, hi = int(li.min()), int(li.max())
-    if lo == hi:
-        yield lo, slice(None)
-        return
-    order = np.argsort(li, kind="stable")
-    bounds = np.searchsorted(li[order], np.arange(count + 1))
-    for k in range(count):
-        if bounds[k + 1] > bounds[k]:
-            yield k, order[bounds[k]:bounds[k + 1]]
-
-
-def _split(mask: np.ndarray):
-    """Row selectors (True rows, False rows), each slice(None) for everything or None for nothing."""
-    if mask.all():
-        return slice(None), None
-    if not mask.any():
-        return None, slice(None)
-    return np.nonzero(mask)[0], np.nonzero(~mask)[0]
-
-
-def _per_light(li, count, p, n, u, fn):
-    """Run fn(k, p, n, u) on the columns of each light k in li; gather (wi, dist, rad, pdf, delta)."""
-    out = None
-    for k, rows in _groups(li, count):
-        res = fn(k, p[:, rows], None if n is None else n[:, rows], u[:, rows])
-        if isinstance(rows, slice):
-            return res
-        if out is None:
-            N = p.shape[1]
-            out = (np.empty((3, N), _F32), np.empty(N, _F32), np.empty((3, N), _F32), np.empty(N, _F32),
-                   np.empty(N, bool))
-        for dst, src in zip(out, res):
-            dst[..., rows] = src
-    return out
-
-
-def _clean(wi, dist, rad, pdf, delta):
-    """Zero the samples that carry no contribution or are not finite (a shading point at a light's centre)."""
-    pdf = np.asarray(pdf, dtype=_F32)
-    rad = np.broadcast_to(rad, wi.shape)
-    with np.errstate(invalid="ignore"):
-        ok = (pdf > 0) & np.isfinite(pdf) & np.isfinite(rad[0] + rad[1] + rad[2]) & np.isfinite(wi[0] + wi[1] + wi[2])
-    if not ok.all():
-        pdf = np.where(ok, pdf, 0)
-        rad = np.where(ok, rad, 0)
-        wi = np.where(ok, wi, 0)
-    return wi, dist, rad, pdf, delta
+def _vec(a, N: int) -> np.ndarray:
+    """(N,) contiguous float32 (scalars broadcast)."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=_F32).reshape(-1), (N,)))
 
 
 # ------------------------------------------------------------------------------------ emissive triangle groups
@@ -511,6 +331,7 @@ class LightSampler:
         self._n_matters = bool(self._w_sel > 0 or np.any(self._p_sphere & (self._p_sel > 0)) or self._per_point)
         self._sampled_about_n = False
         self._sampled_with_transmits = False
+        self._build_kernel_tables()
 
     # ---------------------------------------------------------------------------------------- construction
     def _build_units(self, tris, world_power, R):
@@ -742,6 +563,74 @@ class LightSampler:
         self._s_cam = cam
         self._s_power = power
 
+    # ----------------------------------------------------------------------------------------- kernel tables
+    def _build_kernel_tables(self):
+        """The flat tables core.light_kernels reads (see its layout comment), built once."""
+        P, A, S = self._p_count, self._a_count, self._s_count
+        f32 = lambda a: np.asarray(a, _F32).astype(np.float64)  # noqa: E731  values as the float32 code held them
+        pt = np.zeros((P, lk.PT_FIELDS))
+        if P:
+            pt[:, lk.PT_X:lk.PT_Z + 1] = self._p_pos
+            pt[:, lk.PT_R:lk.PT_B + 1] = self._p_rad
+            pt[:, lk.PT_RADIUS] = self._p_radius
+            pt[:, lk.PT_SPHERE] = self._p_sphere
+            pt[:, lk.PT_SPOT] = self._p_is_spot
+            pt[:, lk.PT_DX:lk.PT_DZ + 1] = self._p_dir
+            pt[:, lk.PT_COS_HALF] = f32(self._p_cos_half)
+            safe_w = np.where(self._p_width > 0, self._p_width, 1.0)
+            pt[:, lk.PT_INV_WIDTH] = np.where(self._p_width > 0, f32(1.0 / safe_w), 0.0)
+            pt[:, lk.PT_SEL] = self._p_sel
+            pt[:, lk.PT_UNIT] = self._p_unit
+            pt[:, lk.PT_CAM] = self._p_cam
+            pt[:, lk.PT_LIT] = np.any(self._p_rad > 0, axis=1)
+        ar = np.zeros((A, lk.AR_FIELDS))
+        if A:
+            for col, v in ((lk.AR_CX, self._a_c), (lk.AR_AXX, self._a_ax), (lk.AR_AYX, self._a_ay),
+                           (lk.AR_ZX, self._a_z), (lk.AR_NX, self._a_ng), (lk.AR_R, self._a_rad),
+                           (lk.AR_CX32, f32(self._a_c)), (lk.AR_AXX32, f32(self._a_ax)),
+                           (lk.AR_AYX32, f32(self._a_ay)), (lk.AR_NX32, f32(self._a_ng))):
+                ar[:, col:col + 3] = v
+            ar[:, lk.AR_LX], ar[:, lk.AR_LY] = self._a_lx, self._a_ly
+            ar[:, lk.AR_ELLIPSE] = self._a_ellipse
+            ar[:, lk.AR_AREA] = self._a_area
+            ar[:, lk.AR_TAN_HALF] = np.where(self._a_norm_spread > 0, self._a_tan_half, 0.0)
+            ar[:, lk.AR_NORM_SPREAD] = self._a_norm_spread
+            ar[:, lk.AR_SEL] = self._a_sel
+            ar[:, lk.AR_UNIT] = self._a_unit
+            ar[:, lk.AR_CAM] = self._a_cam
+            ar[:, lk.AR_LIT] = np.any(self._a_rad > 0, axis=1)
+            ar[:, lk.AR_SU32] = f32(2.0 / self._a_lx)
+            ar[:, lk.AR_SV32] = f32(2.0 / self._a_ly)
+        su = np.zeros((S, lk.SU_FIELDS))
+        if S:
+            su[:, lk.SU_DX:lk.SU_DZ + 1] = self._s_dir
+            su[:, lk.SU_R:lk.SU_B + 1] = self._s_rad
+            su[:, lk.SU_OMC] = self._s_omc
+            su[:, lk.SU_COS_HALF] = f32(self._s_cos_half)
+            su[:, lk.SU_SEL] = self._s_sel
+            su[:, lk.SU_UNIT] = self._s_unit
+            su[:, lk.SU_CAM] = self._s_cam
+        world = np.zeros(lk.W_FIELDS)
+        world[lk.W_R:lk.W_B + 1] = self.world_radiance
+        world[lk.W_SEL], world[lk.W_UNIT] = self._w_sel, self._w_unit
+        world[lk.W_LIT] = bool(np.any(self.world_radiance > 0))
+        if self.triangles is not None:
+            tri = (self._t_v0, self._t_e1, self._t_e2, self._t_n, self._t_L, self._t_pdf_area,
+                   np.ascontiguousarray(self._t_sel, np.float64), np.ascontiguousarray(self._t_edge2, np.float64))
+        else:
+            e3 = np.zeros((3, 0), _F32)
+            tri = (e3, e3, e3, e3, e3, np.zeros(0, _F32), np.zeros(0), np.zeros(0))
+        groups = (getattr(self, "_g_order", np.zeros(0, np.int64)), getattr(self, "_g_cdf", np.zeros(0)),
+                  getattr(self, "_g_start", np.zeros(1, np.int64)))
+        self._tables = (self._u_table, self._u_kind, self._u_kind5.astype(np.int64), self._u_local,
+                        np.ascontiguousarray(self._u_fallback, np.float64), float(SELECTION_POWER_FLOOR),
+                        np.ascontiguousarray(pt), np.ascontiguousarray(ar), np.ascontiguousarray(su), world,
+                        *tri, *groups, np.ascontiguousarray(self._t_unit, np.int64))
+
+    def _scratch(self) -> np.ndarray:
+        """Per-call scratch for the kernels' per-point selection probabilities (K,) (calls may run in threads)."""
+        return np.empty(max(self._u_kind.size, 1))
+
     # -------------------------------------------------------------------------------------------- sampling
     def sample(self, p: np.ndarray, n: np.ndarray | None, u_select: np.ndarray, u: np.ndarray,
                transmits: np.ndarray | None = None) -> LightSample:
@@ -752,64 +641,23 @@ class LightSampler:
         whether the material at p transmits (its BSDF is not zero below n), or None (treated as True: no
         hemisphere cut). Pass the same n and transmits to `intersect` and `pdf_triangle` at the same point, so
         that MIS sees the same pdfs. u_select: (N,) and u: (N, 2) uniform numbers in [0, 1)."""
-        p = np.asarray(p).reshape(-1, 3)
+        p = _rows(p)
         N = p.shape[0]
         if not self.has_lights or N == 0:
             return LightSample.empty(N)
-        pc = _cm(p)
         # n matters to the selection, the world and the inside of sphere lights
         need_n = n is not None and self._n_matters
-        nc = _cm(np.asarray(n).reshape(-1, 3)) if need_n else None
+        nr = _rows(n, N) if need_n else None
         self._sampled_about_n |= need_n
-        tc = self._transmits(transmits, N, nc)
+        tc = self._transmits(transmits, N, nr)
         self._sampled_with_transmits |= tc is not None
-        uc = _cm(np.asarray(u).reshape(-1, 2))
-        u_sel = np.asarray(u_select, dtype=np.float64).reshape(-1)
-        if not self._per_point:
-            unit_prob, u_rest = None, u_sel
-            kind, only = None, int(self._u_kind5[0])
-            local = np.full(N, self._u_local[0], np.int64)
-            if only == _KIND_TRI:
-                local = self._pick_in_group(local, u_rest)
-        else:
-            unit = np.empty(N, np.int64)
-            unit_prob = np.empty(N)
-            u_rest = np.empty(N)
-            lk.select(pc, *self._n_t_args(nc, tc), np.ascontiguousarray(u_sel), self._u_table, self._u_kind,
-                      self._u_fallback, SELECTION_POWER_FLOOR, unit, unit_prob, u_rest)
-            kind = self._u_kind5[unit]
-            local = self._u_local[unit]
-            tri = kind == _KIND_TRI
-            if tri.any():
-                local[tri] = self._pick_in_group(local[tri], u_rest[tri])
-            counts = np.bincount(kind, minlength=5)
-            only = int(np.argmax(counts)) if counts.max() == N else -1
-        out = None
-        for k, fn in ((_KIND_TRI, self._sample_triangles), (_KIND_PUNCT, self._sample_punctual),
-                      (_KIND_AREA, self._sample_areas), (_KIND_SUN, self._sample_suns),
-                      (_KIND_WORLD, self._sample_world)):
-            if only >= 0:
-                if k != only:
-                    continue
-                rows = slice(None)
-            else:
-                rows = np.nonzero(kind == k)[0]
-                if rows.size == 0:
-                    continue
-            wi, dist, rad, pdf, delta = fn(pc[:, rows], None if nc is None else nc[:, rows], uc[:, rows],
-                                           local[rows])
-            if unit_prob is not None:
-                pdf = pdf * unit_prob[rows]
-            wi, dist, rad, pdf, delta = _clean(wi, dist, rad, pdf, delta)
-            if only >= 0:
-                return LightSample(wi=_rm(wi), dist=np.asarray(dist, _F32), radiance=_rm(rad),
-                                   pdf=np.asarray(pdf, _F32), delta=np.asarray(delta, bool))
-            if out is None:
-                out = (np.zeros((3, N), _F32), np.full(N, np.inf, _F32), np.zeros((3, N), _F32),
-                       np.zeros(N, _F32), np.zeros(N, bool))
-            for dst, src in zip(out, (wi, dist, rad, pdf, delta)):
-                dst[..., rows] = src
-        return LightSample(wi=_rm(out[0]), dist=out[1], radiance=_rm(out[2]), pdf=out[3], delta=out[4])
+        u = np.ascontiguousarray(np.broadcast_to(np.asarray(u, dtype=_F32).reshape(-1, 2), (N, 2)))
+        u_sel = np.ascontiguousarray(np.broadcast_to(np.asarray(u_select, dtype=np.float64).reshape(-1), (N,)))
+        out = LightSample(wi=np.empty((N, 3), _F32), dist=np.empty(N, _F32), radiance=np.empty((N, 3), _F32),
+                          pdf=np.empty(N, _F32), delta=np.empty(N, bool))
+        lk.sample_batch(p, *self._n_t_args(nr, tc), u_sel, u, self._per_point, self._tables, self._scratch(),
+                        out.wi, out.dist, out.radiance, out.pdf, out.delta)
+        return out
 
     # per-point selection ----------------------------------------------------------------------------------
     def _transmits(self, transmits, N, nc):
@@ -820,37 +668,30 @@ class LightSampler:
         return np.ascontiguousarray(np.broadcast_to(np.asarray(transmits, dtype=bool).reshape(-1), (N,)))
 
     @staticmethod
-    def _n_t_args(nc, tc):
-        return (np.zeros((3, 0), _F32) if nc is None else np.ascontiguousarray(nc, dtype=_F32), nc is not None,
+    def _n_t_args(nr, tc):
+        return (np.zeros((0, 3), _F32) if nr is None else nr, nr is not None,
                 np.ones(0, bool) if tc is None else tc, tc is not None)
 
-    def _unit_probability(self, which, oc, nc, tc) -> np.ndarray:
+    def _unit_probability(self, which, pr, nr, tc) -> np.ndarray:
         """(M,) float64: the probability with which `sample` picks unit which (scalar or (M,); -1: never) at the
-        points oc (3, M) with the normals nc (3, M) or None and the flags tc (M,) or None."""
-        M = oc.shape[1]
+        points pr (M, 3) with the normals nr (M, 3) or None and the flags tc (M,) or None."""
+        M = pr.shape[0]
         which = np.broadcast_to(np.asarray(which, np.int64).reshape(-1), (M,))
         if not self._per_point:
             return (which >= 0).astype(np.float64)
         out = np.empty(M)
-        lk.probability(np.ascontiguousarray(oc, dtype=_F32), *self._n_t_args(nc, tc), np.ascontiguousarray(which),
-                       self._u_table, self._u_kind, self._u_fallback, SELECTION_POWER_FLOOR, out)
+        lk.probability(pr, *self._n_t_args(nr, tc), np.ascontiguousarray(which), self._u_table, self._u_kind,
+                       self._u_fallback, SELECTION_POWER_FLOOR, self._scratch(), out)
         return out
-
-    def _pick_in_group(self, group: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Emitter indices picked by power inside the triangle groups `group` (M,) with uniform numbers u (M,)."""
-        idx = np.searchsorted(self._g_cdf, group + np.asarray(u, np.float64), side="right")
-        idx = np.clip(idx, self._g_start[group], self._g_start[group + 1] - 1)
-        return self._g_order[idx]
 
     def selection_probabilities(self, p: np.ndarray, n: np.ndarray | None = None,
                                 transmits: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Per-point probability (N,) of each selectable unit, keyed "point 0", "area 1", "sun 0", "world",
         "triangles 2" (a group), ... (index within its kind): what `sample` uses; for tests and diagnostics."""
-        p = np.asarray(p).reshape(-1, 3)
-        N = p.shape[0]
-        pc = _cm(p)
-        nc = _cm(np.asarray(n).reshape(-1, 3)) if n is not None and self._n_matters else None
-        tc = self._transmits(transmits, N, nc)
+        pr = _rows(p)
+        N = pr.shape[0]
+        nr = _rows(n, N) if n is not None and self._n_matters else None
+        tc = self._transmits(transmits, N, nr)
         names = {_KIND_TRI: "triangles", _KIND_AREA: "area", _KIND_SUN: "sun"}
         out = {}
         for k in range(self._u_kind.size):
@@ -861,197 +702,8 @@ class LightSampler:
                 name = f"{'spot' if self._p_is_spot[i] else 'point'} {i}"
             else:
                 name = f"{names[k5]} {i}"
-            out[name] = self._unit_probability(k, pc, nc, tc)
+            out[name] = self._unit_probability(k, pr, nr, tc)
         return out
-
-    # triangles --------------------------------------------------------------------------------------------
-    def _near_args(self, p, li):
-        return (np.ascontiguousarray(p, dtype=np.float32), np.ascontiguousarray(li, dtype=np.int64), self._t_v0,
-                self._t_e1, self._t_e2, self._t_n, self._t_edge2, _MIN_SPHERICAL_OMEGA)
-
-    def _sample_triangles(self, p, n, u, li):
-        """Area sampling, or (near and large triangles, Cycles' rule) uniform solid-angle sampling: the seed's
-        lamp hangs 2 cm under the ceiling, where area sampling's 1/d^2 weight makes fireflies."""
-        su = np.sqrt(u[0])
-        b1 = 1.0 - su
-        b2 = u[1] * su
-        q = (np.take(self._t_v0, li, axis=1) + np.take(self._t_e1, li, axis=1) * b1
-             + np.take(self._t_e2, li, axis=1) * b2)
-        w = q - p
-        d2 = _dot(w, w)
-        dist = np.sqrt(d2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            wi = w / dist
-            cos_l = np.abs(_dot(np.take(self._t_n, li, axis=1), wi))
-            pdf = np.where(cos_l > 0, self._t_pdf_area[li] * d2 / cos_l, 0.0)
-        wi, dist = np.ascontiguousarray(wi, np.float32), np.ascontiguousarray(dist, np.float32)
-        omega = np.empty(li.shape[0])
-        kernels.sample_near_triangles(*self._near_args(p, li), np.ascontiguousarray(u[0], np.float64),
-                                      np.ascontiguousarray(u[1], np.float64), wi, dist, omega)
-        near = omega != 0
-        if near.any():
-            pdf = np.where(near, np.where(omega > 0, self._t_sel[li] / np.where(near, omega, 1.0), 0.0), pdf)
-        return wi, dist, np.take(self._t_L, li, axis=1), pdf, np.zeros(p.shape[1], bool)
-
-    # point and spot lights --------------------------------------------------------------------------------
-    def _spot_att(self, k: int, w_from_light: np.ndarray):
-        """Spot cone smoothstep of light k for unit directions leaving it (3, N); None for a point light."""
-        if not self._p_is_spot[k]:
-            return None
-        sd = self._p_dir[k]
-        x = (sd[0] * w_from_light[0] + sd[1] * w_from_light[1] + sd[2] * w_from_light[2]) - _F32(self._p_cos_half[k])
-        width = float(self._p_width[k])
-        if width > 0:
-            return _smoothstep(x * _F32(1.0 / width))
-        return (x > 0).astype(_F32)
-
-    def _sample_punctual(self, p, n, u, li):
-        return _per_light(li, self._p_count, p, n, u, self._sample_one_punctual)
-
-    def _sample_one_punctual(self, k, p, n, u):
-        N = p.shape[1]
-        r = float(self._p_radius[k])
-        sel = float(self._p_sel[k])
-        L = self._p_rad[k][:, None]
-        v = self._p_pos[k][:, None] - p
-        d2 = _dot(v, v)
-        d = np.sqrt(d2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            axis = v / d
-        delta = np.full(N, r <= 0)
-        if r <= 0:  # a point: intensity / d^2
-            att = self._spot_att(k, -axis)
-            with np.errstate(divide="ignore"):
-                scale = (1.0 / d2) if att is None else att / d2
-            return axis, d, L * scale, np.full(N, sel, _F32), delta
-        if not self._p_sphere[k]:  # disc of radius r on the light, facing p, sampled uniformly by area
-            t, b = _basis(axis)
-            rr = _F32(r) * np.sqrt(u[0])
-            phi = _TWO_PI * u[1]
-            w = v + t * (rr * np.cos(phi)) + b * (rr * np.sin(phi))
-            t2 = _dot(w, w)
-            dist = np.sqrt(t2)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                wi = w / dist
-                cos_l = np.abs(_dot(axis, wi))
-                pdf = np.where(cos_l > 0, t2 * _F32(sel / (math.pi * r * r)) / cos_l, 0)
-            att = self._spot_att(k, -wi)
-            return wi, dist, (L if att is None else L * att), pdf, delta
-        # a sphere of radius r
-        wi = np.empty((3, N), _F32)
-        dist = np.empty(N, _F32)
-        pdf = np.empty(N, _F32)
-        outside, inside = _split(d > r)
-        if outside is not None:  # uniform in the cone the sphere subtends
-            do, d2o = d[outside], d2[outside]
-            omc = _one_minus_cos_from_sin2(_F32(r * r) / d2o)
-            wo, cos_t = _sample_cone(axis[:, outside], omc, u[:, outside])
-            sin2 = np.maximum(1.0 - cos_t * cos_t, 0)
-            wi[:, outside] = wo
-            dist[outside] = do * cos_t - np.sqrt(np.maximum(_F32(r * r) - d2o * sin2, 0))
-            pdf[outside] = sel / (_TWO_PI * omc)
-        if inside is not None:  # inside: every direction meets the sphere; cosine about n, or uniform
-            if n is not None:
-                wn, cos_t = _sample_cos_hemisphere(n[:, inside], u[:, inside])
-                pdf[inside] = (sel * _INV_PI) * cos_t
-            else:
-                wn = _sample_sphere(u[:, inside])
-                pdf[inside] = sel * _INV_4PI
-            bb = _dot(v[:, inside], wn)
-            dist[inside] = bb + np.sqrt(np.maximum(_F32(r * r) - d2[inside] + bb * bb, 0))
-            wi[:, inside] = wn
-        att = self._spot_att(k, -wi)
-        if att is None:
-            return wi, dist, L, pdf, delta
-        if inside is not None:
-            att[inside] = 1.0  # Cycles applies no cone inside the sphere
-        return wi, dist, L * att, pdf, delta
-
-    # area lights ------------------------------------------------------------------------------------------
-    def _area_spread(self, k: int, cos_a: np.ndarray):
-        """Spread attenuation of area light k for cosines to its normal (N,); None when Lambertian."""
-        ns = float(self._a_norm_spread[k])
-        if ns <= 0:
-            return None
-        with np.errstate(invalid="ignore", divide="ignore"):
-            tan_a = np.sqrt(np.maximum(1.0 - cos_a * cos_a, 0.0)) / cos_a
-            att = np.where(cos_a > 0, np.maximum((self._a_tan_half[k] - tan_a) * ns, 0.0), 0.0)
-        return att.astype(_F32)
-
-    def _area_points(self, k: int, u: np.ndarray) -> np.ndarray:
-        """Points (3, N) float64 uniformly distributed by area on area light k."""
-        uu = u.astype(np.float64)
-        if self._a_ellipse[k]:
-            rr = np.sqrt(uu[0])
-            sx, sy = rr * np.cos(_TWO_PI * uu[1]), rr * np.sin(_TWO_PI * uu[1])
-        else:
-            sx, sy = 2.0 * uu[0] - 1.0, 2.0 * uu[1] - 1.0
-        return (self._a_c[k][:, None] + self._a_ax[k][:, None] * (0.5 * self._a_lx[k] * sx)
-                + self._a_ay[k][:, None] * (0.5 * self._a_ly[k] * sy))
-
-    def _rect_frame_of(self, k: int, o: np.ndarray):
-        return _rect_frame(o, self._a_c[k], self._a_ax[k], self._a_ay[k], self._a_z[k], self._a_lx[k],
-                           self._a_ly[k])
-
-    def _sample_areas(self, p, n, u, li):
-        return _per_light(li, self._a_count, p, n, u, self._sample_one_area)
-
-    def _sample_one_area(self, k, p, n, u):
-        N = p.shape[1]
-        p64 = p.astype(np.float64)
-        ng = self._a_ng[k]
-        front = ng @ (p64 - self._a_c[k][:, None]) > 0
-        if self._a_ellipse[k]:
-            by_area = np.ones(N, bool)
-            q = self._area_points(k, u)
-            pdf = np.zeros(N)
-        else:
-            f = self._rect_frame_of(k, p64)
-            ok = f["S"] > _RECT_MIN_SOLID_ANGLE
-            q = _rect_sample(p64, f, self._a_ax[k], self._a_ay[k], self._a_z[k], u)
-            with np.errstate(divide="ignore"):
-                pdf = np.where(ok, 1.0 / np.where(ok, f["S"], 1.0), 0.0)
-            by_area = ~ok
-            if by_area.any():
-                q[:, by_area] = self._area_points(k, u[:, by_area])
-        w = q - p64
-        t2 = _dot(w, w)
-        dist = np.sqrt(t2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            wi = w / dist
-            cos_a = -(ng @ wi)
-            if by_area.any():
-                pdf = np.where(by_area, np.where(cos_a > 0, t2 / (self._a_area[k] * cos_a), 0.0), pdf)
-        pdf = np.where(front, pdf * self._a_sel[k], 0.0)
-        att = self._area_spread(k, cos_a)
-        L = self._a_rad[k][:, None]
-        return wi.astype(_F32), dist.astype(_F32), (L if att is None else L * att), pdf, np.zeros(N, bool)
-
-    # sun and world ----------------------------------------------------------------------------------------
-    def _sample_suns(self, p, n, u, li):
-        return _per_light(li, self._s_count, p, n, u, self._sample_one_sun)
-
-    def _sample_one_sun(self, k, p, n, u):
-        N = p.shape[1]
-        axis = self._s_dir[k][:, None]
-        omc = float(self._s_omc[k])
-        sel = float(self._s_sel[k])
-        dist = np.full(N, np.inf, _F32)
-        L = self._s_rad[k][:, None]
-        if omc <= 0:
-            return np.broadcast_to(axis, (3, N)), dist, L, np.full(N, sel, _F32), np.ones(N, bool)
-        wi, _ = _sample_cone(np.broadcast_to(axis, (3, N)), _F32(omc), u)
-        return wi, dist, L, np.full(N, sel / (_TWO_PI * omc), _F32), np.zeros(N, bool)
-
-    def _sample_world(self, p, n, u, li):
-        N = p.shape[1]
-        if n is not None:
-            wi, cos_t = _sample_cos_hemisphere(n, u)
-            pdf = _F32(self._w_sel * _INV_PI) * cos_t
-        else:
-            wi = _sample_sphere(u)
-            pdf = np.full(N, self._w_sel * _INV_4PI, _F32)
-        return wi, np.full(N, np.inf, _F32), self.world_radiance[:, None], pdf, np.zeros(N, bool)
 
     # ------------------------------------------------------------------------------------------ evaluation
     def pdf_triangle(self, emitter: np.ndarray, origin: np.ndarray, dist2: np.ndarray,
@@ -1063,27 +715,23 @@ class LightSampler:
         abs_cos_light (N,) |cos| at the triangle; n (N, 3) and transmits (N,): what `sample` got at the origin.
         0 where the cosine is 0 or the emitter is -1."""
         emitter = np.asarray(emitter).reshape(-1)
-        if self.triangles is None or emitter.size == 0:
-            return np.zeros(emitter.shape[0], _F32)
-        ok = emitter >= 0
-        li = np.where(ok, emitter, 0)
-        cos_l = np.asarray(abs_cos_light, dtype=_F32).reshape(-1)
-        oc = _cm(np.asarray(origin).reshape(-1, 3))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            pdf = self._t_pdf_area[li] * np.asarray(dist2, dtype=_F32).reshape(-1) / cos_l
-            omega = np.empty(li.shape[0])
-            kernels.triangle_solid_angles(*self._near_args(oc, li), omega)
-            near = omega > 0
-            pdf = np.where(near, self._t_sel[li] / np.where(near, omega, 1.0), pdf)
-        if self._per_point:
-            nc = self._check_normal(n, li.shape[0], transmits, "pdf_triangle")
-            pdf = pdf * self._unit_probability(np.where(ok, self._t_unit[li], -1), oc, nc,
-                                               self._transmits(transmits, li.shape[0], nc))
-        return np.where(ok & (cos_l > 0) & np.isfinite(pdf), pdf, 0).astype(_F32)
+        N = emitter.shape[0]
+        if self.triangles is None or N == 0:
+            return np.zeros(N, _F32)
+        emitter = np.ascontiguousarray(emitter, np.int64)
+        o = _rows(origin, N)
+        cos_l = _vec(abs_cos_light, N)
+        d2 = _vec(dist2, N)
+        nr = self._check_normal(n, N, transmits, "pdf_triangle") if self._per_point else None
+        tc = self._transmits(transmits, N, nr)
+        out = np.empty(N, _F32)
+        lk.triangle_pdf_batch(emitter, o, d2, cos_l, *self._n_t_args(nr, tc), self._per_point, self._tables,
+                              self._scratch(), out)
+        return out
 
     def _check_normal(self, n, N, transmits, caller):
-        """n as (3, N) for the selection (None when it does not matter); raises where `sample` got normals or
-        transmission flags that this MIS evaluation lacks (the pdfs would silently differ)."""
+        """n as (N, 3) float32 for the selection (None when it does not matter); raises where `sample` got normals
+        or transmission flags that this MIS evaluation lacks (the pdfs would silently differ)."""
         if n is None and self._sampled_about_n:
             raise ValueError(f"LightSampler.{caller}: `sample` was given normals, so the world, sphere lights or "
                              "the per-point light selection depend on them; pass the same normal of the ray's "
@@ -1091,7 +739,7 @@ class LightSampler:
         if transmits is None and self._sampled_with_transmits:
             raise ValueError(f"LightSampler.{caller}: `sample` was given transmission flags, which weigh the "
                              "per-point light selection; pass the same flags of the ray's origin as transmits=")
-        return _cm(np.asarray(n).reshape(-1, 3)) if n is not None and self._n_matters else None
+        return _rows(n, N) if n is not None and self._n_matters else None
 
     def intersect(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, bsdf_pdf: np.ndarray,
                   bsdf_delta: np.ndarray, mis: bool, n: np.ndarray | None = None,
@@ -1106,138 +754,22 @@ class LightSampler:
         transmits: the flags given to `sample` there (None likewise).
         camera=True: camera rays, which see the world but no light unless the light has
         `visible_camera = True` (Blender's default is False); no MIS weighting."""
-        o = np.asarray(o).reshape(-1, 3)
+        o = _rows(o)
         N = o.shape[0]
         if N == 0:
             return np.zeros((0, 3), _F32)
-        oc = _cm(o)
-        dc = _cm(np.asarray(d).reshape(-1, 3))
-        tmax = np.broadcast_to(np.asarray(tmax, dtype=_F32).reshape(-1), (N,))
+        dr = _rows(d, N)
+        tmax = _vec(tmax, N)
         use_mis = bool(mis) and not camera
         if use_mis:
-            bsdf_pdf = np.broadcast_to(np.asarray(bsdf_pdf, dtype=_F32).reshape(-1), (N,))
-            no_mis = np.broadcast_to(np.asarray(bsdf_delta, dtype=bool).reshape(-1), (N,))
-        if use_mis:
-            nc = self._check_normal(n, N, transmits, "intersect")
+            bsdf_pdf = _vec(bsdf_pdf, N)
+            no_mis = np.ascontiguousarray(np.broadcast_to(np.asarray(bsdf_delta, dtype=bool).reshape(-1), (N,)))
+            nr = self._check_normal(n, N, transmits, "intersect")
         else:
-            nc = _cm(np.asarray(n).reshape(-1, 3)) if n is not None and self._n_matters else None
-        tc = self._transmits(transmits, N, nc)
-        out = np.zeros((3, N), _F32)
-
-        def accumulate(rows, rad, light_pdf, unit):
-            """Add rad (3, n) (or (3, 1)) at rows, weighted against the BSDF strategy; light_pdf: the pdf given
-            that unit `unit` is selected."""
-            if use_mis:
-                if self._per_point:
-                    light_pdf = light_pdf * self._unit_probability(
-                        unit, oc[:, rows], None if nc is None else nc[:, rows], None if tc is None else tc[rows])
-                w = np.where(no_mis[rows], _F32(1.0), _mis_power(bsdf_pdf[rows], light_pdf))
-                rad = rad * w
-            out[:, rows] += rad
-
-        for i in range(self._p_count):
-            if self._p_radius[i] > 0 and (self._p_cam[i] or not camera) and np.any(self._p_rad[i] > 0):
-                self._intersect_punctual(i, oc, dc, tmax, nc, accumulate)
-        for i in range(self._a_count):
-            if (self._a_cam[i] or not camera) and np.any(self._a_rad[i] > 0):
-                self._intersect_area(i, oc, dc, tmax, accumulate)
-        escaped = np.isinf(tmax)
-        if escaped.any():
-            rows = slice(None) if escaped.all() else np.nonzero(escaped)[0]
-            de = dc[:, rows]
-            for i in range(self._s_count):
-                if self._s_omc[i] <= 0 or not (self._s_cam[i] or not camera):
-                    continue
-                hit = self._s_dir[i] @ de >= _F32(self._s_cos_half[i])
-                if hit.any():
-                    r = np.arange(N)[rows][hit]
-                    pdf = np.full(r.size, self._s_sel[i] / (_TWO_PI * self._s_omc[i]), _F32)
-                    accumulate(r, self._s_rad[i][:, None], pdf, self._s_unit[i])
-            if np.any(self.world_radiance > 0):
-                if not use_mis:
-                    out[:, rows] += self.world_radiance[:, None]
-                else:
-                    if nc is not None:
-                        pdf = _F32(self._w_sel * _INV_PI) * np.maximum(_dot(de, nc[:, rows]), 0)
-                    else:
-                        pdf = np.full(de.shape[1], self._w_sel * _INV_4PI, _F32)
-                    accumulate(rows, self.world_radiance[:, None], pdf, self._w_unit)
-        return _rm(out)
-
-    def _intersect_punctual(self, i, o, d, tmax, n, accumulate):
-        r = float(self._p_radius[i])
-        r2 = _F32(r * r)
-        v = self._p_pos[i][:, None] - o  # towards the light
-        d2 = _dot(v, v)
-        b = _dot(v, d)  # distance along the ray to the point nearest the centre
-        sel = float(self._p_sel[i])
-        L = self._p_rad[i][:, None]
-        if not self._p_sphere[i]:
-            # the disc through the centre facing o: the ray meets its plane at t = d2 / b, at squared
-            # distance t^2 - d2 from the centre
-            with np.errstate(invalid="ignore", divide="ignore"):
-                t = d2 / b
-                hit = (b > 0) & (t < tmax) & (t * t - d2 <= r2)
-            rows = np.nonzero(hit)[0]
-            if rows.size == 0:
-                return
-            tl = t[rows]
-            cos_l = b[rows] / np.sqrt(d2[rows])
-            pdf = tl * tl * _F32(sel / (math.pi * r * r)) / cos_l
-            att = self._spot_att(i, -d[:, rows])
-            accumulate(rows, L if att is None else L * att, pdf, self._p_unit[i])
-            return
-        inside = d2 <= r2
-        with np.errstate(invalid="ignore"):
-            disc = b * b - d2 + r2
-            sq = np.sqrt(np.maximum(disc, 0))
-            t = np.where(inside, b + sq, b - sq)
-            hit = (disc >= 0) & (t > 0) & (t < tmax) & (inside | (b > 0))
-        rows = np.nonzero(hit)[0]
-        if rows.size == 0:
-            return
-        ins = inside[rows]
-        omc = _one_minus_cos_from_sin2(np.minimum(r2 / d2[rows], 1.0))
-        with np.errstate(divide="ignore"):
-            pdf = np.where(ins, 0.0, sel / (_TWO_PI * np.where(ins, 1.0, omc)))
-        if ins.any():
-            if n is not None:
-                pin = (sel * _INV_PI) * np.maximum(_dot(d[:, rows], n[:, rows]), 0)
-            else:
-                pin = np.full(rows.size, sel * _INV_4PI)
-            pdf = np.where(ins, pin, pdf)
-        att = self._spot_att(i, -d[:, rows])
-        rad = L if att is None else L * np.where(ins, _F32(1.0), att)
-        accumulate(rows, rad, pdf.astype(_F32), self._p_unit[i])
-
-    def _intersect_area(self, i, o, d, tmax, accumulate):
-        ng = self._a_ng[i].astype(_F32)
-        dn = ng @ d
-        c = self._a_c[i].astype(_F32)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t = (ng @ (c[:, None] - o)) / dn
-        cand = np.nonzero((dn < 0) & (t > 0) & (t < tmax))[0]
-        if cand.size == 0:
-            return
-        rel = o[:, cand] + d[:, cand] * t[cand] - c[:, None]
-        su = (self._a_ax[i].astype(_F32) @ rel) * _F32(2.0 / self._a_lx[i])
-        sv = (self._a_ay[i].astype(_F32) @ rel) * _F32(2.0 / self._a_ly[i])
-        if self._a_ellipse[i]:
-            inside = su * su + sv * sv <= 1.0
-        else:
-            inside = (np.abs(su) <= 1.0) & (np.abs(sv) <= 1.0)
-        rows = cand[inside]
-        if rows.size == 0:
-            return
-        cos_a = -dn[rows].astype(np.float64)
-        att = self._area_spread(i, cos_a)
-        L = self._a_rad[i][:, None]
-        # the pdf with which `sample` produces this direction from o: same code path, same inputs
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tl = t[rows].astype(np.float64)
-            pdf = tl * tl / (self._a_area[i] * cos_a)
-            if not self._a_ellipse[i]:
-                S = self._rect_frame_of(i, o[:, rows])["S"]
-                solid = S > _RECT_MIN_SOLID_ANGLE
-                pdf = np.where(solid, 1.0 / np.where(solid, S, 1.0), pdf)
-        accumulate(rows, L if att is None else L * att, (self._a_sel[i] * pdf).astype(_F32), self._a_unit[i])
+            bsdf_pdf, no_mis = np.zeros(0, _F32), np.zeros(0, bool)
+            nr = _rows(n, N) if n is not None and self._n_matters else None
+        tc = self._transmits(transmits, N, nr)
+        out = np.empty((N, 3), _F32)
+        lk.emission_batch(o, dr, tmax, bsdf_pdf, no_mis, use_mis, *self._n_t_args(nr, tc), bool(camera),
+                          self._per_point, self._tables, self._scratch(), out)
+        return out
