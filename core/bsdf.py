@@ -27,8 +27,12 @@ Lobes (Cycles 5.0 closures they mirror)
   the lobe's value in eval and sample and its albedo, never its pdf or selection probability, so the estimator
   stays unbiased; it depends on wo only (not reciprocal, as in Cycles).
 - glass (Glass BSDF, Multiscatter GGX): exact dielectric Fresnel at wo.h, reflection tinted and transmission
-  tinted by colour, total internal reflection; reflection/refraction chosen with probability F (Cycles does this
-  for non-camera rays; it clamps F to [0.125, 0.875] for camera rays -- a variance choice only).
+  tinted by colour, total internal reflection; reflection/refraction chosen with probability F (as Cycles 4+).
+  Tinted glass (Cycles' glass closure with separate tints; the Principled BSDF's transmission): reflection
+  R_c = F_c rt_c and transmission T_c = (1 - F_c) tt_c times the colour, F_c the exact Fresnel or, with
+  fresnel "generalized_schlick", f0_c + (1 - f0_c) s as for the glossy lobe (total internal reflection: 1);
+  reflection is chosen with probability mean(R) / mean(R + T) (Cycles' pdf_reflect) and the multiscatter Fss
+  is the transmission tint (x colour for a plain glass), or rt x the Fresnel average when that is black.
 - refraction (Refraction BSDF): GGX transmission only and, as in Cycles 4+/5.0, *no* Fresnel factor
   (`fresnel_type = NONE`: the transmitted weight is the colour at every angle); under total internal
   reflection the sample is invalid (the path ends), as Cycles' `valid = ... fresnel != 1`.
@@ -103,7 +107,8 @@ class LobeBatch:
     multiscatter: apply Cycles' multiscatter-GGX energy compensation to glossy and glass lobes.
     f0 (N, L, 3) float32: reflectance at normal incidence of generalized-Schlick glossy lobes (else unused).
     under (N, L) int8: slot of the generalized-Schlick glossy lobe this lobe lies beneath, or -1 (see `Lobe.under`).
-    f0 and under default to F0(ior) and -1.
+    tint (N, L, 2, 3) float32: reflection [:, :, 0] and transmission [:, :, 1] tints of glass lobes (else unused).
+    f0, under and tint default to F0(ior), -1 and white.
     """
 
     kind: np.ndarray
@@ -115,6 +120,7 @@ class LobeBatch:
     multiscatter: bool = True
     f0: np.ndarray | None = None
     under: np.ndarray | None = None
+    tint: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.f0 is None:
@@ -122,6 +128,8 @@ class LobeBatch:
             self.f0 = np.repeat((r * r)[..., None], 3, axis=-1).astype(F32)
         if self.under is None:
             self.under = np.full(np.shape(self.kind), -1, np.int8)
+        if self.tint is None:
+            self.tint = np.ones(np.shape(self.kind) + (2, 3), F32)
 
     def __len__(self) -> int:
         return int(self.kind.shape[0])
@@ -131,7 +139,8 @@ class LobeBatch:
         return (np.ascontiguousarray(self.kind, np.int8), np.ascontiguousarray(self.weight, F32),
                 np.ascontiguousarray(self.roughness, F32), np.ascontiguousarray(self.ior, F32),
                 np.ascontiguousarray(self.fresnel, np.int8), np.ascontiguousarray(self.select, F32),
-                np.ascontiguousarray(self.f0, F32), np.ascontiguousarray(self.under, np.int8))
+                np.ascontiguousarray(self.f0, F32), np.ascontiguousarray(self.under, np.int8),
+                np.ascontiguousarray(self.tint, F32))
 
     def take(self, rows: np.ndarray) -> "LobeBatch":
         """The sub-batch of the given hit rows (copies)."""
@@ -145,6 +154,7 @@ class LobeBatch:
             select=self.select[rows],
             f0=self.f0[rows],
             under=self.under[rows],
+            tint=self.tint[rows],
         )
 
 
@@ -172,11 +182,18 @@ def _gen_schlick_fss(f0: np.ndarray, ior: float) -> np.ndarray:
     return np.asarray(f0, np.float64) + (1.0 - np.asarray(f0, np.float64)) * sa
 
 
-def _lobe_select_scale(kind: int, fresnel: int, ior: float, f0: np.ndarray, layer: tuple | None) -> float:
+def _lobe_select_scale(kind: int, fresnel: int, ior: float, f0: np.ndarray, layer: tuple | None,
+                       tint: np.ndarray | None = None) -> float:
     """wo-independent estimate of a lobe's albedo relative to its colour (for lobe selection): the Fresnel average
-    of a glossy lobe; for a lobe under a layer (layer = (f0, ior) of that layer) 1 - max_c Fss_c of the layer."""
+    of a glossy lobe; for a lobe under a layer (layer = (f0, ior) of that layer) 1 - max_c Fss_c of the layer; for a
+    tinted glass lobe (tint (2, 3): reflection, transmission) the mean of F rt + (1 - F) tt, F the Fresnel
+    average (white glass: 1)."""
     scale = 1.0
-    if kind == GLOSSY and fresnel == F_GEN_SCHLICK:
+    gen = fresnel == F_GEN_SCHLICK
+    if kind == GLASS and tint is not None and (gen or np.any(np.asarray(tint) != 1.0)):
+        fa = _gen_schlick_fss(f0 if gen else np.full(3, float(bk.schlick_f0(float(ior)))), ior)
+        scale = float(np.mean(fa * tint[0] + (1.0 - fa) * tint[1]))
+    elif kind == GLOSSY and fresnel == F_GEN_SCHLICK:
         scale = float(np.mean(_gen_schlick_fss(f0, ior)))
     elif kind == GLOSSY:
         scale = float(bk.glossy_fresnel_avg(fresnel, float(ior)))
@@ -189,16 +206,17 @@ class MaterialTable:
     """All scene materials packed into (M, L) arrays; `gather` expands them per hit with textures applied."""
 
     def __init__(self, kind, color, roughness, ior, fresnel, texture, textures, emission, multiscatter=True,
-                 f0=None, under=None):
+                 f0=None, under=None, tint=None):
         self.kind = np.ascontiguousarray(kind, dtype=np.int8)
         self.color = np.ascontiguousarray(color, dtype=F32)
         self.roughness = np.ascontiguousarray(roughness, dtype=F32)
         self.ior = np.ascontiguousarray(ior, dtype=F32)
         self.fresnel = np.ascontiguousarray(fresnel, dtype=np.int8)
         defaults = LobeBatch(self.kind, self.color, self.roughness, self.ior, self.fresnel, self.roughness,
-                             f0=f0, under=under)
+                             f0=f0, under=under, tint=tint)
         self.f0 = np.ascontiguousarray(defaults.f0, dtype=F32)
         self.under = np.ascontiguousarray(defaults.under, dtype=np.int8)
+        self.tint = np.ascontiguousarray(defaults.tint, dtype=F32)
         self.texture = np.ascontiguousarray(texture, dtype=np.int32)
         self.textures = [np.ascontiguousarray(getattr(t, "pixels", t), dtype=F32)[..., :3] for t in textures]
         self.emission = np.ascontiguousarray(emission, dtype=F32).reshape(-1, 3)
@@ -210,7 +228,7 @@ class MaterialTable:
                 u = int(self.under[i, j])
                 layer = (self.f0[i, u], float(self.ior[i, u])) if u >= 0 else None
                 scale[i, j] = _lobe_select_scale(int(self.kind[i, j]), int(self.fresnel[i, j]), float(self.ior[i, j]),
-                                                 self.f0[i, j], layer)
+                                                 self.f0[i, j], layer, self.tint[i, j])
         self._select_scale = scale
         self._select = self._selection(self.kind, self.color, scale)
         self.kinds_present: frozenset[str] = frozenset(KINDS[k] for k in np.unique(self.kind) if k >= 0)
@@ -251,6 +269,7 @@ class MaterialTable:
         tex = np.full((m, l), -1, np.int32)
         f0 = np.zeros((m, l, 3), F32)
         under = np.full((m, l), -1, np.int8)
+        tint = np.ones((m, l, 2, 3), F32)
         emission = np.zeros((m, 3), F32)
         for i, mat in enumerate(materials):
             emission[i] = np.broadcast_to(np.asarray(mat.emission, dtype=F32).reshape(-1), (3,))
@@ -268,6 +287,9 @@ class MaterialTable:
                 r0 = (ior[i, j] - 1.0) / (ior[i, j] + 1.0)
                 lf0 = r0 * r0 if lobe.f0 is None else lobe.f0
                 f0[i, j] = np.clip(np.broadcast_to(np.asarray(lf0, dtype=F32).reshape(-1), (3,)), 0.0, 1.0)
+                for t, value in enumerate((lobe.reflection_tint, lobe.transmission_tint)):
+                    if value is not None:
+                        tint[i, j, t] = np.broadcast_to(np.asarray(value, dtype=F32).reshape(-1), (3,))
                 u = int(lobe.under)
                 if u >= 0:
                     if u >= len(mat.lobes) or u == j or mat.lobes[u].kind != "glossy" or \
@@ -275,7 +297,7 @@ class MaterialTable:
                         raise SceneError(f"material {mat.name!r}: lobe {j} lies under lobe {u}, which is not a "
                                          "generalized-Schlick glossy lobe of the same material")
                     under[i, j] = u
-        return cls(kind, color, rough, ior, fres, tex, list(textures), emission, multiscatter, f0, under)
+        return cls(kind, color, rough, ior, fres, tex, list(textures), emission, multiscatter, f0, under, tint)
 
     def gather(self, material_index: np.ndarray, uv: np.ndarray | None = None) -> LobeBatch:
         """Per-hit lobes for (N,) material indices; `uv` (N, 2) for colour textures (missing UVs read (0, 0))."""
@@ -291,12 +313,13 @@ class MaterialTable:
         sel = np.empty((n, l), F32)
         f0 = np.empty((n, l, 3), F32)
         under = np.empty((n, l), np.int8)
+        tint = np.empty((n, l, 2, 3), F32)
         has_uv = uv is not None and bool(self._texture_ids)
         uvs = np.ascontiguousarray(np.asarray(uv).reshape(-1, 2), dtype=F32) if has_uv else np.zeros((0, 2), F32)
         bk.gather_batch(mi, uvs, has_uv, self.kind, self.color, self.roughness, self.ior, self.fresnel, self.f0,
-                        self.under, self.texture, self._select, self._select_scale, *self._texture_pack,
-                        kind, weight, rough, ior, fres, sel, f0, under)
-        return LobeBatch(kind, weight, rough, ior, fres, sel, self.multiscatter, f0, under)
+                        self.under, self.tint, self.texture, self._select, self._select_scale, *self._texture_pack,
+                        kind, weight, rough, ior, fres, sel, f0, under, tint)
+        return LobeBatch(kind, weight, rough, ior, fres, sel, self.multiscatter, f0, under, tint)
 
     @staticmethod
     def _selection(kind: np.ndarray, weight: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -364,7 +387,8 @@ def albedo(lobes: LobeBatch, wo: np.ndarray | None = None) -> np.ndarray:
     """Albedo AOV (N, 3): sum of lobe colours, Fresnel-weighted glossy lobes scaled by their Fresnel estimate --
     F(cos wo) when `wo` is given (as Cycles' `bsdf_microfacet_estimate_fresnel` at the shading normal), else the
     hemispherical average; generalized-Schlick lobes by their albedo estimate A(wo) (else their Fss) and lobes
-    under them by the layering factor (else 1 - max Fss). Glass counts R + T = 1, refraction its colour."""
+    under them by the layering factor (else 1 - max Fss). Glass counts R + T = 1 (tinted glass its estimate
+    F rt + (1 - F) tt), refraction its colour."""
     n = len(lobes)
     out = np.empty((n, 3), F32)
     w = _f32_rows(wo, 3) if wo is not None else np.zeros((0, 3), F32)

@@ -11,9 +11,11 @@ weight conventions are documented in core.bsdf and core.microfacet; this module 
 
 Arguments shared by the kernels:
   lobes = (kind (N, L) int8, weight (N, L, 3) float32, roughness (N, L) float32, ior (N, L) float32,
-           fresnel (N, L) int8, select (N, L) float32, f0 (N, L, 3) float32, under (N, L) int8)  -- a LobeBatch's
-           arrays, C-contiguous. f0: reflectance at normal incidence of a generalized-Schlick glossy lobe; under:
-           slot of the generalized-Schlick glossy lobe this lobe lies beneath (-1: none), see `layer_factor`.
+           fresnel (N, L) int8, select (N, L) float32, f0 (N, L, 3) float32, under (N, L) int8,
+           tint (N, L, 2, 3) float32)  -- a LobeBatch's arrays, C-contiguous. f0: reflectance at normal incidence
+           of a generalized-Schlick glossy or glass lobe; under: slot of the generalized-Schlick glossy lobe this
+           lobe lies beneath (-1: none), see `layer_factor`; tint: reflection [0] and transmission [1] tints of a
+           glass lobe, see `glass_fresnel`.
   tabs = (ggx_E (32, 32), ggx_Eavg (32,), glass_E2 (2, 16, 16, 16), glass_Eavg2 (2, 16, 16),
           gen_schlick_s (16, 16, 16)) float32: the tables of core.microfacet.tables().
   row: which hit of `lobes` a path reads (lets callers evaluate a subset without copying the lobe arrays).
@@ -367,11 +369,90 @@ def _relative_ior(ior_f32, back):
 
 
 @_inline
+def glass_tinted(lobes, row, l):
+    """Whether glass lobe l takes the tinted path (`glass_fresnel`): generalized-Schlick Fresnel or a reflection or
+    transmission tint other than white. A plain white-tinted glass keeps the untinted arithmetic (bit-identical
+    to the Glass BSDF before tints existed)."""
+    if lobes[4][row, l] == F_GEN_SCHLICK:
+        return True
+    tint = lobes[8]
+    for i in range(2):
+        for c in range(3):
+            if tint[row, l, i, c] != _F32_1:
+                return True
+    return False
+
+
+@_inline
+def glass_fresnel(lobes, row, l, cos_oh, eta):
+    """Reflectance R_c and transmittance T_c per channel of glass lobe l at wo.h = cos_oh (eta: relative IOR):
+    R_c = F_c x reflection tint_c, T_c = (1 - F_c) x transmission tint_c, with F_c = f0_c + (1 - f0_c) s
+    (generalized Schlick, s the dielectric Fresnel of eta remapped from [F0(eta), 1] to [0, 1]; 1 under total
+    internal reflection) or the exact dielectric Fresnel. Cycles' glass closure (bsdf_microfacet.h); the lobe
+    colour multiplies both on top. Returns (R0, R1, R2, T0, T1, T2)."""
+    tint = lobes[8]
+    f0s = lobes[6]
+    if lobes[4][row, l] == F_GEN_SCHLICK:
+        sv = gen_schlick_s(cos_oh, eta)
+        g0 = np.float64(f0s[row, l, 0])
+        g1 = np.float64(f0s[row, l, 1])
+        g2 = np.float64(f0s[row, l, 2])
+        F0 = g0 + (1.0 - g0) * sv
+        F1 = g1 + (1.0 - g1) * sv
+        F2 = g2 + (1.0 - g2) * sv
+    else:
+        F0 = F1 = F2 = fresnel_dielectric(cos_oh, eta)
+    return (F0 * tint[row, l, 0, 0], F1 * tint[row, l, 0, 1], F2 * tint[row, l, 0, 2],
+            (1.0 - F0) * tint[row, l, 1, 0], (1.0 - F1) * tint[row, l, 1, 1], (1.0 - F2) * tint[row, l, 1, 2])
+
+
+@_jit
+def _reflect_probability(R0, R1, R2, T0, T1, T2):
+    """Probability of choosing reflection at a tinted glass microfacet: mean R / mean (R + T) (Cycles'
+    pdf_reflect); -1 when both vanish (no valid sample)."""
+    r = R0 + R1 + R2
+    t = T0 + T1 + T2
+    return r / (r + t) if r + t > 0.0 else -1.0
+
+
+@_inline
+def glass_fss(lobes, row, l, eta):
+    """Multiscatter Fss of a tinted glass lobe per channel (Cycles' setup_fresnel_generalized_schlick: the
+    transmission tint when it is not black, else the reflection tint x the Fresnel average). For a plain glass the
+    lobe colour is part of the tint (the Glass BSDF's colour is its tint in Cycles); a generalized-Schlick lobe's
+    colour is the closure weight and is not."""
+    tint = lobes[8]
+    weight = lobes[1]
+    gen = lobes[4][row, l] == F_GEN_SCHLICK
+    t0 = np.float64(tint[row, l, 1, 0])
+    t1 = np.float64(tint[row, l, 1, 1])
+    t2 = np.float64(tint[row, l, 1, 2])
+    if not gen:
+        t0 *= weight[row, l, 0]
+        t1 *= weight[row, l, 1]
+        t2 *= weight[row, l, 2]
+    if t0 > 0.0 or t1 > 0.0 or t2 > 0.0:
+        return t0, t1, t2
+    r0 = np.float64(tint[row, l, 0, 0])
+    r1 = np.float64(tint[row, l, 0, 1])
+    r2 = np.float64(tint[row, l, 0, 2])
+    if gen:
+        sa = gen_schlick_s_avg(eta)
+        f0s = lobes[6]
+        g0 = np.float64(f0s[row, l, 0])
+        g1 = np.float64(f0s[row, l, 1])
+        g2 = np.float64(f0s[row, l, 2])
+        return r0 * (g0 + (1.0 - g0) * sa), r1 * (g1 + (1.0 - g1) * sa), r2 * (g2 + (1.0 - g2) * sa)
+    fa = fresnel_dielectric_avg(eta)
+    return r0 * weight[row, l, 0] * fa, r1 * weight[row, l, 1] * fa, r2 * weight[row, l, 2] * fa
+
+
+@_inline
 def eval_path(lobes, row, multiscatter, tabs, ox, oy, oz, back, ix, iy, iz):
     """f |cos wi| (3 channels) and the mixture pdf over the non-delta lobes of hit `row`, in the frame flipped so
     that oz >= 0 (`back`: wo was below the surface); (f0, f1, f2, pdf). A lobe with under >= 0 is scaled by
     `layer_factor` at cos wo (its value only: the pdf stays select x lobe pdf)."""
-    kind, weight, rough, ior, fresnel, select, f0s, under = lobes
+    kind, weight, rough, ior, fresnel, select, f0s, under, tint = lobes
     f0 = f1 = f2 = pdf = 0.0
     for l in range(kind.shape[1]):
         k = kind[row, l]
@@ -416,6 +497,18 @@ def eval_path(lobes, row, multiscatter, tabs, ox, oy, oz, back, ix, iy, iz):
             fc *= glossy_fresnel(mode, lobe_ior, cos_oh)
             scale = glossy_fresnel_avg(mode, lobe_ior)  # Fss: colour x Fresnel average
             fss0, fss1, fss2 = c0 * scale, c1 * scale, c2 * scale
+        elif k == GLASS and glass_tinted(lobes, row, l):
+            R0, R1, R2, T0, T1, T2 = glass_fresnel(lobes, row, l, cos_oh, eta)
+            pr = _reflect_probability(R0, R1, R2, T0, T1, T2)
+            if not pr >= 0.0:
+                continue
+            if refl:
+                fr0, fr1, fr2 = R0, R1, R2
+                p *= pr
+            else:
+                fr0, fr1, fr2 = T0, T1, T2
+                p *= 1.0 - pr
+            fss0, fss1, fss2 = glass_fss(lobes, row, l, eta)
         else:
             if k == GLASS:
                 F = fresnel_dielectric(cos_oh, eta)
@@ -481,7 +574,7 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, u_lobe, u1, u2):
     it with (u1, u2), the remainder of u_lobe choosing reflection vs refraction for glass.
     Returns (wix, wiy, wiz, weight0, weight1, weight2, pdf, delta, transmitted, valid); wi is rounded to float32
     before the mixture is evaluated there. Invalid samples have wi = +z, zero weight and pdf."""
-    kind, weight, rough, ior, fresnel, select, f0s, under = lobes
+    kind, weight, rough, ior, fresnel, select, f0s, under, tint = lobes
     back = woz < 0.0
     s = -1.0 if back else 1.0
     ox = np.float64(wox)
@@ -493,6 +586,7 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, u_lobe, u1, u2):
         return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, False, False
     is_delta = False
     p_event = 1.0
+    gw0 = gw1 = gw2 = 1.0  # a delta glass sample's value / event probability per channel (1 untinted)
     if k == DIFFUSE:
         r = math.sqrt(np.float64(u1))
         phi = 2.0 * math.pi * np.float64(u2)
@@ -516,7 +610,22 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, u_lobe, u1, u2):
             eta = _relative_ior(ior[row, c], back)
             x, y, z, tir = refract(ox, oy, oz, hx, hy, hz, eta)
             reflect = False
-            if k == GLASS:
+            if k == GLASS and glass_tinted(lobes, row, c):
+                R0, R1, R2, T0, T1, T2 = glass_fresnel(lobes, row, c, cos_oh, eta)
+                pr = _reflect_probability(R0, R1, R2, T0, T1, T2)
+                ok = ok and pr >= 0.0
+                reflect = u_rem < pr
+                p_event = pr if reflect else 1.0 - pr
+                if ok and p_event > 0.0:
+                    inv_ev = 1.0 / p_event
+                    if reflect:
+                        gw0, gw1, gw2 = R0 * inv_ev, R1 * inv_ev, R2 * inv_ev
+                    else:
+                        gw0, gw1, gw2 = T0 * inv_ev, T1 * inv_ev, T2 * inv_ev
+                if reflect:
+                    c2 = 2.0 * cos_oh
+                    x, y, z = c2 * hx - ox, c2 * hy - oy, c2 * hz - oz
+            elif k == GLASS:
                 F = fresnel_dielectric(cos_oh, eta)
                 reflect = u_rem < F
                 p_event = F if reflect else 1.0 - F
@@ -541,6 +650,8 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, u_lobe, u1, u2):
             fr2 = f0s[row, c, 2] + (1.0 - f0s[row, c, 2]) * sv
         elif k == GLOSSY:
             fr0 = fr1 = fr2 = glossy_fresnel(fresnel[row, c], np.float64(ior[row, c]), oz)
+        elif k == GLASS:
+            fr0, fr1, fr2 = gw0, gw1, gw2
         j = under[row, c]
         if j >= 0:
             inv *= layer_factor(lobes, row, j, multiscatter, tabs, oz)
@@ -605,8 +716,11 @@ def sample_batch(lobes, multiscatter, tabs, wo, u_lobe, u, wi, weight, pdf, delt
 def albedo_batch(lobes, multiscatter, tabs, wo, use_wo, out):
     """Albedo AOV: sum of lobe colours; Fresnel-weighted glossy lobes scaled by F(|wo.z|) (use_wo) or their
     hemispherical average; generalized-Schlick lobes by their albedo estimate at |wo.z| (`gen_schlick_albedo`) or
-    their Fss; lobes under a layer by its `layer_factor` at |wo.z| or 1 - max_c Fss_c of the layer."""
-    kind, weight, rough, ior, fresnel, select, f0s, under = lobes
+    their Fss; lobes under a layer by its `layer_factor` at |wo.z| or 1 - max_c Fss_c of the layer. Glass counts
+    R + T = 1, a tinted glass F_c rt_c + (1 - F_c) tt_c with F_c = f0_c + (1 - f0_c) s, s from the
+    generalized-Schlick table at |wo.z| or its average (f0 = F0(ior) for a plain glass; Cycles'
+    bsdf_microfacet_estimate_albedo without the multiscatter darkening)."""
+    kind, weight, rough, ior, fresnel, select, f0s, under, tint = lobes
     for k in range(kind.shape[0]):
         mu = abs(np.float64(wo[k, 2])) if use_wo else 1.0
         a0 = a1 = a2 = 0.0
@@ -631,6 +745,23 @@ def albedo_batch(lobes, multiscatter, tabs, wo, use_wo, out):
                 else:
                     s0 = glossy_fresnel_avg(fresnel[k, l], np.float64(ior[k, l]))
                 s1 = s2 = s0
+            elif kl == GLASS and glass_tinted(lobes, k, l):
+                lior = np.float64(ior[k, l])
+                if use_wo:
+                    sv = gen_schlick_table_s(tabs, np.float64(rough[k, l]), mu, lior)
+                else:
+                    sv = gen_schlick_s_avg(lior)
+                gen = fresnel[k, l] == F_GEN_SCHLICK
+                for c in range(3):
+                    g = np.float64(f0s[k, l, c]) if gen else schlick_f0(lior)
+                    F = g + (1.0 - g) * sv
+                    a = F * tint[k, l, 0, c] + (1.0 - F) * tint[k, l, 1, c]
+                    if c == 0:
+                        s0 = a
+                    elif c == 1:
+                        s1 = a
+                    else:
+                        s2 = a
             j = under[k, l]
             if j >= 0:
                 if use_wo:
@@ -716,11 +847,14 @@ def texture_batch(pixels, h, w, uv, out):
 
 
 @_jit
-def gather_batch(mi, uv, has_uv, t_kind, t_color, t_rough, t_ior, t_fresnel, t_f0, t_under, t_texture, t_select,
-                 t_scale, tex_pixels, tex_offset, tex_h, tex_w, kind, weight, rough, ior, fresnel, select, f0, under):
+def gather_batch(mi, uv, has_uv, t_kind, t_color, t_rough, t_ior, t_fresnel, t_f0, t_under, t_tint, t_texture,
+                 t_select, t_scale, tex_pixels, tex_offset, tex_h, tex_w, kind, weight, rough, ior, fresnel, select,
+                 f0, under, tint):
     """Per-hit lobe arrays of material indices mi from the (M, L) material tables. Lobes with a colour texture
     (t_texture >= 0) are tinted by it at the hit's uv (missing UVs read (0, 0)) and the hit's selection
-    probabilities recomputed; otherwise they are copied from t_select."""
+    probabilities recomputed; otherwise they are copied from t_select. A generalized-Schlick glass lobe's texture
+    multiplies its transmission tint by sqrt(saturate(texel)) (Cycles' Principled transmission) instead of its
+    colour."""
     L = t_kind.shape[1]
     for k in range(mi.shape[0]):
         m = mi[k]
@@ -734,14 +868,22 @@ def gather_batch(mi, uv, has_uv, t_kind, t_color, t_rough, t_ior, t_fresnel, t_f
             under[k, l] = t_under[m, l]
             for c in range(3):
                 f0[k, l, c] = t_f0[m, l, c]
+                tint[k, l, 0, c] = t_tint[m, l, 0, c]
+                tint[k, l, 1, c] = t_tint[m, l, 1, c]
             t = t_texture[m, l]
             if t >= 0:
                 textured = True
                 u = uv[k, 0] if has_uv else _F32_0
                 v = uv[k, 1] if has_uv else _F32_0
+                to_tint = t_kind[m, l] == GLASS and t_fresnel[m, l] == F_GEN_SCHLICK
                 for c in range(3):
-                    weight[k, l, c] = t_color[m, l, c] * texel_bilinear(tex_pixels, tex_offset[t], tex_h[t],
-                                                                        tex_w[t], u, v, c)
+                    texel = texel_bilinear(tex_pixels, tex_offset[t], tex_h[t], tex_w[t], u, v, c)
+                    if to_tint:
+                        weight[k, l, c] = t_color[m, l, c]
+                        tint[k, l, 1, c] = t_tint[m, l, 1, c] * np.float32(math.sqrt(min(max(texel, _F32_0),
+                                                                                          _F32_1)))
+                    else:
+                        weight[k, l, c] = t_color[m, l, c] * texel
             else:
                 for c in range(3):
                     weight[k, l, c] = t_color[m, l, c]

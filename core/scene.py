@@ -70,10 +70,17 @@ class Lobe:
         specular layer: the exact dielectric Fresnel of `ior` remapped from [F0(ior), 1] to [`f0`, 1] per
         channel, times `color` (the layer weight), with Cycles' Fss = f0 + (1 - f0) s_avg for multiscatter.
       - "glass": smooth or GGX-rough dielectric with exact Fresnel and total internal reflection (Blender's
-        Glass BSDF); `ior` is inside/outside, outside is where the geometric normal points.
+        Glass BSDF); `ior` is inside/outside, outside is where the geometric normal points. Reflection is
+        `color` x F x `reflection_tint`, transmission `color` x (1 - F) x `transmission_tint`. With fresnel
+        "generalized_schlick" F is per channel f0 + (1 - f0) s (s as for the glossy lobe; Cycles' Principled
+        transmission: f0 = F0(ior) x Specular Tint), else the exact dielectric Fresnel.
       - "refraction": the transmission part of "glass" only (Blender's Refraction BSDF).
-    color_texture: index into `Scene.textures` that multiplies `color` at the hit's UV, or -1.
+    color_texture: index into `Scene.textures` that multiplies `color` at the hit's UV, or -1. On a "glass" lobe
+      with fresnel "generalized_schlick" it multiplies `transmission_tint` by the square root of the texel
+      clamped to [0, 1] instead (Cycles' Principled transmission tint sqrt(base colour)).
     f0: RGB reflectance at normal incidence of a "generalized_schlick" lobe (clamped to [0, 1]); None = F0(ior).
+    reflection_tint, transmission_tint: RGB tints of a "glass" lobe's reflection and transmission (None = white,
+      the Glass BSDF); other kinds reject them.
     under: index, in the material's lobe list, of a "generalized_schlick" glossy lobe this lobe lies beneath
       (a Principled base under its specular layer), or -1. The lobe's weight is then scaled per hit by
       saturate(1 - max_c A_c(wo) / color_c of that layer), A its albedo estimate at cos(wo) (Cycles'
@@ -88,6 +95,8 @@ class Lobe:
     color_texture: int = -1
     f0: np.ndarray | None = None
     under: int = -1
+    reflection_tint: np.ndarray | None = None
+    transmission_tint: np.ndarray | None = None
 
     def validate(self, owner: str) -> None:
         if self.kind not in ("diffuse", "glossy", "glass", "refraction"):
@@ -101,6 +110,12 @@ class Lobe:
             raise SceneError(f"{owner}: unknown Fresnel mode {self.fresnel!r}")
         if self.f0 is not None:
             self.f0 = _as_rgb(self.f0, f"{owner} {self.kind} f0")
+        for name in ("reflection_tint", "transmission_tint"):
+            value = getattr(self, name)
+            if value is not None:
+                if self.kind != "glass":
+                    raise SceneError(f"{owner}: {name} applies to glass lobes only, not {self.kind!r}")
+                setattr(self, name, _as_rgb(value, f"{owner} glass {name.replace('_', ' ')}"))
         if not (isinstance(self.under, (int, np.integer)) and -1 <= self.under < 127):
             raise SceneError(f"{owner}: `under` must be a lobe index or -1, got {self.under!r}")
 

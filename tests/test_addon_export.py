@@ -301,9 +301,34 @@ def test_principled_bsdf_mapping(scene):
     # metal: Schlick on the base colour = base (no Fresnel) + (1 - base) x Schlick with F0 = 0
     assert np.allclose(kinds[("glossy", "schlick")].color, a * 0.25 * (1 - base), atol=1e-6)
     assert kinds[("glossy", "schlick")].ior == 1.0
-    assert np.allclose(kinds[("glass", "none")].color, a * 0.75 * 0.2 * base, atol=1e-6)
+    # transmission: Cycles' glass closure, weight (1 - metallic) transmission, untinted reflection with F0(IOR),
+    # transmission tinted sqrt(base colour)
+    glass = kinds[("glass", "generalized_schlick")]
+    assert np.allclose(glass.color, a * 0.75 * 0.2, atol=1e-6)
+    assert glass.ior == pytest.approx(1.45) and glass.roughness == pytest.approx(0.3)
+    assert np.allclose(glass.f0, ((1.45 - 1) / (1.45 + 1)) ** 2, atol=1e-6)
+    assert glass.reflection_tint is None and np.allclose(glass.transmission_tint, np.sqrt(base), atol=1e-6)
     assert np.allclose(kinds[("refraction", "none")].color, 0.5) and kinds[("refraction", "none")].ior == 1.0
     assert np.allclose(m.emission, a * 2.0 * np.array([1.0, 0.5, 0.0]))
+
+
+def test_principled_glass_specular_tint_ignores_level(scene):
+    """Principled transmission: Specular Tint scales the glass F0 (clamped to 1), Specular IOR Level does not
+    touch it (Cycles applies the level to the specular layer only); base colours above 1 clamp before the sqrt."""
+    add_camera(scene)
+    mat = bf.node_material("Tinted glass", "ShaderNodeBsdfPrincipled", Base_Color=(1.5, 0.25, 0.0), Roughness=0.0,
+                           IOR=1.5)
+    node = mat.node_tree.nodes["Principled BSDF"]
+    node.inputs["Transmission Weight"].default_value = 1.0
+    node.inputs["Specular IOR Level"].default_value = 1.0
+    node.inputs["Specular Tint"].default_value = (1.0, 0.5, 30.0, 1.0)
+    cube("G", material=mat)
+    got, _ = export()
+    (glass,) = [l for l in got.materials[0].lobes if l.kind == "glass"]
+    assert glass.ior == pytest.approx(1.5) and glass.fresnel == "generalized_schlick"
+    assert np.allclose(glass.f0, [0.04, 0.02, 1.0], atol=1e-6)
+    assert np.allclose(glass.transmission_tint, [1.0, 0.5, 0.0], atol=1e-6)
+    assert np.allclose(glass.color, 1.0)
 
 
 def test_principled_specular_level_and_tint():

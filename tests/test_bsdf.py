@@ -108,6 +108,14 @@ def mc_albedo(lb, wo, seed=7):
     return w.mean(axis=0), w.std(axis=0) / math.sqrt(n), s
 
 
+def PGLASS(rough, base=(0.8, 0.3, 0.2), tint=(1.0, 1.0, 1.0), ior=1.5, weight=1.0):
+    """The glass lobe the exporter makes of a Principled BSDF with Transmission 1 (Cycles' glass closure):
+    F0(IOR) x Specular Tint, untinted reflection, transmission tinted sqrt(base colour)."""
+    f0 = ((ior - 1) / (ior + 1)) ** 2 * np.asarray(tint, np.float64)
+    return Lobe("glass", color=np.full(3, weight), roughness=rough, ior=ior, fresnel="generalized_schlick",
+                f0=np.clip(f0, 0, 1), transmission_tint=np.sqrt(np.asarray(base, np.float64)))
+
+
 # ---------------------------------------------------------------------------------- sampling matches pdf
 CHI2_CASES = [
     ("diffuse", [Lobe("diffuse", color=(0.8, 0.5, 0.2))], 0.7),
@@ -131,6 +139,9 @@ CHI2_CASES = [
                                   Lobe("glass", roughness=0.7, ior=1.5, color=(0.5, 0.5, 0.5))], 0.6),
     ("mix with delta lobes", [Lobe("diffuse", color=(0.5, 0.5, 0.5)), Lobe("glossy", roughness=0.0),
                               Lobe("glass", roughness=0.0)], 0.5),
+    ("principled glass r0.4 in", [PGLASS(0.4, tint=(0.3, 1.0, 0.6))], 0.7),
+    ("principled glass r0.6 out", [PGLASS(0.6)], -0.6),
+    ("glass reflection tint 0", [Lobe("glass", roughness=0.5, ior=1.5, reflection_tint=0.0)], 0.5),
 ]
 
 
@@ -162,7 +173,10 @@ def test_wrong_pdf_fails_chi2():
     [Lobe("refraction", roughness=0.7, ior=1.3)],
     [Lobe("diffuse", color=(0.5, 0.2, 0.2)), Lobe("glossy", roughness=0.2, fresnel="dielectric"),
      Lobe("glass", roughness=0.0), Lobe("refraction", roughness=0.35, ior=1.2, color=(0.2, 0.2, 0.2))],
-], ids=["diffuse", "glossy", "glass", "refraction", "mixture"])
+    [PGLASS(0.45, tint=(1.0, 0.4, 0.1), weight=0.7)],
+    [Lobe("glass", roughness=0.3, ior=1.33, color=(0.9, 0.8, 0.7), reflection_tint=(0.2, 0.5, 1.0),
+          transmission_tint=(1.0, 0.0, 0.3))],
+], ids=["diffuse", "glossy", "glass", "refraction", "mixture", "principled glass", "tinted glass"])
 def test_sample_weight_equals_eval_over_pdf(lobes):
     rng = np.random.default_rng(3)
     n = 50_000
@@ -769,3 +783,111 @@ def test_under_must_name_a_generalized_schlick_lobe():
             bsdf.MaterialTable.build([Material("m", lobes)])
     with pytest.raises(SceneError, match="lobe index"):
         Lobe("diffuse", under=-3).validate("m")
+
+
+# ------------------------------------------------------------------------------------------- tinted glass
+def test_glass_reflection_tint_zero_leaves_transmission():
+    """Reflection tint 0: reflected directions evaluate to 0 and are never sampled; transmission keeps the plain
+    glass's value (same Fresnel), now sampled with probability 1. Transmission tint 0 is the mirror case."""
+    rng = np.random.default_rng(31)
+    n = 40_000
+    wo = random_dirs(rng, n)
+    wi = random_dirs(rng, n)
+    plain = batch([Lobe("glass", roughness=0.5, ior=1.5, color=(0.9, 0.6, 0.3))], n)
+    only_t = batch([Lobe("glass", roughness=0.5, ior=1.5, color=(0.9, 0.6, 0.3), reflection_tint=0.0)], n)
+    only_r = batch([Lobe("glass", roughness=0.5, ior=1.5, color=(0.9, 0.6, 0.3), transmission_tint=0.0)], n)
+    f_p, pdf_p = bsdf.eval_bsdf(plain, wo, wi)
+    f_t, pdf_t = bsdf.eval_bsdf(only_t, wo, wi)
+    f_r, _ = bsdf.eval_bsdf(only_r, wo, wi)
+    trans = wo[:, 2] * wi[:, 2] < 0
+    assert np.all(f_t[~trans] == 0) and np.all(f_r[trans] == 0)
+    live = trans & (pdf_p > 0)
+    assert live.sum() > 0.05 * n
+    # f_t differs from plain only by the multiscatter Fss (black reflection tint: Fss = transmission tint, same
+    # colour); with multiscatter off the transmitted values must be identical
+    np.testing.assert_allclose(f_t[live], f_p[live], rtol=1e-5)
+    ss_p, _ = bsdf.eval_bsdf(batch([Lobe("glass", roughness=0.5, ior=1.5)], n, multiscatter=False), wo, wi)
+    ss_t, _ = bsdf.eval_bsdf(batch([Lobe("glass", roughness=0.5, ior=1.5, reflection_tint=0.0)], n,
+                                   multiscatter=False), wo, wi)
+    np.testing.assert_array_equal(ss_t[trans], ss_p[trans])
+    s = draw(only_t, wo, 32)
+    assert not np.any(s.valid & ~s.transmitted)
+    s = draw(batch([Lobe("glass", roughness=0.0, ior=1.5, reflection_tint=0.0, color=(0.9, 0.6, 0.3))], n), wo, 33)
+    assert np.all(s.transmitted[s.valid])
+    mu = np.abs(wo[s.valid, 2])
+    eta = np.where(wo[s.valid, 2] > 0, 1.5, 1 / 1.5)
+    # smooth: weight = (1 - F) colour with probability 1 (TIR leaves nothing to transmit: invalid)
+    np.testing.assert_allclose(s.weight[s.valid], (1 - fresnel_exact(mu, eta))[:, None] * [0.9, 0.6, 0.3],
+                               rtol=1e-4, atol=5e-5)  # float32 directions near the critical angle
+    assert np.array_equal(s.valid, fresnel_exact(np.abs(wo[:, 2]), np.where(wo[:, 2] > 0, 1.5, 1 / 1.5)) < 1)
+
+
+def test_principled_glass_white_equals_glass():
+    """The Principled glass lobe with white tints (f0 = F0(IOR), transmission tint 1) is the Glass BSDF: same
+    values and pdf (the generalized Schlick remap of F0(IOR) is the identity)."""
+    rng = np.random.default_rng(35)
+    n = 30_000
+    wo, wi = random_dirs(rng, n), random_dirs(rng, n)
+    f_g, pdf_g = bsdf.eval_bsdf(batch([Lobe("glass", roughness=0.4, ior=1.45)], n), wo, wi)
+    f_p, pdf_p = bsdf.eval_bsdf(batch([PGLASS(0.4, base=(1, 1, 1), ior=1.45)], n), wo, wi)
+    np.testing.assert_allclose(f_p, f_g, rtol=2e-5, atol=1e-7)
+    np.testing.assert_allclose(pdf_p, pdf_g, rtol=2e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("mu", [0.9, 0.4, -0.5, -0.9])
+def test_smooth_principled_glass_tints(mu):
+    """Smooth Principled glass: per channel the expected weight is F_c + (1 - F_c) sqrt(base_c) (reflection
+    untinted, F_c = f0_c + (1 - f0_c) s with f0 = F0 x Specular Tint), reflection is chosen with probability
+    mean R / mean (R + T) (Cycles' pdf_reflect), and each sample's weight is its event's value / probability."""
+    n = 200_000
+    base, tint = np.array([0.8, 0.3, 0.2]), np.array([1.0, 0.5, 0.0])
+    wo = direction(abs(mu), n=n)
+    wo[:, 2] *= np.sign(mu)
+    eta = 1.5 if mu > 0 else 1 / 1.5
+    Fr = float(fresnel_exact(abs(mu), eta))
+    s_remap = (Fr - 0.04) / (1 - 0.04)
+    F = 0.04 * tint + (1 - 0.04 * tint) * s_remap
+    R, T = F, (1 - F) * np.sqrt(base)
+    p_r = R.mean() / (R + T).mean()
+    s = draw(batch([PGLASS(0.0, base=base, tint=tint)], n), wo, 36)
+    assert np.all(s.valid) and np.all(s.delta)
+    refl = ~s.transmitted
+    assert abs(refl.mean() - p_r) <= 4 * math.sqrt(p_r * (1 - p_r) / n) + 1e-9
+    np.testing.assert_allclose(s.weight[refl], np.tile(R / p_r, (refl.sum(), 1)), rtol=2e-4)
+    if p_r < 1:
+        np.testing.assert_allclose(s.weight[~refl], np.tile(T / (1 - p_r), ((~refl).sum(), 1)), rtol=2e-4)
+    # the albedo AOV seen from outside: R + T from the table at roughness 0 (within the table's interpolation;
+    # like Cycles' estimate it reads the outside IOR's table, so it is not checked from inside)
+    if mu > 0:
+        np.testing.assert_allclose(bsdf.albedo(batch([PGLASS(0.0, base=base, tint=tint)], 1), wo[:1])[0],
+                                   R + T, atol=0.01)
+
+
+def test_principled_glass_texture_tints_transmission_by_sqrt():
+    """A textured base colour on the Principled glass lobe tints its transmission by sqrt(texel) (clamped to 1),
+    not its weight; a plain glass lobe's texture keeps multiplying its colour."""
+    img = np.zeros((1, 2, 3), F32)
+    img[0, 0] = (0.64, 0.25, 4.0)
+    img[0, 1] = (0.04, 1.0, 0.09)
+    tex = Texture("t", img)
+    principled = PGLASS(0.3, base=(1, 1, 1), weight=0.5)
+    principled.color_texture = 0
+    mt = bsdf.MaterialTable.build([Material("p", [principled]),
+                                   Material("g", [Lobe("glass", roughness=0.3, color=(0.5, 0.5, 0.5),
+                                                       color_texture=0)])], [tex])
+    uv = np.array([[0.25, 0.5], [0.75, 0.5]], F32)
+    lb = mt.gather(np.zeros(2, np.int64), uv)
+    np.testing.assert_allclose(lb.weight[:, 0], 0.5)
+    np.testing.assert_allclose(lb.tint[:, 0, 1], [[0.8, 0.5, 1.0], [0.2, 1.0, 0.3]], rtol=1e-6)
+    np.testing.assert_array_equal(lb.tint[:, 0, 0], 1.0)
+    lb = mt.gather(np.ones(2, np.int64), uv)
+    np.testing.assert_allclose(lb.weight[:, 0], 0.5 * img[0], rtol=1e-6)
+    np.testing.assert_array_equal(lb.tint[:, 0], 1.0)
+
+
+def test_tints_only_on_glass():
+    from monte.core.scene import SceneError
+    with pytest.raises(SceneError, match="glass lobes only"):
+        Material("m", [Lobe("glossy", roughness=0.2, transmission_tint=0.5)]).validate(0)
+    with pytest.raises(SceneError, match="negative"):
+        Lobe("glass", reflection_tint=(-1, 0, 0)).validate("m")

@@ -12,7 +12,9 @@ What is read, starting from the active Material Output (target Cycles/All) Surfa
     metal     Schlick's Fresnel on the base colour (what Blender's F82 model reduces to with a white tint):
               a glossy GGX lobe of base colour x metallic without Fresnel plus one with Schlick F0 = 0 tinted
               (1 - base colour) x metallic; with a textured base colour only the first (darker at grazing)
-    glass     glass GGX with IOR, colour base colour x (1 - metallic) x transmission
+    glass     glass GGX with IOR, weight (1 - metallic) x transmission, as Cycles' glass closure: reflection
+              with the generalized-Schlick Fresnel of F0(IOR) x Specular Tint (no Specular IOR Level),
+              transmission (1 - F) x sqrt(base colour)
     alpha     refraction with IOR 1 (a straight pass-through) weighted 1 - alpha
     emission  Emission Color x Emission Strength
   Coat, sheen, subsurface (rendered as diffuse), anisotropy, thin film and normal/bump maps are not
@@ -346,8 +348,14 @@ class MaterialExporter:
                 lobes.append(Lobe("glossy", a * metallic * np.clip(1.0 - base, 0.0, 1.0), roughness=rough,
                                   ior=1.0, fresnel="schlick"))
         if a * (1.0 - metallic) * transmission > 0:
-            lobes.append(Lobe("glass", a * (1.0 - metallic) * transmission * base, roughness=rough, ior=ior,
-                              color_texture=tex))
+            # Cycles' Principled glass closure: the real IOR (Specular IOR Level does not apply), reflection
+            # f0 = F0(IOR) x Specular Tint remapped as for the specular layer and untinted otherwise,
+            # transmission tinted by sqrt(base colour) (light crosses two interfaces through a closed object);
+            # a textured base colour tints the transmission by the texel's square root (see core.scene.Lobe).
+            r0 = (ior - 1.0) / (ior + 1.0)
+            lobes.append(Lobe("glass", np.full(3, a * (1.0 - metallic) * transmission), roughness=rough, ior=ior,
+                              fresnel="generalized_schlick", f0=np.clip(r0 * r0 * tint, 0.0, 1.0),
+                              transmission_tint=np.sqrt(np.clip(base, 0.0, 1.0)), color_texture=tex))
         if alpha < 1.0:
             lobes.append(Lobe("refraction", np.full(3, weight * (1.0 - alpha)), roughness=0.0, ior=1.0))
         emission = np.zeros(3)
