@@ -139,14 +139,13 @@ class PreparedScene:
         vertices = np.concatenate(verts) if verts else np.zeros((0, 3), np.float32)
         triangles = np.concatenate(tris).astype(np.int32) if tris else np.zeros((0, 3), np.int32)
         material_index = np.concatenate(mats).astype(np.int32) if mats else np.zeros(0, np.int32)
-        tri_vertices = vertices[triangles]
-        e1 = (tri_vertices[:, 1] - tri_vertices[:, 0]).astype(np.float64)
-        e2 = (tri_vertices[:, 2] - tri_vertices[:, 0]).astype(np.float64)
-        cross = np.cross(e1, e2)
-        length = np.linalg.norm(cross, axis=1)
-        # Triangles that became degenerate in float32 (huge coordinates) keep a safe normal and are harmless.
-        face_normals = (cross / np.maximum(length, 1e-300)[:, None]).astype(np.float32)
-        tri_magnitude = np.abs(tri_vertices).max(axis=(1, 2)).astype(np.float32) if len(triangles) else np.zeros(0, np.float32)
+        t_count = len(triangles)
+        tri_vertices = np.empty((t_count, 3, 3), np.float32)
+        face_normals = np.empty((t_count, 3), np.float32)
+        tri_magnitude = np.empty(t_count, np.float32)
+        # Triangles that became degenerate in float32 (huge coordinates) keep a zero normal and are harmless.
+        kernels.triangle_frames(np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(triangles, np.int64),
+                                tri_vertices, face_normals, tri_magnitude)
         corner_normals = np.concatenate(normals).astype(np.float32) if any_smooth and normals else None
         smooth_mask = np.concatenate(smooth) if any_smooth and smooth else None
         uv_arr = np.concatenate(uvs).astype(np.float32) if any_uv and uvs else None

@@ -269,3 +269,52 @@ def accumulate(radiance, rows, value, clamp, counters):
         radiance[r, 0] += v0
         radiance[r, 1] += v1
         radiance[r, 2] += v2
+
+
+# ------------------------------------------------------------------------------------------- scene set-up
+@_jit
+def triangle_checks(vertices, triangles, finite, area2, edge):
+    """Per triangle of float64 vertices (V, 3) and int64 indices (T, 3): finite[t] (all 9 coordinates finite),
+    area2[t] = |(b - a) x (c - a)| (twice the area) and edge[t] = the largest |coordinate difference| of b and c
+    from a. One pass instead of a (T, 3, 3) gather and a dozen NumPy reductions (scene validation of large
+    instanced meshes)."""
+    for t in range(triangles.shape[0]):
+        i0, i1, i2 = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+        ok = True
+        e = 0.0
+        for c in range(3):
+            a, b, d = vertices[i0, c], vertices[i1, c], vertices[i2, c]
+            if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(d)):
+                ok = False
+            e = max(e, abs(b - a), abs(d - a))
+        finite[t] = ok
+        edge[t] = e
+        ux, uy, uz = vertices[i1, 0] - vertices[i0, 0], vertices[i1, 1] - vertices[i0, 1], vertices[i1, 2] - vertices[i0, 2]
+        vx, vy, vz = vertices[i2, 0] - vertices[i0, 0], vertices[i2, 1] - vertices[i0, 1], vertices[i2, 2] - vertices[i0, 2]
+        cx, cy, cz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        area2[t] = math.sqrt(cx * cx + cy * cy + cz * cz)
+
+
+@_jit
+def triangle_frames(vertices, triangles, tri_vertices, face_normals, magnitude):
+    """Per triangle of float32 vertices (V, 3): its corners (T, 3, 3), unit face normal from the winding (cross
+    product in float64; a triangle degenerate in float32 gets (0, 0, 0)) and largest |coordinate| (the scale of
+    its ray offsets)."""
+    for t in range(triangles.shape[0]):
+        m = np.float32(0.0)
+        for k in range(3):
+            for c in range(3):
+                x = vertices[triangles[t, k], c]
+                tri_vertices[t, k, c] = x
+                m = max(m, abs(x))
+        magnitude[t] = m
+        # edges in float32 (the precision the renderer's triangles have), their cross product in float64
+        ux = np.float64(tri_vertices[t, 1, 0] - tri_vertices[t, 0, 0])
+        uy = np.float64(tri_vertices[t, 1, 1] - tri_vertices[t, 0, 1])
+        uz = np.float64(tri_vertices[t, 1, 2] - tri_vertices[t, 0, 2])
+        vx = np.float64(tri_vertices[t, 2, 0] - tri_vertices[t, 0, 0])
+        vy = np.float64(tri_vertices[t, 2, 1] - tri_vertices[t, 0, 1])
+        vz = np.float64(tri_vertices[t, 2, 2] - tri_vertices[t, 0, 2])
+        cx, cy, cz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        length = max(math.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
+        face_normals[t, 0], face_normals[t, 1], face_normals[t, 2] = cx / length, cy / length, cz / length

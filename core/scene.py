@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from .kernels import triangle_checks
 
 LobeKind = Literal["diffuse", "glossy", "glass", "refraction"]
 FresnelMode = Literal["none", "schlick", "dielectric", "generalized_schlick"]
@@ -222,13 +223,12 @@ class Mesh:
             raise SceneError(f"{owner}: uvs must have shape (T, 3, 2) = ({n_tri}, 3, 2), got {uvs.shape}")
 
         # Drop triangles with non-finite or degenerate (zero-area) geometry: counted, never fatal.
-        p = v[tri]  # (T, 3, 3)
-        finite = np.all(np.isfinite(p), axis=(1, 2))
+        finite = np.empty(n_tri, bool)
+        area2 = np.empty(n_tri)
+        edge = np.empty(n_tri)
+        triangle_checks(np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(tri), finite, area2, edge)
         with np.errstate(invalid="ignore", over="ignore"):
-            cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-            area2 = np.linalg.norm(cross, axis=1)
             # zero area relative to the triangle's own size: collinear or repeated vertices
-            edge = np.max(np.abs(p - p[:, :1]), axis=(1, 2))
             degenerate = ~(area2 > 1e-12 * np.maximum(edge, 1e-300) ** 2) | (area2 == 0)
         keep = finite & ~degenerate
         if normals is not None:
@@ -236,7 +236,10 @@ class Mesh:
             if bad_n.any():
                 warnings.append(f"{owner}: {int(bad_n.sum())} triangles with invalid shading normals use flat shading")
                 normals = normals.copy()
-                flat = (cross[bad_n] / np.maximum(area2[bad_n], 1e-300)[:, None]).astype(np.float32)
+                p = v[tri[bad_n]]
+                with np.errstate(invalid="ignore", over="ignore"):
+                    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+                flat = (cross / np.maximum(area2[bad_n], 1e-300)[:, None]).astype(np.float32)
                 normals[bad_n] = flat[:, None, :]
         if uvs is not None and not np.all(np.isfinite(uvs)):
             warnings.append(f"{owner}: non-finite UVs replaced by 0")
