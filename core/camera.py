@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
 from .scene import Camera
 
 
@@ -31,9 +32,6 @@ def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray) -> C
 
     Rays start at the near clipping plane and end at the far one."""
     w, h = camera.resolution
-    xmin, xmax, ymin, ymax = camera.frame()
-    x = xmin + (np.asarray(raster_x, np.float64) / w) * (xmax - xmin)
-    y = ymax - (np.asarray(raster_y, np.float64) / h) * (ymax - ymin)
     m = np.asarray(camera.matrix_world, np.float64)
     basis = m[:3, :3]
     # Camera axes in world space, normalised: Blender camera matrices may carry scale, which doesn't change
@@ -41,20 +39,12 @@ def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray) -> C
     right = basis[:, 0] / np.linalg.norm(basis[:, 0])
     up = basis[:, 1] / np.linalg.norm(basis[:, 1])
     back = basis[:, 2] / np.linalg.norm(basis[:, 2])
-    n = x.shape[0]
-    if camera.kind == "ORTHO":
-        d = np.broadcast_to(-back, (n, 3))
-        o = x[:, None] * right + y[:, None] * up + camera.clip_start * d
-        tmax = np.full(n, camera.clip_end - camera.clip_start)
-        scale = np.ones(n)
-        t0 = np.full(n, camera.clip_start)
-    else:
-        local = x[:, None] * right + y[:, None] * up - back  # point on the plane at distance 1
-        length = np.linalg.norm(local, axis=1)
-        d = local / length[:, None]
-        scale = 1.0 / length  # cos of the angle between the ray and the view axis
-        t0 = camera.clip_start / scale
-        o = d * t0[:, None]
-        tmax = camera.clip_end / scale - t0
-    return CameraRays(o.astype(np.float32), np.ascontiguousarray(d, dtype=np.float32),
-                      np.minimum(tmax, 3e38).astype(np.float32), scale.astype(np.float32), t0.astype(np.float32))
+    rx = np.ascontiguousarray(raster_x, np.float64).reshape(-1)
+    ry = np.ascontiguousarray(raster_y, np.float64).reshape(-1)
+    n = rx.shape[0]
+    rays = CameraRays(np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
+                      np.empty(n, np.float32), np.empty(n, np.float32))
+    kernels.camera_rays(rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
+                        camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end), rays.origins,
+                        rays.directions, rays.tmax, rays.depth_scale, rays.t_start)
+    return rays

@@ -318,3 +318,37 @@ def triangle_frames(vertices, triangles, tri_vertices, face_normals, magnitude):
         cx, cy, cz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
         length = max(math.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
         face_normals[t, 0], face_normals[t, 1], face_normals[t, 2] = cx / length, cy / length, cz / length
+
+
+@_jit
+def camera_rays(raster_x, raster_y, width, height, frame, right, up, back, ortho, clip_start, clip_end,
+                origins, directions, tmax, depth_scale, t_start):
+    """Camera rays through raster positions (see core.camera.camera_rays), in float64, written as float32.
+
+    frame: (xmin, xmax, ymin, ymax) of the image on the plane at distance 1 (perspective) or in world units
+    (orthographic); right, up, back: the camera's unit axes; rays start at clip_start and end at clip_end."""
+    xmin, xmax, ymin, ymax = frame[0], frame[1], frame[2], frame[3]
+    for k in range(raster_x.shape[0]):
+        x = xmin + (raster_x[k] / width) * (xmax - xmin)
+        y = ymax - (raster_y[k] / height) * (ymax - ymin)
+        if ortho:
+            dx, dy, dz = -back[0], -back[1], -back[2]
+            ox = x * right[0] + y * up[0] + clip_start * dx
+            oy = x * right[1] + y * up[1] + clip_start * dy
+            oz = x * right[2] + y * up[2] + clip_start * dz
+            tm, scale, t0 = clip_end - clip_start, 1.0, clip_start
+        else:
+            lx = x * right[0] + y * up[0] - back[0]
+            ly = x * right[1] + y * up[1] - back[1]
+            lz = x * right[2] + y * up[2] - back[2]
+            length = math.sqrt(lx * lx + ly * ly + lz * lz)
+            dx, dy, dz = lx / length, ly / length, lz / length
+            scale = 1.0 / length  # cos of the angle between the ray and the view axis
+            t0 = clip_start / scale
+            ox, oy, oz = dx * t0, dy * t0, dz * t0
+            tm = clip_end / scale - t0
+        origins[k, 0], origins[k, 1], origins[k, 2] = ox, oy, oz
+        directions[k, 0], directions[k, 1], directions[k, 2] = dx, dy, dz
+        tmax[k] = min(tm, 3e38)
+        depth_scale[k] = scale
+        t_start[k] = t0
