@@ -120,7 +120,7 @@ def _load_scene(spec: str, resolution: tuple[int, int] | None) -> tuple[object, 
             scene.render.resolution_percentage = 100
         return scene, path.stem, "blend:" + file_digest(path)
     scene = bpy_scenes.build(spec, resolution or (256, 256))
-    return scene, spec, f"bpy_scenes:{bpy_scenes.SCENES_VERSION}"
+    return scene, spec, f"bpy_scenes:{bpy_scenes.scene_version(spec)}"
 
 
 def _resolution_of(scene) -> tuple[int, int]:

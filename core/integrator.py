@@ -117,7 +117,9 @@ class PreparedScene:
         return self.uvs if self.uvs is not None else np.zeros((0, 3, 2), np.float32)
 
     @classmethod
-    def build(cls, scene: Scene) -> "PreparedScene":
+    def build(cls, scene: Scene, sample_world: bool = False) -> "PreparedScene":
+        """sample_world: whether light sampling may pick the (uniform) world, see LightSampler; only the
+        light-sampling-only estimator needs it (it counts no emission that BSDF sampling finds)."""
         shift = scene.camera.position.copy()
         verts, tris, mats, normals, uvs, smooth = [], [], [], [], [], []
         offset = 0
@@ -157,7 +159,7 @@ class PreparedScene:
             radius = float(np.linalg.norm(hi - lo) / 2) or 1.0
         else:
             radius = 1.0
-        lights = LightSampler(scene, shift, emissive, radius)
+        lights = LightSampler(scene, shift, emissive, radius, sample_world=sample_world)
         has_nondelta = np.array(
             [any(lobe.kind == "diffuse" or lobe.roughness > 0 for lobe in m.lobes) for m in scene.materials], bool
         )
@@ -262,7 +264,7 @@ class PathTracer:
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
-            if ps.lights.has_lights:
+            if ps.lights.has_emission:
                 mis_here = self.mis and depth > 0
                 le = ps.lights.intersect(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf, prev_delta,
                                          mis_here, n=prev_normal, camera=depth == 0, transmits=prev_transmits)
@@ -295,7 +297,9 @@ class PathTracer:
                 self._lap("emission", clock)
                 break  # this vertex only contributes emission (Cycles' bounce counting)
 
-            # Russian roulette as Cycles does it, before any work at this vertex: survive with probability
+            # Russian roulette as Cycles does it (from the third vertex on with the default rr_depth 2; starting
+            # at the second cost 4-22 % more MSE at equal samples on the bench scenes and saved only 3-4 % time),
+            # before any work at this vertex: survive with probability
             # min(1, sqrt(max throughput)); the square root ends paths later than the throughput itself would
             # (measured on the Cornell box: MSE at equal samples 0.0115 without RR, 0.0201 with q = throughput,
             # 0.0165 with sqrt), and a terminated path casts no shadow ray here. The paths that go on (hit and

@@ -175,7 +175,7 @@ def render(
     check_render_memory(scene, settings, rw * rh)
 
     t0 = time.perf_counter()
-    prepared = PreparedScene.build(scene)
+    prepared = PreparedScene.build(scene, sample_world=settings.light_sampling == "light")
     # Parallelism is across batches (see below), so each Embree call runs on the worker that makes it.
     accel = Accelerator(prepared.vertices, prepared.triangles)
     t_prepare = time.perf_counter() - t0

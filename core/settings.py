@@ -27,7 +27,8 @@ class RenderSettings:
     spp: samples per pixel. seed: every random number is a pure function of (seed, pixel, sample, dimension).
     sampler: "sobol" (Owen-scrambled Sobol), "stratified" (the seed's 2x2 strata per pixel), "independent".
     filter_type/filter_width: pixel filter importance-sampled as Cycles does (width in pixels, Cycles' meaning).
-    rr_depth: Russian roulette starts after this many bounces. clamp: max sample value (0 = off, unbiased).
+    rr_depth: Russian roulette starts after this many bounces (2, as Cycles: its min_bounce is the UI's
+    minimum light bounces 0 + 1, and a path's bounce count must exceed it). clamp: max sample value (0 = off, unbiased).
     threads: ray-casting threads (0 = all cores). batch_paths: paths alive at once (bounds memory).
     tile_size: square tile edge in pixels. time_limit: seconds, 0 = none (stops between sample batches).
     light_sampling: "mis" (default), "bsdf" (BSDF sampling only) or "light" (next-event estimation only; for
@@ -44,7 +45,7 @@ class RenderSettings:
     filter_type: Literal["blackman-harris", "gaussian", "tent", "box"] = "blackman-harris"
     filter_width: float = 1.5
     max_bounces: int = 16
-    rr_depth: int = 1
+    rr_depth: int = 2
     clamp: float = 0.0
     threads: int = 0
     batch_paths: int = 1 << 18

@@ -53,10 +53,11 @@ def test_plane_under_world_radiance_and_passes(tmp_path):
     assert combined.shape == (12, 16, 3)
     assert np.all(np.isfinite(combined)) and np.allclose(ch["ViewLayer.Combined.A"], 1.0)
     var = rgb(ch, name="Variance")
-    assert np.all(var >= 0) and var.max() > 0
-    # radiance = albedo x world, within the noise the Variance pass reports
-    sigma = math.sqrt(var[..., 0].sum()) / var[..., 0].size
-    assert abs(combined[..., 0].mean() - 0.5) < 5 * sigma + 0.01
+    # radiance = albedo x world. The uniform world is found by cosine-weighted BSDF sampling alone (as Cycles
+    # does; it is not light-sampled), so over an unbounded diffuse plane every sample is exactly albedo x world:
+    # a zero-variance estimator, which the Variance pass must report (float rounding aside).
+    assert np.all(var >= 0) and var.max() < 1e-10
+    assert np.allclose(combined, 0.5, atol=1e-5)
     assert np.allclose(ch["ViewLayer.Depth.Z"], 1.0, atol=1e-4)  # camera 1 m above, looking straight down
     normal = np.stack([ch[f"ViewLayer.Normal.{c}"] for c in "XYZ"], axis=-1)
     assert np.allclose(normal, (0, 0, 1), atol=1e-4)
