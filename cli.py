@@ -38,7 +38,7 @@ def _add_render_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--filter", dest="filter_type", choices=FILTERS, help="pixel filter (default blackman-harris)")
     p.add_argument("--filter-width", type=float, help="pixel filter width in pixels, Cycles' meaning (default 1.5)")
     p.add_argument("--max-bounces", type=int, help="maximum bounces, Cycles' counting (default 16)")
-    p.add_argument("--rr-depth", type=int, help="bounces before Russian roulette starts (default 1)")
+    p.add_argument("--rr-depth", type=int, help="bounces before Russian roulette starts (default 2, as Cycles)")
     p.add_argument("--clamp", type=float, help="clamp sample values above this (0 = off, unbiased; default 0)")
     p.add_argument("--threads", type=int, help="ray-casting threads (0 = all cores)")
     p.add_argument("--batch", dest="batch_paths", type=int, help="paths traced at once; bounds memory")
