@@ -106,6 +106,8 @@ class MonteRenderEngine(bpy.types.RenderEngine):
 
     def _log(self, message: str) -> None:
         print(f"Monte: {message}", flush=True)
+        if message.startswith("compiling"):  # the one long silent step: show it in the status bar too
+            self.update_stats("", f"Monte | {message}")
 
     def render(self, depsgraph):
         try:

@@ -19,6 +19,19 @@ import numpy as np
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 
+# Modules whose numba kernels are cached on disk (in core/__pycache__, next to the sources).
+_CACHED_MODULES = ("kernels", "sampling", "bsdf_kernels", "light_kernels")
+
+
+def compile_cache_is_cold() -> bool:
+    """True when some kernel module has no numba cache index yet (first render after an install or an update
+    of the sources): that render compiles the kernels first, about a minute on a 2-core machine."""
+    import glob
+    import os
+
+    cache = os.path.join(os.path.dirname(os.path.abspath(__file__)), "__pycache__")
+    return any(not glob.glob(os.path.join(cache, f"{name}.*.nbi")) for name in _CACHED_MODULES)
+
 _F0 = np.float32(0.0)
 _F1 = np.float32(1.0)
 _OFFSET_SCALE = np.float32(2.0**-19)  # of the coordinates' magnitude: see _offset

@@ -15,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 
+from .kernels import compile_cache_is_cold
 from .scene import Scene
 from .settings import RenderSettings
 
@@ -163,6 +164,8 @@ def render(
     settings.validate()
     t_start = time.perf_counter()
     say = log or (lambda _msg: None)
+    if compile_cache_is_cold():
+        say("compiling the render kernels (first render after an install or update, about a minute; cached after)")
     scene.validate()
     width, height = scene.camera.resolution
     if region is None:

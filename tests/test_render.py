@@ -316,3 +316,15 @@ def test_perf_command_reports_stages_and_unused_feature_cost(tmp_path):
     report = json.loads(out.read_text())
     assert sum(report["stages"]["stage_share"].values()) == pytest.approx(1.0)
     assert report["skip"]["seconds_plain"] > 0 and report["skip"]["seconds_unused_glass"] > 0
+
+
+def test_kernel_cache_is_warm_after_a_render(fast_settings):
+    """After any render the compiled kernels are cached on disk, so the 'compiling' notice is not shown again."""
+    from monte.core.kernels import compile_cache_is_cold
+
+    messages = []
+    render(scenes.plane_under_world((8, 8)), fast_settings(spp=1), log=messages.append)
+    assert not compile_cache_is_cold()
+    messages.clear()
+    render(scenes.plane_under_world((8, 8)), fast_settings(spp=1), log=messages.append)
+    assert not any(m.startswith("compiling") for m in messages), messages
