@@ -74,10 +74,15 @@ class SurfaceBatch:
         return SurfaceBatch(self.data[rows])
 
 
-for _i, _name in enumerate(SurfaceBatch._VECTORS):
-    setattr(SurfaceBatch, _name, property(lambda self, c=3 * _i: self.data[:, c:c + 3]))
-for _i, _name in enumerate(SurfaceBatch._SCALARS):
-    setattr(SurfaceBatch, _name, property(lambda self, c=3 * len(SurfaceBatch._VECTORS) + _i: self.data[:, c]))
+def _column_views() -> None:
+    """Give SurfaceBatch one property per field: a view of its columns in the packed array."""
+    for i, name in enumerate(SurfaceBatch._VECTORS):
+        setattr(SurfaceBatch, name, property(lambda self, c=3 * i: self.data[:, c:c + 3]))
+    for i, name in enumerate(SurfaceBatch._SCALARS):
+        setattr(SurfaceBatch, name, property(lambda self, c=3 * len(SurfaceBatch._VECTORS) + i: self.data[:, c]))
+
+
+_column_views()
 
 
 @dataclass
