@@ -722,6 +722,16 @@ def sample_batch(p, n, has_n, transmits, has_t, u_sel, u, per_point, lt, buf, wi
 
 
 # ------------------------------------------------------------------------------------ emission along rays
+@_jit
+def _times_selection(pl, unit, have_prob, ox, oy, oz, nx, ny, nz, has_n, transmits, lt, buf):
+    """pl times the per-point selection probability of `unit` (-1: never selected) at the ray origin o; the
+    probabilities of all units go into buf on a ray's first light hit (have_prob False) and are reused after.
+    Returns (pl x probability, True)."""
+    if not have_prob:
+        probabilities_at(ox, oy, oz, nx, ny, nz, has_n, transmits, lt[0], lt[1], lt[4], lt[5], buf)
+    return pl * (buf[unit] if unit >= 0 else 0.0), True
+
+
 @_inline
 def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_mis, nx, ny, nz, has_n,
                         transmits, camera, per_point, lt, buf):
@@ -772,11 +782,8 @@ def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_
         if use_mis and not bsdf_delta:
             pl = _f32(pdf)
             if need_prob:
-                if not have_prob:
-                    probabilities_at(ox, oy, oz, nx, ny, nz, has_n, transmits, lt[0], lt[1], lt[4], lt[5], buf)
-                    have_prob = True
-                unit = np.int64(pt[k, PT_UNIT])
-                pl *= buf[unit] if unit >= 0 else 0.0
+                pl, have_prob = _times_selection(pl, np.int64(pt[k, PT_UNIT]), have_prob, ox, oy, oz, nx, ny, nz,
+                                                 has_n, transmits, lt, buf)
             wgt = _mis_power(bsdf_pdf, pl)
         er += _f32(_f32(pt[k, PT_R] * att) * wgt)
         eg += _f32(_f32(pt[k, PT_G] * att) * wgt)
@@ -811,11 +818,8 @@ def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_
                     pdf = 1.0 / S
             pl = _f32(ar[k, AR_SEL] * pdf)
             if need_prob:
-                if not have_prob:
-                    probabilities_at(ox, oy, oz, nx, ny, nz, has_n, transmits, lt[0], lt[1], lt[4], lt[5], buf)
-                    have_prob = True
-                unit = np.int64(ar[k, AR_UNIT])
-                pl *= buf[unit] if unit >= 0 else 0.0
+                pl, have_prob = _times_selection(pl, np.int64(ar[k, AR_UNIT]), have_prob, ox, oy, oz, nx, ny, nz,
+                                                 has_n, transmits, lt, buf)
             wgt = _mis_power(bsdf_pdf, pl)
         er += _f32(_f32(ar[k, AR_R] * att) * wgt)
         eg += _f32(_f32(ar[k, AR_G] * att) * wgt)
@@ -833,11 +837,8 @@ def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_
         if use_mis and not bsdf_delta:
             pl = _f32(su[k, SU_SEL] / (_TWO_PI * omc))
             if need_prob:
-                if not have_prob:
-                    probabilities_at(ox, oy, oz, nx, ny, nz, has_n, transmits, lt[0], lt[1], lt[4], lt[5], buf)
-                    have_prob = True
-                unit = np.int64(su[k, SU_UNIT])
-                pl *= buf[unit] if unit >= 0 else 0.0
+                pl, have_prob = _times_selection(pl, np.int64(su[k, SU_UNIT]), have_prob, ox, oy, oz, nx, ny, nz,
+                                                 has_n, transmits, lt, buf)
             wgt = _mis_power(bsdf_pdf, pl)
         er += _f32(su[k, SU_R] * wgt)
         eg += _f32(su[k, SU_G] * wgt)
@@ -850,11 +851,8 @@ def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_
             else:
                 pl = _f32(w[W_SEL] * _INV_4PI)
             if need_prob:
-                if not have_prob:
-                    probabilities_at(ox, oy, oz, nx, ny, nz, has_n, transmits, lt[0], lt[1], lt[4], lt[5], buf)
-                    have_prob = True
-                unit = np.int64(w[W_UNIT])
-                pl *= buf[unit] if unit >= 0 else 0.0
+                pl, have_prob = _times_selection(pl, np.int64(w[W_UNIT]), have_prob, ox, oy, oz, nx, ny, nz,
+                                                 has_n, transmits, lt, buf)
             wgt = _mis_power(bsdf_pdf, pl)
         er += _f32(w[W_R] * wgt)
         eg += _f32(w[W_G] * wgt)
