@@ -541,10 +541,11 @@ def lights_icosphere(subdivisions):
     return np.array(verts), np.array(f)
 
 
-def consistency_cases():
-    """Each light kind beside a delta point light (so that the selection is per point): (lights, world)."""
-    r = 0.4
-    sphere = PointLight("sphere", W([0.2, 0.1, 1.5]), np.full(3, P), radius=r)
+def one_light_of_each_kind(height: float, r: float, area: tuple) -> dict:
+    """One light of each kind, keyed by name ("world": no light, the caller adds the world): the disc and sphere
+    point lights `height` m up with radius r, the rectangle or square area light AreaLight(shape, sizes...) of
+    `area`, an ellipse with spread, a sun."""
+    sphere = PointLight("sphere", W([0.2, 0.1, height]), np.full(3, P), radius=r)
     sphere.soft_falloff = False
     inside = PointLight("inside", W([0.1, 0, 0.1]), np.full(3, P), radius=r)
     inside.soft_falloff = False
@@ -554,15 +555,20 @@ def consistency_cases():
     me[:3, 3] = W(me[:3, 3])
     sun_d = np.array([0.2, 0.1, -1.0]) / np.linalg.norm([0.2, 0.1, -1.0])
     return {
-        "disc point": [PointLight("p", W([0.3, 0, 1.5]), np.full(3, P), radius=r)],
+        "disc point": [PointLight("p", W([0.3, 0, height]), np.full(3, P), radius=r)],
         "sphere point": [sphere],
         "inside sphere": [inside],
         "spot disc": [spot_light(np.array([0.4, 0.2, 1.2]), [0, 0, 0], P, radius=0.3, size=math.radians(70))],
-        "area rectangle": [AreaLight("a", m, np.full(3, P), "RECTANGLE", 0.8, 0.5)],
+        f"area {area[0].lower()}": [AreaLight("a", m, np.full(3, P), *area)],
         "area ellipse spread": [AreaLight("a", me, np.full(3, P), "ELLIPSE", 0.9, 0.7, spread=math.radians(90))],
         "sun": [SunLight("s", sun_d, np.full(3, 3.0), angle=math.radians(30))],
         "world": [],
     }
+
+
+def consistency_cases():
+    """Each light kind beside a delta point light (so that the selection is per point): (lights, world)."""
+    return one_light_of_each_kind(1.5, 0.4, ("RECTANGLE", 0.8, 0.5))
 
 
 @pytest.mark.parametrize("case", list(consistency_cases()))
@@ -720,29 +726,12 @@ def cosine_directions(n, count, rng):
 
 
 def mis_cases():
-    r = 0.5
-    sphere = PointLight("sphere", W([0.2, 0.1, 2.0]), np.full(3, P), radius=r)
-    sphere.soft_falloff = False
-    inside = PointLight("inside", W([0.1, 0, 0.1]), np.full(3, P), radius=r)
-    inside.soft_falloff = False
-    m = area_matrix([0.3, -0.1, 1.0], [0, 0, -1])
-    m[:3, 3] = W(m[:3, 3])
-    me = area_matrix([-0.2, 0.1, 0.8], [0.3, 0, -1], scale=(1.0, 0.6, 1.0))
-    me[:3, 3] = W(me[:3, 3])
-    sun_d = np.array([0.2, 0.1, -1.0]) / np.linalg.norm([0.2, 0.1, -1.0])
-    return {
-        "disc point": ([PointLight("p", W([0.3, 0, 2.0]), np.full(3, P), radius=r)], 0.0),
-        "sphere point": ([sphere], 0.0),
-        "inside sphere": ([inside], 0.0),
-        "spot disc": ([spot_light(np.array([0.4, 0.2, 1.2]), [0, 0, 0], P, radius=0.3, size=math.radians(70))], 0.0),
-        "area square": ([AreaLight("a", m, np.full(3, P), "SQUARE", 0.8)], 0.0),
-        "area ellipse spread": ([AreaLight("a", me, np.full(3, P), "ELLIPSE", 0.9, 0.7, spread=math.radians(90))], 0.0),
-        "sun": ([SunLight("s", sun_d, np.full(3, 3.0), angle=math.radians(30))], 0.0),
-        "world": ([], 0.7),
-        "all": ([PointLight("p", W([0.3, 0, 2.0]), np.full(3, P), radius=r),
-                 AreaLight("a", m, np.full(3, P), "SQUARE", 0.8),
-                 SunLight("s", sun_d, np.full(3, 3.0), angle=math.radians(30))], 0.2),
-    }
+    """Each light kind alone (the world at 0.7), and a point, a square and a sun together under a 0.2 world:
+    (lights, world)."""
+    kinds = one_light_of_each_kind(2.0, 0.5, ("SQUARE", 0.8))
+    cases = {name: (lights, 0.7 if name == "world" else 0.0) for name, lights in kinds.items()}
+    cases["all"] = (kinds["disc point"] + kinds["area square"] + kinds["sun"], 0.2)
+    return cases
 
 
 @pytest.mark.parametrize("case", list(mis_cases()))
