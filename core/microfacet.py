@@ -146,13 +146,19 @@ def ggx_Eavg(rough: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------- table generation
+def _quadrature_grid(rough, n_u):
+    """The midpoint n_u x n_u grid (u1, u2) of the 2-D VNDF sample space the table generators average over, and
+    GGX alpha = roughness^2 (at least 1e-8) per cell."""
+    g = (np.arange(n_u) + 0.5) / n_u
+    u1, u2 = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    return u1, u2, np.maximum(rough, 1e-4) ** 2
+
+
 def _single_scatter_albedo(rough, mu, eta, n_u, glass):
     """Mean of the single-scatter sampling weight over a midpoint n_u x n_u grid of the 2-D sample space
     (for glass the reflect/refract choice with probability F is integrated analytically).
     rough, mu, eta: 1-D float64 arrays of cells. Returns E per cell (float64)."""
-    g = (np.arange(n_u) + 0.5) / n_u
-    u1, u2 = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
-    alpha = np.maximum(rough, 1e-4) ** 2
+    u1, u2, alpha = _quadrature_grid(rough, n_u)
     out = np.empty(len(rough))
     for c in range(len(rough)):
         a, m, e = alpha[c], mu[c], eta[c]
@@ -183,9 +189,7 @@ def _gen_schlick_s(rough, mu, eta, n_u):
     saturate((F(h.wo, eta) - F0(eta)) / (1 - F0(eta))), 0 where the reflection leaves below the horizon (Cycles'
     `precompute_ggx_gen_schlick_s` with exponent -1: the eval ratio of an f0 = 0 and an f0 = 1 lobe, so neither the
     masking weight nor the lobe energy enters). rough, mu, eta: 1-D float64 arrays of cells."""
-    g = (np.arange(n_u) + 0.5) / n_u
-    u1, u2 = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
-    alpha = np.maximum(rough, 1e-4) ** 2
+    u1, u2, alpha = _quadrature_grid(rough, n_u)
     out = np.empty(len(rough))
     for c in range(len(rough)):
         a, m, e = alpha[c], mu[c], eta[c]
