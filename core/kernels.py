@@ -20,7 +20,7 @@ import numpy as np
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 
 # Modules whose numba kernels are cached on disk (in core/__pycache__, next to the sources).
-_CACHED_MODULES = ("kernels", "sampling", "bsdf_kernels", "light_kernels")
+_CACHED_MODULES = ("kernels", "sampling", "bsdf_kernels", "light_kernels", "embree")
 
 
 def compile_cache_is_cold() -> bool:
