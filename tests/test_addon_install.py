@@ -74,6 +74,9 @@ SCRIPT = textwrap.dedent(r"""
         except TypeError:  # not an engine Blender knows
             return False
 
+    # The renderer called Embree directly (the library found next to the embreex the extension installed).
+    library, why_not = sys.modules["bl_ext.user_default.monte.core.embree"].load()
+
     before = selectable()
     bpy.ops.preferences.addon_disable(module="bl_ext.user_default.monte")
     after = selectable()
@@ -81,6 +84,7 @@ SCRIPT = textwrap.dedent(r"""
         "install": sorted(res), "engines": engines, "module_file": getattr(module, "__file__", None),
         "render": sorted(rendered), "shape": list(px.shape), "mean_rgb": px[..., :3].mean(),
         "alpha": px[..., 3].mean(), "menu_before_disable": before, "menu_after_disable": after,
+        "embree_library": library.path if library else None, "embree_error": why_not,
     }))
 """)
 
@@ -134,3 +138,4 @@ def test_zip_installs_enables_and_renders(built_zip, tmp_path):
     # A diffuse plane of albedo 0.5 under a uniform white world: radiance 0.5 (16 spp of noise allowed).
     assert result["mean_rgb"] == pytest.approx(0.5, abs=0.03)
     assert result["menu_before_disable"] and not result["menu_after_disable"]
+    assert result["embree_error"] is None and "embree4" in Path(result["embree_library"]).name
