@@ -32,6 +32,8 @@ import math
 import numba
 import numpy as np
 
+from . import jit_cache  # noqa: F401  (before any kernel: caches per import name)
+
 # core.kernels' _jit options without NRT reference counting: unpacking the lobe and table tuples and passing arrays
 # to device functions otherwise costs atomic incref/decref calls per path (measured 2-4x slower); these kernels
 # never allocate. The device functions that take arrays are inlined into their callers (numba IR inlining), for

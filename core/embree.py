@@ -33,6 +33,8 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
+from . import jit_cache  # noqa: F401  (before any kernel: caches per import name)
+
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 
 _INVALID_ID = np.uint32(0xFFFFFFFF)

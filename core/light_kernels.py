@@ -16,6 +16,8 @@ import math
 import numba
 import numpy as np
 
+from . import jit_cache  # noqa: F401  (before any kernel: caches per import name)
+
 # As core.bsdf_kernels: no NRT reference counting (these kernels never allocate; callers pass scratch buffers),
 # and the device functions that take arrays are inlined into their callers (per-path calls were 2-4x slower
 # otherwise). Scalar-only helpers are left to LLVM.

@@ -318,6 +318,51 @@ def test_perf_command_reports_stages_and_unused_feature_cost(tmp_path):
     assert report["skip"]["seconds_plain"] > 0 and report["skip"]["seconds_unused_glass"] > 0
 
 
+_TRACE_ONE_RAY = """
+import sys
+sys.path.insert(0, {path!r})
+if {package!r} != "monte":
+    sys.modules["monte"] = None  # as in Blender, where a linked checkout is importable only as bl_ext.<repo>.monte
+import numpy as np
+from {package}.core import jit_cache
+from {package}.core.accel import Accelerator
+accel = Accelerator(np.array([[0, 0, 1], [2, 0, 1], [0, 2, 1]], np.float32), np.array([[0, 1, 2]], np.int32))
+hits = accel.intersect(np.array([[0.5, 0.5, 0]], np.float32), np.array([[0, 0, 1]], np.float32))
+print("HIT", int(hits.prim[0]), float(hits.t[0]), jit_cache.cache_dir())
+"""
+
+
+def test_kernel_caches_are_kept_apart_per_import_name(tmp_path):
+    """numba's cache records the kernel module's import name: a cache written while the package was imported
+    as monte and read under another name where monte is not importable (an alias here, as Blender's
+    bl_ext.<repo>.monte for a checkout linked into its extensions folder) used to fail with ModuleNotFoundError.
+    Each name now has its own folder (core.jit_cache)."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import monte
+
+    root = Path(monte.__file__).resolve().parent
+    (tmp_path / "montealias").symlink_to(root, target_is_directory=True)
+    alias_cache = root / "core" / "__pycache__" / "numba-montealias.core"
+    try:
+        runs = {}
+        for package in ("monte", "montealias"):  # monte's cache exists (written now if not before), then the alias
+            code = _TRACE_ONE_RAY.format(path=str(tmp_path), package=package)
+            proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
+                                  cwd=str(tmp_path))
+            assert proc.returncode == 0, proc.stderr[-3000:]
+            runs[package] = proc.stdout.split("HIT ")[-1].split()
+        for prim, t, _ in runs.values():
+            assert prim == "0" and abs(float(t) - 1.0) < 1e-6
+        assert runs["montealias"][2].endswith("numba-montealias.core") and runs["monte"][2].endswith("numba-monte.core")
+        assert list(alias_cache.glob("embree.trace_closest-*.nbi"))
+    finally:
+        shutil.rmtree(alias_cache, ignore_errors=True)
+
+
 def test_kernel_cache_is_warm_after_a_render(fast_settings):
     """After any render the compiled kernels are cached on disk, so the 'compiling' notice is not shown again."""
     from monte.core.kernels import compile_cache_is_cold
