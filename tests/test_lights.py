@@ -571,6 +571,15 @@ def consistency_cases():
     return one_light_of_each_kind(1.5, 0.4, ("RECTANGLE", 0.8, 0.5))
 
 
+def random_shading_points(rng, n, extent, offset):
+    """n float32 points uniform in the box [-offset, extent - offset), unit normals uniform on the sphere
+    (float32), and transmission flags (30% True), drawn from rng in that order."""
+    p = (rng.random((n, 3)) * extent - offset).astype(np.float32)
+    nn = rng.normal(size=(n, 3))
+    nn = (nn / np.linalg.norm(nn, axis=1)[:, None]).astype(np.float32)
+    return p, nn, rng.random(n) < 0.3
+
+
 @pytest.mark.parametrize("case", list(consistency_cases()))
 def test_intersect_pdf_is_the_sample_pdf_at_every_point(case):
     """MIS needs the light pdf of a direction twice: from `sample` and, when a BSDF ray hits the light, from
@@ -581,10 +590,7 @@ def test_intersect_pdf_is_the_sample_pdf_at_every_point(case):
     assert s._per_point
     rng = np.random.default_rng(8)
     N = 40_000
-    p = (rng.random((N, 3)) * [2.0, 2.0, 1.0] - [1.0, 1.0, 0.5]).astype(np.float32)
-    nn = rng.normal(size=(N, 3))
-    nn = (nn / np.linalg.norm(nn, axis=1)[:, None]).astype(np.float32)
-    tr = rng.random(N) < 0.3
+    p, nn, tr = random_shading_points(rng, N, [2.0, 2.0, 1.0], [1.0, 1.0, 0.5])
     ls = s.sample(p, nn, rng.random(N, dtype=np.float32), rng.random((N, 2), dtype=np.float32), transmits=tr)
     rows = np.nonzero(~ls.delta & (ls.pdf > 0) & (ls.radiance[:, 0] > 0))[0]
     assert rows.size > N // 10
@@ -611,10 +617,7 @@ def test_pdf_triangle_is_the_sample_pdf_at_every_point():
     assert s._per_point and np.unique(s._t_unit).size > 2
     rng = np.random.default_rng(9)
     N = 20_000
-    p = (rng.random((N, 3)) * [4.0, 2.0, 0.5] - [2.0, 1.0, 0.5]).astype(np.float32)
-    nn = rng.normal(size=(N, 3))
-    nn = (nn / np.linalg.norm(nn, axis=1)[:, None]).astype(np.float32)
-    tr = rng.random(N) < 0.3
+    p, nn, tr = random_shading_points(rng, N, [4.0, 2.0, 0.5], [2.0, 1.0, 0.5])
     ls = s.sample(p, nn, rng.random(N), rng.random((N, 2)), transmits=tr)
     rows = np.nonzero(~ls.delta & (ls.pdf > 0))[0]
     q = p[rows].astype(np.float64) + ls.wi[rows] * ls.dist[rows, None]
