@@ -25,6 +25,9 @@ import numpy as np
 
 from . import montecarlo as mc
 
+# The trapezoidal rule: np.trapezoid since NumPy 2.0 (np.trapz was removed), np.trapz on NumPy 1.x (Blender 4.x).
+trapezoid = getattr(np, "trapezoid", None) or np.trapz
+
 CONFIDENCE = 0.999
 """Confidence level of every interval and band in the study (normal approximation)."""
 
@@ -123,8 +126,8 @@ def _single_sample_variance(f: mc.Integrand, a: float, b: float, points: int = 4
     """V[(b − a) f(X)] for X ~ U(a, b) by fine quadrature: the theory line σ²/n of the plots."""
     x = np.linspace(a, b, points)
     values = f(x)
-    mean = np.trapz(values, x) / (b - a)
-    mean_square = np.trapz(values**2, x) / (b - a)
+    mean = trapezoid(values, x) / (b - a)
+    mean_square = trapezoid(values**2, x) / (b - a)
     return float((b - a) ** 2 * (mean_square - mean**2))
 
 
