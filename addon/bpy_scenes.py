@@ -43,11 +43,19 @@ def reset():
 
 
 # --------------------------------------------------------------------------------------------- materials
+def node_tree_of(idblock):
+    """The node tree of a material or world, created first where Blender has none: before 5.0 a new material
+    or world has use_nodes False and node_tree None (5.x gives every new one a tree)."""
+    if idblock.node_tree is None:
+        idblock.use_nodes = True
+    return idblock.node_tree
+
+
 def node_material(name: str, shader: str, **inputs):
     """A material whose Material Output is fed by one shader node with the given input values
     (keyword names with '_' for spaces: Base_Color -> 'Base Color')."""
     mat = bpy.data.materials.new(name)
-    tree = mat.node_tree
+    tree = node_tree_of(mat)
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     node = tree.nodes.new(shader)
@@ -67,10 +75,7 @@ def diffuse(name: str, rgb) -> object:
 def set_world(scene, rgb, strength: float = 1.0):
     world = bpy.data.worlds.new("World")
     scene.world = world
-    tree = world.node_tree
-    if tree is None:  # Blender < 5 worlds need use_nodes
-        world.use_nodes = True
-        tree = world.node_tree
+    tree = node_tree_of(world)
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputWorld")
     bg = tree.nodes.new("ShaderNodeBackground")

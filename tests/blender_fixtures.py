@@ -31,6 +31,7 @@ from monte.addon.bpy_scenes import (  # noqa: E402
     diffuse,
     icosphere_object,
     mesh_object,
+    node_tree_of,
     node_material,
     reset,
     set_world,

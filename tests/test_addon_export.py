@@ -348,7 +348,7 @@ def test_principled_specular_level_and_tint():
 def test_mix_and_add_shader_weights_multiply(scene):
     add_camera(scene)
     mat = bpy.data.materials.new("Mixed")
-    t = mat.node_tree
+    t = bf.node_tree_of(mat)
     t.nodes.clear()
     out = t.nodes.new("ShaderNodeOutputMaterial")
     mix = t.nodes.new("ShaderNodeMixShader")

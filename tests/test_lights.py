@@ -888,7 +888,7 @@ for spec in specs:
         me = bpy.data.meshes.new('plane'); h = 50.0
         me.from_pydata([(-h, -h, 0), (h, -h, 0), (h, h, 0), (-h, h, 0)], [], [(0, 1, 2, 3)])
         ob = bpy.data.objects.new('plane', me); sc.collection.objects.link(ob)
-        mat = bpy.data.materials.new('m'); nt = mat.node_tree; nt.nodes.clear()
+        mat = bpy.data.materials.new('m'); mat.use_nodes = True; nt = mat.node_tree; nt.nodes.clear()
         out = nt.nodes.new('ShaderNodeOutputMaterial')
         if spec['surface'] == 'diffuse':
             b = nt.nodes.new('ShaderNodeBsdfDiffuse'); b.inputs['Color'].default_value = (spec['albedo'],) * 3 + (1,)
@@ -900,7 +900,7 @@ for spec in specs:
         me = bpy.data.meshes.new('e%d' % i)
         me.from_pydata([tuple(v) for v in q['verts']], [], [(0, 1, 2, 3)])
         ob = bpy.data.objects.new('e%d' % i, me); sc.collection.objects.link(ob)
-        mat = bpy.data.materials.new('e%d' % i); nt = mat.node_tree; nt.nodes.clear()
+        mat = bpy.data.materials.new('e%d' % i); mat.use_nodes = True; nt = mat.node_tree; nt.nodes.clear()
         out = nt.nodes.new('ShaderNodeOutputMaterial'); e = nt.nodes.new('ShaderNodeEmission')
         e.inputs['Color'].default_value = (1, 1, 1, 1); e.inputs['Strength'].default_value = q['strength']
         nt.links.new(e.outputs[0], out.inputs['Surface']); me.materials.append(mat)
