@@ -19,6 +19,9 @@ from pathlib import Path
 
 from .core.settings import CLI_SETTINGS, FILTERS, SAMPLERS, RenderSettings
 
+# What to install for the commands that use Blender (any version of the README's support table works).
+BPY_HINT = "pip install bpy==5.3.0 on Python 3.13, or bpy 4.2 / 4.5 / 5.0 on Python 3.11"
+
 
 def _resolution(text: str) -> tuple[int, int]:
     try:
@@ -94,7 +97,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         try:
             from .addon.headless import render_blend_file
         except ImportError as exc:
-            print(f"monte render: rendering a .blend needs the bpy module (pip install bpy==5.0.1): {exc}",
+            print(f"monte render: rendering a .blend needs the bpy module ({BPY_HINT}): {exc}",
                   file=sys.stderr)
             return 2
         from .addon.headless import HeadlessError
@@ -146,7 +149,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         try:
             from .addon.bench_cycles import run_from_args
         except ImportError as exc:
-            print(f"monte bench --vs cycles needs the bpy module (pip install bpy==5.0.1): {exc}", file=sys.stderr)
+            print(f"monte bench --vs cycles needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
             return 2
         report = run_from_args(args, _settings_from(args))
     elif args.samplers or args.batch_sizes or args.seed_table:
@@ -192,7 +195,7 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         from .addon.crosscheck import CrosscheckError, CrosscheckOptions, crosscheck_blend_file
         from .addon.headless import HeadlessError
     except ImportError as exc:
-        print(f"monte crosscheck: needs the bpy module (pip install bpy==5.0.1): {exc}", file=sys.stderr)
+        print(f"monte crosscheck: needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
         return 2
     options = CrosscheckOptions(spp=args.spp, cycles_spp=args.cycles_spp, resolution=args.resolution,
                                 threads=args.threads or 0, max_bounces=args.max_bounces)
@@ -213,7 +216,7 @@ def cmd_stress(args: argparse.Namespace) -> int:
         try:
             from .addon.core_to_bpy import cycles_renderer
         except ImportError as exc:
-            print(f"monte stress --cycles needs the bpy module (pip install bpy==5.0.1): {exc}", file=sys.stderr)
+            print(f"monte stress --cycles needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
             return 2
         cfg.cycles = cycles_renderer(cfg.threads)
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
@@ -304,5 +307,20 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def run() -> None:
+    """The `monte` executable (console script and `python -m monte`): main(), then the process's end.
+
+    After a command that loaded the bpy module, Monte is unregistered and, on Blender versions whose bpy
+    module crashes or hangs at interpreter exit (4.2, 4.5), the process ends here with main()'s status, once
+    every output is written (addon.headless.end_bpy_process). main() itself never ends the process, so tests
+    and scripts can call it."""
+    status = main()
+    if "bpy" in sys.modules:
+        from .addon.headless import end_bpy_process
+
+        end_bpy_process(status)
+    sys.exit(status)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()
