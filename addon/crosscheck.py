@@ -187,7 +187,9 @@ def render_cycles(scene, tmp_dir: Path, with_material_index: bool = False) -> tu
         rgb = np.stack([channels[prefix + c] for c in "RGB"], axis=-1).astype(np.float64)
     except KeyError:
         raise CrosscheckError(f"Cycles' render has no {prefix}R/G/B (channels: {', '.join(sorted(channels))})") from None
-    index = channels.get(f"{layer.name}.Material Index.X") if with_material_index else None
+    # The material index pass is "Material Index" since Blender 5.0, "IndexMA" before.
+    index = (channels.get(f"{layer.name}.Material Index.X", channels.get(f"{layer.name}.IndexMA.X"))
+             if with_material_index else None)
     return rgb, (None if index is None else np.rint(index).astype(np.int64))
 
 

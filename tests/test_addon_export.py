@@ -428,8 +428,7 @@ def test_lights_follow_blender_units(scene):
 
     def light(kind, name, **props):
         data = bpy.data.lights.new(name, kind)
-        for k, v in props.items():
-            setattr(data, k, v)
+        bf.set_light_props(data, props)
         ob = bpy.data.objects.new(name, data)
         scene.collection.objects.link(ob)
         return ob
