@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from monte.cli import main
-from monte.core import bench_math as bm
 from monte.core import metrics
-from monte.core.bench_ladders import seed_display_values, seed_table, seed_table_markdown
-from monte.core.bench_reference import (BUNDLED_OWN_RMSE, BUNDLED_PARAMS, ReferenceCache, read_reference_file,
+from monte.lab import bench_math as bm
+from monte.lab.bench_ladders import seed_display_values, seed_table, seed_table_markdown
+from monte.lab.bench_reference import (BUNDLED_OWN_RMSE, BUNDLED_PARAMS, ReferenceCache, read_reference_file,
                                         reference_key)
 
 

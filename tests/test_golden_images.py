@@ -58,7 +58,7 @@ def _scene(source: str, name: str):
     import bpy
 
     from monte.addon.export import export_scene
-    from monte.addon import bpy_scenes
+    from monte.lab import bpy_scenes
 
     bpy_scenes.build(name, RESOLUTION)
     scene, _ = export_scene(bpy.context.evaluated_depsgraph_get())

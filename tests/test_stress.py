@@ -8,9 +8,10 @@ checks (warning counts, sample counts, clamping bias). `monte stress` runs the s
 import numpy as np
 import pytest
 
-from monte.core import metrics, stress
+from monte.core import metrics
 from monte.core.render import render
-from monte.core.stress import CASES, Context, StressConfig
+from monte.lab import stress
+from monte.lab.stress import CASES, Context, StressConfig
 
 
 @pytest.fixture(scope="module")

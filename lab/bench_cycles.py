@@ -23,14 +23,14 @@ from typing import Callable, Sequence
 import bpy
 import numpy as np
 
+from ..addon.export import export_scene
 from ..core import exr, metrics
-from ..core.bench_math import (corrected_rmse, efficiency, equal_error_ratio, format_table,
-                               plot_rmse_vs_seconds, reference_from_seeds, write_json)
-from ..core.bench_reference import Reference, ReferenceCache, file_digest
 from ..core.render import render as monte_render
 from ..core.settings import RenderSettings
 from . import bpy_scenes
-from .export import export_scene
+from .bench_math import (corrected_rmse, efficiency, equal_error_ratio, format_table, plot_rmse_vs_seconds,
+                         reference_from_seeds, write_json)
+from .bench_reference import Reference, ReferenceCache, file_digest
 
 DEFAULT_LADDER = (16, 32, 64, 128, 256)
 BIG_SPP = 1 << 16  # sample count for time-budget rungs (the budget stops the render first)
@@ -263,7 +263,7 @@ def run_vs_cycles(specs: Sequence[str], reference_dir: str | os.PathLike, out_di
 
 
 def _scene_specs(args) -> list[str]:
-    from ..core.bench_args import BENCH_SCENES
+    from .bench_args import BENCH_SCENES
 
     choice = args.scene or ("none" if args.blend else "cornell")
     names = list(BENCH_SCENES) if choice == "all" else [] if choice == "none" else [choice]

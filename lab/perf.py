@@ -23,10 +23,10 @@ import tracemalloc
 
 import numpy as np
 
-from .render import render
-from .scene import Lobe, Material
-from .scenes import cornell_box, cornell_diffuse, spheres_under_sky
-from .settings import RenderSettings
+from ..core.render import render
+from ..core.scene import Lobe, Material
+from ..core.scenes import cornell_box, cornell_diffuse, spheres_under_sky
+from ..core.settings import RenderSettings
 
 SECTIONS = ("stages", "threads", "memory", "skip", "adaptive")
 

@@ -2,7 +2,7 @@
 
 Everything here is pure and vectorised: an estimator draws all samples of all repetitions as one
 NumPy array (shape ``(repetitions, n)``) from an explicitly seeded ``numpy.random.Generator`` and
-returns one estimate per repetition. ``core/mc_study.py`` runs these over many ``n`` and writes
+returns one estimate per repetition. ``lab/mc_study.py`` runs these over many ``n`` and writes
 plots; the tests check them against closed forms.
 
 The seed's integral

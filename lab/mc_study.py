@@ -1,6 +1,6 @@
 """`monte mc-study`: the seed's Monte Carlo experiments, reproduced and extended.
 
-Runs the estimators, variance-reduction methods and samplers of ``core/montecarlo.py`` over many
+Runs the estimators, variance-reduction methods and samplers of ``lab/montecarlo.py`` over many
 independent repetitions, then writes PNG plots, ``summary.json`` and ``summary.md`` into one folder.
 Every random stream derives from (seed, experiment name, n), so the numbers of a run are a pure
 function of the seed and the ``quick`` flag; only keys containing "second" (timings and the

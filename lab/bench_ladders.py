@@ -27,13 +27,13 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from . import metrics
+from ..core import metrics
+from ..core.render import render
+from ..core.scenes import cornell_box
+from ..core.settings import RenderSettings
 from .bench_args import SEED_TABLE_COUNTS
 from .bench_math import corrected_rmse, efficiency, equal_error_ratio, format_table, write_json
 from .bench_reference import BUNDLED_OWN_RMSE, Reference, read_reference_file
-from .render import render
-from .scenes import cornell_box
-from .settings import RenderSettings
 SEED_GAMMA = 2.2  # smallpt's output encoding: (clamp(x, 0, 1)) ** (1 / 2.2)
 
 
@@ -62,7 +62,7 @@ def find_cornell_reference(resolution: tuple[int, int], max_bounces: int = 16,
             if ok and n > best_n:
                 best, best_n = (exr_path, meta), n
         if best is not None:
-            from .exr import read_rgb
+            from ..core.exr import read_rgb
 
             return Reference(read_rgb(best[0]), float(best[1]["own_mse"]), best[1]["params"], best[0], "cache")
     if (w, h) == (256, 256) and max_bounces == 16:

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import metrics
-from .exr import read_rgb
-from .render import render
-from .scenes import cornell_box
-from .settings import CLI_SETTINGS, RenderSettings
+from ..core import metrics
+from ..core.exr import read_rgb
+from ..core.render import render
+from ..core.scenes import cornell_box
+from ..core.settings import CLI_SETTINGS, RenderSettings
 
 REFERENCE_MEANS = (0.39494, 0.33119, 0.39700)  # the bundled Cycles reference (4 x 1024 spp, BH 1.5 px)
 REFERENCE_OWN_RMSE = 0.007  # the reference's own noise: RMSE against it is biased up by this in quadrature

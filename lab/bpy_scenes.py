@@ -33,7 +33,7 @@ def scene_version(name: str) -> int:
 
 def reset():
     """Empty factory scene, Monte registered and selected; returns the scene."""
-    from . import register
+    from ..addon import register
 
     register()
     bpy.ops.wm.read_factory_settings(use_empty=True)
