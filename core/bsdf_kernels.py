@@ -29,17 +29,11 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-from . import jit_cache  # noqa: F401  (before any kernel: caches per import name)
-
-# core.kernels' _jit options without NRT reference counting: unpacking the lobe and table tuples and passing arrays
-# to device functions otherwise costs atomic incref/decref calls per path (measured 2-4x slower); these kernels
-# never allocate. The device functions that take arrays are inlined into their callers (numba IR inlining), for
-# the same reason; the scalar-only ones are left to LLVM, which keeps first-compile time down (~10 s, cached).
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False, _nrt=False)
-_inline = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False, _nrt=False, inline="always")
+# No NRT reference counting (these kernels never allocate), device functions taking arrays inlined: core.jit_cache.
+from .jit_cache import jit_inline as _inline
+from .jit_cache import jit_no_nrt as _jit
 
 # lobe kinds and glossy Fresnel modes (core.bsdf re-exports these)
 EMPTY, DIFFUSE, GLOSSY, GLASS, REFRACTION = -1, 0, 1, 2, 3

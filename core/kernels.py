@@ -14,26 +14,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-from . import jit_cache  # noqa: F401  (before any kernel: caches per import name)
-
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False)
-
-# Modules whose numba kernels are cached on disk (core.jit_cache says where).
-_CACHED_MODULES = ("kernels", "sampling", "bsdf_kernels", "light_kernels", "embree")
-
-
-def compile_cache_is_cold() -> bool:
-    """True when some kernel module has no numba cache index yet for this import of the package (first render
-    after an install or an update of the sources): that render compiles the kernels first, about a minute on a
-    2-core machine. The caches live in core/__pycache__/numba-<import name>/ (core.jit_cache)."""
-    import glob
-    import os
-
-    cache = jit_cache.cache_dir()
-    return any(not glob.glob(os.path.join(cache, f"{name}.*.nbi")) for name in _CACHED_MODULES)
+from .jit_cache import jit as _jit
 
 
 _F0 = np.float32(0.0)

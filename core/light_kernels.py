@@ -13,16 +13,11 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-from . import jit_cache  # noqa: F401  (before any kernel: caches per import name)
-
-# As core.bsdf_kernels: no NRT reference counting (these kernels never allocate; callers pass scratch buffers),
-# and the device functions that take arrays are inlined into their callers (per-path calls were 2-4x slower
-# otherwise). Scalar-only helpers are left to LLVM.
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False, _nrt=False)
-_inline = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False, _nrt=False, inline="always")
+# No NRT reference counting (these kernels never allocate), device functions taking arrays inlined: core.jit_cache.
+from .jit_cache import jit_inline as _inline
+from .jit_cache import jit_no_nrt as _jit
 
 # unit kinds
 TRI_GROUP, POINT, SPOT, AREA, SUN, WORLD = range(6)

@@ -15,7 +15,7 @@ from typing import Callable
 
 import numpy as np
 
-from .kernels import compile_cache_is_cold
+from .jit_cache import compile_cache_is_cold
 from .scene import Scene
 from .settings import RenderSettings
 

@@ -53,7 +53,7 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .kernels import _jit
+from .jit_cache import jit as _jit
 
 __all__ = [
     "uniform",
