@@ -18,6 +18,8 @@ import numpy as np
 # No NRT reference counting (these kernels never allocate), device functions taking arrays inlined: core.jit_cache.
 from .jit_cache import jit_inline as _inline
 from .jit_cache import jit_no_nrt as _jit
+from .warps import (cone_pdf, cos_hemisphere_pdf, onb, one_minus_cos_from_sin2, sample_cone, sample_cos_hemisphere,
+                    sample_disk, sample_sphere, sample_triangle, sphere_pdf)
 
 # unit kinds
 TRI_GROUP, POINT, SPOT, AREA, SUN, WORLD = range(6)
@@ -242,56 +244,6 @@ def _clip(x, lo, hi):
 
 
 @_jit
-def _basis(x, y, z):
-    """Two unit vectors completing unit (x, y, z) to an orthonormal frame (Duff et al. 2017)."""
-    s = 1.0 if z >= 0.0 else -1.0
-    a = -1.0 / (s + z)
-    b = x * y * a
-    return 1.0 + s * x * x * a, s * b, -s * x, b, s + y * y * a, -y
-
-
-@_jit
-def _around(ax, ay, az, cos_t, sin_t, phi):
-    """The unit direction at polar angle (cos_t, sin_t) and azimuth phi about unit axis a."""
-    tx, ty, tz, bx, by, bz = _basis(ax, ay, az)
-    c, s = sin_t * math.cos(phi), sin_t * math.sin(phi)
-    return ax * cos_t + tx * c + bx * s, ay * cos_t + ty * c + by * s, az * cos_t + tz * c + bz * s
-
-
-@_jit
-def _sample_cone(ax, ay, az, one_minus_cos_max, u0, u1):
-    """Uniform direction in the cone about unit axis a with 1 - cos(half-angle) given (kept in 1 - cos so that
-    tiny cones keep their precision); returns (wx, wy, wz, cos_theta)."""
-    x = u0 * one_minus_cos_max
-    cos_t = 1.0 - x
-    sin_t = math.sqrt(max(x * (2.0 - x), 0.0))
-    wx, wy, wz = _around(ax, ay, az, cos_t, sin_t, _TWO_PI * u1)
-    return wx, wy, wz, cos_t
-
-
-@_jit
-def _sample_cos_hemisphere(nx, ny, nz, u0, u1):
-    """Cosine-weighted direction about unit n; returns (wx, wy, wz, cos_theta)."""
-    cos_t = math.sqrt(max(1.0 - u0, 0.0))
-    wx, wy, wz = _around(nx, ny, nz, cos_t, math.sqrt(u0), _TWO_PI * u1)
-    return wx, wy, wz, cos_t
-
-
-@_jit
-def _sample_sphere(u0, u1):
-    z = 1.0 - 2.0 * u0
-    r = math.sqrt(max(1.0 - z * z, 0.0))
-    phi = _TWO_PI * u1
-    return r * math.cos(phi), r * math.sin(phi), z
-
-
-@_jit
-def _one_minus_cos_from_sin2(sin2):
-    """1 - sqrt(1 - sin2) without cancellation."""
-    return sin2 / (1.0 + math.sqrt(max(1.0 - sin2, 0.0)))
-
-
-@_jit
 def _smoothstep(x):
     x = min(max(x, 0.0), 1.0)
     return x * x * (3.0 - 2.0 * x)
@@ -416,9 +368,7 @@ def _sample_triangle(px, py, pz, t, u0, u1, lt):
         if not (d > 0.0 and math.isfinite(d)):
             return 0.0, 0.0, 0.0, 0.0, rr, rg, rb, 0.0  # sampled direction missed the plane (numerically)
         return wx, wy, wz, d, rr, rg, rb, t_sel[t] / omega
-    su = math.sqrt(u0)
-    b1 = 1.0 - su
-    b2 = u1 * su
+    b1, b2 = sample_triangle(u0, u1)
     # the point rounded to float32, as the triangle's own precision
     qx = _f32(t_v0[0, t] + t_e1[0, t] * b1 + t_e2[0, t] * b2)
     qy = _f32(t_v0[1, t] + t_e1[1, t] * b1 + t_e2[1, t] * b2)
@@ -487,10 +437,8 @@ def _sample_punctual(px, py, pz, nx, ny, nz, has_n, k, u0, u1, pt):
         s = _spot_att(pt, k, -axx, -axy, -axz) / d2
         return axx, axy, axz, d, rr * s, rg * s, rb * s, 1.0, True
     if pt[k, PT_SPHERE] == 0.0:  # disc of radius r on the light, facing p, sampled uniformly by area
-        tx, ty, tz, bx, by, bz = _basis(axx, axy, axz)
-        rad = r * math.sqrt(u0)
-        phi = _TWO_PI * u1
-        c, s = rad * math.cos(phi), rad * math.sin(phi)
+        tx, ty, tz, bx, by, bz = onb(axx, axy, axz)
+        c, s = sample_disk(r, u0, u1)
         wx, wy, wz = vx + tx * c + bx * s, vy + ty * c + by * s, vz + tz * c + bz * s
         t2 = wx * wx + wy * wy + wz * wz
         dist = math.sqrt(t2)
@@ -501,19 +449,19 @@ def _sample_punctual(px, py, pz, nx, ny, nz, has_n, k, u0, u1, pt):
         return wx, wy, wz, dist, rr * att, rg * att, rb * att, pdf, False
     r2 = _f32(r * r)
     if d > r:  # uniform in the cone the sphere subtends
-        omc = _one_minus_cos_from_sin2(r2 / d2)
-        wx, wy, wz, cos_t = _sample_cone(axx, axy, axz, omc, u0, u1)
+        omc = one_minus_cos_from_sin2(r2 / d2)
+        wx, wy, wz, cos_t = sample_cone(axx, axy, axz, omc, u0, u1)
         sin2 = max(1.0 - cos_t * cos_t, 0.0)
         dist = d * cos_t - math.sqrt(max(r2 - d2 * sin2, 0.0))
         att = _spot_att(pt, k, -wx, -wy, -wz)
-        return wx, wy, wz, dist, rr * att, rg * att, rb * att, 1.0 / (_TWO_PI * omc), False
+        return wx, wy, wz, dist, rr * att, rg * att, rb * att, cone_pdf(omc), False
     # inside: every direction meets the sphere; cosine about n, or uniform (no spot cone inside, as Cycles)
     if has_n:
-        wx, wy, wz, cos_t = _sample_cos_hemisphere(nx, ny, nz, u0, u1)
-        pdf = _INV_PI * cos_t
+        wx, wy, wz, cos_t = sample_cos_hemisphere(nx, ny, nz, u0, u1)
+        pdf = cos_hemisphere_pdf(cos_t)
     else:
-        wx, wy, wz = _sample_sphere(u0, u1)
-        pdf = _INV_4PI
+        wx, wy, wz = sample_sphere(u0, u1)
+        pdf = sphere_pdf()
     bb = vx * wx + vy * wy + vz * wz
     dist = bb + math.sqrt(max(r2 - d2 + bb * bb, 0.0))
     return wx, wy, wz, dist, rr, rg, rb, pdf, False
@@ -595,8 +543,7 @@ def _rect_sample(ar, k, ox, oy, oz, x0, x1, y0, y1, z0, flip, b0, b1, S, a23, u0
 def _area_point(ar, k, u0, u1):
     """Point uniformly distributed by area on area light k."""
     if ar[k, AR_ELLIPSE] != 0.0:
-        rr = math.sqrt(u0)
-        sx, sy = rr * math.cos(_TWO_PI * u1), rr * math.sin(_TWO_PI * u1)
+        sx, sy = sample_disk(1.0, u0, u1)
     else:
         sx, sy = 2.0 * u0 - 1.0, 2.0 * u1 - 1.0
     hx, hy = 0.5 * ar[k, AR_LX] * sx, 0.5 * ar[k, AR_LY] * sy
@@ -675,17 +622,17 @@ def sample_light_path(px, py, pz, nx, ny, nz, has_n, transmits, u_sel, u0, u1, p
             pdf = su[local, SU_SEL]
             delta = True
         else:
-            wx, wy, wz, _ = _sample_cone(wx, wy, wz, _f32(omc), u0, u1)
+            wx, wy, wz, _ = sample_cone(wx, wy, wz, _f32(omc), u0, u1)
             pdf = su[local, SU_SEL] / (_TWO_PI * omc)
     else:
         w = lt[9]
         dist = math.inf
         rr, rg, rb = w[W_R], w[W_G], w[W_B]
         if has_n:
-            wx, wy, wz, cos_t = _sample_cos_hemisphere(nx, ny, nz, u0, u1)
+            wx, wy, wz, cos_t = sample_cos_hemisphere(nx, ny, nz, u0, u1)
             pdf = _f32(w[W_SEL] * _INV_PI) * cos_t
         else:
-            wx, wy, wz = _sample_sphere(u0, u1)
+            wx, wy, wz = sample_sphere(u0, u1)
             pdf = w[W_SEL] * _INV_4PI
     if per_point:
         pdf *= prob
@@ -773,7 +720,7 @@ def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_
                 else:
                     pdf = sel * _INV_4PI
             else:
-                pdf = sel / (_TWO_PI * _one_minus_cos_from_sin2(min(r2 / d2, 1.0)))
+                pdf = sel / (_TWO_PI * one_minus_cos_from_sin2(min(r2 / d2, 1.0)))
                 att = _spot_att(pt, k, -dx, -dy, -dz)
         wgt = 1.0
         if use_mis and not bsdf_delta:
