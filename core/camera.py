@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import kernels
+from . import geometry_kernels
 from .scene import Camera
 
 
@@ -44,7 +44,7 @@ def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray) -> C
     n = rx.shape[0]
     rays = CameraRays(np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
                       np.empty(n, np.float32), np.empty(n, np.float32))
-    kernels.camera_rays(rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
+    geometry_kernels.camera_rays(rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
                         camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end), rays.origins,
                         rays.directions, rays.tmax, rays.depth_scale, rays.t_start)
     return rays

@@ -70,7 +70,7 @@ jit_no_nrt = numba.njit(**_OPTIONS, _nrt=False)
 jit_inline = numba.njit(**_OPTIONS, _nrt=False, inline="always")
 
 # Modules of this folder that define cached kernels (their cache index files are named after them).
-KERNEL_MODULES = ("kernels", "sampling", "warps", "bsdf_kernels", "light_kernels", "embree")
+KERNEL_MODULES = ("geometry_kernels", "sampling", "warps", "bsdf_kernels", "light_kernels", "embree")
 
 
 def compile_cache_is_cold() -> bool:
