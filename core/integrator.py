@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from . import bsdf as bsdf_mod
-from . import geometry_kernels
+from . import geometry_kernels, path_kernels
 from .accel import Accelerator
 from .lights import EmissiveTriangles, LightSampler
 from .scene import Scene
@@ -349,7 +349,7 @@ class PathTracer:
             next_throughput, prev_pdf, prev_delta = np.empty((m, 3), np.float32), np.empty(m, np.float32), np.empty(m, bool)
             prev_normal, prev_transmits = np.empty((m, 3), np.float32), np.empty(m, bool)
             next_idx, next_pix, next_smp = np.empty(m, idx.dtype), np.empty(m, pix.dtype), np.empty(m, smp.dtype)
-            count = geometry_kernels.scatter(np.ascontiguousarray(bs.wi, dtype=np.float32), g.tangent, g.bitangent, g.ns,
+            count = path_kernels.scatter(np.ascontiguousarray(bs.wi, dtype=np.float32), g.tangent, g.bitangent, g.ns,
                                     g.ng, g.cos_o_geo, bs.valid, bs.transmitted,
                                     np.ascontiguousarray(bs.weight, np.float32),
                                     np.ascontiguousarray(throughput, dtype=np.float32), g.p, g.mag,
@@ -400,7 +400,7 @@ class PathTracer:
         f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes, gc.wo, wi_local, rows=can)
         contrib, origin, direction = (np.empty((m, 3), np.float32) for _ in range(3))
         tmax, sample_of = np.empty(m, np.float32), np.empty(m, idx.dtype)
-        count = geometry_kernels.shadow_rays(can, np.ascontiguousarray(throughput, np.float32), idx,
+        count = path_kernels.shadow_rays(can, np.ascontiguousarray(throughput, np.float32), idx,
                                     np.ascontiguousarray(f_cos, np.float32), np.ascontiguousarray(ls.radiance, np.float32),
                                     np.asarray(ls.pdf, np.float32), np.asarray(pdf_b, np.float32),
                                     np.asarray(ls.delta, bool), self.mis, gc.cos_o_geo, gc.ng, transmits, gc.p, gc.mag,
@@ -418,7 +418,7 @@ class PathTracer:
     def _add(self, radiance: np.ndarray, idx: np.ndarray, value: np.ndarray) -> None:
         """Add contributions to their samples, catching NaN/Inf (counted, dropped) and clamping if asked."""
         counters = np.zeros(2, np.int64)
-        geometry_kernels.accumulate(radiance, np.asarray(idx, np.int64), np.ascontiguousarray(value, dtype=np.float32),
+        path_kernels.accumulate(radiance, np.asarray(idx, np.int64), np.ascontiguousarray(value, dtype=np.float32),
                            np.float32(self.settings.clamp), counters)
         self.stats.nonfinite += int(counters[0])
         self.stats.clamped += int(counters[1])

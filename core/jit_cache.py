@@ -17,8 +17,8 @@ package was imported as `monte.core` (the CLI, pytest) and read when it is impor
 folder is both) fails with ModuleNotFoundError instead of compiling. One folder per name keeps them apart.
 
 Kernel modules take their decorators from here, so the locator below is installed before any kernel is defined
-(numba picks a function's cache folder when the function is decorated). Only functions defined in this folder are affected; other numba users in
-the process (other Blender add-ons) keep numba's own choice.
+(numba picks a function's cache folder when the function is decorated). Only functions defined in this folder are
+affected; other numba users in the process (other Blender add-ons) keep numba's own choice.
 """
 
 from __future__ import annotations
@@ -70,7 +70,8 @@ jit_no_nrt = numba.njit(**_OPTIONS, _nrt=False)
 jit_inline = numba.njit(**_OPTIONS, _nrt=False, inline="always")
 
 # Modules of this folder that define cached kernels (their cache index files are named after them).
-KERNEL_MODULES = ("geometry_kernels", "sampling", "warps", "bsdf_kernels", "light_kernels", "embree")
+KERNEL_MODULES = ("geometry_kernels", "path_kernels", "mesh_checks", "camera", "sampling", "warps", "bsdf_kernels",
+                  "light_kernels", "embree")
 
 
 def compile_cache_is_cold() -> bool:
