@@ -58,3 +58,24 @@ def test_every_cli_subcommand_is_there():
 
     sub = next(a for a in build_parser()._actions if a.dest == "command")
     assert sorted(sub.choices) == ["bench", "crosscheck", "mc-study", "perf", "render", "stress"]
+
+
+def test_core_has_no_import_cycles():
+    """No core module reaches itself through imports (function-level ones included: a cycle hidden in a
+    function body is still a cycle, only deferred)."""
+    modules = {p.stem: p for p in _sources("core") if p.parent == ROOT / "core"}
+    graph = {name: {n.split(".")[2] for n in _imports(path) if n.startswith("monte.core.") and
+                    n.split(".")[2] in modules and n.split(".")[2] != name}
+             for name, path in modules.items()}
+    cycles = []
+
+    def visit(node, stack):
+        for nxt in sorted(graph[node]):
+            if nxt in stack:
+                cycles.append(stack[stack.index(nxt):] + [nxt])
+            elif len(stack) < len(graph):
+                visit(nxt, stack + [nxt])
+
+    for name in graph:
+        visit(name, [name])
+    assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles[:5])
