@@ -21,7 +21,8 @@ from .jit_cache import jit_no_nrt as _jit
 from .warps import (cone_pdf, cos_hemisphere_pdf, onb, one_minus_cos_from_sin2, sample_cone, sample_cos_hemisphere,
                     sample_disk, sample_sphere, sample_triangle, sphere_pdf)
 
-# unit kinds
+# The light kinds, the one enumeration of them (core.lights names them): a selectable unit's kind says how its
+# importance is estimated and which table (pt: POINT and SPOT, ar, su, the triangles, the world row) samples it.
 TRI_GROUP, POINT, SPOT, AREA, SUN, WORLD = range(6)
 
 # unit table columns
@@ -194,9 +195,6 @@ def probability(p, n, has_n, transmits, has_t, which, table, kinds, fallback, fl
 # Arithmetic is float64 on the float32 inputs; outputs are rounded to float32 where the public API is float32.
 # Spherical rectangles and near triangles need float64; elsewhere it costs nothing in scalar code.
 
-# selectable unit kinds as core.lights groups them (which sampler a unit uses)
-K_TRI, K_PUNCT, K_AREA, K_SUN, K_WORLD = range(5)
-
 # point/spot light table columns (float64; positions, directions, radiance hold float32-rounded values)
 (PT_X, PT_Y, PT_Z, PT_R, PT_G, PT_B, PT_RADIUS, PT_SPHERE, PT_SPOT, PT_DX, PT_DY, PT_DZ, PT_COS_HALF, PT_INV_WIDTH,
  PT_SEL, PT_UNIT, PT_CAM, PT_LIT) = range(18)
@@ -215,11 +213,11 @@ SU_FIELDS = 11
 W_FIELDS = 6
 
 # The light tables, one tuple (see core.lights.LightSampler._kernel_tables):
-#   (u_table, u_kind, u_kind5, u_local, u_fallback, floor_weight,        -- per-point selection units
+#   (u_table, u_kind, u_local, u_fallback, floor_weight,        -- per-point selection units
 #    pt (P, PT_FIELDS), ar (A, AR_FIELDS), su (S, SU_FIELDS), world (W_FIELDS,),
 #    t_v0, t_e1, t_e2, t_n, t_L (3, E) float32, t_pdf_area (E,) float32, t_sel (E,), t_edge2 (E,) float64,
 #    g_order (E,) int64, g_cdf (E,) float64, g_start (G + 1,) int64, t_unit (E,) int64)
-#    -- indices 10-21: the emissive triangles (component-major), their spatial groups and units
+#    -- indices 9-20: the emissive triangles (component-major), their spatial groups and units
 
 _TWO_PI = 2.0 * math.pi
 _INV_PI = 1.0 / math.pi
@@ -355,8 +353,8 @@ def _sample_triangle(px, py, pz, t, u0, u1, lt):
     """Emitter t from p: uniform by area, or (near and large, Cycles' rule) uniform in its solid angle: the
     seed's lamp hangs 2 cm under the ceiling, where area sampling's 1/d^2 weight makes fireflies.
     Returns (wi, dist, radiance, pdf given the unit), pdf 0 for no contribution."""
-    t_v0, t_e1, t_e2, t_n, t_L, t_pdf_area, t_sel, t_edge2 = lt[10], lt[11], lt[12], lt[13], lt[14], lt[15], \
-        lt[16], lt[17]
+    t_v0, t_e1, t_e2, t_n, t_L, t_pdf_area, t_sel, t_edge2 = lt[9], lt[10], lt[11], lt[12], lt[13], lt[14], \
+        lt[15], lt[16]
     ax, ay, az, bx, by, bz, cx, cy, cz, omega = _near_triangle(px, py, pz, t, t_v0, t_e1, t_e2, t_n, t_edge2)
     nx, ny, nz = np.float64(t_n[0, t]), np.float64(t_n[1, t]), np.float64(t_n[2, t])
     rr, rg, rb = np.float64(t_L[0, t]), np.float64(t_L[1, t]), np.float64(t_L[2, t])
@@ -404,10 +402,10 @@ def triangle_pdf_path(e, ox, oy, oz, dist2, cos_l, lt):
     """Solid-angle pdf, given its unit, with which the sampler produces the point of emitter e that a ray from o
     hit at squared distance dist2 and |cos| cos_l (float32 values): the area pdf, or 1 / solid angle where the
     triangle is near."""
-    omega = _near_triangle(ox, oy, oz, e, lt[10], lt[11], lt[12], lt[13], lt[17])[9]
+    omega = _near_triangle(ox, oy, oz, e, lt[9], lt[10], lt[11], lt[12], lt[16])[9]
     if omega > 0.0:
-        return lt[16][e] / omega
-    return _f32(np.float64(lt[15][e]) * dist2 / cos_l)
+        return lt[15][e] / omega
+    return _f32(np.float64(lt[14][e]) * dist2 / cos_l)
 
 
 # ------------------------------------------------------------------------------------------ point and spot
@@ -591,29 +589,29 @@ def sample_light_path(px, py, pz, nx, ny, nz, has_n, transmits, u_sel, u0, u1, p
     Picks a unit (per point, or the only one), an emitter in it, samples it. Returns (wx, wy, wz, dist, r, g, b,
     pdf, delta) rounded to float32 values: the solid-angle pdf includes the selection probability; pdf 0 (with
     wi and radiance 0) means no contribution. buf: scratch (K,) float64."""
-    u_table, u_kind, u_kind5, u_local, fallback, floor_weight = lt[0], lt[1], lt[2], lt[3], lt[4], lt[5]
+    u_table, u_kind, u_local, fallback, floor_weight = lt[0], lt[1], lt[2], lt[3], lt[4]
     prob = 1.0
     unit = 0
     x = u_sel
     if per_point:
         unit, prob, x = select_path(px, py, pz, nx, ny, nz, has_n, transmits, u_sel, u_table, u_kind, fallback,
                                     floor_weight, buf)
-    kind = u_kind5[unit]
+    kind = u_kind[unit]
     local = u_local[unit]
     delta = False
-    if kind == K_TRI:
-        e = _pick_in_group(local, x, lt[18], lt[19], lt[20])
+    if kind == TRI_GROUP:
+        e = _pick_in_group(local, x, lt[17], lt[18], lt[19])
         wx, wy, wz, dist, rr, rg, rb, pdf = _sample_triangle(px, py, pz, e, u0, u1, lt)
-    elif kind == K_PUNCT:
+    elif kind == POINT or kind == SPOT:
         wx, wy, wz, dist, rr, rg, rb, pdf, delta = _sample_punctual(px, py, pz, nx, ny, nz, has_n, local, u0, u1,
-                                                                     lt[6])
-        pdf *= lt[6][local, PT_SEL]
-    elif kind == K_AREA:
-        ar = lt[7]
+                                                                     lt[5])
+        pdf *= lt[5][local, PT_SEL]
+    elif kind == AREA:
+        ar = lt[6]
         wx, wy, wz, dist, rr, rg, rb, pdf = _sample_area(px, py, pz, local, u0, u1, ar)
         pdf *= ar[local, AR_SEL]
-    elif kind == K_SUN:
-        su = lt[8]
+    elif kind == SUN:
+        su = lt[7]
         dist = math.inf
         rr, rg, rb = su[local, SU_R], su[local, SU_G], su[local, SU_B]
         omc = su[local, SU_OMC]
@@ -625,7 +623,7 @@ def sample_light_path(px, py, pz, nx, ny, nz, has_n, transmits, u_sel, u0, u1, p
             wx, wy, wz, _ = sample_cone(wx, wy, wz, _f32(omc), u0, u1)
             pdf = su[local, SU_SEL] / (_TWO_PI * omc)
     else:
-        w = lt[9]
+        w = lt[8]
         dist = math.inf
         rr, rg, rb = w[W_R], w[W_G], w[W_B]
         if has_n:
@@ -672,7 +670,7 @@ def _times_selection(pl, unit, have_prob, ox, oy, oz, nx, ny, nz, has_n, transmi
     probabilities of all units go into buf on a ray's first light hit (have_prob False) and are reused after.
     Returns (pl x probability, True)."""
     if not have_prob:
-        probabilities_at(ox, oy, oz, nx, ny, nz, has_n, transmits, lt[0], lt[1], lt[4], lt[5], buf)
+        probabilities_at(ox, oy, oz, nx, ny, nz, has_n, transmits, lt[0], lt[1], lt[3], lt[4], buf)
     return pl * (buf[unit] if unit >= 0 else 0.0), True
 
 
@@ -684,7 +682,7 @@ def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_
     or not use_mis) with the light pdf `sample_light_path` gives that direction (selection included); where tmax
     is inf also the sun discs and the world. camera: camera rays see the world and only lights marked visible
     to the camera. Inputs are float64 of float32 values; buf: scratch (K,) float64."""
-    pt, ar, su, w = lt[6], lt[7], lt[8], lt[9]
+    pt, ar, su, w = lt[5], lt[6], lt[7], lt[8]
     er = eg = eb = 0.0
     need_prob = use_mis and per_point
     have_prob = False
@@ -842,8 +840,8 @@ def triangle_pdf_batch(emitter, o, dist2, cos_l, n, has_n, transmits, has_t, per
             nx = ny = nz = 0.0
             if has_n:
                 nx, ny, nz = np.float64(n[i, 0]), np.float64(n[i, 1]), np.float64(n[i, 2])
-            probabilities_at(ox, oy, oz, nx, ny, nz, has_n, has_t and transmits[i], lt[0], lt[1], lt[4], lt[5],
+            probabilities_at(ox, oy, oz, nx, ny, nz, has_n, has_t and transmits[i], lt[0], lt[1], lt[3], lt[4],
                              buf)
-            unit = lt[21][e]
+            unit = lt[20][e]
             pdf *= buf[unit] if unit >= 0 else 0.0
         out[i] = pdf if math.isfinite(pdf) else 0.0
