@@ -23,6 +23,7 @@ from typing import Callable, Sequence
 import bpy
 import numpy as np
 
+from ..addon.crosscheck import configure_cycles
 from ..addon.export import export_scene
 from ..core import exr, metrics
 from ..core.render import render as monte_render
@@ -34,31 +35,6 @@ from .bench_reference import Reference, ReferenceCache, file_digest
 
 DEFAULT_LADDER = (16, 32, 64, 128, 256)
 BIG_SPP = 1 << 16  # sample count for time-budget rungs (the budget stops the render first)
-
-
-def configure_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0) -> None:
-    """Cycles on the CPU as an unbiased rival: no denoising, adaptive sampling or clamping, sharp glossy,
-    caustics on, every bounce limit = max_bounces, a fixed seed and thread count."""
-    scene.render.engine = "CYCLES"
-    c = scene.cycles
-    c.device = "CPU"
-    c.samples = int(spp)
-    c.time_limit = float(time_limit)
-    c.use_adaptive_sampling = False
-    c.use_denoising = False
-    c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
-    c.blur_glossy = 0.0
-    c.caustics_reflective = c.caustics_refractive = True
-    c.max_bounces = c.diffuse_bounces = c.glossy_bounces = c.transmission_bounces = int(max_bounces)
-    c.volume_bounces = 0
-    c.transparent_max_bounces = max(int(max_bounces), 8)
-    c.seed = int(seed)
-    c.use_animated_seed = False
-    scene.render.threads_mode = "FIXED"
-    scene.render.threads = int(threads)
-    for layer in scene.view_layers:
-        if hasattr(layer, "cycles"):
-            layer.cycles.denoising_store_passes = False
 
 
 def _read_combined(path: Path) -> np.ndarray:
@@ -76,7 +52,7 @@ def _read_combined(path: Path) -> np.ndarray:
 def render_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0
                   ) -> tuple[np.ndarray, float]:
     """One Cycles render: (linear RGB (H, W, 3) with row 0 at the top, seconds of the render call)."""
-    configure_cycles(scene, spp, seed, threads, max_bounces, time_limit)
+    configure_cycles(scene, spp, max_bounces, threads, seed=seed, time_limit=time_limit)
     t0 = time.perf_counter()
     bpy.ops.render.render(write_still=False, scene=scene.name)
     seconds = time.perf_counter() - t0
@@ -98,7 +74,7 @@ def render_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, ti
 
 def monte_settings(spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0,
                    **extra) -> RenderSettings:
-    """Monte's settings matching configure_cycles: Blackman-Harris 1.5 px, no clamp, no AOV passes."""
+    """Monte's settings matching addon.crosscheck.configure_cycles as the bench calls it: Blackman-Harris 1.5 px, no clamp, no AOV passes."""
     return RenderSettings(spp=int(spp), seed=int(seed), threads=int(threads), max_bounces=int(max_bounces),
                           filter_type="blackman-harris", filter_width=1.5, clamp=0.0, time_limit=time_limit,
                           aovs=False, **extra).validate()
