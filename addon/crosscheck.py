@@ -31,6 +31,7 @@ import bpy
 import numpy as np
 
 from ..core import compare as cmp
+from ..core.atomic_file import write_text_atomically
 from ..core import exr
 
 CYCLES_FILTERS = {"blackman-harris": "BLACKMAN_HARRIS", "gaussian": "GAUSSIAN", "box": "BOX"}
@@ -448,15 +449,8 @@ def _write_outputs(out: Path, report: dict, c: cmp.Comparison, monte_rgb, monte_
     exr.write_png(out / "difference.png", cmp.srgb_to_linear(cmp.upscale(cmp.zscore_colors(c.z))))
     exr.write_png(out / "monte.png", cmp.upscale(monte_rgb))
     exr.write_png(out / "cycles.png", cmp.upscale(cyc_rgb))
-    text = json.dumps(report, indent=2)
-
-    def write_text(name: str, content: str) -> None:
-        tmp = out / f".{name}.tmp-{os.getpid()}"
-        tmp.write_text(content)
-        os.replace(tmp, out / name)
-
-    write_text("report.json", text)
-    write_text("report.txt", report_text(report) + "\n")
+    write_text_atomically(out / "report.json", json.dumps(report, indent=2), ".json")
+    write_text_atomically(out / "report.txt", report_text(report) + "\n", ".txt")
 
 
 # ------------------------------------------------------------------------------------------ .blend files

@@ -13,8 +13,6 @@ import argparse
 import io
 import json
 import math
-import os
-import tempfile
 import time
 import zlib
 from dataclasses import asdict, dataclass
@@ -23,6 +21,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..core.atomic_file import write_bytes_atomically
 from . import montecarlo as mc
 
 CONFIDENCE = 0.999
@@ -502,16 +501,8 @@ def _figures(summary: dict[str, Any], samplers: list[SamplerRun], hemisphere: np
 
 
 def _write_atomically(path: Path, data: bytes) -> None:
-    """Write to a temporary file in the same folder, then rename: readers never see a partial file."""
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "wb") as file:
-            file.write(data)
-        os.chmod(temporary, 0o644)  # mkstemp creates 0600; these are ordinary shareable outputs
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    """Readers never see a partial file (core.atomic_file)."""
+    write_bytes_atomically(path, data)
 
 
 def _write_plots(

@@ -804,7 +804,7 @@ def _fmt(values, digits: int = 4) -> str:
 def write_report(results: list[CaseResult], out_dir: str | os.PathLike, cfg: StressConfig,
                  extra: dict | None = None) -> tuple[Path, Path]:
     """report.json (every number) and report.md (one table row per case) in out_dir."""
-    from ..core.exr import _atomic_write
+    from ..core.atomic_file import write_text_atomically
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -812,8 +812,8 @@ def write_report(results: list[CaseResult], out_dir: str | os.PathLike, cfg: Str
                "cases": [asdict(c) | {"status": c.status} for c in results]}
     payload.update(extra or {})
     text = json.dumps(payload, indent=2, default=float)
-    json_path = _atomic_write(out / "report.json", ".json", lambda p: Path(p).write_text(text))
-    md_path = _atomic_write(out / "report.md", ".md", lambda p: Path(p).write_text(report_markdown(results, cfg)))
+    json_path = write_text_atomically(out / "report.json", text, ".json")
+    md_path = write_text_atomically(out / "report.md", report_markdown(results, cfg), ".md")
     return json_path, md_path
 
 
