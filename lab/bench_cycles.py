@@ -133,7 +133,7 @@ def _point(renderer: str, rung, image: np.ndarray, seconds: float, ref: Referenc
     err_c = corrected_rmse(err, ref.own_mse)
     return {"renderer": renderer, "rung": rung, "seconds": seconds, "samples": samples,
             "samples_per_second": samples / seconds if seconds > 0 else float("nan"),
-            "rmse": err, "rmse_corrected": err_c, "efficiency": efficiency(seconds, err_c)}
+            "rmse": err, "rmse_corrected": err_c, "efficiency": efficiency(seconds, err_c * err_c)}
 
 
 def bench_scene(spec: str, *, cache: ReferenceCache, ladder: Sequence[int] = DEFAULT_LADDER,

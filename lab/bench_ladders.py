@@ -109,7 +109,7 @@ def sampler_ladder(ladder: Sequence[int], samplers: Sequence[str] = ("sobol", "s
             sec = result.stats["seconds"]
             err, err_c = _errors(result.color[..., :3], reference)
             points.append({"sampler": sampler, "spp": int(spp), "seconds": sec, "rmse": err,
-                           "rmse_corrected": err_c, "efficiency": efficiency(sec, err_c),
+                           "rmse_corrected": err_c, "efficiency": efficiency(sec, err_c * err_c),
                            "mean_pixel_variance": float(np.mean(result.variance))})
             log(f"  {sampler:12s} {spp:5d} spp  {sec:7.2f} s  RMSE {err_c:.4f}  eff {points[-1]['efficiency']:.1f}")
     base = [p for p in points if p["sampler"] == samplers[0]]
@@ -137,7 +137,7 @@ def batch_ladder(batch_sizes: Sequence[int], spp: int = 16, resolution: tuple[in
         err, err_c = _errors(result.color[..., :3], reference)
         points.append({"batch_paths": batch, "spp": int(spp), "seconds": st["seconds"],
                        "samples_per_second": st["samples_per_second"], "rmse": err, "rmse_corrected": err_c,
-                       "efficiency": efficiency(st["seconds"], err_c), "peak_memory_mb": _peak_memory_mb()})
+                       "efficiency": efficiency(st["seconds"], err_c * err_c), "peak_memory_mb": _peak_memory_mb()})
         log(f"  batch {batch:8d}  {st['seconds']:7.2f} s  {st['samples_per_second'] / 1e3:6.1f} k samples/s  "
             f"peak {points[-1]['peak_memory_mb']:.0f} MB")
     return {"kind": "batch-sizes", "resolution": list(resolution), "spp": int(spp), "points": points}

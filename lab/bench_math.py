@@ -29,9 +29,10 @@ def corrected_rmse(rmse: float, reference_mse: float) -> float:
     return float(math.sqrt(max(rmse * rmse - reference_mse, 0.0)))
 
 
-def efficiency(seconds: float, rmse: float) -> float:
-    """The seed's efficiency 1 / (seconds x MSE); inf when either is 0 (a point to leave off a log plot)."""
-    mse = rmse * rmse
+def efficiency(seconds: float, mse: float) -> float:
+    """The seed's efficiency 1 / (T x V): T the time (seconds, or another cost), V the variance of the estimate,
+    for which the MSE against a reference stands in; inf when either is 0 (a point to leave off a log plot).
+    The project's one meaning of efficiency (bench, perf, the MC study)."""
     return 1.0 / (seconds * mse) if seconds > 0 and mse > 0 else float("inf")
 
 

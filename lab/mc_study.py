@@ -23,6 +23,7 @@ import numpy as np
 
 from ..core.atomic_file import write_bytes_atomically
 from . import montecarlo as mc
+from .bench_math import efficiency
 
 CONFIDENCE = 0.999
 """Confidence level of every interval and band in the study (normal approximation)."""
@@ -106,7 +107,7 @@ def _sweep_over_n(
         # Where single estimates fall (not their mean): the spread one run of n samples has.
         rows["single_estimate_spread"].append(np.percentile(estimates, [tail, 100.0 - tail]).tolist())
         rows["seconds_per_estimate"].append(seconds)
-        rows["efficiency_per_second"].append(1.0 / (seconds * stats.variance))
+        rows["efficiency_per_second"].append(efficiency(seconds, stats.variance))
     result: dict[str, Any] = {"n": list(config.sample_counts), "repetitions": config.repetitions,
                               "single_estimate_spread_level": ESTIMATE_SPREAD, **rows}
     if fit_variance_slope:
@@ -178,7 +179,7 @@ def _costed_summary(result: mc.CostedEstimates, exact: float) -> dict[str, Any]:
         "variance": stats.variance,
         "variance_half_width": stats.variance_half_width,
         "cost_per_estimate": result.cost_per_estimate,
-        "efficiency_per_cost_unit": 1.0 / (result.cost_per_estimate * stats.variance),
+        "efficiency_per_cost_unit": efficiency(result.cost_per_estimate, stats.variance),
     }
 
 

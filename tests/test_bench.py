@@ -24,8 +24,8 @@ def test_corrected_rmse_subtracts_reference_noise_in_quadrature():
 
 
 def test_efficiency_is_one_over_seconds_times_mse():
-    assert bm.efficiency(2.0, 0.1) == pytest.approx(50.0, rel=1e-12)
-    assert bm.efficiency(0.0, 0.1) == math.inf and bm.efficiency(1.0, 0.0) == math.inf
+    assert bm.efficiency(2.0, 0.01) == pytest.approx(50.0, rel=1e-12)  # 1 / (seconds x MSE)
+    assert bm.efficiency(0.0, 0.01) == math.inf and bm.efficiency(1.0, 0.0) == math.inf
 
 
 def test_reference_from_seeds_mean_and_own_noise():
