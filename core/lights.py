@@ -1,100 +1,30 @@
 """Light selection and sampling for next-event estimation with MIS, vectorised over N shading points.
 
-Coordinates: the integrator renders relative to a world offset `shift` (float64 (3,)) for precision. Every
-position given to this module and returned by it is (world position - shift) in float32; the light tables are
-built by subtracting `shift` in float64 before the cast.
+Coordinates: every position given to this module and returned by it is (world position - shift) in float32,
+`shift` being the integrator's float64 world offset; the light tables subtract it in float64 before the cast.
 
-Units, exactly as Cycles 5.0 converts them (read from the kernel, and each one checked here against a Cycles
-5.0.1 render of a white diffuse plane, see tests/test_lights.py). Blender's `strength` of a light is
-colour x Power (W) or colour x Strength (sun, W/m^2) (`intern/cycles/blender/light.cpp`, `sync_light`), and
-`normalize` is on by default, so Cycles divides it by `Light::area()` (`intern/cycles/scene/light.cpp`):
+Units, as Cycles 5.0 converts Blender's (each checked against a Cycles render in tests/test_lights.py):
+- point light, radius 0: intensity P / (4 pi) W/sr; radius r > 0: radiance P / (4 pi^2 r^2), a disc facing the
+  shading point (soft falloff, Blender's default) or a sphere (`soft_falloff` False);
+- spot light: the point light times Cycles' smoothstep of the cone (size, blend);
+- sun: strength S W/m^2 is the irradiance; angle a > 0 gives a disc of radiance S / (pi sin^2(a / 2));
+- area light: one-sided (local -Z), radiance P / (pi A), A the world area; spread < pi attenuates as Cycles;
+- mesh emission: radiance colour x strength from both faces; world: constant radiance colour x strength.
+Visibility as Cycles' defaults: camera rays see the world but no light (unless `visible_camera`), BSDF rays see
+every light with a surface and the world; lights never block rays.
 
-- Point light, radius r = 0: radiant intensity I = P / (4 pi) W/sr. (`device_update_lights`:
-  eval_fac = invarea / pi with `Light::area()` = 4 when the radius is 0; `point_light_sample` then divides by
-  the distance squared through its pdf.)
-- Point light, radius r > 0: radiance L = P / (4 pi^2 r^2) (eval_fac = 1 / (pi * 4 pi r^2), `Light::area()` =
-  4 pi r^2). Its shape depends on Blender's `use_soft_falloff` (default True; `is_sphere = !use_soft_falloff`
-  in `blender/light.cpp`):
-    * soft falloff (default): a disc of radius r centred on the light and facing the shading point
-      (`point_light_sample`, "ad-hoc radius based on oriented disk"): irradiance at distance d, perpendicular
-      incidence, P / (4 pi (d^2 + r^2));
-    * no soft falloff: a sphere of radius r, sampled by the cone it subtends: irradiance P / (4 pi d^2), exactly
-      a point light's, while the sphere is above the horizon.
-  Monte reads the mode from `getattr(light, "soft_falloff", True)` (scene.PointLight has no field for it yet).
-- Spot light: the point light above (same I or L, no renormalisation to the cone) times
-  smoothstep((cos_a - cos(size / 2)) / ((1 - cos(size / 2)) x blend)) with cos_a the cosine between the spot axis
-  and the direction from the emitting point to the shading point (`spot.h` `spot_light_attenuation`,
-  `spot_smooth` set in `scene/light.cpp`). Blend 0 is a hard edge. Inside a sphere-mode spot the attenuation
-  is not applied (as Cycles). Non-uniformly scaled spot cones (elliptic) are not modelled.
-- Sun: strength S is the irradiance on a surface facing it; with angular diameter a > 0 the disc has radiance
-  S / (pi sin^2(a / 2)) (`Light::area()` for LIGHT_DISTANT = pi sin^2(a / 2), eval_fac = 1 / area), sampled
-  uniformly in the cone of half-angle a / 2 (`distant.h`). a = 0 is a delta light.
-- Area light: one-sided, emitting towards the light's local -Z, radiance L = P / (pi A) with A the world area
-  (|X column| size_x x |Y column| size_y, x pi / 4 for DISK/ELLIPSE) (`area.h` `area_light_eval`:
-  eval_fac = invarea / pi, "Convert radiant flux to radiance"). Spread s < pi multiplies L by
-  max((tan(s/2) - tan(theta)) / (tan(s/2) - s/2), 0), theta the angle to the light's normal
-  (`area_light_spread_attenuation`, normalised so the cosine-weighted integral is pi as for a Lambertian
-  emitter); s = pi is Lambertian. Rectangles are sampled by solid angle (Urena et al. 2013, spherical
-  rectangles, as Cycles), discs/ellipses uniformly by area. With s < pi the sampling is not narrowed to the lit
-  region as Cycles' `area_light_spread_clamp_light` does: unbiased, only noisier for narrow spreads.
-- Mesh emission: radiance = Emission colour x strength, from both faces (`emissive_simple_eval` uses |cos|).
-- World: constant radiance colour x strength in every direction.
+Sampling: rectangles by solid angle, discs/ellipses and emissive triangles by area (near, large triangles by
+solid angle), sphere lights in the cone they subtend, the sun in its cone, the world cosine-weighted about n.
+`intersect` and `pdf_triangle` compute the light pdf of a BSDF-sampled direction with the same formulas and the
+same per-point selection (they need the n and transmission flags `sample` got), so MIS weights match. Delta
+lights (radius 0, sun angle 0): `pdf` is the selection probability and `radiance` the value to divide by it.
 
-Visibility, Cycles' defaults (Blender creates light objects with `visible_camera` False and diffuse, glossy
-and transmission visibility True; checked with renders): camera rays see the world but no light
-(`intersect(..., camera=True)`); BSDF rays see every light that has a surface (area lights' front face,
-point/spot discs or spheres with r > 0, the sun disc with a > 0) and the world. Lights never block rays. A
-light that carries `visible_camera = True` (no such field in scene.py yet) is seen by camera rays too.
+Selection: one unit per shading point (each analytic light, the world, up to 8 spatial groups of emissive
+triangles picked inside by power), with probability 0.9 x importance share + 0.1 x power share over the units
+not provably dark there; importance estimates each unit's irradiance at the point and normal.
 
-Sampling and MIS: rectangles by solid angle, discs/ellipses and emissive triangles uniformly by area, point
-lights as Cycles (uniform in the cone a sphere subtends; uniformly over the disc for soft falloff), the sun
-uniformly in its cone, the world cosine-weighted about the normal n given to `sample` (uniform sphere without
-n); the inside of a sphere light likewise. `intersect` returns each light's emission weighted by the power
-heuristic against the BSDF pdf, with the light pdf of that same direction (selection included) computed by the
-same formulas `sample` uses; it needs the same n for the world (it raises if `sample` got normals and
-`intersect` none). Delta lights (r = 0, sun angle 0): `pdf` is the selection probability and `radiance` the
-value to divide by it (I / d^2, S).
-
-Implementation: the tables below are flattened once per scene into the arrays of core.light_kernels, where
-`sample`, `intersect` and `pdf_triangle` are compiled per-path code (one pass over the points, float64 inside).
-Cost (2-core machine here, process time per 2^18 points): `sample` about 20 ms for a sun + the world, 50 ms for
-the Cornell lamp (two near triangles: spherical triangle sampling) and 60 ms for a rectangle + the world (float64
-spherical rectangles, for accuracy on tiny or distant lights); `intersect` 5-20 ms for one to three lights.
-
-Emissive triangles are sampled uniformly in area, or uniformly in the solid angle they subtend (Arvo's spherical
-triangle sampling) where the triangle is near and large (longest edge longer than the distance to its plane,
-Cycles' rule): the seed's lamp hangs 2 cm under the ceiling, where area sampling's 1/d^2 makes fireflies.
-`pdf_triangle` applies the same rule from the ray origin.
-
-Light selection (one emitter per shading point, chosen per point, like Cycles' light tree for a handful of
-lights). The selectable units are each analytic light (point, spot, area, sun), the world, and the emissive
-triangles in up to 8 spatial groups (split at centroid medians; groups under 16 triangles, such as a quad lamp,
-are not split); inside a group a triangle is picked by power (luminance(emission) x area). At a shading point p
-with shading normal n (the viewer's side) each unit gets an importance, an estimate of the irradiance it gives
-(W/m^2, Rec. 709 luminance):
-  finite units (bounding sphere centre c, radius r; d = |c - p|):
-    intensity x emitter-cone factor x receiver factor / max(d^2, r^2)
-    intensity: point and spot P / (4 pi); area P / pi (Lambertian peak); triangle group L A (its power / 2 pi).
-    emitter cone, with theta_u = asin(r / d) the angle the bounds subtend (no cone test when p is inside them):
-    spot 1 inside its cone widened by theta_u, else 0; area cos(theta') x its spread attenuation, theta' =
-    max(angle(normal, p - c) - theta_u, 0), and 0 behind its plane or outside its spread; triangle group
-    the same about its two-sided normal cone (widened by the group's normal spread), never 0.
-  sun: S x receiver factor (theta_u its half-angle); world: 0.1 pi L (_WORLD_IMPORTANCE: a uniform world's
-  light samples duplicate what BSDF sampling already finds, so it is weighted down). Renders select the world
-  only for the light-sampling-only estimator (`sample_world`, as Cycles for a constant world, see LightSampler).
-  receiver factor: cos(max(angle(n, c - p) - theta_u, 0)), or its |cos| version where the material transmits
-  (the `transmits` flag) or 1 without n; a unit entirely below a surface that only reflects gets 0.
-Probability of a unit: 0.9 x importance / sum of importances + 0.1 (SELECTION_POWER_FLOOR) x power / sum of
-powers, both over the units that are not provably dark at p (importance 0: one-sided area light from behind,
-outside a spot cone or area spread, wholly below a reflect-only surface; 0.06 degree margin), so every unit that
-can contribute keeps a probability > 0 and the estimator stays unbiased; the power shares alone where no unit
-is lit. Powers: emissive triangle L x area x 2 pi (both faces), point P, spot P (1 - cos(size / 2)) / 2 (the
-fraction of the sphere inside the cone), area P, sun S x pi R^2 (what crosses the scene's bounding disc), world
-L x pi^2 R^2 (irradiance pi L through the scene's cross-section disc, like the sun), R = scene_radius. Emitters
-with zero power are never selected. One unit (a single lamp) has probability 1 and costs nothing per point;
-otherwise the selection is a compiled pass over points x units (core.light_kernels), about 50-100 ns per point
-for two units. `intersect` and `pdf_triangle` evaluate the same probability at the ray origin with the normal
-and transmission flag `sample` got there (they raise if those are missing), so MIS weights match.
+The kernels are in core.light_kernels. docs/lights.md has the full contract: the Cycles function each unit
+follows, the selection heuristic's formulas, and the measurements behind its constants.
 """
 
 from __future__ import annotations
@@ -122,11 +52,8 @@ _KIND_NAMES = {lk.TRI_GROUP: "triangle", lk.POINT: "point", lk.SPOT: "spot", lk.
 # a light that the importance estimate underrates (its rival occluded there) from being sampled too rarely.
 SELECTION_POWER_FLOOR = 0.1
 # The uniform world's importance is this fraction of the irradiance pi L it gives: its light samples are cosine
-# distributed about n, as a diffuse BSDF's own samples (which MIS counts too), so they add little beside them.
-# Instances bench (sun + sky), MSE at equal samples: 4.99e-4 at 1, 4.03e-4 at 0.5, 3.17e-4 at 0.1, 3.05e-4 at
-# 0.03 (fixed selection by power: 4.14e-4); the glass bench (dim sky + area light) is unchanged. Not selecting
-# it at all (renders now, sample_world=False) was better still: 128x128, 64 spp, 8 seeds, MSE 1.06e-4 at 0.1,
-# 9.4e-5 at 0.03, 8.4e-5 never selected (Cycles 8.5e-5); this value only serves light_sampling="light".
+# distributed about n, as a diffuse BSDF's own samples (which MIS counts too), so they add little beside them
+# (measurements in docs/lights.md). Renders leave the world out of selection; this serves light_sampling="light".
 _WORLD_IMPORTANCE = 0.1
 
 
@@ -605,9 +532,8 @@ class LightSampler:
         wc = np.asarray(scene.world.color, dtype=np.float64).reshape(-1)
         wc = np.repeat(wc, 3) if wc.size == 1 else wc
         self.world_radiance = wc.astype(_F32)
-        # Flux through the scene's cross-section disc, as for the sun: irradiance pi L on a disc of area pi R^2.
-        # (Counting the flux into the whole bounding sphere, 4 pi^2 L R^2, picked the world 4x too often next to
-        # a sun: on the instanced bench scene that was 2.2x the MSE at equal samples.)
+        # Flux through the scene's cross-section disc, as for the sun: irradiance pi L on a disc of area pi R^2
+        # (not into the whole bounding sphere: that picked the world 4x too often, see docs/lights.md).
         world_power = float(luminance(wc)) * math.pi ** 2 * R * R
 
         # The selectable units (see the module docstring): a few spatial groups of emissive triangles, each
