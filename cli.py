@@ -79,7 +79,7 @@ class ProgressBar:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from .core.scenes import BUILTIN_SCENES
+    from .core.builtin_scenes import BUILTIN_SCENES
 
     if args.list:
         for name, (_, description) in BUILTIN_SCENES.items():
@@ -110,7 +110,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     from .core import exr
     from .core.render import render
-    from .core.scenes import builtin_scene
+    from .core.builtin_scenes import builtin_scene
 
     scene = builtin_scene(args.scene, args.resolution)
     settings = RenderSettings(**overrides).validate()

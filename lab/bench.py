@@ -14,7 +14,7 @@ import numpy as np
 from ..core import metrics
 from ..core.exr import read_rgb
 from ..core.render import render
-from ..core.scenes import cornell_box
+from ..core.builtin_scenes import cornell_box
 from ..core.settings import CLI_SETTINGS, RenderSettings
 from .bench_math import efficiency
 

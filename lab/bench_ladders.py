@@ -29,7 +29,7 @@ import numpy as np
 
 from ..core import metrics
 from ..core.render import render
-from ..core.scenes import cornell_box
+from ..core.builtin_scenes import cornell_box
 from ..core.settings import RenderSettings
 from .bench_args import SEED_TABLE_COUNTS
 from .bench_math import corrected_rmse, efficiency, equal_error_ratio, format_table, write_json

@@ -24,7 +24,7 @@ import numpy as np
 from ..core import exr
 from .bench_math import write_json
 
-# What the bundled reference was rendered with (the seed's Cornell box, core.scenes.cornell_box, in Cycles).
+# What the bundled reference was rendered with (the seed's Cornell box, core.builtin_scenes.cornell_box, in Cycles).
 BUNDLED_PARAMS = {"scene": "cornell", "resolution": [256, 256], "max_bounces": 16,
                   "filter_type": "blackman-harris", "filter_width": 1.5, "spp_per_seed": 1024, "seeds": 4}
 BUNDLED_OWN_RMSE = 0.007

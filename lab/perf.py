@@ -25,7 +25,7 @@ import numpy as np
 
 from ..core.render import render
 from ..core.scene import Lobe, Material
-from ..core.scenes import cornell_box, cornell_diffuse, spheres_under_sky
+from ..core.builtin_scenes import cornell_box, cornell_diffuse, spheres_under_sky
 from ..core.settings import RenderSettings
 from .bench_math import efficiency
 

@@ -37,7 +37,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..core import metrics, scenes
+from ..core import builtin_scenes as scenes
+from ..core import metrics
 from ..core.render import RenderResult, render
 from ..core.scene import Camera, Lobe, Material, Mesh, Scene, SunLight, World
 from ..core.settings import RenderSettings

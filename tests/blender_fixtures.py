@@ -40,7 +40,7 @@ from monte.lab.bpy_scenes import (  # noqa: E402
 # --------------------------------------------------------------------------------------------- scenes
 def cornell_box(resolution=(256, 256)):
     """The seed's Cornell box in bpy (built by monte.lab.bpy_scenes.cornell_box, which the benchmark uses too):
-    the same triangles as core.scenes.cornell_box (quads split along 0-2), materials and camera."""
+    the same triangles as core.builtin_scenes.cornell_box (quads split along 0-2), materials and camera."""
     bpy_module()
     from monte.lab import bpy_scenes
 

@@ -14,7 +14,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from monte.core import scenes  # noqa: E402
+from monte.core import builtin_scenes as scenes  # noqa: E402
 from monte.core.scene import AreaLight, Lobe, Material, PointLight, SunLight, World  # noqa: E402
 
 pytestmark = pytest.mark.blender

@@ -52,7 +52,7 @@ CASES: dict[str, tuple[str, str, dict]] = {
 
 def _scene(source: str, name: str):
     if source == "core":
-        from monte.core.scenes import builtin_scene
+        from monte.core.builtin_scenes import builtin_scene
 
         return builtin_scene(name, RESOLUTION)
     import bpy

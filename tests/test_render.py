@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from monte.core import metrics, scenes
+from monte.core import builtin_scenes as scenes
+from monte.core import metrics
 from monte.core.render import render
 from monte.core.scene import Lobe, Material, Mesh, SceneError
 
