@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from .jit_cache import jit as _jit
+from .warps import onb_f32
 
 
 _F0 = np.float32(0.0)
@@ -124,11 +125,7 @@ def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, s
                                                   sx * side, sy * side, sz * side)
             sx, sy, sz = np.float32(bx * side), np.float32(by * side), np.float32(bz * side)
         ns[k, 0], ns[k, 1], ns[k, 2] = sx, sy, sz
-        sign = _F1 if sz >= _F0 else -_F1
-        a = -_F1 / (sign + sz)
-        b = sx * sy * a
-        tx, ty, tz = _F1 + sign * sx * sx * a, sign * b, -sign * sx
-        bx, by, bz = b, sign + sy * sy * a, -sy
+        tx, ty, tz, bx, by, bz = onb_f32(sx, sy, sz)
         tangent[k, 0], tangent[k, 1], tangent[k, 2] = tx, ty, tz
         bitangent[k, 0], bitangent[k, 1], bitangent[k, 2] = bx, by, bz
         wz = ox * sx + oy * sy + oz * sz

@@ -33,6 +33,14 @@ _CORE_DIR = os.path.dirname(os.path.abspath(__file__))
 PACKAGE = __name__.rpartition(".")[0] or "core"  # "monte.core", "bl_ext.user_default.monte.core", ...
 
 
+def _file_stamp(path: str) -> tuple[float, int]:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return 0.0, 0
+    return st.st_mtime, st.st_size
+
+
 def cache_dir() -> str:
     """The folder this import of the package caches its kernels in."""
     return os.path.join(_CORE_DIR, "__pycache__", f"numba-{PACKAGE}")
@@ -51,6 +59,13 @@ if _InTree is not None and _CacheImpl is not None:
         def __init__(self, py_func, py_file):
             super().__init__(py_func, py_file)
             self._cache_path = cache_dir()
+
+        def get_source_stamp(self):
+            """The function's own file and every kernel module: numba checks only the file a function is defined
+            in, but kernels call (and inline) functions of other kernel modules (core.warps from the light and
+            BSDF kernels, core.geometry_kernels from core.path_kernels), whose edits must recompile them too."""
+            own = super().get_source_stamp()
+            return own, tuple(_file_stamp(os.path.join(_CORE_DIR, f"{name}.py")) for name in KERNEL_MODULES)
 
         @classmethod
         def from_function(cls, py_func, py_file):

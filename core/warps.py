@@ -20,6 +20,7 @@ from .jit_cache import jit_no_nrt as jit  # warps never allocate
 _TWO_PI = 2.0 * math.pi
 _INV_PI = 1.0 / math.pi
 _INV_4PI = 1.0 / (4.0 * math.pi)
+_ZERO32, _ONE32 = np.float32(0.0), np.float32(1.0)
 
 
 # ------------------------------------------------------------------------------------------------- frames
@@ -31,6 +32,16 @@ def onb(x, y, z):
     a = -1.0 / (s + z)
     b = x * y * a
     return 1.0 + s * x * x * a, s * b, -s * x, b, s + y * y * a, -y
+
+
+@jit
+def onb_f32(x, y, z):
+    """`onb` in float32 arithmetic, for float32 x, y, z (the shading frames of surface hits, which the integrator
+    keeps in float32): the same formula, rounded as float32 code rounds it."""
+    s = _ONE32 if z >= _ZERO32 else -_ONE32
+    a = -_ONE32 / (s + z)
+    b = x * y * a
+    return _ONE32 + s * x * x * a, s * b, -s * x, b, s + y * y * a, -y
 
 
 @jit
@@ -168,6 +179,12 @@ def _onb_batch(n, t, b):
         t[k, 0], t[k, 1], t[k, 2], b[k, 0], b[k, 1], b[k, 2] = onb(n[k, 0], n[k, 1], n[k, 2])
 
 
+@jit
+def _onb_f32_batch(n, t, b):
+    for k in range(n.shape[0]):
+        t[k, 0], t[k, 1], t[k, 2], b[k, 0], b[k, 1], b[k, 2] = onb_f32(n[k, 0], n[k, 1], n[k, 2])
+
+
 def _u(u) -> np.ndarray:
     a = np.ascontiguousarray(u, dtype=np.float64)
     if a.ndim != 2 or a.shape[1] != 2:
@@ -229,7 +246,13 @@ def triangle_many(u) -> np.ndarray:
 
 
 def onb_many(normals) -> tuple[np.ndarray, np.ndarray]:
-    """`onb` of each unit normal (N, 3): (t, b), each (N, 3) float64."""
+    """`onb` of each unit normal (N, 3): (t, b), each (N, 3) float64; float32 normals go through `onb_f32`
+    and give float32 frames."""
+    if np.asarray(normals).dtype == np.float32:
+        n = np.ascontiguousarray(normals)
+        t, b = np.empty_like(n), np.empty_like(n)
+        _onb_f32_batch(n, t, b)
+        return t, b
     n = np.ascontiguousarray(normals, dtype=np.float64)
     t, b = np.empty_like(n), np.empty_like(n)
     _onb_batch(n, t, b)

@@ -538,18 +538,23 @@ def test_one_minus_cos_keeps_tiny_cones(sin2):
 # ---------------------------------------------------------------------------------------
 
 
-def test_onb_orthonormal_right_handed():
+@pytest.mark.parametrize("dtype, tol", [(np.float64, 1e-12), (np.float32, 2e-6)])
+def test_onb_orthonormal_right_handed(dtype, tol):
+    """onb (lights, float64) and onb_f32 (the shading frames of surface hits, float32)."""
     rng = np.random.default_rng(13)
     n = rng.normal(size=(10_000, 3))
     n = np.concatenate([n, [[0, 0, 1], [0, 0, -1], [-0.0, -0.0, -1], [1, 0, 0], [0, -1, 0], [1e-8, 0, -1]]])
-    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    n = (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(dtype)
     t, b = warps.onb_many(n)
+    assert t.dtype == dtype and b.dtype == dtype
     for v in (t, b):
-        assert np.allclose(np.linalg.norm(v, axis=1), 1, atol=1e-12)
-    assert np.allclose((t * b).sum(1), 0, atol=1e-12)
-    assert np.allclose((t * n).sum(1), 0, atol=1e-12)
-    assert np.allclose((b * n).sum(1), 0, atol=1e-12)
-    assert np.allclose(np.cross(t, b), n, atol=1e-12)
+        assert np.allclose(np.linalg.norm(v, axis=1), 1, atol=tol)
+    assert np.allclose((t * b).sum(1), 0, atol=tol)
+    assert np.allclose((t * n).sum(1), 0, atol=tol)
+    assert np.allclose((b * n).sum(1), 0, atol=tol)
+    assert np.allclose(np.cross(t, b), n, atol=tol)
+    if dtype == np.float32:
+        return
     # around(): polar angle measured from the axis, azimuth from t towards b
     for k in (0, 5, 10_003):
         w = warps.around(*n[k], math.cos(0.3), math.sin(0.3), 1.1)
