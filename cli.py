@@ -82,7 +82,7 @@ class ProgressBar:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from .core.scenes import BUILTIN_SCENES
+    from .core.builtin_scenes import BUILTIN_SCENES
 
     if args.list:
         for name, (_, description) in BUILTIN_SCENES.items():
@@ -113,7 +113,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     from .core import exr
     from .core.render import render
-    from .core.scenes import builtin_scene
+    from .core.builtin_scenes import builtin_scene
 
     scene = builtin_scene(args.scene, args.resolution)
     settings = RenderSettings(**overrides).validate()
@@ -147,17 +147,17 @@ def cmd_render(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.vs:
         try:
-            from .addon.bench_cycles import run_from_args
+            from .lab.bench_cycles import run_from_args
         except ImportError as exc:
             print(f"monte bench --vs cycles needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
             return 2
         report = run_from_args(args, _settings_from(args))
     elif args.samplers or args.batch_sizes or args.seed_table:
-        from .core.bench_ladders import run_ladders
+        from .lab.bench_ladders import run_ladders
 
         report = run_ladders(args, _settings_from(args), make_reference=_cycles_reference_maker(args))
     else:
-        from .core.bench import run_bench
+        from .lab.bench import run_bench
 
         report = run_bench(args)
     if args.json:
@@ -166,7 +166,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_perf(args: argparse.Namespace) -> int:
-    from .core.perf import run_perf
+    from .lab.perf import run_perf
 
     run_perf(args)
     return 0
@@ -177,14 +177,14 @@ def _cycles_reference_maker(args: argparse.Namespace):
     if not args.reference_dir:
         return None
     try:
-        from .addon.bench_cycles import cornell_reference_maker
+        from .lab.bench_cycles import cornell_reference_maker
     except ImportError:
         return None
     return cornell_reference_maker(args)
 
 
 def cmd_mc_study(args: argparse.Namespace) -> int:
-    from .core.mc_study import main
+    from .lab.mc_study import main
 
     return main(args)
 
@@ -207,14 +207,14 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
     return 0 if report["verdict"]["agree"] else 3
 
 def cmd_stress(args: argparse.Namespace) -> int:
-    from .core.stress import StressConfig, run_suite, write_report
+    from .lab.stress import StressConfig, run_suite, write_report
 
     cfg = StressConfig.quick_run() if args.quick else StressConfig.full()
     if args.threads is not None:
         cfg.threads = args.threads
     if args.cycles:
         try:
-            from .addon.core_to_bpy import cycles_renderer
+            from .lab.core_to_bpy import cycles_renderer
         except ImportError as exc:
             print(f"monte stress --cycles needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
             return 2
@@ -245,14 +245,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="benchmark the Cornell box: samples/s, rays/s, Embree share, memory, RMSE; "
                                      "--vs cycles, --samplers, --batch-sizes, --seed-table: run time against error")
     p.add_argument("--json", help="also write the numbers to this JSON file")
-    from .core.bench_args import add_bench_arguments
+    from .lab.bench_args import add_bench_arguments
 
     add_bench_arguments(p)
     p.add_argument("--reference", help="reference EXR for RMSE (default: the bundled converged Cycles render)")
     _add_render_options(p)
     p.set_defaults(func=cmd_bench)
 
-    from .core.perf import add_arguments as add_perf_arguments
+    from .lab.perf import add_arguments as add_perf_arguments
 
     p = sub.add_parser("perf", help="where time and memory go: stage profile, thread scaling, memory per batch, "
                                     "unused-feature cost, adaptive sampling savings")
@@ -281,7 +281,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_stress)
 
     try:
-        from .core.mc_study import add_arguments
+        from .lab.mc_study import add_arguments
     except ImportError:  # the study module is optional at import time
         add_arguments = None
     if add_arguments is not None:

@@ -26,7 +26,7 @@ def bpy_module():
 
 
 # The scene-building helpers the benchmark scenes use too (one implementation, in the add-on).
-from monte.addon.bpy_scenes import (  # noqa: E402
+from monte.lab.bpy_scenes import (  # noqa: E402
     camera_object,
     diffuse,
     icosphere_object,
@@ -40,10 +40,10 @@ from monte.addon.bpy_scenes import (  # noqa: E402
 
 # --------------------------------------------------------------------------------------------- scenes
 def cornell_box(resolution=(256, 256)):
-    """The seed's Cornell box in bpy (built by monte.addon.bpy_scenes.cornell_box, which the benchmark uses too):
-    the same triangles as core.scenes.cornell_box (quads split along 0-2), materials and camera."""
+    """The seed's Cornell box in bpy (built by monte.lab.bpy_scenes.cornell_box, which the benchmark uses too):
+    the same triangles as core.builtin_scenes.cornell_box (quads split along 0-2), materials and camera."""
     bpy_module()
-    from monte.addon import bpy_scenes
+    from monte.lab import bpy_scenes
 
     return bpy_scenes.cornell_box(resolution)
 

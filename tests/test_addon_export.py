@@ -78,7 +78,7 @@ def match_triangles(a, b):
 
 # ------------------------------------------------------------------------------------------ Cornell box
 def test_cornell_box_exports_the_builtin_scene():
-    from monte.core.scenes import cornell_box
+    from monte.core.builtin_scenes import cornell_box
 
     bf.cornell_box((64, 48))
     got, stats = export()

@@ -1,4 +1,4 @@
-"""The core Scene -> Blender converter (addon/core_to_bpy.py) that lets `monte stress --cycles` render the
+"""The core Scene -> Blender converter (lab/core_to_bpy.py) that lets `monte stress --cycles` render the
 stress cases with Cycles: a round trip through the add-on's own export must give back the same scene, and
 Cycles must agree with Monte on a case with an analytic answer."""
 
@@ -14,14 +14,14 @@ import pytest
 bpy = pytest.importorskip("bpy")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from monte.core import scenes  # noqa: E402
+from monte.core import builtin_scenes as scenes  # noqa: E402
 from monte.core.scene import AreaLight, Lobe, Material, PointLight, SunLight, World  # noqa: E402
 
 pytestmark = pytest.mark.blender
 
 
 def _round_trip(core_scene):
-    from monte.addon.core_to_bpy import build_bpy_scene
+    from monte.lab.core_to_bpy import build_bpy_scene
     from monte.addon.export import export_scene
 
     scene, notes = build_bpy_scene(core_scene)
@@ -80,8 +80,8 @@ def test_lights_and_world_keep_their_units():
 def test_stress_with_cycles_reports_cycles_means_beside_monte(tmp_path):
     """The albedo group (closed furnaces with analytic answers) with --cycles: Cycles' means are reported and
     agree with Monte's within their noise."""
-    from monte.addon.core_to_bpy import cycles_renderer
-    from monte.core.stress import StressConfig, run_suite, write_report
+    from monte.lab.core_to_bpy import cycles_renderer
+    from monte.lab.stress import StressConfig, run_suite, write_report
 
     cfg = StressConfig.test_run()
     cfg.cycles = cycles_renderer(2)

@@ -15,8 +15,8 @@ import numpy as np
 from scipy.integrate import trapezoid
 import pytest
 
-from monte.core import mc_study
-from monte.core import montecarlo as mc
+from monte.lab import mc_study
+from monte.lab import montecarlo as mc
 
 CONFIDENCE = 0.999
 Z = mc.normal_quantile(CONFIDENCE)  # 3.29

@@ -150,7 +150,7 @@ def build_bpy_scene(core_scene: Scene) -> tuple[object, list[str]]:
     could not be converted exactly)."""
     from mathutils import Matrix
 
-    from . import register
+    from ..addon import register
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     register()
@@ -190,7 +190,7 @@ def cycles_renderer(threads: int = 2):
     """A function (core Scene, RenderSettings) -> dict(mean=[R, G, B], nonfinite=int, note=str) that renders
     the scene with Cycles under Monte's settings (see addon.crosscheck.configure_cycles): what `monte stress
     --cycles` hands to the stress suite."""
-    from .crosscheck import CYCLES_FILTERS, configure_cycles, render_cycles
+    from ..addon.crosscheck import CYCLES_FILTERS, configure_cycles, render_cycles
 
     def render(core_scene: Scene, settings) -> dict:
         import tempfile

@@ -3,7 +3,7 @@
 Each builder resets Blender to an empty factory scene with Monte registered, builds the scene and returns it.
 All render at 256x256 by default with Blackman-Harris 1.5 px, the default of both Monte and Cycles.
 
-- `cornell_box`: the seed's Cornell box (DESIGN.md; the same triangles as core.scenes.cornell_box).
+- `cornell_box`: the seed's Cornell box (the same triangles as core.builtin_scenes.cornell_box).
 - `interior`: a diffuse-only room with furniture-like boxes, lit by one ceiling area light and a small lamp.
 - `glass`: glass and rough-glass objects on a floor under a tilted area light (caustics on the floor).
 - `instances`: 4096 small spheres scattered by geometry nodes (Instance on Points) on a ground plane.
@@ -33,7 +33,7 @@ def scene_version(name: str) -> int:
 
 def reset():
     """Empty factory scene, Monte registered and selected; returns the scene."""
-    from . import register
+    from ..addon import register
 
     register()
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -163,7 +163,7 @@ def _finish(scene, resolution) -> None:
 
 # --------------------------------------------------------------------------------------------- scenes
 def cornell_box(resolution=(256, 256)):
-    """The seed's Cornell box as DESIGN.md describes it (and core.scenes.cornell_box builds it), in bpy:
+    """The seed's Cornell box as core.builtin_scenes.cornell_box builds it, in bpy:
     the same triangles (quads split along 0-2), materials and camera."""
     scene = reset()
     white = diffuse("white", (0.75, 0.75, 0.75))
