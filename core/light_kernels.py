@@ -1,6 +1,6 @@
 """Compiled (numba) kernels of per-shading-point light selection: the importance of each selectable light unit at
-a point, the selection probabilities they give, and the pick itself (see core.lights' module docstring for the
-heuristic and its conventions).
+a point, the selection probabilities they give, and the pick itself (the heuristic and its conventions:
+docs/lights.md; core.lights builds the tables).
 
 The unit table is one float64 array (K, UNIT_FIELDS) plus an int64 kind per unit; positions are in the
 integrator's shifted frame (as every position core.lights handles). Points p and normals n arrive component-major

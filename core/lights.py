@@ -452,7 +452,7 @@ class _TriangleTable:
 
 @dataclass
 class _Units:
-    """The selectable units of the per-point light selection (see the module docstring): table (K, UNIT_FIELDS)
+    """The selectable units of the per-point light selection (docs/lights.md): table (K, UNIT_FIELDS)
     float64 (core.light_kernels' columns), kind (K,) the light kind (core.light_kernels: TRI_GROUP, POINT, SPOT,
     AREA, SUN, WORLD), local (K,) the light's row in its kind's table (the group for TRI_GROUP), fallback (K,)
     the power shares."""
@@ -505,8 +505,8 @@ def _selectable(power) -> bool:
 class LightSampler:
     """Selects one emitter per shading point by power and samples it; evaluates the lights BSDF rays pass.
 
-    See the module docstring for the units and the selection heuristic. Public attributes: `has_lights`,
-    `kinds_present` (subset of {"triangle", "point", "spot", "sun", "area", "world"}), `triangles`
+    See the module docstring for the units and docs/lights.md for the selection heuristic. Public attributes:
+    `has_lights`, `kinds_present` (subset of {"triangle", "point", "spot", "sun", "area", "world"}), `triangles`
     (EmissiveTriangles or None), `world_radiance` ((3,) float32, zeros when black), `shift`, `scene_radius`.
     `has_emission` (has_lights, or a lit world that `intersect` returns).
     sample_world=False leaves the world out of light selection, as Cycles does for a world without spatial
@@ -536,7 +536,7 @@ class LightSampler:
         # (not into the whole bounding sphere: that picked the world 4x too often, see docs/lights.md).
         world_power = float(luminance(wc)) * math.pi ** 2 * R * R
 
-        # The selectable units (see the module docstring): a few spatial groups of emissive triangles, each
+        # The selectable units (docs/lights.md): a few spatial groups of emissive triangles, each
         # analytic light, the world. Zero power is left out (never selected).
         builder = _UnitBuilder()
         self._tri_table = self._triangle_units(builder, tris)
