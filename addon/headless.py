@@ -248,20 +248,20 @@ def render_blend_file(
 
 def _save_blender_multilayer(bpy, scene, blend: Path, out: Path) -> None:
     """Blender's own multilayer EXR of the Render Result, written beside the target and renamed onto it."""
+    from ..core.atomic_file import OutputError, write_atomically
+
     image = bpy.data.images.get("Render Result")
     if image is None:
         raise HeadlessError(f"rendering {blend} produced no image")
-    tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}.exr")
+
+    def save(tmp: str) -> None:
+        image.save_render(tmp, scene=scene)
+        if not os.path.getsize(tmp):  # mkstemp made it empty: Blender wrote nothing
+            raise HeadlessError(f"Blender did not write {out}")
+
     try:
-        image.save_render(str(tmp), scene=scene)
-        if not tmp.is_file():
-            raise HeadlessError(f"Blender did not write {tmp}")
-        os.replace(tmp, out)
-    except RuntimeError as exc:
+        write_atomically(out, save, suffix=".exr")
+    except (RuntimeError, OutputError) as exc:
+        if isinstance(exc, HeadlessError):
+            raise
         raise HeadlessError(f"could not write {out}: {str(exc).strip()}") from exc
-    finally:
-        if tmp.exists():
-            try:
-                tmp.unlink()
-            except OSError:
-                pass
