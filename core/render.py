@@ -159,7 +159,7 @@ def render(
     from .film import TileFilm
     from .filters import PixelFilter
     from .integrator import DIM_FILM, PathStats, PathTracer, PreparedScene
-    from .sampling import make_sampler
+    from .sampling import VARIANCE_GROUPS, make_sampler
 
     settings.validate()
     t_start = time.perf_counter()
@@ -187,14 +187,14 @@ def render(
     say(f"scene {scene.name}: {len(prepared.triangles)} triangles, features {prepared.features}, "
         f"prepared in {t_prepare:.2f} s")
 
-    sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1))
+    sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
     pixel_filter = PixelFilter(settings.filter_type, settings.filter_width)
     tiles = _tiles(rx, ry, rw, rh, settings.tile_size)
     if tile_order is not None:
         if sorted(tile_order) != list(range(len(tiles))):
             raise ValueError("tile_order must be a permutation of the tile indices")
         tiles = [tiles[i] for i in tile_order]
-    films = {t: TileFilm(t[2], t[3], settings.aovs) for t in tiles}
+    films = {t: TileFilm(t[2], t[3], settings.aovs, sampler) for t in tiles}
 
     spp = int(settings.spp)
     total_paths = spp * rw * rh
@@ -313,7 +313,7 @@ def render(
             start = rows.stop
             t0 = time.perf_counter()
             film = films[seg.tile]
-            film.add(seg.loc, radiance[rows])
+            film.add(seg.loc, radiance[rows], seg.smp)
             if first is not None:
                 film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
             film_seconds += time.perf_counter() - t0
