@@ -97,6 +97,7 @@ class CaseResult:
     mean: list[float] = field(default_factory=list)
     reference: list[float] = field(default_factory=list)
     tolerance: list[float] = field(default_factory=list)
+    sigma: list[float] = field(default_factory=list)  # the standard error the tolerance was built on
     rel_error: float = 0.0
     wall_mean_ratio: float | None = None
     wall_variance_ratio: float | None = None
@@ -310,7 +311,7 @@ def measure(ctx: Context, name: str, group: str, description: str, result: Rende
     ok_mean = bool(np.all(np.abs(mean - ref) <= tol))
     case = CaseResult(name, group, description, reference_kind, required=required, nonfinite_pixels=nonfinite,
                       caught_samples=int(result.stats.get("nonfinite_samples", 0)), mean=mean.tolist(),
-                      reference=ref.tolist(), tolerance=tol.tolist(), rel_error=rel, notes=notes,
+                      reference=ref.tolist(), tolerance=tol.tolist(), sigma=sigma.tolist(), rel_error=rel, notes=notes,
                       warnings=list(result.warnings), checks=dict(checks or {}),
                       seconds=seconds or float(result.stats.get("seconds", 0.0)),
                       peak_memory_mb=result.stats.get("peak_memory_mb"))

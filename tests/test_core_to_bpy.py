@@ -104,3 +104,44 @@ def test_stress_with_cycles_reports_cycles_means_beside_monte(tmp_path):
             assert np.any(np.abs(mean - wrong * ref) > tol) or not ref.any(), (c.name, wrong)
     _, md = write_report(results, tmp_path, cfg)
     assert "Cycles mean" in md.read_text()
+
+
+def _cycles_cases(only: list[str], names: tuple[str, ...]) -> list:
+    from monte.addon.core_to_bpy import cycles_renderer
+    from monte.core.stress import StressConfig, run_suite
+
+    cfg = StressConfig.test_run()
+    cfg.spp = 64
+    cfg.cycles = cycles_renderer(2)
+    cases = [c for c in run_suite(cfg, only=only) if c.name in names]
+    assert len(cases) == len(names)
+    return cases
+
+
+def _monte_vs_cycles(case) -> tuple[np.ndarray, np.ndarray]:
+    """(relative difference Monte / Cycles - 1, its 4-sigma tolerance): Monte's sigma from its variance, Cycles'
+    from the spread of its pixels (exact where every pixel has one expected value, conservative elsewhere)."""
+    monte, cycles = np.asarray(case.mean), np.asarray(case.cycles["mean"])
+    sigma = np.hypot(np.asarray(case.sigma), np.asarray(case.cycles["pixel_sigma"]))
+    return monte / cycles - 1, (4 * sigma + 1e-5 * cycles) / cycles
+
+
+def test_tir_rod_cut_off_by_the_bounce_limit_matches_cycles():
+    """The stress suite can only bound the glass rod of a white furnace cut off at 4 and 16 bounces (no gain over
+    the world's radiance): its value is no closed form. Cycles renders the same scene: Monte within 4 sigma."""
+    for case in _cycles_cases(["dielectric"], ("TIR rod, max bounces 4", "TIR rod, max bounces 16")):
+        rel, tol = _monte_vs_cycles(case)
+        print(f"{case.name}: Monte/Cycles - 1 = {np.round(100 * rel, 3)} % (tolerance {np.round(100 * tol, 3)} %)")
+        assert np.all(np.abs(rel) <= tol) and np.all(tol < 0.005), case.name
+
+
+@pytest.mark.xfail(strict=True, reason="Monte loses more light than Cycles when shading normals are tilted far "
+                   "from the geometric ones (measured at 64 spp: -0.9 % at 30 deg, -3.5 % at 60, -2.7 % at 85)")
+def test_tilted_shading_normals_furnace_matches_cycles():
+    """The furnace with shading normals tilted 30/60/85 deg, referenced in the stress suite only by 'no energy
+    gain' (a black render would pass that): against Cycles' render of the same scene."""
+    names = tuple(f"shading normals tilted {t} deg" for t in (30, 60, 85))
+    for case in _cycles_cases(["shading-normals"], names):
+        rel, tol = _monte_vs_cycles(case)
+        print(f"{case.name}: Monte/Cycles - 1 = {np.round(100 * rel, 3)} % (tolerance {np.round(100 * tol, 3)} %)")
+        assert np.all(np.abs(rel) <= tol), case.name
