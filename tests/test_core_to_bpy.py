@@ -1,6 +1,7 @@
 """The core Scene -> Blender converter (addon/core_to_bpy.py) that lets `monte stress --cycles` render the
-stress cases with Cycles: a round trip through the add-on's own export must give back the same scene, and
-Cycles must agree with Monte on a case with an analytic answer."""
+stress cases with Cycles: a round trip through the add-on's own export must give back the same scene; Cycles'
+render of the converted Cornell box must match the converged Cycles reference (independent of Monte's exporter);
+Cycles must land on the analytic furnaces and be the reference for the stress cases that have no closed form."""
 
 from __future__ import annotations
 
@@ -145,3 +146,30 @@ def test_tilted_shading_normals_furnace_matches_cycles():
         rel, tol = _monte_vs_cycles(case)
         print(f"{case.name}: Monte/Cycles - 1 = {np.round(100 * rel, 3)} % (tolerance {np.round(100 * tol, 3)} %)")
         assert np.all(np.abs(rel) <= tol), case.name
+
+
+def test_cornell_box_converted_to_blender_renders_the_reference_image_in_cycles(tmp_path):
+    """The round trip above goes through Monte's own exporter, so a mistake made both ways would cancel. Here
+    Cycles renders the converted Cornell box directly: its channel means must match the converged Cycles reference
+    of the seed's Cornell box (the one tests/test_render.py holds Monte to) within 4 sigma (from 4 seeds) + 0.2 %
+    (the reference's precision); a reference 1 % off must fail."""
+    from monte.addon.core_to_bpy import build_bpy_scene
+    from monte.addon.crosscheck import configure_cycles, render_cycles
+    from monte.core.compare import runs_mean_and_variance
+
+    scene, notes = build_bpy_scene(scenes.cornell_box((64, 64)))
+    assert notes == []
+    runs = []
+    for seed in (1, 2, 3, 4):
+        configure_cycles(scene, spp=64, max_bounces=16, threads=2, seed=seed, filter_type="blackman-harris",
+                         filter_width=1.5)
+        runs.append(np.asarray(render_cycles(scene, tmp_path)[0], np.float64)[..., :3])
+    image, variance = runs_mean_and_variance(np.stack(runs))
+    mean = image.reshape(-1, 3).mean(axis=0)
+    sigma = np.sqrt(variance.reshape(-1, 3).sum(axis=0)) / (64 * 64)
+    expected = np.array([0.39494, 0.33119, 0.39700])
+    tol = 4 * sigma + 0.002 * expected
+    print(f"Cycles {np.round(mean, 5)} vs reference {expected}: tolerance {np.round(100 * tol / expected, 2)} %")
+    assert np.all(np.abs(mean - expected) <= tol)
+    for wrong in (1.01, 0.99):
+        assert np.any(np.abs(mean - wrong * expected) > tol)
