@@ -1,44 +1,82 @@
 # Monte: `make render` sets everything up (first time) and renders the Cornell box; `make test` runs the tests.
-PYTHON ?= $(shell command -v python3.11 || command -v python3)
+#
+# Environments, one per Blender version (PyPI's bpy module pins the Python it runs on):
+#   .venv      Blender 5.3 (bpy 5.3.0, Python 3.13, numpy 2.x): the default for everything below
+#   .venv-5.0  Blender 5.0 (bpy 5.0.1, Python 3.11, numpy 1.26)
+#   .venv-4.5  Blender 4.5 LTS (bpy 4.5.15, Python 3.11)
+#   .venv-4.2  Blender 4.2 LTS (bpy 4.2.23, Python 3.11)
+# Python is found on PATH or through pyenv (tools/find_python.sh); PYTHON=/path/to/python3.13 overrides the
+# default environment's interpreter.
+PYTHON ?= $(shell tools/find_python.sh 3.13)
+PYTHON311 ?= $(shell tools/find_python.sh 3.11)
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.installed
 SPP ?= 64
+OLDER_BLENDERS := 4.2 4.5 5.0
+BLENDERS := $(OLDER_BLENDERS) 5.3
 
-.PHONY: setup render test test-slow test-all bench crosscheck extension clean
+.PHONY: setup render test test-newest test-install-matrix test-blender test-slow test-all bench crosscheck \
+        extension clean
 
-$(STAMP): requirements.txt pyproject.toml
-	$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else "Monte needs Python 3.11 (bpy 5.0 requires it); set PYTHON=/path/to/python3.11")'
-	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -r requirements.txt
-	$(BIN)/python -m pip install --quiet --no-deps -e .
-	touch $(STAMP)
+# $(call make_venv,DIR,PYTHON,REQUIREMENTS)
+define make_venv
+	@test -n "$(2)" || { echo "no Python interpreter for $(1) (see the message above)"; exit 1; }
+	test -x $(1)/bin/python || $(2) -m venv $(1)
+	$(1)/bin/python -m pip install --quiet --upgrade pip
+	$(1)/bin/python -m pip install --quiet -r $(3)
+	$(1)/bin/python -m pip install --quiet --no-deps -e .
+	touch $(1)/.installed
+endef
 
-setup: $(STAMP)
+$(VENV)/.installed: requirements.txt requirements/blender-5.3.txt requirements/common.txt pyproject.toml
+	$(call make_venv,$(VENV),$(PYTHON),requirements.txt)
 
-render: $(STAMP)
+.venv-%/.installed: requirements/blender-%.txt requirements/common.txt pyproject.toml
+	$(call make_venv,.venv-$*,$(PYTHON311),requirements/blender-$*.txt)
+
+setup: $(VENV)/.installed
+
+render: $(VENV)/.installed
 	$(BIN)/monte render cornell -o cornell.exr --spp $(SPP)
 
-test: $(STAMP)
+# What CI runs: the default suite on Blender 5.3, then the extension's install-and-render and headless-exit
+# tests on every older Blender of the support table.
+test: test-newest test-install-matrix
+
+test-newest: $(VENV)/.installed
 	$(BIN)/python -m pytest -m "not slow" -q
 
-test-slow: $(STAMP)
+test-install-matrix: $(foreach v,$(OLDER_BLENDERS),.venv-$(v)/.installed)
+	@set -e; for v in $(OLDER_BLENDERS); do \
+	  echo "== Blender $$v: install, render, exit"; \
+	  .venv-$$v/bin/python -m pytest -m "matrix" -q -p no:cacheprovider; \
+	done
+
+# Every Blender-facing test and the default Cycles cross-checks, on each Blender version in turn (about
+# 10 minutes a version on 2 cores).
+test-blender: $(VENV)/.installed $(foreach v,$(OLDER_BLENDERS),.venv-$(v)/.installed)
+	@set -e; for v in $(BLENDERS); do \
+	  py=.venv-$$v/bin/python; [ "$$v" = 5.3 ] && py=$(BIN)/python; \
+	  echo "== Blender $$v: Blender-facing tests and Cycles cross-checks"; \
+	  $$py -m pytest -m "blender and not slow" -q -p no:cacheprovider; \
+	done
+
+test-slow: $(VENV)/.installed
 	$(BIN)/python -m pytest -m slow -q
 
-test-all: $(STAMP)
+test-all: $(VENV)/.installed
 	$(BIN)/python -m pytest -q
 
-bench: $(STAMP)
+bench: $(VENV)/.installed
 	$(BIN)/monte bench
 
 # The feature-by-feature Cycles cross-check at 64x64 and 4x the samples of the default suite's (about 20 min
 # on 2 cores).
-crosscheck: $(STAMP)
+crosscheck: $(VENV)/.installed
 	$(BIN)/python -m pytest tests/test_crosscheck.py -m slow -q -rA
 
-extension: $(STAMP)
+extension: $(VENV)/.installed
 	$(BIN)/python tools/build_extension.py
 
 clean:
-	rm -rf $(VENV) dist build *.egg-info cornell.exr cornell.png
+	rm -rf $(VENV) $(foreach v,$(OLDER_BLENDERS),.venv-$(v)) dist build *.egg-info cornell.exr cornell.png

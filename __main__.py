@@ -1,7 +1,5 @@
 """`python -m monte ...` runs the `monte` command."""
 
-import sys
+from .cli import run
 
-from .cli import main
-
-sys.exit(main())
+run()

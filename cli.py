@@ -19,6 +19,9 @@ from pathlib import Path
 
 from .core.settings import CLI_SETTINGS, FILTERS, SAMPLERS, RenderSettings
 
+# What to install for the commands that use Blender (any version of the README's support table works).
+BPY_HINT = "pip install bpy==5.3.0 on Python 3.13, or bpy 4.2 / 4.5 / 5.0 on Python 3.11"
+
 
 def _resolution(text: str) -> tuple[int, int]:
     try:
@@ -79,7 +82,7 @@ class ProgressBar:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from .core.scenes import BUILTIN_SCENES
+    from .core.builtin_scenes import BUILTIN_SCENES
 
     if args.list:
         for name, (_, description) in BUILTIN_SCENES.items():
@@ -94,7 +97,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         try:
             from .addon.headless import render_blend_file
         except ImportError as exc:
-            print(f"monte render: rendering a .blend needs the bpy module (pip install bpy==5.0.1): {exc}",
+            print(f"monte render: rendering a .blend needs the bpy module ({BPY_HINT}): {exc}",
                   file=sys.stderr)
             return 2
         from .addon.headless import HeadlessError
@@ -110,7 +113,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     from .core import exr
     from .core.render import render
-    from .core.scenes import builtin_scene
+    from .core.builtin_scenes import builtin_scene
 
     scene = builtin_scene(args.scene, args.resolution)
     settings = RenderSettings(**overrides).validate()
@@ -144,17 +147,17 @@ def cmd_render(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.vs:
         try:
-            from .addon.bench_cycles import run_from_args
+            from .lab.bench_cycles import run_from_args
         except ImportError as exc:
-            print(f"monte bench --vs cycles needs the bpy module (pip install bpy==5.0.1): {exc}", file=sys.stderr)
+            print(f"monte bench --vs cycles needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
             return 2
         report = run_from_args(args, _settings_from(args))
     elif args.samplers or args.batch_sizes or args.seed_table:
-        from .core.bench_ladders import run_ladders
+        from .lab.bench_ladders import run_ladders
 
         report = run_ladders(args, _settings_from(args), make_reference=_cycles_reference_maker(args))
     else:
-        from .core.bench import run_bench
+        from .lab.bench import run_bench
 
         report = run_bench(args)
     if args.json:
@@ -163,7 +166,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_perf(args: argparse.Namespace) -> int:
-    from .core.perf import run_perf
+    from .lab.perf import run_perf
 
     run_perf(args)
     return 0
@@ -174,14 +177,14 @@ def _cycles_reference_maker(args: argparse.Namespace):
     if not args.reference_dir:
         return None
     try:
-        from .addon.bench_cycles import cornell_reference_maker
+        from .lab.bench_cycles import cornell_reference_maker
     except ImportError:
         return None
     return cornell_reference_maker(args)
 
 
 def cmd_mc_study(args: argparse.Namespace) -> int:
-    from .core.mc_study import main
+    from .lab.mc_study import main
 
     return main(args)
 
@@ -192,7 +195,7 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         from .addon.crosscheck import CrosscheckError, CrosscheckOptions, crosscheck_blend_file
         from .addon.headless import HeadlessError
     except ImportError as exc:
-        print(f"monte crosscheck: needs the bpy module (pip install bpy==5.0.1): {exc}", file=sys.stderr)
+        print(f"monte crosscheck: needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
         return 2
     options = CrosscheckOptions(spp=args.spp, cycles_spp=args.cycles_spp, resolution=args.resolution,
                                 threads=args.threads or 0, max_bounces=args.max_bounces)
@@ -204,16 +207,16 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
     return 0 if report["verdict"]["agree"] else 3
 
 def cmd_stress(args: argparse.Namespace) -> int:
-    from .core.stress import StressConfig, run_suite, write_report
+    from .lab.stress import StressConfig, run_suite, write_report
 
     cfg = StressConfig.quick_run() if args.quick else StressConfig.full()
     if args.threads is not None:
         cfg.threads = args.threads
     if args.cycles:
         try:
-            from .addon.core_to_bpy import cycles_renderer
+            from .lab.core_to_bpy import cycles_renderer
         except ImportError as exc:
-            print(f"monte stress --cycles needs the bpy module (pip install bpy==5.0.1): {exc}", file=sys.stderr)
+            print(f"monte stress --cycles needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
             return 2
         cfg.cycles = cycles_renderer(cfg.threads)
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
@@ -242,14 +245,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="benchmark the Cornell box: samples/s, rays/s, Embree share, memory, RMSE; "
                                      "--vs cycles, --samplers, --batch-sizes, --seed-table: run time against error")
     p.add_argument("--json", help="also write the numbers to this JSON file")
-    from .core.bench_args import add_bench_arguments
+    from .lab.bench_args import add_bench_arguments
 
     add_bench_arguments(p)
     p.add_argument("--reference", help="reference EXR for RMSE (default: the bundled converged Cycles render)")
     _add_render_options(p)
     p.set_defaults(func=cmd_bench)
 
-    from .core.perf import add_arguments as add_perf_arguments
+    from .lab.perf import add_arguments as add_perf_arguments
 
     p = sub.add_parser("perf", help="where time and memory go: stage profile, thread scaling, memory per batch, "
                                     "unused-feature cost, adaptive sampling savings")
@@ -278,7 +281,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_stress)
 
     try:
-        from .core.mc_study import add_arguments
+        from .lab.mc_study import add_arguments
     except ImportError:  # the study module is optional at import time
         add_arguments = None
     if add_arguments is not None:
@@ -304,5 +307,20 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def run() -> None:
+    """The `monte` executable (console script and `python -m monte`): main(), then the process's end.
+
+    After a command that loaded the bpy module, Monte is unregistered and, on Blender versions whose bpy
+    module crashes or hangs at interpreter exit (4.2, 4.5), the process ends here with main()'s status, once
+    every output is written (addon.headless.end_bpy_process). main() itself never ends the process, so tests
+    and scripts can call it."""
+    status = main()
+    if "bpy" in sys.modules:
+        from .addon.headless import end_bpy_process
+
+        end_bpy_process(status)
+    sys.exit(status)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

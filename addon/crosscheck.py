@@ -31,6 +31,7 @@ import bpy
 import numpy as np
 
 from ..core import compare as cmp
+from ..core.atomic_file import write_text_atomically
 from ..core import exr
 
 CYCLES_FILTERS = {"blackman-harris": "BLACKMAN_HARRIS", "gaussian": "GAUSSIAN", "box": "BOX"}
@@ -101,10 +102,12 @@ class _Overrides:
 
 def configure_cycles(scene, spp: int, max_bounces: int, threads: int, seed: int = 1,
                      filter_type: str | None = None, filter_width: float | None = None,
-                     overrides: _Overrides | None = None) -> None:
+                     overrides: _Overrides | None = None, time_limit: float = 0.0) -> None:
     """Make Cycles an unbiased CPU reference for Monte: spp samples, every bounce limit max_bounces (Cycles'
     counting, as Monte's), no denoising/adaptive sampling/clamping, blur_glossy 0, caustics on, a fixed
-    seed and thread count (0 = all cores), and Monte's pixel filter (type and width, Cycles' meaning)."""
+    seed and thread count (0 = all cores), and Monte's pixel filter (type and width, Cycles' meaning).
+    time_limit: seconds (0 = none; the bench's time-budget rungs). The one Cycles set-up of the project: the
+    cross-check, the bench (lab.bench_cycles) and the stress suite's Cycles column (lab.core_to_bpy) use it."""
     o = overrides or _Overrides()
     c = scene.cycles
     o.set(scene.render, "engine", "CYCLES")
@@ -119,10 +122,11 @@ def configure_cycles(scene, spp: int, max_bounces: int, threads: int, seed: int 
     o.set(c, "caustics_refractive", True)
     for attr in ("max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces"):
         o.set(c, attr, int(max_bounces))
+    o.set(c, "volume_bounces", 0)  # Monte renders no volumes
     o.set(c, "transparent_max_bounces", max(int(max_bounces), 8))
     o.set(c, "seed", int(seed))
     o.set(c, "use_animated_seed", False)
-    o.set(c, "time_limit", 0.0)
+    o.set(c, "time_limit", float(time_limit))
     if filter_type is not None:
         if filter_type not in CYCLES_FILTERS:
             raise ValueError(f"Cycles has no {filter_type!r} pixel filter; use one of {', '.join(CYCLES_FILTERS)}")
@@ -131,6 +135,9 @@ def configure_cycles(scene, spp: int, max_bounces: int, threads: int, seed: int 
         o.set(c, "filter_width", float(filter_width))
     o.set(scene.render, "threads_mode", "FIXED")
     o.set(scene.render, "threads", int(threads) or (os.cpu_count() or 1))
+    for layer in scene.view_layers:  # no denoising data passes: time spent on nothing compared
+        if hasattr(layer, "cycles"):
+            o.set(layer.cycles, "denoising_store_passes", False)
 
 
 def _render_layer(scene):
@@ -187,7 +194,9 @@ def render_cycles(scene, tmp_dir: Path, with_material_index: bool = False) -> tu
         rgb = np.stack([channels[prefix + c] for c in "RGB"], axis=-1).astype(np.float64)
     except KeyError:
         raise CrosscheckError(f"Cycles' render has no {prefix}R/G/B (channels: {', '.join(sorted(channels))})") from None
-    index = channels.get(f"{layer.name}.Material Index.X") if with_material_index else None
+    # The material index pass is "Material Index" since Blender 5.0, "IndexMA" before.
+    index = (channels.get(f"{layer.name}.Material Index.X", channels.get(f"{layer.name}.IndexMA.X"))
+             if with_material_index else None)
     return rgb, (None if index is None else np.rint(index).astype(np.int64))
 
 
@@ -442,15 +451,8 @@ def _write_outputs(out: Path, report: dict, c: cmp.Comparison, monte_rgb, monte_
     exr.write_png(out / "difference.png", cmp.srgb_to_linear(cmp.upscale(cmp.zscore_colors(c.z))))
     exr.write_png(out / "monte.png", cmp.upscale(monte_rgb))
     exr.write_png(out / "cycles.png", cmp.upscale(cyc_rgb))
-    text = json.dumps(report, indent=2)
-
-    def write_text(name: str, content: str) -> None:
-        tmp = out / f".{name}.tmp-{os.getpid()}"
-        tmp.write_text(content)
-        os.replace(tmp, out / name)
-
-    write_text("report.json", text)
-    write_text("report.txt", report_text(report) + "\n")
+    write_text_atomically(out / "report.json", json.dumps(report, indent=2), ".json")
+    write_text_atomically(out / "report.txt", report_text(report) + "\n", ".txt")
 
 
 # ------------------------------------------------------------------------------------------ .blend files

@@ -38,6 +38,25 @@ _OTHER_KEYS = {
 _BLEND_MAGIC = (b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd")  # plain, gzip, zstd
 
 
+def end_bpy_process(status: int) -> None:
+    """Unregister Monte, and on Blender versions whose bpy module cannot shut down end the process now.
+
+    Call it last, once every output is written and closed: the bpy module of Blender 4.2 crashes (SIGSEGV,
+    status 139) at interpreter exit and 4.5's hangs, so a finished headless render would report a failure or
+    never return. There the process ends with os._exit(status) after flushing stdout and stderr; on 5.0 and
+    newer, after unregistering, this returns and Python exits normally.
+    """
+    from . import unregister
+
+    unregister()
+    if bpy.app.version < (5, 0, 0):
+        import sys
+
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(int(status))
+
+
 class HeadlessError(RuntimeError):
     """A headless render failed; the message names the file and the reason."""
 

@@ -198,13 +198,15 @@ class MONTE_LIGHT_PT_light(MonteButtonsPanel, Panel):
         layout.row().prop(light, "type", expand=True)
         col = split_layout(layout).column()
         col.prop(light, "color")
-        row = col.row(heading="Temperature")
-        row.prop(light, "use_temperature", text="")
-        sub = row.row()
-        sub.active = light.use_temperature
-        sub.prop(light, "temperature", text="")
+        if "use_temperature" in light.bl_rna.properties:  # Blender 4.5+
+            row = col.row(heading="Temperature")
+            row.prop(light, "use_temperature", text="")
+            sub = row.row()
+            sub.active = light.use_temperature
+            sub.prop(light, "temperature", text="")
         col.prop(light, "energy")
-        col.prop(light, "exposure")
+        if "exposure" in light.bl_rna.properties:  # Blender 4.5+
+            col.prop(light, "exposure")
         col.separator()
         if light.type in {"POINT", "SPOT"}:
             col.prop(light, "shadow_soft_size", text="Radius")
@@ -219,7 +221,8 @@ class MONTE_LIGHT_PT_light(MonteButtonsPanel, Panel):
                 sub.prop(light, "size", text="Size X")
                 sub.prop(light, "size_y", text="Y")
             col.prop(light, "spread")
-            col.prop(light, "normalize")
+            if "normalize" in light.bl_rna.properties:  # Blender 4.5+
+                col.prop(light, "normalize")
 
 
 classes = (

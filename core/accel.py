@@ -5,8 +5,8 @@ loops): building is ~5x faster than through embreex's Python wrapper (no element
 or a little faster, hits bit-identical. The wrapper stays as the fallback where that library cannot be found
 (`backend` says which one runs). Both release the GIL while tracing, so worker threads cast their batches'
 rays in parallel. Embree's tnear is fixed at 0: callers offset ray origins off surfaces themselves (see
-core.kernels._offset). All coordinates are float32 in the integrator's shifted frame (world minus the camera
-position).
+core.geometry_kernels.offset_point). All coordinates are float32 in the integrator's shifted frame (world minus
+the camera position).
 """
 
 from __future__ import annotations

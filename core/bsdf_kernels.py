@@ -29,17 +29,12 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-from . import jit_cache  # noqa: F401  (before any kernel: caches per import name)
-
-# core.kernels' _jit options without NRT reference counting: unpacking the lobe and table tuples and passing arrays
-# to device functions otherwise costs atomic incref/decref calls per path (measured 2-4x slower); these kernels
-# never allocate. The device functions that take arrays are inlined into their callers (numba IR inlining), for
-# the same reason; the scalar-only ones are left to LLVM, which keeps first-compile time down (~10 s, cached).
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False, _nrt=False)
-_inline = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False, _nrt=False, inline="always")
+# No NRT reference counting (these kernels never allocate), device functions taking arrays inlined: core.jit_cache.
+from .jit_cache import jit_inline as _inline
+from .jit_cache import jit_no_nrt as _jit
+from .warps import sample_cos_hemisphere_local
 
 # lobe kinds and glossy Fresnel modes (core.bsdf re-exports these)
 EMPTY, DIFFUSE, GLOSSY, GLASS, REFRACTION = -1, 0, 1, 2, 3
@@ -590,13 +585,10 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, u_lobe, u1, u2):
     p_event = 1.0
     gw0 = gw1 = gw2 = 1.0  # a delta glass sample's value / event probability per channel (1 untinted)
     if k == DIFFUSE:
-        r = math.sqrt(np.float64(u1))
-        phi = 2.0 * math.pi * np.float64(u2)
-        x, y, z = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(1.0 - np.float64(u1), 0.0))
+        x, y, z = sample_cos_hemisphere_local(np.float64(u1), np.float64(u2))
         ok = z > 0.0
     else:
         rough_c = np.float64(rough[row, c])
-        ior_c = np.float64(ior[row, c])
         is_delta = not rough_c > 0.0
         if is_delta:
             hx, hy, hz = 0.0, 0.0, 1.0

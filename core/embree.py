@@ -27,15 +27,12 @@ import glob
 import os
 import threading
 
-import numba
 import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from . import jit_cache  # noqa: F401  (before any kernel: caches per import name)
-
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False)
+from .jit_cache import jit as _jit
 
 _INVALID_ID = np.uint32(0xFFFFFFFF)
 _FAR = np.float32(3e38)

@@ -1,73 +1,24 @@
 """OpenEXR and PNG files: float32 named channels, written atomically.
 
-Atomic: every writer writes a temporary file in the destination folder and renames it over the target only
-once it is complete, so an existing file is never half-overwritten and a failed write leaves nothing behind.
+Atomic (core.atomic_file): every writer writes a temporary file in the destination folder and renames it over
+the target only once it is complete, so an existing file is never half-overwritten and a failed write leaves
+nothing behind.
 """
 
 from __future__ import annotations
 
 import os
-import tempfile
-import zlib
 import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 
+from .atomic_file import OutputError, check_writable, write_atomically, write_bytes_atomically
 
-class OutputError(OSError):
-    """The output file cannot be written; the message names the path and the reason."""
-
-
-def _output_folder(path: str | os.PathLike) -> tuple[Path, Path]:
-    """(path, its folder), or OutputError when the folder is missing or the path is a folder."""
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise OutputError(f"cannot write {path}: folder {folder} does not exist")
-    if path.is_dir():
-        raise OutputError(f"cannot write {path}: it is a folder")
-    return path, folder
-
-
-def check_writable(path: str | os.PathLike) -> Path:
-    """Raise OutputError now if `path` cannot be written later (missing folder, a folder in its place, no write
-    permission, a read-only file system): called before a render so that no work is lost at the end."""
-    path, folder = _output_folder(path)
-    try:  # the real test: create (and remove) a temporary file where the output will go
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".check", dir=folder)
-    except OSError as exc:
-        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from exc
-    os.close(fd)
-    os.unlink(tmp)
-    return path
-
-
-def _atomic_write(path: str | os.PathLike, suffix: str, write) -> Path:
-    """Call write(tmp_path) for a temporary file beside `path`, then rename it onto `path`."""
-    path, folder = _output_folder(path)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=folder)
-    except OSError as exc:
-        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from exc
-    os.close(fd)
-    try:
-        write(tmp)
-        # mkstemp creates 0600 files; give the output the permissions a plain open() would (0666 & ~umask).
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException as exc:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(exc, OSError) and not isinstance(exc, OutputError):
-            raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from exc
-        raise
-    return path
+__all__ = ["OutputError", "check_writable", "image_channels", "linear_to_srgb8", "read_exr", "read_rgb", "write_exr",
+           "write_png"]
 
 
 def image_channels(
@@ -105,7 +56,7 @@ def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray]) -> Path:
         with OpenEXR.File(header, data) as f:
             f.write(tmp)
 
-    return _atomic_write(path, ".exr", write)
+    return write_atomically(path, write, ".exr")
 
 
 def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -158,8 +109,4 @@ def write_png(path: str | os.PathLike, rgb: np.ndarray) -> Path:
     png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
            + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
 
-    def write(tmp: str) -> None:
-        with open(tmp, "wb") as f:
-            f.write(png)
-
-    return _atomic_write(path, ".png", write)
+    return write_bytes_atomically(path, png, ".png")

@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from . import bsdf as bsdf_mod
-from . import kernels
+from . import geometry_kernels, path_kernels
 from .accel import Accelerator
 from .lights import EmissiveTriangles, LightSampler
 from .scene import Scene
@@ -45,7 +45,7 @@ def _max3(v: np.ndarray) -> np.ndarray:
 
 
 class SurfaceBatch:
-    """Surface interactions of M path vertices (see core.kernels.surface for each array's meaning).
+    """Surface interactions of M path vertices (see core.geometry_kernels.surface for each array's meaning).
 
     All of a vertex's values are one row of a single (M, K) float32 array, each field a column view of it, so
     that selecting the vertices that continue (`take`) is one row gather instead of one per field."""
@@ -151,7 +151,7 @@ class PreparedScene:
         face_normals = np.empty((t_count, 3), np.float32)
         tri_magnitude = np.empty(t_count, np.float32)
         # Triangles that became degenerate in float32 (huge coordinates) keep a zero normal and are harmless.
-        kernels.triangle_frames(np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(triangles, np.int64),
+        geometry_kernels.triangle_frames(np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(triangles, np.int64),
                                 tri_vertices, face_normals, tri_magnitude)
         corner_normals = np.concatenate(normals).astype(np.float32) if any_smooth and normals else None
         smooth_mask = np.concatenate(smooth) if any_smooth and smooth else None
@@ -349,7 +349,7 @@ class PathTracer:
             next_throughput, prev_pdf, prev_delta = np.empty((m, 3), np.float32), np.empty(m, np.float32), np.empty(m, bool)
             prev_normal, prev_transmits = np.empty((m, 3), np.float32), np.empty(m, bool)
             next_idx, next_pix, next_smp = np.empty(m, idx.dtype), np.empty(m, pix.dtype), np.empty(m, smp.dtype)
-            count = kernels.scatter(np.ascontiguousarray(bs.wi, dtype=np.float32), g.tangent, g.bitangent, g.ns,
+            count = path_kernels.scatter(np.ascontiguousarray(bs.wi, dtype=np.float32), g.tangent, g.bitangent, g.ns,
                                     g.ng, g.cos_o_geo, bs.valid, bs.transmitted,
                                     np.ascontiguousarray(bs.weight, np.float32),
                                     np.ascontiguousarray(throughput, dtype=np.float32), g.p, g.mag,
@@ -366,11 +366,11 @@ class PathTracer:
         return radiance, first
 
     def _surface(self, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
-        """Surface interactions of the hits `rows` (see core.kernels.surface)."""
+        """Surface interactions of the hits `rows` (see core.geometry_kernels.surface)."""
         ps = self.ps
         m = len(rows)
         g = SurfaceBatch.empty(m, ps.uvs is not None)
-        kernels.surface(rows.astype(np.int64), prim, bu, bv, np.ascontiguousarray(d, dtype=np.float32),
+        geometry_kernels.surface(rows.astype(np.int64), prim, bu, bv, np.ascontiguousarray(d, dtype=np.float32),
                         ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth,
                         ps.kernel_uvs, ps.tri_magnitude, ps.material_index, ps.specular, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
                         g.n_view, g.mag, g.cos_o_geo, g.uv_buffer)
@@ -396,11 +396,11 @@ class PathTracer:
         wi = np.ascontiguousarray(ls.wi, dtype=np.float32)
         m = len(can)
         wi_local = np.empty((m, 3), np.float32)
-        kernels.to_local(wi, gc.tangent, gc.bitangent, gc.ns, wi_local)
+        geometry_kernels.to_local(wi, gc.tangent, gc.bitangent, gc.ns, wi_local)
         f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes, gc.wo, wi_local, rows=can)
         contrib, origin, direction = (np.empty((m, 3), np.float32) for _ in range(3))
         tmax, sample_of = np.empty(m, np.float32), np.empty(m, idx.dtype)
-        count = kernels.shadow_rays(can, np.ascontiguousarray(throughput, np.float32), idx,
+        count = path_kernels.shadow_rays(can, np.ascontiguousarray(throughput, np.float32), idx,
                                     np.ascontiguousarray(f_cos, np.float32), np.ascontiguousarray(ls.radiance, np.float32),
                                     np.asarray(ls.pdf, np.float32), np.asarray(pdf_b, np.float32),
                                     np.asarray(ls.delta, bool), self.mis, gc.cos_o_geo, gc.ng, transmits, gc.p, gc.mag,
@@ -418,7 +418,7 @@ class PathTracer:
     def _add(self, radiance: np.ndarray, idx: np.ndarray, value: np.ndarray) -> None:
         """Add contributions to their samples, catching NaN/Inf (counted, dropped) and clamping if asked."""
         counters = np.zeros(2, np.int64)
-        kernels.accumulate(radiance, np.asarray(idx, np.int64), np.ascontiguousarray(value, dtype=np.float32),
+        path_kernels.accumulate(radiance, np.asarray(idx, np.int64), np.ascontiguousarray(value, dtype=np.float32),
                            np.float32(self.settings.clamp), counters)
         self.stats.nonfinite += int(counters[0])
         self.stats.clamped += int(counters[1])

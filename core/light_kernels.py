@@ -13,18 +13,16 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-from . import jit_cache  # noqa: F401  (before any kernel: caches per import name)
+# No NRT reference counting (these kernels never allocate), device functions taking arrays inlined: core.jit_cache.
+from .jit_cache import jit_inline as _inline
+from .jit_cache import jit_no_nrt as _jit
+from .warps import (cone_pdf, cos_hemisphere_pdf, onb, one_minus_cos_from_sin2, sample_cone, sample_cos_hemisphere,
+                    sample_disk, sample_sphere, sample_triangle, sphere_pdf)
 
-# As core.bsdf_kernels: no NRT reference counting (these kernels never allocate; callers pass scratch buffers),
-# and the device functions that take arrays are inlined into their callers (per-path calls were 2-4x slower
-# otherwise). Scalar-only helpers are left to LLVM.
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False, _nrt=False)
-_inline = numba.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False, _nrt=False, inline="always")
-
-# unit kinds
+# The light kinds, the one enumeration of them (core.lights names them): a selectable unit's kind says how its
+# importance is estimated and which table (pt: POINT and SPOT, ar, su, the triangles, the world row) samples it.
 TRI_GROUP, POINT, SPOT, AREA, SUN, WORLD = range(6)
 
 # unit table columns
@@ -197,9 +195,6 @@ def probability(p, n, has_n, transmits, has_t, which, table, kinds, fallback, fl
 # Arithmetic is float64 on the float32 inputs; outputs are rounded to float32 where the public API is float32.
 # Spherical rectangles and near triangles need float64; elsewhere it costs nothing in scalar code.
 
-# selectable unit kinds as core.lights groups them (which sampler a unit uses)
-K_TRI, K_PUNCT, K_AREA, K_SUN, K_WORLD = range(5)
-
 # point/spot light table columns (float64; positions, directions, radiance hold float32-rounded values)
 (PT_X, PT_Y, PT_Z, PT_R, PT_G, PT_B, PT_RADIUS, PT_SPHERE, PT_SPOT, PT_DX, PT_DY, PT_DZ, PT_COS_HALF, PT_INV_WIDTH,
  PT_SEL, PT_UNIT, PT_CAM, PT_LIT) = range(18)
@@ -218,11 +213,11 @@ SU_FIELDS = 11
 W_FIELDS = 6
 
 # The light tables, one tuple (see core.lights.LightSampler._kernel_tables):
-#   (u_table, u_kind, u_kind5, u_local, u_fallback, floor_weight,        -- per-point selection units
+#   (u_table, u_kind, u_local, u_fallback, floor_weight,        -- per-point selection units
 #    pt (P, PT_FIELDS), ar (A, AR_FIELDS), su (S, SU_FIELDS), world (W_FIELDS,),
 #    t_v0, t_e1, t_e2, t_n, t_L (3, E) float32, t_pdf_area (E,) float32, t_sel (E,), t_edge2 (E,) float64,
 #    g_order (E,) int64, g_cdf (E,) float64, g_start (G + 1,) int64, t_unit (E,) int64)
-#    -- indices 10-21: the emissive triangles (component-major), their spatial groups and units
+#    -- indices 9-20: the emissive triangles (component-major), their spatial groups and units
 
 _TWO_PI = 2.0 * math.pi
 _INV_PI = 1.0 / math.pi
@@ -244,56 +239,6 @@ def _clip(x, lo, hi):
     if x > hi:
         return hi
     return x
-
-
-@_jit
-def _basis(x, y, z):
-    """Two unit vectors completing unit (x, y, z) to an orthonormal frame (Duff et al. 2017)."""
-    s = 1.0 if z >= 0.0 else -1.0
-    a = -1.0 / (s + z)
-    b = x * y * a
-    return 1.0 + s * x * x * a, s * b, -s * x, b, s + y * y * a, -y
-
-
-@_jit
-def _around(ax, ay, az, cos_t, sin_t, phi):
-    """The unit direction at polar angle (cos_t, sin_t) and azimuth phi about unit axis a."""
-    tx, ty, tz, bx, by, bz = _basis(ax, ay, az)
-    c, s = sin_t * math.cos(phi), sin_t * math.sin(phi)
-    return ax * cos_t + tx * c + bx * s, ay * cos_t + ty * c + by * s, az * cos_t + tz * c + bz * s
-
-
-@_jit
-def _sample_cone(ax, ay, az, one_minus_cos_max, u0, u1):
-    """Uniform direction in the cone about unit axis a with 1 - cos(half-angle) given (kept in 1 - cos so that
-    tiny cones keep their precision); returns (wx, wy, wz, cos_theta)."""
-    x = u0 * one_minus_cos_max
-    cos_t = 1.0 - x
-    sin_t = math.sqrt(max(x * (2.0 - x), 0.0))
-    wx, wy, wz = _around(ax, ay, az, cos_t, sin_t, _TWO_PI * u1)
-    return wx, wy, wz, cos_t
-
-
-@_jit
-def _sample_cos_hemisphere(nx, ny, nz, u0, u1):
-    """Cosine-weighted direction about unit n; returns (wx, wy, wz, cos_theta)."""
-    cos_t = math.sqrt(max(1.0 - u0, 0.0))
-    wx, wy, wz = _around(nx, ny, nz, cos_t, math.sqrt(u0), _TWO_PI * u1)
-    return wx, wy, wz, cos_t
-
-
-@_jit
-def _sample_sphere(u0, u1):
-    z = 1.0 - 2.0 * u0
-    r = math.sqrt(max(1.0 - z * z, 0.0))
-    phi = _TWO_PI * u1
-    return r * math.cos(phi), r * math.sin(phi), z
-
-
-@_jit
-def _one_minus_cos_from_sin2(sin2):
-    """1 - sqrt(1 - sin2) without cancellation."""
-    return sin2 / (1.0 + math.sqrt(max(1.0 - sin2, 0.0)))
 
 
 @_jit
@@ -408,8 +353,8 @@ def _sample_triangle(px, py, pz, t, u0, u1, lt):
     """Emitter t from p: uniform by area, or (near and large, Cycles' rule) uniform in its solid angle: the
     seed's lamp hangs 2 cm under the ceiling, where area sampling's 1/d^2 weight makes fireflies.
     Returns (wi, dist, radiance, pdf given the unit), pdf 0 for no contribution."""
-    t_v0, t_e1, t_e2, t_n, t_L, t_pdf_area, t_sel, t_edge2 = lt[10], lt[11], lt[12], lt[13], lt[14], lt[15], \
-        lt[16], lt[17]
+    t_v0, t_e1, t_e2, t_n, t_L, t_pdf_area, t_sel, t_edge2 = lt[9], lt[10], lt[11], lt[12], lt[13], lt[14], \
+        lt[15], lt[16]
     ax, ay, az, bx, by, bz, cx, cy, cz, omega = _near_triangle(px, py, pz, t, t_v0, t_e1, t_e2, t_n, t_edge2)
     nx, ny, nz = np.float64(t_n[0, t]), np.float64(t_n[1, t]), np.float64(t_n[2, t])
     rr, rg, rb = np.float64(t_L[0, t]), np.float64(t_L[1, t]), np.float64(t_L[2, t])
@@ -421,9 +366,7 @@ def _sample_triangle(px, py, pz, t, u0, u1, lt):
         if not (d > 0.0 and math.isfinite(d)):
             return 0.0, 0.0, 0.0, 0.0, rr, rg, rb, 0.0  # sampled direction missed the plane (numerically)
         return wx, wy, wz, d, rr, rg, rb, t_sel[t] / omega
-    su = math.sqrt(u0)
-    b1 = 1.0 - su
-    b2 = u1 * su
+    b1, b2 = sample_triangle(u0, u1)
     # the point rounded to float32, as the triangle's own precision
     qx = _f32(t_v0[0, t] + t_e1[0, t] * b1 + t_e2[0, t] * b2)
     qy = _f32(t_v0[1, t] + t_e1[1, t] * b1 + t_e2[1, t] * b2)
@@ -459,10 +402,10 @@ def triangle_pdf_path(e, ox, oy, oz, dist2, cos_l, lt):
     """Solid-angle pdf, given its unit, with which the sampler produces the point of emitter e that a ray from o
     hit at squared distance dist2 and |cos| cos_l (float32 values): the area pdf, or 1 / solid angle where the
     triangle is near."""
-    omega = _near_triangle(ox, oy, oz, e, lt[10], lt[11], lt[12], lt[13], lt[17])[9]
+    omega = _near_triangle(ox, oy, oz, e, lt[9], lt[10], lt[11], lt[12], lt[16])[9]
     if omega > 0.0:
-        return lt[16][e] / omega
-    return _f32(np.float64(lt[15][e]) * dist2 / cos_l)
+        return lt[15][e] / omega
+    return _f32(np.float64(lt[14][e]) * dist2 / cos_l)
 
 
 # ------------------------------------------------------------------------------------------ point and spot
@@ -492,10 +435,8 @@ def _sample_punctual(px, py, pz, nx, ny, nz, has_n, k, u0, u1, pt):
         s = _spot_att(pt, k, -axx, -axy, -axz) / d2
         return axx, axy, axz, d, rr * s, rg * s, rb * s, 1.0, True
     if pt[k, PT_SPHERE] == 0.0:  # disc of radius r on the light, facing p, sampled uniformly by area
-        tx, ty, tz, bx, by, bz = _basis(axx, axy, axz)
-        rad = r * math.sqrt(u0)
-        phi = _TWO_PI * u1
-        c, s = rad * math.cos(phi), rad * math.sin(phi)
+        tx, ty, tz, bx, by, bz = onb(axx, axy, axz)
+        c, s = sample_disk(r, u0, u1)
         wx, wy, wz = vx + tx * c + bx * s, vy + ty * c + by * s, vz + tz * c + bz * s
         t2 = wx * wx + wy * wy + wz * wz
         dist = math.sqrt(t2)
@@ -506,19 +447,19 @@ def _sample_punctual(px, py, pz, nx, ny, nz, has_n, k, u0, u1, pt):
         return wx, wy, wz, dist, rr * att, rg * att, rb * att, pdf, False
     r2 = _f32(r * r)
     if d > r:  # uniform in the cone the sphere subtends
-        omc = _one_minus_cos_from_sin2(r2 / d2)
-        wx, wy, wz, cos_t = _sample_cone(axx, axy, axz, omc, u0, u1)
+        omc = one_minus_cos_from_sin2(r2 / d2)
+        wx, wy, wz, cos_t = sample_cone(axx, axy, axz, omc, u0, u1)
         sin2 = max(1.0 - cos_t * cos_t, 0.0)
         dist = d * cos_t - math.sqrt(max(r2 - d2 * sin2, 0.0))
         att = _spot_att(pt, k, -wx, -wy, -wz)
-        return wx, wy, wz, dist, rr * att, rg * att, rb * att, 1.0 / (_TWO_PI * omc), False
+        return wx, wy, wz, dist, rr * att, rg * att, rb * att, cone_pdf(omc), False
     # inside: every direction meets the sphere; cosine about n, or uniform (no spot cone inside, as Cycles)
     if has_n:
-        wx, wy, wz, cos_t = _sample_cos_hemisphere(nx, ny, nz, u0, u1)
-        pdf = _INV_PI * cos_t
+        wx, wy, wz, cos_t = sample_cos_hemisphere(nx, ny, nz, u0, u1)
+        pdf = cos_hemisphere_pdf(cos_t)
     else:
-        wx, wy, wz = _sample_sphere(u0, u1)
-        pdf = _INV_4PI
+        wx, wy, wz = sample_sphere(u0, u1)
+        pdf = sphere_pdf()
     bb = vx * wx + vy * wy + vz * wz
     dist = bb + math.sqrt(max(r2 - d2 + bb * bb, 0.0))
     return wx, wy, wz, dist, rr, rg, rb, pdf, False
@@ -600,8 +541,7 @@ def _rect_sample(ar, k, ox, oy, oz, x0, x1, y0, y1, z0, flip, b0, b1, S, a23, u0
 def _area_point(ar, k, u0, u1):
     """Point uniformly distributed by area on area light k."""
     if ar[k, AR_ELLIPSE] != 0.0:
-        rr = math.sqrt(u0)
-        sx, sy = rr * math.cos(_TWO_PI * u1), rr * math.sin(_TWO_PI * u1)
+        sx, sy = sample_disk(1.0, u0, u1)
     else:
         sx, sy = 2.0 * u0 - 1.0, 2.0 * u1 - 1.0
     hx, hy = 0.5 * ar[k, AR_LX] * sx, 0.5 * ar[k, AR_LY] * sy
@@ -649,29 +589,29 @@ def sample_light_path(px, py, pz, nx, ny, nz, has_n, transmits, u_sel, u0, u1, p
     Picks a unit (per point, or the only one), an emitter in it, samples it. Returns (wx, wy, wz, dist, r, g, b,
     pdf, delta) rounded to float32 values: the solid-angle pdf includes the selection probability; pdf 0 (with
     wi and radiance 0) means no contribution. buf: scratch (K,) float64."""
-    u_table, u_kind, u_kind5, u_local, fallback, floor_weight = lt[0], lt[1], lt[2], lt[3], lt[4], lt[5]
+    u_table, u_kind, u_local, fallback, floor_weight = lt[0], lt[1], lt[2], lt[3], lt[4]
     prob = 1.0
     unit = 0
     x = u_sel
     if per_point:
         unit, prob, x = select_path(px, py, pz, nx, ny, nz, has_n, transmits, u_sel, u_table, u_kind, fallback,
                                     floor_weight, buf)
-    kind = u_kind5[unit]
+    kind = u_kind[unit]
     local = u_local[unit]
     delta = False
-    if kind == K_TRI:
-        e = _pick_in_group(local, x, lt[18], lt[19], lt[20])
+    if kind == TRI_GROUP:
+        e = _pick_in_group(local, x, lt[17], lt[18], lt[19])
         wx, wy, wz, dist, rr, rg, rb, pdf = _sample_triangle(px, py, pz, e, u0, u1, lt)
-    elif kind == K_PUNCT:
+    elif kind == POINT or kind == SPOT:
         wx, wy, wz, dist, rr, rg, rb, pdf, delta = _sample_punctual(px, py, pz, nx, ny, nz, has_n, local, u0, u1,
-                                                                     lt[6])
-        pdf *= lt[6][local, PT_SEL]
-    elif kind == K_AREA:
-        ar = lt[7]
+                                                                     lt[5])
+        pdf *= lt[5][local, PT_SEL]
+    elif kind == AREA:
+        ar = lt[6]
         wx, wy, wz, dist, rr, rg, rb, pdf = _sample_area(px, py, pz, local, u0, u1, ar)
         pdf *= ar[local, AR_SEL]
-    elif kind == K_SUN:
-        su = lt[8]
+    elif kind == SUN:
+        su = lt[7]
         dist = math.inf
         rr, rg, rb = su[local, SU_R], su[local, SU_G], su[local, SU_B]
         omc = su[local, SU_OMC]
@@ -680,17 +620,17 @@ def sample_light_path(px, py, pz, nx, ny, nz, has_n, transmits, u_sel, u0, u1, p
             pdf = su[local, SU_SEL]
             delta = True
         else:
-            wx, wy, wz, _ = _sample_cone(wx, wy, wz, _f32(omc), u0, u1)
+            wx, wy, wz, _ = sample_cone(wx, wy, wz, _f32(omc), u0, u1)
             pdf = su[local, SU_SEL] / (_TWO_PI * omc)
     else:
-        w = lt[9]
+        w = lt[8]
         dist = math.inf
         rr, rg, rb = w[W_R], w[W_G], w[W_B]
         if has_n:
-            wx, wy, wz, cos_t = _sample_cos_hemisphere(nx, ny, nz, u0, u1)
+            wx, wy, wz, cos_t = sample_cos_hemisphere(nx, ny, nz, u0, u1)
             pdf = _f32(w[W_SEL] * _INV_PI) * cos_t
         else:
-            wx, wy, wz = _sample_sphere(u0, u1)
+            wx, wy, wz = sample_sphere(u0, u1)
             pdf = w[W_SEL] * _INV_4PI
     if per_point:
         pdf *= prob
@@ -730,7 +670,7 @@ def _times_selection(pl, unit, have_prob, ox, oy, oz, nx, ny, nz, has_n, transmi
     probabilities of all units go into buf on a ray's first light hit (have_prob False) and are reused after.
     Returns (pl x probability, True)."""
     if not have_prob:
-        probabilities_at(ox, oy, oz, nx, ny, nz, has_n, transmits, lt[0], lt[1], lt[4], lt[5], buf)
+        probabilities_at(ox, oy, oz, nx, ny, nz, has_n, transmits, lt[0], lt[1], lt[3], lt[4], buf)
     return pl * (buf[unit] if unit >= 0 else 0.0), True
 
 
@@ -742,7 +682,7 @@ def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_
     or not use_mis) with the light pdf `sample_light_path` gives that direction (selection included); where tmax
     is inf also the sun discs and the world. camera: camera rays see the world and only lights marked visible
     to the camera. Inputs are float64 of float32 values; buf: scratch (K,) float64."""
-    pt, ar, su, w = lt[6], lt[7], lt[8], lt[9]
+    pt, ar, su, w = lt[5], lt[6], lt[7], lt[8]
     er = eg = eb = 0.0
     need_prob = use_mis and per_point
     have_prob = False
@@ -778,7 +718,7 @@ def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_
                 else:
                     pdf = sel * _INV_4PI
             else:
-                pdf = sel / (_TWO_PI * _one_minus_cos_from_sin2(min(r2 / d2, 1.0)))
+                pdf = sel / (_TWO_PI * one_minus_cos_from_sin2(min(r2 / d2, 1.0)))
                 att = _spot_att(pt, k, -dx, -dy, -dz)
         wgt = 1.0
         if use_mis and not bsdf_delta:
@@ -900,8 +840,8 @@ def triangle_pdf_batch(emitter, o, dist2, cos_l, n, has_n, transmits, has_t, per
             nx = ny = nz = 0.0
             if has_n:
                 nx, ny, nz = np.float64(n[i, 0]), np.float64(n[i, 1]), np.float64(n[i, 2])
-            probabilities_at(ox, oy, oz, nx, ny, nz, has_n, has_t and transmits[i], lt[0], lt[1], lt[4], lt[5],
+            probabilities_at(ox, oy, oz, nx, ny, nz, has_n, has_t and transmits[i], lt[0], lt[1], lt[3], lt[4],
                              buf)
-            unit = lt[21][e]
+            unit = lt[20][e]
             pdf *= buf[unit] if unit >= 0 else 0.0
         out[i] = pdf if math.isfinite(pdf) else 0.0

@@ -1,100 +1,30 @@
 """Light selection and sampling for next-event estimation with MIS, vectorised over N shading points.
 
-Coordinates: the integrator renders relative to a world offset `shift` (float64 (3,)) for precision. Every
-position given to this module and returned by it is (world position - shift) in float32; the light tables are
-built by subtracting `shift` in float64 before the cast.
+Coordinates: every position given to this module and returned by it is (world position - shift) in float32,
+`shift` being the integrator's float64 world offset; the light tables subtract it in float64 before the cast.
 
-Units, exactly as Cycles 5.0 converts them (read from the kernel, and each one checked here against a Cycles
-5.0.1 render of a white diffuse plane, see tests/test_lights.py). Blender's `strength` of a light is
-colour x Power (W) or colour x Strength (sun, W/m^2) (`intern/cycles/blender/light.cpp`, `sync_light`), and
-`normalize` is on by default, so Cycles divides it by `Light::area()` (`intern/cycles/scene/light.cpp`):
+Units, as Cycles 5.0 converts Blender's (each checked against a Cycles render in tests/test_lights.py):
+- point light, radius 0: intensity P / (4 pi) W/sr; radius r > 0: radiance P / (4 pi^2 r^2), a disc facing the
+  shading point (soft falloff, Blender's default) or a sphere (`soft_falloff` False);
+- spot light: the point light times Cycles' smoothstep of the cone (size, blend);
+- sun: strength S W/m^2 is the irradiance; angle a > 0 gives a disc of radiance S / (pi sin^2(a / 2));
+- area light: one-sided (local -Z), radiance P / (pi A), A the world area; spread < pi attenuates as Cycles;
+- mesh emission: radiance colour x strength from both faces; world: constant radiance colour x strength.
+Visibility as Cycles' defaults: camera rays see the world but no light (unless `visible_camera`), BSDF rays see
+every light with a surface and the world; lights never block rays.
 
-- Point light, radius r = 0: radiant intensity I = P / (4 pi) W/sr. (`device_update_lights`:
-  eval_fac = invarea / pi with `Light::area()` = 4 when the radius is 0; `point_light_sample` then divides by
-  the distance squared through its pdf.)
-- Point light, radius r > 0: radiance L = P / (4 pi^2 r^2) (eval_fac = 1 / (pi * 4 pi r^2), `Light::area()` =
-  4 pi r^2). Its shape depends on Blender's `use_soft_falloff` (default True; `is_sphere = !use_soft_falloff`
-  in `blender/light.cpp`):
-    * soft falloff (default): a disc of radius r centred on the light and facing the shading point
-      (`point_light_sample`, "ad-hoc radius based on oriented disk"): irradiance at distance d, perpendicular
-      incidence, P / (4 pi (d^2 + r^2));
-    * no soft falloff: a sphere of radius r, sampled by the cone it subtends: irradiance P / (4 pi d^2), exactly
-      a point light's, while the sphere is above the horizon.
-  Monte reads the mode from `getattr(light, "soft_falloff", True)` (scene.PointLight has no field for it yet).
-- Spot light: the point light above (same I or L, no renormalisation to the cone) times
-  smoothstep((cos_a - cos(size / 2)) / ((1 - cos(size / 2)) x blend)) with cos_a the cosine between the spot axis
-  and the direction from the emitting point to the shading point (`spot.h` `spot_light_attenuation`,
-  `spot_smooth` set in `scene/light.cpp`). Blend 0 is a hard edge. Inside a sphere-mode spot the attenuation
-  is not applied (as Cycles). Non-uniformly scaled spot cones (elliptic) are not modelled.
-- Sun: strength S is the irradiance on a surface facing it; with angular diameter a > 0 the disc has radiance
-  S / (pi sin^2(a / 2)) (`Light::area()` for LIGHT_DISTANT = pi sin^2(a / 2), eval_fac = 1 / area), sampled
-  uniformly in the cone of half-angle a / 2 (`distant.h`). a = 0 is a delta light.
-- Area light: one-sided, emitting towards the light's local -Z, radiance L = P / (pi A) with A the world area
-  (|X column| size_x x |Y column| size_y, x pi / 4 for DISK/ELLIPSE) (`area.h` `area_light_eval`:
-  eval_fac = invarea / pi, "Convert radiant flux to radiance"). Spread s < pi multiplies L by
-  max((tan(s/2) - tan(theta)) / (tan(s/2) - s/2), 0), theta the angle to the light's normal
-  (`area_light_spread_attenuation`, normalised so the cosine-weighted integral is pi as for a Lambertian
-  emitter); s = pi is Lambertian. Rectangles are sampled by solid angle (Urena et al. 2013, spherical
-  rectangles, as Cycles), discs/ellipses uniformly by area. With s < pi the sampling is not narrowed to the lit
-  region as Cycles' `area_light_spread_clamp_light` does: unbiased, only noisier for narrow spreads.
-- Mesh emission: radiance = Emission colour x strength, from both faces (`emissive_simple_eval` uses |cos|).
-- World: constant radiance colour x strength in every direction.
+Sampling: rectangles by solid angle, discs/ellipses and emissive triangles by area (near, large triangles by
+solid angle), sphere lights in the cone they subtend, the sun in its cone, the world cosine-weighted about n.
+`intersect` and `pdf_triangle` compute the light pdf of a BSDF-sampled direction with the same formulas and the
+same per-point selection (they need the n and transmission flags `sample` got), so MIS weights match. Delta
+lights (radius 0, sun angle 0): `pdf` is the selection probability and `radiance` the value to divide by it.
 
-Visibility, Cycles' defaults (Blender creates light objects with `visible_camera` False and diffuse, glossy
-and transmission visibility True; checked with renders): camera rays see the world but no light
-(`intersect(..., camera=True)`); BSDF rays see every light that has a surface (area lights' front face,
-point/spot discs or spheres with r > 0, the sun disc with a > 0) and the world. Lights never block rays. A
-light that carries `visible_camera = True` (no such field in scene.py yet) is seen by camera rays too.
+Selection: one unit per shading point (each analytic light, the world, up to 8 spatial groups of emissive
+triangles picked inside by power), with probability 0.9 x importance share + 0.1 x power share over the units
+not provably dark there; importance estimates each unit's irradiance at the point and normal.
 
-Sampling and MIS: rectangles by solid angle, discs/ellipses and emissive triangles uniformly by area, point
-lights as Cycles (uniform in the cone a sphere subtends; uniformly over the disc for soft falloff), the sun
-uniformly in its cone, the world cosine-weighted about the normal n given to `sample` (uniform sphere without
-n); the inside of a sphere light likewise. `intersect` returns each light's emission weighted by the power
-heuristic against the BSDF pdf, with the light pdf of that same direction (selection included) computed by the
-same formulas `sample` uses; it needs the same n for the world (it raises if `sample` got normals and
-`intersect` none). Delta lights (r = 0, sun angle 0): `pdf` is the selection probability and `radiance` the
-value to divide by it (I / d^2, S).
-
-Implementation: the tables below are flattened once per scene into the arrays of core.light_kernels, where
-`sample`, `intersect` and `pdf_triangle` are compiled per-path code (one pass over the points, float64 inside).
-Cost (2-core machine here, process time per 2^18 points): `sample` about 20 ms for a sun + the world, 50 ms for
-the Cornell lamp (two near triangles: spherical triangle sampling) and 60 ms for a rectangle + the world (float64
-spherical rectangles, for accuracy on tiny or distant lights); `intersect` 5-20 ms for one to three lights.
-
-Emissive triangles are sampled uniformly in area, or uniformly in the solid angle they subtend (Arvo's spherical
-triangle sampling) where the triangle is near and large (longest edge longer than the distance to its plane,
-Cycles' rule): the seed's lamp hangs 2 cm under the ceiling, where area sampling's 1/d^2 makes fireflies.
-`pdf_triangle` applies the same rule from the ray origin.
-
-Light selection (one emitter per shading point, chosen per point, like Cycles' light tree for a handful of
-lights). The selectable units are each analytic light (point, spot, area, sun), the world, and the emissive
-triangles in up to 8 spatial groups (split at centroid medians; groups under 16 triangles, such as a quad lamp,
-are not split); inside a group a triangle is picked by power (luminance(emission) x area). At a shading point p
-with shading normal n (the viewer's side) each unit gets an importance, an estimate of the irradiance it gives
-(W/m^2, Rec. 709 luminance):
-  finite units (bounding sphere centre c, radius r; d = |c - p|):
-    intensity x emitter-cone factor x receiver factor / max(d^2, r^2)
-    intensity: point and spot P / (4 pi); area P / pi (Lambertian peak); triangle group L A (its power / 2 pi).
-    emitter cone, with theta_u = asin(r / d) the angle the bounds subtend (no cone test when p is inside them):
-    spot 1 inside its cone widened by theta_u, else 0; area cos(theta') x its spread attenuation, theta' =
-    max(angle(normal, p - c) - theta_u, 0), and 0 behind its plane or outside its spread; triangle group
-    the same about its two-sided normal cone (widened by the group's normal spread), never 0.
-  sun: S x receiver factor (theta_u its half-angle); world: 0.1 pi L (_WORLD_IMPORTANCE: a uniform world's
-  light samples duplicate what BSDF sampling already finds, so it is weighted down). Renders select the world
-  only for the light-sampling-only estimator (`sample_world`, as Cycles for a constant world, see LightSampler).
-  receiver factor: cos(max(angle(n, c - p) - theta_u, 0)), or its |cos| version where the material transmits
-  (the `transmits` flag) or 1 without n; a unit entirely below a surface that only reflects gets 0.
-Probability of a unit: 0.9 x importance / sum of importances + 0.1 (SELECTION_POWER_FLOOR) x power / sum of
-powers, both over the units that are not provably dark at p (importance 0: one-sided area light from behind,
-outside a spot cone or area spread, wholly below a reflect-only surface; 0.06 degree margin), so every unit that
-can contribute keeps a probability > 0 and the estimator stays unbiased; the power shares alone where no unit
-is lit. Powers: emissive triangle L x area x 2 pi (both faces), point P, spot P (1 - cos(size / 2)) / 2 (the
-fraction of the sphere inside the cone), area P, sun S x pi R^2 (what crosses the scene's bounding disc), world
-L x pi^2 R^2 (irradiance pi L through the scene's cross-section disc, like the sun), R = scene_radius. Emitters
-with zero power are never selected. One unit (a single lamp) has probability 1 and costs nothing per point;
-otherwise the selection is a compiled pass over points x units (core.light_kernels), about 50-100 ns per point
-for two units. `intersect` and `pdf_triangle` evaluate the same probability at the ray origin with the normal
-and transmission flag `sample` got there (they raise if those are missing), so MIS weights match.
+The kernels are in core.light_kernels. docs/lights.md has the full contract: the Cycles function each unit
+follows, the selection heuristic's formulas, and the measurements behind its constants.
 """
 
 from __future__ import annotations
@@ -115,16 +45,15 @@ _INV_PI = 1.0 / math.pi
 _INV_4PI = 1.0 / (4.0 * math.pi)
 _LUM = np.array([0.2126, 0.7152, 0.0722])
 
-_KIND_TRI, _KIND_PUNCT, _KIND_AREA, _KIND_SUN, _KIND_WORLD = lk.K_TRI, lk.K_PUNCT, lk.K_AREA, lk.K_SUN, lk.K_WORLD
+# The one light-kind enumeration is core.light_kernels' (the kernels branch on it); its names here:
+_KIND_NAMES = {lk.TRI_GROUP: "triangle", lk.POINT: "point", lk.SPOT: "spot", lk.AREA: "area", lk.SUN: "sun",
+               lk.WORLD: "world"}
 # Share of the per-point selection given by power alone (among the units not provably dark at the point): keeps
 # a light that the importance estimate underrates (its rival occluded there) from being sampled too rarely.
 SELECTION_POWER_FLOOR = 0.1
 # The uniform world's importance is this fraction of the irradiance pi L it gives: its light samples are cosine
-# distributed about n, as a diffuse BSDF's own samples (which MIS counts too), so they add little beside them.
-# Instances bench (sun + sky), MSE at equal samples: 4.99e-4 at 1, 4.03e-4 at 0.5, 3.17e-4 at 0.1, 3.05e-4 at
-# 0.03 (fixed selection by power: 4.14e-4); the glass bench (dim sky + area light) is unchanged. Not selecting
-# it at all (renders now, sample_world=False) was better still: 128x128, 64 spp, 8 seeds, MSE 1.06e-4 at 0.1,
-# 9.4e-5 at 0.03, 8.4e-5 never selected (Cycles 8.5e-5); this value only serves light_sampling="light".
+# distributed about n, as a diffuse BSDF's own samples (which MIS counts too), so they add little beside them
+# (measurements in docs/lights.md). Renders leave the world out of selection; this serves light_sampling="light".
 _WORLD_IMPORTANCE = 0.1
 
 
@@ -269,200 +198,40 @@ class EmissiveTriangles:
         )
 
 
-# ------------------------------------------------------------------------------------------------ the sampler
-class LightSampler:
-    """Selects one emitter per shading point by power and samples it; evaluates the lights BSDF rays pass.
+# ------------------------------------------------------------------------------------ one table per light kind
+# Each kind's lights as arrays, one row per light, in the shifted frame; `kernel_table` writes the flat table
+# core.light_kernels reads. `sel` (the probability of a light once its unit is chosen) and `unit` (its
+# selection unit, -1: never selected) are filled in when the units are built.
+def _f32(a) -> np.ndarray:
+    """Values as the float32 code held them, in float64."""
+    return np.asarray(a, _F32).astype(np.float64)
 
-    See the module docstring for the units and the selection heuristic. Public attributes: `has_lights`,
-    `kinds_present` (subset of {"triangle", "point", "spot", "sun", "area", "world"}), `triangles`
-    (EmissiveTriangles or None), `world_radiance` ((3,) float32, zeros when black), `shift`, `scene_radius`.
-    `has_emission` (has_lights, or a lit world that `intersect` returns).
-    sample_world=False leaves the world out of light selection, as Cycles does for a world without spatial
-    variation (`test_enabled_lights`: background MIS off without portals or a varying shader): BSDF sampling
-    then finds it alone, with MIS weight 1, and `intersect` still returns it. The world is uniform here, so its
-    light samples (cosine-distributed about n) only duplicate a diffuse BSDF's own samples while taking
-    selections, and shadow rays, from the other lights.
-    Work scales with N times the number of analytic lights in `intersect`, and with N in `sample`."""
 
-    def __init__(self, scene: Scene, shift: np.ndarray, emissive_triangles: EmissiveTriangles | None,
-                 scene_radius: float, sample_world: bool = True):
-        shift = np.asarray(shift, dtype=np.float64).reshape(3)
-        R = float(scene_radius) if np.isfinite(scene_radius) and scene_radius > 0 else 1.0
-        self.shift = shift
-        self.scene_radius = R
-        tris = emissive_triangles if (emissive_triangles is not None and emissive_triangles.count) else None
-        self.triangles = tris
+@dataclass
+class _PunctualLights:
+    """Point and spot lights. pos (P, 3) float32; power (P, 3) the lights' colour x Power (W); rad (P, 3) float32
+    radiance of the disc/sphere, or the intensity P / (4 pi) for radius 0; radius (P,); sphere (P,) sphere mode
+    (no soft falloff, radius > 0); spot (P,); direction (P, 3) float32 spot axis; cos_half (P,) cos(size / 2)
+    (-1 for points); width (P,) (1 - cos_half) x blend; camera (P,) visible to camera rays; selection_power
+    (P,) luminance x the cone's share of the sphere."""
 
-        punct = [lt for lt in scene.lights if isinstance(lt, (PointLight, SpotLight))]
-        areas = [lt for lt in scene.lights if isinstance(lt, AreaLight)]
-        suns = [lt for lt in scene.lights if isinstance(lt, SunLight)]
-        self._build_punctual(punct, shift)
-        self._build_areas(areas, shift)
-        self._build_suns(suns, R)
-        wc = np.asarray(scene.world.color, dtype=np.float64).reshape(-1)
-        wc = np.repeat(wc, 3) if wc.size == 1 else wc
-        self.world_radiance = wc.astype(_F32)
-        # Flux through the scene's cross-section disc, as for the sun: irradiance pi L on a disc of area pi R^2.
-        # (Counting the flux into the whole bounding sphere, 4 pi^2 L R^2, picked the world 4x too often next to
-        # a sun: on the instanced bench scene that was 2.2x the MSE at equal samples.)
-        world_power = float(luminance(wc)) * math.pi ** 2 * R * R
+    pos: np.ndarray
+    power: np.ndarray
+    rad: np.ndarray
+    radius: np.ndarray
+    sphere: np.ndarray
+    spot: np.ndarray
+    direction: np.ndarray
+    cos_half: np.ndarray
+    width: np.ndarray
+    camera: np.ndarray
+    selection_power: np.ndarray
+    sel: np.ndarray | None = None
+    unit: np.ndarray | None = None
 
-        # The selectable units (see the module docstring): a few spatial groups of emissive triangles, each
-        # analytic light, the world. Zero power is left out (never selected).
-        self._build_units(tris, world_power if sample_world else 0.0, R)
-        if tris is not None:
-            # component-major copies for gathers, and selection x area pdf
-            v = tris.vertices.astype(np.float32)
-            self._t_v0 = _cm(v[:, 0])
-            self._t_e1 = _cm(v[:, 1] - v[:, 0])
-            self._t_e2 = _cm(v[:, 2] - v[:, 0])
-            self._t_n = _cm(tris.normal)
-            self._t_L = _cm(tris.emission)
-            self._t_pdf_area = (self._t_sel / tris.area).astype(_F32)
-            edges = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 1], v[:, 0] - v[:, 2]], axis=1).astype(np.float64)
-            self._t_edge2 = (edges * edges).sum(axis=2).max(axis=1)  # longest edge squared
-
-        present = set()
-        if np.any(self._t_sel > 0):
-            present.add("triangle")
-        for i in np.nonzero(self._p_sel > 0)[0]:
-            present.add("spot" if self._p_is_spot[i] else "point")
-        if np.any(self._a_sel > 0):
-            present.add("area")
-        if np.any(self._s_sel > 0):
-            present.add("sun")
-        if self._w_sel > 0:
-            present.add("world")
-        self.kinds_present = frozenset(present)
-        # Something a ray can reach: a selectable light, or a lit world that is not sampled (MIS weight 1).
-        self.has_emission = bool(self.has_lights or np.any(self.world_radiance > 0))
-        # The world and the inside of sphere lights are sampled about the normal given to `sample`; `intersect`
-        # then needs the same normal for MIS (checked, since a mismatch would bias silently).
-        # With more than one unit the selection itself depends on n and on the transmission flag.
-        self._n_matters = bool(self._w_sel > 0 or np.any(self._p_sphere & (self._p_sel > 0)) or self._per_point)
-        self._sampled_about_n = False
-        self._sampled_with_transmits = False
-        self._build_kernel_tables()
-
-    # ---------------------------------------------------------------------------------------- construction
-    def _build_units(self, tris, world_power, R):
-        """The unit table of the per-point selection (core.light_kernels) and, per light kind, each light's unit
-        (-1: never selected) and its probability once its unit is chosen (`_x_sel`: 1, or a triangle's share of
-        its group's power)."""
-        rows, kinds, kind5, local, power = [], [], [], [], []
-
-        def add(kind, k5, index, pw, **fields):
-            row = np.zeros(lk.UNIT_FIELDS)
-            row[lk.C_COS_O], row[lk.C_COS_E], row[lk.C_COS_U] = 1.0, -2.0, 1.0
-            for name, value in fields.items():
-                if name == "centre":
-                    row[lk.C_X:lk.C_Z + 1] = value
-                elif name == "axis":
-                    row[lk.C_AX:lk.C_AZ + 1] = value
-                else:
-                    row[getattr(lk, "C_" + name.upper())] = value
-            row[lk.C_POWER] = pw
-            rows.append(row)
-            kinds.append(kind)
-            kind5.append(k5)
-            local.append(index)
-            power.append(pw)
-            return len(rows) - 1
-
-        def ok(pw):
-            return bool(np.isfinite(pw) and pw > 0)
-
-        E = tris.count if tris is not None else 0
-        self._t_sel = np.zeros(E)
-        self._t_unit = np.full(E, -1, np.int64)
-        if tris is not None:
-            t_power = tris.power
-            groups = _cluster_emitters(tris)
-            order, cdf, starts = [], [], [0]
-            for g, members in enumerate(groups):
-                members = members[np.isfinite(t_power[members]) & (t_power[members] > 0)]
-                gp = float(t_power[members].sum())
-                if not ok(gp):
-                    continue
-                v = tris.vertices[members].astype(np.float64).reshape(-1, 3)
-                lo, hi = v.min(axis=0), v.max(axis=0)
-                nrm = tris.normal[members].astype(np.float64)
-                # normal cone of a two-sided group: the principal normal direction and the widest deviation
-                axis = np.linalg.eigh(nrm.T @ nrm)[1][:, -1]
-                cos_o = float(np.clip(np.abs(nrm @ axis).min(), 0.0, 1.0))
-                u = add(lk.TRI_GROUP, _KIND_TRI, len(order), gp, centre=0.5 * (lo + hi),
-                        radius=0.5 * float(np.linalg.norm(hi - lo)), axis=axis, cos_o=cos_o,
-                        sin_o=math.sqrt(max(1.0 - cos_o * cos_o, 0.0)), intensity=gp / _TWO_PI)
-                share = t_power[members] / gp
-                self._t_sel[members] = share
-                self._t_unit[members] = u
-                c = np.cumsum(share)
-                c[-1] = 1.0
-                order.append(members)
-                cdf.append(len(order) - 1 + c)  # group j occupies [j, j + 1)
-                starts.append(starts[-1] + members.size)
-            if order:
-                self._g_order = np.concatenate(order).astype(np.int64)
-                self._g_cdf = np.concatenate(cdf)
-                self._g_start = np.asarray(starts, np.int64)
-        self._p_sel = np.zeros(self._p_count)
-        self._p_unit = np.full(self._p_count, -1, np.int64)
-        for i in range(self._p_count):
-            if not ok(self._p_power[i]):
-                continue
-            spot = bool(self._p_is_spot[i])
-            self._p_unit[i] = add(lk.SPOT if spot else lk.POINT, _KIND_PUNCT, i, float(self._p_power[i]),
-                                  centre=self._p_pos[i].astype(np.float64), radius=float(self._p_radius[i]),
-                                  axis=self._p_dir[i].astype(np.float64),
-                                  cos_e=float(self._p_cos_half[i]) if spot else -2.0,
-                                  intensity=float(luminance(self._p_rad_power[i])) * _INV_4PI)
-            self._p_sel[i] = 1.0
-        self._a_sel = np.zeros(self._a_count)
-        self._a_unit = np.full(self._a_count, -1, np.int64)
-        for i in range(self._a_count):
-            if not ok(self._a_power[i]):
-                continue
-            half = 0.5 * math.hypot(self._a_lx[i], self._a_ly[i]) if not self._a_ellipse[i] else \
-                0.5 * max(self._a_lx[i], self._a_ly[i])
-            lambert = self._a_norm_spread[i] <= 0
-            self._a_unit[i] = add(lk.AREA, _KIND_AREA, i, float(self._a_power[i]), centre=self._a_c[i],
-                                  radius=half, axis=self._a_ng[i],
-                                  cos_e=0.0 if lambert else 1.0 / math.sqrt(1.0 + self._a_tan_half[i] ** 2),
-                                  tan_half=0.0 if lambert else float(self._a_tan_half[i]),
-                                  norm_spread=float(self._a_norm_spread[i]),
-                                  intensity=float(self._a_power[i]) * _INV_PI)
-            self._a_sel[i] = 1.0
-        self._s_sel = np.zeros(self._s_count)
-        self._s_unit = np.full(self._s_count, -1, np.int64)
-        for i in range(self._s_count):
-            if not ok(self._s_power[i]):
-                continue
-            cos_u = 1.0 - float(self._s_omc[i])
-            self._s_unit[i] = add(lk.SUN, _KIND_SUN, i, float(self._s_power[i]), axis=self._s_dir[i].astype(np.float64),
-                                  cos_u=cos_u, sin_u=math.sqrt(max(1.0 - cos_u * cos_u, 0.0)),
-                                  intensity=float(self._s_power[i]) / (math.pi * R * R))
-            self._s_sel[i] = 1.0
-        self._w_sel, self._w_unit = 0.0, -1
-        if ok(world_power):
-            self._w_unit = add(lk.WORLD, _KIND_WORLD, 0, world_power,
-                               intensity=_WORLD_IMPORTANCE * world_power / (math.pi * R * R))
-            self._w_sel = 1.0
-
-        K = len(rows)
-        pw = np.asarray(power, np.float64)
-        total = float(pw.sum()) if K else 0.0
-        self.has_lights = bool(K and total > 0 and np.isfinite(total))
-        self._u_table = np.ascontiguousarray(np.asarray(rows, np.float64).reshape(K, lk.UNIT_FIELDS))
-        self._u_kind = np.asarray(kinds, np.int64)
-        self._u_kind5 = np.asarray(kind5, np.int8)
-        self._u_local = np.asarray(local, np.int64)
-        self._u_fallback = pw / total if self.has_lights else pw
-        # one unit: probability 1 everywhere, no per-point work
-        self._per_point = K > 1
-
-    def _build_punctual(self, lights, shift):
+    @classmethod
+    def from_lights(cls, lights: list, shift: np.ndarray) -> "_PunctualLights":
         n = len(lights)
-        self._p_count = n
         pos = np.zeros((n, 3))
         power = np.zeros((n, 3))
         radius = np.zeros(n)
@@ -488,22 +257,59 @@ class LightSampler:
         # or the intensity P / (4 pi) for r = 0.
         safe_r = np.where(radius > 0, radius, 1.0)
         scale = np.where(radius > 0, 1.0 / (4.0 * math.pi ** 2 * safe_r ** 2), _INV_4PI)
-        self._p_pos = pos.astype(_F32)
-        self._p_rad_power = power
-        self._p_rad = (power * scale[:, None]).astype(_F32)
-        self._p_radius = radius
-        self._p_sphere = sphere & (radius > 0)
-        self._p_is_spot = spot
-        self._p_dir = sdir.astype(_F32)
-        self._p_cos_half = cos_half
-        self._p_width = width
-        self._p_cam = cam
         cone_fraction = np.where(spot, 0.5 * (1.0 - cos_half), 1.0)
-        self._p_power = luminance(power) * cone_fraction if n else np.zeros(0)
+        return cls(pos=pos.astype(_F32), power=power, rad=(power * scale[:, None]).astype(_F32), radius=radius,
+                   sphere=sphere & (radius > 0), spot=spot, direction=sdir.astype(_F32), cos_half=cos_half,
+                   width=width, camera=cam,
+                   selection_power=luminance(power) * cone_fraction if n else np.zeros(0))
 
-    def _build_areas(self, lights, shift):
+    def kernel_table(self) -> np.ndarray:
+        pt = np.zeros((len(self.radius), lk.PT_FIELDS))
+        if len(self.radius):
+            pt[:, lk.PT_X:lk.PT_Z + 1] = self.pos
+            pt[:, lk.PT_R:lk.PT_B + 1] = self.rad
+            pt[:, lk.PT_RADIUS] = self.radius
+            pt[:, lk.PT_SPHERE] = self.sphere
+            pt[:, lk.PT_SPOT] = self.spot
+            pt[:, lk.PT_DX:lk.PT_DZ + 1] = self.direction
+            pt[:, lk.PT_COS_HALF] = _f32(self.cos_half)
+            safe_w = np.where(self.width > 0, self.width, 1.0)
+            pt[:, lk.PT_INV_WIDTH] = np.where(self.width > 0, _f32(1.0 / safe_w), 0.0)
+            pt[:, lk.PT_SEL] = self.sel
+            pt[:, lk.PT_UNIT] = self.unit
+            pt[:, lk.PT_CAM] = self.camera
+            pt[:, lk.PT_LIT] = np.any(self.rad > 0, axis=1)
+        return np.ascontiguousarray(pt)
+
+
+@dataclass
+class _AreaLights:
+    """Area lights. centre (A, 3); axis_x, axis_y (A, 3) an orthonormal frame of the light's plane; normal (A, 3)
+    the emitting side (Cycles: the -Z column); axis_z = axis_x x axis_y; size_x, size_y (A,) world sizes;
+    ellipse (A,) disc/ellipse; area (A,) world area; rad (A, 3) float32 radiance P / (pi A); tan_half (A,)
+    tan(spread / 2) (inf: Lambertian); norm_spread (A,) 1 / (tan(h) - h) (0: Lambertian); camera (A,);
+    selection_power (A,) luminance(P)."""
+
+    centre: np.ndarray
+    axis_x: np.ndarray
+    axis_y: np.ndarray
+    normal: np.ndarray
+    axis_z: np.ndarray
+    size_x: np.ndarray
+    size_y: np.ndarray
+    ellipse: np.ndarray
+    area: np.ndarray
+    rad: np.ndarray
+    tan_half: np.ndarray
+    norm_spread: np.ndarray
+    camera: np.ndarray
+    selection_power: np.ndarray
+    sel: np.ndarray | None = None
+    unit: np.ndarray | None = None
+
+    @classmethod
+    def from_lights(cls, lights: list, shift: np.ndarray) -> "_AreaLights":
         n = len(lights)
-        self._a_count = n
         c = np.zeros((n, 3))
         ax = np.tile([1.0, 0, 0], (n, 1))
         ay = np.tile([0, 1.0, 0], (n, 1))
@@ -535,21 +341,51 @@ class LightSampler:
                 # 1 / (tan(h) - h), by its series 3 / h^3 where the difference cancels (as scene/light.cpp)
                 norm_spread[i] = 1.0 / (tan_half[i] - half) if half > 0.05 else 3.0 / half ** 3
             cam[i] = bool(getattr(lt, "visible_camera", False))
-        self._a_c = c
-        self._a_ax, self._a_ay, self._a_ng = ax, ay, ng
-        self._a_z = np.cross(ax, ay)
-        self._a_lx, self._a_ly = lx, ly
-        self._a_ellipse = ellipse
-        self._a_area = lx * ly * np.where(ellipse, math.pi / 4.0, 1.0)
-        self._a_rad = (power / (math.pi * self._a_area[:, None])).astype(_F32)  # L = P / (pi A)
-        self._a_tan_half = tan_half
-        self._a_norm_spread = norm_spread
-        self._a_cam = cam
-        self._a_power = luminance(power) if n else np.zeros(0)
+        area = lx * ly * np.where(ellipse, math.pi / 4.0, 1.0)
+        return cls(centre=c, axis_x=ax, axis_y=ay, normal=ng, axis_z=np.cross(ax, ay), size_x=lx, size_y=ly,
+                   ellipse=ellipse, area=area, rad=(power / (math.pi * area[:, None])).astype(_F32),  # L = P/(pi A)
+                   tan_half=tan_half, norm_spread=norm_spread, camera=cam,
+                   selection_power=luminance(power) if n else np.zeros(0))
 
-    def _build_suns(self, lights, R):
+    def kernel_table(self) -> np.ndarray:
+        ar = np.zeros((len(self.area), lk.AR_FIELDS))
+        if len(self.area):
+            for col, v in ((lk.AR_CX, self.centre), (lk.AR_AXX, self.axis_x), (lk.AR_AYX, self.axis_y),
+                           (lk.AR_ZX, self.axis_z), (lk.AR_NX, self.normal), (lk.AR_R, self.rad),
+                           (lk.AR_CX32, _f32(self.centre)), (lk.AR_AXX32, _f32(self.axis_x)),
+                           (lk.AR_AYX32, _f32(self.axis_y)), (lk.AR_NX32, _f32(self.normal))):
+                ar[:, col:col + 3] = v
+            ar[:, lk.AR_LX], ar[:, lk.AR_LY] = self.size_x, self.size_y
+            ar[:, lk.AR_ELLIPSE] = self.ellipse
+            ar[:, lk.AR_AREA] = self.area
+            ar[:, lk.AR_TAN_HALF] = np.where(self.norm_spread > 0, self.tan_half, 0.0)
+            ar[:, lk.AR_NORM_SPREAD] = self.norm_spread
+            ar[:, lk.AR_SEL] = self.sel
+            ar[:, lk.AR_UNIT] = self.unit
+            ar[:, lk.AR_CAM] = self.camera
+            ar[:, lk.AR_LIT] = np.any(self.rad > 0, axis=1)
+            ar[:, lk.AR_SU32] = _f32(2.0 / self.size_x)
+            ar[:, lk.AR_SV32] = _f32(2.0 / self.size_y)
+        return np.ascontiguousarray(ar)
+
+
+@dataclass
+class _SunLights:
+    """Suns. to_sun (S, 3) float32 unit direction towards the sun; rad (S, 3) float32 radiance of the disc (the
+    irradiance for angle 0); one_minus_cos (S,) 1 - cos(angle / 2) (0: a delta light); camera (S,);
+    selection_power (S,) luminance(S) x pi R^2 (what crosses the scene's bounding disc)."""
+
+    to_sun: np.ndarray
+    rad: np.ndarray
+    one_minus_cos: np.ndarray
+    camera: np.ndarray
+    selection_power: np.ndarray
+    sel: np.ndarray | None = None
+    unit: np.ndarray | None = None
+
+    @classmethod
+    def from_lights(cls, lights: list, R: float) -> "_SunLights":
         n = len(lights)
-        self._s_count = n
         to_sun = np.zeros((n, 3))
         rad = np.zeros((n, 3))
         omc = np.zeros(n)
@@ -567,80 +403,274 @@ class LightSampler:
                 rad[i] = s
             power[i] = luminance(s) * math.pi * R * R
             cam[i] = bool(getattr(lt, "visible_camera", False))
-        self._s_dir = to_sun.astype(_F32)
-        self._s_rad = rad.astype(_F32)
-        self._s_omc = omc
-        self._s_cos_half = 1.0 - omc
-        self._s_cam = cam
-        self._s_power = power
+        return cls(to_sun=to_sun.astype(_F32), rad=rad.astype(_F32), one_minus_cos=omc, camera=cam,
+                   selection_power=power)
 
-    # ----------------------------------------------------------------------------------------- kernel tables
-    def _build_kernel_tables(self):
-        """The flat tables core.light_kernels reads (see its layout comment), built once."""
-        P, A, S = self._p_count, self._a_count, self._s_count
-        f32 = lambda a: np.asarray(a, _F32).astype(np.float64)  # noqa: E731  values as the float32 code held them
-        pt = np.zeros((P, lk.PT_FIELDS))
-        if P:
-            pt[:, lk.PT_X:lk.PT_Z + 1] = self._p_pos
-            pt[:, lk.PT_R:lk.PT_B + 1] = self._p_rad
-            pt[:, lk.PT_RADIUS] = self._p_radius
-            pt[:, lk.PT_SPHERE] = self._p_sphere
-            pt[:, lk.PT_SPOT] = self._p_is_spot
-            pt[:, lk.PT_DX:lk.PT_DZ + 1] = self._p_dir
-            pt[:, lk.PT_COS_HALF] = f32(self._p_cos_half)
-            safe_w = np.where(self._p_width > 0, self._p_width, 1.0)
-            pt[:, lk.PT_INV_WIDTH] = np.where(self._p_width > 0, f32(1.0 / safe_w), 0.0)
-            pt[:, lk.PT_SEL] = self._p_sel
-            pt[:, lk.PT_UNIT] = self._p_unit
-            pt[:, lk.PT_CAM] = self._p_cam
-            pt[:, lk.PT_LIT] = np.any(self._p_rad > 0, axis=1)
-        ar = np.zeros((A, lk.AR_FIELDS))
-        if A:
-            for col, v in ((lk.AR_CX, self._a_c), (lk.AR_AXX, self._a_ax), (lk.AR_AYX, self._a_ay),
-                           (lk.AR_ZX, self._a_z), (lk.AR_NX, self._a_ng), (lk.AR_R, self._a_rad),
-                           (lk.AR_CX32, f32(self._a_c)), (lk.AR_AXX32, f32(self._a_ax)),
-                           (lk.AR_AYX32, f32(self._a_ay)), (lk.AR_NX32, f32(self._a_ng))):
-                ar[:, col:col + 3] = v
-            ar[:, lk.AR_LX], ar[:, lk.AR_LY] = self._a_lx, self._a_ly
-            ar[:, lk.AR_ELLIPSE] = self._a_ellipse
-            ar[:, lk.AR_AREA] = self._a_area
-            ar[:, lk.AR_TAN_HALF] = np.where(self._a_norm_spread > 0, self._a_tan_half, 0.0)
-            ar[:, lk.AR_NORM_SPREAD] = self._a_norm_spread
-            ar[:, lk.AR_SEL] = self._a_sel
-            ar[:, lk.AR_UNIT] = self._a_unit
-            ar[:, lk.AR_CAM] = self._a_cam
-            ar[:, lk.AR_LIT] = np.any(self._a_rad > 0, axis=1)
-            ar[:, lk.AR_SU32] = f32(2.0 / self._a_lx)
-            ar[:, lk.AR_SV32] = f32(2.0 / self._a_ly)
-        su = np.zeros((S, lk.SU_FIELDS))
-        if S:
-            su[:, lk.SU_DX:lk.SU_DZ + 1] = self._s_dir
-            su[:, lk.SU_R:lk.SU_B + 1] = self._s_rad
-            su[:, lk.SU_OMC] = self._s_omc
-            su[:, lk.SU_COS_HALF] = f32(self._s_cos_half)
-            su[:, lk.SU_SEL] = self._s_sel
-            su[:, lk.SU_UNIT] = self._s_unit
-            su[:, lk.SU_CAM] = self._s_cam
+    def kernel_table(self) -> np.ndarray:
+        su = np.zeros((len(self.one_minus_cos), lk.SU_FIELDS))
+        if len(self.one_minus_cos):
+            su[:, lk.SU_DX:lk.SU_DZ + 1] = self.to_sun
+            su[:, lk.SU_R:lk.SU_B + 1] = self.rad
+            su[:, lk.SU_OMC] = self.one_minus_cos
+            su[:, lk.SU_COS_HALF] = _f32(1.0 - self.one_minus_cos)
+            su[:, lk.SU_SEL] = self.sel
+            su[:, lk.SU_UNIT] = self.unit
+            su[:, lk.SU_CAM] = self.camera
+        return np.ascontiguousarray(su)
+
+
+@dataclass
+class _TriangleTable:
+    """The emissive triangles as core.light_kernels reads them: v0, e1, e2, normal, rad (3, E) float32
+    component-major; pdf_area (E,) float32 selection x 1 / area; sel (E,) share of the group's power; edge2 (E,)
+    longest edge squared; unit (E,) the group's unit; order, cdf, start: the spatial groups (group j's
+    triangles are order[start[j]:start[j + 1]], picked by power with the cdf values in [j, j + 1))."""
+
+    v0: np.ndarray
+    e1: np.ndarray
+    e2: np.ndarray
+    normal: np.ndarray
+    rad: np.ndarray
+    pdf_area: np.ndarray
+    sel: np.ndarray
+    edge2: np.ndarray
+    unit: np.ndarray
+    order: np.ndarray
+    cdf: np.ndarray
+    start: np.ndarray
+
+    @classmethod
+    def empty(cls) -> "_TriangleTable":
+        e3 = np.zeros((3, 0), _F32)
+        return cls(e3, e3, e3, e3, e3, np.zeros(0, _F32), np.zeros(0), np.zeros(0), np.zeros(0, np.int64),
+                   np.zeros(0, np.int64), np.zeros(0), np.zeros(1, np.int64))
+
+    def kernel_tables(self) -> tuple:
+        return (self.v0, self.e1, self.e2, self.normal, self.rad, self.pdf_area, np.ascontiguousarray(self.sel),
+                np.ascontiguousarray(self.edge2, np.float64), self.order, self.cdf, self.start)
+
+
+@dataclass
+class _Units:
+    """The selectable units of the per-point light selection (see the module docstring): table (K, UNIT_FIELDS)
+    float64 (core.light_kernels' columns), kind (K,) the light kind (core.light_kernels: TRI_GROUP, POINT, SPOT,
+    AREA, SUN, WORLD), local (K,) the light's row in its kind's table (the group for TRI_GROUP), fallback (K,)
+    the power shares."""
+
+    table: np.ndarray
+    kind: np.ndarray
+    local: np.ndarray
+    fallback: np.ndarray
+
+
+class _UnitBuilder:
+    """Collects the units one light (or triangle group) at a time."""
+
+    def __init__(self) -> None:
+        self.rows: list[np.ndarray] = []
+        self.kinds: list[int] = []
+        self.local: list[int] = []
+
+    def add(self, kind: int, index: int, power: float, **fields) -> int:
+        row = np.zeros(lk.UNIT_FIELDS)
+        row[lk.C_COS_O], row[lk.C_COS_E], row[lk.C_COS_U] = 1.0, -2.0, 1.0
+        for name, value in fields.items():
+            if name == "centre":
+                row[lk.C_X:lk.C_Z + 1] = value
+            elif name == "axis":
+                row[lk.C_AX:lk.C_AZ + 1] = value
+            else:
+                row[getattr(lk, "C_" + name.upper())] = value
+        row[lk.C_POWER] = power
+        self.rows.append(row)
+        self.kinds.append(kind)
+        self.local.append(index)
+        return len(self.rows) - 1
+
+    def units(self) -> _Units:
+        K = len(self.rows)
+        table = np.ascontiguousarray(np.asarray(self.rows, np.float64).reshape(K, lk.UNIT_FIELDS))
+        pw = table[:, lk.C_POWER].copy()
+        total = float(pw.sum()) if K else 0.0
+        lit = bool(K and total > 0 and np.isfinite(total))
+        return _Units(table, np.asarray(self.kinds, np.int64), np.asarray(self.local, np.int64),
+                      np.ascontiguousarray(pw / total if lit else pw, np.float64))
+
+
+def _selectable(power) -> bool:
+    return bool(np.isfinite(power) and power > 0)
+
+
+# ------------------------------------------------------------------------------------------------ the sampler
+class LightSampler:
+    """Selects one emitter per shading point by power and samples it; evaluates the lights BSDF rays pass.
+
+    See the module docstring for the units and the selection heuristic. Public attributes: `has_lights`,
+    `kinds_present` (subset of {"triangle", "point", "spot", "sun", "area", "world"}), `triangles`
+    (EmissiveTriangles or None), `world_radiance` ((3,) float32, zeros when black), `shift`, `scene_radius`.
+    `has_emission` (has_lights, or a lit world that `intersect` returns).
+    sample_world=False leaves the world out of light selection, as Cycles does for a world without spatial
+    variation (`test_enabled_lights`: background MIS off without portals or a varying shader): BSDF sampling
+    then finds it alone, with MIS weight 1, and `intersect` still returns it. The world is uniform here, so its
+    light samples (cosine-distributed about n) only duplicate a diffuse BSDF's own samples while taking
+    selections, and shadow rays, from the other lights.
+    Work scales with N times the number of analytic lights in `intersect`, and with N in `sample`."""
+
+    def __init__(self, scene: Scene, shift: np.ndarray, emissive_triangles: EmissiveTriangles | None,
+                 scene_radius: float, sample_world: bool = True):
+        shift = np.asarray(shift, dtype=np.float64).reshape(3)
+        R = float(scene_radius) if np.isfinite(scene_radius) and scene_radius > 0 else 1.0
+        self.shift = shift
+        self.scene_radius = R
+        tris = emissive_triangles if (emissive_triangles is not None and emissive_triangles.count) else None
+        self.triangles = tris
+
+        self._punctual = _PunctualLights.from_lights(
+            [lt for lt in scene.lights if isinstance(lt, (PointLight, SpotLight))], shift)
+        self._areas = _AreaLights.from_lights([lt for lt in scene.lights if isinstance(lt, AreaLight)], shift)
+        self._suns = _SunLights.from_lights([lt for lt in scene.lights if isinstance(lt, SunLight)], R)
+        wc = np.asarray(scene.world.color, dtype=np.float64).reshape(-1)
+        wc = np.repeat(wc, 3) if wc.size == 1 else wc
+        self.world_radiance = wc.astype(_F32)
+        # Flux through the scene's cross-section disc, as for the sun: irradiance pi L on a disc of area pi R^2
+        # (not into the whole bounding sphere: that picked the world 4x too often, see docs/lights.md).
+        world_power = float(luminance(wc)) * math.pi ** 2 * R * R
+
+        # The selectable units (see the module docstring): a few spatial groups of emissive triangles, each
+        # analytic light, the world. Zero power is left out (never selected).
+        builder = _UnitBuilder()
+        self._tri_table = self._triangle_units(builder, tris)
+        self._punctual_units(builder)
+        self._area_units(builder)
+        self._sun_units(builder, R)
+        self._world_sel, self._world_unit = 0.0, -1
+        if _selectable(world_power) and sample_world:
+            self._world_unit = builder.add(lk.WORLD, 0, world_power,
+                                           intensity=_WORLD_IMPORTANCE * world_power / (math.pi * R * R))
+            self._world_sel = 1.0
+        self._units = builder.units()
+        pw = self._units.table[:, lk.C_POWER]
+        self.has_lights = bool(pw.size and pw.sum() > 0 and np.isfinite(pw.sum()))
+        # one unit: probability 1 everywhere, no per-point work
+        self._per_point = pw.size > 1
+
+        self.kinds_present = frozenset(_KIND_NAMES[int(k)] for k in np.unique(self._units.kind))
+        # Something a ray can reach: a selectable light, or a lit world that is not sampled (MIS weight 1).
+        self.has_emission = bool(self.has_lights or np.any(self.world_radiance > 0))
+        # The world and the inside of sphere lights are sampled about the normal given to `sample`; `intersect`
+        # then needs the same normal for MIS (checked, since a mismatch would bias silently).
+        # With more than one unit the selection itself depends on n and on the transmission flag.
+        self._n_matters = bool(self._world_sel > 0 or np.any(self._punctual.sphere & (self._punctual.sel > 0))
+                               or self._per_point)
+        self._sampled_about_n = False
+        self._sampled_with_transmits = False
+        self._tables = self._kernel_tables()
+
+    # ---------------------------------------------------------------------------------------- construction
+    def _triangle_units(self, builder: _UnitBuilder, tris: EmissiveTriangles | None) -> _TriangleTable:
+        """A unit per spatial group of emissive triangles; inside a group a triangle is picked by power."""
+        if tris is None:
+            return _TriangleTable.empty()
+        E = tris.count
+        sel = np.zeros(E)
+        unit = np.full(E, -1, np.int64)
+        t_power = tris.power
+        order, cdf, starts = [], [], [0]
+        for members in _cluster_emitters(tris):
+            members = members[np.isfinite(t_power[members]) & (t_power[members] > 0)]
+            gp = float(t_power[members].sum())
+            if not _selectable(gp):
+                continue
+            v = tris.vertices[members].astype(np.float64).reshape(-1, 3)
+            lo, hi = v.min(axis=0), v.max(axis=0)
+            nrm = tris.normal[members].astype(np.float64)
+            # normal cone of a two-sided group: the principal normal direction and the widest deviation
+            axis = np.linalg.eigh(nrm.T @ nrm)[1][:, -1]
+            cos_o = float(np.clip(np.abs(nrm @ axis).min(), 0.0, 1.0))
+            u = builder.add(lk.TRI_GROUP, len(order), gp, centre=0.5 * (lo + hi),
+                            radius=0.5 * float(np.linalg.norm(hi - lo)), axis=axis, cos_o=cos_o,
+                            sin_o=math.sqrt(max(1.0 - cos_o * cos_o, 0.0)), intensity=gp / _TWO_PI)
+            share = t_power[members] / gp
+            sel[members] = share
+            unit[members] = u
+            c = np.cumsum(share)
+            c[-1] = 1.0
+            order.append(members)
+            cdf.append(len(order) - 1 + c)  # group j occupies [j, j + 1)
+            starts.append(starts[-1] + members.size)
+        # component-major copies for gathers, and selection x area pdf
+        v = tris.vertices.astype(np.float32)
+        edges = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 1], v[:, 0] - v[:, 2]], axis=1).astype(np.float64)
+        empty = _TriangleTable.empty()
+        return _TriangleTable(
+            v0=_cm(v[:, 0]), e1=_cm(v[:, 1] - v[:, 0]), e2=_cm(v[:, 2] - v[:, 0]), normal=_cm(tris.normal),
+            rad=_cm(tris.emission), pdf_area=(sel / tris.area).astype(_F32), sel=sel,
+            edge2=(edges * edges).sum(axis=2).max(axis=1), unit=unit,
+            order=np.concatenate(order).astype(np.int64) if order else empty.order,
+            cdf=np.concatenate(cdf) if order else empty.cdf,
+            start=np.asarray(starts, np.int64) if order else empty.start)
+
+    def _punctual_units(self, builder: _UnitBuilder) -> None:
+        lights = self._punctual
+        n = len(lights.radius)
+        lights.sel, lights.unit = np.zeros(n), np.full(n, -1, np.int64)
+        for i in range(n):
+            if not _selectable(lights.selection_power[i]):
+                continue
+            spot = bool(lights.spot[i])
+            lights.unit[i] = builder.add(lk.SPOT if spot else lk.POINT, i, float(lights.selection_power[i]),
+                                         centre=lights.pos[i].astype(np.float64), radius=float(lights.radius[i]),
+                                         axis=lights.direction[i].astype(np.float64),
+                                         cos_e=float(lights.cos_half[i]) if spot else -2.0,
+                                         intensity=float(luminance(lights.power[i])) * _INV_4PI)
+            lights.sel[i] = 1.0
+
+    def _area_units(self, builder: _UnitBuilder) -> None:
+        lights = self._areas
+        n = len(lights.area)
+        lights.sel, lights.unit = np.zeros(n), np.full(n, -1, np.int64)
+        for i in range(n):
+            if not _selectable(lights.selection_power[i]):
+                continue
+            half = 0.5 * math.hypot(lights.size_x[i], lights.size_y[i]) if not lights.ellipse[i] else \
+                0.5 * max(lights.size_x[i], lights.size_y[i])
+            lambert = lights.norm_spread[i] <= 0
+            lights.unit[i] = builder.add(lk.AREA, i, float(lights.selection_power[i]), centre=lights.centre[i],
+                                         radius=half, axis=lights.normal[i],
+                                         cos_e=0.0 if lambert else 1.0 / math.sqrt(1.0 + lights.tan_half[i] ** 2),
+                                         tan_half=0.0 if lambert else float(lights.tan_half[i]),
+                                         norm_spread=float(lights.norm_spread[i]),
+                                         intensity=float(lights.selection_power[i]) * _INV_PI)
+            lights.sel[i] = 1.0
+
+    def _sun_units(self, builder: _UnitBuilder, R: float) -> None:
+        lights = self._suns
+        n = len(lights.one_minus_cos)
+        lights.sel, lights.unit = np.zeros(n), np.full(n, -1, np.int64)
+        for i in range(n):
+            if not _selectable(lights.selection_power[i]):
+                continue
+            cos_u = 1.0 - float(lights.one_minus_cos[i])
+            lights.unit[i] = builder.add(lk.SUN, i, float(lights.selection_power[i]),
+                                         axis=lights.to_sun[i].astype(np.float64), cos_u=cos_u,
+                                         sin_u=math.sqrt(max(1.0 - cos_u * cos_u, 0.0)),
+                                         intensity=float(lights.selection_power[i]) / (math.pi * R * R))
+            lights.sel[i] = 1.0
+
+    def _kernel_tables(self) -> tuple:
+        """The tuple core.light_kernels reads (see its layout comment), built once."""
         world = np.zeros(lk.W_FIELDS)
         world[lk.W_R:lk.W_B + 1] = self.world_radiance
-        world[lk.W_SEL], world[lk.W_UNIT] = self._w_sel, self._w_unit
+        world[lk.W_SEL], world[lk.W_UNIT] = self._world_sel, self._world_unit
         world[lk.W_LIT] = bool(np.any(self.world_radiance > 0))
-        if self.triangles is not None:
-            tri = (self._t_v0, self._t_e1, self._t_e2, self._t_n, self._t_L, self._t_pdf_area,
-                   np.ascontiguousarray(self._t_sel, np.float64), np.ascontiguousarray(self._t_edge2, np.float64))
-        else:
-            e3 = np.zeros((3, 0), _F32)
-            tri = (e3, e3, e3, e3, e3, np.zeros(0, _F32), np.zeros(0), np.zeros(0))
-        groups = (getattr(self, "_g_order", np.zeros(0, np.int64)), getattr(self, "_g_cdf", np.zeros(0)),
-                  getattr(self, "_g_start", np.zeros(1, np.int64)))
-        self._tables = (self._u_table, self._u_kind, self._u_kind5.astype(np.int64), self._u_local,
-                        np.ascontiguousarray(self._u_fallback, np.float64), float(SELECTION_POWER_FLOOR),
-                        np.ascontiguousarray(pt), np.ascontiguousarray(ar), np.ascontiguousarray(su), world,
-                        *tri, *groups, np.ascontiguousarray(self._t_unit, np.int64))
+        u = self._units
+        return (u.table, u.kind, u.local, u.fallback, float(SELECTION_POWER_FLOOR),
+                self._punctual.kernel_table(), self._areas.kernel_table(), self._suns.kernel_table(), world,
+                *self._tri_table.kernel_tables(), np.ascontiguousarray(self._tri_table.unit, np.int64))
 
     def _scratch(self) -> np.ndarray:
         """Per-call scratch for the kernels' per-point selection probabilities (K,) (calls may run in threads)."""
-        return np.empty(max(self._u_kind.size, 1))
+        return np.empty(max(self._units.kind.size, 1))
 
     # -------------------------------------------------------------------------------------------- sampling
     def sample(self, p: np.ndarray, n: np.ndarray | None, u_select: np.ndarray, u: np.ndarray,
@@ -691,8 +721,8 @@ class LightSampler:
         if not self._per_point:
             return (which >= 0).astype(np.float64)
         out = np.empty(M)
-        lk.probability(pr, *self._n_t_args(nr, tc), np.ascontiguousarray(which), self._u_table, self._u_kind,
-                       self._u_fallback, SELECTION_POWER_FLOOR, self._scratch(), out)
+        lk.probability(pr, *self._n_t_args(nr, tc), np.ascontiguousarray(which), self._units.table,
+                       self._units.kind, self._units.fallback, SELECTION_POWER_FLOOR, self._scratch(), out)
         return out
 
     def selection_probabilities(self, p: np.ndarray, n: np.ndarray | None = None,
@@ -703,16 +733,12 @@ class LightSampler:
         N = pr.shape[0]
         nr = _rows(n, N) if n is not None and self._n_matters else None
         tc = self._transmits(transmits, N, nr)
-        names = {_KIND_TRI: "triangles", _KIND_AREA: "area", _KIND_SUN: "sun"}
         out = {}
-        for k in range(self._u_kind.size):
-            k5, i = int(self._u_kind5[k]), int(self._u_local[k])
-            if k5 == _KIND_WORLD:
-                name = "world"
-            elif k5 == _KIND_PUNCT:
-                name = f"{'spot' if self._p_is_spot[i] else 'point'} {i}"
-            else:
-                name = f"{names[k5]} {i}"
+        for k in range(self._units.kind.size):
+            kind, i = int(self._units.kind[k]), int(self._units.local[k])
+            name = "world" if kind == lk.WORLD else "triangles" if kind == lk.TRI_GROUP else _KIND_NAMES[kind]
+            if kind != lk.WORLD:
+                name = f"{name} {i}"
             out[name] = self._unit_probability(k, pr, nr, tc)
         return out
 

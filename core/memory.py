@@ -3,7 +3,7 @@
 The estimate (bytes), measured on this renderer (see docs/stress.md for the calibration):
 
     total = pixels x (FILM_BYTES [+ FILM_AOV_BYTES] + RESULT_BYTES [+ RESULT_AOV_BYTES])
-          + threads x min(batch, pixels x spp) x PATH_BYTES      (batch: core.render.batch_target)
+          + threads x min(batch, pixels x spp) x PATH_BYTES      (batch: core.schedule.batch_target)
           + triangles x TRIANGLE_BYTES + texels x TEXEL_BYTES
 
 - film: per pixel, for each of the 4 variance groups a float64 RGB sum and an int32 count (4 x 28 B), and a
@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .scene import Scene
+from .schedule import batch_target
 from .settings import RenderSettings
 
 FILM_BYTES = 136  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
@@ -74,9 +75,7 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     aovs = bool(settings.aovs)
     film = pixels * (FILM_BYTES + (FILM_AOV_BYTES if aovs else 0))
     result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0))
-    # every worker thread traces one batch at a time (see core.render.batch_target)
-    from .render import batch_target
-
+    # every worker thread traces one batch at a time (see core.schedule.batch_target)
     total_paths = pixels * max(int(settings.spp), 0)
     paths = min(batch_target(settings, total_paths), total_paths) * settings.thread_count
     texels = sum(int(t.pixels.shape[0]) * int(t.pixels.shape[1]) for t in scene.textures)

@@ -60,7 +60,3 @@ def mean_pixel_variance(variance_of_mean: np.ndarray) -> dict[str, float]:
     return {"R": float(v[:, 0].mean()), "G": float(v[:, 1].mean()), "B": float(v[:, 2].mean()),
             "luma": float((v @ (BT709 * BT709)).mean())}
 
-
-def efficiency(seconds: float, mse: float) -> float:
-    """The seed's efficiency 1 / (T x V), with the MSE against a reference standing in for V."""
-    return 1.0 / (seconds * mse) if seconds > 0 and mse > 0 else float("inf")

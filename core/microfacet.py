@@ -2,9 +2,9 @@
 
 Rendering evaluates and samples the model in compiled scalar code (core.bsdf_kernels: `microfacet_eval`,
 `sample_vndf`, `refract`, the Fresnel terms, the table lookups). This module holds the tables (`tables`,
-`ggx_E`, `ggx_Eavg`) and their generator; the NumPy primitives below (`ggx_lambda`, `fresnel_dielectric`,
-`sample_vndf`, `refract`) are vectorised over 1-D arrays of direction components in the local shading frame
-(normal = +z, view direction wo in the upper hemisphere) and serve the generator, which integrates in float64.
+`ggx_E`, `ggx_Eavg`) and their generator, which integrates in float64 with the same compiled functions the
+renderer runs; `fresnel_dielectric` and `sample_vndf` here are those functions over arrays (local shading frame:
+normal = +z, view direction wo in the upper hemisphere).
 
 Model (what Cycles' `bsdf_microfacet.h` does since Blender 4.0, re-derived from the papers):
   - Isotropic GGX / Trowbridge-Reitz NDF, alpha = roughness^2, height-correlated Smith masking-shadowing
@@ -39,9 +39,9 @@ from pathlib import Path
 import numpy as np
 
 from . import bsdf_kernels as bk
+from .jit_cache import jit
 
 F32 = np.float32
-TWO_PI = F32(2.0 * math.pi)
 # Cycles treats a microfacet lobe as singular (a delta) when alpha_x * alpha_y <= 5e-7.
 SINGULAR_ALPHA2 = 5e-7
 SINGULAR_ROUGHNESS = SINGULAR_ALPHA2**0.25  # 0.0266: roughness at or below this is a perfect mirror / smooth glass
@@ -51,62 +51,43 @@ GGX_N = 32  # ggx_E is GGX_N x GGX_N (mu, rough)
 GLASS_N = 16  # glass_E is GLASS_N^3 (z, mu, rough)
 
 
-# ------------------------------------------------------------------------------------------ GGX primitives
-def ggx_lambda(alpha2: np.ndarray, cos_w: np.ndarray) -> np.ndarray:
-    """Smith Lambda for GGX; symmetric in the sign of cos_w; +inf at grazing (cos_w = 0)."""
-    c2 = cos_w * cos_w
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tan2 = np.maximum((1.0 - c2) / c2, 0.0)
-    return 0.5 * (np.sqrt(1.0 + alpha2 * tan2) - 1.0)
+# ------------------------------------------------------------------- the compiled GGX and Fresnel, batched
+# The model's functions exist once, compiled, in core.bsdf_kernels (what the renderer runs); these batch forms let
+# the table generator, tools and tests call that same code on arrays.
+@jit
+def _fresnel_dielectric_batch(cos_i, eta, out):
+    for k in range(out.shape[0]):
+        out[k] = bk.fresnel_dielectric(cos_i[k], eta[k])
 
 
-def fresnel_dielectric(cos_i: np.ndarray, eta: np.ndarray) -> np.ndarray:
-    """Exact unpolarised dielectric Fresnel reflectance.
-
-    cos_i >= 0: cosine of the angle between the incident direction and the (micro)normal on the incident side;
-    eta = n_transmitted / n_incident. Returns 1 under total internal reflection."""
-    c = np.abs(cos_i)
-    g2 = eta * eta - 1.0 + c * c
-    g = np.sqrt(np.maximum(g2, 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a = (g - c) / (g + c)
-        b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
-        f = 0.5 * a * a * (1.0 + b * b)
-    f = np.where(g2 > 0.0, f, 1.0)
-    return np.nan_to_num(f, nan=0.0).astype(np.result_type(cos_i, F32), copy=False)
+@jit
+def _sample_vndf_batch(ox, oy, oz, alpha, u1, u2, out):
+    for k in range(out.shape[0]):
+        out[k, 0], out[k, 1], out[k, 2] = bk.sample_vndf(ox[k], oy[k], oz[k], alpha[k], u1[k], u2[k])
 
 
-def sample_vndf(ox, oy, oz, alpha, u1, u2):
-    """Sample a microfacet normal h from the GGX distribution of normals visible from wo (oz > 0).
-
-    Spherical-cap visible-normal sampling (Dupuy & Benyoub 2023). Returns (hx, hy, hz) with hz >= 0."""
-    vx = alpha * ox
-    vy = alpha * oy
-    inv = 1.0 / np.sqrt(vx * vx + vy * vy + oz * oz)
-    vx *= inv
-    vy *= inv
-    vz = oz * inv
-    phi = TWO_PI * u1
-    z = (1.0 - u2) * (1.0 + vz) - vz
-    s = np.sqrt(np.clip(1.0 - z * z, 0.0, 1.0))
-    hx = (s * np.cos(phi) + vx) * alpha
-    hy = (s * np.sin(phi) + vy) * alpha
-    hz = np.maximum(z + vz, 0.0)
-    inv = 1.0 / np.maximum(np.sqrt(hx * hx + hy * hy + hz * hz), 1e-30)
-    return hx * inv, hy * inv, hz * inv
+def _columns(*values) -> list[np.ndarray]:
+    """The arguments broadcast against each other as contiguous float64 1-D arrays."""
+    arrays = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, np.float64)) for v in values))
+    return [np.array(a, np.float64).ravel() for a in arrays]  # copies: numba wants writeable arrays
 
 
-def refract(ox, oy, oz, hx, hy, hz, eta):
-    """Refract wo (pointing away from the surface, wo.h > 0) through microfacet h; eta = n_t / n_i.
+def fresnel_dielectric(cos_i, eta) -> np.ndarray:
+    """core.bsdf_kernels.fresnel_dielectric (exact unpolarised dielectric Fresnel; eta = n_t / n_i, 1 under total
+    internal reflection) of each element of the broadcast arguments: float64 (n,)."""
+    c, e = _columns(cos_i, eta)
+    out = np.empty(len(c))
+    _fresnel_dielectric_batch(c, e, out)
+    return out
 
-    Returns (ix, iy, iz, tir) with the transmitted direction pointing away on the other side."""
-    c = ox * hx + oy * hy + oz * hz
-    inv_eta = 1.0 / eta
-    s2t = (1.0 - c * c) * (inv_eta * inv_eta)
-    tir = s2t >= 1.0
-    ct = np.sqrt(np.maximum(1.0 - s2t, 0.0))
-    k = c * inv_eta - ct
-    return -ox * inv_eta + k * hx, -oy * inv_eta + k * hy, -oz * inv_eta + k * hz, tir
+
+def sample_vndf(ox, oy, oz, alpha, u1, u2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """core.bsdf_kernels.sample_vndf (a GGX visible normal h for wo, hz >= 0) of each element of the broadcast
+    arguments: (hx, hy, hz), float64 (n,) each."""
+    cols = _columns(ox, oy, oz, alpha, u1, u2)
+    out = np.empty((len(cols[0]), 3))
+    _sample_vndf_batch(*cols, out)
+    return out[:, 0], out[:, 1], out[:, 2]
 
 
 # ------------------------------------------------------------------------------------------------- tables
@@ -150,38 +131,65 @@ def _quadrature_grid(rough, n_u):
     """The midpoint n_u x n_u grid (u1, u2) of the 2-D VNDF sample space the table generators average over, and
     GGX alpha = roughness^2 (at least 1e-8) per cell."""
     g = (np.arange(n_u) + 0.5) / n_u
-    u1, u2 = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    u1, u2 = (np.ascontiguousarray(a.ravel()) for a in np.meshgrid(g, g, indexing="ij"))
     return u1, u2, np.maximum(rough, 1e-4) ** 2
 
 
-def _single_scatter_albedo(rough, mu, eta, n_u, glass):
-    """Mean of the single-scatter sampling weight over a midpoint n_u x n_u grid of the 2-D sample space
-    (for glass the reflect/refract choice with probability F is integrated analytically).
-    rough, mu, eta: 1-D float64 arrays of cells. Returns E per cell (float64)."""
-    u1, u2, alpha = _quadrature_grid(rough, n_u)
-    out = np.empty(len(rough))
-    for c in range(len(rough)):
+@jit
+def _single_scatter_albedo_cells(alpha, mu, eta, u1, u2, glass, out):
+    """out[c] = the mean single-scatter sampling weight of cell c over the sample grid (u1, u2); for glass the
+    reflect/refract choice with probability F is integrated analytically."""
+    for c in range(out.shape[0]):
         a, m, e = alpha[c], mu[c], eta[c]
         # singular: a delta lobe, and Cycles makes transmission with |eta - 1| < 1e-4 singular too
         if a * a <= SINGULAR_ALPHA2 or (glass and abs(e - 1.0) < 1e-4):
             out[c] = 1.0
             continue
         ox, oy, oz = math.sqrt(1.0 - m * m), 0.0, m
-        hx, hy, hz = sample_vndf(ox, oy, oz, a, u1, u2)
         a2 = a * a
-        lam_o = ggx_lambda(a2, oz)
-        c_oh = ox * hx + oy * hy + oz * hz
-        # reflection
-        iz_r = 2.0 * c_oh * hz - oz
-        w_r = np.where(iz_r > 0.0, (1.0 + lam_o) / (1.0 + lam_o + ggx_lambda(a2, iz_r)), 0.0)
-        if not glass:
-            out[c] = w_r.mean()
-            continue
-        f = fresnel_dielectric(c_oh, e)
-        _, _, iz_t, tir = refract(ox, oy, oz, hx, hy, hz, e)
-        w_t = np.where((iz_t < 0.0) & ~tir, (1.0 + lam_o) / (1.0 + lam_o + ggx_lambda(a2, iz_t)), 0.0)
-        out[c] = (f * w_r + (1.0 - f) * w_t).mean()
-    return np.clip(out, 0.0, 1.0)
+        lam_o = bk.ggx_lambda(a2, oz)
+        total = 0.0
+        for k in range(u1.shape[0]):
+            hx, hy, hz = bk.sample_vndf(ox, oy, oz, a, u1[k], u2[k])
+            c_oh = ox * hx + oy * hy + oz * hz
+            iz_r = 2.0 * c_oh * hz - oz
+            w_r = (1.0 + lam_o) / (1.0 + lam_o + bk.ggx_lambda(a2, iz_r)) if iz_r > 0.0 else 0.0
+            if not glass:
+                total += w_r
+                continue
+            f = bk.fresnel_dielectric(c_oh, e)
+            _, _, iz_t, tir = bk.refract(ox, oy, oz, hx, hy, hz, e)
+            w_t = (1.0 + lam_o) / (1.0 + lam_o + bk.ggx_lambda(a2, iz_t)) if iz_t < 0.0 and not tir else 0.0
+            total += f * w_r + (1.0 - f) * w_t
+        out[c] = min(max(total / u1.shape[0], 0.0), 1.0)
+
+
+@jit
+def _gen_schlick_s_cells(alpha, mu, eta, u1, u2, out):
+    """out[c] = the mean over the sample grid of the generalized-Schlick remap of cell c (0 below the horizon)."""
+    for c in range(out.shape[0]):
+        a, m, e = alpha[c], mu[c], eta[c]
+        ox, oy, oz = math.sqrt(1.0 - m * m), 0.0, m
+        f0 = ((e - 1.0) / (e + 1.0)) ** 2
+        singular = a * a <= SINGULAR_ALPHA2  # a mirror: h = n for every sample
+        total = 0.0
+        for k in range(u1.shape[0]):
+            hx, hy, hz = (0.0, 0.0, 1.0) if singular else bk.sample_vndf(ox, oy, oz, a, u1[k], u2[k])
+            c_oh = ox * hx + oy * hy + oz * hz
+            if 2.0 * c_oh * hz - oz > 0.0:
+                total += min(max((bk.fresnel_dielectric(c_oh, e) - f0) / (1.0 - f0), 0.0), 1.0)
+        out[c] = min(max(total / u1.shape[0], 0.0), 1.0)
+
+
+def _single_scatter_albedo(rough, mu, eta, n_u, glass):
+    """Mean of the single-scatter sampling weight over a midpoint n_u x n_u grid of the 2-D sample space, the
+    compiled GGX sampler and weights (core.bsdf_kernels) per cell. rough, mu, eta: 1-D float64 arrays of cells.
+    Returns E per cell (float64)."""
+    u1, u2, alpha = _quadrature_grid(rough, n_u)
+    alpha, mu, eta = _columns(alpha, mu, eta)
+    out = np.empty(len(alpha))
+    _single_scatter_albedo_cells(alpha, mu, eta, u1, u2, bool(glass), out)
+    return out
 
 
 def _gen_schlick_s(rough, mu, eta, n_u):
@@ -190,20 +198,10 @@ def _gen_schlick_s(rough, mu, eta, n_u):
     `precompute_ggx_gen_schlick_s` with exponent -1: the eval ratio of an f0 = 0 and an f0 = 1 lobe, so neither the
     masking weight nor the lobe energy enters). rough, mu, eta: 1-D float64 arrays of cells."""
     u1, u2, alpha = _quadrature_grid(rough, n_u)
-    out = np.empty(len(rough))
-    for c in range(len(rough)):
-        a, m, e = alpha[c], mu[c], eta[c]
-        ox, oy, oz = math.sqrt(1.0 - m * m), 0.0, m
-        f0 = ((e - 1.0) / (e + 1.0)) ** 2
-        if a * a <= SINGULAR_ALPHA2:  # a mirror: h = n
-            hx, hy, hz = np.zeros(1), np.zeros(1), np.ones(1)
-        else:
-            hx, hy, hz = sample_vndf(ox, oy, oz, a, u1, u2)
-        c_oh = ox * hx + oy * hy + oz * hz
-        iz = 2.0 * c_oh * hz - oz
-        s = np.clip((fresnel_dielectric(c_oh, e) - f0) / (1.0 - f0), 0.0, 1.0)
-        out[c] = np.where(iz > 0.0, s, 0.0).mean()
-    return np.clip(out, 0.0, 1.0)
+    alpha, mu, eta = _columns(alpha, mu, eta)
+    out = np.empty(len(alpha))
+    _gen_schlick_s_cells(alpha, mu, eta, u1, u2, out)
+    return out
 
 
 def compute_gen_schlick_table(n_u: int = 128) -> np.ndarray:

@@ -1,23 +1,42 @@
-"""Render orchestration: tiles x sample batches, progress, cancel, and the result images.
+"""Render orchestration: a scene and settings in, tiles, progress and the finished image out.
 
-Image convention for every array here: row 0 is the TOP of the image, shape (height, width, channels).
-(Blender's render result wants row 0 at the bottom: the add-on flips.)
+`render()` checks its inputs, prepares the scene (flattened triangles, the Embree scene), then runs the batches of
+paths core.schedule cuts the work into on worker threads, accumulating each batch into its tiles' films in the
+order the batches were queued, and assembles the result. Image convention for every array here: row 0 is the TOP
+of the image, shape (height, width, channels). (Blender's render result wants row 0 at the bottom: the add-on
+flips.)
 """
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Callable
 
 import numpy as np
 
-from .kernels import compile_cache_is_cold
+from .accel import Accelerator
+from .camera import camera_rays
+from .film import TileFilm
+from .filters import PixelFilter
+from .integrator import DIM_FILM, PathStats, PathTracer, PreparedScene
+from .jit_cache import compile_cache_is_cold
+from .memory import check_render_memory
+from .sampling import VARIANCE_GROUPS, make_sampler
 from .scene import Scene
+from .schedule import (Segment, TileRect, adaptive_batch_target, batch_target, pass_segments, sample_passes,
+                       tiles)
 from .settings import RenderSettings
+
+try:
+    import resource
+except ImportError:  # not on Windows
+    resource = None
 
 
 @dataclass
@@ -89,43 +108,6 @@ TileCallback = Callable[[Tile], None]
 CancelCallback = Callable[[], bool]
 
 
-def _tiles(x0: int, y0: int, w: int, h: int, size: int) -> list[tuple[int, int, int, int]]:
-    """Tiles (x, y, w, h) covering the region, row by row from the top."""
-    return [(x, y, min(size, x0 + w - x), min(size, y0 + h - y))
-            for y in range(y0, y0 + h, size) for x in range(x0, x0 + w, size)]
-
-
-_MIN_BATCH = 1 << 14  # paths: below this NumPy's per-call overhead dominates a batch
-
-
-def batch_target(settings: RenderSettings, total_paths: int) -> int:
-    """Paths per batch for a render of total_paths paths: settings.batch_paths, or fewer so that a small render
-    still makes 8 batches for the worker threads to share (but never fewer than _MIN_BATCH paths)."""
-    return max(1, min(settings.batch_paths, max(_MIN_BATCH, -(-total_paths // 8))))
-
-
-@dataclass
-class Segment:
-    """Part of a batch: samples [sample_end - count, sample_end) of some pixels of one tile. loc: tile-local
-    pixel index per path; smp: sample index per path; last_chunk: the last segment of this tile's pass."""
-
-    tile_index: int
-    tile: tuple[int, int, int, int]
-    loc: np.ndarray
-    smp: np.ndarray
-    sample_end: int
-    last_chunk: bool
-
-
-def _peak_memory_mb() -> float:
-    try:
-        import resource
-
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    except (ImportError, OSError):  # not on Windows
-        return float("nan")
-
-
 def render(
     scene: Scene,
     settings: RenderSettings,
@@ -154,16 +136,24 @@ def render(
     the image does not depend on the thread count. adaptive_threshold > 0 turns on adaptive sampling.
     tile_order: a permutation of the tile list (for testing that images don't depend on it).
     """
-    from .accel import Accelerator
-    from .camera import camera_rays
-    from .film import TileFilm
-    from .filters import PixelFilter
-    from .integrator import DIM_FILM, PathStats, PathTracer, PreparedScene
-    from .sampling import VARIANCE_GROUPS, make_sampler
-
-    settings.validate()
     t_start = time.perf_counter()
-    say = log or (lambda _msg: None)
+    say = log or _silent
+    region = _check_inputs(scene, settings, region, say)
+    prepared, accel, t_prepare = _prepare(scene, settings, say)
+    job = _TileRender(scene, settings, prepared, accel, region, tile_order, t_start,
+                      on_tile, on_progress, should_cancel)
+    job.run()
+    return job.result(t_prepare, say)
+
+
+def _silent(_msg: str) -> None:
+    pass
+
+
+def _check_inputs(scene: Scene, settings: RenderSettings, region, say) -> TileRect:
+    """Validate the settings, the scene and the region (the whole frame when None), and refuse a render that
+    would not fit in memory (a clear error instead of an out-of-memory kill). Returns the region."""
+    settings.validate()
     if compile_cache_is_cold():
         say("compiling the render kernels (first render after an install or update, about a minute; cached after)")
     scene.validate()
@@ -173,257 +163,277 @@ def render(
     rx, ry, rw, rh = (int(v) for v in region)
     if rw < 1 or rh < 1 or rx < 0 or ry < 0 or rx + rw > width or ry + rh > height:
         raise ValueError(f"render region {region} is not inside the {width}x{height} frame")
-    # Issue 6: estimate memory before allocating anything; a clear error instead of an out-of-memory kill.
-    from .memory import check_render_memory
     check_render_memory(scene, settings, rw * rh)
+    return rx, ry, rw, rh
 
+
+def _prepare(scene: Scene, settings: RenderSettings, say) -> tuple[PreparedScene, Accelerator, float]:
+    """The scene flattened for rendering and its ray-casting structure; (prepared, accel, seconds taken)."""
     t0 = time.perf_counter()
     prepared = PreparedScene.build(scene, sample_world=settings.light_sampling == "light")
-    # Parallelism is across batches (see below), so each Embree call runs on the worker that makes it.
+    # Parallelism is across batches (see _TileRender), so each Embree call runs on the worker that makes it.
     accel = Accelerator(prepared.vertices, prepared.triangles)
     t_prepare = time.perf_counter() - t0
     for w in scene.warnings:
         say(f"warning: {w}")
     say(f"scene {scene.name}: {len(prepared.triangles)} triangles, features {prepared.features}, "
         f"prepared in {t_prepare:.2f} s")
+    return prepared, accel, t_prepare
 
-    sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
-    pixel_filter = PixelFilter(settings.filter_type, settings.filter_width)
-    tiles = _tiles(rx, ry, rw, rh, settings.tile_size)
-    if tile_order is not None:
-        if sorted(tile_order) != list(range(len(tiles))):
-            raise ValueError("tile_order must be a permutation of the tile indices")
-        tiles = [tiles[i] for i in tile_order]
-    films = {t: TileFilm(t[2], t[3], settings.aovs, sampler) for t in tiles}
 
-    spp = int(settings.spp)
-    total_paths = spp * rw * rh
-    done_paths = 0
-    cancelled = False
-    samples_started = np.zeros(len(tiles), np.int64)
-    pixels_converged = np.zeros(len(tiles), np.int64)  # adaptive sampling: pixels that stopped early
-    largest_batch = 0  # paths in the largest batch traced (memory scales with it, times the worker threads)
+def _peak_memory_mb() -> float:
+    if resource is None:
+        return float("nan")
+    try:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    except OSError:
+        return math.nan
 
-    def progress(tiles_done: int, sample: int) -> None:
-        if on_progress is None:
-            return
-        elapsed = time.perf_counter() - t_start
-        rays = accel.rays_closest + accel.rays_shadow
-        frac = done_paths / total_paths if total_paths else 1.0
-        eta = elapsed * (1 - frac) / frac if frac > 0 else float("inf")
-        on_progress(Progress(frac, tiles_done, len(tiles), sample, spp, rays, elapsed,
-                             rays / max(elapsed, 1e-9), eta))
 
-    def stop_requested() -> bool:
-        if should_cancel is not None and should_cancel():
+class _TileRender:
+    """One render while its batches run: the tiles' films, the batches in flight, the counters.
+
+    Batches run on `workers` threads (NumPy, numba and Embree release the GIL), at most `workers + 1` in flight,
+    and are accumulated in submission order on the calling thread: the image does not depend on timing. A batch
+    holds about `target` paths, gathered from as many tile passes as it takes (at 1 spp a 64x64 tile is only
+    4096 paths, far too few to amortise NumPy's per-call cost); small images are split into at least 8 batches
+    (core.schedule.batch_target) so that threads share them. None of this depends on the thread count.
+    """
+
+    def __init__(self, scene: Scene, settings: RenderSettings, prepared: PreparedScene, accel: Accelerator,
+                 region: TileRect, tile_order: list[int] | None, t_start: float,
+                 on_tile: TileCallback | None, on_progress: ProgressCallback | None,
+                 should_cancel: CancelCallback | None) -> None:
+        self.scene, self.settings, self.prepared, self.accel = scene, settings, prepared, accel
+        self.region, self.t_start = region, t_start
+        self.on_tile, self.on_progress, self.should_cancel = on_tile, on_progress, should_cancel
+        self.sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
+        self.pixel_filter = PixelFilter(settings.filter_type, settings.filter_width)
+        rx, ry, rw, rh = region
+        self.tiles = tiles(rx, ry, rw, rh, settings.tile_size)
+        if tile_order is not None:
+            if sorted(tile_order) != list(range(len(self.tiles))):
+                raise ValueError("tile_order must be a permutation of the tile indices")
+            self.tiles = [self.tiles[i] for i in tile_order]
+        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler) for t in self.tiles}
+
+        self.spp = int(settings.spp)
+        self.total_paths = self.spp * rw * rh
+        self.done_paths = 0
+        self.cancelled = False
+        self.samples_started = np.zeros(len(self.tiles), np.int64)
+        self.pixels_converged = np.zeros(len(self.tiles), np.int64)  # adaptive sampling: pixels that stopped early
+        self.largest_batch = 0  # paths in the largest batch traced (memory scales with it, times the threads)
+        self.film_seconds = 0.0
+        self.adaptive = settings.adaptive_threshold > 0
+        self.min_samples = settings.adaptive_min_samples_for(self.spp) if self.adaptive else self.spp
+
+        self.workers = settings.thread_count
+        self.target = batch_target(settings, self.total_paths)
+        if self.adaptive:
+            self.target = adaptive_batch_target(self.target, rw * rh, self.min_samples)
+        self.pool: ThreadPoolExecutor | None = None
+        self.in_flight: deque = deque()  # (segments, job)
+        self.group: list[Segment] = []  # segments of the batch being gathered
+        self.group_paths = 0
+        self.tracers: list[PathTracer] = []  # one per worker thread
+        self.local_state = threading.local()
+        self.tracers_lock = threading.Lock()
+
+    # ----------------------------------------------------------------------------------------- the pass loop
+    def run(self) -> None:
+        """Queue every pass's segments in batches until all samples are taken or the render is stopped."""
+        self.pool = ThreadPoolExecutor(self.workers) if self.workers > 1 else None
+        try:
+            for ti, tile, first_sample, count in sample_passes(self.tiles, self.spp, self.settings,
+                                                               self.min_samples):
+                pixels = np.arange(tile[2] * tile[3], dtype=np.int64)
+                if self.adaptive and first_sample >= self.min_samples:
+                    pixels = self._unconverged_pixels(ti, tile, first_sample, count)
+                    if len(pixels) == 0:
+                        continue
+                for seg in pass_segments(ti, tile, pixels, first_sample, count, self.target):
+                    if self._stop_requested():
+                        self.cancelled = True
+                        break
+                    self.group.append(seg)
+                    self.group_paths += len(seg.loc)
+                    if self.group_paths >= self.target:
+                        self._submit()
+                if self.cancelled:
+                    break
+            if self.cancelled:
+                self._drop_queued_batches()
+            self._submit()
+            while self.in_flight:
+                self._finish_one()
+        finally:
+            if self.pool is not None:
+                for _, job in self.in_flight:
+                    job.cancel()
+                self.pool.shutdown(wait=True)
+
+    def _unconverged_pixels(self, ti: int, tile: TileRect, first_sample: int, count: int) -> np.ndarray:
+        """Adaptive sampling: the tile's pixels still above the noise threshold, once its earlier samples are all
+        in; a tile with none left is reported done for this pass."""
+        if any(seg.tile_index == ti for seg in self.group):
+            self._submit()
+        while self._tile_busy(ti):  # the convergence test needs this tile's earlier samples
+            self._finish_one()
+        n_pix = tile[2] * tile[3]
+        pixels = self.films[tile].active_pixels(self.settings.adaptive_threshold)
+        self.pixels_converged[ti] = n_pix - len(pixels)
+        self.done_paths += (n_pix - len(pixels)) * count  # samples converged pixels no longer need
+        if len(pixels) == 0:
+            self.samples_started[ti] = first_sample + count
+            self._progress(ti, first_sample + count)
+            if self.on_tile is not None:
+                self.on_tile(self._tile_result(tile, self.films[tile], first_sample + count))
+        return pixels
+
+    def _drop_queued_batches(self) -> None:
+        """After a cancel: batches still queued never start; ones already running finish (a path batch cannot
+        stop halfway without bias) and their samples are kept, but no callback reports anything any more."""
+        self.group, self.group_paths = [], 0
+        while self.in_flight:
+            job = self.in_flight[0][-1]
+            if self.pool is not None and job.cancel():
+                self.in_flight.popleft()
+            else:
+                self._finish_one(quiet=True)
+
+    def _stop_requested(self) -> bool:
+        if self.should_cancel is not None and self.should_cancel():
             return True
-        return settings.time_limit > 0 and time.perf_counter() - t_start > settings.time_limit
+        return self.settings.time_limit > 0 and time.perf_counter() - self.t_start > self.settings.time_limit
 
-    def tile_result(tile, film: TileFilm, samples: int) -> Tile:
-        color = np.concatenate([film.mean(), np.ones((tile[3], tile[2], 1), np.float32)], axis=2)
-        albedo = normal = depth = None
-        if settings.aovs:
-            albedo, normal, depth = film.aov_images()
-        return Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
+    def _tile_busy(self, ti: int) -> bool:
+        return any(seg.tile_index == ti for segments, _ in self.in_flight for seg in segments)
 
-    adaptive = settings.adaptive_threshold > 0
-    min_samples = settings.adaptive_min_samples_for(spp) if adaptive else spp
+    # ------------------------------------------------------------------------------------------- batches
+    def _submit(self) -> None:
+        """Queue the gathered segments as one batch; beyond `workers` batches in flight, finish the oldest."""
+        if not self.group:
+            return
+        segments, self.group = self.group, []
+        self.largest_batch = max(self.largest_batch, self.group_paths)
+        self.group_paths = 0
+        if self.pool is not None:
+            job = self.pool.submit(self._trace_batch, segments)
+        else:  # no worker threads: the batch runs on this thread when it is finished
+            job = partial(self._trace_batch, segments)
+        self.in_flight.append((segments, job))
+        if len(self.in_flight) > (self.workers if self.pool is not None else 0):
+            self._finish_one()
 
-    def passes():
-        """(tile index, tile, first sample, sample count) in pass order: a pass gives every tile as many samples
-        as fit in one batch (with adaptive sampling: at most min_samples, then half of that, so convergence is
-        checked often)."""
-        started = samples_started.copy()
-        while True:
-            any_left = False
-            for ti, tile in enumerate(tiles):
-                first_sample = int(started[ti])
-                if first_sample >= spp:
-                    continue
-                any_left = True
-                n_pix = tile[2] * tile[3]
-                count = min(max(1, settings.batch_paths // n_pix), spp - first_sample)
-                if adaptive:
-                    count = min(count, min_samples if first_sample < min_samples else max(16, min_samples // 2))
-                yield ti, tile, first_sample, count
-                started[ti] = first_sample + count
-            if not any_left:
-                return
-
-    tracers: list[PathTracer] = []
-    local_state = threading.local()
-    tracers_lock = threading.Lock()
-
-    def trace_batch(segments: list[Segment]):
+    def _trace_batch(self, segments: list[Segment]):
         """Camera rays and paths of one batch, which may span several tiles (runs on a worker thread; touches no
-        shared mutable state but the counters, which are locked)."""
-        tracer = getattr(local_state, "tracer", None)
+        shared mutable state but the tracer list, which is locked)."""
+        tracer = getattr(self.local_state, "tracer", None)
         if tracer is None:
-            tracer = local_state.tracer = PathTracer(prepared, accel, settings, sampler)
-            with tracers_lock:
-                tracers.append(tracer)
+            tracer = self.local_state.tracer = PathTracer(self.prepared, self.accel, self.settings, self.sampler)
+            with self.tracers_lock:
+                self.tracers.append(tracer)
         t0 = time.perf_counter()
         px = np.concatenate([seg.tile[0] + seg.loc % seg.tile[2] for seg in segments])
         py = np.concatenate([seg.tile[1] + seg.loc // seg.tile[2] for seg in segments])
         smp = np.concatenate([seg.smp for seg in segments])
-        pixel_id = (py * width + px).astype(np.uint32)
-        offsets = pixel_filter.sample(sampler.get_2d(pixel_id, smp, DIM_FILM))
-        rays = camera_rays(scene.camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1])
+        pixel_id = (py * self.scene.camera.resolution[0] + px).astype(np.uint32)
+        offsets = self.pixel_filter.sample(self.sampler.get_2d(pixel_id, smp, DIM_FILM))
+        rays = camera_rays(self.scene.camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1])
         tracer.stats.seconds_camera += time.perf_counter() - t0
         return tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
-                            rays.t_start, settings.aovs)
+                            rays.t_start, self.settings.aovs)
 
-    # Batches run on `workers` threads (NumPy, numba and Embree release the GIL), at most `workers + 1` in
-    # flight, and are accumulated in submission order on this thread: the image does not depend on timing.
-    # A batch holds about `target` paths, gathered from as many tile passes as it takes (at 1 spp a 64x64 tile is
-    # only 4096 paths, far too few to amortise NumPy's per-call cost); small images are split into at least 8
-    # batches (of at least _MIN_BATCH paths) so that threads share them. None of this depends on the thread count.
-    workers = settings.thread_count
-    target = batch_target(settings, total_paths)
-    if adaptive:
-        # A pass's convergence test waits for the tile's previous pass: keep each pass in >= 8 batches so that
-        # the threads still share it.
-        step = max(16, min_samples // 2)
-        target = min(target, max(_MIN_BATCH, -(-rw * rh * step // 8)))
-    pool = ThreadPoolExecutor(workers) if workers > 1 else None
-    in_flight: deque = deque()  # (segments, job)
-    group: list[Segment] = []
-    group_paths = 0
-    film_seconds = 0.0
-
-    def submit() -> None:
-        nonlocal group, group_paths, largest_batch
-        if not group:
-            return
-        segments, group = group, []
-        largest_batch = max(largest_batch, group_paths)
-        group_paths = 0
-        job = pool.submit(trace_batch, segments) if pool is not None else (lambda: trace_batch(segments))
-        in_flight.append((segments, job))
-        if len(in_flight) > (workers if pool is not None else 0):
-            finish_one()
-
-    def finish_one(quiet: bool = False) -> None:
-        nonlocal done_paths, film_seconds
-        segments, job = in_flight.popleft()
-        radiance, first = job.result() if pool is not None else job()
+    def _finish_one(self, quiet: bool = False) -> None:
+        """Wait for the oldest batch in flight and add it to its tiles' films (quiet: no callbacks)."""
+        segments, job = self.in_flight.popleft()
+        radiance, first = job.result() if self.pool is not None else job()
         start = 0
         for seg in segments:
             rows = slice(start, start + len(seg.loc))
             start = rows.stop
             t0 = time.perf_counter()
-            film = films[seg.tile]
+            film = self.films[seg.tile]
             film.add(seg.loc, radiance[rows], seg.smp)
             if first is not None:
                 film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
-            film_seconds += time.perf_counter() - t0
-            done_paths += len(seg.loc)
+            self.film_seconds += time.perf_counter() - t0
+            self.done_paths += len(seg.loc)
             if not quiet:
-                progress(seg.tile_index, seg.sample_end)
+                self._progress(seg.tile_index, seg.sample_end)
             if seg.last_chunk:
-                samples_started[seg.tile_index] = seg.sample_end
-                if on_tile is not None and not quiet:
-                    on_tile(tile_result(seg.tile, film, seg.sample_end))
+                self.samples_started[seg.tile_index] = seg.sample_end
+                if self.on_tile is not None and not quiet:
+                    self.on_tile(self._tile_result(seg.tile, film, seg.sample_end))
 
-    def tile_busy(ti: int) -> bool:
-        return any(seg.tile_index == ti for segments, _ in in_flight for seg in segments)
+    # ------------------------------------------------------------------------------------------ reporting
+    def _progress(self, tiles_done: int, sample: int) -> None:
+        if self.on_progress is None:
+            return
+        elapsed = time.perf_counter() - self.t_start
+        rays = self.accel.rays_closest + self.accel.rays_shadow
+        frac = self.done_paths / self.total_paths if self.total_paths else 1.0
+        eta = elapsed * (1 - frac) / frac if frac > 0 else float("inf")
+        self.on_progress(Progress(frac, tiles_done, len(self.tiles), sample, self.spp, rays, elapsed,
+                                  rays / max(elapsed, 1e-9), eta))
 
-    try:
-        for ti, tile, first_sample, count in passes():
-            n_pix = tile[2] * tile[3]
-            pixels = np.arange(n_pix, dtype=np.int64)
-            if adaptive and first_sample >= min_samples:
-                if any(seg.tile_index == ti for seg in group):
-                    submit()
-                while tile_busy(ti):  # the convergence test needs this tile's earlier samples
-                    finish_one()
-                pixels = films[tile].active_pixels(settings.adaptive_threshold)
-                pixels_converged[ti] = n_pix - len(pixels)
-                done_paths += (n_pix - len(pixels)) * count  # samples converged pixels no longer need
-                if len(pixels) == 0:
-                    samples_started[ti] = first_sample + count
-                    progress(ti, first_sample + count)
-                    if on_tile is not None:
-                        on_tile(tile_result(tile, films[tile], first_sample + count))
-                    continue
-            pix_chunk = max(1, target // count)
-            chunks = [pixels[c0:c0 + pix_chunk] for c0 in range(0, len(pixels), pix_chunk)]
-            for k, chunk in enumerate(chunks):
-                if stop_requested():
-                    cancelled = True
-                    break
-                loc = np.repeat(chunk, count)
-                smp = np.tile(np.arange(first_sample, first_sample + count, dtype=np.uint32), len(chunk))
-                group.append(Segment(ti, tile, loc, smp, first_sample + count, k == len(chunks) - 1))
-                group_paths += len(loc)
-                if group_paths >= target:
-                    submit()
-            if cancelled:
-                break
-        if cancelled:
-            # Batches still queued never start; ones already running finish (a path batch cannot stop halfway
-            # without bias) and their samples are kept, but no callback reports anything after the cancel.
-            group, group_paths = [], 0
-            while in_flight:
-                job = in_flight[0][-1]
-                if pool is not None and job.cancel():
-                    in_flight.popleft()
-                else:
-                    finish_one(quiet=True)
-        submit()
-        while in_flight:
-            finish_one()
-    finally:
-        if pool is not None:
-            for _, job in in_flight:
-                job.cancel()
-            pool.shutdown(wait=True)
+    def _tile_result(self, tile: TileRect, film: TileFilm, samples: int) -> Tile:
+        color = np.concatenate([film.mean(), np.ones((tile[3], tile[2], 1), np.float32)], axis=2)
+        albedo = normal = depth = None
+        if self.settings.aovs:
+            albedo, normal, depth = film.aov_images()
+        return Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
 
-    # Assemble the region's image from the tiles.
-    color = np.zeros((rh, rw, 4), np.float32)
-    variance = np.zeros((rh, rw, 3), np.float32)
-    albedo = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
-    normal = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
-    depth = np.full((rh, rw), 1e10, np.float32) if settings.aovs else None
-    counts = np.zeros((rh, rw), np.int32)
-    for tile in tiles:
-        tx, ty, tw, th = tile
-        film = films[tile]
-        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
-        tr = tile_result(tile, film, 0)
-        color[sl], variance[sl] = tr.color, tr.variance
-        counts[sl] = film.count.reshape(th, tw)
-        if settings.aovs:
-            albedo[sl], normal[sl], depth[sl] = tr.albedo, tr.normal, tr.depth
-    elapsed = time.perf_counter() - t_start
-    st = PathStats.total([t.stats for t in tracers])
-    rays = accel.rays_closest + accel.rays_shadow
-    stats = {
-        "scene": scene.name,
-        "resolution": [width, height],
-        "region": [rx, ry, rw, rh],
-        "spp": spp,
-        "samples": int(counts.sum()),
-        "seconds": elapsed,
-        "prepare_seconds": t_prepare,
-        "samples_per_second": counts.sum() / max(elapsed, 1e-9),
-        "rays_closest": accel.rays_closest,
-        "rays_shadow": accel.rays_shadow,
-        "rays_per_second": rays / max(elapsed, 1e-9),
-        "embree_seconds": st.seconds_intersect + st.seconds_occluded,
-        # Share of all worker thread-time (wall time x workers) spent inside Embree.
-        "embree_share": (st.seconds_intersect + st.seconds_occluded) / max(elapsed * workers, 1e-9),
-        "stage_seconds": {**st.stage_seconds(), "film": film_seconds},
-        "nonfinite_samples": st.nonfinite,
-        "clamped_contributions": st.clamped,
-        "peak_memory_mb": _peak_memory_mb(),
-        "threads": settings.thread_count,
-        "largest_batch": largest_batch,
-        "adaptive_pixels_converged": int(pixels_converged.sum()) if adaptive else 0,
-        "features": prepared.features,
-    }
-    if st.nonfinite:
-        msg = f"{st.nonfinite} NaN/Inf path contributions were caught and dropped (not written to the image)"
-        scene.warnings.append(msg)
-        say(f"warning: {msg}")
-    return RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings), cancelled)
+    def result(self, t_prepare: float, say) -> RenderResult:
+        """The region's image assembled from the tiles, with the render's statistics."""
+        settings, scene, accel = self.settings, self.scene, self.accel
+        rx, ry, rw, rh = self.region
+        color = np.zeros((rh, rw, 4), np.float32)
+        variance = np.zeros((rh, rw, 3), np.float32)
+        albedo = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
+        normal = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
+        depth = np.full((rh, rw), 1e10, np.float32) if settings.aovs else None
+        counts = np.zeros((rh, rw), np.int32)
+        for tile in self.tiles:
+            tx, ty, tw, th = tile
+            film = self.films[tile]
+            sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
+            tr = self._tile_result(tile, film, 0)
+            color[sl], variance[sl] = tr.color, tr.variance
+            counts[sl] = film.count.reshape(th, tw)
+            if settings.aovs:
+                albedo[sl], normal[sl], depth[sl] = tr.albedo, tr.normal, tr.depth
+        elapsed = time.perf_counter() - self.t_start
+        st = PathStats.total([t.stats for t in self.tracers])
+        rays = accel.rays_closest + accel.rays_shadow
+        stats = {
+            "scene": scene.name,
+            "resolution": list(scene.camera.resolution),
+            "region": [rx, ry, rw, rh],
+            "spp": self.spp,
+            "samples": int(counts.sum()),
+            "seconds": elapsed,
+            "prepare_seconds": t_prepare,
+            "samples_per_second": counts.sum() / max(elapsed, 1e-9),
+            "rays_closest": accel.rays_closest,
+            "rays_shadow": accel.rays_shadow,
+            "rays_per_second": rays / max(elapsed, 1e-9),
+            "embree_seconds": st.seconds_intersect + st.seconds_occluded,
+            # Share of all worker thread-time (wall time x workers) spent inside Embree.
+            "embree_share": (st.seconds_intersect + st.seconds_occluded) / max(elapsed * self.workers, 1e-9),
+            "stage_seconds": {**st.stage_seconds(), "film": self.film_seconds},
+            "nonfinite_samples": st.nonfinite,
+            "clamped_contributions": st.clamped,
+            "peak_memory_mb": _peak_memory_mb(),
+            "threads": settings.thread_count,
+            "largest_batch": self.largest_batch,
+            "adaptive_pixels_converged": int(self.pixels_converged.sum()) if self.adaptive else 0,
+            "features": self.prepared.features,
+        }
+        if st.nonfinite:
+            msg = f"{st.nonfinite} NaN/Inf path contributions were caught and dropped (not written to the image)"
+            scene.warnings.append(msg)
+            say(f"warning: {msg}")
+        return RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings),
+                            self.cancelled)

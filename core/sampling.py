@@ -1,4 +1,4 @@
-"""Random numbers, samplers and sample warps for the wavefront path tracer.
+"""Random numbers and samplers for the wavefront path tracer.
 
 Everything here is vectorised over arrays of N paths and is a *pure function* of
 ``(seed, pixel index, sample index, dimension)``: the same inputs give the same bits
@@ -35,11 +35,8 @@ Conventions
 Implementation: the samplers, :func:`uniform` and :func:`hash_u32` are compiled numba
 kernels (``nogil``, cached on disk) over blocks of paths, written so that LLVM vectorises
 them in uint32 arithmetic; they give exactly the bits of the former NumPy implementation
-(pinned by tests), about 6x faster per path.  The warps below are vectorised NumPy.
-
-Warps take ``u`` of shape (N, 2) in [0, 1) and return float32 points; every warp has a
-matching ``pdf_*`` (solid angle for directions, area for disks, barycentric/area for
-triangles).  Local shading frames have the normal along +z.
+(pinned by tests), about 6x faster per path.  The warps that turn these numbers into
+directions and points are in core.warps.
 """
 
 from __future__ import annotations
@@ -53,7 +50,7 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .kernels import _jit
+from .jit_cache import jit as _jit
 
 __all__ = [
     "uniform",
@@ -67,34 +64,11 @@ __all__ = [
     "VARIANCE_GROUPS",
     "make_sampler",
     "sobol_matrices",
-    "sample_cosine_hemisphere",
-    "sample_cosine_hemisphere_concentric",
-    "pdf_cosine_hemisphere",
-    "sample_uniform_hemisphere",
-    "pdf_uniform_hemisphere",
-    "sample_uniform_sphere",
-    "pdf_uniform_sphere",
-    "sample_uniform_cone",
-    "pdf_uniform_cone",
-    "sample_concentric_disk",
-    "pdf_concentric_disk",
-    "sample_uniform_triangle",
-    "pdf_uniform_triangle",
-    "sample_sphere_cap",
-    "pdf_sphere_cap",
-    "build_onb",
-    "to_local",
-    "to_world",
 ]
 
 U32 = NDArray[np.uint32]
 F32 = NDArray[np.float32]
 
-_PI = np.float32(math.pi)
-_TWO_PI = np.float32(2.0 * math.pi)
-_INV_PI = np.float32(1.0 / math.pi)
-_INV_2PI = np.float32(0.5 / math.pi)
-_INV_4PI = np.float32(0.25 / math.pi)
 
 # ---------------------------------------------------------------------------------------
 # Integer hashing and bit tricks: compiled kernels
@@ -640,247 +614,3 @@ def make_sampler(kind: str = DEFAULT_SAMPLER, seed: int = 0, spp: int = 1, group
         raise ValueError(f"unknown sampler kind (sampling pattern) {kind!r}; expected one of {SAMPLER_KINDS}")
     return _SAMPLERS[name](seed=seed, spp=spp, groups=groups)
 
-
-# ---------------------------------------------------------------------------------------
-# Warps (u: (N, 2) in [0, 1); outputs float32)
-# ---------------------------------------------------------------------------------------
-
-
-def _uv(u: ArrayLike) -> tuple[F32, F32]:
-    a = np.asarray(u, dtype=np.float32)
-    if a.ndim != 2 or a.shape[1] < 2:
-        raise ValueError(f"expected u of shape (N, 2), got {a.shape}")
-    return a[:, 0], a[:, 1]
-
-
-def _dir(cos_t: F32, sin_t: F32, phi: F32) -> F32:
-    out = np.empty(cos_t.shape + (3,), dtype=np.float32)
-    out[:, 0] = sin_t * np.cos(phi)
-    out[:, 1] = sin_t * np.sin(phi)
-    out[:, 2] = cos_t
-    return out
-
-
-def sample_cosine_hemisphere(u: ArrayLike) -> F32:
-    """Cosine-weighted direction about +z, the thesis' map.
-
-    ``phi = 2 pi u0``, ``theta = arccos(sqrt(1 - u1))`` (so ``cos = sqrt(1 - u1) > 0``,
-    ``sin = sqrt(u1)``).  pdf: :func:`pdf_cosine_hemisphere` = cos(theta) / pi.
-    """
-    u0, u1 = _uv(u)
-    return _dir(np.sqrt(np.float32(1) - u1), np.sqrt(u1), _TWO_PI * u0)
-
-
-def sample_cosine_hemisphere_concentric(u: ArrayLike) -> F32:
-    """Cosine-weighted direction about +z via Malley's method on the concentric disk.
-
-    Better preserves stratification than the polar map.  Same pdf, cos(theta) / pi.
-    """
-    d = sample_concentric_disk(u)
-    out = np.empty((d.shape[0], 3), dtype=np.float32)
-    out[:, :2] = d
-    out[:, 2] = np.sqrt(np.maximum(np.float32(0), np.float32(1) - d[:, 0] ** 2 - d[:, 1] ** 2))
-    return out
-
-
-def pdf_cosine_hemisphere(w: ArrayLike) -> F32:
-    """Solid-angle pdf ``max(w.z, 0) / pi`` of the cosine-weighted hemisphere warps."""
-    z = np.asarray(w, dtype=np.float32)[..., 2]
-    return np.maximum(z, np.float32(0)) * _INV_PI
-
-
-def sample_uniform_hemisphere(u: ArrayLike) -> F32:
-    """Uniform direction on the +z hemisphere: ``z = u0``, ``phi = 2 pi u1``; pdf 1/(2 pi)."""
-    u0, u1 = _uv(u)
-    return _dir(u0, np.sqrt(np.maximum(np.float32(0), np.float32(1) - u0 * u0)), _TWO_PI * u1)
-
-
-def pdf_uniform_hemisphere(w: ArrayLike) -> F32:
-    """1/(2 pi) for ``w.z >= 0``, else 0."""
-    z = np.asarray(w, dtype=np.float32)[..., 2]
-    return np.where(z >= 0, _INV_2PI, np.float32(0)).astype(np.float32)
-
-
-def sample_uniform_sphere(u: ArrayLike) -> F32:
-    """Uniform direction on the unit sphere: ``z = 1 - 2 u0``, ``phi = 2 pi u1``; pdf 1/(4 pi)."""
-    u0, u1 = _uv(u)
-    z = np.float32(1) - np.float32(2) * u0
-    return _dir(z, np.sqrt(np.maximum(np.float32(0), np.float32(1) - z * z)), _TWO_PI * u1)
-
-
-def pdf_uniform_sphere(w: ArrayLike) -> F32:
-    """1/(4 pi) everywhere (shape of ``w[..., 0]``)."""
-    return np.full(np.asarray(w).shape[:-1], _INV_4PI, dtype=np.float32)
-
-
-def sample_uniform_cone(u: ArrayLike, cos_max: ArrayLike) -> F32:
-    """Uniform direction in the cone about +z with ``cos(theta) >= cos_max``.
-
-    ``cos_max`` is a scalar or (N,) array.  ``cos = 1 - u0 (1 - cos_max)``,
-    ``phi = 2 pi u1``; pdf ``1 / (2 pi (1 - cos_max))`` (see :func:`pdf_uniform_cone`).
-    """
-    u0, u1 = _uv(u)
-    one_minus = np.float32(1) - np.asarray(cos_max, dtype=np.float32)
-    t = u0 * one_minus  # 1 - cos(theta), kept separate for precision in narrow cones
-    sin_t = np.sqrt(np.maximum(np.float32(0), t * (np.float32(2) - t)))
-    return _dir(np.float32(1) - t, sin_t, _TWO_PI * u1)
-
-
-def pdf_uniform_cone(w: ArrayLike, cos_max: ArrayLike) -> F32:
-    """``1 / (2 pi (1 - cos_max))`` inside the cone (``w.z >= cos_max``), 0 outside."""
-    z = np.asarray(w, dtype=np.float32)[..., 2]
-    cm = np.asarray(cos_max, dtype=np.float32)
-    with np.errstate(divide="ignore"):
-        val = _INV_2PI / (np.float32(1) - cm)
-    return np.where(z >= cm, val, np.float32(0)).astype(np.float32)
-
-
-def sample_concentric_disk(u: ArrayLike) -> F32:
-    """Shirley-Chiu concentric map of [0,1)^2 onto the unit disk; (N, 2), pdf 1/pi."""
-    u0, u1 = _uv(u)
-    a = np.float32(2) * u0 - np.float32(1)
-    b = np.float32(2) * u1 - np.float32(1)
-    use_a = np.abs(a) > np.abs(b)
-    r = np.where(use_a, a, b)
-    num = np.where(use_a, b, a)
-    safe = np.where(r == 0, np.float32(1), r)
-    ratio = num / safe
-    quarter = np.float32(math.pi / 4)
-    theta = np.where(use_a, quarter * ratio, np.float32(math.pi / 2) - quarter * ratio)
-    out = np.empty((u0.shape[0], 2), dtype=np.float32)
-    out[:, 0] = r * np.cos(theta)
-    out[:, 1] = r * np.sin(theta)
-    return out
-
-
-def pdf_concentric_disk(p: ArrayLike) -> F32:
-    """Area pdf 1/pi inside the unit disk, 0 outside."""
-    q = np.asarray(p, dtype=np.float32)
-    return np.where((q[..., 0] ** 2 + q[..., 1] ** 2) <= 1, _INV_PI, np.float32(0)).astype(np.float32)
-
-
-def sample_uniform_triangle(u: ArrayLike, method: str = "heitz") -> F32:
-    """Uniform barycentrics ``(b0, b1, b2)``, shape (N, 3), summing to 1.
-
-    ``method="heitz"``: Heitz 2019 low-distortion square-to-triangle map (default);
-    ``method="sqrt"``: the classic ``b0 = 1 - sqrt(u0), b1 = u1 sqrt(u0)`` map.
-    The point ``b0 A + b1 B + b2 C`` is uniform on the triangle: pdf 2 in (b0, b1), i.e.
-    ``1 / area`` in area measure (see :func:`pdf_uniform_triangle`).
-    """
-    u0, u1 = _uv(u)
-    if method == "heitz":
-        half0, half1 = np.float32(0.5) * u0, np.float32(0.5) * u1
-        lower = u0 < u1
-        b0 = np.where(lower, half0, u0 - half1)
-        b1 = np.where(lower, u1 - half0, half1)
-    elif method == "sqrt":
-        su = np.sqrt(u0)
-        b0 = np.float32(1) - su
-        b1 = u1 * su
-    else:
-        raise ValueError(f"unknown triangle sampling method {method!r}; expected 'heitz' or 'sqrt'")
-    out = np.empty((u0.shape[0], 3), dtype=np.float32)
-    out[:, 0] = b0
-    out[:, 1] = b1
-    out[:, 2] = np.maximum(np.float32(0), np.float32(1) - b0 - b1)
-    return out
-
-
-def pdf_uniform_triangle(area: ArrayLike) -> F32:
-    """Area-measure pdf ``1 / area`` of :func:`sample_uniform_triangle` points."""
-    return (np.float32(1) / np.asarray(area, dtype=np.float32)).astype(np.float32)
-
-
-def _cap_geometry(p: ArrayLike, center: ArrayLike, radius: ArrayLike):
-    """Axis to the sphere (float64), ``1 - cos(theta_max)`` (stable), and an inside mask."""
-    d = np.asarray(center, dtype=np.float64) - np.asarray(p, dtype=np.float64)
-    d = np.atleast_2d(d)
-    dist2 = np.einsum("ij,ij->i", d, d)
-    r2 = np.asarray(radius, dtype=np.float64) ** 2
-    inside = dist2 <= r2
-    sin2 = np.where(inside, 1.0, r2 / np.where(dist2 > 0, dist2, 1.0))
-    one_minus_cos = sin2 / (1.0 + np.sqrt(np.maximum(0.0, 1.0 - sin2)))
-    axis = d / np.sqrt(np.where(dist2 > 0, dist2, 1.0))[:, None]
-    return axis, one_minus_cos, inside
-
-
-def sample_sphere_cap(
-    u: ArrayLike, p: ArrayLike, center: ArrayLike, radius: ArrayLike
-) -> tuple[F32, F32]:
-    """Uniform direction within the cone subtended by a sphere (for sphere lights).
-
-    ``p``: (N, 3) shading points; ``center``: (3,) or (N, 3); ``radius``: scalar or (N,).
-    Returns ``(wi, pdf)``: world-space unit directions (N, 3) and the solid-angle pdf
-    ``1 / (2 pi (1 - cos_max))`` with ``sin^2(theta_max) = r^2 / |c - p|^2`` (computed as
-    ``1 - cos_max = sin^2 / (1 + cos_max)`` for precision with small or distant spheres).
-    A point inside the sphere gets a uniform sphere direction with pdf 1/(4 pi).
-    """
-    u0, u1 = _uv(u)
-    axis, omc, inside = _cap_geometry(p, center, radius)
-    omc = np.broadcast_to(omc, u0.shape)
-    inside = np.broadcast_to(inside, u0.shape)
-    t = u0.astype(np.float64) * np.where(inside, 2.0, omc)  # inside: z = 1 - 2 u0 (sphere)
-    cos_t = 1.0 - t
-    sin_t = np.sqrt(np.maximum(0.0, t * (2.0 - t)))
-    phi = 2.0 * math.pi * u1.astype(np.float64)
-    local = np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t], axis=-1)
-    tb, bb = build_onb(axis)
-    axis_b = np.broadcast_to(axis, local.shape)
-    wi = to_world(local, tb.astype(np.float64), bb.astype(np.float64), axis_b)
-    pdf = np.where(inside, 0.25 / math.pi, 1.0 / (2.0 * math.pi * np.where(inside, 1.0, omc)))
-    return wi.astype(np.float32), pdf.astype(np.float32)
-
-
-def pdf_sphere_cap(wi: ArrayLike | None, p: ArrayLike, center: ArrayLike, radius: ArrayLike) -> F32:
-    """Solid-angle pdf of :func:`sample_sphere_cap` (1/(4 pi) for points inside the sphere).
-
-    With ``wi`` (N, 3), directions outside the cone get 0; the cone test allows for
-    float32 rounding of ``wi`` (a few ulps of cos(theta) around 1), so the directions
-    :func:`sample_sphere_cap` returns always get their own pdf back.  Pass ``wi=None`` when
-    the caller already knows the direction hits the sphere (e.g. MIS after a BSDF ray hit
-    the light): that skips the test.
-    """
-    axis, omc, inside = _cap_geometry(p, center, radius)
-    cone = np.where(inside, 0.25 / math.pi, 1.0 / (2.0 * math.pi * np.where(inside, 1.0, omc)))
-    if wi is None:
-        return cone.astype(np.float32)
-    w = np.atleast_2d(np.asarray(wi, dtype=np.float64))
-    cos_t = np.einsum("ij,ij->i", w, np.broadcast_to(axis, w.shape))
-    in_cone = (1.0 - cos_t) <= omc * (1.0 + 1e-4) + 2.5e-7
-    return np.where(inside | in_cone, cone, 0.0).astype(np.float32)
-
-
-# ---------------------------------------------------------------------------------------
-# Frames
-# ---------------------------------------------------------------------------------------
-
-
-def build_onb(n: ArrayLike) -> tuple[NDArray, NDArray]:
-    """Orthonormal basis ``(t, b)`` around unit normals ``n`` (N, 3), branchless.
-
-    Duff et al. 2017, "Building an Orthonormal Basis, Revisited".  ``(t, b, n)`` is
-    right-handed (``t x b = n``).  Keeps the input float dtype (float32 by default).
-    """
-    nn = np.asarray(n)
-    if nn.dtype != np.float64:
-        nn = nn.astype(np.float32)
-    one = nn.dtype.type(1)
-    x, y, z = nn[..., 0], nn[..., 1], nn[..., 2]
-    sign = np.copysign(one, z)
-    a = -one / (sign + z)
-    bxy = x * y * a
-    t = np.stack([one + sign * x * x * a, sign * bxy, -sign * x], axis=-1)
-    b = np.stack([bxy, sign + y * y * a, -y], axis=-1)
-    return t, b
-
-
-def to_local(v: ArrayLike, t: ArrayLike, b: ArrayLike, n: ArrayLike) -> NDArray:
-    """World vector(s) -> local frame: ``(v.t, v.b, v.n)``."""
-    v, t, b, n = (np.asarray(a) for a in (v, t, b, n))
-    return np.stack([(v * t).sum(-1), (v * b).sum(-1), (v * n).sum(-1)], axis=-1)
-
-
-def to_world(v: ArrayLike, t: ArrayLike, b: ArrayLike, n: ArrayLike) -> NDArray:
-    """Local vector(s) -> world: ``v.x t + v.y b + v.z n``."""
-    v = np.asarray(v)
-    return v[..., 0:1] * np.asarray(t) + v[..., 1:2] * np.asarray(b) + v[..., 2:3] * np.asarray(n)

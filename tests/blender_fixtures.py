@@ -26,11 +26,12 @@ def bpy_module():
 
 
 # The scene-building helpers the benchmark scenes use too (one implementation, in the add-on).
-from monte.addon.bpy_scenes import (  # noqa: E402
+from monte.lab.bpy_scenes import (  # noqa: E402
     camera_object,
     diffuse,
     icosphere_object,
     mesh_object,
+    node_tree_of,
     node_material,
     reset,
     set_world,
@@ -39,10 +40,10 @@ from monte.addon.bpy_scenes import (  # noqa: E402
 
 # --------------------------------------------------------------------------------------------- scenes
 def cornell_box(resolution=(256, 256)):
-    """The seed's Cornell box in bpy (built by monte.addon.bpy_scenes.cornell_box, which the benchmark uses too):
-    the same triangles as core.scenes.cornell_box (quads split along 0-2), materials and camera."""
+    """The seed's Cornell box in bpy (built by monte.lab.bpy_scenes.cornell_box, which the benchmark uses too):
+    the same triangles as core.builtin_scenes.cornell_box (quads split along 0-2), materials and camera."""
     bpy_module()
-    from monte.addon import bpy_scenes
+    from monte.lab import bpy_scenes
 
     return bpy_scenes.cornell_box(resolution)
 
@@ -135,12 +136,28 @@ PRINCIPLED = {
 }
 
 
+def set_light_props(data, props: dict) -> None:
+    """Set light-data properties, on every Blender of the support table: Blender 4.2 lights have no Exposure
+    (it multiplies the power by 2^exposure, so the energy carries it there) and no Temperature (a test of it
+    is skipped there, saying so)."""
+    import pytest
+
+    import bpy
+
+    props = dict(props)
+    if "exposure" in props and "exposure" not in data.bl_rna.properties:
+        props["energy"] = props.get("energy", data.energy) * 2.0 ** props.pop("exposure")
+    for key, value in props.items():
+        if key not in data.bl_rna.properties:
+            pytest.skip(f"Blender {bpy.app.version_string} lights have no {key!r} setting")
+        setattr(data, key, value)
+
+
 def add_light(scene, kind: str, location, rotation=(0, 0, 0), name: str | None = None, **props):
     """A light object of Blender type `kind` (POINT, SPOT, SUN, AREA) with light-data properties `props`."""
     bpy = bpy_module()
     data = bpy.data.lights.new(name or kind.lower(), kind)
-    for key, value in props.items():
-        setattr(data, key, value)
+    set_light_props(data, props)
     ob = bpy.data.objects.new(name or kind.lower(), data)
     ob.location = location
     ob.rotation_euler = rotation

@@ -13,3 +13,24 @@ def fast_settings():
         return RenderSettings(**base)
 
     return make
+
+
+# ------------------------------------------------------------------------------------ bpy module at exit
+# Blender 4.2's bpy module crashes (SIGSEGV) at interpreter exit while a class is still registered and 4.5's
+# hangs; pytest's status would then be 139 or never come. Unregister Monte at the end of the session and, on
+# those versions, end the process once pytest has reported (addon.headless.end_bpy_process does both).
+_exit_status = {}
+
+
+def pytest_sessionfinish(session, exitstatus):
+    _exit_status["status"] = int(exitstatus)
+
+
+def pytest_unconfigure(config):
+    import sys
+
+    if "bpy" not in sys.modules:
+        return
+    from monte.addon.headless import end_bpy_process
+
+    end_bpy_process(_exit_status.get("status", 0))

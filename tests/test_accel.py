@@ -6,7 +6,8 @@ import threading
 import numpy as np
 import pytest
 
-from monte.core import embree, scenes
+from monte.core import builtin_scenes as scenes
+from monte.core import embree
 from monte.core.accel import Accelerator
 from monte.core.integrator import PreparedScene
 

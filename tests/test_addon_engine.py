@@ -95,7 +95,7 @@ def test_resolution_percentage_and_border(tmp_path):
 def test_exported_cornell_box_renders_like_core(fast_settings):
     from monte.addon.export import export_scene
     from monte.core.render import render
-    from monte.core.scenes import cornell_box
+    from monte.core.builtin_scenes import cornell_box
 
     bf.cornell_box((24, 24))
     exported, _ = export_scene(bpy.context.evaluated_depsgraph_get())

@@ -78,7 +78,7 @@ def match_triangles(a, b):
 
 # ------------------------------------------------------------------------------------------ Cornell box
 def test_cornell_box_exports_the_builtin_scene():
-    from monte.core.scenes import cornell_box
+    from monte.core.builtin_scenes import cornell_box
 
     bf.cornell_box((64, 48))
     got, stats = export()
@@ -349,7 +349,7 @@ def test_principled_specular_level_and_tint():
 def test_mix_and_add_shader_weights_multiply(scene):
     add_camera(scene)
     mat = bpy.data.materials.new("Mixed")
-    t = mat.node_tree
+    t = bf.node_tree_of(mat)
     t.nodes.clear()
     out = t.nodes.new("ShaderNodeOutputMaterial")
     mix = t.nodes.new("ShaderNodeMixShader")
@@ -429,8 +429,7 @@ def test_lights_follow_blender_units(scene):
 
     def light(kind, name, **props):
         data = bpy.data.lights.new(name, kind)
-        for k, v in props.items():
-            setattr(data, k, v)
+        bf.set_light_props(data, props)
         ob = bpy.data.objects.new(name, data)
         scene.collection.objects.link(ob)
         return ob

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from monte import cli
-from monte.core import exr, memory, scenes
+from monte.core import builtin_scenes as scenes
+from monte.core import exr, memory
 from monte.core.render import render
 from monte.core.scene import SceneError
 from monte.core.settings import RenderSettings
@@ -167,7 +168,7 @@ def test_memory_estimate_bounds_a_measured_render():
     import json
     import subprocess
 
-    code = ("import json; from monte.core import scenes, memory; from monte.core.render import render; "
+    code = ("import json; from monte.core import builtin_scenes as scenes, memory; from monte.core.render import render; "
             "from monte.core.settings import RenderSettings as R; import monte.core.accel, monte.core.integrator; "
             "s = scenes.cornell_box((512, 512)); st = R(spp=1, threads=2); "
             "base = memory.peak_rss_bytes(); "

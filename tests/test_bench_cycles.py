@@ -16,7 +16,7 @@ pytestmark = pytest.mark.blender
 @pytest.mark.parametrize("name, triangles, instances, lights", [
     ("cornell", 10252, 8, 0), ("interior", 182, 16, 2), ("glass", 11868, 11, 1), ("instances", 327682, 4097, 1)])
 def test_bench_scenes_export(name, triangles, instances, lights):
-    from monte.addon import bpy_scenes
+    from monte.lab import bpy_scenes
     from monte.addon.export import export_scene
 
     scene = bpy_scenes.build(name, (24, 16))
@@ -62,7 +62,7 @@ def test_bench_vs_cycles_tiny_end_to_end(tmp_path, capsys):
 
 def test_bench_vs_cycles_errors(tmp_path):
     with pytest.raises(ValueError, match="reference-dir"):
-        from monte.addon.bench_cycles import run_from_args
+        from monte.lab.bench_cycles import run_from_args
         from monte.cli import build_parser
 
         run_from_args(build_parser().parse_args(["bench", "--vs", "cycles", "-o", str(tmp_path)]), {})

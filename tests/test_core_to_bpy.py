@@ -1,4 +1,4 @@
-"""The core Scene -> Blender converter (addon/core_to_bpy.py) that lets `monte stress --cycles` render the
+"""The core Scene -> Blender converter (lab/core_to_bpy.py) that lets `monte stress --cycles` render the
 stress cases with Cycles: a round trip through the add-on's own export must give back the same scene; Cycles'
 render of the converted Cornell box must match the converged Cycles reference (independent of Monte's exporter);
 Cycles must land on the analytic furnaces and be the reference for the stress cases that have no closed form."""
@@ -15,14 +15,14 @@ import pytest
 bpy = pytest.importorskip("bpy")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from monte.core import scenes  # noqa: E402
+from monte.core import builtin_scenes as scenes  # noqa: E402
 from monte.core.scene import AreaLight, Lobe, Material, PointLight, SunLight, World  # noqa: E402
 
 pytestmark = pytest.mark.blender
 
 
 def _round_trip(core_scene):
-    from monte.addon.core_to_bpy import build_bpy_scene
+    from monte.lab.core_to_bpy import build_bpy_scene
     from monte.addon.export import export_scene
 
     scene, notes = build_bpy_scene(core_scene)
@@ -81,8 +81,8 @@ def test_lights_and_world_keep_their_units():
 def test_stress_with_cycles_reports_cycles_means_beside_monte(tmp_path):
     """The albedo group (closed furnaces with analytic answers) with --cycles: Cycles' means are reported and
     agree with Monte's within their noise."""
-    from monte.addon.core_to_bpy import cycles_renderer
-    from monte.core.stress import StressConfig, run_suite, write_report
+    from monte.lab.core_to_bpy import cycles_renderer
+    from monte.lab.stress import StressConfig, run_suite, write_report
 
     cfg = StressConfig.test_run()
     cfg.spp = 32  # Cycles' 4 sigma on the noisy furnaces ~0.3-0.5 %: a 1 % error fails
@@ -108,8 +108,8 @@ def test_stress_with_cycles_reports_cycles_means_beside_monte(tmp_path):
 
 
 def _cycles_cases(only: list[str], names: tuple[str, ...]) -> list:
-    from monte.addon.core_to_bpy import cycles_renderer
-    from monte.core.stress import StressConfig, run_suite
+    from monte.lab.core_to_bpy import cycles_renderer
+    from monte.lab.stress import StressConfig, run_suite
 
     cfg = StressConfig.test_run()
     cfg.spp = 64
@@ -153,7 +153,7 @@ def test_cornell_box_converted_to_blender_renders_the_reference_image_in_cycles(
     Cycles renders the converted Cornell box directly: its channel means must match the converged Cycles reference
     of the seed's Cornell box (the one tests/test_render.py holds Monte to) within 4 sigma (from 4 seeds) + 0.2 %
     (the reference's precision); a reference 1 % off must fail."""
-    from monte.addon.core_to_bpy import build_bpy_scene
+    from monte.lab.core_to_bpy import build_bpy_scene
     from monte.addon.crosscheck import configure_cycles, render_cycles
     from monte.core.compare import runs_mean_and_variance
 

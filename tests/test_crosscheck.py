@@ -237,8 +237,7 @@ def test_disagreement_is_attributed_to_the_light(tmp_path):
     scene = bf.floor_scene(world=0.0)
     bf.add_light(scene, "POINT", (-1.5, 0, 2.0), name="plain", energy=150.0)
     strong = bf.add_light(scene, "POINT", (1.5, -1.5, 2.0), name="noded", energy=150.0)
-    strong.data.use_nodes = True
-    strong.data.node_tree.nodes["Emission"].inputs["Strength"].default_value = 3.0
+    bf.node_tree_of(strong.data).nodes["Emission"].inputs["Strength"].default_value = 3.0
     report = attributed_check(scene, tmp_path)
     lights = [row for row in report["attribution"]["lights"] if "sigmas" in row]
     assert lights[0]["source"] == "light 'noded'" and not lights[0]["agree"]

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from monte import cli
-from monte.core import exr, metrics, scenes
+from monte.core import builtin_scenes as scenes
+from monte.core import exr, metrics
 from monte.core.camera import camera_rays
 from monte.core.render import render
 from monte.core.scene import Camera

@@ -502,17 +502,17 @@ def test_emissive_triangles_form_a_few_spatial_groups():
     tri = np.concatenate([verts[faces] * 0.2 + [-2.0, 0, 1], verts[faces] * 0.2 + [2.0, 0, 1]]).astype(np.float32)
     et = lights.EmissiveTriangles.from_mesh_arrays(tri, np.zeros(len(tri), int), np.array([[1.0] * 3]))
     s = make_sampler([], tris=et)
-    groups = np.unique(s._t_unit)
+    groups = np.unique(s._tri_table.unit)
     assert 2 <= groups.size <= lights._MAX_TRIANGLE_GROUPS
     # no group straddles the two spheres, and the shares inside each group add up to 1
     for g in groups:
-        x = tri[s._t_unit == g][:, :, 0]
+        x = tri[s._tri_table.unit == g][:, :, 0]
         assert np.all(x < 0) or np.all(x > 0)
-        assert s._t_sel[s._t_unit == g].sum() == pytest.approx(1.0)
+        assert s._tri_table.sel[s._tri_table.unit == g].sum() == pytest.approx(1.0)
     # next to the left sphere its groups are picked far more often than the right sphere's
     probs = s.selection_probabilities(np.array([[-1.5, 0, 1]], np.float32), np.array([[-1.0, 0, 0]], np.float32),
                                       [False])
-    left = sum(float(v[0]) for k, v in probs.items() if np.all(tri[s._t_unit == int(k.split()[1])][:, :, 0] < 0))
+    left = sum(float(v[0]) for k, v in probs.items() if np.all(tri[s._tri_table.unit == int(k.split()[1])][:, :, 0] < 0))
     assert left > 0.9
 
 
@@ -614,7 +614,7 @@ def test_pdf_triangle_is_the_sample_pdf_at_every_point():
     tri = np.concatenate([verts[faces] * 0.3 + [-1.0, 0, 1], verts[faces] * 0.3 + [1.0, 0.5, 1.2]]).astype(np.float32)
     et = lights.EmissiveTriangles.from_mesh_arrays(tri, np.zeros(len(tri), int), np.array([[1.0, 2.0, 3.0]]))
     s = make_sampler([PointLight("delta", W([0, 0, 2.0]), np.full(3, P))], tris=et)
-    assert s._per_point and np.unique(s._t_unit).size > 2
+    assert s._per_point and np.unique(s._tri_table.unit).size > 2
     rng = np.random.default_rng(9)
     N = 20_000
     p, nn, tr = random_shading_points(rng, N, [4.0, 2.0, 0.5], [2.0, 1.0, 0.5])
@@ -888,7 +888,7 @@ for spec in specs:
         me = bpy.data.meshes.new('plane'); h = 50.0
         me.from_pydata([(-h, -h, 0), (h, -h, 0), (h, h, 0), (-h, h, 0)], [], [(0, 1, 2, 3)])
         ob = bpy.data.objects.new('plane', me); sc.collection.objects.link(ob)
-        mat = bpy.data.materials.new('m'); nt = mat.node_tree; nt.nodes.clear()
+        mat = bpy.data.materials.new('m'); mat.use_nodes = True; nt = mat.node_tree; nt.nodes.clear()
         out = nt.nodes.new('ShaderNodeOutputMaterial')
         if spec['surface'] == 'diffuse':
             b = nt.nodes.new('ShaderNodeBsdfDiffuse'); b.inputs['Color'].default_value = (spec['albedo'],) * 3 + (1,)
@@ -900,7 +900,7 @@ for spec in specs:
         me = bpy.data.meshes.new('e%d' % i)
         me.from_pydata([tuple(v) for v in q['verts']], [], [(0, 1, 2, 3)])
         ob = bpy.data.objects.new('e%d' % i, me); sc.collection.objects.link(ob)
-        mat = bpy.data.materials.new('e%d' % i); nt = mat.node_tree; nt.nodes.clear()
+        mat = bpy.data.materials.new('e%d' % i); mat.use_nodes = True; nt = mat.node_tree; nt.nodes.clear()
         out = nt.nodes.new('ShaderNodeOutputMaterial'); e = nt.nodes.new('ShaderNodeEmission')
         e.inputs['Color'].default_value = (1, 1, 1, 1); e.inputs['Strength'].default_value = q['strength']
         nt.links.new(e.outputs[0], out.inputs['Surface']); me.materials.append(mat)

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from monte.core import metrics, scenes
+from monte.core import builtin_scenes as scenes
+from monte.core import metrics
 from monte.core.render import render
 from monte.core.scene import Lobe, Material, Mesh, SceneError
 
@@ -379,7 +380,7 @@ def test_kernel_caches_are_kept_apart_per_import_name(tmp_path):
 
 def test_kernel_cache_is_warm_after_a_render(fast_settings):
     """After any render the compiled kernels are cached on disk, so the 'compiling' notice is not shown again."""
-    from monte.core.kernels import compile_cache_is_cold
+    from monte.core.jit_cache import compile_cache_is_cold
 
     messages = []
     render(scenes.plane_under_world((8, 8)), fast_settings(spp=1), log=messages.append)

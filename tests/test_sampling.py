@@ -10,10 +10,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.integrate import trapezoid
 import pytest
 from scipy import stats
 
-from monte.core import filters, sampling
+from monte.core import filters, sampling, warps
 
 KINDS = sampling.SAMPLER_KINDS
 P_OK = 1e-4
@@ -392,11 +393,26 @@ def test_sobol_beats_independent_on_smooth_integrand():
 
 
 # ---------------------------------------------------------------------------------------
-# warps
+# warps: the compiled ones the light and BSDF kernels run (core.warps), through their batch forms
 # ---------------------------------------------------------------------------------------
 
 N_WARP = 200_000
 BINS = 20
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def pdf_cos_hemisphere(w):
+    return np.maximum(w[..., 2], 0.0) / np.pi
+
+
+def pdf_uniform_hemisphere(w):
+    return np.where(w[..., 2] >= 0, 1 / (2 * np.pi), 0.0)
+
+
+def in_frame(w, normal):
+    """Directions w (N, 3) in the frame warps.onb builds about the unit normal: (w.t, w.b, w.n)."""
+    t, b = warps.onb_many(np.broadcast_to(normal, w.shape))
+    return np.stack([(w * t).sum(1), (w * b).sum(1), w @ normal], axis=-1)
 
 
 def _hemisphere_p(samples, pdf_fn):
@@ -406,75 +422,78 @@ def _hemisphere_p(samples, pdf_fn):
     return chi2_pvalue(obs, exp, len(w))
 
 
-@pytest.mark.parametrize(
-    "warp", [sampling.sample_cosine_hemisphere, sampling.sample_cosine_hemisphere_concentric]
-)
-def test_cosine_hemisphere_warps(warp):
-    w = warp(rand_u(N_WARP, 1))
-    assert w.dtype == np.float32 and w.shape == (N_WARP, 3)
-    assert np.allclose(np.linalg.norm(w, axis=1), 1, atol=1e-5) and w[:, 2].min() >= 0
-    assert _hemisphere_p(w, sampling.pdf_cosine_hemisphere) > P_OK
-    assert _hemisphere_p(w, sampling.pdf_uniform_hemisphere) < P_BAD
+TILTED = np.array([0.48, -0.6, 0.64])  # unit
+
+
+@pytest.mark.parametrize("frame", ["local (BSDF)", "about +z (lights)", "about a tilted normal (lights)"])
+def test_cosine_hemisphere_warps(frame):
+    u = rand_u(N_WARP, 1)
+    if frame == "local (BSDF)":
+        w = warps.cos_hemisphere_local_many(u)
+    elif frame == "about +z (lights)":
+        w = warps.cos_hemisphere_many(UP, u)
+    else:
+        w = in_frame(warps.cos_hemisphere_many(TILTED, u), TILTED)
+    assert w.shape == (N_WARP, 3)
+    assert np.allclose(np.linalg.norm(w, axis=1), 1, atol=1e-12) and w[:, 2].min() >= 0
+    assert _hemisphere_p(w, pdf_cos_hemisphere) > P_OK
+    assert _hemisphere_p(w, pdf_uniform_hemisphere) < P_BAD
+    cos_t = w[:10, 2]
+    assert np.allclose([warps.cos_hemisphere_pdf(c) for c in cos_t], pdf_cos_hemisphere(w[:10]), rtol=1e-15)
 
 
 def test_cosine_hemisphere_is_the_thesis_formula():
-    u = rand_u(1000, 2)
-    w = sampling.sample_cosine_hemisphere(u)
-    theta = np.arccos(np.sqrt(1 - u[:, 1].astype(np.float64)))
-    assert np.allclose(w[:, 2], np.cos(theta), atol=1e-6)
-    assert np.allclose(phi01(w.astype(np.float64)), u[:, 0], atol=1e-5)
+    u = rand_u(1000, 2).astype(np.float64)
+    w = warps.cos_hemisphere_local_many(u)
+    theta = np.arccos(np.sqrt(1 - u[:, 0]))
+    assert np.allclose(w[:, 2], np.cos(theta), atol=1e-12)
+    assert np.allclose(phi01(w), u[:, 1], atol=1e-9)
+    # the lights' warp about +z is the same map (the frame about +z is the identity)
+    assert np.array_equal(warps.cos_hemisphere_many(UP, u), w)
 
 
-def test_uniform_hemisphere_and_sphere():
-    w = sampling.sample_uniform_hemisphere(rand_u(N_WARP, 3))
-    assert _hemisphere_p(w, sampling.pdf_uniform_hemisphere) > P_OK
-    assert _hemisphere_p(w, sampling.pdf_cosine_hemisphere) < P_BAD
-
-    ws = sampling.sample_uniform_sphere(rand_u(N_WARP, 4)).astype(np.float64)
-    assert np.allclose(np.linalg.norm(ws, axis=1), 1, atol=1e-5)
+def test_uniform_sphere():
+    ws = warps.sphere_many(rand_u(N_WARP, 4))
+    assert np.allclose(np.linalg.norm(ws, axis=1), 1, atol=1e-12)
 
     def p_sphere(pdf_fn):
         obs = hist_2d((ws[:, 2] + 1) / 2, phi01(ws), BINS)
         exp = expected_2d(lambda s, t: pdf_fn(dir_from(2 * s - 1, 2 * np.pi * t)) * 4 * np.pi, BINS, N_WARP)
         return chi2_pvalue(obs, exp, N_WARP)
 
-    assert p_sphere(sampling.pdf_uniform_sphere) > P_OK
-    assert p_sphere(sampling.pdf_uniform_hemisphere) < P_BAD
+    assert p_sphere(lambda w: np.full(w.shape[:-1], warps.sphere_pdf())) > P_OK
+    assert p_sphere(pdf_uniform_hemisphere) < P_BAD
 
 
 @pytest.mark.parametrize("cos_max", [0.7, -0.3, 0.999])
 def test_uniform_cone(cos_max):
-    w = sampling.sample_uniform_cone(rand_u(N_WARP, 5), cos_max).astype(np.float64)
-    assert w[:, 2].min() >= cos_max - 1e-6
-    assert np.allclose(np.linalg.norm(w, axis=1), 1, atol=1e-5)
+    w = warps.cone_many(UP, 1 - cos_max, rand_u(N_WARP, 5))
+    assert w[:, 2].min() >= cos_max - 1e-12
+    assert np.allclose(np.linalg.norm(w, axis=1), 1, atol=1e-12)
 
-    def p(pdf_cos):
+    def p(cos_pdf):
         obs = hist_2d((w[:, 2] - cos_max) / (1 - cos_max), phi01(w), BINS)
         jac = (1 - cos_max) * 2 * np.pi
-        exp = expected_2d(
-            lambda s, t: sampling.pdf_uniform_cone(dir_from(cos_max + s * (1 - cos_max), 2 * np.pi * t), pdf_cos) * jac,
-            BINS,
-            N_WARP,
-        )
+        exp = expected_2d(lambda s, t: np.where(cos_max + s * (1 - cos_max) >= cos_pdf,
+                                                warps.cone_pdf(1 - cos_pdf), 0.0) * jac, BINS, N_WARP)
         return chi2_pvalue(obs, exp, N_WARP)
 
     assert p(cos_max) > P_OK
     assert p(cos_max - 0.01 * (1 - cos_max)) < P_BAD  # pdf of a slightly wider cone
-    pdf = sampling.pdf_uniform_cone(np.array([[0, 0, 1.0]]), cos_max)
-    assert np.isclose(pdf[0], 1 / (2 * np.pi * (1 - cos_max)), rtol=1e-4)  # float32 cos_max
+    assert warps.cone_pdf(1 - cos_max) == pytest.approx(1 / (2 * np.pi * (1 - cos_max)), rel=1e-15)
 
 
 def test_uniform_cone_per_path_cos_max():
-    cm = np.linspace(-0.5, 0.9, 1000).astype(np.float32)
-    w = sampling.sample_uniform_cone(rand_u(1000, 6), cm)
-    assert np.all(w[:, 2] >= cm - 1e-6)
+    cm = np.linspace(-0.5, 0.9, 1000)
+    w = warps.cone_many(UP, 1 - cm, rand_u(1000, 6))
+    assert np.all(w[:, 2] >= cm - 1e-12)
 
 
-def test_concentric_disk():
-    d = sampling.sample_concentric_disk(rand_u(N_WARP, 7)).astype(np.float64)
+@pytest.mark.parametrize("radius", [1.0, 0.05])
+def test_uniform_disk(radius):
+    d = warps.disk_many(radius, rand_u(N_WARP, 7)) / radius
     r2 = (d**2).sum(axis=1)
-    assert r2.max() <= 1 + 1e-6
-    r2 = np.minimum(r2, 1.0)  # float32 rounding may put a point an ulp outside
+    assert r2.max() <= 1 + 1e-12
 
     def p(pdf_fn):
         obs = hist_2d(r2, phi01(d), BINS)
@@ -486,58 +505,47 @@ def test_concentric_disk():
         exp = expected_2d(density, BINS, N_WARP)
         return chi2_pvalue(obs, exp, N_WARP)
 
-    assert p(sampling.pdf_concentric_disk) > P_OK
+    assert p(lambda q: np.where((q**2).sum(-1) <= 1, 1 / np.pi, 0.0)) > P_OK
     assert p(lambda q: (1 - (q**2).sum(-1)) * 2 / np.pi) < P_BAD
-    assert np.allclose(sampling.sample_concentric_disk(np.array([[0.5, 0.5]])), 0)  # centre, no NaN
-    assert sampling.sample_concentric_disk(rand_u(10, 8)).dtype == np.float32
+    assert np.array_equal(warps.disk_many(radius, np.zeros((1, 2))), np.zeros((1, 2)))  # centre, no NaN
 
 
-@pytest.mark.parametrize("method", ["heitz", "sqrt"])
-def test_uniform_triangle(method):
-    b = sampling.sample_uniform_triangle(rand_u(N_WARP, 9), method).astype(np.float64)
-    assert b.shape == (N_WARP, 3) and b.min() >= 0 and np.allclose(b.sum(axis=1), 1, atol=1e-6)
+def test_uniform_triangle():
+    b = warps.triangle_many(rand_u(N_WARP, 9))
+    assert b.shape == (N_WARP, 2) and b.min() >= 0 and b.sum(axis=1).max() <= 1 + 1e-12
     n = 16
     obs = hist_2d(b[:, 0], b[:, 1], n)
     i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
     inside_frac = np.where(i + j < n - 1, 1.0, np.where(i + j == n - 1, 0.5, 0.0))
     cell = 1.0 / n**2
-    # pdf in (b0, b1) = area pdf for a triangle of area 1/2
-    exp = inside_frac * cell * float(sampling.pdf_uniform_triangle(0.5)) * N_WARP
+    # uniform on the triangle b1, b2 >= 0, b1 + b2 <= 1 of area 1/2: density 2
+    exp = inside_frac * cell * 2.0 * N_WARP
     assert chi2_pvalue(obs, exp, N_WARP) > P_OK
     wrong = inside_frac * cell * 2 * (1 - (i + 0.5) / n) * 1.5 * N_WARP  # a non-uniform "pdf"
     assert chi2_pvalue(obs, wrong, N_WARP) < P_BAD
-    assert np.isclose(sampling.pdf_uniform_triangle(np.array([2.0]))[0], 0.5)
-    with pytest.raises(ValueError):
-        sampling.sample_uniform_triangle(rand_u(4, 0), "nope")
 
 
 @pytest.mark.parametrize("dist", [3.0, 50.0, 1e4])
 def test_sphere_cap(dist):
+    """A sphere light seen from outside: the cone the lights sample (sample_cone with
+    one_minus_cos_from_sin2(r^2 / d^2)) holds exactly the directions that hit the sphere, uniformly."""
     rng = np.random.default_rng(10)
     center = np.array([0.3, -1.0, 2.0])
     radius = 1.0
-    axis_true = rng.normal(size=3)
-    axis_true /= np.linalg.norm(axis_true)
-    p = np.broadcast_to(center - dist * axis_true, (N_WARP, 3))
-    wi, pdf = sampling.sample_sphere_cap(rand_u(N_WARP, 11), p, center, radius)
-    assert wi.dtype == np.float32 and pdf.dtype == np.float32
-    wi64 = wi.astype(np.float64)
-    assert np.allclose(np.linalg.norm(wi64, axis=1), 1, atol=1e-5)
-    sin2 = radius**2 / dist**2
-    omc = 1 - math.sqrt(1 - sin2)
-    assert np.allclose(pdf, 1 / (2 * np.pi * omc), rtol=1e-4)
-    assert np.allclose(sampling.pdf_sphere_cap(wi, p, center, radius), pdf, rtol=1e-4)
-    assert np.allclose(sampling.pdf_sphere_cap(None, p, center, radius), pdf, rtol=1e-4)
-    # a direction well outside the cone has pdf 0
-    away = np.broadcast_to(-axis_true, (N_WARP, 3))
-    assert np.all(sampling.pdf_sphere_cap(away, p, center, radius) == 0)
-    # every direction hits the sphere (up to float32 rounding of the direction)
-    miss = np.linalg.norm(np.cross(wi64, center - p[0]), axis=1)  # ray-to-centre distance
-    assert np.all(miss <= radius * (1 + 1e-3) + dist * 2e-7)
-    assert np.all(wi64 @ (center - p[0]) > 0)
-    if dist < 10:  # the histogram is meaningful where float32 resolves the cone finely
-        t, b = sampling.build_onb(axis_true[None].astype(np.float64))
-        loc = sampling.to_local(wi64, t, b, axis_true[None])
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    p = center - dist * axis
+    omc = warps.one_minus_cos_from_sin2(radius**2 / dist**2)
+    wi = warps.cone_many(axis, omc, rand_u(N_WARP, 11))
+    assert np.allclose(np.linalg.norm(wi, axis=1), 1, atol=1e-12)
+    assert warps.cone_pdf(omc) == pytest.approx(1 / (2 * np.pi * (1 - math.sqrt(1 - radius**2 / dist**2))),
+                                                rel=1e-6 if dist < 100 else 1e-3)
+    miss = np.linalg.norm(np.cross(wi, center - p), axis=1)  # ray-to-centre distance
+    assert np.all(miss <= radius * (1 + 1e-9))
+    assert np.all(wi @ (center - p) > 0)
+    assert miss.max() > radius * (1 - 1e-3)  # and the cone is not narrower than the sphere
+    if dist < 10:  # the histogram is meaningful where the cone is resolved finely
+        loc = in_frame(wi, axis)
         s = (1 - loc[:, 2]) / omc
         obs = hist_2d(1 - s, phi01(loc), BINS)
         exp = expected_2d(lambda s_, t_: np.full(s_.shape, 1.0), BINS, N_WARP)
@@ -546,10 +554,12 @@ def test_sphere_cap(dist):
         assert chi2_pvalue(obs, exp * (omc / (1.02 * omc)), N_WARP) < P_BAD
 
 
-def test_sphere_cap_inside_sphere_is_uniform_sphere():
-    wi, pdf = sampling.sample_sphere_cap(rand_u(1000, 12), np.zeros((1000, 3)), np.array([0.1, 0, 0]), 2.0)
-    assert np.allclose(pdf, 1 / (4 * np.pi))
-    assert wi[:, 2].min() < -0.9 and wi[:, 2].max() > 0.9
+@pytest.mark.parametrize("sin2", [0.5, 1e-4, 1e-12, 1e-30])
+def test_one_minus_cos_keeps_tiny_cones(sin2):
+    # 1 - sqrt(1 - s) = s/2 + s^2/8 + s^3/16 + ...: the naive form is 0 below s ~ 1e-16 (a star's cone)
+    series = sin2 / 2 + sin2**2 / 8 + sin2**3 / 16 + 5 * sin2**4 / 128
+    want = 1 - math.sqrt(1 - sin2) if sin2 > 0.1 else series
+    assert warps.one_minus_cos_from_sin2(sin2) == pytest.approx(want, rel=1e-14)
 
 
 # ---------------------------------------------------------------------------------------
@@ -557,25 +567,28 @@ def test_sphere_cap_inside_sphere_is_uniform_sphere():
 # ---------------------------------------------------------------------------------------
 
 
-def test_build_onb_orthonormal_right_handed():
+@pytest.mark.parametrize("dtype, tol", [(np.float64, 1e-12), (np.float32, 2e-6)])
+def test_onb_orthonormal_right_handed(dtype, tol):
+    """onb (lights, float64) and onb_f32 (the shading frames of surface hits, float32)."""
     rng = np.random.default_rng(13)
     n = rng.normal(size=(10_000, 3))
     n = np.concatenate([n, [[0, 0, 1], [0, 0, -1], [-0.0, -0.0, -1], [1, 0, 0], [0, -1, 0], [1e-8, 0, -1]]])
-    n = (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
-    t, b = sampling.build_onb(n)
-    assert t.dtype == np.float32
+    n = (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(dtype)
+    t, b = warps.onb_many(n)
+    assert t.dtype == dtype and b.dtype == dtype
     for v in (t, b):
-        assert np.allclose(np.linalg.norm(v, axis=1), 1, atol=1e-5)
-    assert np.allclose((t * b).sum(1), 0, atol=1e-5)
-    assert np.allclose((t * n).sum(1), 0, atol=1e-5)
-    assert np.allclose((b * n).sum(1), 0, atol=1e-5)
-    assert np.allclose(np.cross(t, b), n, atol=1e-5)
-    v = rng.normal(size=n.shape).astype(np.float32)
-    loc = sampling.to_local(v, t, b, n)
-    assert np.allclose(sampling.to_world(loc, t, b, n), v, atol=1e-4)
-    assert np.allclose(loc[:, 2], (v * n).sum(1), atol=1e-5)
-    # +z local maps to the normal
-    assert np.allclose(sampling.to_world(np.array([[0, 0, 1.0]]), t, b, n), n, atol=1e-6)
+        assert np.allclose(np.linalg.norm(v, axis=1), 1, atol=tol)
+    assert np.allclose((t * b).sum(1), 0, atol=tol)
+    assert np.allclose((t * n).sum(1), 0, atol=tol)
+    assert np.allclose((b * n).sum(1), 0, atol=tol)
+    assert np.allclose(np.cross(t, b), n, atol=tol)
+    if dtype == np.float32:
+        return
+    # around(): polar angle measured from the axis, azimuth from t towards b
+    for k in (0, 5, 10_003):
+        w = warps.around(*n[k], math.cos(0.3), math.sin(0.3), 1.1)
+        assert np.dot(w, n[k]) == pytest.approx(math.cos(0.3), abs=1e-12)
+        assert math.atan2(np.dot(w, b[k]), np.dot(w, t[k])) == pytest.approx(1.1, abs=1e-12)
 
 
 # ---------------------------------------------------------------------------------------
@@ -619,7 +632,7 @@ def test_filter_samples_match_pdf_and_support(kind, width):
     ext = f.sample(np.array([[0, 1 - 2**-24], [2**-24, 0.5]], dtype=np.float32))
     assert np.all(np.abs(ext) <= f.radius) and np.isclose(abs(ext[0, 0]), f.radius, rtol=1e-6)
     xs = np.linspace(-f.radius, f.radius, 200_001)
-    assert np.isclose(np.trapz(f.pdf_1d(xs), xs), 1, atol=2e-3 if kind == "box" else 1e-5)
+    assert np.isclose(trapezoid(f.pdf_1d(xs), xs), 1, atol=2e-3 if kind == "box" else 1e-5)
     assert f.pdf_1d(np.array([f.radius * 1.001]))[0] == 0
 
 

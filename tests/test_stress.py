@@ -8,9 +8,10 @@ checks (warning counts, sample counts, clamping bias). `monte stress` runs the s
 import numpy as np
 import pytest
 
-from monte.core import metrics, stress
+from monte.core import metrics
 from monte.core.render import render
-from monte.core.stress import CASES, Context, StressConfig
+from monte.lab import stress
+from monte.lab.stress import CASES, Context, StressConfig
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +135,7 @@ def test_smooth_glass_sphere_loses_no_paths_at_its_silhouette(ior, allowed):
     (13 of 65536 samples at IOR 1.0001, 14 at 1.5); the shading normal is now kept valid for reflection, as
     Cycles does. At IOR 1.5 two samples remain (measured): refraction through the tilted shading normal that
     would cross back, which Cycles rejects as well."""
-    from monte.core import scenes
+    from monte.core import builtin_scenes as scenes
     from monte.core.settings import RenderSettings
 
     scene = stress._white_furnace([scenes.icosphere("ball", (0, 0, 0), 1.0, 0)], [stress._glass(ior)], 256)

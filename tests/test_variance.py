@@ -23,7 +23,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monte.core import sampling, scenes
+from monte.core import builtin_scenes as scenes
+from monte.core import sampling
 from monte.core.render import render
 from monte.core.settings import RenderSettings
 

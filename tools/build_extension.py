@@ -6,7 +6,8 @@
     python tools/build_extension.py --single        # one zip with every platform's wheels
 
 Wheels listed in blender_manifest.toml are downloaded into wheels/ with `pip download --only-binary=:all:`
-(exact versions taken from the file names; files already there are reused). The zips are made by Blender's
+(exact versions, Python and platform taken from the file names: cp311 wheels for Blender 4.2 - 5.0, cp313 for
+Blender 5.3; files already there are reused). The zips are made by Blender's
 own extension builder, shipped inside the `bpy` wheel (bpy/<ver>/scripts/addons_core/bl_pkg/cli/
 blender_ext.py), with plain Python: no Blender binary needed. Each zip is then checked to hold only the
 add-on (the package __init__.py, core/, addon/, the manifest, LICENSE and its wheels).
@@ -29,15 +30,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 MANIFEST = ROOT / "blender_manifest.toml"
-PYTHON_VERSION = "3.11"  # Blender 4.2 - 5.0 bundle CPython 3.11
 
 # Blender platform -> pip --platform tags that select its wheels (the newest tag first; pip accepts older ones
 # for manylinux/macOS when given the newest, but listing them is explicit).
 PIP_PLATFORMS = {
-    "linux-x64": ["manylinux_2_28_x86_64", "manylinux_2_17_x86_64"],  # numba/llvmlite ship manylinux2014 wheels
+    "linux-x64": ["manylinux_2_28_x86_64", "manylinux_2_17_x86_64"],
     "windows-x64": ["win_amd64"],
     "macos-x64": ["macosx_13_0_x86_64"],
-    "macos-arm64": ["macosx_13_0_arm64"],
+    "macos-arm64": ["macosx_13_0_arm64"],  # pip takes older macOS tags (numba's 12.0, OpenEXR's 11.0) too
 }
 # Top-level entries a built zip may hold.
 ALLOWED_TOP = {"__init__.py", "blender_manifest.toml", "LICENSE", "core", "addon", "wheels"}  # the GPL travels with the code
@@ -56,14 +56,26 @@ def load_manifest() -> dict:
         return tomllib.load(fh)
 
 
-def wheel_requirements(wheels: list[str]) -> dict[str, str]:
-    """{'embreex': '4.4.0.post1', 'openexr': '3.5.3'} from the manifest's wheel file names."""
-    pins: dict[str, str] = {}
+def wheel_tags(wheel: str) -> tuple[str, str, str, str]:
+    """(name, version, python, platform) of a wheel file name: ('numba', '0.68.1', '3.13', 'linux-x64')."""
+    parts = Path(wheel).stem.split("-")
+    name, version, python_tag = parts[0], parts[1], parts[-3]
+    if not re.fullmatch(r"cp3\d+", python_tag):
+        raise BuildError(f"{wheel}: expected a CPython wheel (cp3XX tag), found {python_tag!r}")
+    return name, version, f"3.{python_tag[3:]}", wheel_platform(wheel)
+
+
+def wheel_requirements(wheels: list[str]) -> dict[tuple[str, str], dict[str, str]]:
+    """{(platform, python): {name: version}} from the manifest's wheel file names. A package may differ in
+    version between platforms (Intel Macs keep an older numba) but not twice for one platform and Python."""
+    pins: dict[tuple[str, str], dict[str, str]] = {}
     for w in wheels:
-        name, version = Path(w).name.split("-")[:2]
-        if pins.get(name, version) != version:
-            raise BuildError(f"the manifest lists two versions of {name}: {pins[name]} and {version}")
-        pins[name] = version
+        name, version, python, platform = wheel_tags(w)
+        group = pins.setdefault((platform, python), {})
+        if group.get(name, version) != version:
+            raise BuildError(f"the manifest lists two versions of {name} for {platform}, Python {python}: "
+                             f"{group[name]} and {version}")
+        group[name] = version
     return pins
 
 
@@ -82,25 +94,28 @@ def wheel_platform(wheel: str) -> str:
 
 
 def download_wheels(manifest: dict, platforms: list[str], refresh: bool) -> None:
+    """Fetch the manifest's wheels for `platforms` into wheels/ (one pip call per platform and Python)."""
     wheels = manifest.get("wheels", [])
-    pins = wheel_requirements(wheels)
     dest = ROOT / "wheels"
     dest.mkdir(exist_ok=True)
-    for platform in platforms:
-        wanted = [w for w in wheels if wheel_platform(w) == platform]
+    for (platform, python), pins in sorted(wheel_requirements(wheels).items()):
+        if platform not in platforms:
+            continue
+        wanted = [w for w in wheels if wheel_tags(w)[2:] == (python, platform)]
         missing = [w for w in wanted if not (ROOT / w).is_file()]
         if not missing and not refresh:
-            log(f"{platform}: wheels present ({', '.join(Path(w).name for w in wanted)})")
+            log(f"{platform}, Python {python}: wheels present ({', '.join(Path(w).name for w in wanted)})")
             continue
         cmd = [sys.executable, "-m", "pip", "download", "--only-binary=:all:", "--no-deps",
-               "--python-version", PYTHON_VERSION, "--implementation", "cp", "-d", str(dest)]
+               "--python-version", python, "--implementation", "cp", "-d", str(dest)]
         for tag in PIP_PLATFORMS[platform]:
             cmd += ["--platform", tag]
         cmd += [f"{name}=={version}" for name, version in sorted(pins.items())]
-        log(f"{platform}: " + " ".join(cmd[3:]))
+        log(f"{platform}, Python {python}: " + " ".join(cmd[3:]))
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
-            raise BuildError(f"pip download failed for {platform}:\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
+            raise BuildError(f"pip download failed for {platform}, Python {python}:\n{proc.stdout[-2000:]}\n"
+                             f"{proc.stderr[-2000:]}")
         still = [w for w in wanted if not (ROOT / w).is_file()]
         if still:
             have = sorted(p.name for p in dest.glob("*.whl"))
@@ -115,7 +130,7 @@ def find_blender_ext() -> Path:
         return Path(env)
     spec = importlib.util.find_spec("bpy")
     if spec is None or not spec.submodule_search_locations:
-        raise BuildError("the bpy module is not installed (pip install bpy==5.0.1), and BLENDER_EXT is not set to "
+        raise BuildError("the bpy module is not installed (pip install bpy==5.3.0), and BLENDER_EXT is not set to "
                          "Blender's scripts/addons_core/bl_pkg/cli/blender_ext.py")
     for base in spec.submodule_search_locations:
         hits = sorted(glob.glob(os.path.join(base, "*", "scripts", "addons_core", "bl_pkg", "cli",

@@ -1,6 +1,6 @@
 """`monte mc-study`: the seed's Monte Carlo experiments, reproduced and extended.
 
-Runs the estimators, variance-reduction methods and samplers of ``core/montecarlo.py`` over many
+Runs the estimators, variance-reduction methods and samplers of ``lab/montecarlo.py`` over many
 independent repetitions, then writes PNG plots, ``summary.json`` and ``summary.md`` into one folder.
 Every random stream derives from (seed, experiment name, n), so the numbers of a run are a pure
 function of the seed and the ``quick`` flag; only keys containing "second" (timings and the
@@ -13,8 +13,6 @@ import argparse
 import io
 import json
 import math
-import os
-import tempfile
 import time
 import zlib
 from dataclasses import asdict, dataclass
@@ -23,7 +21,12 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..core.atomic_file import write_bytes_atomically
 from . import montecarlo as mc
+from .bench_math import efficiency
+
+# The trapezoidal rule: np.trapezoid since NumPy 2.0 (np.trapz was removed), np.trapz on NumPy 1.x (Blender 4.x).
+trapezoid = getattr(np, "trapezoid", None) or np.trapz
 
 CONFIDENCE = 0.999
 """Confidence level of every interval and band in the study (normal approximation)."""
@@ -107,7 +110,7 @@ def _sweep_over_n(
         # Where single estimates fall (not their mean): the spread one run of n samples has.
         rows["single_estimate_spread"].append(np.percentile(estimates, [tail, 100.0 - tail]).tolist())
         rows["seconds_per_estimate"].append(seconds)
-        rows["efficiency_per_second"].append(1.0 / (seconds * stats.variance))
+        rows["efficiency_per_second"].append(efficiency(seconds, stats.variance))
     result: dict[str, Any] = {"n": list(config.sample_counts), "repetitions": config.repetitions,
                               "single_estimate_spread_level": ESTIMATE_SPREAD, **rows}
     if fit_variance_slope:
@@ -123,8 +126,8 @@ def _single_sample_variance(f: mc.Integrand, a: float, b: float, points: int = 4
     """V[(b − a) f(X)] for X ~ U(a, b) by fine quadrature: the theory line σ²/n of the plots."""
     x = np.linspace(a, b, points)
     values = f(x)
-    mean = np.trapz(values, x) / (b - a)
-    mean_square = np.trapz(values**2, x) / (b - a)
+    mean = trapezoid(values, x) / (b - a)
+    mean_square = trapezoid(values**2, x) / (b - a)
     return float((b - a) ** 2 * (mean_square - mean**2))
 
 
@@ -179,7 +182,7 @@ def _costed_summary(result: mc.CostedEstimates, exact: float) -> dict[str, Any]:
         "variance": stats.variance,
         "variance_half_width": stats.variance_half_width,
         "cost_per_estimate": result.cost_per_estimate,
-        "efficiency_per_cost_unit": 1.0 / (result.cost_per_estimate * stats.variance),
+        "efficiency_per_cost_unit": efficiency(result.cost_per_estimate, stats.variance),
     }
 
 
@@ -502,16 +505,8 @@ def _figures(summary: dict[str, Any], samplers: list[SamplerRun], hemisphere: np
 
 
 def _write_atomically(path: Path, data: bytes) -> None:
-    """Write to a temporary file in the same folder, then rename: readers never see a partial file."""
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "wb") as file:
-            file.write(data)
-        os.chmod(temporary, 0o644)  # mkstemp creates 0600; these are ordinary shareable outputs
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    """Readers never see a partial file (core.atomic_file)."""
+    write_bytes_atomically(path, data)
 
 
 def _write_plots(

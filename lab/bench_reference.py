@@ -7,8 +7,8 @@ hash of every parameter that changes the image (scene and its version, resolutio
 samples, seeds, renderer version), so a reference is reused exactly when it still applies.
 
 The seed's Cornell box at 256x256 with the default settings starts from the bundled render
-(core/data/cornell_cycles_4096spp.exr: Cycles 5.0.1, 4 seeds x 1024 spp, own RMSE about 0.007). No bpy here:
-rendering a missing reference is the add-on's job (addon/bench_cycles.py).
+(lab/data/cornell_cycles_4096spp.exr: Cycles 5.0.1, 4 seeds x 1024 spp, own RMSE about 0.007). No bpy here:
+rendering a missing reference is the add-on's job (lab/bench_cycles.py).
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import exr
+from ..core import exr
 from .bench_math import write_json
 
-# What the bundled reference was rendered with (DESIGN.md, notes/cycles-conventions.md).
+# What the bundled reference was rendered with (the seed's Cornell box, core.builtin_scenes.cornell_box, in Cycles).
 BUNDLED_PARAMS = {"scene": "cornell", "resolution": [256, 256], "max_bounces": 16,
                   "filter_type": "blackman-harris", "filter_width": 1.5, "spp_per_seed": 1024, "seeds": 4}
 BUNDLED_OWN_RMSE = 0.007
@@ -91,7 +91,7 @@ class ReferenceCache:
             from .bench import bundled_reference
 
             ref = Reference(bundled_reference(), BUNDLED_OWN_RMSE**2, dict(params), None, "bundled")
-            ref.path = self.store(ref.image, ref.own_mse, params, note="bundled core/data/cornell_cycles_4096spp.exr")
+            ref.path = self.store(ref.image, ref.own_mse, params, note="bundled lab/data/cornell_cycles_4096spp.exr")
             return ref
         return None
 

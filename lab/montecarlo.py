@@ -2,7 +2,7 @@
 
 Everything here is pure and vectorised: an estimator draws all samples of all repetitions as one
 NumPy array (shape ``(repetitions, n)``) from an explicitly seeded ``numpy.random.Generator`` and
-returns one estimate per repetition. ``core/mc_study.py`` runs these over many ``n`` and writes
+returns one estimate per repetition. ``lab/mc_study.py`` runs these over many ``n`` and writes
 plots; the tests check them against closed forms.
 
 The seed's integral
@@ -23,6 +23,8 @@ from statistics import NormalDist
 from typing import Callable
 
 import numpy as np
+
+from ..core import warps
 
 Integrand = Callable[[np.ndarray], np.ndarray]
 """A vectorised real function: array of points in, array of values of the same shape out."""
@@ -385,14 +387,16 @@ def loglog_slope(
 
 
 def sample_cosine_hemisphere(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The seed's inverse transform for a Lambertian BRDF: φ = 2π ξ₁, θ = arccos √(1 − ξ₂).
+    """The seed's inverse transform for a Lambertian BRDF: φ = 2π ξ₁, θ = arccos √(1 − ξ₂), run by the
+    renderer's own compiled warp (core.warps.sample_cos_hemisphere_local, which the diffuse BSDF samples with).
 
     Returns (θ, φ): θ has pdf sin 2θ on [0, π/2] (CDF sin²θ), φ is uniform on [0, 2π); the
     solid-angle pdf is cos θ / π.
     """
     xi_phi = rng.random(n)
     xi_theta = rng.random(n)
-    return np.arccos(np.sqrt(1.0 - xi_theta)), 2.0 * math.pi * xi_phi
+    w = warps.cos_hemisphere_local_many(np.column_stack([xi_theta, xi_phi]))
+    return np.arccos(np.clip(w[:, 2], -1.0, 1.0)), np.arctan2(w[:, 1], w[:, 0]) % (2.0 * math.pi)
 
 
 def cosine_hemisphere_theta_pdf(theta: np.ndarray) -> np.ndarray:

@@ -40,10 +40,11 @@ from typing import Callable
 
 import numpy as np
 
-from . import metrics, scenes
-from .render import RenderResult, render
-from .scene import Camera, Lobe, Material, Mesh, Scene, SunLight, World
-from .settings import RenderSettings
+from ..core import builtin_scenes as scenes
+from ..core import metrics
+from ..core.render import RenderResult, render
+from ..core.scene import Camera, Lobe, Material, Mesh, Scene, SunLight, World
+from ..core.settings import RenderSettings
 
 K_SIGMA = 5.0  # tolerance in standard errors: ~40 cases, so a false alarm at 5 sigma is negligible
 FLOOR_REL = 1e-5  # float32 accumulation precision, for references with zero variance
@@ -63,7 +64,7 @@ class StressConfig:
     big_resolution: tuple[int, int] = (7680, 4320)
     huge_spp: int = 65536
     # (core Scene, RenderSettings) -> {"mean": [R, G, B], "nonfinite": int, "note": str}: renders the same case
-    # with Cycles (addon.core_to_bpy.cycles_renderer, passed in by `monte stress --cycles`); None: Monte only.
+    # with Cycles (lab.core_to_bpy.cycles_renderer, passed in by `monte stress --cycles`); None: Monte only.
     cycles: Callable | None = None
 
     @classmethod
@@ -692,7 +693,7 @@ def case_albedo_extremes(ctx: Context) -> list[CaseResult]:
 
 def _render_peak_child(width: int, height: int, spp: int, threads: int) -> dict:
     """Runs in a child process: render the Cornell box at width x height, return finiteness and peak RSS."""
-    from .memory import estimate_render_memory, peak_rss_bytes
+    from ..core.memory import estimate_render_memory, peak_rss_bytes
 
     scene = scenes.cornell_box((width, height))
     settings = RenderSettings(spp=spp, threads=threads)
@@ -728,7 +729,7 @@ def case_resolutions(ctx: Context) -> list[CaseResult]:
                               "finite, every pixel sampled", passed=ok, nonfinite_pixels=info["nonfinite"],
                               mean=info["mean"], seconds=info["seconds"], checks={"estimate_mb": info["estimate_mb"]}))
         return out
-    code = ("import json, sys; from monte.core.stress import _render_peak_child; "
+    code = ("import json, sys; from monte.lab.stress import _render_peak_child; "
             f"print(json.dumps(_render_peak_child({w}, {h}, 1, {ctx.cfg.threads})))")
     t = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=os.environ.copy())
@@ -837,7 +838,7 @@ def _fmt(values, digits: int = 4) -> str:
 def write_report(results: list[CaseResult], out_dir: str | os.PathLike, cfg: StressConfig,
                  extra: dict | None = None) -> tuple[Path, Path]:
     """report.json (every number) and report.md (one table row per case) in out_dir."""
-    from .exr import _atomic_write
+    from ..core.atomic_file import write_text_atomically
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -845,8 +846,8 @@ def write_report(results: list[CaseResult], out_dir: str | os.PathLike, cfg: Str
                "cases": [asdict(c) | {"status": c.status} for c in results]}
     payload.update(extra or {})
     text = json.dumps(payload, indent=2, default=float)
-    json_path = _atomic_write(out / "report.json", ".json", lambda p: Path(p).write_text(text))
-    md_path = _atomic_write(out / "report.md", ".md", lambda p: Path(p).write_text(report_markdown(results, cfg)))
+    json_path = write_text_atomically(out / "report.json", text, ".json")
+    md_path = write_text_atomically(out / "report.md", report_markdown(results, cfg), ".md")
     return json_path, md_path
 
 

@@ -23,10 +23,11 @@ import tracemalloc
 
 import numpy as np
 
-from .render import render
-from .scene import Lobe, Material
-from .scenes import cornell_box, cornell_diffuse, spheres_under_sky
-from .settings import RenderSettings
+from ..core.render import render
+from ..core.scene import Lobe, Material
+from ..core.builtin_scenes import cornell_box, cornell_diffuse, spheres_under_sky
+from ..core.settings import RenderSettings
+from .bench_math import efficiency
 
 SECTIONS = ("stages", "threads", "memory", "skip", "adaptive")
 
@@ -105,7 +106,7 @@ def adaptive_saving(resolution: int, spp: int, threads: int, threshold: float, b
         r = render(builder(size), _settings(spp=spp, threads=threads, adaptive_threshold=thr, aovs=False))
         err = float(np.sqrt(np.mean((r.color[..., :3] - reference) ** 2)))
         out[name] = {"seconds": r.stats["seconds"], "samples": int(r.sample_count.sum()), "rmse": err,
-                     "efficiency": 1.0 / (r.stats["seconds"] * err * err)}
+                     "efficiency": efficiency(r.stats["seconds"], err * err)}
     out["threshold"] = threshold
     out["time_saved"] = 1 - out["on"]["seconds"] / out["off"]["seconds"]
     out["efficiency_gain"] = out["on"]["efficiency"] / out["off"]["efficiency"]

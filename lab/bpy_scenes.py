@@ -3,7 +3,7 @@
 Each builder resets Blender to an empty factory scene with Monte registered, builds the scene and returns it.
 All render at 256x256 by default with Blackman-Harris 1.5 px, the default of both Monte and Cycles.
 
-- `cornell_box`: the seed's Cornell box (DESIGN.md; the same triangles as core.scenes.cornell_box).
+- `cornell_box`: the seed's Cornell box (the same triangles as core.builtin_scenes.cornell_box).
 - `interior`: a diffuse-only room with furniture-like boxes, lit by one ceiling area light and a small lamp.
 - `glass`: glass and rough-glass objects on a floor under a tilted area light (caustics on the floor).
 - `instances`: 4096 small spheres scattered by geometry nodes (Instance on Points) on a ground plane.
@@ -33,7 +33,7 @@ def scene_version(name: str) -> int:
 
 def reset():
     """Empty factory scene, Monte registered and selected; returns the scene."""
-    from . import register
+    from ..addon import register
 
     register()
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -43,11 +43,19 @@ def reset():
 
 
 # --------------------------------------------------------------------------------------------- materials
+def node_tree_of(idblock):
+    """The node tree of a material or world, created first where Blender has none: before 5.0 a new material
+    or world has use_nodes False and node_tree None (5.x gives every new one a tree)."""
+    if idblock.node_tree is None:
+        idblock.use_nodes = True
+    return idblock.node_tree
+
+
 def node_material(name: str, shader: str, **inputs):
     """A material whose Material Output is fed by one shader node with the given input values
     (keyword names with '_' for spaces: Base_Color -> 'Base Color')."""
     mat = bpy.data.materials.new(name)
-    tree = mat.node_tree
+    tree = node_tree_of(mat)
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     node = tree.nodes.new(shader)
@@ -67,10 +75,7 @@ def diffuse(name: str, rgb) -> object:
 def set_world(scene, rgb, strength: float = 1.0):
     world = bpy.data.worlds.new("World")
     scene.world = world
-    tree = world.node_tree
-    if tree is None:  # Blender < 5 worlds need use_nodes
-        world.use_nodes = True
-        tree = world.node_tree
+    tree = node_tree_of(world)
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputWorld")
     bg = tree.nodes.new("ShaderNodeBackground")
@@ -158,7 +163,7 @@ def _finish(scene, resolution) -> None:
 
 # --------------------------------------------------------------------------------------------- scenes
 def cornell_box(resolution=(256, 256)):
-    """The seed's Cornell box as DESIGN.md describes it (and core.scenes.cornell_box builds it), in bpy:
+    """The seed's Cornell box as core.builtin_scenes.cornell_box builds it, in bpy:
     the same triangles (quads split along 0-2), materials and camera."""
     scene = reset()
     white = diffuse("white", (0.75, 0.75, 0.75))

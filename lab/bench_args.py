@@ -1,7 +1,7 @@
 """`monte bench` command-line options beyond the render options (argparse only: cheap to import).
 
---vs cycles (addon/bench_cycles.py, needs bpy), --samplers, --batch-sizes and --seed-table
-(core/bench_ladders.py, no bpy).
+--vs cycles (lab/bench_cycles.py, needs bpy), --samplers, --batch-sizes and --seed-table
+(lab/bench_ladders.py, no bpy).
 """
 
 from __future__ import annotations

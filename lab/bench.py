@@ -11,11 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import metrics
-from .exr import read_rgb
-from .render import render
-from .scenes import cornell_box
-from .settings import CLI_SETTINGS, RenderSettings
+from ..core import metrics
+from ..core.exr import read_rgb
+from ..core.render import render
+from ..core.builtin_scenes import cornell_box
+from ..core.settings import CLI_SETTINGS, RenderSettings
+from .bench_math import efficiency
 
 REFERENCE_MEANS = (0.39494, 0.33119, 0.39700)  # the bundled Cycles reference (4 x 1024 spp, BH 1.5 px)
 REFERENCE_OWN_RMSE = 0.007  # the reference's own noise: RMSE against it is biased up by this in quadrature
@@ -46,7 +47,7 @@ def run_bench(args: argparse.Namespace) -> dict:
         # Remove the reference's own noise (independent of Monte's) in quadrature.
         err_true = float(np.sqrt(max(err * err - REFERENCE_OWN_RMSE**2, 0.0)))
         report.update(rmse=err, rmse_corrected=err_true,
-                      efficiency=metrics.efficiency(st["seconds"], err_true * err_true))
+                      efficiency=efficiency(st["seconds"], err_true * err_true))
     print(f"Cornell box {resolution[0]}x{resolution[1]}, {settings.spp} spp, {settings.sampler}, "
           f"{st['threads']} threads")
     print(f"  time            {st['seconds']:.2f} s (scene prepare {st['prepare_seconds']:.2f} s)")

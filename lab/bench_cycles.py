@@ -23,42 +23,18 @@ from typing import Callable, Sequence
 import bpy
 import numpy as np
 
+from ..addon.crosscheck import configure_cycles
+from ..addon.export import export_scene
 from ..core import exr, metrics
-from ..core.bench_math import (corrected_rmse, efficiency, equal_error_ratio, format_table,
-                               plot_rmse_vs_seconds, reference_from_seeds, write_json)
-from ..core.bench_reference import Reference, ReferenceCache, file_digest
 from ..core.render import render as monte_render
 from ..core.settings import RenderSettings
 from . import bpy_scenes
-from .export import export_scene
+from .bench_math import (corrected_rmse, efficiency, equal_error_ratio, format_table, plot_rmse_vs_seconds,
+                         reference_from_seeds, write_json)
+from .bench_reference import Reference, ReferenceCache, file_digest
 
 DEFAULT_LADDER = (16, 32, 64, 128, 256)
 BIG_SPP = 1 << 16  # sample count for time-budget rungs (the budget stops the render first)
-
-
-def configure_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0) -> None:
-    """Cycles on the CPU as an unbiased rival: no denoising, adaptive sampling or clamping, sharp glossy,
-    caustics on, every bounce limit = max_bounces, a fixed seed and thread count."""
-    scene.render.engine = "CYCLES"
-    c = scene.cycles
-    c.device = "CPU"
-    c.samples = int(spp)
-    c.time_limit = float(time_limit)
-    c.use_adaptive_sampling = False
-    c.use_denoising = False
-    c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
-    c.blur_glossy = 0.0
-    c.caustics_reflective = c.caustics_refractive = True
-    c.max_bounces = c.diffuse_bounces = c.glossy_bounces = c.transmission_bounces = int(max_bounces)
-    c.volume_bounces = 0
-    c.transparent_max_bounces = max(int(max_bounces), 8)
-    c.seed = int(seed)
-    c.use_animated_seed = False
-    scene.render.threads_mode = "FIXED"
-    scene.render.threads = int(threads)
-    for layer in scene.view_layers:
-        if hasattr(layer, "cycles"):
-            layer.cycles.denoising_store_passes = False
 
 
 def _read_combined(path: Path) -> np.ndarray:
@@ -76,7 +52,7 @@ def _read_combined(path: Path) -> np.ndarray:
 def render_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0
                   ) -> tuple[np.ndarray, float]:
     """One Cycles render: (linear RGB (H, W, 3) with row 0 at the top, seconds of the render call)."""
-    configure_cycles(scene, spp, seed, threads, max_bounces, time_limit)
+    configure_cycles(scene, spp, max_bounces, threads, seed=seed, time_limit=time_limit)
     t0 = time.perf_counter()
     bpy.ops.render.render(write_still=False, scene=scene.name)
     seconds = time.perf_counter() - t0
@@ -98,7 +74,7 @@ def render_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, ti
 
 def monte_settings(spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0,
                    **extra) -> RenderSettings:
-    """Monte's settings matching configure_cycles: Blackman-Harris 1.5 px, no clamp, no AOV passes."""
+    """Monte's settings matching addon.crosscheck.configure_cycles as the bench calls it: Blackman-Harris 1.5 px, no clamp, no AOV passes."""
     return RenderSettings(spp=int(spp), seed=int(seed), threads=int(threads), max_bounces=int(max_bounces),
                           filter_type="blackman-harris", filter_width=1.5, clamp=0.0, time_limit=time_limit,
                           aovs=False, **extra).validate()
@@ -157,7 +133,7 @@ def _point(renderer: str, rung, image: np.ndarray, seconds: float, ref: Referenc
     err_c = corrected_rmse(err, ref.own_mse)
     return {"renderer": renderer, "rung": rung, "seconds": seconds, "samples": samples,
             "samples_per_second": samples / seconds if seconds > 0 else float("nan"),
-            "rmse": err, "rmse_corrected": err_c, "efficiency": efficiency(seconds, err_c)}
+            "rmse": err, "rmse_corrected": err_c, "efficiency": efficiency(seconds, err_c * err_c)}
 
 
 def bench_scene(spec: str, *, cache: ReferenceCache, ladder: Sequence[int] = DEFAULT_LADDER,
@@ -263,7 +239,7 @@ def run_vs_cycles(specs: Sequence[str], reference_dir: str | os.PathLike, out_di
 
 
 def _scene_specs(args) -> list[str]:
-    from ..core.bench_args import BENCH_SCENES
+    from .bench_args import BENCH_SCENES
 
     choice = args.scene or ("none" if args.blend else "cornell")
     names = list(BENCH_SCENES) if choice == "all" else [] if choice == "none" else [choice]

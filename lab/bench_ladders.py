@@ -27,13 +27,13 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from . import metrics
+from ..core import metrics
+from ..core.render import render
+from ..core.builtin_scenes import cornell_box
+from ..core.settings import RenderSettings
 from .bench_args import SEED_TABLE_COUNTS
 from .bench_math import corrected_rmse, efficiency, equal_error_ratio, format_table, write_json
 from .bench_reference import BUNDLED_OWN_RMSE, Reference, read_reference_file
-from .render import render
-from .scenes import cornell_box
-from .settings import RenderSettings
 SEED_GAMMA = 2.2  # smallpt's output encoding: (clamp(x, 0, 1)) ** (1 / 2.2)
 
 
@@ -62,7 +62,7 @@ def find_cornell_reference(resolution: tuple[int, int], max_bounces: int = 16,
             if ok and n > best_n:
                 best, best_n = (exr_path, meta), n
         if best is not None:
-            from .exr import read_rgb
+            from ..core.exr import read_rgb
 
             return Reference(read_rgb(best[0]), float(best[1]["own_mse"]), best[1]["params"], best[0], "cache")
     if (w, h) == (256, 256) and max_bounces == 16:
@@ -109,7 +109,7 @@ def sampler_ladder(ladder: Sequence[int], samplers: Sequence[str] = ("sobol", "s
             sec = result.stats["seconds"]
             err, err_c = _errors(result.color[..., :3], reference)
             points.append({"sampler": sampler, "spp": int(spp), "seconds": sec, "rmse": err,
-                           "rmse_corrected": err_c, "efficiency": efficiency(sec, err_c),
+                           "rmse_corrected": err_c, "efficiency": efficiency(sec, err_c * err_c),
                            "mean_pixel_variance": float(np.mean(result.variance))})
             log(f"  {sampler:12s} {spp:5d} spp  {sec:7.2f} s  RMSE {err_c:.4f}  eff {points[-1]['efficiency']:.1f}")
     base = [p for p in points if p["sampler"] == samplers[0]]
@@ -137,7 +137,7 @@ def batch_ladder(batch_sizes: Sequence[int], spp: int = 16, resolution: tuple[in
         err, err_c = _errors(result.color[..., :3], reference)
         points.append({"batch_paths": batch, "spp": int(spp), "seconds": st["seconds"],
                        "samples_per_second": st["samples_per_second"], "rmse": err, "rmse_corrected": err_c,
-                       "efficiency": efficiency(st["seconds"], err_c), "peak_memory_mb": _peak_memory_mb()})
+                       "efficiency": efficiency(st["seconds"], err_c * err_c), "peak_memory_mb": _peak_memory_mb()})
         log(f"  batch {batch:8d}  {st['seconds']:7.2f} s  {st['samples_per_second'] / 1e3:6.1f} k samples/s  "
             f"peak {points[-1]['peak_memory_mb']:.0f} MB")
     return {"kind": "batch-sizes", "resolution": list(resolution), "spp": int(spp), "points": points}

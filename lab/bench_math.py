@@ -15,11 +15,12 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
+
+from ..core.atomic_file import write_atomically, write_text_atomically
 
 
 def corrected_rmse(rmse: float, reference_mse: float) -> float:
@@ -28,9 +29,10 @@ def corrected_rmse(rmse: float, reference_mse: float) -> float:
     return float(math.sqrt(max(rmse * rmse - reference_mse, 0.0)))
 
 
-def efficiency(seconds: float, rmse: float) -> float:
-    """The seed's efficiency 1 / (seconds x MSE); inf when either is 0 (a point to leave off a log plot)."""
-    mse = rmse * rmse
+def efficiency(seconds: float, mse: float) -> float:
+    """The seed's efficiency 1 / (T x V): T the time (seconds, or another cost), V the variance of the estimate,
+    for which the MSE against a reference stands in; inf when either is 0 (a point to leave off a log plot).
+    The project's one meaning of efficiency (bench, perf, the MC study)."""
     return 1.0 / (seconds * mse) if seconds > 0 and mse > 0 else float("inf")
 
 
@@ -119,20 +121,8 @@ def equal_error_ratio(this: tuple[Sequence[float], Sequence[float]],
 
 # --------------------------------------------------------------------------------------------- output
 def write_json(path: str | os.PathLike, data) -> Path:
-    """Write JSON atomically (temporary file beside it, then rename)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".json", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, indent=2, default=_json_default)
-            fh.write("\n")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    """Write JSON atomically (core.atomic_file)."""
+    return write_text_atomically(path, json.dumps(data, indent=2, default=_json_default) + "\n", ".json")
 
 
 def _json_default(value):
@@ -198,15 +188,7 @@ def plot_rmse_vs_seconds(panels: Sequence[dict], path: str | os.PathLike) -> Pat
     for ax in axes.ravel()[len(panels):]:
         ax.axis("off")
     fig.tight_layout()
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110, format="png")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
+        return write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"), ".png")
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path

@@ -39,7 +39,7 @@ def quad(name: str, corners, material: int) -> Mesh:
 
 
 def cornell_box(resolution: tuple[int, int] = (256, 256), mirror: str = "glossy") -> Scene:
-    """The seed's Cornell box (see DESIGN.md): box x, y in [-1, 1], z in [0, 2], open at y = -1; a square lamp
+    """The seed's Cornell box: box x, y in [-1, 1], z in [0, 2], open at y = -1; a square lamp
     of radiance 12 under the ceiling; a mirror sphere and a glass sphere; camera at (0, -3.9, 1) looking
     along +y with a 39 degree horizontal field of view.
 

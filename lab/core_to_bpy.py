@@ -20,6 +20,7 @@ import bpy
 import numpy as np
 
 from ..core.scene import AreaLight, Lobe, PointLight, Scene, SpotLight, SunLight
+from .bpy_scenes import node_tree_of
 
 
 def _color_and_energy(power) -> tuple[tuple[float, float, float], float]:
@@ -65,7 +66,7 @@ def _lobe_node(tree, lobe: Lobe, unsupported: list[str], material_name: str):
 
 def _material(core_material, unsupported: list[str]):
     mat = bpy.data.materials.new(core_material.name)
-    tree = mat.node_tree
+    tree = node_tree_of(mat)
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     shaders = [_lobe_node(tree, lobe, unsupported, core_material.name) for lobe in core_material.lobes]
@@ -149,7 +150,7 @@ def build_bpy_scene(core_scene: Scene) -> tuple[object, list[str]]:
     could not be converted exactly)."""
     from mathutils import Matrix
 
-    from . import register
+    from ..addon import register
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     register()
@@ -162,9 +163,7 @@ def build_bpy_scene(core_scene: Scene) -> tuple[object, list[str]]:
     for light in core_scene.lights:
         _light_object(light, scene.collection)
     world = bpy.data.worlds.new("World")
-    if world.node_tree is None:  # Blender < 5 creates worlds without nodes
-        world.use_nodes = True
-    background = world.node_tree.nodes["Background"]
+    background = node_tree_of(world).nodes["Background"]
     background.inputs["Color"].default_value = (*[float(c) for c in core_scene.world.color], 1.0)
     background.inputs["Strength"].default_value = 1.0
     scene.world = world
@@ -192,7 +191,7 @@ def cycles_renderer(threads: int = 2):
     note=str) that renders the scene with Cycles under Monte's settings (see addon.crosscheck.configure_cycles):
     what `monte stress --cycles` hands to the stress suite. pixel_sigma: the spread of the pixel values / sqrt(n),
     which is the standard error of the mean where every pixel has the same expected value (a furnace)."""
-    from .crosscheck import CYCLES_FILTERS, configure_cycles, render_cycles
+    from ..addon.crosscheck import CYCLES_FILTERS, configure_cycles, render_cycles
 
     def render(core_scene: Scene, settings) -> dict:
         import tempfile

@@ -1,0 +1,172 @@
+"""Compiled (numba) kernels of surface geometry: surface interactions from ray hits (points, normals, shading
+frames from barycentrics), ray origins offset off surfaces, and the per-triangle frames the hits read.
+
+One pass over the paths instead of dozens of NumPy array operations, each of which would stream every array
+through memory again: profiling the NumPy wavefront (`monte perf`, line profiles) showed ~40% of render time in
+this glue. What paths do at a surface (scatter, shadow rays, accumulation) is in core.path_kernels.
+
+Conventions as in core.integrator: float32 (N, 3) row vectors in the camera-shifted frame; face normals follow
+the winding; the shading frame's +z is the shading normal flipped to the face normal's side ("outside").
+Kernels release the GIL (render worker threads run them in parallel) and are compiled once, cached on disk.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .jit_cache import jit as _jit
+from .warps import onb_f32
+
+
+_F0 = np.float32(0.0)
+_F1 = np.float32(1.0)
+_OFFSET_SCALE = np.float32(2.0**-19)  # of the coordinates' magnitude: see offset_point
+_TINY = np.float32(1e-30)
+
+
+@_jit
+def offset_point(px, py, pz, nx, ny, nz, wx, wy, wz, magnitude):
+    """Move point p off its surface along the unit geometric normal n to the side of direction w, by an amount
+    proportional to the coordinates' float32 rounding error.
+
+    magnitude: the largest absolute coordinate involved in computing p (of p itself and of the hit triangle's
+    vertices). A point interpolated from float32 vertices is wrong by a few ulps of that magnitude (pbrt-v4's
+    error bounds; Wachter & Binder, Ray Tracing Gems ch. 6). An offset of 2^-19 (~64 ulps) of it clears the error
+    with margin at any scale; the floor keeps points at the origin from a zero offset."""
+    eps = max(magnitude * _OFFSET_SCALE, _TINY)
+    if nx * wx + ny * wy + nz * wz < _F0:
+        eps = -eps
+    return px + nx * eps, py + ny * eps, pz + nz * eps
+
+
+@_jit
+def _valid_reflection_normal(gx, gy, gz, ix, iy, iz, nx, ny, nz):
+    """Cycles' ensure_valid_specular_reflection: the shading normal N (unit, on the viewer's side of the face
+    normal G) tilted towards G just enough that the mirror reflection of the viewer direction I about it leaves
+    the true surface at least min(0.9 I.G, 0.01) above the tangent plane. Else, at silhouettes of smooth-shaded
+    meshes, mirror and glass paths would be sent below the surface and lost."""
+    i_z = ix * gx + iy * gy + iz * gz
+    n_z = nx * gx + ny * gy + nz * gz
+    n_i = nx * ix + ny * iy + nz * iz
+    threshold = min(0.9 * i_z, 0.01)
+    if 2.0 * n_i * n_z - i_z >= threshold:
+        return nx, ny, nz
+    xx, xy, xz = nx - n_z * gx, ny - n_z * gy, nz - n_z * gz  # N's part in the tangent plane
+    length = math.sqrt(xx * xx + xy * xy + xz * xz)
+    if length <= 0.0:
+        return nx, ny, nz
+    xx, xy, xz = xx / length, xy / length, xz / length
+    i_x = ix * xx + iy * xy + iz * xz
+    # N' = sin(t) X + cos(t) G reflects I to height i_x sin(2t) + i_z cos(2t): solve for that = threshold.
+    rho = math.sqrt(i_x * i_x + i_z * i_z)
+    if rho <= 0.0:
+        return nx, ny, nz
+    psi = math.atan2(i_x, i_z)
+    delta = math.acos(min(max(threshold / rho, -1.0), 1.0))
+    theta0 = math.atan2(length, n_z)
+    best = 0.0
+    best_gap = 1e30
+    for phi in (psi - delta, psi + delta):
+        theta = 0.5 * phi
+        if abs(theta) < 0.5 * math.pi and abs(theta - theta0) < best_gap:
+            best, best_gap = theta, abs(theta - theta0)
+    st, ct = math.sin(best), math.cos(best)
+    return st * xx + ct * gx, st * xy + ct * gy, st * xz + ct * gz
+
+
+@_jit
+def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, smooth, tri_uvs, tri_magnitude,
+            material_index, specular, p, ng, ns_raw, ns, tangent, bitangent, wo, n_view, mag, cos_o_geo, uv):
+    """Surface interaction of the hits `rows` (indices into prim/bu/bv/d); writes row k of each output.
+
+    p: point from barycentrics (the triangle's own precision). ng: face normal. ns_raw: interpolated shading
+    normal as the mesh gives it (the normal AOV). ns: the same flipped to ng's side; tangent, bitangent: Duff et
+    al.'s branchless basis around ns. wo: direction to the viewer (-d) in that frame. n_view: ns on the viewer's
+    side. mag: largest |coordinate| of p and its triangle (ray offset scale). cos_o_geo: -d . ng.
+    corner_normals/smooth and tri_uvs may be empty arrays (flat shading, no UVs). specular (M,): materials
+    with a glossy, glass or refraction lobe, whose smooth shading normals are kept valid for reflection.
+    """
+    has_normals = corner_normals.shape[0] > 0
+    has_uvs = tri_uvs.shape[0] > 0
+    for k in range(rows.shape[0]):
+        i = rows[k]
+        t = prim[i]
+        b1 = bu[i]
+        b2 = bv[i]
+        b0 = _F1 - b1 - b2
+        m = tri_magnitude[t]
+        for c in range(3):
+            pc = tri_vertices[t, 0, c] * b0 + tri_vertices[t, 1, c] * b1 + tri_vertices[t, 2, c] * b2
+            p[k, c] = pc
+            m = max(m, abs(pc))
+            ng[k, c] = face_normals[t, c]
+        mag[k] = m
+        gx, gy, gz = face_normals[t, 0], face_normals[t, 1], face_normals[t, 2]
+        sx, sy, sz = gx, gy, gz
+        if has_normals and smooth[t]:
+            sx = corner_normals[t, 0, 0] * b0 + corner_normals[t, 1, 0] * b1 + corner_normals[t, 2, 0] * b2
+            sy = corner_normals[t, 0, 1] * b0 + corner_normals[t, 1, 1] * b1 + corner_normals[t, 2, 1] * b2
+            sz = corner_normals[t, 0, 2] * b0 + corner_normals[t, 1, 2] * b1 + corner_normals[t, 2, 2] * b2
+            length = max(np.float32(math.sqrt(sx * sx + sy * sy + sz * sz)), _TINY)
+            sx, sy, sz = sx / length, sy / length, sz / length
+        ns_raw[k, 0], ns_raw[k, 1], ns_raw[k, 2] = sx, sy, sz
+        if has_uvs:
+            for c in range(2):
+                uv[k, c] = tri_uvs[t, 0, c] * b0 + tri_uvs[t, 1, c] * b1 + tri_uvs[t, 2, c] * b2
+        ox, oy, oz = -d[i, 0], -d[i, 1], -d[i, 2]
+        cos_o_geo[k] = ox * gx + oy * gy + oz * gz
+        if sx * gx + sy * gy + sz * gz < _F0:
+            sx, sy, sz = -sx, -sy, -sz
+        if has_normals and smooth[t] and specular[material_index[t]]:
+            side = _F1 if cos_o_geo[k] >= _F0 else -_F1  # work on the viewer's side of the surface
+            bx, by, bz = _valid_reflection_normal(gx * side, gy * side, gz * side, ox, oy, oz,
+                                                  sx * side, sy * side, sz * side)
+            sx, sy, sz = np.float32(bx * side), np.float32(by * side), np.float32(bz * side)
+        ns[k, 0], ns[k, 1], ns[k, 2] = sx, sy, sz
+        tx, ty, tz, bx, by, bz = onb_f32(sx, sy, sz)
+        tangent[k, 0], tangent[k, 1], tangent[k, 2] = tx, ty, tz
+        bitangent[k, 0], bitangent[k, 1], bitangent[k, 2] = bx, by, bz
+        wz = ox * sx + oy * sy + oz * sz
+        wo[k, 0] = ox * tx + oy * ty + oz * tz
+        wo[k, 1] = ox * bx + oy * by + oz * bz
+        wo[k, 2] = wz
+        flip = -_F1 if wz < _F0 else _F1
+        n_view[k, 0], n_view[k, 1], n_view[k, 2] = sx * flip, sy * flip, sz * flip
+
+
+@_jit
+def to_local(w, tangent, bitangent, normal, out):
+    """World directions w (N, 3) in each row's frame: out = (w . t, w . b, w . n)."""
+    for k in range(w.shape[0]):
+        wx, wy, wz = w[k, 0], w[k, 1], w[k, 2]
+        out[k, 0] = wx * tangent[k, 0] + wy * tangent[k, 1] + wz * tangent[k, 2]
+        out[k, 1] = wx * bitangent[k, 0] + wy * bitangent[k, 1] + wz * bitangent[k, 2]
+        out[k, 2] = wx * normal[k, 0] + wy * normal[k, 1] + wz * normal[k, 2]
+
+
+# ------------------------------------------------------------------------------------------- scene set-up
+@_jit
+def triangle_frames(vertices, triangles, tri_vertices, face_normals, magnitude):
+    """Per triangle of float32 vertices (V, 3): its corners (T, 3, 3), unit face normal from the winding (cross
+    product in float64; a triangle degenerate in float32 gets (0, 0, 0)) and largest |coordinate| (the scale of
+    its ray offsets)."""
+    for t in range(triangles.shape[0]):
+        m = np.float32(0.0)
+        for k in range(3):
+            for c in range(3):
+                x = vertices[triangles[t, k], c]
+                tri_vertices[t, k, c] = x
+                m = max(m, abs(x))
+        magnitude[t] = m
+        # edges in float32 (the precision the renderer's triangles have), their cross product in float64
+        ux = np.float64(tri_vertices[t, 1, 0] - tri_vertices[t, 0, 0])
+        uy = np.float64(tri_vertices[t, 1, 1] - tri_vertices[t, 0, 1])
+        uz = np.float64(tri_vertices[t, 1, 2] - tri_vertices[t, 0, 2])
+        vx = np.float64(tri_vertices[t, 2, 0] - tri_vertices[t, 0, 0])
+        vy = np.float64(tri_vertices[t, 2, 1] - tri_vertices[t, 0, 1])
+        vz = np.float64(tri_vertices[t, 2, 2] - tri_vertices[t, 0, 2])
+        cx, cy, cz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        length = max(math.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
+        face_normals[t, 0], face_normals[t, 1], face_normals[t, 2] = cx / length, cy / length, cz / length

@@ -1,0 +1,142 @@
+"""Compiled (numba) kernels of a path's step at a surface: the scattered ray after a BSDF sample, the shadow rays
+of next-event estimation with their MIS weights, and the accumulation of contributions into pixels.
+
+Conventions as in core.integrator and core.geometry_kernels: float32 (N, 3) row vectors in the camera-shifted
+frame, the shading frame's +z along the shading normal on the face normal's side. Ray origins leave surfaces by
+core.geometry_kernels.offset_point.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .geometry_kernels import offset_point
+from .jit_cache import jit as _jit
+
+_F0 = np.float32(0.0)
+_F1 = np.float32(1.0)
+_TINY = np.float32(1e-30)
+_FAR = np.float32(3e38)
+
+
+@_jit
+def scatter(wi_local, tangent, bitangent, ns, ng, cos_o_geo, valid, transmitted, weight, throughput, p, mag,
+            pdf, delta, n_view, transmits, idx, pix, smp,
+            out_origin, out_direction, out_throughput, out_pdf, out_delta, out_normal, out_transmits, out_idx,
+            out_pix, out_smp):
+    """Turn sampled BSDF directions into the next rays and write the paths that continue, compacted, to out_*.
+
+    Reflection must stay on wo's side of the true surface and transmission must cross it (else the path ends);
+    throughput *= weight (a path whose throughput became 0 ends); origin: p offset off the surface to the new
+    direction's side; direction: unit wi. The other per-path values (BSDF pdf and delta flag of the sample, the
+    shading normal on the viewer's side, whether the material transmits, sample/pixel/sample ids) are copied
+    along. Returns the number of paths written (rows [0, count) of every out_* array).
+    """
+    count = 0
+    for k in range(wi_local.shape[0]):
+        lx, ly, lz = wi_local[k, 0], wi_local[k, 1], wi_local[k, 2]
+        wx = lx * tangent[k, 0] + ly * bitangent[k, 0] + lz * ns[k, 0]
+        wy = lx * tangent[k, 1] + ly * bitangent[k, 1] + lz * ns[k, 1]
+        wz = lx * tangent[k, 2] + ly * bitangent[k, 2] + lz * ns[k, 2]
+        side_o = cos_o_geo[k] > _F0
+        side_i = wx * ng[k, 0] + wy * ng[k, 1] + wz * ng[k, 2] > _F0
+        if not (valid[k] and ((side_o != side_i) if transmitted[k] else (side_o == side_i))):
+            continue
+        t0 = throughput[k, 0] * weight[k, 0]
+        t1 = throughput[k, 1] * weight[k, 1]
+        t2 = throughput[k, 2] * weight[k, 2]
+        if not max(t0, t1, t2) > _F0:
+            continue
+        j = count
+        count += 1
+        out_throughput[j, 0], out_throughput[j, 1], out_throughput[j, 2] = t0, t1, t2
+        ox, oy, oz = offset_point(p[k, 0], p[k, 1], p[k, 2], ng[k, 0], ng[k, 1], ng[k, 2], wx, wy, wz, mag[k])
+        out_origin[j, 0], out_origin[j, 1], out_origin[j, 2] = ox, oy, oz
+        length = max(np.float32(math.sqrt(wx * wx + wy * wy + wz * wz)), _TINY)
+        out_direction[j, 0], out_direction[j, 1], out_direction[j, 2] = wx / length, wy / length, wz / length
+        out_pdf[j] = pdf[k]
+        out_delta[j] = delta[k]
+        out_normal[j, 0], out_normal[j, 1], out_normal[j, 2] = n_view[k, 0], n_view[k, 1], n_view[k, 2]
+        out_transmits[j] = transmits[k]
+        out_idx[j] = idx[k]
+        out_pix[j] = pix[k]
+        out_smp[j] = smp[k]
+    return count
+
+
+@_jit
+def shadow_rays(rows, throughput, idx, f_cos, radiance, pdf_light, pdf_bsdf, delta, use_mis, cos_o_geo, ng,
+                transmits, p, mag, wi, dist, shadow_epsilon, contrib, origin, direction, tmax, out_idx):
+    """Next-event estimation's contribution (if unoccluded) and shadow ray per light sample.
+
+    contrib = throughput f cos L w / pdf_light, with w the power-heuristic MIS weight (1 for delta lights or
+    without MIS); 0 where pdf_light is 0 or where wi crosses the surface of a material that does not transmit.
+    The shadow ray leaves p offset to wi's side and is aimed at the sampled light point itself (the offset moves
+    the origin; aiming from the new origin keeps a light near a grazing surface from occluding itself); it stops
+    shadow_epsilon short of the light. Lights at infinity (dist = inf) get direction wi and tmax 3e38.
+    Light sample k belongs to path rows[k] (its throughput and sample id idx). Only samples that would contribute
+    get a shadow ray: they are written compacted (contrib, origin, direction, tmax, out_idx rows [0, count));
+    returns count.
+    """
+    count = 0
+    for k in range(rows.shape[0]):
+        r = rows[k]
+        pl = pdf_light[k]
+        scale = _F0
+        if pl > _F0:
+            w = _F1
+            if use_mis and not delta[k]:
+                pb = pdf_bsdf[k]
+                w = pl * pl / max(pl * pl + pb * pb, _TINY)
+            scale = w / max(pl, _TINY)
+        wx, wy, wz = wi[k, 0], wi[k, 1], wi[k, 2]
+        crosses = (cos_o_geo[k] > _F0) != (wx * ng[k, 0] + wy * ng[k, 1] + wz * ng[k, 2] > _F0)
+        if crosses and not transmits[k]:
+            scale = _F0
+        peak = _F0
+        for c in range(3):
+            v = throughput[r, c] * f_cos[k, c] * radiance[k, c] * scale
+            contrib[count, c] = v
+            peak = max(peak, v)
+        if not peak > _F0:
+            continue
+        j = count
+        count += 1
+        out_idx[j] = idx[r]
+        px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+        ox, oy, oz = offset_point(px, py, pz, ng[k, 0], ng[k, 1], ng[k, 2], wx, wy, wz, mag[k])
+        origin[j, 0], origin[j, 1], origin[j, 2] = ox, oy, oz
+        dk = dist[k]
+        if math.isfinite(dk):
+            tx, ty, tz = px + wx * dk - ox, py + wy * dk - oy, pz + wz * dk - oz
+            length = np.float32(math.sqrt(tx * tx + ty * ty + tz * tz))
+            inv = _F1 / max(length, _TINY)
+            direction[j, 0], direction[j, 1], direction[j, 2] = tx * inv, ty * inv, tz * inv
+            tmax[j] = length * (_F1 - shadow_epsilon)
+        else:
+            direction[j, 0], direction[j, 1], direction[j, 2] = wx, wy, wz
+            tmax[j] = _FAR
+    return count
+
+
+@_jit
+def accumulate(radiance, rows, value, clamp, counters):
+    """radiance[rows[k]] += value[k], dropping NaN/Inf rows (counters[0]) and scaling rows whose largest
+    component exceeds clamp > 0 down to it (counters[1])."""
+    for k in range(rows.shape[0]):
+        v0, v1, v2 = value[k, 0], value[k, 1], value[k, 2]
+        if not (math.isfinite(v0) and math.isfinite(v1) and math.isfinite(v2)):
+            counters[0] += 1
+            continue
+        if clamp > 0:
+            peak = max(v0, v1, v2)
+            if peak > clamp:
+                counters[1] += 1
+                s = clamp / peak
+                v0, v1, v2 = v0 * s, v1 * s, v2 * s
+        r = rows[k]
+        radiance[r, 0] += v0
+        radiance[r, 1] += v1
+        radiance[r, 2] += v2

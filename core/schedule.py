@@ -1,0 +1,87 @@
+"""How a render's work is cut up: tiles, sample passes over the tiles, and batches of paths.
+
+Pure arithmetic on the render's size and settings (no arrays but index lists), shared by core.render, which runs
+the batches, and core.memory, which estimates what a batch costs before anything is allocated. Nothing here
+depends on the thread count, so neither does the image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+
+from .settings import RenderSettings
+
+MIN_BATCH = 1 << 14  # paths: below this NumPy's per-call overhead dominates a batch
+
+TileRect = tuple[int, int, int, int]  # (x, y, width, height) in pixels, y from the top
+
+
+def tiles(x0: int, y0: int, w: int, h: int, size: int) -> list[TileRect]:
+    """Tiles (x, y, w, h) covering the region, row by row from the top."""
+    return [(x, y, min(size, x0 + w - x), min(size, y0 + h - y))
+            for y in range(y0, y0 + h, size) for x in range(x0, x0 + w, size)]
+
+
+def batch_target(settings: RenderSettings, total_paths: int) -> int:
+    """Paths per batch for a render of total_paths paths: settings.batch_paths, or fewer so that a small render
+    still makes 8 batches for the worker threads to share (but never fewer than MIN_BATCH paths)."""
+    return max(1, min(settings.batch_paths, max(MIN_BATCH, -(-total_paths // 8))))
+
+
+def adaptive_batch_target(target: int, region_pixels: int, min_samples: int) -> int:
+    """With adaptive sampling a pass's convergence test waits for the tile's previous pass: keep each pass in
+    >= 8 batches so that the threads still share it."""
+    step = max(16, min_samples // 2)
+    return min(target, max(MIN_BATCH, -(-region_pixels * step // 8)))
+
+
+@dataclass
+class Segment:
+    """Part of a batch: samples [sample_end - count, sample_end) of some pixels of one tile. loc: tile-local
+    pixel index per path; smp: sample index per path; last_chunk: the last segment of this tile's pass."""
+
+    tile_index: int
+    tile: TileRect
+    loc: np.ndarray
+    smp: np.ndarray
+    sample_end: int
+    last_chunk: bool
+
+
+def sample_passes(tile_list: list[TileRect], spp: int, settings: RenderSettings, min_samples: int
+                  ) -> Iterator[tuple[int, TileRect, int, int]]:
+    """(tile index, tile, first sample, sample count) in pass order: a pass gives every tile as many samples as
+    fit in one batch (with adaptive sampling: at most min_samples, then half of that, so convergence is checked
+    often)."""
+    adaptive = settings.adaptive_threshold > 0
+    started = np.zeros(len(tile_list), np.int64)
+    while True:
+        any_left = False
+        for ti, tile in enumerate(tile_list):
+            first_sample = int(started[ti])
+            if first_sample >= spp:
+                continue
+            any_left = True
+            n_pix = tile[2] * tile[3]
+            count = min(max(1, settings.batch_paths // n_pix), spp - first_sample)
+            if adaptive:
+                count = min(count, min_samples if first_sample < min_samples else max(16, min_samples // 2))
+            yield ti, tile, first_sample, count
+            started[ti] = first_sample + count
+        if not any_left:
+            return
+
+
+def pass_segments(ti: int, tile: TileRect, pixels: np.ndarray, first_sample: int, count: int, target: int
+                  ) -> Iterator[Segment]:
+    """One tile's pass over `pixels` (tile-local indices), samples [first_sample, first_sample + count), cut
+    into segments of about `target` paths (made one at a time: a cancelled render stops making them)."""
+    pix_chunk = max(1, target // count)
+    chunks = [pixels[c0:c0 + pix_chunk] for c0 in range(0, len(pixels), pix_chunk)]
+    for k, chunk in enumerate(chunks):
+        yield Segment(ti, tile, np.repeat(chunk, count),
+                      np.tile(np.arange(first_sample, first_sample + count, dtype=np.uint32), len(chunk)),
+                      first_sample + count, k == len(chunks) - 1)

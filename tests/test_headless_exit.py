@@ -1,0 +1,102 @@
+"""`monte render scene.blend` as a user runs it from a shell, on every Blender of the support table: the
+process ends with the right status and a complete output file. (The bpy module of Blender 4.2 crashes at
+interpreter exit and 4.5's hangs; Monte ends such processes itself once the output is written.)
+
+Runs each command in a fresh process, as a shell would; `make test-install-matrix` runs this file on every
+older Blender, `make test` on the newest."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("bpy")
+pytestmark = [pytest.mark.blender, pytest.mark.matrix]
+
+# A diffuse plane of albedo 0.5 under a uniform white world, seen from above. With the uniform world left to
+# BSDF sampling every sample is exactly albedo x world, so the image is 0.5 to float32 precision.
+SCENE = textwrap.dedent(r"""
+    import sys
+    import bpy
+    path, with_camera = sys.argv[1], sys.argv[2] == "1"
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    mat = bpy.data.materials.new("grey")
+    mat.use_nodes = True  # before Blender 5.0 a new material has no node tree
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    dif = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    dif.inputs["Color"].default_value = (0.5, 0.5, 0.5, 1.0)
+    tree.links.new(dif.outputs[0], out.inputs["Surface"])
+    s = 1000.0
+    me = bpy.data.meshes.new("plane")
+    me.from_pydata([(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [], [(0, 1, 2, 3)])
+    me.materials.append(mat)
+    scene.collection.objects.link(bpy.data.objects.new("plane", me))
+    if with_camera:
+        cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+        cam.location = (0, 0, 1)
+        scene.collection.objects.link(cam)
+        scene.camera = cam
+    world = bpy.data.worlds.new("sky")
+    world.use_nodes = True
+    scene.world = world
+    world.node_tree.nodes["Background"].inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 12, 8, 100
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+""")
+
+TIMEOUT = 600  # a cold first render compiles Monte's kernels (about a minute on 2 cores); a hang ends here
+
+
+def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    try:
+        return subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT, cwd=cwd)
+    except subprocess.TimeoutExpired as exc:
+        pytest.fail(f"{' '.join(args)} did not end within {TIMEOUT} s (hung at exit?):\n{exc.stdout}\n{exc.stderr}")
+
+
+@pytest.fixture(scope="module")
+def blends(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("blends")
+    paths = {}
+    for name, camera in (("plane", "1"), ("no_camera", "0")):
+        paths[name] = folder / f"{name}.blend"
+        proc = _run(["-c", SCENE, str(paths[name]), camera], folder)
+        assert proc.returncode == 0 and paths[name].is_file(), proc.stderr[-3000:]
+    return paths
+
+
+def test_headless_render_exits_zero_with_a_complete_exr(blends, tmp_path):
+    import bpy
+
+    from monte.core import exr
+
+    out = tmp_path / "plane.exr"
+    proc = _run(["-m", "monte", "render", str(blends["plane"]), "-o", str(out), "--spp", "4", "--threads", "2"],
+                tmp_path)
+    assert proc.returncode == 0, f"Blender {bpy.app.version_string}: status {proc.returncode}\n{proc.stderr[-3000:]}"
+    assert f"wrote {out}" in proc.stdout
+    channels = exr.read_exr(out)
+    assert {"R", "G", "B", "A", "variance.R", "albedo.R", "normal.X", "Z"} <= set(channels)
+    rgb = np.stack([channels[c] for c in "RGB"], axis=-1)
+    assert rgb.shape == (8, 12, 3)
+    np.testing.assert_allclose(rgb, 0.5, atol=1e-5)
+    np.testing.assert_allclose(channels["Z"], 1.0, rtol=1e-5)  # the plane is 1 m below the camera
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plane.exr"]  # no temporary files left
+
+
+def test_failed_headless_render_exits_one_and_keeps_the_existing_output(blends, tmp_path):
+    out = tmp_path / "keep.exr"
+    out.write_bytes(b"an earlier render")
+    proc = _run(["-m", "monte", "render", str(blends["no_camera"]), "-o", str(out), "--spp", "1"], tmp_path)
+    assert proc.returncode == 1, proc.stderr[-3000:]
+    assert "has no camera" in proc.stderr and "Traceback" not in proc.stderr
+    assert out.read_bytes() == b"an earlier render"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.exr"]
