@@ -93,7 +93,10 @@ def test_reported_variance_matches_seed_to_seed_variance(sampler):
 def test_naive_variance_fails_the_calibration_for_sobol(monkeypatch):
     # One Sobol scramble per pixel and s^2 / n, as before the variance groups: overstates the error ~4x.
     # 60 seeds are plenty here: the ratio is ~0.25 +- 0.05, its 4-sigma band reaches ~0.45, far from 1.
+    import monte.core.render as render_module
+
     monkeypatch.setattr(sampling, "VARIANCE_GROUPS", 1)
+    monkeypatch.setattr(render_module, "VARIANCE_GROUPS", 1, raising=False)  # where render imports it by name
     cal = calibration(*render_seeds("sobol", seeds=60))
     ratio, se = cal["image"]
     print(f"naive sobol image: measured/reported {np.round(ratio, 3)} +- {np.round(se, 3)}")
