@@ -12,9 +12,9 @@ tails are far heavier than a Gaussian's (P(|t3| > 3) = 5.8 %, P(|t3| > 5) = 1.5 
 look like disagreeing ones. For the per-pixel z-scores both renderers' variance estimates are therefore
 pooled over a 3x3 neighbourhood (noise varies slowly across most of an image): about 9 (K - 1) = 27 degrees
 of freedom for Cycles with K = 4, which brings P(|t| > 3) to 0.6 % and P(|t| > 5) to 3e-5. Monte's own
-estimate has n - 1 degrees of freedom but is heavy-tailed where paths are (caustics, light seen through
-glass): most pixels miss the rare bright paths and underestimate their variance while a few overestimate
-it; pooling averages that too. Where the variance changes sharply (a light's edge) pooling spreads it over
+estimate comes from its 4 variance groups (core.film): 3 degrees of freedom per pixel as well, and
+heavy-tailed where paths are (caustics, light seen through glass): most pixels miss the rare bright paths and
+underestimate their variance while a few overestimate it; pooling averages that too. Where the variance changes sharply (a light's edge) pooling spreads it over
 neighbours, erring by at most a factor ~2 either way on a few pixels. The image means' sigmas use the
 unpooled per-pixel estimates (unbiased, and summing n of them leaves many degrees of freedom).
 """
@@ -29,8 +29,11 @@ from .metrics import BT709
 
 CHANNELS = ("R", "G", "B")
 # Verdict thresholds (docs/crosscheck.md explains them).
-MEAN_SIGMAS = 4.0  # channel means agree within max(4 sigma, REL_FLOOR x mean)
+MEAN_SIGMAS = 4.0  # channel means agree within max(min(4 sigma, REL_CAP x mean), REL_FLOOR x mean)
 REL_FLOOR = 0.005
+# Whatever the noise, channel means more than 1 % apart disagree: a noisy render cannot pass a 3 % error.
+# (Where Monte approximates on purpose, a larger rel_floor states the gap and wins over the cap.)
+REL_CAP = 0.01
 Z5_FRACTION = 0.01  # at most 1 % of per-pixel z-scores beyond 5 (Gaussian: 6e-7; pooled t27: 3e-5)
 
 
@@ -74,7 +77,14 @@ class Comparison:
     pixels: int
     rel_floor: float = REL_FLOOR
     sigmas: float = MEAN_SIGMAS
+    rel_cap: float = REL_CAP
     notes: list[str] = field(default_factory=list)
+
+    @property
+    def resolvable(self) -> np.ndarray:
+        """(3,) the smallest relative difference of the channel means the noise lets this comparison see:
+        sigmas x sigma / |mean_b|. Above rel_cap the cap sets the tolerance and noise alone can fail it."""
+        return self.sigmas * self.sigma / np.maximum(np.abs(self.mean_b), 1e-12)
 
     @property
     def sigma(self) -> np.ndarray:
@@ -107,7 +117,9 @@ class Comparison:
             if not self.means_agree[i]:
                 reasons.append(f"channel {c}: mean differs by {100 * self.relative_difference[i]:+.2f} % "
                                f"({self.difference[i] / max(self.sigma[i], 1e-30):+.1f} sigma; allowed "
-                               f"{self.tolerance[i]:.3g})")
+                               f"{self.tolerance[i]:.3g}" + (f", capped at {100 * self.rel_cap:g} %: the noise "
+                               f"alone resolves only {100 * self.resolvable[i]:.2f} %"
+                               if self.resolvable[i] > max(self.rel_cap, self.rel_floor) else "") + ")")
         zs = self.z_stats()
         if zs["frac_gt5"] > Z5_FRACTION:
             reasons.append(f"{100 * zs['frac_gt5']:.2f} % of pixel values differ by more than 5 sigma "
@@ -123,11 +135,13 @@ def compare(
     *,
     rel_floor: float = REL_FLOOR,
     sigmas: float = MEAN_SIGMAS,
+    rel_cap: float = REL_CAP,
     pool: int = 3,
 ) -> Comparison:
     """Compare image_a with image_b, given the per-pixel variances of their means. Channel means agree when
-    |difference| <= max(sigmas x sigma, rel_floor x |mean_b|); per-pixel z-scores use both variances pooled
-    over pool x pool pixels (1 = no pooling)."""
+    |difference| <= max(min(sigmas x sigma, rel_cap x |mean_b|), rel_floor x |mean_b|): within the noise, never
+    more than rel_cap apart unless rel_floor (a stated model gap) allows it; per-pixel z-scores use both
+    variances pooled over pool x pool pixels (1 = no pooling)."""
     a = np.asarray(image_a, np.float64)[..., :3]
     b = np.asarray(image_b, np.float64)[..., :3]
     va = np.maximum(np.asarray(var_a, np.float64)[..., :3], 0.0)
@@ -139,7 +153,8 @@ def compare(
     mean_b = b.reshape(-1, 3).mean(axis=0)
     sigma_a = np.sqrt(va.reshape(-1, 3).sum(axis=0)) / n
     sigma_b = np.sqrt(vb.reshape(-1, 3).sum(axis=0)) / n
-    tolerance = np.maximum(sigmas * np.hypot(sigma_a, sigma_b), rel_floor * np.abs(mean_b))
+    tolerance = np.maximum(np.minimum(sigmas * np.hypot(sigma_a, sigma_b), rel_cap * np.abs(mean_b)),
+                           rel_floor * np.abs(mean_b))
     diff = a - b
     # float32 rounding of noise-free pixels (a plain background) is not a difference: floor the error scale
     # at 1e-5 of the value (float32 carries ~6e-8), and at 1e-12 absolute.
@@ -148,7 +163,8 @@ def compare(
     z = diff / np.sqrt(pooled + floor)
     return Comparison(mean_a, mean_b, sigma_a, sigma_b, tolerance, z,
                       rmse=float(np.sqrt(np.mean(diff * diff))),
-                      rmse_noise=float(np.sqrt(np.mean(va + vb))), pixels=n, rel_floor=rel_floor, sigmas=sigmas)
+                      rmse_noise=float(np.sqrt(np.mean(va + vb))), pixels=n, rel_floor=rel_floor, sigmas=sigmas,
+                      rel_cap=rel_cap)
 
 
 def region_attribution(comparison: Comparison, labels: np.ndarray, names: dict[int, str],

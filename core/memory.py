@@ -6,8 +6,9 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
           + threads x min(batch, pixels x spp) x PATH_BYTES      (batch: core.schedule.batch_target)
           + triangles x TRIANGLE_BYTES + texels x TEXEL_BYTES
 
-- film: per pixel float64 sum and sum of squares (48 B) and an int64 count (8 B); with AOVs float64 albedo and
-  normal sums (48 B), a depth sum and count (16 B);
+- film: per pixel, for each of the 4 variance groups a float64 RGB sum and an int32 count (4 x 28 B), and a
+  float64 RGB sum of squares (24 B) (core.film); with AOVs float64 albedo and normal sums (48 B), a depth sum
+  and count (16 B);
 - result: the assembled float32 colour RGBA (16 B), variance (12 B), int32 sample count (4 B); with AOVs
   albedo, normal (24 B) and depth (4 B);
 - batch: the integrator's float32 structure-of-arrays for every path in flight, ray buffers and temporaries
@@ -30,7 +31,7 @@ from .scene import Scene
 from .schedule import batch_target
 from .settings import RenderSettings
 
-FILM_BYTES = 56
+FILM_BYTES = 136  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
 FILM_AOV_BYTES = 64
 RESULT_BYTES = 32
 RESULT_AOV_BYTES = 28

@@ -27,7 +27,7 @@ from .filters import PixelFilter
 from .integrator import DIM_FILM, PathStats, PathTracer, PreparedScene
 from .jit_cache import compile_cache_is_cold
 from .memory import check_render_memory
-from .sampling import make_sampler
+from .sampling import VARIANCE_GROUPS, make_sampler
 from .scene import Scene
 from .schedule import (Segment, TileRect, adaptive_batch_target, batch_target, pass_segments, sample_passes,
                        tiles)
@@ -207,7 +207,7 @@ class _TileRender:
         self.scene, self.settings, self.prepared, self.accel = scene, settings, prepared, accel
         self.region, self.t_start = region, t_start
         self.on_tile, self.on_progress, self.should_cancel = on_tile, on_progress, should_cancel
-        self.sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1))
+        self.sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
         self.pixel_filter = PixelFilter(settings.filter_type, settings.filter_width)
         rx, ry, rw, rh = region
         self.tiles = tiles(rx, ry, rw, rh, settings.tile_size)
@@ -215,7 +215,7 @@ class _TileRender:
             if sorted(tile_order) != list(range(len(self.tiles))):
                 raise ValueError("tile_order must be a permutation of the tile indices")
             self.tiles = [self.tiles[i] for i in tile_order]
-        self.films = {t: TileFilm(t[2], t[3], settings.aovs) for t in self.tiles}
+        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler) for t in self.tiles}
 
         self.spp = int(settings.spp)
         self.total_paths = self.spp * rw * rh
@@ -355,7 +355,7 @@ class _TileRender:
             start = rows.stop
             t0 = time.perf_counter()
             film = self.films[seg.tile]
-            film.add(seg.loc, radiance[rows])
+            film.add(seg.loc, radiance[rows], seg.smp)
             if first is not None:
                 film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
             self.film_seconds += time.perf_counter() - t0

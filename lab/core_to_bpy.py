@@ -187,9 +187,10 @@ def build_bpy_scene(core_scene: Scene) -> tuple[object, list[str]]:
 
 
 def cycles_renderer(threads: int = 2):
-    """A function (core Scene, RenderSettings) -> dict(mean=[R, G, B], nonfinite=int, note=str) that renders
-    the scene with Cycles under Monte's settings (see addon.crosscheck.configure_cycles): what `monte stress
-    --cycles` hands to the stress suite."""
+    """A function (core Scene, RenderSettings) -> dict(mean=[R, G, B], pixel_sigma=[R, G, B], nonfinite=int,
+    note=str) that renders the scene with Cycles under Monte's settings (see addon.crosscheck.configure_cycles):
+    what `monte stress --cycles` hands to the stress suite. pixel_sigma: the spread of the pixel values / sqrt(n),
+    which is the standard error of the mean where every pixel has the same expected value (a furnace)."""
     from ..addon.crosscheck import CYCLES_FILTERS, configure_cycles, render_cycles
 
     def render(core_scene: Scene, settings) -> dict:
@@ -210,6 +211,9 @@ def cycles_renderer(threads: int = 2):
         finite = np.isfinite(rgb)
         mean = [float(rgb[..., c][finite[..., c]].mean()) if finite[..., c].any() else float("nan")
                 for c in range(3)]
-        return {"mean": mean, "nonfinite": int((~finite).any(axis=-1).sum()), "note": "; ".join(notes)}
+        pixel_sigma = [float(rgb[..., c][finite[..., c]].std(ddof=1) / np.sqrt(finite[..., c].sum()))
+                       if finite[..., c].sum() > 1 else float("nan") for c in range(3)]
+        return {"mean": mean, "pixel_sigma": pixel_sigma, "nonfinite": int((~finite).any(axis=-1).sum()),
+                "note": "; ".join(notes)}
 
     return render

@@ -205,7 +205,9 @@ def test_headless_render_blend_file(tmp_path):
 
     img = read_rgb(out)
     assert img.shape == (10, 12, 3)
-    assert abs(img.mean() - 1.0) < 0.1
+    # albedo 0.5 x world 2: a zero-variance estimator (see test_plane_under_world_radiance_and_passes), so every
+    # pixel is 1 to float rounding, whatever the filter
+    assert np.allclose(img, 1.0, atol=1e-5)
     # Monte's channel layout, as `monte render` writes for built-in scenes
     channels = read_exr(out)
     assert {"R", "G", "B", "A", "variance.R", "albedo.G", "normal.Z", "Z"} <= set(channels)
@@ -354,7 +356,7 @@ def test_adaptive_sampling_settings_reach_the_renderer(tmp_path):
     assert settings.adaptive_threshold == pytest.approx(0.05) and settings.adaptive_min_samples == 8
     scene.monte.samples = 64
     ch = render_still(scene, tmp_path)  # renders (the sky-lit plane converges early) and stays right
-    assert abs(rgb(ch)[..., 0].mean() - 0.5) < 0.02
+    assert np.allclose(rgb(ch), 0.5, atol=1e-5)  # a zero-variance estimator: exact to float rounding
     blend = tmp_path / "adaptive.blend"
     scene.monte.use_adaptive_sampling = False
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))

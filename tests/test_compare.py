@@ -72,3 +72,18 @@ def test_noise_free_equal_pixels_are_not_differences():
     img = np.full((8, 8, 3), 0.5)
     c = cmp.compare(img, np.zeros_like(img), img * (1 + 1e-7), np.zeros_like(img))
     assert c.verdict()[0] and np.all(np.isfinite(c.z))
+
+
+def test_noise_cannot_hide_a_difference_above_the_cap():
+    """Channel means 3 % apart with noise so large that 4 sigma is ~12 %: without the cap that would pass; the 1 %
+    cap fails it, and says the noise only resolves ~12 %. A 0.8 % difference in the same noise passes."""
+    truth = np.full((8, 8, 3), 0.5)
+    big = np.full_like(truth, (0.03 * 0.5 * 8) ** 2)  # per-pixel variance: sigma of the mean 3 % of 0.5
+    loose = cmp.compare(truth * 1.03, big, truth, np.zeros_like(truth), rel_cap=1.0)
+    assert loose.verdict()[0] and np.allclose(loose.resolvable, 0.12)
+    capped = cmp.compare(truth * 1.03, big, truth, np.zeros_like(truth))
+    agree, reasons = capped.verdict()
+    assert not agree and "capped at 1 %" in reasons[0] and "12.00 %" in reasons[0]
+    assert cmp.compare(truth * 1.008, big, truth, np.zeros_like(truth)).verdict()[0]
+    # a stated model gap (rel_floor) wins over the cap
+    assert cmp.compare(truth * 1.015, big, truth, np.zeros_like(truth), rel_floor=0.02).verdict()[0]

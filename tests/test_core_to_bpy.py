@@ -1,6 +1,7 @@
 """The core Scene -> Blender converter (lab/core_to_bpy.py) that lets `monte stress --cycles` render the
-stress cases with Cycles: a round trip through the add-on's own export must give back the same scene, and
-Cycles must agree with Monte on a case with an analytic answer."""
+stress cases with Cycles: a round trip through the add-on's own export must give back the same scene; Cycles'
+render of the converted Cornell box must match the converged Cycles reference (independent of Monte's exporter);
+Cycles must land on the analytic furnaces and be the reference for the stress cases that have no closed form."""
 
 from __future__ import annotations
 
@@ -84,13 +85,91 @@ def test_stress_with_cycles_reports_cycles_means_beside_monte(tmp_path):
     from monte.lab.stress import StressConfig, run_suite, write_report
 
     cfg = StressConfig.test_run()
+    cfg.spp = 32  # Cycles' 4 sigma on the noisy furnaces ~0.3-0.5 %: a 1 % error fails
     cfg.cycles = cycles_renderer(2)
     results = run_suite(cfg, only=["albedo"])
     with_cycles = [c for c in results if c.cycles and c.cycles.get("mean")]
     assert with_cycles, "no case was rendered by Cycles"
     for c in with_cycles:
         assert np.all(np.isfinite(c.cycles["mean"]))
-        # furnaces: Cycles, like Monte, must land on the analytic reference (generous: 8 spp, tiny images)
-        np.testing.assert_allclose(c.cycles["mean"], c.reference, rtol=0.1, atol=1e-3)
+        # Every pixel of these scenes has the same expected value (a closed furnace, an unbounded sky-lit plane),
+        # so the spread of Cycles' pixels gives the standard error of its mean: Cycles, like Monte, must land on
+        # the analytic reference within 4 of them (+ Cycles' float32 film). The tolerance, printed, is what a
+        # wrong reference would have to exceed to fail.
+        mean, sigma = np.asarray(c.cycles["mean"]), np.asarray(c.cycles["pixel_sigma"])
+        ref = np.asarray(c.reference)
+        tol = 4 * sigma + 1e-5 * np.abs(ref) + 1e-6
+        print(f"{c.name}: Cycles {mean} reference {ref} tolerance {np.round(100 * tol / np.maximum(ref, 1e-9), 3)} %")
+        assert np.all(np.abs(mean - ref) <= tol), c.name
+        for wrong in (1.01, 0.99):  # the control: a reference 1 % off fails
+            assert np.any(np.abs(mean - wrong * ref) > tol) or not ref.any(), (c.name, wrong)
     _, md = write_report(results, tmp_path, cfg)
     assert "Cycles mean" in md.read_text()
+
+
+def _cycles_cases(only: list[str], names: tuple[str, ...]) -> list:
+    from monte.lab.core_to_bpy import cycles_renderer
+    from monte.lab.stress import StressConfig, run_suite
+
+    cfg = StressConfig.test_run()
+    cfg.spp = 64
+    cfg.cycles = cycles_renderer(2)
+    cases = [c for c in run_suite(cfg, only=only) if c.name in names]
+    assert len(cases) == len(names)
+    return cases
+
+
+def _monte_vs_cycles(case) -> tuple[np.ndarray, np.ndarray]:
+    """(relative difference Monte / Cycles - 1, its 4-sigma tolerance): Monte's sigma from its variance, Cycles'
+    from the spread of its pixels (exact where every pixel has one expected value, conservative elsewhere)."""
+    monte, cycles = np.asarray(case.mean), np.asarray(case.cycles["mean"])
+    sigma = np.hypot(np.asarray(case.sigma), np.asarray(case.cycles["pixel_sigma"]))
+    return monte / cycles - 1, (4 * sigma + 1e-5 * cycles) / cycles
+
+
+def test_tir_rod_cut_off_by_the_bounce_limit_matches_cycles():
+    """The stress suite can only bound the glass rod of a white furnace cut off at 4 and 16 bounces (no gain over
+    the world's radiance): its value is no closed form. Cycles renders the same scene: Monte within 4 sigma."""
+    for case in _cycles_cases(["dielectric"], ("TIR rod, max bounces 4", "TIR rod, max bounces 16")):
+        rel, tol = _monte_vs_cycles(case)
+        print(f"{case.name}: Monte/Cycles - 1 = {np.round(100 * rel, 3)} % (tolerance {np.round(100 * tol, 3)} %)")
+        assert np.all(np.abs(rel) <= tol) and np.all(tol < 0.005), case.name
+
+
+@pytest.mark.xfail(strict=True, reason="Monte loses more light than Cycles when shading normals are tilted far "
+                   "from the geometric ones (measured at 64 spp: -0.9 % at 30 deg, -3.5 % at 60, -2.7 % at 85)")
+def test_tilted_shading_normals_furnace_matches_cycles():
+    """The furnace with shading normals tilted 30/60/85 deg, referenced in the stress suite only by 'no energy
+    gain' (a black render would pass that): against Cycles' render of the same scene."""
+    names = tuple(f"shading normals tilted {t} deg" for t in (30, 60, 85))
+    for case in _cycles_cases(["shading-normals"], names):
+        rel, tol = _monte_vs_cycles(case)
+        print(f"{case.name}: Monte/Cycles - 1 = {np.round(100 * rel, 3)} % (tolerance {np.round(100 * tol, 3)} %)")
+        assert np.all(np.abs(rel) <= tol), case.name
+
+
+def test_cornell_box_converted_to_blender_renders_the_reference_image_in_cycles(tmp_path):
+    """The round trip above goes through Monte's own exporter, so a mistake made both ways would cancel. Here
+    Cycles renders the converted Cornell box directly: its channel means must match the converged Cycles reference
+    of the seed's Cornell box (the one tests/test_render.py holds Monte to) within 4 sigma (from 4 seeds) + 0.2 %
+    (the reference's precision); a reference 1 % off must fail."""
+    from monte.lab.core_to_bpy import build_bpy_scene
+    from monte.addon.crosscheck import configure_cycles, render_cycles
+    from monte.core.compare import runs_mean_and_variance
+
+    scene, notes = build_bpy_scene(scenes.cornell_box((64, 64)))
+    assert notes == []
+    runs = []
+    for seed in (1, 2, 3, 4):
+        configure_cycles(scene, spp=64, max_bounces=16, threads=2, seed=seed, filter_type="blackman-harris",
+                         filter_width=1.5)
+        runs.append(np.asarray(render_cycles(scene, tmp_path)[0], np.float64)[..., :3])
+    image, variance = runs_mean_and_variance(np.stack(runs))
+    mean = image.reshape(-1, 3).mean(axis=0)
+    sigma = np.sqrt(variance.reshape(-1, 3).sum(axis=0)) / (64 * 64)
+    expected = np.array([0.39494, 0.33119, 0.39700])
+    tol = 4 * sigma + 0.002 * expected
+    print(f"Cycles {np.round(mean, 5)} vs reference {expected}: tolerance {np.round(100 * tol / expected, 2)} %")
+    assert np.all(np.abs(mean - expected) <= tol)
+    for wrong in (1.01, 0.99):
+        assert np.any(np.abs(mean - wrong * expected) > tol)

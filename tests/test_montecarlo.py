@@ -158,24 +158,43 @@ ONE_D_SAMPLERS = {
 EDGES = np.linspace(A, B, 31)
 
 
+# The chi-square tests' resolving power. A pdf "5 % wrong" is 5 % too high over the lower half of the probability
+# mass and 5 % too low over the upper half (wrong_cdf). Binned, that adds a noncentrality of about
+# N x 0.05^2 = 250 at N = 100 000 samples to a statistic with ~29 degrees of freedom: its mean ~280 against
+# a 0.1 % critical value of 58, so the 5 %-wrong pdf fails with certainty (> 6 standard deviations) while a
+# right one fails with probability 0.1 % (P_VALUE_FLOOR). At the former 20 000 samples the noncentrality was
+# 50, and a 5 %-wrong pdf passed about 1 time in 10.
+CHI_SQUARE_SAMPLES = 100_000
+WRONG_BY = 0.05
+
+
+def wrong_cdf(cdf, eps: float = WRONG_BY):
+    """The cdf of a density eps too high (relative) where cdf < 1/2 and eps too low above: still normalised."""
+    def wrong(x):
+        c = np.asarray(cdf(x), dtype=float)
+        return np.where(c <= 0.5, (1 + eps) * c, 0.5 * (1 + eps) + (1 - eps) * (c - 0.5))
+    return wrong
+
+
 @pytest.mark.parametrize("name", ONE_D_SAMPLERS)
 def test_sampler_passes_chi_square_against_its_pdf(name):
     draw, cdf = ONE_D_SAMPLERS[name]
-    samples = draw(20_000)
-    assert samples.shape == (20_000,)
+    samples = draw(CHI_SQUARE_SAMPLES)
+    assert samples.shape == (CHI_SQUARE_SAMPLES,)
     assert mc.histogram_chi_square(samples, cdf, EDGES).p_value > P_VALUE_FLOOR
 
 
 @pytest.mark.parametrize("name", ONE_D_SAMPLERS)
-def test_sampler_fails_chi_square_against_a_wrong_pdf(name):
-    draw, _ = ONE_D_SAMPLERS[name]
-    uniform_cdf = lambda x: (np.asarray(x) - A) / (B - A)  # noqa: E731
-    assert mc.histogram_chi_square(draw(20_000), uniform_cdf, EDGES).p_value < 1e-6
+def test_sampler_fails_chi_square_against_a_5_percent_wrong_pdf(name):
+    draw, cdf = ONE_D_SAMPLERS[name]
+    assert mc.histogram_chi_square(draw(CHI_SQUARE_SAMPLES), wrong_cdf(cdf), EDGES).p_value < P_VALUE_FLOOR
 
 
-def test_cosine_hemisphere_passes_against_its_pdf_and_fails_against_uniform():
-    theta, phi = mc.sample_cosine_hemisphere(rng(13), 20_000)
+def test_cosine_hemisphere_passes_against_its_pdf_and_fails_against_a_5_percent_wrong_one():
+    theta, phi = mc.sample_cosine_hemisphere(rng(13), CHI_SQUARE_SAMPLES)
     assert mc.cosine_hemisphere_chi_square(theta, phi).p_value > P_VALUE_FLOOR
+    wrong = wrong_cdf(mc.cosine_hemisphere_theta_cdf)
+    assert mc.cosine_hemisphere_chi_square(theta, phi, wrong).p_value < P_VALUE_FLOOR
     assert mc.cosine_hemisphere_chi_square(theta, phi, mc.uniform_hemisphere_theta_cdf).p_value < 1e-6
     directions = mc.directions_from_angles(theta, phi)
     np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0)

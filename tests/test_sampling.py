@@ -296,6 +296,34 @@ def test_sobol_first_2k_samples_are_nets():
     assert not _is_net(ind.get_2d(0, np.arange(256), 0), 8)
 
 
+def test_sobol_variance_groups_are_independent_scrambled_sequences():
+    # groups=G: sample i is point i // G of group i mod G; group 0 is the single-scramble sequence itself, the
+    # others are scrambled differently, and each group's first 2**k points are a net.
+    single = sampling.make_sampler("sobol", 5, 1024)
+    grouped = sampling.make_sampler("sobol", 5, 1024, groups=4)
+    for pixel in (0, 77, 123_456):
+        for dim in (0, 6):
+            i = np.arange(4 * 256)
+            pts = grouped.get_2d(pixel, i, dim)
+            assert np.array_equal(pts[0::4], single.get_2d(pixel, np.arange(256), dim))
+            for g in range(4):
+                for k in range(0, 9):
+                    assert _is_net(pts[g::4][: 1 << k], k), (pixel, dim, g, k)
+            assert not np.array_equal(pts[1::4], pts[0::4]) and not np.array_equal(pts[2::4], pts[1::4])
+            assert not _is_net(pts[:256], 8)  # the groups together are not one net: they are independent
+    assert np.array_equal(grouped.variance_group(np.arange(10)), np.arange(10) % 4)
+    strat = sampling.make_sampler("stratified", 5, 64, groups=4)
+    assert np.array_equal(strat.variance_group(np.arange(20)), (np.arange(20) // 4) % 4)
+    assert np.array_equal(strat.get_2d(3, np.arange(64), 2), sampling.make_sampler("stratified", 5).get_2d(
+        3, np.arange(64), 2))  # groups of whole blocks change no value
+    ind = sampling.make_sampler("independent", 5, 64, groups=4)
+    assert ind.iid and np.array_equal(ind.get_2d(3, np.arange(64), 2),
+                                      sampling.make_sampler("independent", 5).get_2d(3, np.arange(64), 2))
+    for bad in (0, 3, 512):
+        with pytest.raises(ValueError, match="variance groups"):
+            sampling.make_sampler("sobol", 0, 1, groups=bad)
+
+
 # Exact outputs (as 24-bit integers k, value = k * 2**-24) of get_4d for fixed inputs,
 # computed by the NumPy implementation that preceded the compiled kernels: any change of
 # bits (which would change every rendered image) fails here.  Sample indices cover the
