@@ -13,6 +13,7 @@ import numpy as np
 
 from .jit_cache import jit
 from .scene import Camera
+from .warps import sample_disk
 
 
 @dataclass
@@ -29,22 +30,65 @@ class CameraRays:
 
 
 @jit
+def aperture_point(u0, u1, blades, rotation, inv_ratio):
+    """A uniform point of the unit aperture (Cycles' conventions): the unit disk, or for blades >= 3 the regular
+    polygon inscribed in it, its corners at rotation + (2k + 1) pi / blades; x then squeezed by inv_ratio
+    (anamorphic bokeh). Returns (x, y) along the camera's right and up axes."""
+    if blades >= 3:
+        # One of the polygon's wedges (the triangle centre, corner k, corner k + 1), then a uniform point in it.
+        n = float(blades)
+        wedge = min(math.floor(u0 * n), n - 1.0)
+        su = math.sqrt(u0 * n - wedge)
+        a, b = 1.0 - su, u1 * su
+        half = math.pi / n
+        px, py = (a + b) * math.cos(half), (a - b) * math.sin(half)
+        turn = rotation + wedge * 2.0 * half
+        c, s = math.cos(turn), math.sin(turn)
+        x, y = c * px - s * py, s * px + c * py
+    else:
+        x, y = sample_disk(1.0, u0, u1)
+    return x * inv_ratio, y
+
+
+@jit
 def _camera_rays(raster_x, raster_y, width, height, frame, right, up, back, ortho, clip_start, clip_end,
+                 lens_u, aperture, focus, blades, rotation, inv_ratio,
                  origins, directions, tmax, depth_scale, t_start):
     """Camera rays through raster positions (see camera_rays), in float64, written as float32.
 
     frame: (xmin, xmax, ymin, ymax) of the image on the plane at distance 1 (perspective) or in world units
-    (orthographic); right, up, back: the camera's unit axes; rays start at clip_start and end at clip_end."""
+    (orthographic); right, up, back: the camera's unit axes; rays start at clip_start and end at clip_end.
+    aperture > 0: a thin lens of that radius focused at `focus` along the view axis, lens_u (N, 2) the
+    lens samples (see aperture_point); aperture 0: a pinhole, lens_u unread."""
     xmin, xmax, ymin, ymax = frame[0], frame[1], frame[2], frame[3]
+    lens = aperture > 0.0
+    ax = ay = 0.0
     for k in range(raster_x.shape[0]):
         x = xmin + (raster_x[k] / width) * (xmax - xmin)
         y = ymax - (raster_y[k] / height) * (ymax - ymin)
+        if lens:
+            ax, ay = aperture_point(np.float64(lens_u[k, 0]), np.float64(lens_u[k, 1]), blades, rotation,
+                                    inv_ratio)
+            ax *= aperture
+            ay *= aperture
         if ortho:
-            dx, dy, dz = -back[0], -back[1], -back[2]
-            ox = x * right[0] + y * up[0] + clip_start * dx
-            oy = x * right[1] + y * up[1] + clip_start * dy
-            oz = x * right[2] + y * up[2] + clip_start * dz
-            tm, scale, t0 = clip_end - clip_start, 1.0, clip_start
+            if lens:
+                # Towards the point in focus straight ahead of the raster position, from the lens point; the
+                # ray starts where it crosses the near clipping plane (Cycles' orthographic lens).
+                cx, cy, cz = -ax, -ay, focus
+                inv = 1.0 / math.sqrt(cx * cx + cy * cy + cz * cz)
+                cx, cy, cz = cx * inv, cy * inv, cz * inv  # camera space, z forward
+                t0 = clip_start / cz
+                x, y, scale = x + ax, y + ay, cz
+            else:
+                cx, cy, cz, t0, scale = 0.0, 0.0, 1.0, clip_start, 1.0
+            dx = cx * right[0] + cy * up[0] - cz * back[0]
+            dy = cx * right[1] + cy * up[1] - cz * back[1]
+            dz = cx * right[2] + cy * up[2] - cz * back[2]
+            ox = x * right[0] + y * up[0] + t0 * dx
+            oy = x * right[1] + y * up[1] + t0 * dy
+            oz = x * right[2] + y * up[2] + t0 * dz
+            tm = clip_end - clip_start
         else:
             lx = x * right[0] + y * up[0] - back[0]
             ly = x * right[1] + y * up[1] - back[1]
@@ -55,17 +99,34 @@ def _camera_rays(raster_x, raster_y, width, height, frame, right, up, back, orth
             t0 = clip_start / scale
             ox, oy, oz = dx * t0, dy * t0, dz * t0
             tm = clip_end / scale - t0
+            if lens:
+                # From the lens point to where the pinhole ray meets the plane in focus (z = focus ahead); the
+                # clipping distances stay those of the pinhole ray, as in Cycles.
+                cx, cy, cz = x * focus - ax, y * focus - ay, focus
+                inv = 1.0 / math.sqrt(cx * cx + cy * cy + cz * cz)
+                cx, cy, cz = cx * inv, cy * inv, cz * inv
+                dx = cx * right[0] + cy * up[0] - cz * back[0]
+                dy = cx * right[1] + cy * up[1] - cz * back[1]
+                dz = cx * right[2] + cy * up[2] - cz * back[2]
+                ox = ax * right[0] + ay * up[0] + t0 * dx
+                oy = ax * right[1] + ay * up[1] + t0 * dy
+                oz = ax * right[2] + ay * up[2] + t0 * dz
+                scale = cz  # the z-depth of the lens ray's points: (t0 + t) x its view-axis component
         origins[k, 0], origins[k, 1], origins[k, 2] = ox, oy, oz
         directions[k, 0], directions[k, 1], directions[k, 2] = dx, dy, dz
         tmax[k] = min(tm, 3e38)
         depth_scale[k] = scale
         t_start[k] = t0
 
-def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray) -> CameraRays:
+
+def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray,
+                lens_u: np.ndarray | None = None) -> CameraRays:
     """Rays through raster positions (pixels; x from the left edge, y from the TOP edge, pixel (i, j)'s centre
     at (i + 0.5, j + 0.5)).
 
-    Rays start at the near clipping plane and end at the far one."""
+    Rays start at the near clipping plane and end at the far one. A camera with depth of field
+    (`Camera.aperture_radius() > 0`) needs lens_u: (N, 2) uniform numbers in [0, 1), one lens point per ray;
+    a pinhole camera ignores it."""
     w, h = camera.resolution
     m = np.asarray(camera.matrix_world, np.float64)
     basis = m[:3, :3]
@@ -77,9 +138,20 @@ def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray) -> C
     rx = np.ascontiguousarray(raster_x, np.float64).reshape(-1)
     ry = np.ascontiguousarray(raster_y, np.float64).reshape(-1)
     n = rx.shape[0]
+    aperture = float(camera.aperture_radius())
+    if aperture > 0:
+        if lens_u is None:
+            raise ValueError("camera_rays: a camera with depth of field needs lens samples (lens_u)")
+        lens = np.ascontiguousarray(lens_u, np.float32).reshape(-1, 2)
+        if lens.shape[0] != n:
+            raise ValueError(f"camera_rays: {lens.shape[0]} lens samples for {n} rays")
+    else:
+        lens = np.zeros((0, 2), np.float32)
     rays = CameraRays(np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
                       np.empty(n, np.float32), np.empty(n, np.float32))
     _camera_rays(rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
-                 camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end), rays.origins,
-                 rays.directions, rays.tmax, rays.depth_scale, rays.t_start)
+                 camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end), lens, aperture,
+                 float(camera.focus_distance), int(camera.aperture_blades), float(camera.aperture_rotation),
+                 1.0 / float(camera.aperture_ratio), rays.origins, rays.directions, rays.tmax, rays.depth_scale,
+                 rays.t_start)
     return rays
