@@ -52,43 +52,21 @@ def aperture_point(u0, u1, blades, rotation, inv_ratio):
 
 @jit
 def _camera_rays(raster_x, raster_y, width, height, frame, right, up, back, ortho, clip_start, clip_end,
-                 lens_u, aperture, focus, blades, rotation, inv_ratio,
                  origins, directions, tmax, depth_scale, t_start):
     """Camera rays through raster positions (see camera_rays), in float64, written as float32.
 
     frame: (xmin, xmax, ymin, ymax) of the image on the plane at distance 1 (perspective) or in world units
-    (orthographic); right, up, back: the camera's unit axes; rays start at clip_start and end at clip_end.
-    aperture > 0: a thin lens of that radius focused at `focus` along the view axis, lens_u (N, 2) the
-    lens samples (see aperture_point); aperture 0: a pinhole, lens_u unread."""
+    (orthographic); right, up, back: the camera's unit axes; rays start at clip_start and end at clip_end."""
     xmin, xmax, ymin, ymax = frame[0], frame[1], frame[2], frame[3]
-    lens = aperture > 0.0
-    ax = ay = 0.0
     for k in range(raster_x.shape[0]):
         x = xmin + (raster_x[k] / width) * (xmax - xmin)
         y = ymax - (raster_y[k] / height) * (ymax - ymin)
-        if lens:
-            ax, ay = aperture_point(np.float64(lens_u[k, 0]), np.float64(lens_u[k, 1]), blades, rotation,
-                                    inv_ratio)
-            ax *= aperture
-            ay *= aperture
         if ortho:
-            if lens:
-                # Towards the point in focus straight ahead of the raster position, from the lens point; the
-                # ray starts where it crosses the near clipping plane (Cycles' orthographic lens).
-                cx, cy, cz = -ax, -ay, focus
-                inv = 1.0 / math.sqrt(cx * cx + cy * cy + cz * cz)
-                cx, cy, cz = cx * inv, cy * inv, cz * inv  # camera space, z forward
-                t0 = clip_start / cz
-                x, y, scale = x + ax, y + ay, cz
-            else:
-                cx, cy, cz, t0, scale = 0.0, 0.0, 1.0, clip_start, 1.0
-            dx = cx * right[0] + cy * up[0] - cz * back[0]
-            dy = cx * right[1] + cy * up[1] - cz * back[1]
-            dz = cx * right[2] + cy * up[2] - cz * back[2]
-            ox = x * right[0] + y * up[0] + t0 * dx
-            oy = x * right[1] + y * up[1] + t0 * dy
-            oz = x * right[2] + y * up[2] + t0 * dz
-            tm = clip_end - clip_start
+            dx, dy, dz = -back[0], -back[1], -back[2]
+            ox = x * right[0] + y * up[0] + clip_start * dx
+            oy = x * right[1] + y * up[1] + clip_start * dy
+            oz = x * right[2] + y * up[2] + clip_start * dz
+            tm, scale, t0 = clip_end - clip_start, 1.0, clip_start
         else:
             lx = x * right[0] + y * up[0] - back[0]
             ly = x * right[1] + y * up[1] - back[1]
@@ -99,23 +77,53 @@ def _camera_rays(raster_x, raster_y, width, height, frame, right, up, back, orth
             t0 = clip_start / scale
             ox, oy, oz = dx * t0, dy * t0, dz * t0
             tm = clip_end / scale - t0
-            if lens:
-                # From the lens point to where the pinhole ray meets the plane in focus (z = focus ahead); the
-                # clipping distances stay those of the pinhole ray, as in Cycles.
-                cx, cy, cz = x * focus - ax, y * focus - ay, focus
-                inv = 1.0 / math.sqrt(cx * cx + cy * cy + cz * cz)
-                cx, cy, cz = cx * inv, cy * inv, cz * inv
-                dx = cx * right[0] + cy * up[0] - cz * back[0]
-                dy = cx * right[1] + cy * up[1] - cz * back[1]
-                dz = cx * right[2] + cy * up[2] - cz * back[2]
-                ox = ax * right[0] + ay * up[0] + t0 * dx
-                oy = ax * right[1] + ay * up[1] + t0 * dy
-                oz = ax * right[2] + ay * up[2] + t0 * dz
-                scale = cz  # the z-depth of the lens ray's points: (t0 + t) x its view-axis component
         origins[k, 0], origins[k, 1], origins[k, 2] = ox, oy, oz
         directions[k, 0], directions[k, 1], directions[k, 2] = dx, dy, dz
         tmax[k] = min(tm, 3e38)
         depth_scale[k] = scale
+        t_start[k] = t0
+
+
+@jit
+def _lens_camera_rays(raster_x, raster_y, width, height, frame, right, up, back, ortho, clip_start, clip_end,
+                      lens_u, aperture, focus, blades, rotation, inv_ratio,
+                      origins, directions, tmax, depth_scale, t_start):
+    """Camera rays through a thin lens (see _camera_rays for the shared arguments): aperture is the lens radius,
+    focus the distance of the plane in focus along the view axis, lens_u (N, 2) the lens samples (see
+    aperture_point). A kernel of its own so that the pinhole camera's loop stays as lean as it was."""
+    xmin, xmax, ymin, ymax = frame[0], frame[1], frame[2], frame[3]
+    for k in range(raster_x.shape[0]):
+        x = xmin + (raster_x[k] / width) * (xmax - xmin)
+        y = ymax - (raster_y[k] / height) * (ymax - ymin)
+        ax, ay = aperture_point(np.float64(lens_u[k, 0]), np.float64(lens_u[k, 1]), blades, rotation, inv_ratio)
+        ax *= aperture
+        ay *= aperture
+        if ortho:
+            # Towards the point in focus straight ahead of the raster position, from the lens point; the ray
+            # starts where it crosses the near clipping plane (Cycles' orthographic lens).
+            cx, cy, cz = -ax, -ay, focus
+            ex, ey = x + ax, y + ay  # the lens point, camera space
+        else:
+            # From the lens point to where the pinhole ray meets the plane in focus (z = focus ahead).
+            cx, cy, cz = x * focus - ax, y * focus - ay, focus
+            ex, ey = ax, ay
+        inv = 1.0 / math.sqrt(cx * cx + cy * cy + cz * cz)
+        cx, cy, cz = cx * inv, cy * inv, cz * inv  # camera space, z forward
+        if ortho:
+            t0, tm = clip_start / cz, clip_end - clip_start
+        else:
+            # The clipping distances stay those of the pinhole ray, as in Cycles.
+            length = math.sqrt(x * x + y * y + 1.0)  # the pinhole ray's length per unit of depth
+            t0, tm = clip_start * length, (clip_end - clip_start) * length
+        dx = cx * right[0] + cy * up[0] - cz * back[0]
+        dy = cx * right[1] + cy * up[1] - cz * back[1]
+        dz = cx * right[2] + cy * up[2] - cz * back[2]
+        origins[k, 0] = ex * right[0] + ey * up[0] + t0 * dx
+        origins[k, 1] = ex * right[1] + ey * up[1] + t0 * dy
+        origins[k, 2] = ex * right[2] + ey * up[2] + t0 * dz
+        directions[k, 0], directions[k, 1], directions[k, 2] = dx, dy, dz
+        tmax[k] = min(tm, 3e38)
+        depth_scale[k] = cz  # the z-depth of the ray's points: (t0 + t) x its view-axis component
         t_start[k] = t0
 
 
@@ -145,13 +153,14 @@ def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray,
         lens = np.ascontiguousarray(lens_u, np.float32).reshape(-1, 2)
         if lens.shape[0] != n:
             raise ValueError(f"camera_rays: {lens.shape[0]} lens samples for {n} rays")
-    else:
-        lens = np.zeros((0, 2), np.float32)
     rays = CameraRays(np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
                       np.empty(n, np.float32), np.empty(n, np.float32))
-    _camera_rays(rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
-                 camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end), lens, aperture,
-                 float(camera.focus_distance), int(camera.aperture_blades), float(camera.aperture_rotation),
-                 1.0 / float(camera.aperture_ratio), rays.origins, rays.directions, rays.tmax, rays.depth_scale,
-                 rays.t_start)
+    common = (rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
+              camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end))
+    outputs = (rays.origins, rays.directions, rays.tmax, rays.depth_scale, rays.t_start)
+    if aperture > 0:
+        _lens_camera_rays(*common, lens, aperture, float(camera.focus_distance), int(camera.aperture_blades),
+                          float(camera.aperture_rotation), 1.0 / float(camera.aperture_ratio), *outputs)
+    else:
+        _camera_rays(*common, *outputs)
     return rays
