@@ -277,6 +277,22 @@ def test_depth_of_field_blades(size, tmp_path, monkeypatch):
     assert not monte_camera_off(monkeypatch, scene, tmp_path, size, aperture_ratio=1.0)["verdict"]["agree"]
 
 
+@pytest.mark.parametrize("size", SIZE_PARAMS)
+def test_depth_of_field_orthographic(size, tmp_path, monkeypatch):
+    """An orthographic camera's lens (aperture 1 / (2 f-stop), Cycles' convention) with 6 blades, focused on the
+    floor 6 m below: the boxes' tops blur. Control: Monte rendering it in focus must fail (6 % of pixels beyond
+    5 sigma at 32x32)."""
+    scene = bf.floor_scene(world=0.3)
+    box("tall", (-1.0, 0.5, 1.0), 1.0, (0.8, 0.2, 0.1))
+    box("low", (1.5, -1.0, 0.4), 0.4, (0.2, 0.7, 0.3))
+    bf.add_light(scene, "SUN", (0, 0, 5), (0.5, 0.2, 0.3), energy=3.0, angle=math.radians(5))
+    dof = scene.camera.data.dof
+    dof.use_dof, dof.aperture_fstop, dof.focus_distance = True, 0.25, 6.0
+    dof.aperture_blades, dof.aperture_rotation = 6, 0.2
+    check(scene, tmp_path, size, max_bounces=4)
+    assert not monte_camera_off(monkeypatch, scene, tmp_path, size, use_dof=False)["verdict"]["agree"]
+
+
 # ------------------------------------------------------------------------------------------ attribution
 def attributed_check(scene, tmp_path) -> dict:
     options = cc.CrosscheckOptions(spp=64, cycles_spp=64, resolution=(24, 24), threads=2, max_bounces=2)
