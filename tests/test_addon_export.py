@@ -577,7 +577,8 @@ def _set_transparent_glass(scene, cam):
 
 # setting -> (how to turn it on, words its warning must hold)
 UNSUPPORTED_CAMERA_FILM = {
-    "panoramic": (_set_pano, ["panoramic", "Equirectangular", "perspective"]),
+    "panoramic": (_set_pano, ["panoramic", "perspective"]
+                  + (["Equirectangular"] if "panorama_type" in bpy.types.Camera.bl_rna.properties else [])),
     "motion-blur": (lambda scene, cam: setattr(scene.render, "use_motion_blur", True), ["motion blur"]),
     "film-transparent": (lambda scene, cam: setattr(scene.render, "film_transparent", True),
                          ["Film > Transparent", "opaque"]),

@@ -86,8 +86,8 @@ def export_camera(camera_object, scene, warnings: list[str]) -> Camera:
     name = camera_object.name
     kind = cam.type
     if kind == "PANO":
-        pano = getattr(cam, "panorama_type", "")
-        warnings.append(f"camera {name!r}: panoramic camera type ({pano.replace('_', ' ').title()}) is not "
+        pano = str(getattr(cam, "panorama_type", "")).replace("_", " ").title()  # on the camera since Blender 4.x
+        warnings.append(f"camera {name!r}: panoramic camera type{f' ({pano})' if pano else ''} is not "
                         f"supported; rendering it as a perspective camera with its {cam.lens:g} mm lens")
         kind = "PERSP"
     elif kind not in ("PERSP", "ORTHO"):
