@@ -13,6 +13,7 @@ import numpy as np
 
 from .jit_cache import jit
 from .scene import Camera
+from .warps import sample_disk
 
 
 @dataclass
@@ -26,6 +27,27 @@ class CameraRays:
     depth_scale: np.ndarray
     t_start: np.ndarray
 
+
+
+@jit
+def aperture_point(u0, u1, blades, rotation, inv_ratio):
+    """A uniform point of the unit aperture (Cycles' conventions): the unit disk, or for blades >= 3 the regular
+    polygon inscribed in it, its corners at rotation + (2k + 1) pi / blades; x then squeezed by inv_ratio
+    (anamorphic bokeh). Returns (x, y) along the camera's right and up axes."""
+    if blades >= 3:
+        # One of the polygon's wedges (the triangle centre, corner k, corner k + 1), then a uniform point in it.
+        n = float(blades)
+        wedge = min(math.floor(u0 * n), n - 1.0)
+        su = math.sqrt(u0 * n - wedge)
+        a, b = 1.0 - su, u1 * su
+        half = math.pi / n
+        px, py = (a + b) * math.cos(half), (a - b) * math.sin(half)
+        turn = rotation + wedge * 2.0 * half
+        c, s = math.cos(turn), math.sin(turn)
+        x, y = c * px - s * py, s * px + c * py
+    else:
+        x, y = sample_disk(1.0, u0, u1)
+    return x * inv_ratio, y
 
 
 @jit
@@ -61,11 +83,58 @@ def _camera_rays(raster_x, raster_y, width, height, frame, right, up, back, orth
         depth_scale[k] = scale
         t_start[k] = t0
 
-def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray) -> CameraRays:
+
+@jit
+def _lens_camera_rays(raster_x, raster_y, width, height, frame, right, up, back, ortho, clip_start, clip_end,
+                      lens_u, aperture, focus, blades, rotation, inv_ratio,
+                      origins, directions, tmax, depth_scale, t_start):
+    """Camera rays through a thin lens (see _camera_rays for the shared arguments): aperture is the lens radius,
+    focus the distance of the plane in focus along the view axis, lens_u (N, 2) the lens samples (see
+    aperture_point). A kernel of its own so that the pinhole camera's loop stays as lean as it was."""
+    xmin, xmax, ymin, ymax = frame[0], frame[1], frame[2], frame[3]
+    for k in range(raster_x.shape[0]):
+        x = xmin + (raster_x[k] / width) * (xmax - xmin)
+        y = ymax - (raster_y[k] / height) * (ymax - ymin)
+        ax, ay = aperture_point(np.float64(lens_u[k, 0]), np.float64(lens_u[k, 1]), blades, rotation, inv_ratio)
+        ax *= aperture
+        ay *= aperture
+        if ortho:
+            # Towards the point in focus straight ahead of the raster position, from the lens point; the ray
+            # starts where it crosses the near clipping plane (Cycles' orthographic lens).
+            cx, cy, cz = -ax, -ay, focus
+            ex, ey = x + ax, y + ay  # the lens point, camera space
+        else:
+            # From the lens point to where the pinhole ray meets the plane in focus (z = focus ahead).
+            cx, cy, cz = x * focus - ax, y * focus - ay, focus
+            ex, ey = ax, ay
+        inv = 1.0 / math.sqrt(cx * cx + cy * cy + cz * cz)
+        cx, cy, cz = cx * inv, cy * inv, cz * inv  # camera space, z forward
+        if ortho:
+            t0, tm = clip_start / cz, clip_end - clip_start
+        else:
+            # The clipping distances stay those of the pinhole ray, as in Cycles.
+            length = math.sqrt(x * x + y * y + 1.0)  # the pinhole ray's length per unit of depth
+            t0, tm = clip_start * length, (clip_end - clip_start) * length
+        dx = cx * right[0] + cy * up[0] - cz * back[0]
+        dy = cx * right[1] + cy * up[1] - cz * back[1]
+        dz = cx * right[2] + cy * up[2] - cz * back[2]
+        origins[k, 0] = ex * right[0] + ey * up[0] + t0 * dx
+        origins[k, 1] = ex * right[1] + ey * up[1] + t0 * dy
+        origins[k, 2] = ex * right[2] + ey * up[2] + t0 * dz
+        directions[k, 0], directions[k, 1], directions[k, 2] = dx, dy, dz
+        tmax[k] = min(tm, 3e38)
+        depth_scale[k] = cz  # the z-depth of the ray's points: (t0 + t) x its view-axis component
+        t_start[k] = t0
+
+
+def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray,
+                lens_u: np.ndarray | None = None) -> CameraRays:
     """Rays through raster positions (pixels; x from the left edge, y from the TOP edge, pixel (i, j)'s centre
     at (i + 0.5, j + 0.5)).
 
-    Rays start at the near clipping plane and end at the far one."""
+    Rays start at the near clipping plane and end at the far one. A camera with depth of field
+    (`Camera.aperture_radius() > 0`) needs lens_u: (N, 2) uniform numbers in [0, 1), one lens point per ray;
+    a pinhole camera ignores it."""
     w, h = camera.resolution
     m = np.asarray(camera.matrix_world, np.float64)
     basis = m[:3, :3]
@@ -77,9 +146,21 @@ def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray) -> C
     rx = np.ascontiguousarray(raster_x, np.float64).reshape(-1)
     ry = np.ascontiguousarray(raster_y, np.float64).reshape(-1)
     n = rx.shape[0]
+    aperture = float(camera.aperture_radius())
+    if aperture > 0:
+        if lens_u is None:
+            raise ValueError("camera_rays: a camera with depth of field needs lens samples (lens_u)")
+        lens = np.ascontiguousarray(lens_u, np.float32).reshape(-1, 2)
+        if lens.shape[0] != n:
+            raise ValueError(f"camera_rays: {lens.shape[0]} lens samples for {n} rays")
     rays = CameraRays(np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
                       np.empty(n, np.float32), np.empty(n, np.float32))
-    _camera_rays(rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
-                 camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end), rays.origins,
-                 rays.directions, rays.tmax, rays.depth_scale, rays.t_start)
+    common = (rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
+              camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end))
+    outputs = (rays.origins, rays.directions, rays.tmax, rays.depth_scale, rays.t_start)
+    if aperture > 0:
+        _lens_camera_rays(*common, lens, aperture, float(camera.focus_distance), int(camera.aperture_blades),
+                          float(camera.aperture_rotation), 1.0 / float(camera.aperture_ratio), *outputs)
+    else:
+        _camera_rays(*common, *outputs)
     return rays

@@ -24,8 +24,10 @@ from .lights import EmissiveTriangles, LightSampler
 from .scene import Scene
 from .settings import RenderSettings
 
-# Sampler dimension layout: film position first, then a fixed block per bounce.
+# Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
+# camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce.
 DIM_FILM = 0
+DIM_LENS = 1
 DIM_BOUNCE_BASE = 2
 DIM_STRIDE = 8
 # Two sampler calls per bounce: a 4-D set for the vertex (BSDF direction in the stratified pair, lobe choice third,

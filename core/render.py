@@ -24,7 +24,7 @@ from .accel import Accelerator
 from .camera import camera_rays
 from .film import TileFilm
 from .filters import PixelFilter
-from .integrator import DIM_FILM, PathStats, PathTracer, PreparedScene
+from .integrator import DIM_FILM, DIM_LENS, PathStats, PathTracer, PreparedScene
 from .jit_cache import compile_cache_is_cold
 from .memory import check_render_memory
 from .sampling import VARIANCE_GROUPS, make_sampler
@@ -340,7 +340,9 @@ class _TileRender:
         smp = np.concatenate([seg.smp for seg in segments])
         pixel_id = (py * self.scene.camera.resolution[0] + px).astype(np.uint32)
         offsets = self.pixel_filter.sample(self.sampler.get_2d(pixel_id, smp, DIM_FILM))
-        rays = camera_rays(self.scene.camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1])
+        camera = self.scene.camera
+        lens_u = self.sampler.get_2d(pixel_id, smp, DIM_LENS) if camera.aperture_radius() > 0 else None
+        rays = camera_rays(camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1], lens_u)
         tracer.stats.seconds_camera += time.perf_counter() - t0
         return tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
                             rays.t_start, self.settings.aovs)

@@ -341,6 +341,14 @@ class Camera:
     sensor_width to the larger image side, "HORIZONTAL" sensor_width to the width, "VERTICAL" sensor_height
     to the height. kind "ORTHO": ortho_scale is the extent of the fitted side in metres. shift_x/shift_y move
     the frame in units of the fitted side. clip_start/clip_end bound the visible depth along the ray.
+
+    Depth of field (a thin lens, Cycles' conventions), on when use_dof: the aperture's radius is
+    lens x 1e-3 / (2 aperture_fstop) metres for "PERSP" (the focal length in mm read as metres, whatever the
+    scene's unit scale, as Cycles does) and 1 / (2 aperture_fstop) for "ORTHO"; focus_distance (m) is the
+    distance of the plane in focus along the view axis. aperture_blades >= 3 makes the aperture a regular
+    polygon of that many sides inscribed in the aperture's circle, turned by aperture_rotation (radians);
+    0 (or 1, 2) keeps it round. aperture_ratio squeezes the aperture horizontally by 1 / ratio (anamorphic
+    bokeh). An f-stop or focus distance of 0 renders as a pinhole (see `aperture_radius`).
     """
 
     matrix_world: np.ndarray
@@ -355,6 +363,12 @@ class Camera:
     shift_y: float = 0.0
     clip_start: float = 1e-6
     clip_end: float = 1e30
+    use_dof: bool = False
+    aperture_fstop: float = 2.8
+    focus_distance: float = 10.0
+    aperture_blades: int = 0
+    aperture_rotation: float = 0.0
+    aperture_ratio: float = 1.0
 
     @classmethod
     def look_at(
@@ -383,6 +397,14 @@ class Camera:
     @property
     def position(self) -> np.ndarray:
         return np.asarray(self.matrix_world, dtype=np.float64)[:3, 3]
+
+    def aperture_radius(self) -> float:
+        """The lens aperture's radius in metres; 0 renders a pinhole camera (depth of field off, an f-stop of
+        0 or a focus distance of 0: Blender lets both be typed in, and a pinhole is what they mean)."""
+        if not self.use_dof or self.aperture_fstop == 0 or self.focus_distance == 0:
+            return 0.0
+        numerator = 1.0 if self.kind == "ORTHO" else self.lens * 1e-3
+        return numerator / (2.0 * self.aperture_fstop)
 
     def frame(self) -> tuple[float, float, float, float]:
         """The image frame on the plane at distance 1 in front of the camera (perspective) or at the camera
@@ -427,6 +449,25 @@ class Camera:
         basis = self.matrix_world[:3, :3]
         if abs(np.linalg.det(basis)) < 1e-12:
             raise SceneError("camera: matrix is singular (zero scale)")
+        self.use_dof = bool(self.use_dof)
+        for name in ("aperture_fstop", "focus_distance", "aperture_rotation", "aperture_ratio"):
+            value = float(getattr(self, name))
+            if not math.isfinite(value):
+                raise SceneError(f"camera: depth of field {name} is {value}, it must be a finite number")
+            setattr(self, name, value)
+        for name in ("aperture_fstop", "focus_distance"):
+            if getattr(self, name) < 0:
+                raise SceneError(f"camera: depth of field {name} is {getattr(self, name)}, it must be >= 0")
+        if not self.aperture_ratio > 0:
+            raise SceneError(f"camera: depth of field aperture_ratio is {self.aperture_ratio}, it must be > 0")
+        blades = self.aperture_blades
+        try:
+            whole = not isinstance(blades, bool) and float(blades).is_integer()
+        except (TypeError, ValueError):
+            whole = False
+        if not whole or blades < 0:
+            raise SceneError(f"camera: depth of field aperture_blades is {blades!r}, it must be a whole number >= 0")
+        self.aperture_blades = int(blades)
 
 
 # ------------------------------------------------------------------------------------------------------- scene

@@ -177,6 +177,11 @@ def build_bpy_scene(core_scene: Scene) -> tuple[object, list[str]]:
     data.shift_x, data.shift_y = float(cam.shift_x), float(cam.shift_y)
     data.clip_start = float(max(cam.clip_start, 1e-6))
     data.clip_end = float(min(cam.clip_end, 1e30))
+    dof = data.dof
+    dof.use_dof = bool(cam.use_dof)
+    dof.aperture_fstop, dof.focus_distance = float(cam.aperture_fstop), float(cam.focus_distance)
+    dof.aperture_blades, dof.aperture_rotation = int(cam.aperture_blades), float(cam.aperture_rotation)
+    dof.aperture_ratio = float(cam.aperture_ratio)
     obj = bpy.data.objects.new("Camera", data)
     obj.matrix_world = Matrix([[float(v) for v in row] for row in np.asarray(cam.matrix_world)])
     scene.collection.objects.link(obj)

@@ -519,6 +519,93 @@ def test_camera_matrix_scale_is_ignored(scene):
     assert np.allclose(np.linalg.norm(np.asarray(got.camera.matrix_world)[:3, :3], axis=0), 1.0)
 
 
+def test_depth_of_field_exports_cycles_settings(scene):
+    cam = add_camera(scene, lens=35.0)
+    cube("C")
+    dof = cam.data.dof
+    dof.use_dof, dof.aperture_fstop, dof.focus_distance = True, 2.0, 3.5
+    dof.aperture_blades, dof.aperture_rotation, dof.aperture_ratio = 6, 0.3, 1.5
+    got, _ = export()
+    c = got.camera
+    assert (c.use_dof, c.aperture_blades) == (True, 6)
+    assert (c.aperture_fstop, c.focus_distance, c.aperture_rotation, c.aperture_ratio) == pytest.approx(
+        (2.0, 3.5, 0.3, 1.5))
+    assert c.aperture_radius() == pytest.approx(35.0e-3 / (2 * 2.0))  # Cycles: lens (mm) x 1e-3 / (2 f-stop)
+    assert not any("depth of field" in w for w in got.warnings)
+    dof.use_dof = False
+    got, _ = export()
+    assert got.camera.aperture_radius() == 0.0
+
+
+def test_focus_object_distance_is_along_the_view_axis(scene):
+    """Cycles focuses at the Focus Object's distance along the camera's view axis, not its Euclidean distance;
+    a Focus Bone's head on an armature counts in place of the object's origin."""
+    cam = add_camera(scene)  # at (0, -10, 0) looking along +y
+    cube("C")
+    target = bpy.data.objects.new("target", None)
+    target.location = (1.5, 2.0, -0.7)
+    scene.collection.objects.link(target)
+    cam.data.dof.use_dof = True
+    cam.data.dof.focus_object = target
+    got, _ = export()
+    assert got.camera.focus_distance == pytest.approx(12.0, abs=1e-5)
+    arm_data = bpy.data.armatures.new("rig")
+    rig = bpy.data.objects.new("rig", arm_data)
+    scene.collection.objects.link(rig)
+    bpy.context.view_layer.objects.active = rig
+    bpy.ops.object.mode_set(mode="EDIT")
+    bone = arm_data.edit_bones.new("focus")
+    bone.head, bone.tail = (0.0, 4.0, 0.0), (0.0, 4.0, 1.0)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    rig.location = (0.0, 1.0, 0.0)
+    cam.data.dof.focus_object = rig
+    cam.data.dof.focus_subtarget = "focus"
+    got, _ = export()
+    assert got.camera.focus_distance == pytest.approx(15.0, abs=1e-5)
+
+
+def _set_pano(scene, cam):
+    cam.data.type = "PANO"
+    if "panorama_type" in cam.data.bl_rna.properties:
+        cam.data.panorama_type = "EQUIRECTANGULAR"
+
+
+def _set_transparent_glass(scene, cam):
+    scene.render.film_transparent = True
+    scene.cycles.film_transparent_glass = True
+
+
+# setting -> (how to turn it on, words its warning must hold)
+UNSUPPORTED_CAMERA_FILM = {
+    "panoramic": (_set_pano, ["panoramic", "perspective"]
+                  + (["Equirectangular"] if "panorama_type" in bpy.types.Camera.bl_rna.properties else [])),
+    "motion-blur": (lambda scene, cam: setattr(scene.render, "use_motion_blur", True), ["motion blur"]),
+    "film-transparent": (lambda scene, cam: setattr(scene.render, "film_transparent", True),
+                         ["Film > Transparent", "opaque"]),
+    "transparent-glass": (_set_transparent_glass, ["Transparent Glass"]),
+    "f-stop-0": (lambda scene, cam: (setattr(cam.data.dof, "use_dof", True),
+                                     setattr(cam.data.dof, "aperture_fstop", 0.0)), ["F-Stop 0", "pinhole"]),
+    "focus-distance-0": (lambda scene, cam: (setattr(cam.data.dof, "use_dof", True),
+                                             setattr(cam.data.dof, "focus_distance", 0.0)),
+                         ["Focus Distance 0", "pinhole"]),
+}
+
+
+@pytest.mark.parametrize("name", list(UNSUPPORTED_CAMERA_FILM))
+def test_unsupported_camera_and_film_settings_warn_by_name(scene, name):
+    """Never silently different: each camera or film setting that changes Cycles' image and that Monte does not
+    render yet is named in an export warning (and the defaults warn about none of them)."""
+    cam = add_camera(scene)
+    cube("C")
+    got, _ = export()
+    assert got.warnings == []
+    turn_on, words = UNSUPPORTED_CAMERA_FILM[name]
+    turn_on(scene, cam)
+    got, _ = export()
+    assert any(all(word in w for word in words) for w in got.warnings), got.warnings
+    assert np.isfinite(got.camera.aperture_radius())
+
+
 # ------------------------------------------------------------------------------------------ errors
 def test_scene_without_camera_or_objects_has_a_clear_message(scene):
     cube("C")

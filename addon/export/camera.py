@@ -1,4 +1,5 @@
-"""Blender camera -> core Camera (perspective and orthographic, Blender's sensor fit, shift and clipping).
+"""Blender camera -> core Camera (perspective and orthographic, Blender's sensor fit, shift and clipping, depth
+of field), and a warning naming each camera or film setting Monte does not render yet.
 
 core.Camera.frame() reproduces BKE_camera_params_compute_viewplane, so the fields are copied as they are;
 tests compare the frame with `camera.data.view_frame(scene=scene)`.
@@ -48,6 +49,33 @@ def _normalized(matrix) -> np.ndarray:
     return m
 
 
+def focus_distance(camera_object, dof) -> float:
+    """The distance in focus (m): the Focus Object's distance along the camera's view axis (its bone's head
+    when a Focus Bone is set on an armature) or, without one, Focus Distance; as Cycles' Blender sync reads it."""
+    target = dof.focus_object
+    if target is None:
+        return float(dof.focus_distance)
+    where = np.array(target.matrix_world, dtype=np.float64).reshape(4, 4)
+    bone_name = getattr(dof, "focus_subtarget", "")
+    if target.pose is not None and bone_name:
+        bone = target.pose.bones.get(bone_name)
+        if bone is not None:
+            where = where @ np.array(bone.matrix, dtype=np.float64).reshape(4, 4)
+    m = _normalized(camera_object.matrix_world)
+    return float(abs(np.dot(m[:3, 2], m[:3, 3] - where[:3, 3])))
+
+
+def unsupported_film_warnings(scene, warnings: list[str]) -> None:
+    """Film settings that change Cycles' image and that Monte does not render yet, each named in a warning."""
+    r = scene.render
+    if r.film_transparent:
+        warnings.append("render: Film > Transparent is not supported; the world is rendered opaque (alpha 1)")
+        cycles = getattr(scene, "cycles", None)
+        if cycles is not None and getattr(cycles, "film_transparent_glass", False):
+            warnings.append("render: Film > Transparent Glass is not supported; glass is rendered opaque "
+                            "(alpha 1)")
+
+
 def export_camera(camera_object, scene, warnings: list[str]) -> Camera:
     """Build core's Camera from an evaluated camera object and the scene's render settings."""
     if camera_object is None:
@@ -56,23 +84,36 @@ def export_camera(camera_object, scene, warnings: list[str]) -> Camera:
         raise SceneError(f"the scene camera {camera_object.name!r} is a {camera_object.type.lower()}, not a camera")
     cam = camera_object.data
     name = camera_object.name
-    if cam.type == "PANO":
-        raise SceneError(f"camera {name!r}: panoramic cameras are not supported by Monte (use perspective "
-                         "or orthographic)")
-    if cam.type not in ("PERSP", "ORTHO"):
-        raise SceneError(f"camera {name!r}: camera type {cam.type} is not supported by Monte")
-    if getattr(cam, "dof", None) is not None and cam.dof.use_dof:
-        warnings.append(f"camera {name!r}: depth of field is not supported; rendering it in focus")
+    kind = cam.type
+    if kind == "PANO":
+        pano = str(getattr(cam, "panorama_type", "")).replace("_", " ").title()  # on the camera since Blender 4.x
+        warnings.append(f"camera {name!r}: panoramic camera type{f' ({pano})' if pano else ''} is not "
+                        f"supported; rendering it as a perspective camera with its {cam.lens:g} mm lens")
+        kind = "PERSP"
+    elif kind not in ("PERSP", "ORTHO"):
+        raise SceneError(f"camera {name!r}: camera type {kind} is not supported by Monte")
     r = scene.render
     if abs(r.pixel_aspect_x - r.pixel_aspect_y) > 1e-6:
         warnings.append(f"render: non-square pixel aspect {r.pixel_aspect_x:g}:{r.pixel_aspect_y:g} is not "
                         "supported; rendering square pixels")
     if r.use_motion_blur:
         warnings.append("render: motion blur is not supported; rendering the frame's instant")
+    unsupported_film_warnings(scene, warnings)
+    dof = cam.dof
+    focus = focus_distance(camera_object, dof) if dof.use_dof else float(dof.focus_distance)
+    if dof.use_dof and dof.aperture_fstop == 0:
+        # Cycles clamps the f-stop to 1e-5: an aperture kilometres wide that blurs everything into one colour.
+        warnings.append(f"camera {name!r}: depth of field F-Stop 0 is rendered as a pinhole (in focus); Cycles "
+                        "renders an unbounded aperture, blurring the whole image")
+    elif dof.use_dof and focus == 0:
+        # Cycles aims every lens ray at the lens centre, sideways: its image shows only what is beside the lens.
+        what = "the Focus Object's distance" if dof.focus_object is not None else "Focus Distance"
+        warnings.append(f"camera {name!r}: depth of field with {what} 0 is rendered as a pinhole (in focus); "
+                        "Cycles sends its rays sideways and renders only the world")
     return Camera(
         matrix_world=_normalized(camera_object.matrix_world),
         resolution=render_resolution(scene),
-        kind=cam.type,
+        kind=kind,
         lens=float(cam.lens),
         sensor_width=float(cam.sensor_width),
         sensor_height=float(cam.sensor_height),
@@ -82,4 +123,10 @@ def export_camera(camera_object, scene, warnings: list[str]) -> Camera:
         shift_y=float(cam.shift_y),
         clip_start=float(cam.clip_start),
         clip_end=float(cam.clip_end),
+        use_dof=bool(dof.use_dof),
+        aperture_fstop=float(dof.aperture_fstop),
+        focus_distance=focus,
+        aperture_blades=int(dof.aperture_blades),
+        aperture_rotation=float(dof.aperture_rotation),
+        aperture_ratio=float(dof.aperture_ratio),
     )
