@@ -94,6 +94,10 @@ def cmd_render(args: argparse.Namespace) -> int:
     overrides = _settings_from(args)
     output = Path(args.output)
     if args.scene.endswith(".blend") or Path(args.scene).suffix == ".blend":
+        if args.dask:
+            print("monte render: --dask renders built-in scenes so far; a .blend renders on this machine",
+                  file=sys.stderr)
+            return 2
         try:
             from .addon.headless import render_blend_file
         except ImportError as exc:
@@ -125,8 +129,25 @@ def cmd_render(args: argparse.Namespace) -> int:
         exr.check_writable(output.with_suffix(".png"))
     bar = ProgressBar(not args.quiet)
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
-    result = render(scene, settings, on_progress=bar, log=log)
-    bar.close()
+    if args.dask:
+        from .core.distributed import ClusterError, connect, render_on_cluster
+
+        try:
+            with connect(args.dask, args.dask_timeout, log) as client:
+                try:
+                    result = render_on_cluster(scene, settings, client, on_progress=bar, log=log)
+                finally:
+                    bar.close()
+        except ClusterError as exc:
+            print(f"monte render: error: {exc}", file=sys.stderr)
+            return 1
+        st = result.stats
+        log(f"cluster: {st['units']} units on {st['workers']} workers, scene {st['scene_bytes'] / 1e3:.0f} kB "
+            f"to each worker, film sums back {st['film_bytes'] / 1e6:.2f} MB "
+            f"({st['film_bytes_per_unit'] / 1e3:.0f} kB per unit)")
+    else:
+        result = render(scene, settings, on_progress=bar, log=log)
+        bar.close()
     exr.write_exr(output, exr.image_channels(result.color, result.variance, result.albedo, result.normal,
                                              result.depth))
     written = [str(output)]
@@ -136,8 +157,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         written.append(str(png))
     st = result.stats
     mean = result.color[..., :3].reshape(-1, 3).mean(axis=0)
+    rays = f", {st['rays_per_second'] / 1e6:.2f} M rays/s" if "rays_per_second" in st else ""
     print(f"wrote {', '.join(written)}: {st['samples']} samples in {st['seconds']:.2f} s "
-          f"({st['samples_per_second'] / 1e3:.0f} k samples/s, {st['rays_per_second'] / 1e6:.2f} M rays/s); "
+          f"({st['samples_per_second'] / 1e3:.0f} k samples/s{rays}); "
           f"mean RGB {mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f}")
     if result.cancelled:
         print("render stopped early (time limit or cancel): the image holds the samples taken", file=sys.stderr)
@@ -239,6 +261,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
     p.add_argument("--no-png", action="store_true", help="don't write the sRGB PNG preview next to the EXR")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or log")
+    p.add_argument("--dask", metavar="ADDRESS",
+                   help="render on a Dask cluster: a scheduler's address (tcp://host:8786) or local:N (N worker "
+                        "processes on this machine); the image is the same bit for bit")
+    p.add_argument("--dask-timeout", type=float, default=10.0,
+                   help="seconds to reach the Dask scheduler and see a worker (default 10)")
     _add_render_options(p)
     p.set_defaults(func=cmd_render)
 
