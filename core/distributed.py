@@ -106,6 +106,7 @@ def _prepared_for(frame_key: str, scene: Scene, settings: RenderSettings):
         if frame_key in _PREPARED:
             _PREPARED.move_to_end(frame_key)
             return _PREPARED[frame_key]
+        scene.validate()  # also puts its arrays in the forms PreparedScene expects
         prepared = PreparedScene.build(scene, sample_world=settings.light_sampling == "light")
         entry = (prepared, Accelerator(prepared.vertices, prepared.triangles))
         _PREPARED[frame_key] = entry
@@ -171,7 +172,8 @@ def connect(address: str, timeout: float = DEFAULT_CONNECT_TIMEOUT, log: Callabl
         if n < 1:
             raise ClusterError(f"--dask local:N needs a worker count N >= 1, got {address!r}")
         say(f"starting a local Dask cluster of {n} worker processes")
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+        # ":0": its HTTP server (health, metrics; the dashboard when bokeh is installed) on a free port
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0")
         client = Client(cluster, timeout=timeout)
     else:
         if "://" not in address:
