@@ -61,7 +61,8 @@ class ClusterProgress:
 # ----------------------------------------------------------------------------------------------- work units
 def plan_units(scene: Scene, settings: RenderSettings, workers: int, *, ranges_per_tile: int | None = None,
                units_per_worker: int = UNITS_PER_WORKER) -> list[SampleRanges]:
-    """Cut a frame into work units (each a dict tile index -> samples [start, end), whole sample passes).
+    """Cut a frame into work units (each a dict tile index -> samples [start, end), whole sample passes) for a
+    cluster of `workers` worker threads (a unit runs on one thread).
 
     With at least units_per_worker x workers tiles, units are groups of whole tiles (the film comes back once
     per tile); with fewer, each tile's passes are split into ranges_per_tile ranges (default: enough for that
@@ -228,9 +229,11 @@ def render_on_cluster(scene: Scene, settings: RenderSettings, client, *,
         raise ValueError("a time limit does not apply to a cluster render (its units are not stopped halfway)")
     scene.validate()
     t_start = time.perf_counter()
-    workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]))
-    if units is None:
-        units = plan_units(scene, settings, workers)
+    worker_info = client.scheduler_info(n_workers=-1)["workers"]
+    workers = max(1, len(worker_info))
+    threads = max(1, sum(int(w.get("nthreads", 1)) for w in worker_info.values()))
+    if units is None:  # a unit runs on one thread: a worker with 8 threads runs 8 at once
+        units = plan_units(scene, settings, threads)
     order = list(range(len(units)))
     if submit_seed is not None:
         random.Random(submit_seed).shuffle(order)
@@ -288,6 +291,7 @@ def render_on_cluster(scene: Scene, settings: RenderSettings, client, *,
         "samples_per_second": result.stats["samples"] / max(elapsed, 1e-9),
         "units": len(units),
         "workers": workers,
+        "threads": threads,
         "scene_bytes": scene_bytes,
         "film_bytes": film_bytes,
         "film_bytes_per_unit": film_bytes / max(len(units), 1),
