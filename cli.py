@@ -93,11 +93,14 @@ def cmd_render(args: argparse.Namespace) -> int:
         return 2
     overrides = _settings_from(args)
     output = Path(args.output)
-    if args.scene.endswith(".blend") or Path(args.scene).suffix == ".blend":
+    is_blend = args.scene.endswith(".blend") or Path(args.scene).suffix == ".blend"
+    if (args.frames is not None or args.resume) and not (args.dask and is_blend):
+        print("monte render: --frames and --resume render a .blend's frames on a cluster (with --dask); "
+              "built-in scenes are still images", file=sys.stderr)
+        return 2
+    if is_blend:
         if args.dask:
-            print("monte render: --dask renders built-in scenes so far; a .blend renders on this machine",
-                  file=sys.stderr)
-            return 2
+            return _render_blend_on_cluster(args, overrides, output)
         try:
             from .addon.headless import render_blend_file
         except ImportError as exc:
@@ -148,10 +151,86 @@ def cmd_render(args: argparse.Namespace) -> int:
     else:
         result = render(scene, settings, on_progress=bar, log=log)
         bar.close()
+    _write_outputs(result, output, args.no_png)
+    if result.cancelled:
+        print("render stopped early (time limit or cancel): the image holds the samples taken", file=sys.stderr)
+    return 0
+
+
+def _frames(text: str) -> list[int]:
+    """--frames: "A-B" (inclusive) or "A,B,C" (frame numbers >= 0)."""
+    try:
+        if "-" in text and "," not in text:
+            first, last = (int(v) for v in text.split("-"))
+            frames = list(range(first, last + 1))
+        else:
+            frames = [int(v) for v in text.split(",")]
+        if not frames or min(frames) < 0 or len(set(frames)) != len(frames):
+            raise ValueError
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"frames look like 1-250 or 1,5,9, got {text!r}") from None
+    return frames
+
+
+def frame_output(output: Path, frame: int) -> Path:
+    """The output file of one frame of an animation: render.exr -> render_0007.exr."""
+    return output.with_name(f"{output.stem}_{frame:04d}{output.suffix}")
+
+
+def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: Path) -> int:
+    """A .blend's frames exported here (through the add-on) and rendered on a Dask cluster, each frame written
+    atomically as it completes (a cancelled or failed animation keeps its finished frames)."""
+    try:
+        from .addon.headless import HeadlessError, export_blend_frames
+    except ImportError as exc:
+        print(f"monte render: rendering a .blend needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
+        return 2
+    from .core import exr
+    from .core.distributed import ClusterError, connect, render_on_cluster
+
+    if output.suffix.lower() != ".exr":
+        print(f"monte render: output must be an .exr file, got {output}", file=sys.stderr)
+        return 2
+    if args.resolution:
+        overrides["resolution"] = args.resolution
+    frames = args.frames
+    outputs = {f: frame_output(output, f) for f in frames} if frames is not None else {None: output}
+    if args.resume:
+        done = [f for f, path in outputs.items() if path.exists()]
+        outputs = {f: path for f, path in outputs.items() if f not in done}
+        if done:
+            print(f"monte render: --resume: {len(done)} frames already written, {len(outputs)} to render",
+                  file=sys.stderr)
+        if not outputs:
+            return 0
+    for path in outputs.values():
+        exr.check_writable(path)
+    log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
+    todo = None if frames is None else list(outputs)
+    try:
+        with connect(args.dask, args.dask_timeout, log) as client:
+            for frame, scene, settings in export_blend_frames(args.scene, overrides, todo, log=log):
+                bar = ProgressBar(not args.quiet)
+                try:
+                    result = render_on_cluster(scene, settings, client, on_progress=bar, log=log)
+                finally:
+                    bar.close()
+                path = outputs[frame if frames is not None else None]
+                _write_outputs(result, path, args.no_png)
+    except (ClusterError, HeadlessError) as exc:
+        print(f"monte render: error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _write_outputs(result, output: Path, no_png: bool) -> list[str]:
+    """The EXR (and PNG preview) of a render, each written atomically; reports what it wrote."""
+    from .core import exr
+
     exr.write_exr(output, exr.image_channels(result.color, result.variance, result.albedo, result.normal,
                                              result.depth))
     written = [str(output)]
-    if not args.no_png:
+    if not no_png:
         png = output.with_suffix(".png")
         exr.write_png(png, result.color)
         written.append(str(png))
@@ -161,9 +240,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     print(f"wrote {', '.join(written)}: {st['samples']} samples in {st['seconds']:.2f} s "
           f"({st['samples_per_second'] / 1e3:.0f} k samples/s{rays}); "
           f"mean RGB {mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f}")
-    if result.cancelled:
-        print("render stopped early (time limit or cancel): the image holds the samples taken", file=sys.stderr)
-    return 0
+    return written
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -266,6 +343,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "processes on this machine); the image is the same bit for bit")
     p.add_argument("--dask-timeout", type=float, default=10.0,
                    help="seconds to reach the Dask scheduler and see a worker (default 10)")
+    p.add_argument("--frames", type=_frames,
+                   help="with --dask and a .blend: frames A-B or A,B,C, each written as OUTPUT_####.exr when done")
+    p.add_argument("--resume", action="store_true",
+                   help="with --frames: skip frames whose output file exists")
     _add_render_options(p)
     p.set_defaults(func=cmd_render)
 
