@@ -196,14 +196,20 @@ def connect(address: str, timeout: float = DEFAULT_CONNECT_TIMEOUT, log: Callabl
             cluster.close()
 
 
-def check_workers(client) -> None:
-    """Refuse workers whose Monte, NumPy or numba differ from the client's (their images would differ)."""
-    mine = worker_versions()
+def check_workers(client, expected: dict[str, str] | None = None) -> None:
+    """Refuse workers whose Monte sources, NumPy or numba differ from `expected` (this client's worker_versions()
+    when None): their images would differ. The ClusterError names each such worker and what differs."""
+    mine = worker_versions() if expected is None else expected
     theirs = client.run(worker_versions)
-    wrong = {w: v for w, v in theirs.items() if v != mine}
+    wrong = []
+    for worker, versions in sorted(theirs.items()):
+        diffs = [f"{k} {versions.get(k)} (client {mine.get(k)})" for k in sorted(set(mine) | set(versions))
+                 if versions.get(k) != mine.get(k)]
+        if diffs:
+            wrong.append(f"{worker}: {', '.join(diffs)}")
     if wrong:
-        lines = "; ".join(f"{w}: {v}" for w, v in sorted(wrong.items()))
-        raise ClusterError(f"workers run a different Monte than this client ({mine}): {lines}")
+        raise ClusterError("workers run a different Monte than this client (install the same Monte, NumPy and "
+                           "numba on every worker): " + "; ".join(wrong))
 
 
 def render_on_cluster(scene: Scene, settings: RenderSettings, client, *,

@@ -18,7 +18,8 @@ from distributed import Client, LocalCluster
 
 from monte.cli import main
 from monte.core.builtin_scenes import builtin_scene
-from monte.core.distributed import (ClusterError, connect, plan_units, render_on_cluster, render_unit)
+from monte.core.distributed import (ClusterError, check_workers, connect, plan_units, render_on_cluster, render_unit,
+                                    worker_versions)
 from monte.core.render import merge_tile_samples, render, render_samples
 from monte.core.schedule import pass_bounds, tiles
 from monte.core.settings import RenderSettings
@@ -156,6 +157,18 @@ def test_a_worker_killed_mid_render_loses_nothing(cluster, reference):
     assert killed
     _assert_same_images(result, reference)
     client.wait_for_workers(2, timeout=60)  # the nanny restarts it: later tests see 2 workers again
+
+
+def test_workers_with_another_monte_are_refused(cluster):
+    """The workers report their real versions; a client expecting another Monte release or other core sources
+    refuses them, naming what differs (the same check connect() makes against this client's own versions)."""
+    _, client = cluster
+    mine = worker_versions()
+    check_workers(client)  # the same install: accepted
+    other = {**mine, "monte": "0.0.1", "core sources": "0123456789abcdef"}
+    with pytest.raises(ClusterError, match=r"different Monte than this client.*core sources "
+                                           + mine["core sources"] + r" \(client 0123456789abcdef\)"):
+        check_workers(client, other)
 
 
 def test_time_limit_is_refused_on_a_cluster(cluster):
