@@ -186,7 +186,7 @@ def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: 
         print(f"monte render: rendering a .blend needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
         return 2
     from .core import exr
-    from .core.distributed import ClusterError, connect, render_on_cluster
+    from .core.distributed import ClusterError, connect, render_frames_on_cluster
 
     if output.suffix.lower() != ".exr":
         print(f"monte render: output must be an .exr file, got {output}", file=sys.stderr)
@@ -207,16 +207,19 @@ def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: 
         exr.check_writable(path)
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
     todo = None if frames is None else list(outputs)
+    bar = ProgressBar(not args.quiet)
+
+    def write_frame(frame, result) -> None:
+        bar.close()
+        _write_outputs(result, outputs[frame if frames is not None else None], args.no_png)
+
     try:
         with connect(args.dask, args.dask_timeout, log) as client:
-            for frame, scene, settings in export_blend_frames(args.scene, overrides, todo, log=log):
-                bar = ProgressBar(not args.quiet)
-                try:
-                    result = render_on_cluster(scene, settings, client, on_progress=bar, log=log)
-                finally:
-                    bar.close()
-                path = outputs[frame if frames is not None else None]
-                _write_outputs(result, path, args.no_png)
+            try:  # two frames in flight: the workers render one while this process exports the next
+                render_frames_on_cluster(client, export_blend_frames(args.scene, overrides, todo, log=log),
+                                         write_frame, frames_in_flight=2, on_progress=bar, log=log)
+            finally:
+                bar.close()
     except (ClusterError, HeadlessError) as exc:
         print(f"monte render: error: {exc}", file=sys.stderr)
         return 1

@@ -24,7 +24,7 @@ import uuid
 from collections import OrderedDict
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Callable, Iterator
+from typing import Callable, Iterable, Iterator
 
 from .render import CancelCallback, RenderResult, SampleRanges, TileSamples, merge_tile_samples, render_samples
 from .scene import Scene
@@ -220,89 +220,179 @@ def render_on_cluster(scene: Scene, settings: RenderSettings, client, *,
                       submit_seed: int | None = None) -> RenderResult:
     """Render the whole frame on the cluster behind `client`; the images equal render()'s bit for bit.
 
-    units: the work split (plan_units for the cluster's worker count when None). submit_seed: submit the units
+    units: the work split (plan_units for the cluster's worker threads when None). submit_seed: submit the units
     in a shuffled order (for showing that the image does not depend on it). should_cancel is polled while units
     run: when it returns True every unit is cancelled and KeyboardInterrupt is raised (a cluster render keeps
     no partial image: a frame is all or nothing). A time limit does not apply (refused).
-    stats: seconds, samples/s, units, workers, scene_bytes (the pickled scene sent once per worker),
+    stats: seconds, samples/s, units, workers, threads, scene_bytes (the pickled scene sent once per worker),
     film_bytes (all film sums sent back) and film_bytes_per_unit.
     """
-    from distributed import CancelledError
+    job = _FrameJob(client, scene, settings, units, submit_seed, log)
+    _run_jobs([job], on_progress, should_cancel)
+    return job.result()
 
-    say = log or (lambda _m: None)
-    settings.validate()
-    if settings.time_limit > 0:
-        raise ValueError("a time limit does not apply to a cluster render (its units are not stopped halfway)")
-    scene.validate()
-    t_start = time.perf_counter()
-    worker_info = client.scheduler_info(n_workers=-1)["workers"]
-    workers = max(1, len(worker_info))
-    threads = max(1, sum(int(w.get("nthreads", 1)) for w in worker_info.values()))
-    if units is None:  # a unit runs on one thread: a worker with 8 threads runs 8 at once
-        units = plan_units(scene, settings, threads)
-    order = list(range(len(units)))
-    if submit_seed is not None:
-        random.Random(submit_seed).shuffle(order)
-    frame_key = uuid.uuid4().hex
-    scene_bytes = len(pickle.dumps(scene, protocol=pickle.HIGHEST_PROTOCOL))
-    say(f"{len(units)} units on {workers} workers; scene {scene_bytes / 1e3:.0f} kB to each worker")
-    scene_future = client.scatter(scene, broadcast=True, hash=False)
-    settings_future = client.scatter(settings, broadcast=True, hash=False)
-    futures = [client.submit(render_unit, scene_future, settings_future, units[i], frame_key, pure=False,
-                             key=f"monte-unit-{frame_key}-{i}") for i in order]
-    width, height = scene.camera.resolution
-    tile_list = tiles(0, 0, width, height, settings.tile_size)
-    unit_paths = {f.key: _unit_paths(tile_list, units[i]) for f, i in zip(futures, order)}
-    total_paths = sum(unit_paths.values())
-    parts: list[TileSamples] = []
-    pending = set(futures)
-    done_paths = 0
-    film_bytes = 0
+
+def render_frames_on_cluster(client, frames: Iterable[tuple[object, Scene, RenderSettings]],
+                             on_frame: Callable[[object, RenderResult], None], *, frames_in_flight: int = 2,
+                             on_progress: Callable[[ClusterProgress], None] | None = None,
+                             should_cancel: CancelCallback | None = None,
+                             log: Callable[[str], None] | None = None) -> int:
+    """Render a sequence of frames ((key, scene, settings), e.g. a .blend's exported frames) on the cluster,
+    with up to frames_in_flight frames' units queued at once, so that workers keep busy while the client
+    takes the next frame from `frames` (an export) and merges the last. on_frame(key, result) is called on this
+    thread as each frame completes (in completion order), with images bit-identical to render()'s of that
+    frame. Cancel as render_on_cluster (the frames already passed to on_frame stay done). Returns frames done.
+    """
+    if frames_in_flight < 1:
+        raise ValueError(f"frames in flight must be at least 1, got {frames_in_flight}")
+    source = iter(frames)
+    jobs: list[_FrameJob] = []
+    finished = 0
+
+    def refill() -> None:
+        nonlocal source
+        while source is not None and sum(not j.done for j in jobs) < frames_in_flight:
+            try:
+                key, scene, settings = next(source)
+            except StopIteration:
+                source = None
+                return
+            jobs.append(_FrameJob(client, scene, settings, None, None, log, key))
+
+    def deliver() -> None:
+        nonlocal finished
+        for job in [j for j in jobs if j.done]:
+            jobs.remove(job)
+            on_frame(job.key, job.result())
+            finished += 1
+
+    refill()
+    while jobs:
+        _run_jobs(jobs, on_progress, should_cancel, until_one_done=True)
+        deliver()
+        refill()
+    return finished
+
+
+class _FrameJob:
+    """One frame's units on the cluster: submitted when made, their film sums collected as they finish."""
+
+    def __init__(self, client, scene: Scene, settings: RenderSettings, units: list[SampleRanges] | None,
+                 submit_seed: int | None, log: Callable[[str], None] | None, key: object = None) -> None:
+        say = log or (lambda _m: None)
+        settings.validate()
+        if settings.time_limit > 0:
+            raise ValueError("a time limit does not apply to a cluster render (its units are not stopped halfway)")
+        scene.validate()
+        self.key, self.scene, self.settings = key, scene, settings
+        self.t_start = time.perf_counter()
+        worker_info = client.scheduler_info(n_workers=-1)["workers"]
+        self.workers = max(1, len(worker_info))
+        self.threads = max(1, sum(int(w.get("nthreads", 1)) for w in worker_info.values()))
+        if units is None:  # a unit runs on one thread: a worker with 8 threads runs 8 at once
+            units = plan_units(scene, settings, self.threads)
+        self.units = units
+        order = list(range(len(units)))
+        if submit_seed is not None:
+            random.Random(submit_seed).shuffle(order)
+        frame_key = uuid.uuid4().hex
+        self.scene_bytes = len(pickle.dumps(scene, protocol=pickle.HIGHEST_PROTOCOL))
+        say(f"{len(units)} units on {self.workers} workers; scene {self.scene_bytes / 1e3:.0f} kB to each worker")
+        self.shared = [client.scatter(scene, broadcast=True, hash=False),
+                       client.scatter(settings, broadcast=True, hash=False)]
+        self.futures = [client.submit(render_unit, *self.shared, units[i], frame_key, pure=False,
+                                      key=f"monte-unit-{frame_key}-{i}") for i in order]
+        width, height = scene.camera.resolution
+        tile_list = tiles(0, 0, width, height, settings.tile_size)
+        self.unit_paths = {f.key: _unit_paths(tile_list, units[i]) for f, i in zip(self.futures, order)}
+        self.total_paths = sum(self.unit_paths.values())
+        self.pending = set(self.futures)
+        self.parts: list[TileSamples] = []
+        self.done_paths = 0
+        self.film_bytes = 0
+        self.client = client
+
+    @property
+    def done(self) -> bool:
+        return not self.pending
+
+    def poll(self) -> int:
+        """Collect the units finished since the last call; returns how many. ClusterError for a failed unit."""
+        from distributed import CancelledError
+
+        finished = [f for f in self.pending if f.done()]
+        for f in finished:
+            self.pending.discard(f)
+            try:
+                result = f.result()
+            except CancelledError:
+                raise ClusterError(f"unit {f.key} was cancelled by the cluster") from None
+            except Exception as exc:
+                raise ClusterError(f"unit {f.key} failed on its worker: {type(exc).__name__}: {exc}") from exc
+            self.parts += result
+            self.film_bytes += sum(a.nbytes for part in result for sums in part.films for a in sums.values())
+            self.done_paths += self.unit_paths[f.key]
+        if self.done:
+            self.release()
+        return len(finished)
+
+    def cancel(self) -> None:
+        self.client.cancel(self.futures, force=True)
+        self.release()
+
+    def release(self) -> None:
+        """Let the workers drop this frame's scene and settings."""
+        if self.shared:
+            self.client.cancel(self.shared)
+            self.shared = []
+
+    def result(self) -> RenderResult:
+        """The merged frame (after every unit is done)."""
+        t_merge = time.perf_counter()
+        result = merge_tile_samples(self.scene, self.settings, self.parts)
+        elapsed = time.perf_counter() - self.t_start
+        result.stats.update({
+            "seconds": elapsed,
+            "merge_seconds": time.perf_counter() - t_merge,
+            "samples_per_second": result.stats["samples"] / max(elapsed, 1e-9),
+            "units": len(self.units),
+            "workers": self.workers,
+            "threads": self.threads,
+            "scene_bytes": self.scene_bytes,
+            "film_bytes": self.film_bytes,
+            "film_bytes_per_unit": self.film_bytes / max(len(self.units), 1),
+        })
+        return result
+
+
+def _run_jobs(jobs: list[_FrameJob], on_progress: Callable[[ClusterProgress], None] | None,
+              should_cancel: CancelCallback | None, until_one_done: bool = False) -> None:
+    """Wait for the jobs' units (until every job is done, or one is), reporting progress over all of them;
+    on a cancel, an error or Ctrl-C every job's units are cancelled and the exception goes on."""
+    t_start = min(j.t_start for j in jobs)
     try:
-        while pending:
+        while any(not j.done for j in jobs):
             if should_cancel is not None and should_cancel():
                 raise KeyboardInterrupt
-            finished = [f for f in pending if f.done()]
-            if not finished:
+            newly = sum(j.poll() for j in jobs if not j.done)
+            if not newly:
                 time.sleep(0.05)
                 continue
-            for f in finished:
-                pending.discard(f)
-                try:
-                    result = f.result()
-                except CancelledError:
-                    raise ClusterError(f"unit {f.key} was cancelled by the cluster") from None
-                except Exception as exc:
-                    raise ClusterError(f"unit {f.key} failed on its worker: {type(exc).__name__}: {exc}") from exc
-                parts += result
-                film_bytes += sum(a.nbytes for part in result for sums in part.films for a in sums.values())
-                done_paths += unit_paths[f.key]
-                if on_progress is not None:
-                    elapsed = time.perf_counter() - t_start
-                    frac = done_paths / total_paths if total_paths else 1.0
-                    on_progress(ClusterProgress(frac, len(futures) - len(pending), len(futures), workers,
-                                                done_paths, elapsed, done_paths / max(elapsed, 1e-9),
-                                                elapsed * (1 - frac) / frac if frac > 0 else math.inf))
+            if on_progress is not None:
+                done_paths = sum(j.done_paths for j in jobs)
+                total = sum(j.total_paths for j in jobs)
+                elapsed = time.perf_counter() - t_start
+                frac = done_paths / total if total else 1.0
+                on_progress(ClusterProgress(frac, sum(len(j.futures) - len(j.pending) for j in jobs),
+                                            sum(len(j.futures) for j in jobs), jobs[0].workers, done_paths,
+                                            elapsed, done_paths / max(elapsed, 1e-9),
+                                            elapsed * (1 - frac) / frac if frac > 0 else math.inf))
+            if until_one_done and any(j.done for j in jobs):
+                return
     except BaseException:
-        client.cancel(futures, force=True)
+        for j in jobs:
+            j.cancel()
         raise
-    finally:
-        client.cancel([scene_future, settings_future])
-    t_merge = time.perf_counter()
-    result = merge_tile_samples(scene, settings, parts)
-    elapsed = time.perf_counter() - t_start
-    result.stats.update({
-        "seconds": elapsed,
-        "merge_seconds": time.perf_counter() - t_merge,
-        "samples_per_second": result.stats["samples"] / max(elapsed, 1e-9),
-        "units": len(units),
-        "workers": workers,
-        "threads": threads,
-        "scene_bytes": scene_bytes,
-        "film_bytes": film_bytes,
-        "film_bytes_per_unit": film_bytes / max(len(units), 1),
-    })
-    return result
 
 
 def _unit_paths(tile_list: list, unit: SampleRanges) -> int:
