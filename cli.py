@@ -7,12 +7,15 @@ Examples:
   monte bench
   monte mc-study -o study/
   monte crosscheck scene.blend -o check/ --spp 256   (needs the bpy module)
+  monte render cornell -o out.exr --spp 1024 --dask tcp://host:8786    (a Dask cluster: see `monte worker`)
+  monte worker tcp://host:8786
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -246,6 +249,27 @@ def _write_outputs(result, output: Path, no_png: bool) -> list[str]:
     return written
 
 
+def cmd_worker(args: argparse.Namespace) -> int:
+    """Load (the first time: compile and cache) the render kernels, then become a Dask worker of the scheduler at
+    args.address (`dask worker`, same process id), so that the first render's units do not each wait for a
+    compile."""
+    from .core.builtin_scenes import builtin_scene
+    from .core.render import render
+
+    print("monte worker: loading the render kernels (compiled and cached the first time, about a minute)",
+          file=sys.stderr, flush=True)
+    render(builtin_scene("cornell", (8, 8)), RenderSettings(spp=1, threads=1))
+    command = [sys.executable, "-m", "distributed.cli.dask_worker", args.address,
+               "--nthreads", str(args.nthreads), "--nworkers", str(args.nworkers)]
+    if args.name:
+        command += ["--name", args.name]
+    print(f"monte worker: {' '.join(command[3:])}", file=sys.stderr, flush=True)
+    sys.stderr.flush()
+    sys.stdout.flush()
+    os.execv(sys.executable, command)
+    return 0  # not reached
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.vs:
         try:
@@ -352,6 +376,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --frames: skip frames whose output file exists")
     _add_render_options(p)
     p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("worker", help="serve as a Dask worker for `monte render --dask` (kernels loaded first)")
+    p.add_argument("address", help="the Dask scheduler's address, tcp://host:8786")
+    p.add_argument("--nthreads", type=int, default=os.cpu_count() or 1,
+                   help="units rendered at once, one thread each (default: all cores)")
+    p.add_argument("--nworkers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--name", help="the worker's name on the scheduler")
+    p.set_defaults(func=cmd_worker)
 
     p = sub.add_parser("bench", help="benchmark the Cornell box: samples/s, rays/s, Embree share, memory, RMSE; "
                                      "--vs cycles, --samplers, --batch-sizes, --seed-table: run time against error")

@@ -10,6 +10,8 @@ from __future__ import annotations
 import os
 import random
 import signal
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -190,6 +192,29 @@ def test_workers_with_another_monte_are_refused(cluster):
     with pytest.raises(ClusterError, match=r"different Monte than this client.*core sources "
                                            + mine["core sources"] + r" \(client 0123456789abcdef\)"):
         check_workers(client, other)
+
+
+def test_monte_worker_joins_a_scheduler_and_renders_the_same_image(reference, tmp_path):
+    """`monte worker ADDRESS` (kernels loaded, then `dask worker` in the same process) against a scheduler with
+    no worker of its own."""
+    with LocalCluster(n_workers=0, processes=True, dashboard_address=":0") as lc, Client(lc) as client:
+        with open(tmp_path / "worker.log", "wb") as log:
+            proc = subprocess.Popen([sys.executable, "-m", "monte", "worker", lc.scheduler_address,
+                                     "--nthreads", "1", "--name", "monte-test-worker"],
+                                    stdout=log, stderr=subprocess.STDOUT)
+        try:
+            client.wait_for_workers(1, timeout=120)
+            names = [w["name"] for w in client.scheduler_info(n_workers=-1)["workers"].values()]
+            assert names == ["monte-test-worker"]
+            _assert_same_images(render_on_cluster(_scene(), _settings(), client), reference)
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+    assert "loading the render kernels" in (tmp_path / "worker.log").read_text()
 
 
 def test_time_limit_is_refused_on_a_cluster(cluster):
