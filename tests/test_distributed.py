@@ -252,6 +252,67 @@ def test_cli_dask_local_writes_the_same_exr_as_a_local_render(tmp_path, capsys):
     assert (tmp_path / "local.exr").read_bytes() == (tmp_path / "cluster.exr").read_bytes()
 
 
+def test_ctrl_c_stops_a_cluster_render_writes_nothing_and_leaves_no_worker(tmp_path):
+    """SIGINT to `monte render --dask local:2` once its units are queued: exit status 130, no file, and the
+    LocalCluster's worker processes are gone (the units cancelled, the cluster closed)."""
+    out = tmp_path / "big.exr"
+    proc = subprocess.Popen([sys.executable, "-m", "monte", "render", "cornell", "--resolution", "128x128",
+                             "--spp", "1024", "-o", str(out), "--dask", "local:2"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    lines = []
+    try:
+        for line in proc.stderr:
+            lines.append(line)
+            if "units on 2 workers" in line:
+                break
+        workers = _child_pids(proc.pid)
+        proc.send_signal(signal.SIGINT)
+        _, rest = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, "".join(lines) + rest
+    assert "interrupted" in rest
+    assert list(tmp_path.iterdir()) == []
+    # The workers (and multiprocessing's helper processes) end with the cluster; give them a moment to exit.
+    deadline = time.monotonic() + 30
+    while [pid for pid in workers if _alive(pid)] and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = {pid: _cmdline(pid) for pid in workers if _alive(pid)}
+    assert len(workers) >= 2 and not left, left
+
+
+def _child_pids(pid: int) -> list[int]:
+    """Every process below `pid` (Linux /proc)."""
+    children = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+            if ppid == pid:
+                children += [int(entry)] + _child_pids(int(entry))
+    return children
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 def test_cli_unreachable_scheduler_writes_nothing(tmp_path, capsys):
     out = tmp_path / "x.exr"
     status = main(["render", "cornell", "--resolution", "8x8", "--spp", "1", "-o", str(out), "-q",
