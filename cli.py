@@ -7,12 +7,15 @@ Examples:
   monte bench
   monte mc-study -o study/
   monte crosscheck scene.blend -o check/ --spp 256   (needs the bpy module)
+  monte render cornell -o out.exr --spp 1024 --dask tcp://host:8786    (a Dask cluster: see `monte worker`)
+  monte worker tcp://host:8786
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -93,7 +96,14 @@ def cmd_render(args: argparse.Namespace) -> int:
         return 2
     overrides = _settings_from(args)
     output = Path(args.output)
-    if args.scene.endswith(".blend") or Path(args.scene).suffix == ".blend":
+    is_blend = args.scene.endswith(".blend") or Path(args.scene).suffix == ".blend"
+    if (args.frames is not None or args.resume) and not (args.dask and is_blend):
+        print("monte render: --frames and --resume render a .blend's frames on a cluster (with --dask); "
+              "built-in scenes are still images", file=sys.stderr)
+        return 2
+    if is_blend:
+        if args.dask:
+            return _render_blend_on_cluster(args, overrides, output)
         try:
             from .addon.headless import render_blend_file
         except ImportError as exc:
@@ -125,23 +135,139 @@ def cmd_render(args: argparse.Namespace) -> int:
         exr.check_writable(output.with_suffix(".png"))
     bar = ProgressBar(not args.quiet)
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
-    result = render(scene, settings, on_progress=bar, log=log)
-    bar.close()
+    if args.dask:
+        from .core.distributed import ClusterError, connect, render_on_cluster
+
+        try:
+            with connect(args.dask, args.dask_timeout, log) as client:
+                try:
+                    result = render_on_cluster(scene, settings, client, on_progress=bar, log=log)
+                finally:
+                    bar.close()
+        except ClusterError as exc:
+            print(f"monte render: error: {exc}", file=sys.stderr)
+            return 1
+        st = result.stats
+        log(f"cluster: {st['units']} units on {st['workers']} workers, scene {st['scene_bytes'] / 1e3:.0f} kB "
+            f"to each worker, film sums back {st['film_bytes'] / 1e6:.2f} MB "
+            f"({st['film_bytes_per_unit'] / 1e3:.0f} kB per unit)")
+    else:
+        result = render(scene, settings, on_progress=bar, log=log)
+        bar.close()
+    _write_outputs(result, output, args.no_png)
+    if result.cancelled:
+        print("render stopped early (time limit or cancel): the image holds the samples taken", file=sys.stderr)
+    return 0
+
+
+def _frames(text: str) -> list[int]:
+    """--frames: "A-B" (inclusive) or "A,B,C" (frame numbers >= 0)."""
+    try:
+        if "-" in text and "," not in text:
+            first, last = (int(v) for v in text.split("-"))
+            frames = list(range(first, last + 1))
+        else:
+            frames = [int(v) for v in text.split(",")]
+        if not frames or min(frames) < 0 or len(set(frames)) != len(frames):
+            raise ValueError
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"frames look like 1-250 or 1,5,9, got {text!r}") from None
+    return frames
+
+
+def frame_output(output: Path, frame: int) -> Path:
+    """The output file of one frame of an animation: render.exr -> render_0007.exr."""
+    return output.with_name(f"{output.stem}_{frame:04d}{output.suffix}")
+
+
+def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: Path) -> int:
+    """A .blend's frames exported here (through the add-on) and rendered on a Dask cluster, each frame written
+    atomically as it completes (a cancelled or failed animation keeps its finished frames)."""
+    try:
+        from .addon.headless import HeadlessError, export_blend_frames
+    except ImportError as exc:
+        print(f"monte render: rendering a .blend needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
+        return 2
+    from .core import exr
+    from .core.distributed import ClusterError, connect, render_frames_on_cluster
+
+    if output.suffix.lower() != ".exr":
+        print(f"monte render: output must be an .exr file, got {output}", file=sys.stderr)
+        return 2
+    if args.resolution:
+        overrides["resolution"] = args.resolution
+    frames = args.frames
+    outputs = {f: frame_output(output, f) for f in frames} if frames is not None else {None: output}
+    if args.resume:
+        done = [f for f, path in outputs.items() if path.exists()]
+        outputs = {f: path for f, path in outputs.items() if f not in done}
+        if done:
+            print(f"monte render: --resume: {len(done)} frames already written, {len(outputs)} to render",
+                  file=sys.stderr)
+        if not outputs:
+            return 0
+    for path in outputs.values():
+        exr.check_writable(path)
+    log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
+    todo = None if frames is None else list(outputs)
+    bar = ProgressBar(not args.quiet)
+
+    def write_frame(frame, result) -> None:
+        bar.close()
+        _write_outputs(result, outputs[frame if frames is not None else None], args.no_png)
+
+    try:
+        with connect(args.dask, args.dask_timeout, log) as client:
+            try:  # two frames in flight: the workers render one while this process exports the next
+                render_frames_on_cluster(client, export_blend_frames(args.scene, overrides, todo, log=log),
+                                         write_frame, frames_in_flight=2, on_progress=bar, log=log)
+            finally:
+                bar.close()
+    except (ClusterError, HeadlessError) as exc:
+        print(f"monte render: error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _write_outputs(result, output: Path, no_png: bool) -> list[str]:
+    """The EXR (and PNG preview) of a render, each written atomically; reports what it wrote."""
+    from .core import exr
+
     exr.write_exr(output, exr.image_channels(result.color, result.variance, result.albedo, result.normal,
                                              result.depth))
     written = [str(output)]
-    if not args.no_png:
+    if not no_png:
         png = output.with_suffix(".png")
         exr.write_png(png, result.color)
         written.append(str(png))
     st = result.stats
     mean = result.color[..., :3].reshape(-1, 3).mean(axis=0)
+    rays = f", {st['rays_per_second'] / 1e6:.2f} M rays/s" if "rays_per_second" in st else ""
     print(f"wrote {', '.join(written)}: {st['samples']} samples in {st['seconds']:.2f} s "
-          f"({st['samples_per_second'] / 1e3:.0f} k samples/s, {st['rays_per_second'] / 1e6:.2f} M rays/s); "
+          f"({st['samples_per_second'] / 1e3:.0f} k samples/s{rays}); "
           f"mean RGB {mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f}")
-    if result.cancelled:
-        print("render stopped early (time limit or cancel): the image holds the samples taken", file=sys.stderr)
-    return 0
+    return written
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    """Load (the first time: compile and cache) the render kernels, then become a Dask worker of the scheduler at
+    args.address (`dask worker`, same process id), so that the first render's units do not each wait for a
+    compile."""
+    from .core.builtin_scenes import builtin_scene
+    from .core.render import render
+
+    print("monte worker: loading the render kernels (compiled and cached the first time, about a minute)",
+          file=sys.stderr, flush=True)
+    render(builtin_scene("cornell", (8, 8)), RenderSettings(spp=1, threads=1))
+    command = [sys.executable, "-m", "distributed.cli.dask_worker", args.address,
+               "--nthreads", str(args.nthreads), "--nworkers", str(args.nworkers)]
+    if args.name:
+        command += ["--name", args.name]
+    print(f"monte worker: {' '.join(command[3:])}", file=sys.stderr, flush=True)
+    sys.stderr.flush()
+    sys.stdout.flush()
+    os.execv(sys.executable, command)
+    return 0  # not reached
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -239,8 +365,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
     p.add_argument("--no-png", action="store_true", help="don't write the sRGB PNG preview next to the EXR")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or log")
+    p.add_argument("--dask", metavar="ADDRESS",
+                   help="render on a Dask cluster: a scheduler's address (tcp://host:8786) or local:N (N worker "
+                        "processes on this machine); the image is the same bit for bit")
+    p.add_argument("--dask-timeout", type=float, default=10.0,
+                   help="seconds to reach the Dask scheduler and see a worker (default 10)")
+    p.add_argument("--frames", type=_frames,
+                   help="with --dask and a .blend: frames A-B or A,B,C, each written as OUTPUT_####.exr when done")
+    p.add_argument("--resume", action="store_true",
+                   help="with --frames: skip frames whose output file exists")
     _add_render_options(p)
     p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("worker", help="serve as a Dask worker for `monte render --dask` (kernels loaded first)")
+    p.add_argument("address", help="the Dask scheduler's address, tcp://host:8786")
+    p.add_argument("--nthreads", type=int, default=os.cpu_count() or 1,
+                   help="units rendered at once, one thread each (default: all cores)")
+    p.add_argument("--nworkers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--name", help="the worker's name on the scheduler")
+    p.set_defaults(func=cmd_worker)
 
     p = sub.add_parser("bench", help="benchmark the Cornell box: samples/s, rays/s, Embree share, memory, RMSE; "
                                      "--vs cycles, --samplers, --batch-sizes, --seed-table: run time against error")

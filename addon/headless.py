@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import bpy  # at import time, so that callers without the bpy module get an ImportError up front
 import numpy as np
@@ -244,6 +244,45 @@ def render_blend_file(
             region = None  # the region alone, as Blender's cropped render
         write_exr(out, _monte_channels(result, region, size))
     say(f"Monte: wrote {out}")
+
+
+def export_blend_frames(blend_path: str | os.PathLike, overrides: dict[str, Any] | None, frames: list[int] | None,
+                        *, log: Callable[[str], None] | None = None) -> Iterator[tuple[int, Any, RenderSettings]]:
+    """Open a .blend once and export each frame's core Scene and RenderSettings (with AOVs), for a render of
+    the core scene elsewhere (a Dask cluster: core.distributed); yields (frame, scene, settings) one frame at
+    a time, so a caller that stops early exports no more. frames None: the scene's current frame.
+
+    overrides as render_blend_file's (but "scene" and "multilayer" do not apply); a render border is refused
+    (a cluster render is the whole frame). Raises FileNotFoundError / HeadlessError / ValueError."""
+    from ..core.scene import SceneError
+    from .export import export_scene
+    from .properties import render_settings
+
+    say = log or (lambda msg: print(msg, flush=True))
+    blend = Path(blend_path).expanduser().resolve()
+    _check_blend(blend)
+    clean = _validate_overrides(dict(overrides or {}))
+    for key in ("scene", "multilayer"):
+        if key in clean:
+            raise ValueError(f"override {key} does not apply to a scene exported for a cluster render")
+    open_blend(blend)
+    scene = bpy.context.scene
+    scene.render.engine = "MONTE"
+    _apply_overrides(bpy, scene, clean)
+    if scene.camera is None:
+        raise HeadlessError(f"cannot render {blend}: scene {scene.name!r} has no camera")
+    if scene.render.use_border:
+        raise HeadlessError(f"{blend}: a render border does not apply to a cluster render (turn it off)")
+    for frame in (frames if frames is not None else [scene.frame_current]):
+        scene.frame_set(int(frame))
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        try:
+            core_scene, stats = export_scene(depsgraph)
+        except SceneError as exc:
+            raise HeadlessError(f"{blend}, frame {frame}: {exc}") from exc
+        settings = render_settings(scene, {"aovs": True})
+        say(f"Monte: exported {blend.name} frame {frame}: {stats.line()}")
+        yield int(frame), core_scene, settings
 
 
 def _save_blender_multilayer(bpy, scene, blend: Path, out: Path) -> None:

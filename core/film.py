@@ -75,6 +75,33 @@ class TileFilm:
             self.group_sum[:, :, c] += np.bincount(slot, weights=r[:, c], minlength=slots).reshape(n, self.groups)
             self.sum_sq[:, c] += np.bincount(pixel, weights=r[:, c] * r[:, c], minlength=n)
 
+    def sums(self) -> dict[str, np.ndarray]:
+        """The film's raw accumulators by name (the arrays themselves, not copies): what a render split across
+        machines sends back and merges with add_sums."""
+        names = ["group_sum", "group_count", "sum_sq"]
+        if self.aovs:
+            names += ["albedo", "normal", "depth_sum", "depth_count"]
+        return {name: getattr(self, name) for name in names}
+
+    def add_sums(self, sums: dict[str, np.ndarray]) -> None:
+        """Add another film's raw accumulators (same tile, same groups, same AOV setting) into this one.
+
+        Adding the accumulators of a film that holds one pass of samples, started from zero, gives bit for bit
+        what add() of that pass's samples gives: each pixel's pass total is summed in the same order either way,
+        then added once to the running total. So films merged pass by pass, in pass order, equal one render."""
+        mine = self.sums()
+        if set(sums) != set(mine):
+            raise ValueError(f"film sums hold {sorted(sums)}, this film keeps {sorted(mine)}")
+        for name, arr in mine.items():
+            if sums[name].shape != arr.shape:
+                raise ValueError(f"film sums {name!r} have shape {sums[name].shape}, this film {arr.shape}")
+            arr += sums[name]
+
+    def clear(self) -> None:
+        """Set every accumulator back to zero."""
+        for arr in self.sums().values():
+            arr[...] = 0
+
     def add_aovs(self, pixel: np.ndarray, albedo: np.ndarray, normal: np.ndarray, depth: np.ndarray) -> None:
         """Accumulate first-hit AOVs (averaged over the pixel's samples); depth only where finite (a hit)."""
         n = self.group_count.shape[0]

@@ -29,8 +29,10 @@ from .jit_cache import compile_cache_is_cold
 from .memory import check_render_memory
 from .sampling import VARIANCE_GROUPS, make_sampler
 from .scene import Scene
-from .schedule import (Segment, TileRect, adaptive_batch_target, batch_target, pass_segments, sample_passes,
-                       tiles)
+from .schedule import (Segment, TileRect, adaptive_batch_target, batch_target, pass_bounds, pass_segments,
+                       sample_passes, tiles)
+
+SampleRanges = dict[int, tuple[int, int]]  # tile index -> samples [start, end) to take of it
 from .settings import RenderSettings
 
 try:
@@ -146,6 +148,101 @@ def render(
     return job.result(t_prepare, say)
 
 
+@dataclass
+class TileSamples:
+    """Raw film sums of samples [sample_start, sample_end) of one tile (index into the frame's tile list).
+
+    films: TileFilm.sums() dictionaries. With sample_start 0 there is one, holding the tile's film after those
+    samples exactly as render() holds it; otherwise one per sample pass, in pass order, each summed from zero,
+    to be added to the film holding the earlier samples pass by pass (TileFilm.add_sums), which is what
+    render() does with them: the merge is bit-identical to one render() whatever machine took which range.
+    """
+
+    tile_index: int
+    sample_start: int
+    sample_end: int
+    films: list[dict[str, np.ndarray]]
+
+
+def render_samples(scene: Scene, settings: RenderSettings, work: SampleRanges, *,
+                   prepared: tuple[PreparedScene, Accelerator] | None = None) -> list[TileSamples]:
+    """Take samples [start, end) of some tiles of the whole frame (work: tile index -> (start, end); tiles as
+    core.schedule.tiles cuts the frame with settings.tile_size) and return their raw film sums, for a render
+    split across processes or machines (core.distributed) and merged with merge_tile_samples.
+
+    Each range must start and end on one of the tile's sample-pass boundaries (core.schedule.pass_bounds); with
+    adaptive sampling only whole tiles (0, spp), since which pixels a pass samples depends on the passes before.
+    prepared: the scene's (PreparedScene, Accelerator) when the caller keeps them between calls (built here
+    otherwise). No time limit, progress or cancel: a range is the unit of work a scheduler cancels.
+    """
+    region = _check_inputs(scene, settings, None, _silent)
+    if prepared is None:
+        prepared = _prepare(scene, settings, _silent)[:2]
+    job = _TileRender(scene, settings, prepared[0], prepared[1], region, None, time.perf_counter(),
+                      None, None, None, work=work)
+    job.run()
+    return job.tile_samples()
+
+
+def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileSamples]) -> RenderResult:
+    """The whole frame from the film sums of render_samples() calls that together cover every sample of every
+    tile: the result's images equal render()'s bit for bit (stats hold only what the merge knows)."""
+    width, height = scene.camera.resolution
+    region = (0, 0, width, height)
+    tile_list = tiles(0, 0, width, height, settings.tile_size)
+    sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
+    films = [TileFilm(t[2], t[3], settings.aovs, sampler) for t in tile_list]
+    reached = [0] * len(tile_list)
+    for part in sorted(parts, key=lambda p: (p.tile_index, p.sample_start)):
+        ti = part.tile_index
+        if not 0 <= ti < len(tile_list):
+            raise ValueError(f"tile index {ti} is not one of the frame's {len(tile_list)} tiles")
+        if part.sample_start != reached[ti]:
+            raise ValueError(f"tile {ti}: samples from {part.sample_start} follow samples up to {reached[ti]}")
+        for sums in part.films:
+            films[ti].add_sums(sums)
+        reached[ti] = part.sample_end
+    missing = [ti for ti, r in enumerate(reached) if r != settings.spp]
+    if missing:
+        raise ValueError(f"tiles {missing[:8]} do not hold all {settings.spp} samples")
+    color, variance, albedo, normal, depth, counts = assemble_image(tile_list, films, settings, region)
+    stats = {"scene": scene.name, "resolution": [width, height], "region": list(region), "spp": settings.spp,
+             "samples": int(counts.sum())}
+    return RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings))
+
+
+def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: RenderSettings, region: TileRect
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None,
+                              np.ndarray]:
+    """The region's (color, variance, albedo, normal, depth, sample counts) from its tiles' films (see Tile for
+    the arrays; AOVs None when settings.aovs is off)."""
+    rx, ry, rw, rh = region
+    color = np.zeros((rh, rw, 4), np.float32)
+    variance = np.zeros((rh, rw, 3), np.float32)
+    albedo = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
+    normal = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
+    depth = np.full((rh, rw), 1e10, np.float32) if settings.aovs else None
+    counts = np.zeros((rh, rw), np.int32)
+    for tile, film in zip(tile_list, films):
+        tx, ty, tw, th = tile
+        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
+        tr = tile_result(tile, film, 0, settings.aovs)
+        color[sl], variance[sl] = tr.color, tr.variance
+        counts[sl] = film.count.reshape(th, tw)
+        if settings.aovs:
+            albedo[sl], normal[sl], depth[sl] = tr.albedo, tr.normal, tr.depth
+    return color, variance, albedo, normal, depth, counts
+
+
+def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool) -> Tile:
+    """A tile's images from its film (samples: what Tile.samples reports)."""
+    color = np.concatenate([film.mean(), np.ones((tile[3], tile[2], 1), np.float32)], axis=2)
+    albedo = normal = depth = None
+    if aovs:
+        albedo, normal, depth = film.aov_images()
+    return Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
+
+
 def _silent(_msg: str) -> None:
     pass
 
@@ -154,7 +251,7 @@ def _check_inputs(scene: Scene, settings: RenderSettings, region, say) -> TileRe
     """Validate the settings, the scene and the region (the whole frame when None), and refuse a render that
     would not fit in memory (a clear error instead of an out-of-memory kill). Returns the region."""
     settings.validate()
-    if compile_cache_is_cold():
+    if say is not _silent and compile_cache_is_cold():  # the check reads the cache folder: only when it is said
         say("compiling the render kernels (first render after an install or update, about a minute; cached after)")
     scene.validate()
     width, height = scene.camera.resolution
@@ -203,7 +300,7 @@ class _TileRender:
     def __init__(self, scene: Scene, settings: RenderSettings, prepared: PreparedScene, accel: Accelerator,
                  region: TileRect, tile_order: list[int] | None, t_start: float,
                  on_tile: TileCallback | None, on_progress: ProgressCallback | None,
-                 should_cancel: CancelCallback | None) -> None:
+                 should_cancel: CancelCallback | None, work: SampleRanges | None = None) -> None:
         self.scene, self.settings, self.prepared, self.accel = scene, settings, prepared, accel
         self.region, self.t_start = region, t_start
         self.on_tile, self.on_progress, self.should_cancel = on_tile, on_progress, should_cancel
@@ -227,6 +324,10 @@ class _TileRender:
         self.film_seconds = 0.0
         self.adaptive = settings.adaptive_threshold > 0
         self.min_samples = settings.adaptive_min_samples_for(self.spp) if self.adaptive else self.spp
+        # render_samples(): only these sample ranges are taken; tiles whose range starts past 0 keep each pass's
+        # sums apart (the merge adds them to the earlier passes' film one pass at a time, as render() does).
+        self.work = self._check_work(work) if work is not None else None
+        self.pass_sums: dict[int, list[dict[str, np.ndarray]]] = {}
 
         self.workers = settings.thread_count
         self.target = batch_target(settings, self.total_paths)
@@ -247,6 +348,8 @@ class _TileRender:
         try:
             for ti, tile, first_sample, count in sample_passes(self.tiles, self.spp, self.settings,
                                                                self.min_samples):
+                if self.work is not None and not self._in_work(ti, first_sample, count):
+                    continue
                 pixels = np.arange(tile[2] * tile[3], dtype=np.int64)
                 if self.adaptive and first_sample >= self.min_samples:
                     pixels = self._unconverged_pixels(ti, tile, first_sample, count)
@@ -366,8 +469,45 @@ class _TileRender:
                 self._progress(seg.tile_index, seg.sample_end)
             if seg.last_chunk:
                 self.samples_started[seg.tile_index] = seg.sample_end
+                if self.work is not None and self.work[seg.tile_index][0] > 0:
+                    self.pass_sums.setdefault(seg.tile_index, []).append(
+                        {name: arr.copy() for name, arr in film.sums().items()})
+                    film.clear()
                 if self.on_tile is not None and not quiet:
                     self.on_tile(self._tile_result(seg.tile, film, seg.sample_end))
+
+    # ----------------------------------------------------------------------- sample ranges (render_samples)
+    def _check_work(self, work: SampleRanges) -> SampleRanges:
+        """Refuse ranges that are not whole sample passes of existing tiles (they could not merge exactly)."""
+        checked: SampleRanges = {}
+        bounds = pass_bounds(self.tiles, self.spp, self.settings)
+        for ti, (start, end) in work.items():
+            ti, start, end = int(ti), int(start), int(end)
+            if not 0 <= ti < len(self.tiles):
+                raise ValueError(f"tile index {ti} is not one of the frame's {len(self.tiles)} tiles")
+            if start not in bounds[ti] or end not in bounds[ti] or end <= start:
+                raise ValueError(f"samples [{start}, {end}) of tile {ti} are not whole sample passes "
+                                 f"(pass boundaries {bounds[ti]})")
+            if self.adaptive and (start, end) != (0, self.spp):
+                raise ValueError("with adaptive sampling a tile's samples cannot be split: each pass depends on "
+                                 "the ones before")
+            checked[ti] = (start, end)
+        return checked
+
+    def _in_work(self, ti: int, first_sample: int, count: int) -> bool:
+        rng = self.work.get(ti)
+        return rng is not None and rng[0] <= first_sample and first_sample + count <= rng[1]
+
+    def tile_samples(self) -> list[TileSamples]:
+        """After run() with work: each tile range's film sums (see TileSamples)."""
+        out = []
+        for ti, (start, end) in sorted(self.work.items()):
+            if start > 0:
+                films = self.pass_sums.get(ti, [])
+            else:
+                films = [{name: arr.copy() for name, arr in self.films[self.tiles[ti]].sums().items()}]
+            out.append(TileSamples(ti, start, end, films))
+        return out
 
     # ------------------------------------------------------------------------------------------ reporting
     def _progress(self, tiles_done: int, sample: int) -> None:
@@ -381,31 +521,14 @@ class _TileRender:
                                   rays / max(elapsed, 1e-9), eta))
 
     def _tile_result(self, tile: TileRect, film: TileFilm, samples: int) -> Tile:
-        color = np.concatenate([film.mean(), np.ones((tile[3], tile[2], 1), np.float32)], axis=2)
-        albedo = normal = depth = None
-        if self.settings.aovs:
-            albedo, normal, depth = film.aov_images()
-        return Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
+        return tile_result(tile, film, samples, self.settings.aovs)
 
     def result(self, t_prepare: float, say) -> RenderResult:
         """The region's image assembled from the tiles, with the render's statistics."""
         settings, scene, accel = self.settings, self.scene, self.accel
         rx, ry, rw, rh = self.region
-        color = np.zeros((rh, rw, 4), np.float32)
-        variance = np.zeros((rh, rw, 3), np.float32)
-        albedo = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
-        normal = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
-        depth = np.full((rh, rw), 1e10, np.float32) if settings.aovs else None
-        counts = np.zeros((rh, rw), np.int32)
-        for tile in self.tiles:
-            tx, ty, tw, th = tile
-            film = self.films[tile]
-            sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
-            tr = self._tile_result(tile, film, 0)
-            color[sl], variance[sl] = tr.color, tr.variance
-            counts[sl] = film.count.reshape(th, tw)
-            if settings.aovs:
-                albedo[sl], normal[sl], depth[sl] = tr.albedo, tr.normal, tr.depth
+        color, variance, albedo, normal, depth, counts = assemble_image(
+            self.tiles, [self.films[t] for t in self.tiles], settings, self.region)
         elapsed = time.perf_counter() - self.t_start
         st = PathStats.total([t.stats for t in self.tracers])
         rays = accel.rays_closest + accel.rays_shadow

@@ -75,6 +75,18 @@ def sample_passes(tile_list: list[TileRect], spp: int, settings: RenderSettings,
             return
 
 
+def pass_bounds(tile_list: list[TileRect], spp: int, settings: RenderSettings) -> list[list[int]]:
+    """Each tile's sample-pass boundaries [0, ..., spp]: the first sample of each of its passes, then spp. A split
+    of a tile's samples that merges bit for bit with the rest cuts only there (core.render.render_samples)."""
+    min_samples = settings.adaptive_min_samples_for(spp) if settings.adaptive_threshold > 0 else spp
+    bounds: list[list[int]] = [[] for _ in tile_list]
+    for ti, _tile, first_sample, _count in sample_passes(tile_list, spp, settings, min_samples):
+        bounds[ti].append(first_sample)
+    for b in bounds:
+        b.append(spp)
+    return bounds
+
+
 def pass_segments(ti: int, tile: TileRect, pixels: np.ndarray, first_sample: int, count: int, target: int
                   ) -> Iterator[Segment]:
     """One tile's pass over `pixels` (tile-local indices), samples [first_sample, first_sample + count), cut

@@ -57,7 +57,7 @@ def test_every_cli_subcommand_is_there():
     from monte.cli import build_parser
 
     sub = next(a for a in build_parser()._actions if a.dest == "command")
-    assert sorted(sub.choices) == ["bench", "crosscheck", "mc-study", "perf", "render", "stress"]
+    assert sorted(sub.choices) == ["bench", "crosscheck", "mc-study", "perf", "render", "stress", "worker"]
 
 
 def test_core_has_no_import_cycles():

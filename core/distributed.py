@@ -1,0 +1,400 @@
+"""A render on a Dask cluster (the `distributed` package), merged bit for bit into what one machine makes.
+
+Every random number is a pure function of (seed, pixel, sample, dimension) and a tile's film adds its samples
+one sample pass at a time (core.schedule.pass_bounds), so the work splits into units of whole tiles or of
+whole sample passes of a tile. Workers run core.render.render_samples on their units and send back raw film
+sums; the client adds them tile by tile in pass order (core.render.merge_tile_samples), which is the order one
+render() adds them in: the image is the same bit for bit for any worker count, unit split or completion order.
+
+The scene goes to the workers once per frame (scattered with broadcast=True); each worker prepares it (Embree
+scene, flattened triangles) once and keeps it for the frame's units. Workers need Monte's core with NumPy,
+numba and Embree, never bpy or a .blend. `distributed` is imported when a cluster is used, so the rest of
+Monte runs without it.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pickle
+import random
+import threading
+import time
+import uuid
+from collections import OrderedDict
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Callable, Iterable, Iterator
+
+from .render import CancelCallback, RenderResult, SampleRanges, TileSamples, merge_tile_samples, render_samples
+from .scene import Scene
+from .schedule import pass_bounds, tiles
+from .settings import RenderSettings
+
+DEFAULT_CONNECT_TIMEOUT = 10.0  # seconds to reach a scheduler and see a worker before giving up
+UNITS_PER_WORKER = 4  # enough units that a slow or lost worker's share is small, few enough to keep sums small
+
+
+class ClusterError(RuntimeError):
+    """The cluster cannot do the render: unreachable, no workers, a worker that differs, a failed unit."""
+
+
+@dataclass
+class ClusterProgress:
+    """Progress of a cluster render: fraction of paths done, units done, the cluster's samples per second."""
+
+    fraction: float
+    units_done: int
+    units_total: int
+    workers: int
+    samples_done: int
+    elapsed: float
+    samples_per_second: float
+    eta_seconds: float
+
+    def stats_line(self) -> str:
+        return (f"Unit {self.units_done}/{self.units_total} | {self.workers} workers | "
+                f"{self.samples_per_second / 1e3:.0f} k samples/s | Elapsed {self.elapsed:.1f} s | "
+                f"Remaining {self.eta_seconds:.1f} s")
+
+
+# ----------------------------------------------------------------------------------------------- work units
+def plan_units(scene: Scene, settings: RenderSettings, workers: int, *, ranges_per_tile: int | None = None,
+               units_per_worker: int = UNITS_PER_WORKER) -> list[SampleRanges]:
+    """Cut a frame into work units (each a dict tile index -> samples [start, end), whole sample passes) for a
+    cluster of `workers` worker threads (a unit runs on one thread).
+
+    With at least units_per_worker x workers tiles, units are groups of whole tiles (the film comes back once
+    per tile); with fewer, each tile's passes are split into ranges_per_tile ranges (default: enough for that
+    many units), since a unit that starts past sample 0 sends one film per pass back. Adaptive sampling keeps
+    tiles whole (a pass depends on the ones before).
+    """
+    width, height = scene.camera.resolution
+    tile_list = tiles(0, 0, width, height, settings.tile_size)
+    bounds = pass_bounds(tile_list, int(settings.spp), settings)
+    target = max(1, workers * units_per_worker)
+    if ranges_per_tile is None:
+        ranges_per_tile = 1 if len(tile_list) >= target else -(-target // len(tile_list))
+    if settings.adaptive_threshold > 0:
+        ranges_per_tile = 1
+    if ranges_per_tile < 1:
+        raise ValueError(f"ranges per tile must be at least 1, got {ranges_per_tile}")
+    if ranges_per_tile == 1:
+        per_unit = -(-len(tile_list) // target)
+        return [{ti: (0, int(settings.spp)) for ti in range(t0, min(t0 + per_unit, len(tile_list)))}
+                for t0 in range(0, len(tile_list), per_unit)]
+    units: list[SampleRanges] = []
+    for ti, b in enumerate(bounds):
+        passes = len(b) - 1
+        k = max(1, min(ranges_per_tile, passes))
+        cuts = [b[round(i * passes / k)] for i in range(k + 1)]
+        units += [{ti: (cuts[i], cuts[i + 1])} for i in range(k)]
+    return units
+
+
+# ---------------------------------------------------------------------------------------- on the workers
+_PREPARED: OrderedDict = OrderedDict()  # frame key -> (PreparedScene, Accelerator), the latest frames only
+_PREPARED_LOCK = threading.Lock()
+_PREPARED_KEEP = 2
+
+
+def _prepared_for(frame_key: str, scene: Scene, settings: RenderSettings):
+    """This worker's prepared scene for the frame, built by its first unit (units of a frame share it)."""
+    from .accel import Accelerator
+    from .integrator import PreparedScene
+
+    with _PREPARED_LOCK:
+        if frame_key in _PREPARED:
+            _PREPARED.move_to_end(frame_key)
+            return _PREPARED[frame_key]
+        scene.validate()  # also puts its arrays in the forms PreparedScene expects
+        prepared = PreparedScene.build(scene, sample_world=settings.light_sampling == "light")
+        entry = (prepared, Accelerator(prepared.vertices, prepared.triangles))
+        _PREPARED[frame_key] = entry
+        while len(_PREPARED) > _PREPARED_KEEP:
+            _PREPARED.popitem(last=False)
+        return entry
+
+
+def render_unit(scene: Scene, settings: RenderSettings, unit: SampleRanges, frame_key: str) -> list[TileSamples]:
+    """A worker's task: the unit's film sums. One thread per task (a worker runs as many tasks as it has
+    threads); the image does not depend on it."""
+    prepared = _prepared_for(frame_key, scene, settings)
+    return render_samples(scene, settings.replace(threads=1), unit, prepared=prepared)
+
+
+def worker_versions() -> dict[str, str]:
+    """What must match between the client and every worker for the image to be the same."""
+    import numba
+    import numpy
+
+    try:
+        from importlib.metadata import version
+
+        monte_version = version("monte")
+    except Exception:  # not installed as a distribution: the source tree's files are what counts
+        monte_version = "unknown"
+    return {"monte": monte_version, "numpy": numpy.__version__, "numba": numba.__version__,
+            "core sources": _source_digest()}
+
+
+def _source_digest() -> str:
+    """A digest of the core's sources: two installs of the same version number may still differ."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    folder = os.path.dirname(os.path.abspath(__file__))
+    for name in sorted(os.listdir(folder)):
+        if name.endswith(".py"):
+            with open(os.path.join(folder, name), "rb") as f:
+                digest.update(name.encode() + b"\0" + f.read())
+    return digest.hexdigest()[:16]
+
+
+# --------------------------------------------------------------------------------------------- the client
+@contextmanager
+def connect(address: str, timeout: float = DEFAULT_CONNECT_TIMEOUT, log: Callable[[str], None] | None = None
+            ) -> Iterator:
+    """A distributed.Client for `address`: "tcp://host:8786" (a running scheduler) or "local:N" (a LocalCluster
+    of N worker processes with one thread each, on this machine). Raises ClusterError when the scheduler
+    cannot be reached or shows no worker within `timeout` seconds, or a worker's Monte differs from ours."""
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError as exc:
+        raise ClusterError(f"a cluster render needs the 'distributed' package (pip install monte[cluster]): "
+                           f"{exc}") from None
+    say = log or (lambda _m: None)
+    cluster = None
+    if address.startswith("local:"):
+        try:
+            n = int(address[len("local:"):])
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise ClusterError(f"--dask local:N needs a worker count N >= 1, got {address!r}")
+        say(f"starting a local Dask cluster of {n} worker processes")
+        # ":0": its HTTP server (health, metrics; the dashboard when bokeh is installed) on a free port
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0")
+        client = Client(cluster, timeout=timeout)
+    else:
+        if "://" not in address:
+            raise ClusterError(f"a Dask scheduler address looks like tcp://host:8786, got {address!r}")
+        try:
+            client = Client(address, timeout=timeout)
+        except (OSError, TimeoutError) as exc:
+            raise ClusterError(f"cannot reach the Dask scheduler at {address} within {timeout:g} s: {exc}") from None
+    try:
+        try:
+            client.wait_for_workers(1, timeout=timeout)
+        except (OSError, TimeoutError):
+            raise ClusterError(f"the Dask scheduler at {address} has no worker (waited {timeout:g} s)") from None
+        check_workers(client)
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def check_workers(client, expected: dict[str, str] | None = None) -> None:
+    """Refuse workers whose Monte sources, NumPy or numba differ from `expected` (this client's worker_versions()
+    when None): their images would differ. The ClusterError names each such worker and what differs."""
+    mine = worker_versions() if expected is None else expected
+    theirs = client.run(worker_versions)
+    wrong = []
+    for worker, versions in sorted(theirs.items()):
+        diffs = [f"{k} {versions.get(k)} (client {mine.get(k)})" for k in sorted(set(mine) | set(versions))
+                 if versions.get(k) != mine.get(k)]
+        if diffs:
+            wrong.append(f"{worker}: {', '.join(diffs)}")
+    if wrong:
+        raise ClusterError("workers run a different Monte than this client (install the same Monte, NumPy and "
+                           "numba on every worker): " + "; ".join(wrong))
+
+
+def render_on_cluster(scene: Scene, settings: RenderSettings, client, *,
+                      units: list[SampleRanges] | None = None,
+                      on_progress: Callable[[ClusterProgress], None] | None = None,
+                      should_cancel: CancelCallback | None = None,
+                      log: Callable[[str], None] | None = None,
+                      submit_seed: int | None = None) -> RenderResult:
+    """Render the whole frame on the cluster behind `client`; the images equal render()'s bit for bit.
+
+    units: the work split (plan_units for the cluster's worker threads when None). submit_seed: submit the units
+    in a shuffled order (for showing that the image does not depend on it). should_cancel is polled while units
+    run: when it returns True every unit is cancelled and KeyboardInterrupt is raised (a cluster render keeps
+    no partial image: a frame is all or nothing). A time limit does not apply (refused).
+    stats: seconds, samples/s, units, workers, threads, scene_bytes (the pickled scene sent once per worker),
+    film_bytes (all film sums sent back) and film_bytes_per_unit.
+    """
+    job = _FrameJob(client, scene, settings, units, submit_seed, log)
+    _run_jobs([job], on_progress, should_cancel)
+    return job.result()
+
+
+def render_frames_on_cluster(client, frames: Iterable[tuple[object, Scene, RenderSettings]],
+                             on_frame: Callable[[object, RenderResult], None], *, frames_in_flight: int = 2,
+                             on_progress: Callable[[ClusterProgress], None] | None = None,
+                             should_cancel: CancelCallback | None = None,
+                             log: Callable[[str], None] | None = None) -> int:
+    """Render a sequence of frames ((key, scene, settings), e.g. a .blend's exported frames) on the cluster,
+    with up to frames_in_flight frames' units queued at once, so that workers keep busy while the client
+    takes the next frame from `frames` (an export) and merges the last. on_frame(key, result) is called on this
+    thread as each frame completes (in completion order), with images bit-identical to render()'s of that
+    frame. Cancel as render_on_cluster (the frames already passed to on_frame stay done). Returns frames done.
+    """
+    if frames_in_flight < 1:
+        raise ValueError(f"frames in flight must be at least 1, got {frames_in_flight}")
+    source = iter(frames)
+    jobs: list[_FrameJob] = []
+    finished = 0
+
+    def refill() -> None:
+        nonlocal source
+        while source is not None and sum(not j.done for j in jobs) < frames_in_flight:
+            try:
+                key, scene, settings = next(source)
+            except StopIteration:
+                source = None
+                return
+            jobs.append(_FrameJob(client, scene, settings, None, None, log, key))
+
+    def deliver() -> None:
+        nonlocal finished
+        for job in [j for j in jobs if j.done]:
+            jobs.remove(job)
+            on_frame(job.key, job.result())
+            finished += 1
+
+    refill()
+    while jobs:
+        _run_jobs(jobs, on_progress, should_cancel, until_one_done=True)
+        deliver()
+        refill()
+    return finished
+
+
+class _FrameJob:
+    """One frame's units on the cluster: submitted when made, their film sums collected as they finish."""
+
+    def __init__(self, client, scene: Scene, settings: RenderSettings, units: list[SampleRanges] | None,
+                 submit_seed: int | None, log: Callable[[str], None] | None, key: object = None) -> None:
+        say = log or (lambda _m: None)
+        settings.validate()
+        if settings.time_limit > 0:
+            raise ValueError("a time limit does not apply to a cluster render (its units are not stopped halfway)")
+        scene.validate()
+        self.key, self.scene, self.settings = key, scene, settings
+        self.t_start = time.perf_counter()
+        worker_info = client.scheduler_info(n_workers=-1)["workers"]
+        self.workers = max(1, len(worker_info))
+        self.threads = max(1, sum(int(w.get("nthreads", 1)) for w in worker_info.values()))
+        if units is None:  # a unit runs on one thread: a worker with 8 threads runs 8 at once
+            units = plan_units(scene, settings, self.threads)
+        self.units = units
+        order = list(range(len(units)))
+        if submit_seed is not None:
+            random.Random(submit_seed).shuffle(order)
+        frame_key = uuid.uuid4().hex
+        self.scene_bytes = len(pickle.dumps(scene, protocol=pickle.HIGHEST_PROTOCOL))
+        say(f"{len(units)} units on {self.workers} workers; scene {self.scene_bytes / 1e3:.0f} kB to each worker")
+        self.shared = [client.scatter(scene, broadcast=True, hash=False),
+                       client.scatter(settings, broadcast=True, hash=False)]
+        self.futures = [client.submit(render_unit, *self.shared, units[i], frame_key, pure=False,
+                                      key=f"monte-unit-{frame_key}-{i}") for i in order]
+        width, height = scene.camera.resolution
+        tile_list = tiles(0, 0, width, height, settings.tile_size)
+        self.unit_paths = {f.key: _unit_paths(tile_list, units[i]) for f, i in zip(self.futures, order)}
+        self.total_paths = sum(self.unit_paths.values())
+        self.pending = set(self.futures)
+        self.parts: list[TileSamples] = []
+        self.done_paths = 0
+        self.film_bytes = 0
+        self.client = client
+
+    @property
+    def done(self) -> bool:
+        return not self.pending
+
+    def poll(self) -> int:
+        """Collect the units finished since the last call; returns how many. ClusterError for a failed unit."""
+        from distributed import CancelledError
+
+        finished = [f for f in self.pending if f.done()]
+        for f in finished:
+            self.pending.discard(f)
+            try:
+                result = f.result()
+            except CancelledError:
+                raise ClusterError(f"unit {f.key} was cancelled by the cluster") from None
+            except Exception as exc:
+                raise ClusterError(f"unit {f.key} failed on its worker: {type(exc).__name__}: {exc}") from exc
+            self.parts += result
+            self.film_bytes += sum(a.nbytes for part in result for sums in part.films for a in sums.values())
+            self.done_paths += self.unit_paths[f.key]
+        if self.done:
+            self.release()
+        return len(finished)
+
+    def cancel(self) -> None:
+        self.client.cancel(self.futures, force=True)
+        self.release()
+
+    def release(self) -> None:
+        """Let the workers drop this frame's scene and settings."""
+        if self.shared:
+            self.client.cancel(self.shared)
+            self.shared = []
+
+    def result(self) -> RenderResult:
+        """The merged frame (after every unit is done)."""
+        t_merge = time.perf_counter()
+        result = merge_tile_samples(self.scene, self.settings, self.parts)
+        elapsed = time.perf_counter() - self.t_start
+        result.stats.update({
+            "seconds": elapsed,
+            "merge_seconds": time.perf_counter() - t_merge,
+            "samples_per_second": result.stats["samples"] / max(elapsed, 1e-9),
+            "units": len(self.units),
+            "workers": self.workers,
+            "threads": self.threads,
+            "scene_bytes": self.scene_bytes,
+            "film_bytes": self.film_bytes,
+            "film_bytes_per_unit": self.film_bytes / max(len(self.units), 1),
+        })
+        return result
+
+
+def _run_jobs(jobs: list[_FrameJob], on_progress: Callable[[ClusterProgress], None] | None,
+              should_cancel: CancelCallback | None, until_one_done: bool = False) -> None:
+    """Wait for the jobs' units (until every job is done, or one is), reporting progress over all of them;
+    on a cancel, an error or Ctrl-C every job's units are cancelled and the exception goes on."""
+    t_start = min(j.t_start for j in jobs)
+    try:
+        while any(not j.done for j in jobs):
+            if should_cancel is not None and should_cancel():
+                raise KeyboardInterrupt
+            newly = sum(j.poll() for j in jobs if not j.done)
+            if not newly:
+                time.sleep(0.05)
+                continue
+            if on_progress is not None:
+                done_paths = sum(j.done_paths for j in jobs)
+                total = sum(j.total_paths for j in jobs)
+                elapsed = time.perf_counter() - t_start
+                frac = done_paths / total if total else 1.0
+                on_progress(ClusterProgress(frac, sum(len(j.futures) - len(j.pending) for j in jobs),
+                                            sum(len(j.futures) for j in jobs), jobs[0].workers, done_paths,
+                                            elapsed, done_paths / max(elapsed, 1e-9),
+                                            elapsed * (1 - frac) / frac if frac > 0 else math.inf))
+            if until_one_done and any(j.done for j in jobs):
+                return
+    except BaseException:
+        for j in jobs:
+            j.cancel()
+        raise
+
+
+def _unit_paths(tile_list: list, unit: SampleRanges) -> int:
+    """Paths (pixel samples) a unit traces, for progress."""
+    return sum((end - start) * tile_list[ti][2] * tile_list[ti][3] for ti, (start, end) in unit.items())

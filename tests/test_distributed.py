@@ -1,0 +1,322 @@
+"""A render split into work units on a Dask cluster (core.distributed) equals the one-machine render bit for bit.
+
+The cluster tests run a real distributed.LocalCluster of 2 worker processes (one thread each) on tiny Cornell
+boxes; the split is forced into several tiles and sample passes (small tiles and batches) so that a unit that
+starts past sample 0 and a merge across units really happen.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from distributed import Client, LocalCluster
+
+from monte.cli import main
+from monte.core.builtin_scenes import builtin_scene
+from monte.core.distributed import (ClusterError, check_workers, connect, plan_units, render_frames_on_cluster,
+                                    render_on_cluster, render_unit, worker_versions)
+from monte.core.render import merge_tile_samples, render, render_samples
+from monte.core.schedule import pass_bounds, tiles
+from monte.core.settings import RenderSettings
+
+IMAGES = ("color", "variance", "albedo", "normal", "depth", "sample_count")
+
+
+def _settings(**kw) -> RenderSettings:
+    # 16x16 tiles and 1024-path batches: 4 samples per pass, so 12 spp is 3 passes per tile.
+    base = dict(spp=12, seed=7, threads=1, batch_paths=1024, tile_size=16, filter_type="box", filter_width=1.0)
+    base.update(kw)
+    return RenderSettings(**base)
+
+
+def _scene():
+    return builtin_scene("cornell", (32, 24))  # tiles 16x16, 16x16, 16x8, 16x8
+
+
+def _assert_same_images(a, b) -> None:
+    for name in IMAGES:
+        x, y = getattr(a, name), getattr(b, name)
+        assert (x is None) == (y is None), name
+        if x is not None:
+            assert x.dtype == y.dtype and np.array_equal(x, y), f"{name} differs"
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return render(_scene(), _settings())
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as lc:
+        with Client(lc) as client:
+            yield lc, client
+
+
+def test_the_split_has_several_passes_per_tile():
+    """The tests below would prove little if every tile were one pass: check the split they rely on."""
+    scene, settings = _scene(), _settings()
+    bounds = pass_bounds(tiles(0, 0, 32, 24, 16), 12, settings)
+    assert bounds == [[0, 4, 8, 12], [0, 4, 8, 12], [0, 8, 12], [0, 8, 12]]
+    units = plan_units(scene, settings, 2, ranges_per_tile=3)
+    assert sorted(u[ti] for u in units for ti in u) == sorted(
+        [(0, 4), (4, 8), (8, 12)] * 2 + [(0, 8), (8, 12)] * 2)
+
+
+@pytest.mark.parametrize("ranges_per_tile", [1, 2, 3])
+def test_sample_ranges_merged_in_any_order_equal_one_render(reference, ranges_per_tile):
+    scene, settings = _scene(), _settings()
+    units = plan_units(scene, settings, 2, ranges_per_tile=ranges_per_tile)
+    parts = [part for unit in units for part in render_samples(scene, settings, unit)]
+    random.Random(ranges_per_tile).shuffle(parts)
+    _assert_same_images(merge_tile_samples(scene, settings, parts), reference)
+
+
+def test_ranges_off_the_pass_boundaries_are_refused():
+    with pytest.raises(ValueError, match=r"samples \[0, 6\) of tile 0 are not whole sample passes"):
+        render_samples(_scene(), _settings(), {0: (0, 6)})
+    with pytest.raises(ValueError, match="tile index 9 is not one of the frame's 4 tiles"):
+        render_samples(_scene(), _settings(), {9: (0, 12)})
+    with pytest.raises(ValueError, match="adaptive sampling a tile's samples cannot be split"):
+        render_samples(_scene(), _settings(adaptive_threshold=0.05), {0: (0, 4)})
+
+
+def test_a_merge_with_a_missing_range_is_refused():
+    scene, settings = _scene(), _settings()
+    parts = render_samples(scene, settings, {ti: (0, 12) for ti in range(4)})
+    parts += render_samples(scene, settings, {0: (8, 12)})  # tile 0 twice: samples 8.. after samples up to 12
+    with pytest.raises(ValueError, match="tile 0: samples from 8 follow samples up to 12"):
+        merge_tile_samples(scene, settings, parts)
+    with pytest.raises(ValueError, match=r"tiles \[3\] do not hold all 12 samples"):
+        merge_tile_samples(scene, settings, parts[:3])
+
+
+@pytest.mark.parametrize("ranges_per_tile, submit_seed", [(None, None), (1, 3), (3, 11)])
+def test_cluster_render_equals_one_render(cluster, reference, ranges_per_tile, submit_seed):
+    _, client = cluster
+    scene, settings = _scene(), _settings()
+    units = plan_units(scene, settings, 2, ranges_per_tile=ranges_per_tile) if ranges_per_tile else None
+    seen = []
+    result = render_on_cluster(scene, settings, client, units=units, submit_seed=submit_seed,
+                               on_progress=seen.append)
+    _assert_same_images(result, reference)
+    assert result.stats["workers"] == 2 and result.stats["samples"] == 32 * 24 * 12
+    done = [p.units_done for p in seen]  # one report per poll, which may collect several units
+    assert done == sorted(set(done)) and done[-1] == result.stats["units"]
+    assert seen[-1].fraction == 1.0 and seen[-1].samples_done == 32 * 24 * 12
+
+
+def test_frames_in_flight_each_equal_their_own_render(cluster):
+    """Three 'frames' (the seed changes, as Blender's animated seed does) with two in flight at once: each
+    delivered frame equals render() of that frame, and the second frame's units were queued before the first
+    was done."""
+    _, client = cluster
+    scene = _scene()
+    frames = [(seed, _scene(), _settings(seed=seed)) for seed in (1, 2, 3)]
+    delivered = {}
+    seen = []
+    n = render_frames_on_cluster(client, iter(frames), lambda key, result: delivered.__setitem__(key, result),
+                                 frames_in_flight=2, on_progress=seen.append)
+    assert n == 3 and sorted(delivered) == [1, 2, 3]
+    for seed in (1, 2, 3):
+        _assert_same_images(delivered[seed], render(scene, _settings(seed=seed)))
+    units_per_frame = len(plan_units(scene, _settings(), 2))
+    assert max(p.units_total for p in seen) == 2 * units_per_frame
+    with pytest.raises(ValueError, match="frames in flight must be at least 1"):
+        render_frames_on_cluster(client, iter(frames), lambda *_: None, frames_in_flight=0)
+
+
+def test_adaptive_render_on_the_cluster_equals_one_render(cluster):
+    _, client = cluster
+    scene, settings = _scene(), _settings(spp=24, adaptive_threshold=0.2, adaptive_min_samples=8)
+    local = render(scene, settings)
+    assert local.sample_count.min() < 24  # adaptive sampling did stop some pixels early
+    _assert_same_images(render_on_cluster(scene, settings, client), local)
+
+
+def test_cancel_cancels_the_units_and_the_cluster_renders_on(cluster, reference):
+    _, client = cluster
+    scene, settings = _scene(), _settings()
+    units = plan_units(scene, settings, 2, ranges_per_tile=3)
+    with pytest.raises(KeyboardInterrupt):
+        render_on_cluster(scene, settings, client, units=units, should_cancel=lambda: True)
+    # Units already running finish on their thread (Python cannot stop one halfway); the rest never start and
+    # the scheduler forgets them all.
+    deadline = time.monotonic() + 60
+    while _scheduler_units(client) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _scheduler_units(client) == []
+    _assert_same_images(render_on_cluster(scene, settings, client), reference)
+
+
+def _scheduler_units(client) -> list[str]:
+    return client.run_on_scheduler(
+        lambda dask_scheduler: [str(k) for k in dask_scheduler.tasks if "monte-unit" in str(k)])
+
+
+def test_a_worker_killed_mid_render_loses_nothing(cluster, reference):
+    """Kill one worker process (SIGKILL) as soon as the first unit is back: the scheduler runs its units again
+    on the other worker (LocalCluster starts a new one), and the image is still bit-identical."""
+    lc, client = cluster
+    scene, settings = _scene(), _settings()
+    pids = client.run(os.getpid)
+    victim = sorted(pids.values())[0]
+    killed = []
+
+    def kill_once(_progress):
+        if not killed:
+            os.kill(victim, signal.SIGKILL)
+            killed.append(victim)
+
+    units = plan_units(scene, settings, 2, ranges_per_tile=3)
+    result = render_on_cluster(scene, settings, client, units=units, on_progress=kill_once)
+    assert killed
+    _assert_same_images(result, reference)
+    client.wait_for_workers(2, timeout=60)  # the nanny restarts it: later tests see 2 workers again
+
+
+def test_workers_with_another_monte_are_refused(cluster):
+    """The workers report their real versions; a client expecting another Monte release or other core sources
+    refuses them, naming what differs (the same check connect() makes against this client's own versions)."""
+    _, client = cluster
+    mine = worker_versions()
+    check_workers(client)  # the same install: accepted
+    other = {**mine, "monte": "0.0.1", "core sources": "0123456789abcdef"}
+    with pytest.raises(ClusterError, match=r"different Monte than this client.*core sources "
+                                           + mine["core sources"] + r" \(client 0123456789abcdef\)"):
+        check_workers(client, other)
+
+
+def test_monte_worker_joins_a_scheduler_and_renders_the_same_image(reference, tmp_path):
+    """`monte worker ADDRESS` (kernels loaded, then `dask worker` in the same process) against a scheduler with
+    no worker of its own."""
+    with LocalCluster(n_workers=0, processes=True, dashboard_address=":0") as lc, Client(lc) as client:
+        with open(tmp_path / "worker.log", "wb") as log:
+            proc = subprocess.Popen([sys.executable, "-m", "monte", "worker", lc.scheduler_address,
+                                     "--nthreads", "1", "--name", "monte-test-worker"],
+                                    stdout=log, stderr=subprocess.STDOUT)
+        try:
+            client.wait_for_workers(1, timeout=120)
+            names = [w["name"] for w in client.scheduler_info(n_workers=-1)["workers"].values()]
+            assert names == ["monte-test-worker"]
+            _assert_same_images(render_on_cluster(_scene(), _settings(), client), reference)
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+    assert "loading the render kernels" in (tmp_path / "worker.log").read_text()
+
+
+def test_time_limit_is_refused_on_a_cluster(cluster):
+    with pytest.raises(ValueError, match="a time limit does not apply to a cluster render"):
+        render_on_cluster(_scene(), _settings(time_limit=5), cluster[1])
+
+
+def test_a_unit_runs_without_a_cluster_too(reference):
+    """render_unit is the workers' task: plain core, callable anywhere (what a worker imports)."""
+    scene, settings = _scene(), _settings()
+    parts = render_unit(scene, settings, {ti: (0, 12) for ti in range(4)}, "frame-a")
+    _assert_same_images(merge_tile_samples(scene, settings, parts), reference)
+
+
+def test_unreachable_scheduler_is_a_clear_error():
+    with pytest.raises(ClusterError, match=r"cannot reach the Dask scheduler at tcp://127.0.0.1:9 within 1 s"):
+        with connect("tcp://127.0.0.1:9", timeout=1):
+            pass
+
+
+@pytest.mark.parametrize("address, message", [("localhost:8786", "looks like tcp://host:8786"),
+                                               ("local:0", "worker count N >= 1"),
+                                               ("local:two", "worker count N >= 1")])
+def test_malformed_addresses_are_refused(address, message):
+    with pytest.raises(ClusterError, match=message):
+        with connect(address, timeout=1):
+            pass
+
+
+def test_cli_dask_local_writes_the_same_exr_as_a_local_render(tmp_path, capsys):
+    common = ["render", "cornell", "--resolution", "32x24", "--spp", "12", "--seed", "7", "--batch", "1024",
+              "--tile", "16", "--no-png", "-q"]
+    assert main(common + ["-o", str(tmp_path / "local.exr")]) == 0
+    assert main(common + ["-o", str(tmp_path / "cluster.exr"), "--dask", "local:1"]) == 0
+    assert (tmp_path / "local.exr").read_bytes() == (tmp_path / "cluster.exr").read_bytes()
+
+
+def test_ctrl_c_stops_a_cluster_render_writes_nothing_and_leaves_no_worker(tmp_path):
+    """SIGINT to `monte render --dask local:2` once its units are queued: exit status 130, no file, and the
+    LocalCluster's worker processes are gone (the units cancelled, the cluster closed)."""
+    out = tmp_path / "big.exr"
+    proc = subprocess.Popen([sys.executable, "-m", "monte", "render", "cornell", "--resolution", "128x128",
+                             "--spp", "1024", "-o", str(out), "--dask", "local:2"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    lines = []
+    try:
+        for line in proc.stderr:
+            lines.append(line)
+            if "units on 2 workers" in line:
+                break
+        workers = _child_pids(proc.pid)
+        proc.send_signal(signal.SIGINT)
+        _, rest = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, "".join(lines) + rest
+    assert "interrupted" in rest
+    assert list(tmp_path.iterdir()) == []
+    # The workers (and multiprocessing's helper processes) end with the cluster; give them a moment to exit.
+    deadline = time.monotonic() + 30
+    while [pid for pid in workers if _alive(pid)] and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = {pid: _cmdline(pid) for pid in workers if _alive(pid)}
+    assert len(workers) >= 2 and not left, left
+
+
+def _child_pids(pid: int) -> list[int]:
+    """Every process below `pid` (Linux /proc)."""
+    children = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+            if ppid == pid:
+                children += [int(entry)] + _child_pids(int(entry))
+    return children
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_cli_unreachable_scheduler_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "x.exr"
+    status = main(["render", "cornell", "--resolution", "8x8", "--spp", "1", "-o", str(out), "-q",
+                   "--dask", "tcp://127.0.0.1:9", "--dask-timeout", "1"])
+    assert status == 1
+    assert "cannot reach the Dask scheduler at tcp://127.0.0.1:9" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
