@@ -7,9 +7,16 @@ Frame and direction conventions
 -------------------------------
 Everything is in the LOCAL shading frame (normal = +z), float32 (N, 3), unit vectors. `wo` points from the
 surface towards where the path came from, `wi` towards the next vertex / light. +z is the outside.
-- diffuse, glossy: two-sided like Cycles (which flips N towards the viewer): with wo.z < 0 they act in the
+- The side of the surface wo is on is `back` (N,) bool, decided by the GEOMETRIC normal as Cycles does (it flips
+  N and Ng together when the ray hits the back face); default wo.z < 0, right when the frame's normal is the
+  geometric one. A smooth shading normal may put wo.z < 0 in front of the surface (or > 0 behind it): the lobes
+  still act on wo's geometric side, so the diffuse lobe stays max(N.wi, 0) / pi around the shading normal turned
+  to that side (Cycles' diffuse closure) instead of being mirrored under the surface, and microfacet lobes seen
+  from below their normal give nothing (Cycles' cos_NI <= 0; the integrator tilts the normal of specular
+  materials so that this is rare, Cycles' ensure_valid_specular_reflection).
+- diffuse, glossy: two-sided like Cycles (which flips N towards the viewer): on the back they act in the
   flipped frame and reflect into wo's hemisphere.
-- glass, refraction: wo.z > 0 enters (eta = ior), wo.z < 0 leaves (eta = 1/ior). No 1/eta^2 radiance
+- glass, refraction: the front enters (eta = ior), the back leaves (eta = 1/ior). No 1/eta^2 radiance
   scaling (Cycles has none).
 
 Lobes (Cycles 5.0 closures they mirror)
@@ -335,18 +342,30 @@ def _f32_rows(a: np.ndarray, cols: int) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(a, dtype=F32).reshape(-1, cols))
 
 
-def eval_bsdf(lobes: LobeBatch, wo: np.ndarray, wi: np.ndarray,
-              rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _back_side(back: np.ndarray | None, wo: np.ndarray, caller: str) -> np.ndarray:
+    """The (N,) bool side flags the kernels take: `back` as given, or wo.z < 0 (see the module docstring)."""
+    if back is None:
+        return np.ascontiguousarray(wo[:, 2] < 0)
+    b = np.ascontiguousarray(np.asarray(back, dtype=bool).reshape(-1))
+    if b.shape[0] != wo.shape[0]:
+        raise ValueError(f"{caller}: back has {b.shape[0]} rows, wo {wo.shape[0]}")
+    return b
+
+
+def eval_bsdf(lobes: LobeBatch, wo: np.ndarray, wi: np.ndarray, rows: np.ndarray | None = None,
+              back: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """f(wo, wi) |cos wi| summed over the non-delta lobes (N, 3) and the pdf of `sample_bsdf` producing wi through a
     non-delta lobe (N,): sum_l select_l pdf_l (solid angle).
 
     rows: optional (N,) indices into `lobes` giving the hit of each direction pair (same as `lobes.take(rows)`,
-    without the copy); else wo and wi have one row per hit."""
+    without the copy); else wo and wi have one row per hit. back: optional (N,) bool, wo is behind the surface
+    by its geometric normal (default wo.z < 0; see the module docstring)."""
     wo = _f32_rows(wo, 3)
     wi = _f32_rows(wi, 3)
     n = wo.shape[0]
     if wi.shape[0] != n:
         raise ValueError(f"eval_bsdf: wo has {n} rows, wi {wi.shape[0]}")
+    side = _back_side(back, wo, "eval_bsdf")
     if rows is None:
         if len(lobes) != n:
             raise ValueError(f"eval_bsdf: {len(lobes)} hits but {n} directions")
@@ -359,27 +378,31 @@ def eval_bsdf(lobes: LobeBatch, wo: np.ndarray, wi: np.ndarray,
             raise IndexError(f"eval_bsdf: rows out of range for {len(lobes)} hits")
     f = np.empty((n, 3), F32)
     pdf = np.empty(n, F32)
-    bk.eval_batch(lobes.arrays(), idx, rows is not None, lobes.multiscatter, mf.kernel_tables(), wo, wi, f, pdf)
+    bk.eval_batch(lobes.arrays(), idx, rows is not None, lobes.multiscatter, mf.kernel_tables(), wo, wi, side, f,
+                  pdf)
     return f, pdf
 
 
-def sample_bsdf(lobes: LobeBatch, wo: np.ndarray, u_lobe: np.ndarray, u: np.ndarray) -> BsdfSample:
+def sample_bsdf(lobes: LobeBatch, wo: np.ndarray, u_lobe: np.ndarray, u: np.ndarray,
+                back: np.ndarray | None = None) -> BsdfSample:
     """Sample wi for each hit: pick a lobe with `select` (u_lobe), sample it (u (N, 2)); the remainder of u_lobe
-    picks reflection vs refraction for glass. See the module docstring for the weight convention."""
+    picks reflection vs refraction for glass. back: optional (N,) bool, wo is behind the surface by its geometric
+    normal (default wo.z < 0). See the module docstring for the side and weight conventions."""
     n = len(lobes)
     wo = _f32_rows(wo, 3)
     u_lobe = np.ascontiguousarray(np.asarray(u_lobe, dtype=F32).reshape(-1))
     u = _f32_rows(u, 2)
     if not (wo.shape[0] == u_lobe.shape[0] == u.shape[0] == n):
         raise ValueError(f"sample_bsdf: {n} hits, wo {wo.shape[0]}, u_lobe {u_lobe.shape[0]}, u {u.shape[0]} rows")
+    side = _back_side(back, wo, "sample_bsdf")
     wi = np.empty((n, 3), F32)
     weight = np.empty((n, 3), F32)
     pdf = np.empty(n, F32)
     delta = np.empty(n, bool)
     transmitted = np.empty(n, bool)
     valid = np.empty(n, bool)
-    bk.sample_batch(lobes.arrays(), lobes.multiscatter, mf.kernel_tables(), wo, u_lobe, u, wi, weight, pdf, delta,
-                    transmitted, valid)
+    bk.sample_batch(lobes.arrays(), lobes.multiscatter, mf.kernel_tables(), wo, side, u_lobe, u, wi, weight, pdf,
+                    delta, transmitted, valid)
     return BsdfSample(wi=wi, weight=weight, pdf=pdf, delta=delta, transmitted=transmitted, valid=valid)
 
 

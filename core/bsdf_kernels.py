@@ -446,8 +446,10 @@ def glass_fss(lobes, row, l, eta):
 
 @_inline
 def eval_path(lobes, row, multiscatter, tabs, ox, oy, oz, back, ix, iy, iz):
-    """f |cos wi| (3 channels) and the mixture pdf over the non-delta lobes of hit `row`, in the frame flipped so
-    that oz >= 0 (`back`: wo was below the surface); (f0, f1, f2, pdf). A lobe with under >= 0 is scaled by
+    """f |cos wi| (3 channels) and the mixture pdf over the non-delta lobes of hit `row`, in the frame flipped to
+    wo's geometric side (`back`: wo was below the surface); (f0, f1, f2, pdf). oz < 0 (wo below a smooth shading
+    normal on that side) leaves the diffuse lobe as it is (Cycles' max(N.wi, 0) / pi) and the microfacet lobes
+    zero. A lobe with under >= 0 is scaled by
     `layer_factor` at cos wo (its value only: the pdf stays select x lobe pdf)."""
     kind, weight, rough, ior, fresnel, select, f0s, under, tint = lobes
     f0 = f1 = f2 = pdf = 0.0
@@ -566,17 +568,18 @@ def _choose_lobe(kind, select, row, u_lobe):
 
 
 @_inline
-def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, u_lobe, u1, u2):
+def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, back, u_lobe, u1, u2):
     """Sample wi for hit `row` seen from wo (local frame, unflipped): pick a lobe with `select` (u_lobe), sample
     it with (u1, u2), the remainder of u_lobe choosing reflection vs refraction for glass.
+    back: wo is on the -z side of the surface as the geometric normal decides it (core.bsdf: the lobes act in
+    the frame flipped to that side even where wo is below the shading normal there).
     Returns (wix, wiy, wiz, weight0, weight1, weight2, pdf, delta, transmitted, valid); wi is rounded to float32
     before the mixture is evaluated there. Invalid samples have wi = +z, zero weight and pdf."""
     kind, weight, rough, ior, fresnel, select, f0s, under, tint = lobes
-    back = woz < 0.0
     s = -1.0 if back else 1.0
     ox = np.float64(wox)
     oy = np.float64(woy)
-    oz = abs(np.float64(woz))
+    oz = np.float64(woz) * s  # < 0: wo below the shading normal on the geometric side it is on
     c, sel_c, u_rem = _choose_lobe(kind, select, row, u_lobe)
     k = kind[row, c] if c >= 0 else EMPTY
     if k == EMPTY:
@@ -672,15 +675,15 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, u_lobe, u1, u2):
 
 # ------------------------------------------------------------------------------------------ batch kernels
 @_jit
-def eval_batch(lobes, rows, use_rows, multiscatter, tabs, wo, wi, f_out, pdf_out):
-    """eval_path for each direction pair k (hit rows[k] if use_rows else k); wo, wi (n, 3) local frame."""
+def eval_batch(lobes, rows, use_rows, multiscatter, tabs, wo, wi, back, f_out, pdf_out):
+    """eval_path for each direction pair k (hit rows[k] if use_rows else k); wo, wi (n, 3) local frame; back (n,):
+    the geometric side of wo (see sample_path)."""
     for k in range(wo.shape[0]):
         row = rows[k] if use_rows else k
-        woz = wo[k, 2]
-        back = woz < 0.0
-        s = -1.0 if back else 1.0
+        b = back[k]
+        s = -1.0 if b else 1.0
         f0, f1, f2, pdf = eval_path(lobes, row, multiscatter, tabs, np.float64(wo[k, 0]), np.float64(wo[k, 1]),
-                                    abs(np.float64(woz)), back, np.float64(wi[k, 0]), np.float64(wi[k, 1]),
+                                    np.float64(wo[k, 2]) * s, b, np.float64(wi[k, 0]), np.float64(wi[k, 1]),
                                     np.float64(wi[k, 2]) * s)
         f_out[k, 0] = f0
         f_out[k, 1] = f1
@@ -689,11 +692,11 @@ def eval_batch(lobes, rows, use_rows, multiscatter, tabs, wo, wi, f_out, pdf_out
 
 
 @_jit
-def sample_batch(lobes, multiscatter, tabs, wo, u_lobe, u, wi, weight, pdf, delta, transmitted, valid):
-    """sample_path for every hit."""
+def sample_batch(lobes, multiscatter, tabs, wo, back, u_lobe, u, wi, weight, pdf, delta, transmitted, valid):
+    """sample_path for every hit; back (n,): the geometric side of each wo."""
     for k in range(wo.shape[0]):
         x, y, z, w0, w1, w2, p, d, t, v = sample_path(lobes, k, multiscatter, tabs, wo[k, 0], wo[k, 1], wo[k, 2],
-                                                      u_lobe[k], u[k, 0], u[k, 1])
+                                                      back[k], u_lobe[k], u[k, 0], u[k, 1])
         wi[k, 0] = x
         wi[k, 1] = y
         wi[k, 2] = z

@@ -83,8 +83,9 @@ def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, s
 
     p: point from barycentrics (the triangle's own precision). ng: face normal. ns_raw: interpolated shading
     normal as the mesh gives it (the normal AOV). ns: the same flipped to ng's side; tangent, bitangent: Duff et
-    al.'s branchless basis around ns. wo: direction to the viewer (-d) in that frame. n_view: ns on the viewer's
-    side. mag: largest |coordinate| of p and its triangle (ray offset scale). cos_o_geo: -d . ng.
+    al.'s branchless basis around ns. wo: direction to the viewer (-d) in that frame. n_view: ns turned to the
+    viewer's side of the surface as the geometric normal decides it (Cycles flips N with Ng), even where the viewer
+    is below ns itself: the side the BSDF acts on (core.bsdf), light selection and MIS must agree on. mag: largest |coordinate| of p and its triangle (ray offset scale). cos_o_geo: -d . ng.
     corner_normals/smooth and tri_uvs may be empty arrays (flat shading, no UVs). specular (M,): materials
     with a glossy, glass or refraction lobe, whose smooth shading normals are kept valid for reflection.
     """
@@ -128,11 +129,10 @@ def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, s
         tx, ty, tz, bx, by, bz = onb_f32(sx, sy, sz)
         tangent[k, 0], tangent[k, 1], tangent[k, 2] = tx, ty, tz
         bitangent[k, 0], bitangent[k, 1], bitangent[k, 2] = bx, by, bz
-        wz = ox * sx + oy * sy + oz * sz
         wo[k, 0] = ox * tx + oy * ty + oz * tz
         wo[k, 1] = ox * bx + oy * by + oz * bz
-        wo[k, 2] = wz
-        flip = -_F1 if wz < _F0 else _F1
+        wo[k, 2] = ox * sx + oy * sy + oz * sz
+        flip = -_F1 if cos_o_geo[k] < _F0 else _F1
         n_view[k, 0], n_view[k, 1], n_view[k, 2] = sx * flip, sy * flip, sz * flip
 
 

@@ -345,7 +345,7 @@ class PathTracer:
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
             u_dir, u_lobe = np.ascontiguousarray(u_vertex[:, :2]), np.ascontiguousarray(u_vertex[:, 2])
-            bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir)
+            bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir, back=g.cos_o_geo < 0)
             m = len(idx)
             o, d = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
             next_throughput, prev_pdf, prev_delta = np.empty((m, 3), np.float32), np.empty(m, np.float32), np.empty(m, bool)
@@ -399,7 +399,7 @@ class PathTracer:
         m = len(can)
         wi_local = np.empty((m, 3), np.float32)
         geometry_kernels.to_local(wi, gc.tangent, gc.bitangent, gc.ns, wi_local)
-        f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes, gc.wo, wi_local, rows=can)
+        f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes, gc.wo, wi_local, rows=can, back=gc.cos_o_geo < 0)
         contrib, origin, direction = (np.empty((m, 3), np.float32) for _ in range(3))
         tmax, sample_of = np.empty(m, np.float32), np.empty(m, idx.dtype)
         count = path_kernels.shadow_rays(can, np.ascontiguousarray(throughput, np.float32), idx,
