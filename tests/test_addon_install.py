@@ -14,6 +14,9 @@ from pathlib import Path
 
 import pytest
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from plane_scene import PLANE_SCENE  # noqa: E402
+
 pytest.importorskip("bpy")
 pytestmark = [pytest.mark.blender, pytest.mark.matrix]  # on every Blender of the support table
 ROOT = Path(__file__).resolve().parent.parent
@@ -31,31 +34,9 @@ SCRIPT = textwrap.dedent(r"""
     engines = sorted(str(getattr(c, "bl_idname", None)) for c in bpy.types.RenderEngine.__subclasses__())
     module = sys.modules.get("bl_ext.user_default.monte")
 
-    scene = bpy.context.scene
+    with_camera = True
+    # PLANE_SCENE
     scene.render.engine = "MONTE"
-    mat = bpy.data.materials.new("grey")
-    mat.use_nodes = True  # before Blender 5.0 a new material has no node tree
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    dif = tree.nodes.new("ShaderNodeBsdfDiffuse")
-    dif.inputs["Color"].default_value = (0.5, 0.5, 0.5, 1.0)
-    tree.links.new(dif.outputs[0], out.inputs["Surface"])
-    s = 1000.0
-    me = bpy.data.meshes.new("plane")
-    me.from_pydata([(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [], [(0, 1, 2, 3)])
-    me.materials.append(mat)
-    scene.collection.objects.link(bpy.data.objects.new("plane", me))
-    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
-    cam.location = (0, 0, 1)
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    world = bpy.data.worlds.new("sky")
-    scene.world = world
-    world.use_nodes = True  # before Blender 5.0 a new world has no node tree
-    wt = world.node_tree
-    wt.nodes["Background"].inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    wt.nodes["Background"].inputs["Strength"].default_value = 1.0
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 16, 16, 100
     scene.monte.samples, scene.monte.threads = 16, 2
     scene.render.image_settings.file_format = "OPEN_EXR"
@@ -85,7 +66,7 @@ SCRIPT = textwrap.dedent(r"""
         "alpha": px[..., 3].mean(), "menu_before_disable": before, "menu_after_disable": after,
         "embree_library": library.path if library else None, "embree_error": why_not,
     }))
-""")
+""").replace("# PLANE_SCENE\n", PLANE_SCENE)  # the plane under a white world (tests/plane_scene.py)
 
 
 @pytest.fixture(scope="module")

@@ -15,42 +15,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from plane_scene import PLANE_SCENE  # noqa: E402
+
 pytest.importorskip("bpy")
 pytestmark = [pytest.mark.blender, pytest.mark.matrix]
 
-# A diffuse plane of albedo 0.5 under a uniform white world, seen from above. With the uniform world left to
-# BSDF sampling every sample is exactly albedo x world, so the image is 0.5 to float32 precision.
+# The plane under a white world (tests/plane_scene.py): every pixel exactly 0.5; saved with or without a camera.
 SCENE = textwrap.dedent(r"""
     import sys
     import bpy
     path, with_camera = sys.argv[1], sys.argv[2] == "1"
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    mat = bpy.data.materials.new("grey")
-    mat.use_nodes = True  # before Blender 5.0 a new material has no node tree
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    dif = tree.nodes.new("ShaderNodeBsdfDiffuse")
-    dif.inputs["Color"].default_value = (0.5, 0.5, 0.5, 1.0)
-    tree.links.new(dif.outputs[0], out.inputs["Surface"])
-    s = 1000.0
-    me = bpy.data.meshes.new("plane")
-    me.from_pydata([(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [], [(0, 1, 2, 3)])
-    me.materials.append(mat)
-    scene.collection.objects.link(bpy.data.objects.new("plane", me))
-    if with_camera:
-        cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
-        cam.location = (0, 0, 1)
-        scene.collection.objects.link(cam)
-        scene.camera = cam
-    world = bpy.data.worlds.new("sky")
-    world.use_nodes = True
-    scene.world = world
-    world.node_tree.nodes["Background"].inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    # PLANE_SCENE
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 12, 8, 100
     bpy.ops.wm.save_as_mainfile(filepath=path)
-""")
+""").replace("# PLANE_SCENE\n", PLANE_SCENE)
 
 TIMEOUT = 600  # a cold first render compiles Monte's kernels (about a minute on 2 cores); a hang ends here
 
