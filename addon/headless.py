@@ -9,6 +9,7 @@ the target, then os.replace, so an existing file is either kept whole or replace
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -50,8 +51,6 @@ def end_bpy_process(status: int) -> None:
 
     unregister()
     if bpy.app.version < (5, 0, 0):
-        import sys
-
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(int(status))
@@ -300,7 +299,7 @@ def _save_blender_multilayer(bpy, scene, blend: Path, out: Path) -> None:
 
     try:
         write_atomically(out, save, suffix=".exr")
-    except (RuntimeError, OutputError) as exc:
-        if isinstance(exc, HeadlessError):
-            raise
+    except HeadlessError:
+        raise
+    except (RuntimeError, OutputError) as exc:  # Blender's save_render raises RuntimeError
         raise HeadlessError(f"could not write {out}: {str(exc).strip()}") from exc

@@ -16,9 +16,9 @@ def fast_settings():
 
 
 # ------------------------------------------------------------------------------------ bpy module at exit
-# Blender 4.2's bpy module crashes (SIGSEGV) at interpreter exit while a class is still registered and 4.5's
-# hangs; pytest's status would then be 139 or never come. Unregister Monte at the end of the session and, on
-# those versions, end the process once pytest has reported (addon.headless.end_bpy_process does both).
+# Blender 4.2's bpy module crashes (SIGSEGV) at interpreter exit once a class was registered, and 4.5's hangs,
+# even after unregistering; pytest's status would then be 139 or never come. At the end of the session
+# addon.headless.end_bpy_process unregisters Monte and, on those versions, ends the process with pytest's status.
 _exit_status = {}
 
 
