@@ -225,11 +225,12 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         session = getattr(self, "_viewport", None)
         if session is None:
             return
+        view_error = None
         try:
             session.set_view(camera_from_view(rv3d.view_matrix, rv3d.window_matrix, (region.width, region.height)))
-        except Exception as exc:  # noqa: BLE001
-            session.error = str(exc)
-        error = session.error or getattr(self, "_viewport_error", None)
+        except Exception as exc:  # noqa: BLE001 - e.g. a zero-size region: shown, the next draw retries
+            view_error = str(exc)
+        error = view_error or session.error or getattr(self, "_viewport_error", None)
         if error:
             self.update_stats("", f"Monte: {error}")
             return

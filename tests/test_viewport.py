@@ -386,6 +386,50 @@ def test_engine_draws_inside_the_display_space_shader_bracket(tmp_path):
     assert np.allclose(drawn["pixels"][..., 3], 1.0)
 
 
+def test_engine_view_update_and_view_draw(tmp_path):
+    """The engine's view_update and view_draw in a real engine instance (taken inside an F12 render, as the bpy
+    module opens no 3D view): the context carries what Blender's would, a region's size and a view whose matrices
+    are the scene camera's. view_update starts the session, view_draw sets the view and, once the samples are in,
+    draws exactly the session's image."""
+    import types
+
+    gpu_context()
+    scene = block_scene()
+    scene.monte.viewport_samples, scene.monte.viewport_start_resolution = 4, 0
+    scene.monte.max_bounces, scene.monte.threads, scene.monte.filter_type = 2, 2, "box"
+    scene.render.preview_pixel_size = "1"
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    w, h = 40, 30
+    view = types.SimpleNamespace(view_matrix=scene.camera.matrix_world.inverted(),
+                                 window_matrix=scene.camera.calc_matrix_camera(depsgraph, x=w, y=h))
+    context = types.SimpleNamespace(region=types.SimpleNamespace(width=w, height=h), region_data=view)
+    seen = {}
+
+    def viewport_inside_render(self, depsgraph):
+        try:
+            self.view_update(context, depsgraph)
+            session = self._viewport
+            self.view_draw(context, depsgraph)  # sets the view; draws once an image exists
+            seen["image"] = session.wait(timeout=300)
+            seen["pixels"] = draw_offscreen(w, h, lambda: self.view_draw(context, depsgraph))
+            seen["samples"] = session.samples
+        finally:
+            if getattr(self, "_viewport", None) is not None:
+                self._viewport.stop()
+        self._write_black(depsgraph)
+
+    original = engine_mod.MonteRenderEngine._render
+    engine_mod.MonteRenderEngine._render = viewport_inside_render
+    try:
+        bpy.ops.render.render()
+    finally:
+        engine_mod.MonteRenderEngine._render = original
+    image = seen["image"]
+    assert seen["samples"] == 4 and image.samples == 4 and image.rgba.shape == (h, w, 4)
+    assert image.rgba[..., :3].std() > 0.05  # a real picture: floor, block, world
+    assert np.allclose(seen["pixels"], image.rgba, rtol=2e-3, atol=2e-3)  # half-float texture
+
+
 # ------------------------------------------------------------------------------------------- previews
 def test_preview_path_renders_progressively_and_agrees_with_a_full_render(tmp_path):
     """Blender's preview jobs need a window, so the engine's preview path renders a preview-like scene (a sphere
