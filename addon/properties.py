@@ -148,8 +148,9 @@ class MonteRenderSettings(bpy.types.PropertyGroup):
         default=VIEWPORT_START_RESOLUTION, min=0, soft_max=1024, subtype="PIXEL",
     )
     preview_samples: IntProperty(
-        name="Preview Samples", description="Samples per pixel of material, light and world previews",
-        default=PREVIEW_SAMPLES, min=1, soft_max=1024,
+        name="Preview Samples",
+        description="Samples per pixel of material, light and world previews (read from the preview scene "
+        "Blender builds, so previews normally take the default)", default=PREVIEW_SAMPLES, min=1, soft_max=1024,
     )
 
 

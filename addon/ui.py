@@ -116,7 +116,6 @@ class MONTE_RENDER_PT_viewport(MonteButtonsPanel, Panel):
         col.prop(scene.monte, "viewport_samples")
         col.prop(scene.monte, "viewport_start_resolution")
         col.prop(scene.render, "preview_pixel_size", text="Pixel Size")
-        layout.prop(scene.monte, "preview_samples")
 
 
 class MONTE_RENDER_PT_light_paths(MonteButtonsPanel, Panel):
