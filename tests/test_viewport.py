@@ -110,6 +110,14 @@ def test_orthographic_view_with_negative_near_plane_moves_the_origin_back():
     assert np.allclose(got.frame(), (-2.0, 2.0, -2.0 * 4 / 3, 2.0 * 4 / 3))
 
 
+def test_pixel_size_reads_blenders_setting():
+    scene = bf.reset()
+    scene.render.preview_pixel_size = "4"
+    assert vp.pixel_size(scene) == 4
+    scene.render.preview_pixel_size = "AUTO"  # the interface's pixel size: 1 without a high-density display
+    assert vp.pixel_size(scene) == max(1, round(bpy.context.preferences.system.pixel_size))
+
+
 def test_resolution_dividers_follow_start_resolution_and_pixel_size():
     assert vp.resolution_dividers(1280, 720, 1, 64) == [16, 8, 4, 2, 1]  # 80x45 first
     assert vp.resolution_dividers(1280, 720, 2, 64) == [16, 8, 4, 2]
