@@ -439,10 +439,8 @@ def test_engine_view_update_and_view_draw(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------- previews
-def test_preview_path_renders_progressively_and_agrees_with_a_full_render(tmp_path):
-    """Blender's preview jobs need a window, so the engine's preview path renders a preview-like scene (a sphere
-    on a floor, a lamp, 64x64) through F12 with is_preview answered True; the image it leaves must agree with
-    a plain render of the same samples, and its passes grow 1, 2, 4, ... up to Preview Samples."""
+def preview_like_scene():
+    """Blender's material preview in miniature: a sphere on a floor under an area light, 64x64."""
     scene = bf.reset()
     bf.mesh_object("floor", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], [(0, 1, 2, 3)],
                    bf.diffuse("checker", (0.6, 0.6, 0.6)))
@@ -454,6 +452,12 @@ def test_preview_path_renders_progressively_and_agrees_with_a_full_render(tmp_pa
     scene.render.resolution_percentage = 100
     m = scene.monte
     m.preview_samples, m.seed, m.threads, m.max_bounces = 16, 2, 2, 3
+    return scene
+
+
+def render_preview(scene, cancel_after: int | None = None) -> list[int]:
+    """F12 through the engine's preview path (is_preview answered True); the sample counts of the passes it wrote.
+    cancel_after: test_break answers True once that many passes were written (the user moved on)."""
     passes: list[int] = []
     original_pp = vp.progressive_passes
 
@@ -467,12 +471,25 @@ def test_preview_path_renders_progressively_and_agrees_with_a_full_render(tmp_pa
         return original_pp(*args[:4], record, *args[5:], **kwargs)
 
     engine_mod.MonteRenderEngine._preview_requested = lambda self: True
+    if cancel_after is not None:
+        engine_mod.MonteRenderEngine._cancel_requested = lambda self: len(passes) >= cancel_after
     vp.progressive_passes = counting
     try:
         assert bpy.ops.render.render() == {"FINISHED"}
     finally:
         del engine_mod.MonteRenderEngine._preview_requested
+        if cancel_after is not None:
+            del engine_mod.MonteRenderEngine._cancel_requested
         vp.progressive_passes = original_pp
+    return passes
+
+
+def test_preview_path_renders_progressively_and_agrees_with_a_full_render(tmp_path):
+    """Blender's preview jobs need a window, so the engine's preview path renders a preview-like scene through
+    F12 with is_preview answered True; the image it leaves must agree with a plain render of the same samples,
+    and its passes grow 1, 2, 4, ... up to Preview Samples."""
+    scene = preview_like_scene()
+    passes = render_preview(scene)
     assert passes == [1, 3, 7, 15, 16]
     ch = bf.save_render_exr(scene, tmp_path / "preview.exr")
     got = np.stack([ch[f"ViewLayer.Combined.{c}"] for c in "RGB"], axis=-1)
@@ -489,6 +506,14 @@ def test_preview_path_renders_progressively_and_agrees_with_a_full_render(tmp_pa
                    reference)
     assert err < 1.5 * noise16 + 1e-3, (err, noise16)
     assert abs(float(got.mean()) - float(reference[..., :3].mean())) < 0.03 * float(reference[..., :3].mean())
+
+
+def test_preview_stops_when_the_user_moves_on(tmp_path):
+    scene = preview_like_scene()
+    assert render_preview(scene, cancel_after=2) == [1, 3]  # the third pass is cancelled, not written
+    ch = bf.save_render_exr(scene, tmp_path / "stopped.exr")
+    got = np.stack([ch[f"ViewLayer.Combined.{c}"] for c in "RGB"], axis=-1)
+    assert got.shape == (64, 64, 3) and got.mean() > 0.01  # the 3-sample image stays
 
 
 def test_engine_declares_previews():
