@@ -333,7 +333,7 @@ def draw_offscreen(width, height, draw) -> np.ndarray:
     import gpu
     from mathutils import Matrix
 
-    offscreen = gpu.types.GPUOffScreen(width, height, format="RGBA16F")
+    offscreen = gpu.types.GPUOffScreen(width, height, format="RGBA32F")
     try:
         with offscreen.bind():
             fb = gpu.state.active_framebuffer_get()
@@ -357,12 +357,12 @@ def test_draw_uploads_the_image_and_stretches_it_over_the_view():
     rng = np.random.default_rng(5)
     image = np.concatenate([rng.uniform(0.0, 1.0, (6, 8, 3)), np.ones((6, 8, 1))], axis=2).astype(np.float32)
     got = draw_offscreen(8, 6, lambda: vp.draw_texture(vp.image_texture(image), 8, 6))
-    assert np.allclose(got, image, atol=2e-3)  # same orientation (row 0 at the top), half-float precision
+    assert np.allclose(got, image, atol=1e-5)  # same orientation (row 0 at the top), float precision
     # Pixel Size 2: a half-size image covers the whole view.
     flat = np.full((6, 8, 4), 0.3, np.float32)
     flat[..., 3] = 1.0
     got = draw_offscreen(16, 12, lambda: vp.draw_texture(vp.image_texture(flat), 16, 12))
-    assert np.allclose(got, flat.repeat(2, axis=0).repeat(2, axis=1), atol=2e-3)
+    assert np.allclose(got, flat.repeat(2, axis=0).repeat(2, axis=1), atol=1e-5)
 
 
 def test_engine_draws_inside_the_display_space_shader_bracket(tmp_path):
@@ -390,7 +390,7 @@ def test_engine_draws_inside_the_display_space_shader_bracket(tmp_path):
         bpy.ops.render.render()
     finally:
         engine_mod.MonteRenderEngine._render = original
-    assert np.allclose(drawn["pixels"][..., :3], 0.2, atol=1e-3), drawn["pixels"][0, 0]
+    assert np.allclose(drawn["pixels"][..., :3], 0.2, atol=1e-5), drawn["pixels"][0, 0]
     assert np.allclose(drawn["pixels"][..., 3], 1.0)
 
 
@@ -435,7 +435,7 @@ def test_engine_view_update_and_view_draw(tmp_path):
     image = seen["image"]
     assert seen["samples"] == 4 and image.samples == 4 and image.rgba.shape == (h, w, 4)
     assert image.rgba[..., :3].std() > 0.05  # a real picture: floor, block, world
-    assert np.allclose(seen["pixels"], image.rgba, rtol=2e-3, atol=2e-3)  # half-float texture
+    assert np.allclose(seen["pixels"], image.rgba, rtol=1e-5, atol=1e-5)
 
 
 # ------------------------------------------------------------------------------------------- previews
