@@ -145,7 +145,7 @@ class SyncReport:
 
 
 @dataclass
-class _Changes:
+class DepsgraphChanges:
     """What depsgraph.updates flagged (pointers of original data-blocks)."""
 
     full: bool = False
@@ -155,11 +155,23 @@ class _Changes:
     world: bool = False
 
 
-def depsgraph_changes(depsgraph) -> _Changes:
+def merged_changes(parts: list[DepsgraphChanges]) -> DepsgraphChanges:
+    """Several batches of updates (e.g. one per depsgraph handler call) as one."""
+    merged = DepsgraphChanges()
+    for part in parts:
+        merged.full |= part.full
+        merged.geometry |= part.geometry
+        merged.materials.update(part.materials)
+        merged.lights |= part.lights
+        merged.world |= part.world
+    return merged
+
+
+def depsgraph_changes(depsgraph) -> DepsgraphChanges:
     """Read depsgraph.updates (valid inside view_update and depsgraph handlers) into plain sets."""
     import bpy
 
-    changes = _Changes()
+    changes = DepsgraphChanges()
     # A material edit also flags the objects using it as "geometry" updated, with their mesh flagged for
     # shading only: such an object's mesh is kept unless modifiers (or a non-mesh type) make it depend on more.
     mesh_shading_only = set()
@@ -210,11 +222,11 @@ class SceneSync:
         self.geometry_version = 0
         self.shading_version = 0
 
-    def sync(self, depsgraph, changes: _Changes | None = None) -> SyncReport:
+    def sync(self, depsgraph, changes: DepsgraphChanges | None = None) -> SyncReport:
         """Bring the export up to date. changes: from depsgraph_changes(); None re-reads depsgraph.updates (a
         first sync exports everything)."""
         if changes is None:
-            changes = _Changes(full=True) if not self.synced else depsgraph_changes(depsgraph)
+            changes = DepsgraphChanges(full=True) if not self.synced else depsgraph_changes(depsgraph)
         if not self.synced:
             changes.full = True
         report = SyncReport()
@@ -414,7 +426,7 @@ class ViewportSession:
         self._thread.start()
 
     # --------------------------------------------------------------------------------------- main thread
-    def sync(self, depsgraph, changes: _Changes | None = None) -> SyncReport:
+    def sync(self, depsgraph, changes: DepsgraphChanges | None = None) -> SyncReport:
         """Export what changed (see SceneSync.sync) and restart the render if anything did. A scene Monte cannot
         export sets `error` (shown in the viewport) instead of raising."""
         try:

@@ -61,13 +61,7 @@ def _apply(change, captured: list):
     change()
     depsgraph = bpy.context.evaluated_depsgraph_get()
     depsgraph.update()
-    merged = vp._Changes()
-    for c in captured:
-        merged.geometry |= c.geometry
-        merged.materials.update(c.materials)
-        merged.lights |= c.lights
-        merged.world |= c.world
-    return depsgraph, merged
+    return depsgraph, vp.merged_changes(captured)
 
 
 def bench_viewport(width: int, height: int, threads: int, samples: int, start_resolution: int,
@@ -89,9 +83,11 @@ def bench_viewport(width: int, height: int, threads: int, samples: int, start_re
 
     session = vp.ViewportSession(settings, samples=samples, pixel_size=pixel_size, start_resolution=start_resolution)
     rec = _Recorder(session)
+    quads = sum(len(o.data.polygons) for o in bpy.data.objects if o.type == "MESH")
     print(f"viewport {width}x{height}, {threads} threads, {samples} samples, start resolution {start_resolution}, "
-          f"pixel size {pixel_size}; interior scene ({sum(len(o.data.polygons) for o in bpy.data.objects if o.type == 'MESH')} quads)")
-    print(f"{'change':<16} {'export ms':>9} {'first image ms':>15} {'(size)':>10} {f'{samples} samples s':>12}  rebuild")
+          f"pixel size {pixel_size}; interior scene ({quads} quads)")
+    print(f"{'change':<16} {'export ms':>9} {'first image ms':>15} {'(size)':>10} {f'{samples} samples s':>12}  "
+          "rebuild")
 
     def row(label: str, report: vp.SyncReport | None, export_s: float) -> None:
         first, full, divider = rec.first_and_full(samples)

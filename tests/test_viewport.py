@@ -61,13 +61,7 @@ def changes():
         change()
         depsgraph = bpy.context.evaluated_depsgraph_get()
         depsgraph.update()
-        merged = vp._Changes()
-        for c in captured:
-            merged.geometry |= c.geometry
-            merged.materials.update(c.materials)
-            merged.lights |= c.lights
-            merged.world |= c.world
-        return depsgraph, merged
+        return depsgraph, vp.merged_changes(captured)
 
     yield apply
     bpy.app.handlers.depsgraph_update_post.remove(handler)
