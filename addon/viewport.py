@@ -461,7 +461,8 @@ class ViewportSession:
         return True
 
     def image(self) -> ViewImage | None:
-        """The newest image (None before the first one of the current view and scene)."""
+        """The newest image (None before the first one); right after a change, the previous state's until the
+        first image of the new one arrives."""
         with self._cond:
             return self._image
 
@@ -503,10 +504,10 @@ class ViewportSession:
         self._thread.join(timeout)
 
     def _restart(self) -> None:
-        """(lock held) A change: the worker drops what it renders and starts over."""
+        """(lock held) A change: the worker drops what it renders and starts over. The last image stays
+        available to draw until the first one of the new state replaces it (no blank frame while orbiting)."""
         self._generation += 1
         self._changed_at = time.perf_counter()
-        self._image = None
         self._cond.notify_all()
 
     # --------------------------------------------------------------------------------------- worker

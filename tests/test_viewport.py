@@ -271,6 +271,7 @@ def test_a_change_cancels_the_render_in_flight(changes):
         assert before.rgba.shape == (18, 24, 4)  # Pixel Size 2
         block = bpy.data.objects["block"]
         session.sync(*changes(lambda: setattr(block, "location", (3.0, 3.0, 0.0))))
+        assert session.image() is not None  # the view keeps showing the last image until the new one comes
         after = session.wait(samples=1, timeout=300)
         assert after.version > before.version and not session.done
         # The moved block is gone from the middle of the image, the floor seen instead.
