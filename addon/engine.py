@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 
 from ..core.scene import SceneError
-from .export import ExportCancelled, export_scene, render_region, render_resolution
+from .export import ExportCancelled, export_camera, export_scene, render_region, render_resolution
 from .properties import render_settings
 
 # Pass name -> (channels, chanid, type). Combined is always there; the others when the view layer asks.
@@ -227,7 +227,12 @@ class MonteRenderEngine(bpy.types.RenderEngine):
             return
         view_error = None
         try:
-            session.set_view(camera_from_view(rv3d.view_matrix, rv3d.window_matrix, (region.width, region.height)))
+            lens = None
+            scene = depsgraph.scene
+            if rv3d.view_perspective == "CAMERA" and scene.camera is not None and scene.camera.type == "CAMERA":
+                lens = export_camera(scene.camera.evaluated_get(depsgraph), scene, [])  # depth of field
+            session.set_view(camera_from_view(rv3d.view_matrix, rv3d.window_matrix, (region.width, region.height),
+                                              lens))
         except Exception as exc:  # noqa: BLE001 - e.g. a zero-size region: shown, the next draw retries
             view_error = str(exc)
         error = view_error or session.error or getattr(self, "_viewport_error", None)

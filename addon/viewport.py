@@ -39,11 +39,14 @@ from .export.world import export_world
 # ------------------------------------------------------------------------------------------------ the view
 
 
-def camera_from_view(view_matrix, window_matrix, size: tuple[int, int]) -> Camera:
+def camera_from_view(view_matrix, window_matrix, size: tuple[int, int], lens: Camera | None = None) -> Camera:
     """core's Camera for a 3D view: view_matrix (world -> view) and window_matrix (OpenGL projection) as
     `RegionView3D` holds them, size = the region in pixels. Perspective and orthographic views; the projection's
     off-centre terms (camera shift, the camera view's zoom and pan) become the camera's shift. The near and far
-    planes become the clipping range (an orthographic view's negative near plane moves the ray origins back)."""
+    planes become the clipping range (an orthographic view's negative near plane moves the ray origins back).
+
+    lens: in the camera view, the scene camera's export: its depth of field is applied (a perspective view keeps
+    the camera's focal length, with the sensor scaled to the view's frame, so the aperture is the camera's)."""
     view = np.array(view_matrix, dtype=np.float64).reshape(4, 4)
     proj = np.array(window_matrix, dtype=np.float64).reshape(4, 4)
     w, h = int(size[0]), int(size[1])
@@ -73,16 +76,21 @@ def camera_from_view(view_matrix, window_matrix, size: tuple[int, int]) -> Camer
                       clip_end=far)
     # Perspective: x_ndc = (p00 x + p02 z) / -z; at distance 1 the frame spans 2 / p00, centred at p02 / p00.
     extent = 2.0 / p00
-    lens = 36.0 / extent
+    focal = float(lens.lens) if lens is not None and lens.kind == "PERSP" else 50.0
     shift_x = proj[0, 2] / 2.0
     shift_y = proj[1, 2] / p11 / extent
     near = proj[2, 3] / (proj[2, 2] - 1.0)
     far = proj[2, 3] / (proj[2, 2] + 1.0)
     if not (0 <= near < far):
         near, far = 1e-3, 1e30
-    return Camera(matrix_world=cam_to_world, resolution=(w, h), kind="PERSP", lens=lens, sensor_width=36.0,
-                  sensor_height=36.0 * h / w, sensor_fit="HORIZONTAL", shift_x=shift_x, shift_y=shift_y,
-                  clip_start=near, clip_end=far)
+    camera = Camera(matrix_world=cam_to_world, resolution=(w, h), kind="PERSP", lens=focal,
+                    sensor_width=extent * focal, sensor_height=extent * focal * h / w, sensor_fit="HORIZONTAL",
+                    shift_x=shift_x, shift_y=shift_y, clip_start=near, clip_end=far)
+    if lens is not None and lens.use_dof:
+        camera = replace(camera, use_dof=True, aperture_fstop=lens.aperture_fstop,
+                         focus_distance=lens.focus_distance, aperture_blades=lens.aperture_blades,
+                         aperture_rotation=lens.aperture_rotation, aperture_ratio=lens.aperture_ratio)
+    return camera
 
 
 def pixel_size(scene) -> int:

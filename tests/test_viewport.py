@@ -95,6 +95,21 @@ def test_camera_from_view_matches_the_exported_camera(kind):
     assert got.clip_start == pytest.approx(0.5, rel=1e-4) and got.clip_end == pytest.approx(40.0, rel=1e-4)
 
 
+def test_camera_view_keeps_the_cameras_depth_of_field():
+    """In the camera view the scene camera's depth of field applies, with its own aperture (focal length)."""
+    scene = block_scene()
+    cam = scene.camera
+    cam.data.dof.use_dof, cam.data.dof.aperture_fstop, cam.data.dof.focus_distance = True, 1.4, 4.0
+    cam.data.dof.aperture_blades = 6
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    want = export_camera(cam.evaluated_get(depsgraph), scene, [])
+    got = vp.camera_from_view(cam.matrix_world.inverted(), cam.calc_matrix_camera(depsgraph, x=40, y=30), (40, 30),
+                              lens=replace(want, resolution=(40, 30)))
+    assert got.aperture_radius() == pytest.approx(want.aperture_radius()) and want.aperture_radius() > 0
+    assert (got.focus_distance, got.aperture_blades, got.lens) == (4.0, 6, pytest.approx(35.0))
+    assert np.allclose(got.frame(), replace(want, resolution=(40, 30)).frame(), atol=1e-5)
+
+
 def test_orthographic_view_with_negative_near_plane_moves_the_origin_back():
     """Blender's orthographic viewports clip from -far/2: rays start that far behind the view point instead."""
     proj = np.diag([0.5, 0.375, -2.0 / 30.0, 1.0])  # 4 m wide, near -15, far 15 (proj[2, 3] = 0)
@@ -403,7 +418,7 @@ def test_engine_view_update_and_view_draw(tmp_path):
     scene.render.preview_pixel_size = "1"
     depsgraph = bpy.context.evaluated_depsgraph_get()
     w, h = 40, 30
-    view = types.SimpleNamespace(view_matrix=scene.camera.matrix_world.inverted(),
+    view = types.SimpleNamespace(view_matrix=scene.camera.matrix_world.inverted(), view_perspective="CAMERA",
                                  window_matrix=scene.camera.calc_matrix_camera(depsgraph, x=w, y=h))
     context = types.SimpleNamespace(region=types.SimpleNamespace(width=w, height=h), region_data=view)
     seen = {}
@@ -413,6 +428,7 @@ def test_engine_view_update_and_view_draw(tmp_path):
             self.view_update(context, depsgraph)
             session = self._viewport
             self.view_draw(context, depsgraph)  # sets the view; draws once an image exists
+            assert session.camera is not None, getattr(self, "_viewport_error", None)
             seen["image"] = session.wait(timeout=300)
             seen["pixels"] = draw_offscreen(w, h, lambda: self.view_draw(context, depsgraph))
             seen["samples"] = session.samples
