@@ -481,16 +481,16 @@ def render_preview(scene, cancel_after: int | None = None) -> list[int]:
 
         return original_pp(*args[:4], record, *args[5:], **kwargs)
 
-    engine_mod.MonteRenderEngine._preview_requested = lambda self: True
+    engine = engine_mod.MonteRenderEngine
+    originals = (engine._preview_requested, engine._cancel_requested)
+    engine._preview_requested = lambda self: True
     if cancel_after is not None:
-        engine_mod.MonteRenderEngine._cancel_requested = lambda self: len(passes) >= cancel_after
+        engine._cancel_requested = lambda self: len(passes) >= cancel_after
     vp.progressive_passes = counting
     try:
         assert bpy.ops.render.render() == {"FINISHED"}
     finally:
-        del engine_mod.MonteRenderEngine._preview_requested
-        if cancel_after is not None:
-            del engine_mod.MonteRenderEngine._cancel_requested
+        engine._preview_requested, engine._cancel_requested = originals
         vp.progressive_passes = original_pp
     return passes
 
