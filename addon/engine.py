@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 
 from ..core.scene import SceneError
-from .export import ExportCancelled, export_scene, render_region, render_resolution
+from .export import ExportCancelled, export_camera, export_scene, render_region, render_resolution
 from .properties import render_settings
 
 # Pass name -> (channels, chanid, type). Combined is always there; the others when the view layer asks.
@@ -81,10 +81,10 @@ def render_with_operator(scene, on_progress=None) -> list:
 class MonteRenderEngine(bpy.types.RenderEngine):
     bl_idname = "MONTE"
     bl_label = "Monte"
-    bl_use_preview = False  # material previews would be slow in NumPy; Blender draws them with EEVEE
+    bl_use_preview = True  # material/light/world previews: small, progressive (see _render_preview)
     bl_use_postprocess = True  # compositing and sequencer stay available
     bl_use_shading_nodes_custom = False  # Blender's own material/light/world node panels
-    bl_use_eevee_viewport = True  # Material Preview in the viewport uses EEVEE
+    bl_use_eevee_viewport = True  # Material Preview shading in the viewport uses EEVEE; Rendered uses Monte
 
     # ------------------------------------------------------------------------------------------ passes
     def update_render_passes(self, scene=None, renderlayer=None):
@@ -96,6 +96,11 @@ class MonteRenderEngine(bpy.types.RenderEngine):
     def _cancel_requested(self) -> bool:
         """Polled between sample batches (and during export). Tests replace this to simulate Esc."""
         return bool(self.test_break())
+
+    def _preview_requested(self) -> bool:
+        """Blender renders a material/light/world preview. Tests replace this to render a preview-like scene
+        through the preview path (the bpy module cannot start Blender's preview jobs without a window)."""
+        return bool(self.is_preview)
 
     def _progress(self, p) -> None:
         """After every sample batch: status bar stats line (sample, rays/s, time left) and progress."""
@@ -111,6 +116,9 @@ class MonteRenderEngine(bpy.types.RenderEngine):
 
     def render(self, depsgraph):
         try:
+            if self._preview_requested():
+                self._render_preview(depsgraph)
+                return
             self._render(depsgraph)
         except ExportCancelled:
             self._log("cancelled during export")
@@ -163,6 +171,123 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         self._log(summary)
         if result.cancelled:
             self.report({"WARNING"}, f"Monte: render stopped early ({summary}); the image holds the samples taken")
+
+    def _render_preview(self, depsgraph) -> None:
+        """A material/light/world preview: Blender's preview scene at its small size, in passes of growing
+        sample counts (1, 2, 4, ...) up to the scene's Preview Samples, each written as it finishes; moving on
+        (test_break) stops it between batches."""
+        from ..core.render import prepare_scene
+        from .viewport import progressive_passes
+
+        scene = depsgraph.scene
+        core_scene, _ = export_scene(depsgraph, self.camera_override, should_cancel=self._cancel_requested)
+        samples = int(getattr(scene.monte, "preview_samples", 16))
+        settings = render_settings(scene, {"aovs": False, "time_limit": 0.0, "adaptive_threshold": 0.0})
+        if settings.threads == 0:
+            settings = settings.replace(threads=max(1, int(scene.render.threads)))
+        width, height = render_resolution(scene)
+        layer_name = depsgraph.view_layer.name
+        prepared = prepare_scene(core_scene, settings)
+        written = []
+
+        def on_image(rgba, taken) -> None:
+            result = self.begin_result(0, 0, width, height, layer=layer_name)
+            try:
+                result.layers[0].passes["Combined"].rect.foreach_set(np.ascontiguousarray(rgba[::-1]).ravel())
+            finally:
+                self.end_result(result)
+            written.append(taken)
+            self.update_progress(taken / samples)
+
+        progressive_passes(core_scene, settings, samples, prepared, on_image, self._cancel_requested)
+        if not written:
+            self._write_black(depsgraph)
+
+    # ------------------------------------------------------------------------------------------ viewport
+    def view_update(self, context, depsgraph):
+        """Blender's main thread, after depsgraph changes in a Rendered viewport: export what changed (the
+        worker thread renders)."""
+        try:
+            session = self._viewport_session(depsgraph.scene)
+            session.sync(depsgraph)
+            self._viewport_error = None
+        except Exception as exc:  # noqa: BLE001 - a viewport error is shown, never raised into Blender
+            self._log("viewport update failed:\n" + traceback.format_exc())
+            self._viewport_error = f"{type(exc).__name__}: {exc}"
+        self.tag_redraw()
+
+    def view_draw(self, context, depsgraph):
+        """Draw the newest image of the view, with the view's colour management; tells the view the sample count
+        or the error."""
+        from .viewport import camera_from_view
+
+        region, rv3d = context.region, context.region_data
+        session = getattr(self, "_viewport", None)
+        if session is None:
+            return
+        view_error = None
+        try:
+            lens = None
+            scene = depsgraph.scene
+            if rv3d.view_perspective == "CAMERA" and scene.camera is not None and scene.camera.type == "CAMERA":
+                lens = export_camera(scene.camera.evaluated_get(depsgraph), scene, [])  # depth of field
+            session.set_view(camera_from_view(rv3d.view_matrix, rv3d.window_matrix, (region.width, region.height),
+                                              lens))
+        except Exception as exc:  # noqa: BLE001 - e.g. a zero-size region: shown, the next draw retries
+            view_error = str(exc)
+        error = view_error or session.error or getattr(self, "_viewport_error", None)
+        if error:
+            self.update_stats("", f"Monte: {error}")
+            return
+        image = session.image()
+        if image is None:
+            self.update_stats("", "Monte | Preparing")
+            return
+        self._draw_viewport_image(depsgraph.scene, image, region.width, region.height)
+        status = "Done" if session.done and image.samples >= session.samples else "Rendering"
+        self.update_stats("", f"Monte | Sample {image.samples}/{session.samples} | {status}")
+
+    def _draw_viewport_image(self, scene, image, width: int, height: int) -> None:
+        import gpu
+
+        from .viewport import draw_texture, image_texture
+
+        cached = getattr(self, "_viewport_texture", None)
+        if cached is None or cached[0] != image.version:
+            cached = self._viewport_texture = (image.version, image_texture(image.rgba))
+        gpu.state.blend_set("ALPHA_PREMULT")
+        self.bind_display_space_shader(scene)
+        try:
+            draw_texture(cached[1], width, height)
+        finally:
+            self.unbind_display_space_shader()
+            gpu.state.blend_set("NONE")
+
+    def _viewport_session(self, scene):
+        from ..core.settings import VIEWPORT_SAMPLES, VIEWPORT_START_RESOLUTION
+        from .viewport import ViewportSession, pixel_size
+
+        monte = scene.monte
+        settings = render_settings(scene)
+        if settings.threads == 0:
+            settings = settings.replace(threads=max(1, int(scene.render.threads)))
+        key = (settings, int(getattr(monte, "viewport_samples", VIEWPORT_SAMPLES)), pixel_size(scene),
+               int(getattr(monte, "viewport_start_resolution", VIEWPORT_START_RESOLUTION)))
+        session = getattr(self, "_viewport", None)
+        if session is not None and getattr(self, "_viewport_key", None) != key:
+            # A render setting changed: start a new session (a full export), as Cycles resets.
+            session.stop()
+            session = None
+        if session is None:
+            self._viewport_key = key
+            self._viewport_error = None
+            session = self._viewport = ViewportSession(key[0], key[1], key[2], key[3], on_image=self.tag_redraw)
+        return session
+
+    def __del__(self):
+        session = getattr(self, "_viewport", None)
+        if session is not None:
+            session.stop()
 
     # ------------------------------------------------------------------------------------------ results
     def _write(self, x: int, y: int, w: int, h: int, src, passes: list[str], layer_name: str) -> None:

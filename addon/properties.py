@@ -7,7 +7,7 @@ construction; `render_settings(scene)` turns the properties back into a validate
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
 
-from ..core.settings import RenderSettings
+from ..core.settings import PREVIEW_SAMPLES, VIEWPORT_SAMPLES, VIEWPORT_START_RESOLUTION, RenderSettings
 
 _DEFAULTS = RenderSettings()
 
@@ -135,6 +135,22 @@ class MonteRenderSettings(bpy.types.PropertyGroup):
     tile_size: IntProperty(
         name="Tile Size", description="Edge of the square tiles shown as they finish, in pixels",
         default=_DEFAULTS.tile_size, min=8, max=4096, subtype="PIXEL",
+    )
+    viewport_samples: IntProperty(
+        name="Viewport Samples",
+        description="Samples per pixel the Rendered viewport refines to, one sample at a time",
+        default=VIEWPORT_SAMPLES, min=1, soft_max=4096,
+    )
+    viewport_start_resolution: IntProperty(
+        name="Start Resolution",
+        description="After a change the viewport first shows an image of about this many pixels squared, then "
+        "doubles the resolution each pass up to the full view divided by Pixel Size (0 = start at full size)",
+        default=VIEWPORT_START_RESOLUTION, min=0, soft_max=1024, subtype="PIXEL",
+    )
+    preview_samples: IntProperty(
+        name="Preview Samples",
+        description="Samples per pixel of material, light and world previews (read from the preview scene "
+        "Blender builds, so previews normally take the default)", default=PREVIEW_SAMPLES, min=1, soft_max=1024,
     )
 
 

@@ -106,6 +106,18 @@ class MONTE_RENDER_PT_sampling(MonteButtonsPanel, Panel):
         col.prop(monte, "light_sampling")
 
 
+class MONTE_RENDER_PT_viewport(MonteButtonsPanel, Panel):
+    bl_label = "Viewport and Previews"
+
+    def draw(self, context):
+        layout = split_layout(self.layout)
+        scene = context.scene
+        col = layout.column(align=True)
+        col.prop(scene.monte, "viewport_samples")
+        col.prop(scene.monte, "viewport_start_resolution")
+        col.prop(scene.render, "preview_pixel_size", text="Pixel Size")
+
+
 class MONTE_RENDER_PT_light_paths(MonteButtonsPanel, Panel):
     bl_label = "Light Paths"
     SCENE_PROPS = ("max_bounces", "rr_depth")
@@ -227,6 +239,7 @@ class MONTE_LIGHT_PT_light(MonteButtonsPanel, Panel):
 
 classes = (
     MONTE_RENDER_PT_sampling,
+    MONTE_RENDER_PT_viewport,
     MONTE_RENDER_PT_light_paths,
     MONTE_RENDER_PT_film,
     MONTE_RENDER_PT_performance,

@@ -120,6 +120,7 @@ def render(
     should_cancel: CancelCallback | None = None,
     log: Callable[[str], None] | None = None,
     tile_order: list[int] | None = None,
+    prepared: tuple[PreparedScene, Accelerator] | None = None,
 ) -> RenderResult:
     """Render `scene` with `settings`.
 
@@ -137,11 +138,17 @@ def render(
     Batches run on settings.thread_count worker threads and are accumulated in the order they were queued, so
     the image does not depend on the thread count. adaptive_threshold > 0 turns on adaptive sampling.
     tile_order: a permutation of the tile list (for testing that images don't depend on it).
+    prepared: the scene's (PreparedScene, Accelerator) from prepare_scene() when the caller keeps them between
+    renders (the viewport): they must come from a scene with the same geometry, materials, lights and world;
+    only the camera may differ (rays then start from the new camera position in the prepared frame).
     """
     t_start = time.perf_counter()
     say = log or _silent
-    region = _check_inputs(scene, settings, region, say)
-    prepared, accel, t_prepare = _prepare(scene, settings, say)
+    region = _check_inputs(scene, settings, region, say, camera_only=prepared is not None)
+    if prepared is None:
+        prepared, accel, t_prepare = _prepare(scene, settings, say)
+    else:
+        (prepared, accel), t_prepare = prepared, 0.0
     job = _TileRender(scene, settings, prepared, accel, region, tile_order, t_start,
                       on_tile, on_progress, should_cancel)
     job.run()
@@ -247,13 +254,17 @@ def _silent(_msg: str) -> None:
     pass
 
 
-def _check_inputs(scene: Scene, settings: RenderSettings, region, say) -> TileRect:
-    """Validate the settings, the scene and the region (the whole frame when None), and refuse a render that
-    would not fit in memory (a clear error instead of an out-of-memory kill). Returns the region."""
+def _check_inputs(scene: Scene, settings: RenderSettings, region, say, camera_only: bool = False) -> TileRect:
+    """Validate the settings, the scene (camera_only: its camera; the rest was validated when it was prepared)
+    and the region (the whole frame when None), and refuse a render that would not fit in memory (a clear error
+    instead of an out-of-memory kill). Returns the region."""
     settings.validate()
     if say is not _silent and compile_cache_is_cold():  # the check reads the cache folder: only when it is said
         say("compiling the render kernels (first render after an install or update, about a minute; cached after)")
-    scene.validate()
+    if camera_only:
+        scene.camera.validate()
+    else:
+        scene.validate()
     width, height = scene.camera.resolution
     if region is None:
         region = (0, 0, width, height)
@@ -276,6 +287,14 @@ def _prepare(scene: Scene, settings: RenderSettings, say) -> tuple[PreparedScene
     say(f"scene {scene.name}: {len(prepared.triangles)} triangles, features {prepared.features}, "
         f"prepared in {t_prepare:.2f} s")
     return prepared, accel, t_prepare
+
+
+def prepare_scene(scene: Scene, settings: RenderSettings) -> tuple[PreparedScene, Accelerator]:
+    """The scene flattened for rendering and its Embree scene, for callers that render it many times with
+    render(prepared=...) (the viewport's progressive passes, camera moves)."""
+    scene.validate()
+    prepared, accel, _ = _prepare(scene, settings, _silent)
+    return prepared, accel
 
 
 def _peak_memory_mb() -> float:
@@ -303,6 +322,9 @@ class _TileRender:
                  should_cancel: CancelCallback | None, work: SampleRanges | None = None) -> None:
         self.scene, self.settings, self.prepared, self.accel = scene, settings, prepared, accel
         self.region, self.t_start = region, t_start
+        # Rays start relative to the camera; the prepared frame is relative to prepared.shift.
+        offset = np.asarray(scene.camera.position, np.float64) - np.asarray(prepared.shift, np.float64)
+        self.camera_offset = offset.astype(np.float32) if np.any(offset != 0) else None
         self.on_tile, self.on_progress, self.should_cancel = on_tile, on_progress, should_cancel
         self.sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
         self.pixel_filter = PixelFilter(settings.filter_type, settings.filter_width)
@@ -446,6 +468,8 @@ class _TileRender:
         camera = self.scene.camera
         lens_u = self.sampler.get_2d(pixel_id, smp, DIM_LENS) if camera.aperture_radius() > 0 else None
         rays = camera_rays(camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1], lens_u)
+        if self.camera_offset is not None:  # prepared for another camera position (render(prepared=...))
+            rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
         return tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
                             rays.t_start, self.settings.aovs)

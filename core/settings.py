@@ -14,6 +14,12 @@ FILTERS = ("blackman-harris", "gaussian", "tent", "box")
 CLI_SETTINGS = ("spp", "seed", "sampler", "filter_type", "filter_width", "max_bounces", "rr_depth", "clamp",
                 "threads", "batch_paths", "tile_size", "time_limit", "adaptive_threshold", "adaptive_min_samples")
 
+# The interactive viewport and material previews (Blender add-on): samples the viewport refines to, the image
+# size (about START^2 pixels) a restart shows first, and the samples of a material preview.
+VIEWPORT_SAMPLES = 32
+VIEWPORT_START_RESOLUTION = 64
+PREVIEW_SAMPLES = 16
+
 _LABELS = {"spp": "samples per pixel (spp)", "max_bounces": "max bounces", "rr_depth": "Russian roulette depth",
            "batch_paths": "batch size (batch_paths)", "tile_size": "tile size", "filter_width": "filter width",
            "time_limit": "time limit", "adaptive_threshold": "adaptive threshold",

@@ -208,6 +208,19 @@ class MaterialExporter:
             self._by_key[key] = found
         return found
 
+    def refresh(self, material) -> bool:
+        """Convert an edited material again in place (its index stays); False if it was never converted."""
+        key = material.original.as_pointer() if getattr(material, "original", None) else material.as_pointer()
+        found = self._by_key.get(key)
+        if found is None:
+            return False
+        textures_before = len(self.textures)
+        mat = self.convert(material)
+        self.materials[found] = mat
+        if any(lobe.color_texture >= 0 for lobe in mat.lobes) or len(self.textures) > textures_before:
+            self.textured.add(found)
+        return True
+
     def convert(self, material) -> Material:
         name = material.name
         owner = f"material {name!r}"
