@@ -22,6 +22,11 @@ FILTER_ITEMS = [
     ("tent", "Tent", "Triangular pixel filter (the seed's tent-distributed sub-pixel offsets)"),
     ("box", "Box", "Box pixel filter: each sample stays inside its pixel"),
 ]
+DENOISING_QUALITY_ITEMS = [
+    ("high", "High", "The best quality, the slowest (Open Image Denoise's high quality; Cycles' default)"),
+    ("balanced", "Balanced", "Between high and fast"),
+    ("fast", "Fast", "The fastest, lower quality"),
+]
 LIGHT_SAMPLING_ITEMS = [
     ("mis", "Multiple Importance", "Light and BSDF sampling combined with multiple importance sampling"),
     ("bsdf", "BSDF Only", "BSDF sampling only (reference and tests; noisy with small lights)"),
@@ -136,6 +141,16 @@ class MonteRenderSettings(bpy.types.PropertyGroup):
         name="Tile Size", description="Edge of the square tiles shown as they finish, in pixels",
         default=_DEFAULTS.tile_size, min=8, max=4096, subtype="PIXEL",
     )
+    use_denoising: BoolProperty(
+        name="Denoise",
+        description="Denoise the final render with Intel Open Image Denoise (needs the pyoidn package), guided "
+        "by Cycles' Denoising Albedo and Normal passes; the image before denoising stays in the Noisy Image pass",
+        default=_DEFAULTS.denoising_features, update=_passes_changed,
+    )
+    denoising_quality: EnumProperty(
+        name="Quality", description="Open Image Denoise's quality", items=DENOISING_QUALITY_ITEMS,
+        default="high",
+    )
 
 
 class MonteViewLayerSettings(bpy.types.PropertyGroup):
@@ -158,6 +173,7 @@ def render_settings(scene, overrides=None) -> RenderSettings:
     if props.use_animated_seed:
         values["seed"] = (values["seed"] + scene.frame_current) % (2**32)
     values["adaptive_threshold"] = props.adaptive_threshold if props.use_adaptive_sampling else 0.0
+    values["denoising_features"] = bool(props.use_denoising)
     values.update(overrides or {})
     return RenderSettings(**{**_field_defaults(), **values}).validate()
 

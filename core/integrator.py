@@ -11,7 +11,7 @@ is best where the camera looks, wherever the scene sits in the world.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import time
 
@@ -212,11 +212,67 @@ class PathStats:
 
 @dataclass
 class FirstHit:
-    """First-hit AOVs for each camera sample: albedo, world-space shading normal, z-depth (inf on a miss)."""
+    """Per camera sample: the first-hit AOVs (albedo, world-space shading normal, z-depth, inf on a miss; None
+    when not asked for) and the denoising features (see DenoisingFeatures; None when not asked for)."""
 
-    albedo: np.ndarray
-    normal: np.ndarray
-    depth: np.ndarray
+    albedo: np.ndarray | None
+    normal: np.ndarray | None
+    depth: np.ndarray | None
+    features: "DenoisingFeatures | None" = None
+
+
+# Cycles' threshold between diffuse-like and specular-like closures for the denoising features: a lobe counts as
+# diffuse when its alpha_x alpha_y > 0.075^2, i.e. (alpha = roughness^2) roughness^4 > 0.075^2.
+FEATURE_ROUGHNESS4 = np.float32(0.075 ** 2)
+
+
+class DenoisingFeatures:
+    """Cycles' Denoising Albedo and Denoising Normal of each camera sample, followed along the path.
+
+    At each surface the path reaches while its features are still open, the lobes split into diffuse-like
+    (diffuse, and glossy/glass/refraction with roughness^4 > 0.075^2) and specular-like ones, each lobe weighed by
+    its selection probability (Cycles' sample_weight). If more than a quarter of the weight is diffuse-like (or the
+    surface has no lobes), the features close there: albedo = feature throughput x the diffuse-like lobes' albedo
+    (core.bsdf.albedo at wo), normal = the shading normal on the viewer's side (world space; the render turns it to
+    camera space). Otherwise the feature throughput is multiplied by the specular-like lobes' albedo and the
+    features wait for the next surface of the path (a mirror or clear glass passes on what it shows); a surface
+    without lobes (an emitter alone) gives albedo and normal 0. A path that ends (a miss, absorption, Russian
+    roulette, the bounce limit) with its features open leaves them 0, as in Cycles."""
+
+    def __init__(self, n: int) -> None:
+        self.albedo = np.zeros((n, 3), np.float32)
+        self.normal = np.zeros((n, 3), np.float32)
+        self.throughput = np.ones((n, 3), np.float32)
+        self.open = np.ones(n, bool)
+
+    def record(self, idx: np.ndarray, lobes: "bsdf_mod.LobeBatch", wo: np.ndarray, n_view: np.ndarray) -> None:
+        """Surfaces hit by the paths of samples idx (their lobes, wo in the shading frame, the normal)."""
+        rows = np.flatnonzero(self.open[idx])
+        if len(rows) == 0:
+            return
+        lob = lobes.take(rows) if len(rows) < len(idx) else lobes
+        samples = idx[rows]
+        present = lob.kind >= 0
+        rough4 = lob.roughness.astype(np.float32) ** 4
+        diffuse_like = present & ((lob.kind == bsdf_mod.DIFFUSE) | (rough4 > FEATURE_ROUGHNESS4))
+        specular_like = present & ~diffuse_like
+        weight = np.where(present, lob.select, np.float32(0)).sum(axis=1)
+        weight_diffuse = np.where(diffuse_like, lob.select, np.float32(0)).sum(axis=1)
+        wo_rows = wo[rows]
+        albedo_diffuse = bsdf_mod.albedo(replace(lob, kind=np.where(diffuse_like, lob.kind, -1).astype(np.int8)),
+                                         wo_rows)
+        close = (weight == 0) | (weight_diffuse * 4 > weight)
+        done, wait = samples[close], samples[~close]
+        self.albedo[done] = self.throughput[done] * albedo_diffuse[close]
+        # A surface without lobes (an emitter alone) gives a zero normal, as Cycles' weighted sum of none.
+        self.normal[done] = np.where((weight[close] > 0)[:, None], n_view[rows[close]], np.float32(0))
+        self.open[done] = False
+        if len(wait):
+            keep = ~close
+            albedo_specular = bsdf_mod.albedo(
+                replace(lob.take(np.flatnonzero(keep)),
+                        kind=np.where(specular_like[keep], lob.kind[keep], -1).astype(np.int8)), wo_rows[keep])
+            self.throughput[wait] *= albedo_specular
 
 
 class PathTracer:
@@ -245,14 +301,22 @@ class PathTracer:
         depth_scale: np.ndarray,
         t_start: np.ndarray,
         want_aovs: bool,
+        want_features: bool = False,
     ) -> tuple[np.ndarray, FirstHit | None]:
-        """Radiance (N, 3) float32 of N camera paths. pixel_id/sample_id (uint32) key the random numbers."""
+        """Radiance (N, 3) float32 of N camera paths. pixel_id/sample_id (uint32) key the random numbers.
+        want_aovs: fill the first-hit AOVs; want_features: the denoising features (FirstHit.features)."""
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
         first = None
         if want_aovs:
             first = FirstHit(np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32), np.full(n, np.inf, np.float32))
+        features = None
+        if want_features:
+            features = DenoisingFeatures(n)
+            if first is None:
+                first = FirstHit(None, None, None)
+            first.features = features
         idx = np.arange(n)  # which sample each live path belongs to
         o, d, tm = origins, directions, tmax
         throughput = np.ones((n, 3), np.float32)
@@ -337,6 +401,8 @@ class PathTracer:
                 throughput /= q[rows][:, None]
             mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
+            if features is not None:
+                features.record(idx, lobes, g.wo, g.n_view)
 
             clock = self._lap("emission", clock)
             if self.use_nee:
