@@ -8,7 +8,7 @@ The colour is linear HDR radiance (`hdr`); alpha, when present, is passed throug
 
 This module imports without pyoidn: `denoise()` raises DenoiserUnavailable with the reason and what to install,
 and `denoiser_status()` says the same without raising (the add-on's panel and the CLI show it). pyoidn ships
-wheels for Linux x86_64 and Windows x86_64 only; elsewhere a render is saved undenoised.
+wheels for Linux x86_64, Windows x86_64 and macOS (x86_64, arm64); elsewhere a render is saved undenoised.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ import threading
 import numpy as np
 
 QUALITIES = ("high", "balanced", "fast")
-INSTALL_HINT = ("install it with `pip install pyoidn` (wheels exist for Linux x86_64 and Windows x86_64 only; "
-                "there is none for macOS or Linux ARM)")
+INSTALL_HINT = ("install it with `pip install pyoidn` (wheels exist for Linux x86_64, Windows x86_64 and macOS; "
+                "there is none for Linux or Windows on ARM)")
 
 _lock = threading.Lock()  # pyoidn keeps one device and filter per process: one call at a time
 

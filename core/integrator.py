@@ -221,29 +221,43 @@ class FirstHit:
     features: "DenoisingFeatures | None" = None
 
 
-# Cycles' threshold between diffuse-like and specular-like closures for the denoising features: a lobe counts as
-# diffuse when its alpha_x alpha_y > 0.075^2, i.e. (alpha = roughness^2) roughness^4 > 0.075^2.
-FEATURE_ROUGHNESS4 = np.float32(0.075 ** 2)
+def _smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
+    t = np.clip((x - np.float32(edge0)) / np.float32(edge1 - edge0), 0, 1)
+    return (t * t * (3 - 2 * t)).astype(np.float32)
+
+
+# Below this (max over R, G, B) the albedo a path's features would carry on with counts as none: they close.
+FEATURE_DEFER_MIN = np.float32(1e-4)
 
 
 class DenoisingFeatures:
-    """Cycles' Denoising Albedo and Denoising Normal of each camera sample, followed along the path.
+    """Cycles' (Blender 5.3) Denoising Albedo and Denoising Normal of each camera sample, followed along the path.
 
-    At each surface the path reaches while its features are still open, the lobes split into diffuse-like
-    (diffuse, and glossy/glass/refraction with roughness^4 > 0.075^2) and specular-like ones, each lobe weighed by
-    its selection probability (Cycles' sample_weight). If more than a quarter of the weight is diffuse-like (or the
-    surface has no lobes), the features close there: albedo = feature throughput x the diffuse-like lobes' albedo
-    (core.bsdf.albedo at wo), normal = the shading normal on the viewer's side (world space; the render turns it to
-    camera space). Otherwise the feature throughput is multiplied by the specular-like lobes' albedo and the
-    features wait for the next surface of the path (a mirror or clear glass passes on what it shows); a surface
-    without lobes (an emitter alone) gives albedo and normal 0. A path that ends (a miss, absorption, Russian
-    roulette, the bounce limit) with its features open leaves them 0, as in Cycles."""
+    At each surface a path reaches while its features are open, each lobe l has its albedo A_l (core.bsdf.albedo at
+    wo: Cycles' bsdf_albedo), weight w_l = mean(A_l) and a diffuse share d_l = smoothstep(0, 0.15, alpha_l)
+    (alpha = roughness^2 for glossy/glass/refraction, 1 for diffuse): a mirror or clear glass is specular, a lobe
+    with roughness >= 0.39 diffuse, in between a blend. With f = smoothstep(0, 0.5, sum w_l d_l / sum w_l) (0 when
+    sum w_l = 0) and T the feature throughput (1 at the camera), the surface adds
+        albedo += T f sum_l A_l d_l,      normal += mean(T) f n   (n: the shading normal on the viewer's side)
+    and the features go on to the next surface with T *= sum_l A_l (1 - d_l) (1 - f), or close when that is below
+    1e-4 (a diffuse surface, a black one, one without lobes). Emission and the world seen while the features are
+    open add T x what they add to the image (a lamp seen directly reads its radiance). A path that ends adds
+    nothing more. The normal is world space here; the render turns it to camera space. Pixel values are means over
+    the samples, not renormalised (as Cycles' passes)."""
 
     def __init__(self, n: int) -> None:
         self.albedo = np.zeros((n, 3), np.float32)
         self.normal = np.zeros((n, 3), np.float32)
         self.throughput = np.ones((n, 3), np.float32)
         self.open = np.ones(n, bool)
+
+    def add_emission(self, idx: np.ndarray, contribution: np.ndarray) -> None:
+        """Emission added to the image for samples idx (their contributions, (M, 3)) while features are open."""
+        rows = np.flatnonzero(self.open[idx])
+        if len(rows):
+            samples = idx[rows]
+            value = np.nan_to_num(self.throughput[samples] * contribution[rows], nan=0.0, posinf=0.0)
+            np.add.at(self.albedo, samples, value.astype(np.float32))
 
     def record(self, idx: np.ndarray, lobes: "bsdf_mod.LobeBatch", wo: np.ndarray, n_view: np.ndarray) -> None:
         """Surfaces hit by the paths of samples idx (their lobes, wo in the shading frame, the normal)."""
@@ -252,27 +266,36 @@ class DenoisingFeatures:
             return
         lob = lobes.take(rows) if len(rows) < len(idx) else lobes
         samples = idx[rows]
-        present = lob.kind >= 0
-        rough4 = lob.roughness.astype(np.float32) ** 4
-        diffuse_like = present & ((lob.kind == bsdf_mod.DIFFUSE) | (rough4 > FEATURE_ROUGHNESS4))
-        specular_like = present & ~diffuse_like
-        weight = np.where(present, lob.select, np.float32(0)).sum(axis=1)
-        weight_diffuse = np.where(diffuse_like, lob.select, np.float32(0)).sum(axis=1)
-        wo_rows = wo[rows]
-        albedo_diffuse = bsdf_mod.albedo(replace(lob, kind=np.where(diffuse_like, lob.kind, -1).astype(np.int8)),
-                                         wo_rows)
-        close = (weight == 0) | (weight_diffuse * 4 > weight)
-        done, wait = samples[close], samples[~close]
-        self.albedo[done] = self.throughput[done] * albedo_diffuse[close]
-        # A surface without lobes (an emitter alone) gives a zero normal, as Cycles' weighted sum of none.
-        self.normal[done] = np.where((weight[close] > 0)[:, None], n_view[rows[close]], np.float32(0))
-        self.open[done] = False
-        if len(wait):
-            keep = ~close
-            albedo_specular = bsdf_mod.albedo(
-                replace(lob.take(np.flatnonzero(keep)),
-                        kind=np.where(specular_like[keep], lob.kind[keep], -1).astype(np.int8)), wo_rows[keep])
-            self.throughput[wait] *= albedo_specular
+        wo_rows = np.ascontiguousarray(wo[rows])
+        m, n_slots = lob.kind.shape
+        diffuse_albedo = np.zeros((m, 3), np.float32)
+        specular_albedo = np.zeros((m, 3), np.float32)
+        weight = np.zeros(m, np.float32)
+        weight_diffuse = np.zeros(m, np.float32)
+        slot_of = np.arange(n_slots)[None, :]
+        for slot in range(n_slots):
+            present = lob.kind[:, slot] >= 0
+            if not present.any():
+                continue
+            only = replace(lob, kind=np.where(slot_of == slot, lob.kind, -1).astype(np.int8))
+            albedo = bsdf_mod.albedo(only, wo_rows)  # 0 where the slot is empty
+            alpha = np.where(lob.kind[:, slot] == bsdf_mod.DIFFUSE, np.float32(1),
+                             lob.roughness[:, slot].astype(np.float32) ** 2)
+            share = _smoothstep(0.0, 0.15, alpha)[:, None]
+            diffuse_albedo += albedo * share
+            specular_albedo += albedo * (1 - share)
+            w = albedo.mean(axis=1)
+            weight += w
+            weight_diffuse += w * share[:, 0]
+        lit = weight > 0
+        f = np.where(lit, _smoothstep(0.0, 0.5, weight_diffuse / np.where(lit, weight, 1)), np.float32(0))
+        t = self.throughput[samples]
+        self.albedo[samples] += t * diffuse_albedo * f[:, None]
+        self.normal[samples] += n_view[rows] * (f * t.mean(axis=1))[:, None]
+        deferred = specular_albedo * (1 - f)[:, None]
+        go_on = np.abs(deferred).max(axis=1) > FEATURE_DEFER_MIN
+        self.throughput[samples[go_on]] = t[go_on] * deferred[go_on]
+        self.open[samples[~go_on]] = False
 
 
 class PathTracer:
@@ -343,6 +366,8 @@ class PathTracer:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
                 self._add(radiance, idx, throughput * le)
+                if features is not None:
+                    features.add_emission(idx, throughput * le)
             prim = hits.prim
 
             # Emission of an emissive triangle hit (two-sided), MIS-weighted against light sampling.
@@ -363,6 +388,8 @@ class PathTracer:
                         pb = prev_pdf[e]
                         w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
                     self._add(radiance, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
+                    if features is not None:
+                        features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
 
             if depth == s.max_bounces + 1:
                 self._lap("emission", clock)

@@ -38,19 +38,20 @@ def feature_scene(resolution=(48, 48)):
 
 
 def cycles_features(scene, spp: int, tmp_path) -> tuple[np.ndarray, np.ndarray]:
-    """Cycles' Denoising Albedo and Denoising Normal passes (row 0 at the top)."""
+    """Cycles' Denoising Albedo and Denoising Normal passes (row 0 at the top; Blender 5.3 defaults: follow
+    reflections, albedo roughness weighting). Blender writes them to the file of a still render (they are not in
+    the Render Result image that save_render writes)."""
     layer = scene.view_layers[0]
-    layer.cycles.denoising_store_passes = True
     cc.configure_cycles(scene, spp, 16, threads=2, seed=1)
-    scene.cycles.use_denoising = True  # Cycles writes the denoising passes only when it denoises
-    render_with_operator(scene)
+    layer.cycles.denoising_store_passes = True
     settings = scene.render.image_settings
     if hasattr(settings, "media_type"):
         settings.media_type = "MULTI_LAYER_IMAGE"
     settings.file_format = "OPEN_EXR_MULTILAYER"
     settings.color_depth = "32"
     path = tmp_path / "cycles.exr"
-    bpy.data.images["Render Result"].save_render(str(path), scene=scene)
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True, scene=scene.name)
     ch = exr.read_exr(path)
     albedo = np.stack([ch[f"{layer.name}.Denoising Albedo.{c}"] for c in "RGB"], axis=-1)
     normal = np.stack([ch[f"{layer.name}.Denoising Normal.{c}"] for c in "XYZ"], axis=-1)
@@ -61,6 +62,7 @@ def monte_result(scene, spp: int):
     scene.render.engine = "MONTE"
     m = scene.monte
     m.samples, m.max_bounces, m.seed, m.threads, m.use_denoising = spp, 16, 1, 2, True
+    m.filter_type, m.filter_width = "blackman-harris", 1.5
     return render_with_operator(scene)[0][1]
 
 
