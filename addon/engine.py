@@ -177,17 +177,18 @@ class MonteRenderEngine(bpy.types.RenderEngine):
 
     def _denoise(self, result, quality: str) -> None:
         """Denoise result.color with Open Image Denoise, keeping the image before it as result.noisy (the Noisy
-        Image pass); without the denoiser a warning says why and the render stays as it is (noisy)."""
+        Image pass); without the denoiser a warning says why and the render stays as it is (noisy, result.noisy
+        None; the Noisy Image pass then holds the same image as Combined)."""
         from ..core.denoise import DenoiserUnavailable, denoise
 
         self.update_stats("", "Monte | Denoising")
-        result.noisy = result.color
         try:
             t0 = time.perf_counter()
-            result.color = denoise(result.noisy, result.denoising_albedo, result.denoising_normal, quality=quality)
+            denoised = denoise(result.color, result.denoising_albedo, result.denoising_normal, quality=quality)
         except DenoiserUnavailable as exc:
             self.report({"WARNING"}, f"Monte: the render was not denoised: {exc}")
             return
+        result.noisy, result.color = result.color, denoised
         result.stats["denoise_seconds"] = time.perf_counter() - t0
         self._log(f"denoised ({quality}) in {result.stats['denoise_seconds']:.2f} s")
 

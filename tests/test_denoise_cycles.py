@@ -100,6 +100,19 @@ def test_addon_denoise_fills_the_noisy_image_pass():
     assert {"Noisy Image", "Denoising Albedo", "Denoising Normal"} <= set(requested_passes(layer, scene))
 
 
+def test_addon_without_oidn_keeps_the_noisy_render(monkeypatch):
+    """pyoidn's import fails: the render with Denoise on is the undenoised render (a warning says why), and
+    the Denoise panel's check says what is missing."""
+    monkeypatch.setitem(sys.modules, "pyoidn", None)
+    assert "pyoidn" in dn.denoiser_status()
+    scene = feature_scene((16, 16))
+    result = monte_result(scene, 2)
+    assert result.noisy is None and "denoise_seconds" not in result.stats
+    scene.monte.use_denoising = False
+    plain = render_with_operator(scene)[0][1]
+    np.testing.assert_array_equal(result.color, plain.color)
+
+
 @pytest.mark.slow
 @needs_oidn
 def test_denoised_interior_is_three_times_closer_to_cycles_reference():
