@@ -338,6 +338,9 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    if args.denoise and not args.vs:
+        print("monte bench: --denoise compares denoised renders with --vs cycles only", file=sys.stderr)
+        return 2
     if args.vs:
         try:
             from .lab.bench_cycles import run_from_args

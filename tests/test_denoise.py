@@ -169,3 +169,8 @@ def test_cli_without_oidn_saves_the_noisy_image_and_fails(no_oidn, tmp_path, cap
 def test_bad_input_is_refused_by_name(call, message):
     with pytest.raises(ValueError, match=message):
         call()
+
+
+def test_bench_denoise_needs_vs_cycles(capsys):
+    assert cli.main(["bench", "--denoise"]) == 2
+    assert "monte bench: --denoise compares denoised renders with --vs cycles only" in capsys.readouterr().err

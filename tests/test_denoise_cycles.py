@@ -87,17 +87,30 @@ def test_feature_passes_match_cycles(tmp_path):
 
 
 @needs_oidn
-def test_addon_denoise_fills_the_noisy_image_pass():
-    scene = feature_scene((32, 32))
-    result = monte_result(scene, 8)
-    assert result.noisy is not None and result.stats["denoise_seconds"] > 0
-    assert not np.array_equal(result.noisy, result.color)
-    layer = scene.view_layers[0]
-    image = bpy.data.images["Render Result"]
-    assert image is not None
-    from monte.addon.engine import requested_passes
+def test_addon_denoise_writes_cycles_passes(tmp_path):
+    """A still rendered with Denoise on: Blender's file holds Combined (denoised), Noisy Image (the render before
+    denoising), Denoising Albedo and Denoising Normal. A diffuse plane (albedo 0.5) under a white world, seen
+    from straight above: radiance 0.5 everywhere, albedo 0.5, normal facing the camera (0, 0, -1)."""
+    scene = bf.plane_under_world(albedo=0.5, world=1.0, resolution=(16, 12))
+    scene.monte.samples, scene.monte.threads, scene.monte.use_denoising = 4, 2, True
+    scene.monte.denoising_quality = "fast"
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+    scene.render.filepath = str(tmp_path / "still")
+    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+    ch = exr.read_exr(tmp_path / "still.exr")
 
-    assert {"Noisy Image", "Denoising Albedo", "Denoising Normal"} <= set(requested_passes(layer, scene))
+    def layer(name, comps="RGB"):
+        return np.stack([ch[f"ViewLayer.{name}.{c}"] for c in comps], axis=-1)
+
+    np.testing.assert_allclose(layer("Noisy Image"), 0.5, atol=1e-4)  # the plane's radiance, noise-free
+    np.testing.assert_allclose(layer("Combined"), 0.5, atol=0.02)  # OIDN keeps a flat image flat
+    np.testing.assert_allclose(layer("Denoising Albedo"), 0.5, atol=1e-5)
+    np.testing.assert_allclose(layer("Denoising Normal", "XYZ"), np.broadcast_to((0, 0, -1), (12, 16, 3)),
+                               atol=1e-5)
 
 
 def test_addon_without_oidn_keeps_the_noisy_render(monkeypatch):
