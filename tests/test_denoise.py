@@ -174,3 +174,21 @@ def test_bad_input_is_refused_by_name(call, message):
 def test_bench_denoise_needs_vs_cycles(capsys):
     assert cli.main(["bench", "--denoise"]) == 2
     assert "monte bench: --denoise compares denoised renders with --vs cycles only" in capsys.readouterr().err
+
+
+def test_feature_passes_merge_bit_for_bit_from_sample_ranges():
+    """A render split into sample ranges (core.distributed's units) and merged has the same denoising passes
+    as one render: the film's feature sums travel with its other sums."""
+    from monte.core.render import merge_tile_samples, render_samples
+    from monte.core.schedule import pass_bounds, tiles
+
+    scene = cornell_box((32, 24))
+    settings = _settings(spp=12, tile_size=16, batch_paths=1024, denoising_features=True)
+    whole = render(scene, settings)
+    bounds = pass_bounds(tiles(0, 0, 32, 24, 16), 12, settings)
+    parts = [part for ti, b in enumerate(bounds) for lo, hi in zip(b[:-1], b[1:])
+             for part in render_samples(scene, settings, {ti: (lo, hi)})]
+    merged = merge_tile_samples(scene, settings, parts[::-1])
+    np.testing.assert_array_equal(merged.denoising_albedo, whole.denoising_albedo)
+    np.testing.assert_array_equal(merged.denoising_normal, whole.denoising_normal)
+    assert np.abs(whole.denoising_normal).max() > 0.5
