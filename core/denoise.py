@@ -2,8 +2,9 @@
 
 The denoiser reads the noisy colour and, when given, Cycles' Denoising Albedo and Denoising Normal passes
 (`RenderSettings.denoising_features`; core.integrator.DenoisingFeatures says how they are defined). As Cycles'
-"accurate" prefilter does, the albedo and the normal are denoised first, each on its own, and the colour is then
-denoised with them marked clean (`clean_aux`), so the noise of the auxiliary passes does not leak into the image.
+"accurate" prefilter does, the albedo and the normal are denoised first, each on its own (an RT filter given only
+that auxiliary image), and the colour is then denoised with them marked clean (`clean_aux`), so the noise of the
+auxiliary passes does not leak into the image.
 The colour is linear HDR radiance (`hdr`); alpha, when present, is passed through unchanged.
 
 This module imports without pyoidn: `denoise()` raises DenoiserUnavailable with the reason and what to install,
@@ -22,6 +23,7 @@ INSTALL_HINT = ("install it with `pip install pyoidn` (wheels exist for Linux x8
                 "there is none for Linux or Windows on ARM)")
 
 _lock = threading.Lock()  # pyoidn keeps one device and filter per process: one call at a time
+_prefilter_state: dict = {}  # the CPU device and the albedo / normal prefilters, made on first use
 
 
 class DenoiserUnavailable(RuntimeError):
@@ -59,6 +61,30 @@ def _check_image(name: str, image: np.ndarray | None, shape: tuple[int, int]) ->
     return rgb
 
 
+def _prefilter(oidn, slot: str, image: np.ndarray, quality: str) -> np.ndarray:
+    """An auxiliary image (slot "albedo" or "normal") denoised by OIDN's RT filter given only that image, as
+    OIDN documents prefiltering (the normal keeps its signs; denoising it as a colour would clamp them)."""
+    device = _prefilter_state.get("device")
+    if device is None:
+        device = _prefilter_state["device"] = oidn.Device(oidn.OIDN_DEVICE_TYPE_CPU)
+        device.commit()
+    filt = _prefilter_state.get((slot, quality))
+    if filt is None:
+        filt = _prefilter_state[(slot, quality)] = oidn.Filter(device, "RT")
+    h, w, _ = image.shape
+    out = np.zeros_like(image)
+    filt.set_image(slot, image, oidn.OIDN_FORMAT_FLOAT3, w, h)
+    filt.set_image(oidn.OIDN_IMAGE_OUTPUT, out, oidn.OIDN_FORMAT_FLOAT3, w, h)
+    filt.set_quality({"high": oidn.OIDN_QUALITY_HIGH, "balanced": oidn.OIDN_QUALITY_BALANCED,
+                      "fast": oidn.OIDN_QUALITY_FAST}[quality])
+    filt.commit()
+    filt.execute()
+    error = device.get_error()
+    if error:
+        raise RuntimeError(f"Open Image Denoise failed prefiltering the {slot} image: {error}")
+    return out
+
+
 def denoise(color: np.ndarray, albedo: np.ndarray | None = None, normal: np.ndarray | None = None, *,
             quality: str = "high", prefilter: bool = True) -> np.ndarray:
     """The denoised image, same shape as `color`.
@@ -90,9 +116,9 @@ def denoise(color: np.ndarray, albedo: np.ndarray | None = None, normal: np.ndar
     with _lock:
         clean = False
         if prefilter and alb is not None:
-            alb = oidn.denoise(alb, hdr=False, quality=quality)
+            alb = _prefilter(oidn, oidn.OIDN_IMAGE_ALBEDO, alb, quality)
             if nrm is not None:
-                nrm = oidn.denoise(nrm, hdr=False, quality=quality)
+                nrm = _prefilter(oidn, oidn.OIDN_IMAGE_NORMAL, nrm, quality)
             clean = True
         out = oidn.denoise(rgb, alb, nrm, hdr=True, clean_aux=clean, quality=quality)
     out = np.asarray(out, np.float32).reshape(rgb.shape)

@@ -126,6 +126,68 @@ def test_addon_without_oidn_keeps_the_noisy_render(monkeypatch):
     np.testing.assert_array_equal(result.color, plain.color)
 
 
+@needs_oidn
+def test_cli_denoises_a_blend_file(tmp_path):
+    """`monte render scene.blend --denoise`: the add-on's Denoise setting for that run, Monte's EXR layout with
+    the noisy layer and the passes (a plane of albedo 0.5 under a white world: radiance 0.5 exactly)."""
+    from monte import cli
+
+    scene = bf.plane_under_world(albedo=0.5, world=1.0, resolution=(12, 10))
+    blend = tmp_path / "plane.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp_path / "plane.exr"
+    assert cli.main(["render", str(blend), "-o", str(out), "--spp", "4", "--threads", "2", "--no-png", "-q",
+                     "--denoise", "--denoise-quality", "fast"]) == 0
+    ch = exr.read_exr(out)
+    np.testing.assert_allclose(ch["noisy.R"], 0.5, atol=1e-4)
+    np.testing.assert_allclose(ch["R"], 0.5, atol=0.02)
+    np.testing.assert_allclose(ch["denoising_albedo.G"], 0.5, atol=1e-5)
+    np.testing.assert_allclose(ch["denoising_normal.Z"], -1.0, atol=1e-5)
+
+
+class _Layout:
+    """Stands in for a UILayout: records the properties drawn (checked against RNA) and the labels."""
+
+    def __init__(self, log):
+        object.__setattr__(self, "log", log)
+
+    def __getattr__(self, name):
+        if name in ("column", "row", "box"):
+            return lambda *a, **k: _Layout(self.log)
+        if name == "prop":
+            return self._prop
+        if name == "label":
+            return lambda text="", **k: self.log.append(("label", text))
+        return lambda *a, **k: None
+
+    def __setattr__(self, name, value):
+        object.__setattr__(self, name, value)
+
+    def _prop(self, data, name, **_kw):
+        assert name in data.bl_rna.properties.keys(), f"{type(data).__name__} has no property {name!r}"
+        self.log.append(("prop", name))
+
+
+@pytest.mark.parametrize("installed", [True, False])
+def test_denoise_panel_says_whether_oidn_is_there(installed, monkeypatch):
+    import types
+
+    from monte.addon.ui import MONTE_RENDER_PT_denoise
+
+    if installed and dn.denoiser_status() is not None:
+        pytest.skip("pyoidn has no wheel for this platform")
+    if not installed:
+        monkeypatch.setitem(sys.modules, "pyoidn", None)
+    scene = bf.plane_under_world()
+    log = []
+    panel = types.SimpleNamespace(layout=_Layout(log))
+    ctx = types.SimpleNamespace(scene=scene)
+    MONTE_RENDER_PT_denoise.draw_header(panel, ctx)
+    MONTE_RENDER_PT_denoise.draw(panel, ctx)
+    assert ("prop", "use_denoising") in log and ("prop", "denoising_quality") in log
+    assert (("label", "Open Image Denoise is not available:") in log) is not installed
+
+
 @pytest.mark.slow
 @needs_oidn
 def test_denoised_interior_is_three_times_closer_to_cycles_reference():
