@@ -242,7 +242,8 @@ class DenoisingFeatures:
     and the features go on to the next surface with T *= sum_l A_l (1 - d_l) (1 - f), or close when that is below
     1e-4 (a diffuse surface, a black one, one without lobes). Emission and the world seen while the features are
     open add T x what they add to the image (a lamp seen directly reads its radiance). A path that ends adds
-    nothing more. The normal is world space here; the render turns it to camera space. Pixel values are means over
+    nothing more (Russian roulette, from the third vertex on, ends a path before its surface is recorded where
+    Cycles records it first: a difference only for features still open after two specular bounces). The normal is world space here; the render turns it to camera space. Pixel values are means over
     the samples, not renormalised (as Cycles' passes)."""
 
     def __init__(self, n: int) -> None:
