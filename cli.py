@@ -55,10 +55,40 @@ def _add_render_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--adaptive-min-samples", type=int,
                    help="samples before adaptive sampling may stop a pixel (0 = automatic)")
     p.add_argument("--resolution", type=_resolution, help="image size WxH (built-in scenes)")
+    p.add_argument("--denoise", action="store_true",
+                   help="denoise with Intel Open Image Denoise (needs pyoidn) on Cycles' Denoising Albedo and "
+                        "Normal passes; the EXR keeps the image before denoising as the noisy.* layer")
+    p.add_argument("--denoise-quality", choices=("high", "balanced", "fast"), default="high",
+                   help="Open Image Denoise's quality (default high, as Cycles)")
 
 
 def _settings_from(args: argparse.Namespace) -> dict:
-    return {k: getattr(args, k) for k in CLI_SETTINGS if getattr(args, k, None) is not None}
+    out = {k: getattr(args, k) for k in CLI_SETTINGS if getattr(args, k, None) is not None}
+    if getattr(args, "denoise", False):
+        out["denoising_features"] = True
+    return out
+
+
+class DenoiseFailed(Exception):
+    """The render was saved undenoised (the message says why and where)."""
+
+
+def _denoise_result(result, quality: str, log) -> None:
+    """Denoise result.color in place (Open Image Denoise on its denoising passes), keeping the noisy image as
+    result.noisy; raises DenoiseFailed when the denoiser is unavailable (result left noisy, noisy None)."""
+    from .core.denoise import DenoiserUnavailable, denoise
+
+    try:
+        t0 = time.perf_counter()
+        denoised = denoise(result.color, result.denoising_albedo, result.denoising_normal, quality=quality)
+    except DenoiserUnavailable as exc:
+        raise DenoiseFailed(str(exc)) from None
+    seconds = time.perf_counter() - t0
+    h, w = result.color.shape[:2]
+    log(f"denoised ({quality}) in {seconds:.2f} s ({seconds / (w * h / 1e6):.2f} s per megapixel)")
+    result.noisy = result.color
+    result.color = denoised
+    result.stats["denoise_seconds"] = seconds
 
 
 class ProgressBar:
@@ -114,11 +144,22 @@ def cmd_render(args: argparse.Namespace) -> int:
 
         if args.resolution:
             overrides["resolution"] = args.resolution
+        if overrides.pop("denoising_features", False):
+            overrides["denoise"] = True
+            overrides["denoise_quality"] = args.denoise_quality
         try:
             render_blend_file(args.scene, output, overrides)  # reports what it wrote
         except HeadlessError as exc:
             print(f"monte render: error: {exc}", file=sys.stderr)
             return 1
+        if args.denoise:
+            from .core.denoise import denoiser_status
+
+            reason = denoiser_status()
+            if reason is not None:
+                print(f"monte render: error: {reason}. The image was saved without denoising to {output}",
+                      file=sys.stderr)
+                return 1
         return 0
 
     from .core import exr
@@ -154,7 +195,17 @@ def cmd_render(args: argparse.Namespace) -> int:
     else:
         result = render(scene, settings, on_progress=bar, log=log)
         bar.close()
+    failed = None
+    if args.denoise:
+        try:
+            _denoise_result(result, args.denoise_quality, log)
+        except DenoiseFailed as exc:
+            failed = str(exc)
     _write_outputs(result, output, args.no_png)
+    if failed is not None:
+        print(f"monte render: error: {failed}. The image was saved without denoising to {output}",
+              file=sys.stderr)
+        return 1
     if result.cancelled:
         print("render stopped early (time limit or cancel): the image holds the samples taken", file=sys.stderr)
     return 0
@@ -196,6 +247,9 @@ def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: 
         return 2
     if args.resolution:
         overrides["resolution"] = args.resolution
+    if overrides.pop("denoising_features", False):
+        overrides["denoise"] = True
+        overrides["denoise_quality"] = args.denoise_quality
     frames = args.frames
     outputs = {f: frame_output(output, f) for f in frames} if frames is not None else {None: output}
     if args.resume:
@@ -212,8 +266,15 @@ def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: 
     todo = None if frames is None else list(outputs)
     bar = ProgressBar(not args.quiet)
 
+    undenoised = []
+
     def write_frame(frame, result) -> None:
         bar.close()
+        if args.denoise:
+            try:
+                _denoise_result(result, args.denoise_quality, log)
+            except DenoiseFailed as exc:
+                undenoised.append(str(exc))
         _write_outputs(result, outputs[frame if frames is not None else None], args.no_png)
 
     try:
@@ -226,6 +287,10 @@ def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: 
     except (ClusterError, HeadlessError) as exc:
         print(f"monte render: error: {exc}", file=sys.stderr)
         return 1
+    if undenoised:
+        print(f"monte render: error: {undenoised[0]}. {len(undenoised)} frames were saved without denoising",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -234,7 +299,9 @@ def _write_outputs(result, output: Path, no_png: bool) -> list[str]:
     from .core import exr
 
     exr.write_exr(output, exr.image_channels(result.color, result.variance, result.albedo, result.normal,
-                                             result.depth))
+                                             result.depth, noisy=result.noisy,
+                                             denoising_albedo=result.denoising_albedo,
+                                             denoising_normal=result.denoising_normal))
     written = [str(output)]
     if not no_png:
         png = output.with_suffix(".png")
@@ -271,6 +338,9 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    if args.denoise and not args.vs:
+        print("monte bench: --denoise compares denoised renders with --vs cycles only", file=sys.stderr)
+        return 2
     if args.vs:
         try:
             from .lab.bench_cycles import run_from_args

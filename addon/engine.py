@@ -27,12 +27,21 @@ PASSES = {
     "Normal": (3, "XYZ", "VECTOR"),
     "Albedo": (3, "RGB", "COLOR"),
     "Variance": (3, "RGB", "COLOR"),
+    # With denoising on (Cycles' names): the image before denoising and the passes the denoiser read.
+    "Noisy Image": (4, "RGBA", "COLOR"),
+    "Denoising Normal": (3, "XYZ", "VECTOR"),
+    "Denoising Albedo": (3, "RGB", "COLOR"),
 }
+DENOISING_PASSES = ("Noisy Image", "Denoising Normal", "Denoising Albedo")
 
 
-def requested_passes(view_layer) -> list[str]:
-    """The passes Monte fills for this view layer."""
+def requested_passes(view_layer, scene=None) -> list[str]:
+    """The passes Monte fills for this view layer (of `scene`, whose denoise setting adds the denoising
+    passes)."""
     names = ["Combined"]
+    monte_scene = getattr(scene, "monte", None)
+    if monte_scene is not None and monte_scene.use_denoising:
+        names += DENOISING_PASSES
     if view_layer is None:
         return names
     if view_layer.use_pass_z:
@@ -88,7 +97,7 @@ class MonteRenderEngine(bpy.types.RenderEngine):
 
     # ------------------------------------------------------------------------------------------ passes
     def update_render_passes(self, scene=None, renderlayer=None):
-        for name in requested_passes(renderlayer):
+        for name in requested_passes(renderlayer, scene):
             channels, chanid, kind = PASSES[name]
             self.register_pass(scene, renderlayer, name, channels, chanid, kind)
 
@@ -134,7 +143,7 @@ class MonteRenderEngine(bpy.types.RenderEngine):
 
         scene = depsgraph.scene
         view_layer = depsgraph.view_layer
-        passes = requested_passes(view_layer)
+        passes = requested_passes(view_layer, scene)
         self.update_stats("", "Monte | Exporting scene")
 
         core_scene, stats = export_scene(depsgraph, self.camera_override,
@@ -159,6 +168,8 @@ class MonteRenderEngine(bpy.types.RenderEngine):
 
         result = core_render(core_scene, settings, region=region, on_tile=on_tile, on_progress=self._progress,
                              should_cancel=self._cancel_requested, log=self._log)
+        if scene.monte.use_denoising:
+            self._denoise(result, scene.monte.denoising_quality)
         # The whole region once more, all passes from the final accumulation: consistent even after a cancel.
         self._write(0, 0, rw, rh, result, passes, layer_name)
         for listener in list(result_listeners):
@@ -289,6 +300,23 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         if session is not None:
             session.stop()
 
+    def _denoise(self, result, quality: str) -> None:
+        """Denoise result.color with Open Image Denoise, keeping the image before it as result.noisy (the Noisy
+        Image pass); without the denoiser a warning says why and the render stays as it is (noisy, result.noisy
+        None; the Noisy Image pass then holds the same image as Combined)."""
+        from ..core.denoise import DenoiserUnavailable, denoise
+
+        self.update_stats("", "Monte | Denoising")
+        try:
+            t0 = time.perf_counter()
+            denoised = denoise(result.color, result.denoising_albedo, result.denoising_normal, quality=quality)
+        except DenoiserUnavailable as exc:
+            self.report({"WARNING"}, f"Monte: the render was not denoised: {exc}")
+            return
+        result.noisy, result.color = result.color, denoised
+        result.stats["denoise_seconds"] = time.perf_counter() - t0
+        self._log(f"denoised ({quality}) in {result.stats['denoise_seconds']:.2f} s")
+
     # ------------------------------------------------------------------------------------------ results
     def _write(self, x: int, y: int, w: int, h: int, src, passes: list[str], layer_name: str) -> None:
         """Copy a tile/result (row 0 at the top) into Blender's render result at region-local (x, y) with
@@ -324,6 +352,14 @@ def _pass_pixels(name: str, src, h: int, w: int, channels: int) -> np.ndarray:
         arr = src.albedo
     elif name == "Variance":
         arr = src.variance
+    elif name == "Noisy Image":
+        # A tile in progress is not denoised yet: its colour is the noisy image.
+        noisy = getattr(src, "noisy", None)
+        arr = noisy if noisy is not None else src.color
+    elif name == "Denoising Normal":
+        arr = src.denoising_normal
+    elif name == "Denoising Albedo":
+        arr = src.denoising_albedo
     if arr is None:
         fill = 1e10 if name == "Depth" else 0.0
         return np.full(h * w * channels, fill, dtype=np.float32)

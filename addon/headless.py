@@ -32,6 +32,8 @@ _OTHER_KEYS = {
     "camera": "name of the camera object to render from",
     "scene": "name of the scene to render (default: the file's active scene)",
     "adaptive_threshold": "adaptive sampling's noise threshold (0 turns adaptive sampling off)",
+    "denoise": "denoise with Open Image Denoise (True/False; the scene's Denoise setting)",
+    "denoise_quality": "Open Image Denoise's quality: high, balanced or fast",
     "multilayer": "write Blender's multilayer EXR (every view layer and pass, after compositing) instead of "
                   "Monte's channel layout",
 }
@@ -119,6 +121,13 @@ def _apply_overrides(bpy, scene, overrides: dict[str, Any]) -> None:
                 setattr(monte, prop, value)
             except (TypeError, ValueError) as exc:
                 raise ValueError(f"override {key}={value!r}: {exc}") from exc
+    if "denoise" in overrides:
+        monte.use_denoising = bool(overrides["denoise"])
+    if "denoise_quality" in overrides:
+        try:
+            monte.denoising_quality = overrides["denoise_quality"]
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"override denoise_quality={overrides['denoise_quality']!r}: {exc}") from exc
     if "adaptive_threshold" in overrides:
         threshold = float(overrides["adaptive_threshold"])
         monte.use_adaptive_sampling = threshold > 0
@@ -156,16 +165,18 @@ def _configure_output(scene, multilayer: bool) -> None:
 
 
 def _monte_channels(result, region, size) -> dict:
-    """core.exr's channel layout (R G B A, variance.*, albedo.*, normal.*, Z), the same as `monte render` of a
-    built-in scene; with a region, padded to the full frame (black, depth 1e10) as an uncropped border."""
+    """core.exr's channel layout (R G B A, variance.*, albedo.*, normal.*, Z; with denoising noisy.*,
+    denoising_albedo.*, denoising_normal.*), the same as `monte render` of a built-in scene; with a region,
+    padded to the full frame (black, depth 1e10) as an uncropped border."""
     from ..core.exr import image_channels
 
-    arrays = [result.color, result.variance, result.albedo, result.normal, result.depth]
+    arrays = [result.color, result.variance, result.albedo, result.normal, result.depth, result.noisy,
+              result.denoising_albedo, result.denoising_normal]
     if region is not None:
         x0, y0, w, h = region
         width, height = size
         padded = []
-        for arr, fill in zip(arrays, (0.0, 0.0, 0.0, 0.0, 1e10)):
+        for arr, fill in zip(arrays, (0.0, 0.0, 0.0, 0.0, 1e10, 0.0, 0.0, 0.0)):
             if arr is None:
                 padded.append(None)
                 continue
@@ -173,7 +184,7 @@ def _monte_channels(result, region, size) -> dict:
             full[y0:y0 + h, x0:x0 + w] = arr
             padded.append(full)
         arrays = padded
-    return image_channels(*arrays)
+    return image_channels(*arrays[:5], noisy=arrays[5], denoising_albedo=arrays[6], denoising_normal=arrays[7])
 
 
 def render_blend_file(

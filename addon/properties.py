@@ -22,6 +22,11 @@ FILTER_ITEMS = [
     ("tent", "Tent", "Triangular pixel filter (the seed's tent-distributed sub-pixel offsets)"),
     ("box", "Box", "Box pixel filter: each sample stays inside its pixel"),
 ]
+DENOISING_QUALITY_ITEMS = [
+    ("high", "High", "The best quality, the slowest (Open Image Denoise's high quality; Cycles' default)"),
+    ("balanced", "Balanced", "Between high and fast"),
+    ("fast", "Fast", "The fastest, lower quality"),
+]
 LIGHT_SAMPLING_ITEMS = [
     ("mis", "Multiple Importance", "Light and BSDF sampling combined with multiple importance sampling"),
     ("bsdf", "BSDF Only", "BSDF sampling only (reference and tests; noisy with small lights)"),
@@ -152,6 +157,16 @@ class MonteRenderSettings(bpy.types.PropertyGroup):
         description="Samples per pixel of material, light and world previews (read from the preview scene "
         "Blender builds, so previews normally take the default)", default=PREVIEW_SAMPLES, min=1, soft_max=1024,
     )
+    use_denoising: BoolProperty(
+        name="Denoise",
+        description="Denoise the final render with Intel Open Image Denoise (needs the pyoidn package), guided "
+        "by Cycles' Denoising Albedo and Normal passes; the image before denoising stays in the Noisy Image pass",
+        default=_DEFAULTS.denoising_features, update=_passes_changed,
+    )
+    denoising_quality: EnumProperty(
+        name="Quality", description="Open Image Denoise's quality", items=DENOISING_QUALITY_ITEMS,
+        default="high",
+    )
 
 
 class MonteViewLayerSettings(bpy.types.PropertyGroup):
@@ -174,6 +189,7 @@ def render_settings(scene, overrides=None) -> RenderSettings:
     if props.use_animated_seed:
         values["seed"] = (values["seed"] + scene.frame_current) % (2**32)
     values["adaptive_threshold"] = props.adaptive_threshold if props.use_adaptive_sampling else 0.0
+    values["denoising_features"] = bool(props.use_denoising)
     values.update(overrides or {})
     return RenderSettings(**{**_field_defaults(), **values}).validate()
 

@@ -1,6 +1,7 @@
 """Monte's panels, where Cycles users look for them, and Blender's own panels opted in for Monte.
 
-Render properties: Sampling (samples, sampler, seed, clamp, time limit, light sampling), Light Paths (max
+Render properties: Sampling (samples, sampler, seed, clamp, time limit, light sampling), Denoise (on/off,
+quality, whether Open Image Denoise is installed), Light Paths (max
 bounces, Russian roulette depth), Film (pixel filter and width), Performance (threads, batch size, tiles).
 View layer properties: Passes (Depth, Normal, Albedo, Variance). Material, world and light properties: the
 node inputs Monte reads (the active output for Cycles/All) and the light settings Monte uses.
@@ -116,6 +117,29 @@ class MONTE_RENDER_PT_viewport(MonteButtonsPanel, Panel):
         col.prop(scene.monte, "viewport_samples")
         col.prop(scene.monte, "viewport_start_resolution")
         col.prop(scene.render, "preview_pixel_size", text="Pixel Size")
+
+
+class MONTE_RENDER_PT_denoise(MonteButtonsPanel, Panel):
+    bl_label = "Denoise"
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.monte, "use_denoising", text="")
+
+    def draw(self, context):
+        from ..core.denoise import denoiser_status
+
+        layout = split_layout(self.layout)
+        monte = context.scene.monte
+        col = layout.column()
+        col.active = monte.use_denoising
+        col.label(text="Denoiser: OpenImageDenoise")
+        col.prop(monte, "denoising_quality")
+        reason = denoiser_status()
+        if reason is not None:
+            box = layout.box()
+            box.label(text="Open Image Denoise is not available:", icon="ERROR")
+            box.label(text="the render is saved without denoising.")
+            box.label(text="Install pyoidn into Blender's Python (README: Denoising).")
 
 
 class MONTE_RENDER_PT_light_paths(MonteButtonsPanel, Panel):
@@ -240,6 +264,7 @@ class MONTE_LIGHT_PT_light(MonteButtonsPanel, Panel):
 classes = (
     MONTE_RENDER_PT_sampling,
     MONTE_RENDER_PT_viewport,
+    MONTE_RENDER_PT_denoise,
     MONTE_RENDER_PT_light_paths,
     MONTE_RENDER_PT_film,
     MONTE_RENDER_PT_performance,

@@ -27,13 +27,24 @@ def image_channels(
     albedo: np.ndarray | None = None,
     normal: np.ndarray | None = None,
     depth: np.ndarray | None = None,
+    *,
+    noisy: np.ndarray | None = None,
+    denoising_albedo: np.ndarray | None = None,
+    denoising_normal: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
-    """Monte's channel layout: R G B A, variance.R/G/B, albedo.R/G/B, normal.X/Y/Z, Z (depth).
+    """Monte's channel layout: R G B A, variance.R/G/B, albedo.R/G/B, normal.X/Y/Z, Z (depth); with denoising,
+    R G B A hold the denoised image, noisy.R/G/B/A the image before denoising (Blender's Noisy Image pass),
+    denoising_albedo.R/G/B and denoising_normal.X/Y/Z the passes the denoiser read (camera space).
     Arrays are (H, W, C) with row 0 at the top."""
     channels: dict[str, np.ndarray] = {}
     for i, name in enumerate("RGBA"[: color.shape[2]]):
         channels[name] = color[..., i]
-    for prefix, arr, names in (("variance.", variance, "RGB"), ("albedo.", albedo, "RGB"), ("normal.", normal, "XYZ")):
+    if noisy is not None:
+        for i, name in enumerate("RGBA"[: noisy.shape[2]]):
+            channels["noisy." + name] = noisy[..., i]
+    for prefix, arr, names in (("variance.", variance, "RGB"), ("albedo.", albedo, "RGB"), ("normal.", normal, "XYZ"),
+                               ("denoising_albedo.", denoising_albedo, "RGB"),
+                               ("denoising_normal.", denoising_normal, "XYZ")):
         if arr is not None:
             for i, name in enumerate(names):
                 channels[prefix + name] = arr[..., i]

@@ -33,7 +33,8 @@ class TileFilm:
     """Accumulators for a tile of h x w pixels. Samples arrive with their tile-local pixel index (row-major,
     row 0 at the top) and their sample index (which picks their variance group, see the module docstring)."""
 
-    def __init__(self, width: int, height: int, aovs: bool, sampler: Sampler | None = None) -> None:
+    def __init__(self, width: int, height: int, aovs: bool, sampler: Sampler | None = None,
+                 features: bool = False) -> None:
         self.width, self.height = width, height
         n = width * height
         # Independent samples need no groups: s^2 / n is exact for them and has the most degrees of freedom.
@@ -48,6 +49,10 @@ class TileFilm:
             self.normal = np.zeros((n, 3), np.float64)
             self.depth_sum = np.zeros(n, np.float64)
             self.depth_count = np.zeros(n, np.int64)
+        self.features = features  # the denoising albedo and normal (core.integrator.DenoisingFeatures)
+        if features:
+            self.feature_albedo = np.zeros((n, 3), np.float64)
+            self.feature_normal = np.zeros((n, 3), np.float64)
 
     @property
     def sum(self) -> np.ndarray:
@@ -81,6 +86,8 @@ class TileFilm:
         names = ["group_sum", "group_count", "sum_sq"]
         if self.aovs:
             names += ["albedo", "normal", "depth_sum", "depth_count"]
+        if self.features:
+            names += ["feature_albedo", "feature_normal"]
         return {name: getattr(self, name) for name in names}
 
     def add_sums(self, sums: dict[str, np.ndarray]) -> None:
@@ -111,6 +118,19 @@ class TileFilm:
         hit = np.isfinite(depth)
         self.depth_sum += np.bincount(pixel[hit], weights=depth[hit], minlength=n)
         self.depth_count += np.bincount(pixel[hit], minlength=n)
+
+    def add_features(self, pixel: np.ndarray, albedo: np.ndarray, normal: np.ndarray) -> None:
+        """Accumulate the denoising features of samples (averaged over the pixel's samples)."""
+        n = self.group_count.shape[0]
+        for c in range(3):
+            self.feature_albedo[:, c] += np.bincount(pixel, weights=albedo[:, c], minlength=n)
+            self.feature_normal[:, c] += np.bincount(pixel, weights=normal[:, c], minlength=n)
+
+    def feature_images(self) -> tuple[np.ndarray, np.ndarray]:
+        """(denoising albedo (h,w,3), denoising normal (h,w,3), world space): plain means over the pixel's
+        samples, the normal not renormalised (as Cycles' passes)."""
+        n = np.maximum(self.count, 1)[:, None]
+        return self._image(self.feature_albedo / n), self._image(self.feature_normal / n)
 
     def _image(self, arr: np.ndarray) -> np.ndarray:
         return arr.reshape(self.height, self.width, *arr.shape[1:]).astype(np.float32)

@@ -11,7 +11,7 @@ is best where the camera looks, wherever the scene sits in the world.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import time
 
@@ -212,11 +212,91 @@ class PathStats:
 
 @dataclass
 class FirstHit:
-    """First-hit AOVs for each camera sample: albedo, world-space shading normal, z-depth (inf on a miss)."""
+    """Per camera sample: the first-hit AOVs (albedo, world-space shading normal, z-depth, inf on a miss; None
+    when not asked for) and the denoising features (see DenoisingFeatures; None when not asked for)."""
 
-    albedo: np.ndarray
-    normal: np.ndarray
-    depth: np.ndarray
+    albedo: np.ndarray | None
+    normal: np.ndarray | None
+    depth: np.ndarray | None
+    features: "DenoisingFeatures | None" = None
+
+
+def _smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
+    t = np.clip((x - np.float32(edge0)) / np.float32(edge1 - edge0), 0, 1)
+    return (t * t * (3 - 2 * t)).astype(np.float32)
+
+
+# Below this (max over R, G, B) the albedo a path's features would carry on with counts as none: they close.
+FEATURE_DEFER_MIN = np.float32(1e-4)
+
+
+class DenoisingFeatures:
+    """Cycles' (Blender 5.3) Denoising Albedo and Denoising Normal of each camera sample, followed along the path.
+
+    At each surface a path reaches while its features are open, each lobe l has its albedo A_l (core.bsdf.albedo at
+    wo: Cycles' bsdf_albedo), weight w_l = mean(A_l) and a diffuse share d_l = smoothstep(0, 0.15, alpha_l)
+    (alpha = roughness^2 for glossy/glass/refraction, 1 for diffuse): a mirror or clear glass is specular, a lobe
+    with roughness >= 0.39 diffuse, in between a blend. With f = smoothstep(0, 0.5, sum w_l d_l / sum w_l) (0 when
+    sum w_l = 0) and T the feature throughput (1 at the camera), the surface adds
+        albedo += T f sum_l A_l d_l,      normal += mean(T) f n   (n: the shading normal on the viewer's side)
+    and the features go on to the next surface with T *= sum_l A_l (1 - d_l) (1 - f), or close when that is below
+    1e-4 (a diffuse surface, a black one, one without lobes). Emission and the world seen while the features are
+    open add T x what they add to the image (a lamp seen directly reads its radiance). A path that ends adds
+    nothing more (Russian roulette, from the third vertex on, ends a path before its surface is recorded where
+    Cycles records it first: a difference only for features still open after two specular bounces). The normal is world space here; the render turns it to camera space. Pixel values are means over
+    the samples, not renormalised (as Cycles' passes)."""
+
+    def __init__(self, n: int) -> None:
+        self.albedo = np.zeros((n, 3), np.float32)
+        self.normal = np.zeros((n, 3), np.float32)
+        self.throughput = np.ones((n, 3), np.float32)
+        self.open = np.ones(n, bool)
+
+    def add_emission(self, idx: np.ndarray, contribution: np.ndarray) -> None:
+        """Emission added to the image for samples idx (their contributions, (M, 3)) while features are open."""
+        rows = np.flatnonzero(self.open[idx])
+        if len(rows):
+            samples = idx[rows]
+            value = np.nan_to_num(self.throughput[samples] * contribution[rows], nan=0.0, posinf=0.0)
+            np.add.at(self.albedo, samples, value.astype(np.float32))
+
+    def record(self, idx: np.ndarray, lobes: "bsdf_mod.LobeBatch", wo: np.ndarray, n_view: np.ndarray) -> None:
+        """Surfaces hit by the paths of samples idx (their lobes, wo in the shading frame, the normal)."""
+        rows = np.flatnonzero(self.open[idx])
+        if len(rows) == 0:
+            return
+        lob = lobes.take(rows) if len(rows) < len(idx) else lobes
+        samples = idx[rows]
+        wo_rows = np.ascontiguousarray(wo[rows])
+        m, n_slots = lob.kind.shape
+        diffuse_albedo = np.zeros((m, 3), np.float32)
+        specular_albedo = np.zeros((m, 3), np.float32)
+        weight = np.zeros(m, np.float32)
+        weight_diffuse = np.zeros(m, np.float32)
+        slot_of = np.arange(n_slots)[None, :]
+        for slot in range(n_slots):
+            present = lob.kind[:, slot] >= 0
+            if not present.any():
+                continue
+            only = replace(lob, kind=np.where(slot_of == slot, lob.kind, -1).astype(np.int8))
+            albedo = bsdf_mod.albedo(only, wo_rows)  # 0 where the slot is empty
+            alpha = np.where(lob.kind[:, slot] == bsdf_mod.DIFFUSE, np.float32(1),
+                             lob.roughness[:, slot].astype(np.float32) ** 2)
+            share = _smoothstep(0.0, 0.15, alpha)[:, None]
+            diffuse_albedo += albedo * share
+            specular_albedo += albedo * (1 - share)
+            w = albedo.mean(axis=1)
+            weight += w
+            weight_diffuse += w * share[:, 0]
+        lit = weight > 0
+        f = np.where(lit, _smoothstep(0.0, 0.5, weight_diffuse / np.where(lit, weight, 1)), np.float32(0))
+        t = self.throughput[samples]
+        self.albedo[samples] += t * diffuse_albedo * f[:, None]
+        self.normal[samples] += n_view[rows] * (f * t.mean(axis=1))[:, None]
+        deferred = specular_albedo * (1 - f)[:, None]
+        go_on = np.abs(deferred).max(axis=1) > FEATURE_DEFER_MIN
+        self.throughput[samples[go_on]] = t[go_on] * deferred[go_on]
+        self.open[samples[~go_on]] = False
 
 
 class PathTracer:
@@ -245,14 +325,22 @@ class PathTracer:
         depth_scale: np.ndarray,
         t_start: np.ndarray,
         want_aovs: bool,
+        want_features: bool = False,
     ) -> tuple[np.ndarray, FirstHit | None]:
-        """Radiance (N, 3) float32 of N camera paths. pixel_id/sample_id (uint32) key the random numbers."""
+        """Radiance (N, 3) float32 of N camera paths. pixel_id/sample_id (uint32) key the random numbers.
+        want_aovs: fill the first-hit AOVs; want_features: the denoising features (FirstHit.features)."""
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
         first = None
         if want_aovs:
             first = FirstHit(np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32), np.full(n, np.inf, np.float32))
+        features = None
+        if want_features:
+            features = DenoisingFeatures(n)
+            if first is None:
+                first = FirstHit(None, None, None)
+            first.features = features
         idx = np.arange(n)  # which sample each live path belongs to
         o, d, tm = origins, directions, tmax
         throughput = np.ones((n, 3), np.float32)
@@ -279,6 +367,8 @@ class PathTracer:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
                 self._add(radiance, idx, throughput * le)
+                if features is not None:
+                    features.add_emission(idx, throughput * le)
             prim = hits.prim
 
             # Emission of an emissive triangle hit (two-sided), MIS-weighted against light sampling.
@@ -299,6 +389,8 @@ class PathTracer:
                         pb = prev_pdf[e]
                         w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
                     self._add(radiance, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
+                    if features is not None:
+                        features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
 
             if depth == s.max_bounces + 1:
                 self._lap("emission", clock)
@@ -337,6 +429,8 @@ class PathTracer:
                 throughput /= q[rows][:, None]
             mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
+            if features is not None:
+                features.record(idx, lobes, g.wo, g.n_view)
 
             clock = self._lap("emission", clock)
             if self.use_nee:

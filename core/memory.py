@@ -2,15 +2,16 @@
 
 The estimate (bytes), measured on this renderer (see docs/stress.md for the calibration):
 
-    total = pixels x (FILM_BYTES [+ FILM_AOV_BYTES] + RESULT_BYTES [+ RESULT_AOV_BYTES])
+    total = pixels x (FILM_BYTES [+ FILM_AOV_BYTES] [+ FILM_FEATURE_BYTES]
+                      + RESULT_BYTES [+ RESULT_AOV_BYTES] [+ RESULT_FEATURE_BYTES])
           + threads x min(batch, pixels x spp) x PATH_BYTES      (batch: core.schedule.batch_target)
           + triangles x TRIANGLE_BYTES + texels x TEXEL_BYTES
 
 - film: per pixel, for each of the 4 variance groups a float64 RGB sum and an int32 count (4 x 28 B), and a
   float64 RGB sum of squares (24 B) (core.film); with AOVs float64 albedo and normal sums (48 B), a depth sum
-  and count (16 B);
+  and count (16 B); with the denoising features float64 albedo and normal sums (48 B);
 - result: the assembled float32 colour RGBA (16 B), variance (12 B), int32 sample count (4 B); with AOVs
-  albedo, normal (24 B) and depth (4 B);
+  albedo, normal (24 B) and depth (4 B); with the denoising features their albedo and normal (24 B);
 - batch: the integrator's float32 structure-of-arrays for every path in flight, ray buffers and temporaries
   (measured: about 800 B per path at 2^18 paths);
 - scene: the camera-shifted float32 triangle soup, face and corner normals, UVs, material indices and the Embree
@@ -35,6 +36,8 @@ FILM_BYTES = 136  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
 FILM_AOV_BYTES = 64
 RESULT_BYTES = 32
 RESULT_AOV_BYTES = 28
+FILM_FEATURE_BYTES = 48
+RESULT_FEATURE_BYTES = 24
 PATH_BYTES = 800
 TRIANGLE_BYTES = 400
 TEXEL_BYTES = 24
@@ -73,8 +76,9 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
         w, h = scene.camera.resolution
         pixels = int(w) * int(h)
     aovs = bool(settings.aovs)
-    film = pixels * (FILM_BYTES + (FILM_AOV_BYTES if aovs else 0))
-    result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0))
+    features = bool(settings.denoising_features)
+    film = pixels * (FILM_BYTES + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0))
+    result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0))
     # every worker thread traces one batch at a time (see core.schedule.batch_target)
     total_paths = pixels * max(int(settings.spp), 0)
     paths = min(batch_target(settings, total_paths), total_paths) * settings.thread_count

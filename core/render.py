@@ -49,6 +49,9 @@ class Tile:
     renders an opaque world, so alpha is 1 everywhere). variance: (h, w, 3) variance of each pixel's mean.
     albedo, normal: (h, w, 3) first-hit AOVs (normal in world space); depth: (h, w) distance along the camera
     axis to the first hit (Blender's Z pass; 1e10 where nothing was hit). samples: samples taken per pixel.
+    denoising_albedo, denoising_normal: (h, w, 3) Cycles' Denoising Albedo and Denoising Normal passes (normal in
+    camera space: +x right, +y up, +z along the view, so a surface facing the camera reads (0, 0, -1); means
+    over the pixel's samples, not renormalised), None unless settings.denoising_features.
     """
 
     x0: int
@@ -59,6 +62,8 @@ class Tile:
     normal: np.ndarray | None = None
     depth: np.ndarray | None = None
     samples: int = 0
+    denoising_albedo: np.ndarray | None = None
+    denoising_normal: np.ndarray | None = None
 
     @property
     def width(self) -> int:
@@ -103,6 +108,9 @@ class RenderResult:
     stats: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     cancelled: bool = False
+    denoising_albedo: np.ndarray | None = None
+    denoising_normal: np.ndarray | None = None
+    noisy: np.ndarray | None = None  # the colour before denoising, when a caller denoised `color` (core.denoise)
 
 
 ProgressCallback = Callable[[Progress], None]
@@ -198,7 +206,7 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     region = (0, 0, width, height)
     tile_list = tiles(0, 0, width, height, settings.tile_size)
     sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
-    films = [TileFilm(t[2], t[3], settings.aovs, sampler) for t in tile_list]
+    films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features) for t in tile_list]
     reached = [0] * len(tile_list)
     for part in sorted(parts, key=lambda p: (p.tile_index, p.sample_start)):
         ti = part.tile_index
@@ -215,7 +223,9 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     color, variance, albedo, normal, depth, counts = assemble_image(tile_list, films, settings, region)
     stats = {"scene": scene.name, "resolution": [width, height], "region": list(region), "spp": settings.spp,
              "samples": int(counts.sum())}
-    return RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings))
+    result = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings))
+    _assemble_features(result, tile_list, films, scene, region)
+    return result
 
 
 def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: RenderSettings, region: TileRect
@@ -241,13 +251,45 @@ def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: R
     return color, variance, albedo, normal, depth, counts
 
 
-def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool) -> Tile:
-    """A tile's images from its film (samples: what Tile.samples reports)."""
+def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
+                world_to_camera: np.ndarray | None = None) -> Tile:
+    """A tile's images from its film (samples: what Tile.samples reports; world_to_camera: the rotation that
+    turns the denoising normal to camera space, needed when the film keeps the denoising features)."""
     color = np.concatenate([film.mean(), np.ones((tile[3], tile[2], 1), np.float32)], axis=2)
     albedo = normal = depth = None
     if aovs:
         albedo, normal, depth = film.aov_images()
-    return Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
+    out = Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
+    if film.features and world_to_camera is not None:
+        out.denoising_albedo, world_normal = film.feature_images()
+        out.denoising_normal = (world_normal @ world_to_camera.T).astype(np.float32)
+    return out
+
+
+def world_to_camera(scene: Scene) -> np.ndarray:
+    """(3, 3) rotation from world to Cycles' camera space (+x right, +y up, +z the view direction) of the
+    scene's camera: the rows are the camera's local X, Y and -Z axes, normalised (a scaled camera keeps its
+    directions)."""
+    axes = np.asarray(scene.camera.matrix_world, np.float64)[:3, :3].T.copy()
+    axes[2] *= -1
+    return axes / np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-30)
+
+
+def _assemble_features(result: RenderResult, tile_list: list[TileRect], films: list[TileFilm], scene: Scene,
+                       region: TileRect) -> None:
+    """Fill result.denoising_albedo/normal from the tiles' films when they keep the denoising features."""
+    if not films or not films[0].features:
+        return
+    rx, ry, rw, rh = region
+    rot = world_to_camera(scene)
+    result.denoising_albedo = np.zeros((rh, rw, 3), np.float32)
+    result.denoising_normal = np.zeros((rh, rw, 3), np.float32)
+    for tile, film in zip(tile_list, films):
+        tx, ty, tw, th = tile
+        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
+        albedo, normal = film.feature_images()
+        result.denoising_albedo[sl] = albedo
+        result.denoising_normal[sl] = normal @ rot.T
 
 
 def _silent(_msg: str) -> None:
@@ -334,7 +376,8 @@ class _TileRender:
             if sorted(tile_order) != list(range(len(self.tiles))):
                 raise ValueError("tile_order must be a permutation of the tile indices")
             self.tiles = [self.tiles[i] for i in tile_order]
-        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler) for t in self.tiles}
+        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features)
+                      for t in self.tiles}
 
         self.spp = int(settings.spp)
         self.total_paths = self.spp * rw * rh
@@ -472,7 +515,7 @@ class _TileRender:
             rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
         return tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
-                            rays.t_start, self.settings.aovs)
+                            rays.t_start, self.settings.aovs, self.settings.denoising_features)
 
     def _finish_one(self, quiet: bool = False) -> None:
         """Wait for the oldest batch in flight and add it to its tiles' films (quiet: no callbacks)."""
@@ -485,8 +528,10 @@ class _TileRender:
             t0 = time.perf_counter()
             film = self.films[seg.tile]
             film.add(seg.loc, radiance[rows], seg.smp)
-            if first is not None:
+            if first is not None and first.albedo is not None:
                 film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
+            if first is not None and first.features is not None:
+                film.add_features(seg.loc, first.features.albedo[rows], first.features.normal[rows])
             self.film_seconds += time.perf_counter() - t0
             self.done_paths += len(seg.loc)
             if not quiet:
@@ -545,7 +590,8 @@ class _TileRender:
                                   rays / max(elapsed, 1e-9), eta))
 
     def _tile_result(self, tile: TileRect, film: TileFilm, samples: int) -> Tile:
-        return tile_result(tile, film, samples, self.settings.aovs)
+        rot = world_to_camera(self.scene) if self.settings.denoising_features else None
+        return tile_result(tile, film, samples, self.settings.aovs, rot)
 
     def result(self, t_prepare: float, say) -> RenderResult:
         """The region's image assembled from the tiles, with the render's statistics."""
@@ -584,5 +630,7 @@ class _TileRender:
             msg = f"{st.nonfinite} NaN/Inf path contributions were caught and dropped (not written to the image)"
             scene.warnings.append(msg)
             say(f"warning: {msg}")
-        return RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings),
-                            self.cancelled)
+        out = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings),
+                           self.cancelled)
+        _assemble_features(out, self.tiles, [self.films[t] for t in self.tiles], scene, self.region)
+        return out

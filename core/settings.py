@@ -43,6 +43,8 @@ class RenderSettings:
     Cycles suggests 0.01): a pixel stops taking samples once the sum of its channels' standard errors divided by
     sqrt of its summed value is below it. adaptive_min_samples: samples every pixel gets before the test
     (0 = automatic: 4 / sqrt(threshold), at least 16, at most spp).
+    denoising_features: also produce Cycles' Denoising Albedo and Denoising Normal passes (what the denoiser of
+    core.denoise reads; see core.integrator.DenoisingFeatures); off costs nothing.
     """
 
     spp: int = 64
@@ -61,6 +63,7 @@ class RenderSettings:
     aovs: bool = True
     adaptive_threshold: float = 0.0
     adaptive_min_samples: int = 0
+    denoising_features: bool = False
 
     def validate(self) -> "RenderSettings":
         """Raise ValueError naming the setting for absurd values (NaN, Inf and non-numbers included)."""

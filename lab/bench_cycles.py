@@ -9,6 +9,12 @@ the render call itself (for Monte: Embree build + render, not the export; for Cy
 not saving the image). Errors are RMSE against a converged Cycles reference from a ReferenceCache (rendered
 here when missing), with the reference's own noise removed in quadrature.
 
+With denoise=True (`--denoise`), both renderers' images are denoised with Open Image Denoise on their own
+Denoising Albedo / Normal passes (Cycles: its OIDN, accurate prefilter; Monte: core.denoise, the same prefilter),
+the times include the denoising, and the report adds each renderer's time to reach target errors and the
+denoising seconds per megapixel (Monte's measured around its denoise call; Cycles' as the difference between a
+denoised and an undenoised render of the lowest rung, an estimate).
+
 Writes OUTDIR/bench.json and one log-log PNG (bench_vs_cycles.png, a panel per scene), and returns the report.
 """
 
@@ -30,7 +36,7 @@ from ..core.render import render as monte_render
 from ..core.settings import RenderSettings
 from . import bpy_scenes
 from .bench_math import (corrected_rmse, efficiency, equal_error_ratio, format_table, plot_rmse_vs_seconds,
-                         reference_from_seeds, write_json)
+                         reference_from_seeds, seconds_at_rmse, write_json)
 from .bench_reference import Reference, ReferenceCache, file_digest
 
 DEFAULT_LADDER = (16, 32, 64, 128, 256)
@@ -49,10 +55,21 @@ def _read_combined(path: Path) -> np.ndarray:
     raise RuntimeError(f"Cycles' render result has no Combined pass (channels: {', '.join(sorted(ch))})")
 
 
-def render_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0
-                  ) -> tuple[np.ndarray, float]:
-    """One Cycles render: (linear RGB (H, W, 3) with row 0 at the top, seconds of the render call)."""
+def render_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0,
+                  denoise: str | None = None) -> tuple[np.ndarray, float]:
+    """One Cycles render: (linear RGB (H, W, 3) with row 0 at the top, seconds of the render call).
+    denoise: None, or the Open Image Denoise quality ("high", "balanced", "fast") Cycles denoises with (CPU,
+    albedo and normal, accurate prefilter)."""
     configure_cycles(scene, spp, max_bounces, threads, seed=seed, time_limit=time_limit)
+    if denoise is not None:
+        c = scene.cycles
+        c.use_denoising = True
+        c.denoiser = "OPENIMAGEDENOISE"
+        c.denoising_input_passes = "RGB_ALBEDO_NORMAL"
+        c.denoising_prefilter = "ACCURATE"
+        c.denoising_quality = denoise.upper()
+        if hasattr(c, "denoising_use_gpu"):
+            c.denoising_use_gpu = False
     t0 = time.perf_counter()
     bpy.ops.render.render(write_still=False, scene=scene.name)
     seconds = time.perf_counter() - t0
@@ -136,11 +153,29 @@ def _point(renderer: str, rung, image: np.ndarray, seconds: float, ref: Referenc
             "rmse": err, "rmse_corrected": err_c, "efficiency": efficiency(seconds, err_c * err_c)}
 
 
+def _monte_point(core_scene, settings: RenderSettings, denoise: str | None) -> tuple[np.ndarray, float, int, float]:
+    """One timed Monte render (denoised when denoise names a quality): (RGB, seconds, samples, denoise seconds)."""
+    from ..core.denoise import denoise as oidn_denoise
+
+    if denoise is not None:
+        settings = settings.replace(denoising_features=True)
+    t0 = time.perf_counter()
+    result = monte_render(core_scene, settings)
+    t_denoise = 0.0
+    image = result.color[..., :3]
+    if denoise is not None:
+        t1 = time.perf_counter()
+        image = oidn_denoise(image, result.denoising_albedo, result.denoising_normal, quality=denoise)
+        t_denoise = time.perf_counter() - t1
+    return image, time.perf_counter() - t0, int(result.sample_count.sum()), t_denoise
+
+
 def bench_scene(spec: str, *, cache: ReferenceCache, ladder: Sequence[int] = DEFAULT_LADDER,
                 time_ladder: Sequence[float] | None = None, threads: int = 2, max_bounces: int = 16,
                 resolution: tuple[int, int] | None = None, reference_spp: int = 1024, reference_seeds: int = 4,
-                seed: int = 1, log: Callable[[str], None] = print) -> dict:
-    """Monte and Cycles on one scene at each rung, interleaved; returns the scene's report."""
+                seed: int = 1, denoise: str | None = None, log: Callable[[str], None] = print) -> dict:
+    """Monte and Cycles on one scene at each rung, interleaved; returns the scene's report. denoise: None, or
+    the Open Image Denoise quality both renderers denoise with (see the module docstring)."""
     scene, name, version = _load_scene(spec, resolution)
     res = _resolution_of(scene)
     log(f"{name} {res[0]}x{res[1]}, {threads} threads, max bounces {max_bounces}")
@@ -150,11 +185,12 @@ def bench_scene(spec: str, *, cache: ReferenceCache, ladder: Sequence[int] = DEF
     scene.render.engine = "MONTE"
     core_scene, stats = export_scene(bpy.context.evaluated_depsgraph_get())
     log(f"  monte export: {stats.line()}")
-    # Warm-up, untimed: first calls load kernels, tables and caches in both renderers.
-    monte_render(core_scene, monte_settings(1, seed, threads, max_bounces))
-    render_cycles(scene, 1, seed, threads, max_bounces)
+    # Warm-up, untimed: first calls load kernels, tables and caches in both renderers (and the denoisers).
+    _monte_point(core_scene, monte_settings(1, seed, threads, max_bounces), denoise)
+    render_cycles(scene, 1, seed, threads, max_bounces, denoise=denoise)
 
     points = []
+    monte_denoise_seconds = []
     rungs = list(time_ladder) if time_ladder else list(ladder)
     n_pix = res[0] * res[1]
     for rung in rungs:
@@ -162,15 +198,15 @@ def bench_scene(spec: str, *, cache: ReferenceCache, ladder: Sequence[int] = DEF
             m_set = monte_settings(BIG_SPP, seed, threads, max_bounces, time_limit=float(rung))
         else:
             m_set = monte_settings(int(rung), seed, threads, max_bounces)
-        t0 = time.perf_counter()
-        result = monte_render(core_scene, m_set)
-        m_sec = time.perf_counter() - t0
-        points.append(_point("monte", rung, result.color[..., :3], m_sec, ref, int(result.sample_count.sum())))
+        m_img, m_sec, m_samples, m_denoise = _monte_point(core_scene, m_set, denoise)
+        monte_denoise_seconds.append(m_denoise)
+        points.append(_point("monte", rung, m_img, m_sec, ref, m_samples))
         if time_ladder:
-            c_img, c_sec = render_cycles(scene, BIG_SPP, seed, threads, max_bounces, time_limit=float(rung))
+            c_img, c_sec = render_cycles(scene, BIG_SPP, seed, threads, max_bounces, time_limit=float(rung),
+                                         denoise=denoise)
             c_samples = -1  # Cycles does not report how many samples fit in the budget
         else:
-            c_img, c_sec = render_cycles(scene, int(rung), seed, threads, max_bounces)
+            c_img, c_sec = render_cycles(scene, int(rung), seed, threads, max_bounces, denoise=denoise)
             c_samples = int(rung) * n_pix
         points.append(_point("cycles", rung, c_img, c_sec, ref, c_samples))
         m, c = points[-2], points[-1]
@@ -181,13 +217,56 @@ def bench_scene(spec: str, *, cache: ReferenceCache, ladder: Sequence[int] = DEF
     cyc = [p for p in points if p["renderer"] == "cycles"]
     ratio = equal_error_ratio(([p["seconds"] for p in mon], [p["rmse_corrected"] for p in mon]),
                               ([p["seconds"] for p in cyc], [p["rmse_corrected"] for p in cyc]))
-    return {"scene": name, "source": spec, "resolution": list(res), "threads": threads,
+    report = {}
+    if denoise is not None:
+        report["denoise"] = _denoise_report(scene, rungs, time_ladder, seed, threads, max_bounces, denoise,
+                                            points, monte_denoise_seconds, n_pix, log)
+    return {**report, "scene": name, "source": spec, "resolution": list(res), "threads": threads,
             "max_bounces": max_bounces, "ladder_kind": "seconds" if time_ladder else "spp",
             "triangles": stats.triangles, "instances": stats.instances,
             "reference": {"path": str(ref.path) if ref.path else None, "source": ref.source,
                           "own_rmse": float(np.sqrt(ref.own_mse)), "params": ref.params},
             "points": points, "equal_error": ratio,
             "monte_over_cycles_efficiency": ratio["ratio"]}
+
+
+def _denoise_report(scene, rungs, time_ladder, seed, threads, max_bounces, quality: str, points: list[dict],
+                    monte_denoise_seconds: list[float], n_pix: int, log) -> dict:
+    """Denoising seconds per megapixel (Monte measured; Cycles estimated as a denoised minus an undenoised
+    render of the lowest rung) and the seconds each renderer needs for target errors (log-log interpolation of
+    its points; None outside the errors it reached)."""
+    megapixels = n_pix / 1e6
+    monte_s_per_mp = float(np.median(monte_denoise_seconds)) / megapixels
+    rung = rungs[0]
+    spp, limit = (BIG_SPP, float(rung)) if time_ladder else (int(rung), 0.0)
+    plain = render_cycles(scene, spp, seed, threads, max_bounces, time_limit=limit)[1]
+    denoised = render_cycles(scene, spp, seed, threads, max_bounces, time_limit=limit, denoise=quality)[1]
+    cycles_s_per_mp = max(denoised - plain, 0.0) / megapixels
+    targets = {}
+    for renderer in ("monte", "cycles"):
+        pts = [p for p in points if p["renderer"] == renderer]
+        t = np.array([p["seconds"] for p in pts])
+        e = np.array([p["rmse_corrected"] for p in pts])
+        targets[renderer] = e, t
+    all_errors = np.concatenate([targets[r][0] for r in targets])
+    levels = sorted({float(v) for v in np.quantile(all_errors[all_errors > 0], (0.25, 0.5, 0.75))}) \
+        if (all_errors > 0).any() else []
+    seconds_for = {}
+    for renderer, (e, t) in targets.items():
+        ok = (e > 0) & (t > 0)
+        seconds_for[renderer] = []
+        for level in levels:
+            inside = ok.any() and e[ok].min() <= level <= e[ok].max()
+            seconds_for[renderer].append(float(seconds_at_rmse(t[ok], e[ok], np.array([level]))[0])
+                                         if inside else None)
+    log(f"  denoising ({quality}): Monte {monte_s_per_mp:.2f} s/MP, Cycles about {cycles_s_per_mp:.2f} s/MP")
+    for i, level in enumerate(levels):
+        m, c = seconds_for["monte"][i], seconds_for["cycles"][i]
+        log(f"  time for RMSE {level:.4f}: Monte {'-' if m is None else f'{m:.2f} s'}, "
+            f"Cycles {'-' if c is None else f'{c:.2f} s'}")
+    return {"quality": quality, "monte_seconds_per_megapixel": monte_s_per_mp,
+            "cycles_seconds_per_megapixel_estimate": cycles_s_per_mp, "target_rmse": levels,
+            "seconds_for_target": seconds_for}
 
 
 def summary_table(scenes: list[dict]) -> str:
@@ -260,7 +339,7 @@ def run_from_args(args, overrides: dict) -> dict:
     if args.reference_seeds < 2 or args.reference_spp < 1:
         raise ValueError("the reference needs --reference-seeds >= 2 (to estimate its own noise) and "
                          "--reference-spp >= 1")
-    unsupported = sorted(set(overrides) - {"threads", "max_bounces", "seed"})
+    unsupported = sorted(set(overrides) - {"threads", "max_bounces", "seed", "denoising_features"})
     if unsupported:
         raise ValueError(f"--vs cycles fixes these settings for a fair comparison: {', '.join(unsupported)}")
     return run_vs_cycles(specs, args.reference_dir, args.output_dir,
@@ -268,7 +347,8 @@ def run_from_args(args, overrides: dict) -> dict:
                          threads=overrides.get("threads") or 2, max_bounces=overrides.get("max_bounces", 16),
                          resolution=tuple(args.resolution) if args.resolution else None,
                          reference_spp=args.reference_spp, reference_seeds=args.reference_seeds,
-                         seed=overrides.get("seed", 1))
+                         seed=overrides.get("seed", 1),
+                         denoise=args.denoise_quality if getattr(args, "denoise", False) else None)
 
 
 def cornell_reference_maker(args) -> Callable[[tuple[int, int]], Reference]:
