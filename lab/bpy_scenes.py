@@ -88,16 +88,15 @@ def set_world(scene, rgb, strength: float = 1.0):
 
 
 def studio_hdri(name: str) -> str:
-    """Path of one of the studio HDRIs shipped inside the bpy package (`datafiles/studiolights/world/`:
-    forest, city, courtyard, interior, night, studio, sunrise, sunset); FileNotFoundError if absent."""
-    import glob
+    """Path of one of the studio HDRIs shipped with Blender (`datafiles/studiolights/world/`: forest, city,
+    courtyard, interior, night, studio, sunrise, sunset, each 1024 x 512); FileNotFoundError if absent."""
     import os
 
-    base = os.path.dirname(bpy.__file__)
-    hits = sorted(glob.glob(os.path.join(base, "*", "datafiles", "studiolights", "world", f"{name}.exr")))
-    if not hits:
-        raise FileNotFoundError(f"studio HDRI {name!r} not found under {base}")
-    return hits[0]
+    folder = bpy.utils.system_resource("DATAFILES", path="studiolights/world")
+    path = os.path.join(folder, f"{name}.exr") if folder else ""
+    if not path or not os.path.isfile(path):
+        raise FileNotFoundError(f"studio HDRI {name!r} not found in Blender's datafiles ({folder!r})")
+    return path
 
 
 def set_environment_world(scene, path: str, strength: float = 1.0, rotation=None, scale=None,
