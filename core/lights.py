@@ -9,12 +9,14 @@ Units, as Cycles 5.0 converts Blender's (each checked against a Cycles render in
 - spot light: the point light times Cycles' smoothstep of the cone (size, blend);
 - sun: strength S W/m^2 is the irradiance; angle a > 0 gives a disc of radiance S / (pi sin^2(a / 2));
 - area light: one-sided (local -Z), radiance P / (pi A), A the world area; spread < pi attenuates as Cycles;
-- mesh emission: radiance colour x strength from both faces; world: constant radiance colour x strength.
+- mesh emission: radiance colour x strength from both faces; world: constant radiance colour x strength, or an
+  environment map (core.world: the image through the Mapping node, x strength).
 Visibility as Cycles' defaults: camera rays see the world but no light (unless `visible_camera`), BSDF rays see
 every light with a surface and the world; lights never block rays.
 
 Sampling: rectangles by solid angle, discs/ellipses and emissive triangles by area (near, large triangles by
-solid angle), sphere lights in the cone they subtend, the sun in its cone, the world cosine-weighted about n.
+solid angle), sphere lights in the cone they subtend, the sun in its cone, the uniform world cosine-weighted
+about n, an environment map by its 2D distribution (core.world_kernels).
 `intersect` and `pdf_triangle` compute the light pdf of a BSDF-sampled direction with the same formulas and the
 same per-point selection (they need the n and transmission flags `sample` got), so MIS weights match. Delta
 lights (radius 0, sun angle 0): `pdf` is the selection probability and `radiance` the value to divide by it.
@@ -56,9 +58,9 @@ SELECTION_POWER_FLOOR = 0.1
 # distributed about n, as a diffuse BSDF's own samples (which MIS counts too), so they add little beside them
 # (measurements in docs/lights.md). Renders leave the world out of selection; this serves light_sampling="light".
 _WORLD_IMPORTANCE = 0.1
-# An environment map's importance is this fraction of the irradiance pi L_mean it gives: its light samples follow
+# An environment map's importance is this multiple of the irradiance pi L_mean it gives: its light samples follow
 # the map's brightness (a sun in it), which BSDF sampling finds poorly (measurements in docs/lights.md).
-_WORLD_MAP_IMPORTANCE = 1.0
+_WORLD_MAP_IMPORTANCE = 3.0
 
 
 def luminance(rgb) -> np.ndarray:
