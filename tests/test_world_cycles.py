@@ -21,6 +21,7 @@ from test_crosscheck import check  # noqa: E402
 from monte.lab import bpy_scenes as bs  # noqa: E402
 
 pytestmark = pytest.mark.blender
+SAMPLES = 3  # x test_crosscheck's sample counts: 2 left 4 sigma at 0.69 % (the sun in the gold), above 0.6 %
 
 
 def gold_suzanne_scene(world_setup) -> object:
@@ -44,8 +45,6 @@ def test_forest_hdri_gold_suzanne(size, tmp_path):
     scene = gold_suzanne_scene(lambda s: bs.set_environment_world(s, bs.studio_hdri("forest"), 1.0))
     check(scene, tmp_path, size, max_bounces=4, samples=SAMPLES)
 
-
-SAMPLES = 3  # x test_crosscheck's sample counts: 2 left 4 sigma at 0.69 % (the sun in the gold), above 0.6 %
 
 
 @pytest.mark.slow
@@ -80,3 +79,59 @@ def test_mirror_ball_hdri(tmp_path):
     path = mirror_ball_exr(bs.studio_hdri("forest"), tmp_path / "ball.exr")
     scene = gold_suzanne_scene(lambda s: bs.set_environment_world(s, str(path), 1.0, projection="MIRROR_BALL"))
     check(scene, tmp_path, "small", max_bounces=4, samples=SAMPLES)
+
+
+# ------------------------------------------------------------------------------------------ export (no render)
+def _export_world(scene):
+    from monte.addon.export.world import export_world
+
+    warnings: list[str] = []
+    return export_world(scene.world, warnings), warnings
+
+
+def test_export_reads_the_map_mapping_and_sampling_settings():
+    scene = bs.reset()
+    world = bs.set_environment_world(scene, bs.studio_hdri("forest"), 2.5, rotation=(0.0, 0.0, math.pi / 2),
+                                     scale=(1.0, 1.0, 2.0), interpolation="Closest")
+    world.cycles.sampling_method = "MANUAL"
+    world.cycles.sample_map_resolution = 256
+    got, warnings = _export_world(scene)
+    env = got.environment
+    assert warnings == [] and env.pixels.shape == (512, 1024, 3) and env.pixels.dtype == np.float32
+    assert env.interpolation == "CLOSEST" and env.projection == "EQUIRECTANGULAR"
+    np.testing.assert_allclose(env.strength, 2.5)
+    # Point mapping: rotate (90 degrees about Z) after scaling (z by 2): x -> y, y -> -x, z -> 2z
+    np.testing.assert_allclose(env.matrix, [[0, -1, 0], [1, 0, 0], [0, 0, 2]], atol=1e-7)
+    assert env.map_resolution == 256 and env.importance_resolution == (256, 128) and env.importance_sampling
+    world.cycles.sampling_method = "AUTOMATIC"
+    assert _export_world(scene)[0].environment.importance_resolution == (1024, 512)
+    world.cycles.sampling_method = "NONE"
+    assert not _export_world(scene)[0].environment.importance_sampling
+
+
+def test_missing_hdri_warns_with_world_and_path_and_renders_the_background_colour(tmp_path):
+    scene = bs.reset()
+    world = bs.set_environment_world(scene, bs.studio_hdri("forest"), 2.0)
+    bg = world.node_tree.nodes["Background"]
+    bg.inputs["Color"].default_value = (0.2, 0.3, 0.4, 1.0)
+    image = world.node_tree.nodes["Environment Texture"].image
+    missing = tmp_path / "gone.exr"
+    image.filepath = str(missing)
+    image.reload()
+    got, warnings = _export_world(scene)
+    assert got.environment is None
+    np.testing.assert_allclose(got.color, (0.4, 0.6, 0.8), rtol=1e-6)
+    assert len(warnings) == 1 and warnings[0].startswith(f"world 'World': environment image 'forest.exr' ({missing})")
+    assert "using the Background's own colour" in warnings[0]
+
+
+def test_sky_texture_warns_and_keeps_the_socket_colour():
+    scene = bs.reset()
+    world = bs.set_world(scene, (0.1, 0.2, 0.3), 1.0)
+    tree = world.node_tree
+    sky = tree.nodes.new("ShaderNodeTexSky")
+    tree.links.new(sky.outputs["Color"], tree.nodes["Background"].inputs["Color"])
+    got, warnings = _export_world(scene)
+    np.testing.assert_allclose(got.color, (0.1, 0.2, 0.3), rtol=1e-6)
+    assert warnings == [f"world 'World': Sky Texture {sky.name!r} is not supported; using the socket's own colour "
+                        "as a uniform background"]
