@@ -6,10 +6,10 @@ tables the compiled kernels (core.world_kernels) read: the map itself, the Mappi
 2D distribution over an equirectangular grid of world directions, as Cycles builds its background map:
 - the grid is Cycles' world "Map Resolution" (width x width / 2) or, with Auto (`map_resolution` 0), the
   image's own size, capped at MAX_IMPORTANCE_WIDTH x half of it;
-- each cell holds the luminance of the world averaged over 2 x 2 directions in it (up to 2^20 cells; the map seen through the
-  Mapping node and the projection; Cycles takes the centre alone) plus IMPORTANCE_FLOOR x the mean, times
-  cos(elevation) (the cell's solid angle); the floor keeps
-  the pdf positive wherever the map may be lit, so light sampling alone stays unbiased;
+- each cell holds the luminance of the world (the map seen through the Mapping node and the projection)
+  averaged over 2 x 2 directions in it (the centre alone, as Cycles, beyond 2^20 cells) plus IMPORTANCE_FLOOR x
+  the mean, times cos(elevation) (the cell's solid angle); the floor keeps the pdf positive wherever the map may
+  be lit, so light sampling alone stays unbiased;
 - a direction's solid-angle pdf is p(u, v) / (2 pi^2 cos(elevation)), p the density over the (u, v) square.
 """
 
@@ -23,7 +23,8 @@ import numpy as np
 
 from . import world_kernels as wk
 
-__all__ = ["EnvironmentMap", "EnvironmentMapError", "EnvironmentDistribution", "IMPORTANCE_FLOOR", "MAX_IMPORTANCE_WIDTH"]
+__all__ = ["EnvironmentMap", "EnvironmentMapError", "EnvironmentDistribution", "IMPORTANCE_FLOOR",
+           "MAX_IMPORTANCE_WIDTH"]
 
 # Share of the mean luminance added to every cell of the importance grid: where a cell's centre is black but its
 # texels are not (a small light between grid centres), light sampling keeps a chance to find it.
