@@ -149,3 +149,22 @@ def test_sky_texture_warns_and_keeps_the_socket_colour():
     np.testing.assert_allclose(got.color, (0.1, 0.2, 0.3), rtol=1e-6)
     assert warnings == [f"world 'World': Sky Texture {sky.name!r} is not supported; using the socket's own colour "
                         "as a uniform background"]
+
+
+@pytest.mark.parametrize("factor", [1.0, 0.5])
+def test_a_constant_colour_multiply_scales_the_map(factor):
+    """Background <- Mix (Color, Multiply, factor f) of the map and a constant colour c: the map x ((1 - f) + f c)."""
+    scene = bs.reset()
+    world = bs.set_environment_world(scene, bs.studio_hdri("forest"), 2.0)
+    tree = world.node_tree
+    mix = tree.nodes.new("ShaderNodeMix")
+    mix.data_type, mix.blend_type = "RGBA", "MULTIPLY"
+    mix.inputs[0].default_value = factor
+    colours = [sk for sk in mix.inputs if sk.type == "RGBA" and sk.enabled]
+    colours[1].default_value = (0.2, 0.5, 1.5, 1.0)
+    tree.links.new(tree.nodes["Environment Texture"].outputs["Color"], colours[0])
+    tree.links.new(mix.outputs["Result"], tree.nodes["Background"].inputs["Color"])
+    got, warnings = _export_world(scene)
+    assert warnings == [] and got.environment is not None
+    np.testing.assert_allclose(got.environment.strength, 2.0 * ((1 - factor) + factor * np.array([0.2, 0.5, 1.5])),
+                               rtol=1e-6)

@@ -3,7 +3,8 @@
 Supported: the active World Output's Surface linked to a Background node whose Color is unlinked (uniform) or
 linked to an Environment Texture (equirectangular or mirror ball, Linear or Closest interpolation; Cubic and
 Smart read as Linear with a warning) whose Vector is unlinked or comes from a Mapping node (rotation and scale;
-location ignored, as for any direction) fed by Texture Coordinate Generated (or nothing). The image's pixels come
+location ignored, as for any direction) fed by Texture Coordinate Generated (or nothing), possibly through a Mix
+(Color, Multiply) with a constant colour. The image's pixels come
 through bpy (packed or on disk, its colour space applied); Strength multiplies it. Cycles' world sampling
 settings (`world.cycles.sampling_method`, `sample_map_resolution`) choose the importance map's resolution.
 Anything else warns and falls back: an Image Texture or other node on the colour -> its average colour or the
@@ -43,14 +44,41 @@ def export_world(world, warnings: list[str]) -> World:
         return World(np.array(world.color[:3], dtype=np.float64))
     strength = float(socket_value(node.inputs["Strength"], f"world {name!r}", warnings))
     src = follow_link(node.inputs["Color"])
+    factor = np.ones(3)
+    if src is not None and src.bl_idname in ("ShaderNodeMix", "ShaderNodeMixRGB"):
+        tex, factor = _constant_multiply(src)
+        src = tex if tex is not None else src
     if src is not None and src.bl_idname == "ShaderNodeTexEnvironment":
         env = _environment(world, src, warnings)
         if env is not None:
-            env.strength = np.full(3, max(strength, 0.0))
+            env.strength = np.maximum(factor * strength, 0.0)
             return World(np.zeros(3), environment=env)
         return World(np.maximum(np.array(node.inputs["Color"].default_value[:3], np.float64) * strength, 0.0))
     color = _background_color(node.inputs["Color"], name, warnings)
     return World(np.maximum(color * strength, 0.0))
+
+
+def _constant_multiply(mix) -> tuple[object | None, np.ndarray]:
+    """(the Environment Texture, its constant colour factor) when `mix` is a Mix (Color, Multiply, unclamped
+    result) of an Environment Texture and an unlinked colour with an unlinked factor f: mix(A, A x B, f) =
+    A x ((1 - f) + f B). (None, ones) for anything else."""
+    if mix.bl_idname == "ShaderNodeMix":
+        if mix.data_type != "RGBA" or mix.clamp_result:
+            return None, np.ones(3)
+        fac = mix.inputs["Factor"] if mix.inputs[0].identifier != "Factor_Float" else mix.inputs[0]
+        colours = [sk for sk in mix.inputs if sk.type == "RGBA" and sk.enabled]
+    else:  # the legacy MixRGB node
+        if getattr(mix, "use_clamp", False):
+            return None, np.ones(3)
+        fac, colours = mix.inputs["Fac"], [mix.inputs["Color1"], mix.inputs["Color2"]]
+    if mix.blend_type != "MULTIPLY" or fac.is_linked or len(colours) != 2:
+        return None, np.ones(3)
+    f = min(max(float(fac.default_value), 0.0), 1.0)
+    for tex_sock, const_sock in (colours, colours[::-1]):
+        tex = follow_link(tex_sock)
+        if tex is not None and tex.bl_idname == "ShaderNodeTexEnvironment" and not const_sock.is_linked:
+            return tex, (1.0 - f) + f * np.array(const_sock.default_value[:3], np.float64)
+    return None, np.ones(3)
 
 
 def _environment(world, tex, warnings: list[str]) -> EnvironmentMap | None:
