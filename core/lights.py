@@ -516,9 +516,10 @@ class LightSampler:
     (EmissiveTriangles or None), `world_radiance` ((3,) float32, zeros when black or replaced by a map),
     `environment` (core.world.EnvironmentDistribution; `has_environment`: a lit map), `shift`, `scene_radius`.
     `has_emission` (has_lights, or a lit world that `intersect` returns).
-    sample_world=False leaves the world out of light selection, as Cycles does for a world without spatial
-    variation (`test_enabled_lights`: background MIS off without portals or a varying shader): BSDF sampling
-    then finds it alone, with MIS weight 1, and `intersect` still returns it. The world is uniform here, so its
+    sample_world=False leaves the uniform world out of light selection, as Cycles does for a world without spatial
+    variation (`test_enabled_lights`: background MIS off without portals or a varying shader; an environment map
+    is selectable whatever sample_world, unless its importance_sampling is off): BSDF sampling
+    then finds it alone, with MIS weight 1, and `intersect` still returns it. A uniform world's
     light samples (cosine-distributed about n) only duplicate a diffuse BSDF's own samples while taking
     selections, and shadow rays, from the other lights.
     Work scales with N times the number of analytic lights in `intersect`, and with N in `sample`."""
@@ -542,8 +543,9 @@ class LightSampler:
         if env is not None:
             wc = np.zeros(3)  # the map replaces the uniform colour
             world_lum = self.environment.mean_luminance
-            # Cycles samples a world that varies (background MIS) unless its sampling method is None
-            sample_world = self.has_environment and env.importance_sampling
+            # Cycles samples a world that varies (background MIS) unless its sampling method is None (the
+            # light-sampling-only estimator samples it always: nothing else would find it)
+            sample_world = self.has_environment and (env.importance_sampling or sample_world)
         else:
             wc = np.asarray(scene.world.color, dtype=np.float64).reshape(-1)
             wc = np.repeat(wc, 3) if wc.size == 1 else wc

@@ -152,6 +152,19 @@ def test_diffuse_plane_under_a_map_matches_the_exact_integral(fast_settings, mod
         assert np.all(tol < 0.01 * expected), (mode, tol / expected)
 
 
+@pytest.mark.parametrize("mode", ["mis", "light"])
+def test_map_without_importance_sampling_stays_unbiased(fast_settings, mode):
+    """Cycles' sampling method None: BSDF sampling alone finds the map (MIS weight 1); the light-sampling-only
+    estimator still samples it (nothing else would). Both keep the exact mean."""
+    px = _banded_map()
+    env = EnvironmentMap(px, interpolation="CLOSEST", importance_sampling=False)
+    result = render(_plane_scene(World(environment=env)), fast_settings(spp=512, light_sampling=mode, max_bounces=1))
+    expected = 0.8 * _upward_irradiance(px) / math.pi
+    mean, sigma = metrics.channel_means(result.color), metrics.channel_mean_sigma(result.variance)
+    assert np.all(np.abs(mean - expected) <= Z * sigma), (mode, mean, expected, sigma)
+    assert np.all(Z * sigma < 0.05 * expected), Z * sigma / expected  # BSDF sampling finds the sun by chance: 3.5 %
+
+
 def test_constant_map_renders_the_white_furnace_like_the_uniform_world(fast_settings):
     """A constant map of radiance 1.5 is the uniform world 1.5: same mean (the uniform world's plane is exact,
     0.8 x 1.5, with zero variance), and the map world's own estimate agrees within noise at 1 %."""
