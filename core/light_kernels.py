@@ -18,6 +18,7 @@ import numpy as np
 # No NRT reference counting (these kernels never allocate), device functions taking arrays inlined: core.jit_cache.
 from .jit_cache import jit_inline as _inline
 from .jit_cache import jit_no_nrt as _jit
+from .world_kernels import env_pdf, env_radiance, env_sample
 from .warps import (cone_pdf, cos_hemisphere_pdf, onb, one_minus_cos_from_sin2, sample_cone, sample_cos_hemisphere,
                     sample_disk, sample_sphere, sample_triangle, sphere_pdf)
 
@@ -208,16 +209,19 @@ AR_FIELDS = 42
 # sun table columns: direction to the sun (float32-rounded), radiance, 1 - cos(half-angle), cos(half-angle)
 (SU_DX, SU_DY, SU_DZ, SU_R, SU_G, SU_B, SU_OMC, SU_COS_HALF, SU_SEL, SU_UNIT, SU_CAM) = range(11)
 SU_FIELDS = 11
-# world row
-(W_R, W_G, W_B, W_SEL, W_UNIT, W_LIT) = range(6)
-W_FIELDS = 6
+# world row: uniform radiance, selection, unit, lit, and whether an environment map (tables 21-25) replaces
+# the radiance
+(W_R, W_G, W_B, W_SEL, W_UNIT, W_LIT, W_MAP) = range(7)
+W_FIELDS = 7
 
 # The light tables, one tuple (see core.lights.LightSampler._kernel_tables):
 #   (u_table, u_kind, u_local, u_fallback, floor_weight,        -- per-point selection units
 #    pt (P, PT_FIELDS), ar (A, AR_FIELDS), su (S, SU_FIELDS), world (W_FIELDS,),
 #    t_v0, t_e1, t_e2, t_n, t_L (3, E) float32, t_pdf_area (E,) float32, t_sel (E,), t_edge2 (E,) float64,
-#    g_order (E,) int64, g_cdf (E,) float64, g_start (G + 1,) int64, t_unit (E,) int64)
-#    -- indices 9-20: the emissive triangles (component-major), their spatial groups and units
+#    g_order (E,) int64, g_cdf (E,) float64, g_start (G + 1,) int64, t_unit (E,) int64,
+#    env_pix (H, W, 3) float32, env_par (E_FIELDS,), env_func (Hr, Wr), env_marg (Hr + 1,), env_cond (Hr, Wr + 1))
+#    -- indices 9-20: the emissive triangles (component-major), their spatial groups and units; 21-25: the world's
+#    environment map and its distribution (core.world_kernels; placeholders when the world is uniform)
 
 _TWO_PI = 2.0 * math.pi
 _INV_PI = 1.0 / math.pi
@@ -622,6 +626,11 @@ def sample_light_path(px, py, pz, nx, ny, nz, has_n, transmits, u_sel, u0, u1, p
         else:
             wx, wy, wz, _ = sample_cone(wx, wy, wz, _f32(omc), u0, u1)
             pdf = su[local, SU_SEL] / (_TWO_PI * omc)
+    elif lt[8][W_MAP] != 0.0:
+        dist = math.inf
+        wx, wy, wz, pdf = env_sample(lt[22], lt[23], lt[24], lt[25], u0, u1)
+        rr, rg, rb = env_radiance(lt[21], lt[22], wx, wy, wz)
+        pdf *= lt[8][W_SEL]
     else:
         w = lt[8]
         dist = math.inf
@@ -786,9 +795,16 @@ def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_
         eg += _f32(su[k, SU_G] * wgt)
         eb += _f32(su[k, SU_B] * wgt)
     if w[W_LIT] != 0.0:
+        has_map = w[W_MAP] != 0.0
+        if has_map:
+            wr, wg, wb = env_radiance(lt[21], lt[22], dx, dy, dz)
+        else:
+            wr, wg, wb = w[W_R], w[W_G], w[W_B]
         wgt = 1.0
         if use_mis and not bsdf_delta:
-            if has_n:
+            if has_map:
+                pl = _f32(w[W_SEL] * env_pdf(lt[23], dx, dy, dz))
+            elif has_n:
                 pl = _f32(_f32(w[W_SEL] * _INV_PI) * _f32(max(dx * nx + dy * ny + dz * nz, 0.0)))
             else:
                 pl = _f32(w[W_SEL] * _INV_4PI)
@@ -796,9 +812,9 @@ def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_
                 pl, have_prob = _times_selection(pl, np.int64(w[W_UNIT]), have_prob, ox, oy, oz, nx, ny, nz,
                                                  has_n, transmits, lt, buf)
             wgt = _mis_power(bsdf_pdf, pl)
-        er += _f32(w[W_R] * wgt)
-        eg += _f32(w[W_G] * wgt)
-        eb += _f32(w[W_B] * wgt)
+        er += _f32(wr * wgt)
+        eg += _f32(wg * wgt)
+        eb += _f32(wb * wgt)
     return er, eg, eb
 
 

@@ -9,12 +9,14 @@ Units, as Cycles 5.0 converts Blender's (each checked against a Cycles render in
 - spot light: the point light times Cycles' smoothstep of the cone (size, blend);
 - sun: strength S W/m^2 is the irradiance; angle a > 0 gives a disc of radiance S / (pi sin^2(a / 2));
 - area light: one-sided (local -Z), radiance P / (pi A), A the world area; spread < pi attenuates as Cycles;
-- mesh emission: radiance colour x strength from both faces; world: constant radiance colour x strength.
+- mesh emission: radiance colour x strength from both faces; world: constant radiance colour x strength, or an
+  environment map (core.world: the image through the Mapping node, x strength).
 Visibility as Cycles' defaults: camera rays see the world but no light (unless `visible_camera`), BSDF rays see
 every light with a surface and the world; lights never block rays.
 
 Sampling: rectangles by solid angle, discs/ellipses and emissive triangles by area (near, large triangles by
-solid angle), sphere lights in the cone they subtend, the sun in its cone, the world cosine-weighted about n.
+solid angle), sphere lights in the cone they subtend, the sun in its cone, the uniform world cosine-weighted
+about n, an environment map by its 2D distribution (core.world_kernels).
 `intersect` and `pdf_triangle` compute the light pdf of a BSDF-sampled direction with the same formulas and the
 same per-point selection (they need the n and transmission flags `sample` got), so MIS weights match. Delta
 lights (radius 0, sun angle 0): `pdf` is the selection probability and `radiance` the value to divide by it.
@@ -36,6 +38,7 @@ import numpy as np
 
 from . import light_kernels as lk
 from .scene import AreaLight, PointLight, Scene, SpotLight, SunLight
+from .world import EnvironmentDistribution
 
 __all__ = ["EmissiveTriangles", "LightSample", "LightSampler", "luminance"]
 
@@ -55,6 +58,9 @@ SELECTION_POWER_FLOOR = 0.1
 # distributed about n, as a diffuse BSDF's own samples (which MIS counts too), so they add little beside them
 # (measurements in docs/lights.md). Renders leave the world out of selection; this serves light_sampling="light".
 _WORLD_IMPORTANCE = 0.1
+# An environment map's importance is this multiple of the irradiance pi L_mean it gives: its light samples follow
+# the map's brightness (a sun in it), which BSDF sampling finds poorly (measurements in docs/lights.md).
+_WORLD_MAP_IMPORTANCE = 3.0
 
 
 def luminance(rgb) -> np.ndarray:
@@ -507,11 +513,13 @@ class LightSampler:
 
     See the module docstring for the units and docs/lights.md for the selection heuristic. Public attributes:
     `has_lights`, `kinds_present` (subset of {"triangle", "point", "spot", "sun", "area", "world"}), `triangles`
-    (EmissiveTriangles or None), `world_radiance` ((3,) float32, zeros when black), `shift`, `scene_radius`.
+    (EmissiveTriangles or None), `world_radiance` ((3,) float32, zeros when black or replaced by a map),
+    `environment` (core.world.EnvironmentDistribution; `has_environment`: a lit map), `shift`, `scene_radius`.
     `has_emission` (has_lights, or a lit world that `intersect` returns).
-    sample_world=False leaves the world out of light selection, as Cycles does for a world without spatial
-    variation (`test_enabled_lights`: background MIS off without portals or a varying shader): BSDF sampling
-    then finds it alone, with MIS weight 1, and `intersect` still returns it. The world is uniform here, so its
+    sample_world=False leaves the uniform world out of light selection, as Cycles does for a world without spatial
+    variation (`test_enabled_lights`: background MIS off without portals or a varying shader; an environment map
+    is selectable whatever sample_world, unless its importance_sampling is off): BSDF sampling
+    then finds it alone, with MIS weight 1, and `intersect` still returns it. A uniform world's
     light samples (cosine-distributed about n) only duplicate a diffuse BSDF's own samples while taking
     selections, and shadow rays, from the other lights.
     Work scales with N times the number of analytic lights in `intersect`, and with N in `sample`."""
@@ -529,12 +537,24 @@ class LightSampler:
             [lt for lt in scene.lights if isinstance(lt, (PointLight, SpotLight))], shift)
         self._areas = _AreaLights.from_lights([lt for lt in scene.lights if isinstance(lt, AreaLight)], shift)
         self._suns = _SunLights.from_lights([lt for lt in scene.lights if isinstance(lt, SunLight)], R)
-        wc = np.asarray(scene.world.color, dtype=np.float64).reshape(-1)
-        wc = np.repeat(wc, 3) if wc.size == 1 else wc
+        env = scene.world.environment
+        self.environment = EnvironmentDistribution(env if env is not None and not scene.world.is_black else None)
+        self.has_environment = self.environment.mean_luminance > 0
+        if env is not None:
+            wc = np.zeros(3)  # the map replaces the uniform colour
+            world_lum = self.environment.mean_luminance
+            # Cycles samples a world that varies (background MIS) unless its sampling method is None (the
+            # light-sampling-only estimator samples it always: nothing else would find it)
+            sample_world = self.has_environment and (env.importance_sampling or sample_world)
+        else:
+            wc = np.asarray(scene.world.color, dtype=np.float64).reshape(-1)
+            wc = np.repeat(wc, 3) if wc.size == 1 else wc
+            world_lum = float(luminance(wc))
         self.world_radiance = wc.astype(_F32)
         # Flux through the scene's cross-section disc, as for the sun: irradiance pi L on a disc of area pi R^2
         # (not into the whole bounding sphere: that picked the world 4x too often, see docs/lights.md).
-        world_power = float(luminance(wc)) * math.pi ** 2 * R * R
+        world_power = world_lum * math.pi ** 2 * R * R
+        world_importance = _WORLD_MAP_IMPORTANCE if self.has_environment else _WORLD_IMPORTANCE
 
         # The selectable units (docs/lights.md): a few spatial groups of emissive triangles, each
         # analytic light, the world. Zero power is left out (never selected).
@@ -546,7 +566,7 @@ class LightSampler:
         self._world_sel, self._world_unit = 0.0, -1
         if _selectable(world_power) and sample_world:
             self._world_unit = builder.add(lk.WORLD, 0, world_power,
-                                           intensity=_WORLD_IMPORTANCE * world_power / (math.pi * R * R))
+                                           intensity=world_importance * world_power / (math.pi * R * R))
             self._world_sel = 1.0
         self._units = builder.units()
         pw = self._units.table[:, lk.C_POWER]
@@ -556,7 +576,7 @@ class LightSampler:
 
         self.kinds_present = frozenset(_KIND_NAMES[int(k)] for k in np.unique(self._units.kind))
         # Something a ray can reach: a selectable light, or a lit world that is not sampled (MIS weight 1).
-        self.has_emission = bool(self.has_lights or np.any(self.world_radiance > 0))
+        self.has_emission = bool(self.has_lights or np.any(self.world_radiance > 0) or self.has_environment)
         # The world and the inside of sphere lights are sampled about the normal given to `sample`; `intersect`
         # then needs the same normal for MIS (checked, since a mismatch would bias silently).
         # With more than one unit the selection itself depends on n and on the transmission flag.
@@ -662,11 +682,13 @@ class LightSampler:
         world = np.zeros(lk.W_FIELDS)
         world[lk.W_R:lk.W_B + 1] = self.world_radiance
         world[lk.W_SEL], world[lk.W_UNIT] = self._world_sel, self._world_unit
-        world[lk.W_LIT] = bool(np.any(self.world_radiance > 0))
+        world[lk.W_LIT] = bool(np.any(self.world_radiance > 0) or self.has_environment)
+        world[lk.W_MAP] = self.has_environment
         u = self._units
         return (u.table, u.kind, u.local, u.fallback, float(SELECTION_POWER_FLOOR),
                 self._punctual.kernel_table(), self._areas.kernel_table(), self._suns.kernel_table(), world,
-                *self._tri_table.kernel_tables(), np.ascontiguousarray(self._tri_table.unit, np.int64))
+                *self._tri_table.kernel_tables(), np.ascontiguousarray(self._tri_table.unit, np.int64),
+                *self.environment.tables)
 
     def _scratch(self) -> np.ndarray:
         """Per-call scratch for the kernels' per-point selection probabilities (K,) (calls may run in threads)."""

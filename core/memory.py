@@ -15,7 +15,8 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
 - batch: the integrator's float32 structure-of-arrays for every path in flight, ray buffers and temporaries
   (measured: about 800 B per path at 2^18 paths);
 - scene: the camera-shifted float32 triangle soup, face and corner normals, UVs, material indices and the Embree
-  BVH (about 400 B per triangle), and textures (float32 RGB, kept twice during preparation).
+  BVH (about 400 B per triangle), textures (float32 RGB, kept twice during preparation), and the world's
+  environment map (float32 RGB, held once) with its importance tables (two float64 per grid cell).
 
 The interpreter, NumPy and Embree themselves (about 70 MB) are not counted: they are there before a render.
 `check_render_memory` raises RenderMemoryError when the estimate exceeds the memory available to this process
@@ -84,6 +85,8 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     paths = min(batch_target(settings, total_paths), total_paths) * settings.thread_count
     texels = sum(int(t.pixels.shape[0]) * int(t.pixels.shape[1]) for t in scene.textures)
     scene_bytes = scene.triangle_count * TRIANGLE_BYTES + texels * TEXEL_BYTES
+    if scene.world.environment is not None:  # the world's map (held once) and its importance tables
+        scene_bytes += scene.world.environment.nbytes
     return MemoryEstimate(film, result, paths * PATH_BYTES, scene_bytes)
 
 

@@ -20,6 +20,7 @@ from typing import Literal
 
 import numpy as np
 from .mesh_checks import triangle_checks
+from .world import EnvironmentMap, EnvironmentMapError
 
 LobeKind = Literal["diffuse", "glossy", "glass", "refraction"]
 FresnelMode = Literal["none", "schlick", "dielectric", "generalized_schlick"]
@@ -323,12 +324,18 @@ Light = PointLight | SpotLight | SunLight | AreaLight
 
 @dataclass
 class World:
-    """Uniform background radiance (Blender's Background colour x strength), seen by every ray that escapes."""
+    """The background, seen by every ray that escapes: uniform radiance `color` (Blender's Background colour x
+    strength), or, when `environment` is set, that image (core.world.EnvironmentMap, its Background strength
+    folded into its `strength`) in place of the colour."""
 
     color: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    environment: EnvironmentMap | None = None
 
     @property
     def is_black(self) -> bool:
+        if self.environment is not None:
+            return not (np.any(np.asarray(self.environment.strength) > 0)
+                        and np.any(np.asarray(self.environment.pixels) > 0))
         return not bool(np.any(np.asarray(self.color) > 0))
 
 
@@ -500,6 +507,11 @@ class Scene:
         for mesh in self.meshes:
             mesh.validate(len(self.materials), self.warnings)
         self.world.color = _as_rgb(self.world.color, "world background")
+        if self.world.environment is not None:
+            try:
+                self.world.environment.validate(self.warnings)
+            except EnvironmentMapError as exc:
+                raise SceneError(str(exc)) from None
         kept: list[Light] = []
         for light in self.lights:
             if _validate_light(light, self.warnings):

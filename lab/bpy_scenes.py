@@ -7,6 +7,8 @@ All render at 256x256 by default with Blackman-Harris 1.5 px, the default of bot
 - `interior`: a diffuse-only room with furniture-like boxes, lit by one ceiling area light and a small lamp.
 - `glass`: glass and rough-glass objects on a floor under a tilted area light (caustics on the floor).
 - `instances`: 4096 small spheres scattered by geometry nodes (Instance on Points) on a ground plane.
+- `hdri`: gold Suzanne, a rough glossy and a diffuse sphere on a diffuse floor lit only by Blender's bundled
+  `sunrise.exr` studio HDRI (a small sun holding half of the map's light), rotated through a Mapping node.
 
 `SCENES` maps the names `monte bench --scene` accepts to the builders. `scene_version(name)` is part of the
 reference cache key: bump the scene's entry in `SCENE_VERSIONS` (or `SCENES_VERSION` for all of them) whenever
@@ -82,6 +84,47 @@ def set_world(scene, rgb, strength: float = 1.0):
     bg.inputs["Color"].default_value = (*rgb, 1.0)
     bg.inputs["Strength"].default_value = strength
     tree.links.new(bg.outputs[0], out.inputs["Surface"])
+    return world
+
+
+def studio_hdri(name: str) -> str:
+    """Path of one of the studio HDRIs shipped with Blender (`datafiles/studiolights/world/`: forest, city,
+    courtyard, interior, night, studio, sunrise, sunset, each 1024 x 512); FileNotFoundError if absent."""
+    import os
+
+    folder = bpy.utils.system_resource("DATAFILES", path="studiolights/world")
+    path = os.path.join(folder, f"{name}.exr") if folder else ""
+    if not path or not os.path.isfile(path):
+        raise FileNotFoundError(f"studio HDRI {name!r} not found in Blender's datafiles ({folder!r})")
+    return path
+
+
+def set_environment_world(scene, path: str, strength: float = 1.0, rotation=None, scale=None,
+                          projection: str = "EQUIRECTANGULAR", interpolation: str = "Linear"):
+    """A world whose Background colour is an Environment Texture of the image at path; with rotation (Euler
+    XYZ, radians) or scale, through Texture Coordinate Generated -> Mapping (Point)."""
+    world = bpy.data.worlds.new("World")
+    scene.world = world
+    tree = node_tree_of(world)
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputWorld")
+    bg = tree.nodes.new("ShaderNodeBackground")
+    bg.inputs["Strength"].default_value = strength
+    env = tree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = bpy.data.images.load(path, check_existing=True)
+    env.projection = projection
+    env.interpolation = interpolation
+    tree.links.new(env.outputs["Color"], bg.inputs["Color"])
+    tree.links.new(bg.outputs[0], out.inputs["Surface"])
+    if rotation is not None or scale is not None:
+        coord = tree.nodes.new("ShaderNodeTexCoord")
+        mapping = tree.nodes.new("ShaderNodeMapping")
+        if rotation is not None:
+            mapping.inputs["Rotation"].default_value = rotation
+        if scale is not None:
+            mapping.inputs["Scale"].default_value = scale
+        tree.links.new(coord.outputs["Generated"], mapping.inputs["Vector"])
+        tree.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
     return world
 
 
@@ -304,11 +347,54 @@ def instances(resolution=(256, 256)):
     return scene
 
 
+def monkey_object(name: str, location, size: float, material=None, rotation=(0.0, 0.0, 0.0)):
+    """Suzanne (bmesh's monkey, subdivided once, smooth shaded)."""
+    import bmesh
+
+    me = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    bmesh.ops.create_monkey(bm)
+    bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=1, use_grid_fill=True)
+    bmesh.ops.scale(bm, vec=(size, size, size), verts=bm.verts[:])
+    bm.to_mesh(me)
+    bm.free()
+    if material is not None:
+        me.materials.append(material)
+    me.shade_smooth()
+    ob = bpy.data.objects.new(name, me)
+    ob.location = location
+    ob.rotation_euler = rotation
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def hdri(resolution=(256, 256)):
+    """Image-based lighting: a gold metal Suzanne (Principled, metallic 1, roughness 0.25), a rough glossy grey
+    sphere and a diffuse sphere on a 10 m diffuse floor, lit only by Blender's `sunrise.exr` (a small sun low
+    over the horizon, half of the map's light, casts long shadows) rotated 60 degrees about Z through a Mapping
+    node."""
+    scene = reset()
+    floor = diffuse("floor", (0.6, 0.6, 0.6))
+    gold = node_material("gold", "ShaderNodeBsdfPrincipled", Base_Color=(1.0, 0.77, 0.34), Metallic=1.0,
+                         Roughness=0.25)
+    glossy = node_material("glossy", "ShaderNodeBsdfGlossy", Color=(0.8, 0.8, 0.8), Roughness=0.15)
+    white = diffuse("white", (0.8, 0.8, 0.8))
+    mesh_object("floor", [(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)], [(0, 1, 2, 3)], floor)
+    monkey_object("suzanne", (0.0, 0.0, 0.75), 0.7, gold, rotation=(math.radians(-10), 0, math.radians(15)))
+    icosphere_object("glossy_sphere", (-1.3, 0.6, 0.45), 0.45, glossy)
+    icosphere_object("diffuse_sphere", (1.3, 0.5, 0.4), 0.4, white)
+    camera_object(scene, (0.0, -5.0, 2.2), (math.radians(72), 0, 0), lens=40.0)
+    set_environment_world(scene, studio_hdri("sunrise"), 1.0, rotation=(0.0, 0.0, math.radians(60.0)))
+    _finish(scene, resolution)
+    return scene
+
+
 SCENES: dict[str, Callable] = {
     "cornell": cornell_box,
     "interior": interior,
     "glass": glass,
     "instances": instances,
+    "hdri": hdri,
 }
 
 

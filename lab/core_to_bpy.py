@@ -166,6 +166,9 @@ def build_bpy_scene(core_scene: Scene) -> tuple[object, list[str]]:
     background = node_tree_of(world).nodes["Background"]
     background.inputs["Color"].default_value = (*[float(c) for c in core_scene.world.color], 1.0)
     background.inputs["Strength"].default_value = 1.0
+    if core_scene.world.environment is not None:
+        unsupported.append(f"world environment map {core_scene.world.environment.name!r} not converted (uniform "
+                           "world colour instead)")
     scene.world = world
     cam = core_scene.camera
     data = bpy.data.cameras.new("Camera")

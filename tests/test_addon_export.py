@@ -469,7 +469,15 @@ def test_world_colour_texture_and_none(scene):
     env.image = img
     world.node_tree.links.new(env.outputs["Color"], world.node_tree.nodes["Background"].inputs["Color"])
     got, _ = export()
-    assert np.allclose(got.world.color, (1.0, 2.0, 4.0), atol=1e-5)
+    # an environment texture lights the world as a map (tests/test_world_cycles.py checks it against Cycles)
+    assert got.world.environment is not None and not any("Sky" in w for w in got.warnings)
+    em = got.world.environment
+    assert np.allclose(em.pixels, (0.5, 1.0, 2.0)) and np.allclose(em.strength, 2.0)
+    tex = world.node_tree.nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    world.node_tree.links.new(tex.outputs["Color"], world.node_tree.nodes["Background"].inputs["Color"])
+    got, _ = export()
+    assert got.world.environment is None and np.allclose(got.world.color, (1.0, 2.0, 4.0), atol=1e-5)
     assert any("Sky" in w and "average colour" in w for w in got.warnings)
     scene.world = None
     got, _ = export()

@@ -1,8 +1,15 @@
-"""Blender world -> core World: a uniform background of radiance colour x strength.
+"""Blender world -> core World: a uniform background (radiance colour x strength) or an environment map.
 
-Supported: the active World Output's Surface linked to a Background node (colour and strength unlinked, or
-the colour from an Image/Environment texture, replaced by its average colour with a warning); no node tree:
-the world's viewport colour; no world at all: black.
+Supported: the active World Output's Surface linked to a Background node whose Color is unlinked (uniform) or
+linked to an Environment Texture (equirectangular or mirror ball, Linear or Closest interpolation; Cubic and
+Smart read as Linear with a warning) whose Vector is unlinked or comes from a Mapping node (rotation and scale;
+location ignored, as for any direction) fed by Texture Coordinate Generated (or nothing), possibly through a Mix
+(Color, Multiply) with a constant colour. The image's pixels come
+through bpy (packed or on disk, its colour space applied); Strength multiplies it. Cycles' world sampling
+settings (`world.cycles.sampling_method`, `sample_map_resolution`) choose the importance map's resolution.
+Anything else warns and falls back: an Image Texture or other node on the colour -> its average colour or the
+socket's colour; a missing or unreadable image -> the Background's own colour. No node tree: the world's
+viewport colour; no world at all: black.
 """
 
 from __future__ import annotations
@@ -10,7 +17,10 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.scene import World
-from .material import follow_link, image_average_color, node_tree, socket_value
+from ...core.world import EnvironmentMap
+from .material import follow_link, image_average_color, image_pixels, node_tree, socket_value
+
+_INTERPOLATION = {"Linear": "LINEAR", "Closest": "CLOSEST", "Cubic": "LINEAR", "Smart": "LINEAR"}
 
 
 def export_world(world, warnings: list[str]) -> World:
@@ -32,20 +42,145 @@ def export_world(world, warnings: list[str]) -> World:
         warnings.append(f"world {name!r}: node {node.name!r} ({node.bl_label}) is not supported on the world "
                         "surface; using the world's viewport colour as a uniform background")
         return World(np.array(world.color[:3], dtype=np.float64))
-    color = _background_color(node.inputs["Color"], name, warnings)
     strength = float(socket_value(node.inputs["Strength"], f"world {name!r}", warnings))
+    src = follow_link(node.inputs["Color"])
+    factor = np.ones(3)
+    if src is not None and src.bl_idname in ("ShaderNodeMix", "ShaderNodeMixRGB"):
+        tex, factor = _constant_multiply(src)
+        src = tex if tex is not None else src
+    if src is not None and src.bl_idname == "ShaderNodeTexEnvironment":
+        env = _environment(world, src, warnings)
+        if env is not None:
+            env.strength = np.maximum(factor * strength, 0.0)
+            return World(np.zeros(3), environment=env)
+        return World(np.maximum(np.array(node.inputs["Color"].default_value[:3], np.float64) * strength, 0.0))
+    color = _background_color(node.inputs["Color"], name, warnings)
     return World(np.maximum(color * strength, 0.0))
+
+
+def _constant_multiply(mix) -> tuple[object | None, np.ndarray]:
+    """(the Environment Texture, its constant colour factor) when `mix` is a Mix (Color, Multiply, unclamped
+    result) of an Environment Texture and an unlinked colour with an unlinked factor f: mix(A, A x B, f) =
+    A x ((1 - f) + f B). (None, ones) for anything else."""
+    if mix.bl_idname == "ShaderNodeMix":
+        if mix.data_type != "RGBA" or mix.clamp_result:
+            return None, np.ones(3)
+        fac = mix.inputs["Factor"] if mix.inputs[0].identifier != "Factor_Float" else mix.inputs[0]
+        colours = [sk for sk in mix.inputs if sk.type == "RGBA" and sk.enabled]
+    else:  # the legacy MixRGB node
+        if getattr(mix, "use_clamp", False):
+            return None, np.ones(3)
+        fac, colours = mix.inputs["Fac"], [mix.inputs["Color1"], mix.inputs["Color2"]]
+    if mix.blend_type != "MULTIPLY" or fac.is_linked or len(colours) != 2:
+        return None, np.ones(3)
+    f = min(max(float(fac.default_value), 0.0), 1.0)
+    for tex_sock, const_sock in (colours, colours[::-1]):
+        tex = follow_link(tex_sock)
+        if tex is not None and tex.bl_idname == "ShaderNodeTexEnvironment" and not const_sock.is_linked:
+            return tex, (1.0 - f) + f * np.array(const_sock.default_value[:3], np.float64)
+    return None, np.ones(3)
+
+
+def _environment(world, tex, warnings: list[str]) -> EnvironmentMap | None:
+    """The Environment Texture as an EnvironmentMap (strength 1), or None (warned) when its image is missing or
+    unreadable."""
+    name = world.name
+    image = tex.image
+    if image is None:
+        warnings.append(f"world {name!r}: environment texture {tex.name!r} has no image; using the Background's "
+                        "own colour")
+        return None
+    path = image.filepath_from_user() if not image.packed_file else "<packed>"
+    try:
+        pixels = image_pixels(image, warnings)
+    except (ValueError, RuntimeError) as exc:
+        warnings.append(f"world {name!r}: environment image {image.name!r} ({path}) could not be read ({exc}); "
+                        "using the Background's own colour")
+        return None
+    interpolation = _INTERPOLATION.get(tex.interpolation, "LINEAR")
+    if tex.interpolation not in ("Linear", "Closest"):
+        warnings.append(f"world {name!r}: environment texture {tex.name!r} interpolation {tex.interpolation!r} "
+                        "is rendered as Linear")
+    matrix = _vector_matrix(tex.inputs["Vector"], name, warnings)
+    method = getattr(getattr(world, "cycles", None), "sampling_method", "AUTOMATIC")
+    resolution = int(getattr(world.cycles, "sample_map_resolution", 1024)) if method == "MANUAL" else 0
+    return EnvironmentMap(pixels=pixels, projection=tex.projection, interpolation=interpolation, matrix=matrix,
+                          map_resolution=resolution, importance_sampling=method != "NONE",
+                          name=f"{name}/{image.name}")
+
+
+def _vector_matrix(sock, world_name: str, warnings: list[str]) -> np.ndarray:
+    """The linear map from a world direction to the texture's lookup vector: identity for an unlinked Vector or
+    Texture Coordinate Generated, a Mapping node's rotation and scale (Cycles' mapping types)."""
+    src = follow_link(sock)
+    if src is None:
+        return np.eye(3)
+    if src.bl_idname == "ShaderNodeTexCoord":
+        return _coordinate_matrix(sock, src, world_name, warnings)
+    if src.bl_idname != "ShaderNodeMapping":
+        warnings.append(f"world {world_name!r}: node {src.name!r} ({src.bl_label}) driving the environment vector is "
+                        "not supported; using the view direction")
+        return np.eye(3)
+    import mathutils
+
+    def value(name):
+        s = src.inputs.get(name)
+        if s is None:
+            return None
+        if s.is_linked:
+            warnings.append(f"world {world_name!r}: mapping {src.name!r} input {name!r} is linked, which is not "
+                            "supported; using its own value")
+        return np.array(s.default_value[:3], np.float64)
+
+    rotation = value("Rotation")
+    scale = value("Scale")
+    location = value("Location")
+    rot = np.array(mathutils.Euler(rotation.tolist(), "XYZ").to_matrix(), np.float64) if rotation is not None \
+        else np.eye(3)
+    kind = src.vector_type
+    if kind == "POINT" and location is not None and np.any(location != 0):
+        warnings.append(f"world {world_name!r}: mapping {src.name!r} location is ignored for a direction")
+    s = scale if scale is not None else np.ones(3)
+    if kind in ("POINT", "VECTOR"):
+        m = rot @ np.diag(s)
+    elif kind == "TEXTURE":
+        safe = np.where(s != 0, s, 1.0)
+        m = np.diag(np.where(s != 0, 1.0 / safe, 0.0)) @ rot.T
+    else:  # NORMAL
+        safe = np.where(s != 0, s, 1.0)
+        m = rot @ np.diag(np.where(s != 0, 1.0 / safe, 0.0))
+    inner = follow_link(src.inputs["Vector"])
+    if inner is not None:
+        if inner.bl_idname == "ShaderNodeTexCoord":
+            m = m @ _coordinate_matrix(src.inputs["Vector"], inner, world_name, warnings)
+        else:
+            warnings.append(f"world {world_name!r}: node {inner.name!r} ({inner.bl_label}) feeding mapping "
+                            f"{src.name!r} is not supported; using the view direction")
+    return m
+
+
+def _coordinate_matrix(sock, coord_node, world_name: str, warnings: list[str]) -> np.ndarray:
+    link = sock.links[0]
+    out = link.from_socket.name
+    if out != "Generated":
+        warnings.append(f"world {world_name!r}: texture coordinate {out!r} on the world is not supported; using "
+                        "Generated (the view direction)")
+    return np.eye(3)
 
 
 def _background_color(sock, world_name: str, warnings: list[str]) -> np.ndarray:
     src = follow_link(sock)
     if src is None:
         return np.array(sock.default_value[:3], dtype=np.float64)
-    if src.bl_idname in ("ShaderNodeTexEnvironment", "ShaderNodeTexImage") and src.image is not None:
+    if src.bl_idname == "ShaderNodeTexImage" and src.image is not None:
         avg = image_average_color(src.image)
         warnings.append(f"world {world_name!r}: texture {src.name!r} ({src.image.name}) on the background is "
                         f"not supported; using its average colour {np.round(avg, 4).tolist()}")
         return avg
+    if src.bl_idname == "ShaderNodeTexSky":
+        warnings.append(f"world {world_name!r}: Sky Texture {src.name!r} is not supported; using the socket's own "
+                        "colour as a uniform background")
+        return np.array(sock.default_value[:3], dtype=np.float64)
     warnings.append(f"world {world_name!r}: node {src.name!r} ({src.bl_label}) driving the background colour is "
                     "not supported; using the socket's own colour")
     return np.array(sock.default_value[:3], dtype=np.float64)
