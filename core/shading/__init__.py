@@ -1,0 +1,1 @@
+"""Shading nodes evaluated per shading point: the procedural textures (`procedural`)."""

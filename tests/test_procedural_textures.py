@@ -1,0 +1,357 @@
+"""Monte's procedural textures (core/shading/procedural.py) against Cycles, pixel by pixel.
+
+Each case is one tile of a Cycles render: a unit square of an emission plane seen by an orthographic camera
+(32 x 32 pixels a tile, no lights, black world), its material Texture Coordinate (Object) -> Vector Math
+(multiply-add: the tile's square onto the wanted texture domain) -> the texture -> Emission (strength 1). The
+film's box filter is 0.01 pixel wide, so every sample lands within 0.005 pixel of the pixel centre; with 16
+samples the mean offset is far below that, and the image holds the texture at the pixel centres to about
+float32 precision. The batch functions evaluate the same coordinates; values must agree to 1e-4 absolute
+(relative for outputs that grow beyond 1, such as the multifractal noises). Textures with steps (checker, brick,
+Voronoi cell colours, white noise of floored coordinates) may differ where a pixel's samples straddle a step:
+those tests allow at most 2% of the tile's pixels to differ (a step crossing a 32-pixel tile touches at most
+about 32 of its 1024 pixels per edge, and the samples straddle one only within 0.005 pixel of it).
+
+All default cases share two Cycles renders (module fixture); the wider parametrisations are marked slow:
+`pytest -m slow tests/test_procedural_textures.py`.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import blender_fixtures as bf  # noqa: E402
+
+from monte.addon import crosscheck as cc  # noqa: E402
+from monte.core.shading import procedural as tex  # noqa: E402
+
+pytestmark = pytest.mark.blender
+
+TILE = 32  # pixels per unit tile
+COLUMNS = 8
+SPP = 1
+TOLERANCE = 1e-4
+STEP_FRACTION = 0.02  # pixels allowed to differ on textures with steps (see the module docstring)
+MAX_SAMPLE_OFFSET = 0.5  # pixels: leave out the few pixels Cycles sampled far from their centre
+
+
+@dataclass
+class Case:
+    """One tile: the texture node, its settings and input values, the output compared, and the domain the
+    tile's unit square maps to (vector = local * span + origin; W from the vector's x or a constant)."""
+    name: str
+    node: str
+    output: str
+    expect: object  # callable(coords (N, 4) float32) -> (N,) or (N, 3)
+    props: dict = field(default_factory=dict)
+    inputs: dict = field(default_factory=dict)
+    span: tuple = (1.0, 1.0, 1.0)
+    origin: tuple = (0.0, 0.0, 0.0)
+    w: object = None  # None: W unlinked (0 or its default), "x": the vector's x, a number: that constant
+    floor: bool = False  # floor the vector (and W) first: white noise then gives whole cells
+    bias: float = 0.0  # added to the output before the Emission (keeps negative values out of the film)
+    steps: bool = False
+    relative: bool = False
+    tolerance: float = TOLERANCE
+
+    @property
+    def id(self):
+        return self.name
+
+
+def _socket(sockets, name):
+    """A socket by name or identifier ("Fac" is named "Factor" since Blender 5.0); None when the node's
+    settings leave it out (the Vector input of a 1D texture)."""
+    for sock in sockets:
+        if (sock.name == name or sock.identifier == name) and getattr(sock, "enabled", True):
+            return sock
+    return None
+
+
+def _feed(node, inputs):
+    for key, value in inputs.items():
+        sock = _socket(node.inputs, key)
+        if sock is None:  # unused with these settings (Offset and Gain of fBM noise, Exponent of Euclidean, ...)
+            continue
+        if sock.type == "RGBA" and len(value) == 3:
+            value = (*value, 1.0)
+        sock.default_value = value
+
+
+def _material(case: Case, tile_origin):
+    mat = bpy.data.materials.new(case.name)
+    tree = bf.node_tree_of(mat)
+    tree.nodes.clear()
+    nodes, links = tree.nodes, tree.links
+    out = nodes.new("ShaderNodeOutputMaterial")
+    emission = nodes.new("ShaderNodeEmission")
+    emission.inputs["Strength"].default_value = 1.0
+    links.new(emission.outputs[0], out.inputs["Surface"])
+    coord = nodes.new("ShaderNodeTexCoord")
+    mad = nodes.new("ShaderNodeVectorMath")
+    mad.operation = "MULTIPLY_ADD"
+    span = np.asarray(case.span, np.float64)
+    mad.inputs[1].default_value = tuple(span)
+    mad.inputs[2].default_value = tuple(np.asarray(case.origin) - np.asarray(tile_origin) * span)
+    links.new(coord.outputs["Object"], mad.inputs[0])
+    vector = mad.outputs[0]
+    if case.floor:
+        fl = nodes.new("ShaderNodeVectorMath")
+        fl.operation = "FLOOR"
+        links.new(vector, fl.inputs[0])
+        vector = fl.outputs[0]
+    node = nodes.new(case.node)
+    for key, value in case.props.items():
+        setattr(node, key, value)
+    _feed(node, case.inputs)
+    if _socket(node.inputs, "Vector") is not None:
+        links.new(vector, _socket(node.inputs, "Vector"))
+    if case.w == "x":
+        sep = nodes.new("ShaderNodeSeparateXYZ")
+        links.new(vector, sep.inputs[0])
+        links.new(sep.outputs[0], _socket(node.inputs, "W"))
+    elif case.w is not None:
+        _socket(node.inputs, "W").default_value = float(case.w)
+    result = _socket(node.outputs, case.output)
+    if case.bias:
+        if result.type == "VALUE":
+            add = nodes.new("ShaderNodeMath")
+            add.operation = "ADD"
+            add.inputs[1].default_value = case.bias
+        else:
+            add = nodes.new("ShaderNodeVectorMath")
+            add.operation = "ADD"
+            add.inputs[1].default_value = (case.bias,) * 3
+        links.new(result, add.inputs[0])
+        result = add.outputs[0]
+    links.new(result, emission.inputs["Color"])
+    return mat
+
+
+def _tile_origin(index: int, rows: int):
+    col, row = index % COLUMNS, index // COLUMNS
+    return np.array([col, rows - 1 - row, 0.0])
+
+
+def _calibration_material():
+    """Emission = the object coordinates themselves: the image then holds where each pixel's samples landed."""
+    mat = bpy.data.materials.new("calibration")
+    tree = bf.node_tree_of(mat)
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    emission = tree.nodes.new("ShaderNodeEmission")
+    coord = tree.nodes.new("ShaderNodeTexCoord")
+    tree.links.new(coord.outputs["Object"], emission.inputs["Color"])
+    tree.links.new(emission.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def render_cases(cases: list[Case], tmp_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """One Cycles render of every case's tile: (image (rows * TILE, COLUMNS * TILE, 3), row 0 at the top;
+    the mean sample offset of each pixel from its centre, in pixels (H, W), from a second render with the
+    same sample pattern whose planes emit their own coordinates)."""
+    rows = -(-len(cases) // COLUMNS)
+    scene = bf.reset()
+    planes = []
+    for i, case in enumerate(cases):
+        o = _tile_origin(i, rows)
+        verts = [tuple(o + d) for d in ((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0))]
+        planes.append(bf.mesh_object(case.name, verts, [(0, 1, 2, 3)], _material(case, o)))
+    scale = max(COLUMNS, rows)
+    bf.camera_object(scene, (COLUMNS / 2, rows / 2, 5.0), (0, 0, 0), kind="ORTHO", ortho_scale=float(scale))
+    bf.set_world(scene, (0.0, 0.0, 0.0), 1.0)
+    scene.render.resolution_x, scene.render.resolution_y = COLUMNS * TILE, rows * TILE
+    scene.render.resolution_percentage = 100
+    scene.view_settings.view_transform = "Standard"
+    # Blender gives Cycles' box filter a width of 1 pixel whatever the setting; the Gaussian keeps 0.01.
+    cc.configure_cycles(scene, SPP, 1, threads=2, seed=1, filter_type="gaussian", filter_width=0.01)
+    image = cc.render_cycles(scene, tmp_dir)[0]
+    calibration = _calibration_material()
+    for ob in planes:
+        ob.data.materials[0] = calibration
+    where = cc.render_cycles(scene, tmp_dir)[0]
+    h, w = image.shape[:2]
+    cx = (np.arange(w) + 0.5) / TILE
+    cy = rows - (np.arange(h) + 0.5) / TILE
+    offset = np.hypot(where[..., 0] - cx[None, :], where[..., 1] - cy[:, None]) * TILE
+    return image, offset, where[..., :2].astype(np.float32)
+
+
+def tile_coords(case: Case, where: np.ndarray, tile_origin) -> np.ndarray:
+    """The texture coordinates (x, y, z, W) the material computes at the tile's pixels (N, 4) float32, taken
+    at the mean position of each pixel's samples (`where`, world x, y), row 0 at the top."""
+    local = np.zeros((where.shape[0] * where.shape[1], 3), np.float32)
+    local[:, :2] = where.reshape(-1, 2) - np.float32(tile_origin[:2])
+    vec = local * np.float32(case.span) + np.float32(case.origin)
+    if case.floor:
+        vec = np.floor(vec)
+    w = np.zeros((len(vec), 1), np.float32)
+    if case.w == "x":
+        w[:, 0] = vec[:, 0]
+    elif case.w is not None:
+        w[:, 0] = case.w
+    return np.concatenate([vec, w], axis=1).astype(np.float32)
+
+
+def check(case: Case, rendered, index: int, rows: int) -> None:
+    image, offset, where = rendered
+    col, row = index % COLUMNS, index // COLUMNS
+    tile = (slice(row * TILE, (row + 1) * TILE), slice(col * TILE, (col + 1) * TILE))
+    got = image[tile].reshape(-1, 3) - case.bias
+    centred = offset[tile].ravel() <= MAX_SAMPLE_OFFSET
+    want = np.asarray(case.expect(tile_coords(case, where[tile], _tile_origin(index, rows))), np.float64)
+    if want.ndim == 1:
+        want = np.repeat(want[:, None], 3, axis=1)
+    err = np.abs(got - want)
+    if case.relative:
+        err = err / np.maximum(1.0, np.abs(want))
+    bad = np.any(err > case.tolerance, axis=1) & centred
+    if case.steps:
+        assert bad.sum() <= STEP_FRACTION * centred.sum(), (
+            f"{case.name}: {bad.sum()} of {centred.sum()} pixels differ from Cycles by more than {case.tolerance} "
+            f"(allowed {STEP_FRACTION:.0%} at steps); worst {err[centred].max():.3g}")
+        assert np.median(err[centred]) < TOLERANCE
+    else:
+        assert not bad.any(), (f"{case.name}: {bad.sum()} of {centred.sum()} pixels differ from Cycles by more "
+                               f"than {case.tolerance}; worst {err[centred].max():.3g}")
+
+
+# --------------------------------------------------------------------------------------------- cases
+def _noise(dim, output="Fac", **kw):
+    def f(co):
+        fac, color = tex.noise(co, dim, **kw)
+        return fac if output == "Fac" else color
+    return f
+
+
+def _voronoi(dim, output, **kw):
+    return lambda co: tex.voronoi(co, dim, **kw)[output]
+
+
+NOISE_INPUTS = dict(Scale=3.0, Detail=2.5, Roughness=0.6, Lacunarity=2.1, Offset=0.3, Gain=1.2, Distortion=0.0)
+
+
+def _noise_case(name, dim, noise_type="FBM", output="Fac", normalize=True, relative=False, bias=0.0, **over):
+    inputs = dict(NOISE_INPUTS, **over)
+    kw = dict(scale=inputs["Scale"], detail=inputs["Detail"], roughness=inputs["Roughness"],
+              lacunarity=inputs["Lacunarity"], offset=inputs["Offset"], gain=inputs["Gain"],
+              distortion=inputs["Distortion"], noise_type=noise_type, normalize=normalize)
+    return Case(name, "ShaderNodeTexNoise", output, _noise(dim, output, **kw),
+                props=dict(noise_dimensions=f"{dim}D", noise_type=noise_type, normalize=normalize), inputs=inputs,
+                span=(2.0, 2.0, 2.0), origin=(-1.3, 0.4, 0.7), w="x" if dim in (1, 4) else None, bias=bias,
+                relative=relative)
+
+
+VORONOI_INPUTS = dict(Scale=2.5, Detail=0.0, Roughness=0.5, Lacunarity=2.0, Smoothness=1.0, Exponent=1.5,
+                      Randomness=0.9)
+
+
+def _voronoi_case(name, dim, feature="F1", metric="EUCLIDEAN", output="Distance", normalize=False, steps=None,
+                  bias=0.0, **over):
+    inputs = dict(VORONOI_INPUTS, **over)
+    kw = dict(scale=inputs["Scale"], detail=inputs["Detail"], roughness=inputs["Roughness"],
+              lacunarity=inputs["Lacunarity"], smoothness=inputs["Smoothness"], exponent=inputs["Exponent"],
+              randomness=inputs["Randomness"], feature=feature, distance=metric, normalize=normalize)
+    if steps is None:  # colours and positions jump from cell to cell; F2 distances and edges have kinks only
+        steps = output in ("Color", "Position", "W", "Radius") and feature != "SMOOTH_F1"
+    return Case(name, "ShaderNodeTexVoronoi", output, _voronoi(dim, output, **kw),
+                props=dict(voronoi_dimensions=f"{dim}D", feature=feature, distance=metric, normalize=normalize),
+                inputs=inputs, span=(2.0, 2.0, 2.0), origin=(-0.7, 0.3, 0.45), w="x" if dim in (1, 4) else None,
+                steps=steps, bias=bias)
+
+
+def default_cases() -> list[Case]:
+    cases = []
+    for gt in tex.GRADIENT_TYPES:
+        cases.append(Case(f"gradient-{gt}", "ShaderNodeTexGradient", "Fac",
+                          lambda co, gt=gt: tex.gradient(co, gt), props=dict(gradient_type=gt),
+                          span=(2.4, 2.4, 0.0), origin=(-1.2, -1.2, 0.3)))
+    cases.append(Case("checker", "ShaderNodeTexChecker", "Color",
+                      lambda co: tex.checker(co, 3.0, (0.9, 0.5, 0.1), (0.1, 0.3, 0.7))[1],
+                      inputs={"Scale": 3.0, "Color1": (0.9, 0.5, 0.1), "Color2": (0.1, 0.3, 0.7)},
+                      span=(1.7, 1.3, 0.0), origin=(-0.45, 0.2, 0.25), steps=True))
+    for dim in (1, 2, 3, 4):
+        cases.append(Case(f"white-noise-{dim}d", "ShaderNodeTexWhiteNoise", "Color",
+                          lambda co, dim=dim: tex.white_noise(co, dim)[1], props=dict(noise_dimensions=f"{dim}D"),
+                          span=(6.0, 6.0, 0.0), origin=(-3.0, -2.0, 1.0), w="x" if dim in (1, 4) else None,
+                          floor=True, steps=True))
+    cases.append(Case("white-noise-3d-value", "ShaderNodeTexWhiteNoise", "Value",
+                      lambda co: tex.white_noise(co, 3)[0], props=dict(noise_dimensions="3D"),
+                      span=(6.0, 6.0, 0.0), origin=(-3.0, -2.0, 1.0), floor=True, steps=True))
+    for dim in (1, 2, 3, 4):
+        cases.append(_noise_case(f"noise-fbm-{dim}d", dim, output="Color"))
+    cases.append(_noise_case("noise-fbm-3d-distorted-raw", 3, normalize=False, bias=1.0, relative=True,
+                             Distortion=0.8))
+    cases.append(_noise_case("noise-multifractal-3d", 3, "MULTIFRACTAL", relative=True, bias=1.0))
+    cases.append(_noise_case("noise-hybrid-3d", 3, "HYBRID_MULTIFRACTAL", relative=True, bias=1.0))
+    cases.append(_noise_case("noise-ridged-3d", 3, "RIDGED_MULTIFRACTAL", relative=True, Offset=1.0))
+    cases.append(_noise_case("noise-hetero-3d", 3, "HETERO_TERRAIN", relative=True, bias=2.0))
+    cases.append(_voronoi_case("voronoi-f1-3d-distance", 3))
+    cases.append(_voronoi_case("voronoi-f1-3d-color", 3, output="Color"))
+    cases.append(_voronoi_case("voronoi-f1-2d-position", 2, output="Position", bias=1.0))
+    cases.append(_voronoi_case("voronoi-f2-2d-manhattan", 2, "F2", "MANHATTAN"))
+    cases.append(_voronoi_case("voronoi-smooth-f1-3d-color", 3, "SMOOTH_F1", output="Color"))
+    cases.append(_voronoi_case("voronoi-edge-2d", 2, "DISTANCE_TO_EDGE"))
+    cases.append(_voronoi_case("voronoi-radius-3d", 3, "N_SPHERE_RADIUS", output="Radius"))
+    cases.append(_voronoi_case("voronoi-f1-4d-chebychev", 4, metric="CHEBYCHEV"))
+    cases.append(_voronoi_case("voronoi-f1-3d-minkowski", 3, metric="MINKOWSKI"))
+    cases.append(_voronoi_case("voronoi-f1-1d-w", 1, output="W", bias=1.0))
+    cases.append(_voronoi_case("voronoi-fractal-2d-normalized", 2, normalize=True, Detail=2.5, Roughness=0.6))
+    for name, kind, direction, profile, extra in (
+            ("wave-bands-x-sin", "BANDS", "X", "SIN", {}),
+            ("wave-rings-spherical-saw", "RINGS", "SPHERICAL", "SAW", {}),
+            ("wave-bands-diagonal-tri-distorted", "BANDS", "DIAGONAL", "TRI",
+             {"Distortion": 3.0, "Detail": 2.5, "Detail Scale": 1.5, "Detail Roughness": 0.6, "Phase Offset": 0.7})):
+        inputs = {"Scale": 1.3, **extra}
+        kw = dict(scale=1.3, distortion=extra.get("Distortion", 0.0), detail=extra.get("Detail", 2.0),
+                  detail_scale=extra.get("Detail Scale", 1.0), detail_roughness=extra.get("Detail Roughness", 0.5),
+                  phase_offset=extra.get("Phase Offset", 0.0))
+        dir_prop = "bands_direction" if kind == "BANDS" else "rings_direction"
+        cases.append(Case(name, "ShaderNodeTexWave", "Fac",
+                          lambda co, kind=kind, direction=direction, profile=profile, kw=kw:
+                          tex.wave(co, wave_type=kind, direction=direction, profile=profile, **kw),
+                          props={"wave_type": kind, dir_prop: direction, "wave_profile": profile}, inputs=inputs,
+                          span=(1.5, 1.5, 0.0), origin=(-0.75, -0.6, 0.2), steps=profile != "SIN"))
+    # Each level of the Magic texture multiplies float32 rounding differences (sinf/cosf of Cycles' libm
+    # against LLVM's) by up to Distortion: depth 5 at distortion 2.3 gets a 1e-3 tolerance.
+    for depth, dist, tol in ((2, 1.0, TOLERANCE), (5, 2.3, 1e-3)):
+        cases.append(Case(f"magic-depth{depth}", "ShaderNodeTexMagic", "Color", tolerance=tol,
+                          lambda co, depth=depth, dist=dist: tex.magic(co, 1.7, dist, depth)[1],
+                          props=dict(turbulence_depth=depth), inputs={"Scale": 1.7, "Distortion": dist},
+                          span=(1.2, 1.2, 0.0), origin=(-0.2, 0.1, 0.3), bias=1.0))
+    cases.append(Case("brick", "ShaderNodeTexBrick", "Color",
+                      lambda co: tex.brick(co, 2.0, 0.05, 0.3, 0.1, 0.6, 0.3, 0.4, 3, 0.8, 2,
+                                           (0.9, 0.4, 0.2), (0.3, 0.6, 0.2), (0.05, 0.05, 0.1))[1],
+                      props=dict(offset=0.4, offset_frequency=3, squash=0.8, squash_frequency=2),
+                      inputs={"Scale": 2.0, "Mortar Size": 0.05, "Mortar Smooth": 0.3, "Bias": 0.1,
+                              "Brick Width": 0.6, "Row Height": 0.3, "Color1": (0.9, 0.4, 0.2),
+                              "Color2": (0.3, 0.6, 0.2), "Mortar": (0.05, 0.05, 0.1)},
+                      span=(1.5, 1.5, 0.0), origin=(-0.3, -0.2, 0.0), steps=True))
+    return cases
+
+
+DEFAULT_CASES = default_cases()
+
+
+@pytest.fixture(scope="module")
+def default_render(tmp_path_factory):
+    return render_cases(DEFAULT_CASES, tmp_path_factory.mktemp("procedural"))
+
+
+def test_calibration_keeps_most_pixels(default_render):
+    """The comparison leaves out only the few pixels where Cycles drew a sample far from the centre."""
+    offset = default_render[1]
+    assert np.median(offset) < 1e-3
+    assert (offset > MAX_SAMPLE_OFFSET).mean() < 0.03
+
+
+@pytest.mark.parametrize("index", range(len(DEFAULT_CASES)), ids=[c.name for c in DEFAULT_CASES])
+def test_texture_matches_cycles(default_render, index):
+    rows = -(-len(DEFAULT_CASES) // COLUMNS)
+    check(DEFAULT_CASES[index], default_render, index, rows)
