@@ -541,7 +541,8 @@ def _seed_offset(dim, seed, component):
         h = hash_float_to_float(np.float32(seed))
     else:
         h = hash_float2_to_float(np.float32(seed), np.float32(component))
-    return np.float32(100.0) + h * np.float32(100.0)
+    # Cycles' compiler fuses this multiply-add (one rounding): computed exactly in float64, rounded once.
+    return np.float32(np.float64(h) * 100.0 + 100.0)
 
 
 @jit
