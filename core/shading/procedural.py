@@ -539,6 +539,8 @@ def _seed_offset(dim, seed, component):
     """Cycles' per-seed coordinate offsets in [100, 200]: 1D hashes the seed alone, 2D-4D (seed, component)."""
     if dim == 1:
         h = hash_float_to_float(np.float32(seed))
+    elif component >= dim:  # a coordinate this dimension ignores
+        return np.float32(0.0)
     else:
         h = hash_float2_to_float(np.float32(seed), np.float32(component))
     # Cycles' compiler fuses this multiply-add (one rounding): computed exactly in float64, rounded once.
@@ -547,9 +549,9 @@ def _seed_offset(dim, seed, component):
 
 @jit
 def noise_texture(dim, x, y, z, w, scale, detail, roughness, lacunarity, offset, gain, distortion, noise_type,
-                  normalize):
+                  normalize, need_color):
     """The Noise Texture node: (Fac, Color r, g, b). dim 1 reads w only, 2 reads x, y, 3 reads x, y, z,
-    4 all four; the others are ignored."""
+    4 all four; the others are ignored. need_color False skips Color's two extra noise evaluations (g = b = 0)."""
     detail = min(max(detail, np.float32(0.0)), np.float32(15.0))
     roughness = max(roughness, np.float32(0.0))
     x = x * scale
@@ -579,6 +581,8 @@ def noise_texture(dim, x, y, z, w, scale, detail, roughness, lacunarity, offset,
         z += dz
         w += dw
     value = _noise_select(dim, x, y, z, w, detail, roughness, lacunarity, offset, gain, noise_type, normalize)
+    if not need_color:
+        return value, value, zero, zero
     # Colour seeds follow the distortion seeds: 1D 1, 2; 2D 2, 3; 3D 3, 4; 4D 4, 5.
     s1 = 1 if dim == 1 else dim
     s2 = s1 + 1
@@ -1234,7 +1238,7 @@ def _noise_batch(dim, co, scale, detail, roughness, lacunarity, offset, gain, di
                  fac, color):
     for n in range(co.shape[0]):
         v, r, g, b = noise_texture(dim, co[n, 0], co[n, 1], co[n, 2], co[n, 3], scale, detail, roughness, lacunarity,
-                                   offset, gain, distortion, noise_type, normalize)
+                                   offset, gain, distortion, noise_type, normalize, True)
         fac[n] = v
         color[n, 0] = r
         color[n, 1] = g
