@@ -17,6 +17,7 @@ from .. import bsdf_kernels as bk
 from .. import microfacet as mf
 from ..jit_cache import jit_no_nrt as _jit
 from . import registry as R
+from . import procedural
 from .program import (BIND_F0, BIND_IOR, BIND_ROUGHNESS, BIND_TINT_R, BIND_TINT_T, BIND_WEIGHT, N_BIND,
                       OBJECT_BOX_MIN, OBJECT_BOX_SIZE, OBJECT_COLOR, OBJECT_INVERSE, OBJECT_LOCATION,
                       OBJECT_PASS_INDEX, OBJECT_RANDOM, WIDTH, ShadingProgram, identity_object_row)
@@ -630,7 +631,8 @@ def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
                  tex_w)
     # elif op < _PROC_BASE: color.run(op, a, regs, data)        <- core.shading.color registers here
-    # else: procedural.run(op, a, regs, data)                     <- core.shading.procedural registers here
+    elif op >= _PROC_BASE:
+        procedural.run(op, a, regs, data)
 
 
 @_jit

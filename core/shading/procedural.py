@@ -25,7 +25,8 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from ..jit_cache import jit
+from ..jit_cache import jit, jit_inline
+from . import registry as R
 
 f32 = np.float32
 _M32 = 0xFFFFFFFF
@@ -1429,3 +1430,126 @@ def brick(coords: np.ndarray, scale: float = 5.0, mortar_size: float = 0.02, mor
     base = np.where((fac != 1.0)[:, None], (1.0 - tint[:, None]) * c1 + tint[:, None] * c2, c1)
     color = base * (1.0 - fac[:, None]) + m * fac[:, None]
     return fac, color.astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------------ shading program
+# Opcodes 400..599 (core.shading.registry's procedural family). Float inputs are registers (component 0);
+# enums and flags pack into one "int" operand; per-node float settings that are not sockets go in the data pool.
+def _ops(kind, *names):
+    return tuple((n, kind) for n in names)
+
+
+def pack_flags(*fields: int) -> int:
+    """Several small enums in one int operand, 4 bits each, first field lowest."""
+    v = 0
+    for i, f in enumerate(fields):
+        if not 0 <= int(f) < 16:
+            raise ValueError(f"flag field {i} = {f} does not fit in 4 bits")
+        v |= int(f) << (4 * i)
+    return v
+
+
+OP_WHITE_NOISE = R.register(R.OpSpec(
+    "tex_white_noise", R.PROCEDURAL_BASE + 0, _ops("out?", "value", "color") + _ops("in", "vector", "w")
+    + _ops("int", "dimensions"), "White Noise Texture: hashes of the coordinates (1D: W; 4D: vector and W)")).code
+OP_CHECKER = R.register(R.OpSpec(
+    "tex_checker", R.PROCEDURAL_BASE + 1, _ops("out?", "color", "fac")
+    + _ops("in", "vector", "color1", "color2", "scale"), "Checker Texture")).code
+OP_GRADIENT = R.register(R.OpSpec(
+    "tex_gradient", R.PROCEDURAL_BASE + 2, _ops("out?", "color", "fac") + _ops("in", "vector")
+    + _ops("int", "gradient_type"), "Gradient Texture; gradient_type: procedural.GRADIENT_TYPES")).code
+OP_NOISE = R.register(R.OpSpec(
+    "tex_noise", R.PROCEDURAL_BASE + 3, _ops("out?", "fac", "color")
+    + _ops("in", "vector", "w", "scale", "detail", "roughness", "lacunarity", "offset", "gain", "distortion")
+    + _ops("int", "flags"), "Noise Texture; flags = pack_flags(dimensions, noise type, normalize)")).code
+OP_VORONOI = R.register(R.OpSpec(
+    "tex_voronoi", R.PROCEDURAL_BASE + 4, _ops("out?", "distance", "color", "position", "w_out", "radius")
+    + _ops("in", "vector", "w", "scale", "detail", "roughness", "lacunarity", "smoothness", "exponent",
+           "randomness") + _ops("int", "flags"),
+    "Voronoi Texture; flags = pack_flags(dimensions, feature, metric, normalize)")).code
+OP_WAVE = R.register(R.OpSpec(
+    "tex_wave", R.PROCEDURAL_BASE + 5, _ops("out?", "color", "fac")
+    + _ops("in", "vector", "scale", "distortion", "detail", "detail_scale", "detail_roughness", "phase")
+    + _ops("int", "flags"), "Wave Texture; flags = pack_flags(wave type, direction, profile)")).code
+OP_MAGIC = R.register(R.OpSpec(
+    "tex_magic", R.PROCEDURAL_BASE + 6, _ops("out?", "color", "fac") + _ops("in", "vector", "scale", "distortion")
+    + _ops("int", "depth"), "Magic Texture; depth 0-10")).code
+OP_BRICK = R.register(R.OpSpec(
+    "tex_brick", R.PROCEDURAL_BASE + 7, _ops("out?", "color", "fac")
+    + _ops("in", "vector", "color1", "color2", "mortar", "scale", "mortar_size", "mortar_smooth", "bias",
+           "brick_width", "row_height") + _ops("int", "frequencies") + _ops("data", "params"),
+    "Brick Texture; frequencies = pack_flags(offset frequency, squash frequency) (1-15); data: offset, "
+    "squash")).code
+
+
+@jit
+def _set3(regs, r, x, y, z):
+    if r >= 0:
+        regs[r, 0] = x
+        regs[r, 1] = y
+        regs[r, 2] = z
+
+
+@jit
+def _setf(regs, r, x):
+    if r >= 0:
+        regs[r, 0] = x
+        regs[r, 1] = x
+        regs[r, 2] = x
+
+
+@jit_inline
+def run(op, a, regs, data):
+    """One procedural-texture instruction of a shading program (see the OpSpecs above for the slots)."""
+    if op == OP_NOISE:
+        flags = a[12]
+        v, r, g, b = noise_texture(flags & 15, regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], regs[a[4], 0],
+                                   regs[a[5], 0], regs[a[6], 0], regs[a[7], 0], regs[a[8], 0], regs[a[9], 0],
+                                   regs[a[10], 0], regs[a[11], 0], (flags >> 4) & 15, ((flags >> 8) & 15) != 0,
+                                   a[2] >= 0)
+        _setf(regs, a[1], v)
+        _set3(regs, a[2], r, g, b)
+    elif op == OP_VORONOI:
+        flags = a[15]
+        d, r, g, b, px, py, pz, pw, rad = voronoi_texture(
+            flags & 15, regs[a[6], 0], regs[a[6], 1], regs[a[6], 2], regs[a[7], 0], regs[a[8], 0], regs[a[9], 0],
+            regs[a[10], 0], regs[a[11], 0], regs[a[12], 0], regs[a[13], 0], regs[a[14], 0], (flags >> 4) & 15,
+            (flags >> 8) & 15, ((flags >> 12) & 15) != 0)
+        _setf(regs, a[1], d)
+        _set3(regs, a[2], r, g, b)
+        _set3(regs, a[3], px, py, pz)
+        _setf(regs, a[4], pw)
+        _setf(regs, a[5], rad)
+    elif op == OP_WHITE_NOISE:
+        v, r, g, b = white_noise_texture(a[5], regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], regs[a[4], 0])
+        _setf(regs, a[1], v)
+        _set3(regs, a[2], r, g, b)
+    elif op == OP_CHECKER:
+        f = checker_texture(regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], regs[a[6], 0])
+        _set3(regs, a[1], checker_color(f, regs[a[4], 0], regs[a[5], 0]), checker_color(f, regs[a[4], 1], regs[a[5], 1]),
+              checker_color(f, regs[a[4], 2], regs[a[5], 2]))
+        _setf(regs, a[2], f)
+    elif op == OP_GRADIENT:
+        f = gradient_texture(regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], a[4])
+        _setf(regs, a[1], f)
+        _setf(regs, a[2], f)
+    elif op == OP_WAVE:
+        flags = a[10]
+        f = wave_texture(regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], regs[a[4], 0], regs[a[5], 0], regs[a[6], 0],
+                         regs[a[7], 0], regs[a[8], 0], regs[a[9], 0], flags & 15, (flags >> 4) & 15,
+                         (flags >> 8) & 15)
+        _setf(regs, a[1], f)
+        _setf(regs, a[2], f)
+    elif op == OP_MAGIC:
+        f, r, g, b = magic_texture(regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], regs[a[4], 0], regs[a[5], 0], a[6])
+        _set3(regs, a[1], r, g, b)
+        _setf(regs, a[2], f)
+    elif op == OP_BRICK:
+        freq = a[13]
+        f, tint = brick_texture(regs[a[3], 0], regs[a[3], 1], regs[a[7], 0], regs[a[8], 0], regs[a[9], 0],
+                                regs[a[10], 0], regs[a[11], 0], regs[a[12], 0], data[a[14]], freq & 15,
+                                data[a[14] + 1], (freq >> 4) & 15)
+        _set3(regs, a[1], brick_color(f, tint, regs[a[4], 0], regs[a[5], 0], regs[a[6], 0]),
+              brick_color(f, tint, regs[a[4], 1], regs[a[5], 1], regs[a[6], 1]),
+              brick_color(f, tint, regs[a[4], 2], regs[a[5], 2], regs[a[6], 2]))
+        _setf(regs, a[2], f)
