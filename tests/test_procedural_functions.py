@@ -122,3 +122,56 @@ def test_brick_corners_are_mortar_and_centres_are_brick():
 def test_bad_input_is_refused_with_a_clear_message(call, message):
     with pytest.raises(ValueError, match=message):
         call()
+
+
+# --------------------------------------------------------------------------------------------- shading program
+def run_op(name, registers, data=(), **ops):
+    """One instruction of a shading program through the compiled evaluator; returns the register file."""
+    from monte.core.shading import evaluator as ev
+    from monte.core.shading import registry as R
+    from monte.core.shading.program import N_BIND, WIDTH, ShadingProgram
+
+    spec = R.op(name)
+    code = np.full((1, WIDTH), -1, np.int32)
+    code[0, 0] = spec.code
+    for key, value in ops.items():
+        code[0, spec.slot(key)] = value
+    regs = np.asarray([np.broadcast_to(np.asarray(r, np.float32), 3) for r in registers], np.float32)
+    prog = ShadingProgram(code, regs, np.zeros((0, N_BIND), np.int32), data=np.asarray(data, np.float32))
+    prog.validate("test", 0, 0)
+    return ev.run_single(prog)
+
+
+def test_program_opcodes_equal_the_batch_functions():
+    p = np.array([[0.31, -1.7, 2.2, 0.45]], np.float32)
+    vec, w = p[0, :3], p[0, 3]
+    # noise: out fac 0, color 1; vector 2, w 3, scale..distortion 4..10
+    regs = run_op("tex_noise", [0, 0, vec, w, 2.5, 3.5, 0.6, 2.1, 0.3, 1.2, 0.4], fac=0, color=1, vector=2, w=3,
+                  scale=4, detail=5, roughness=6, lacunarity=7, offset=8, gain=9, distortion=10,
+                  flags=tex.pack_flags(4, tex.NOISE_HETERO_TERRAIN, 0))
+    fac, color = tex.noise(p, 4, 2.5, 3.5, 0.6, 2.1, 0.3, 1.2, 0.4, "HETERO_TERRAIN", False)
+    np.testing.assert_allclose(regs[0, 0], fac[0], rtol=1e-6)
+    np.testing.assert_allclose(regs[1], color[0], rtol=1e-6)
+    regs = run_op("tex_voronoi", [0, 0, 0, 0, 0, vec, w, 1.5, 1.5, 0.6, 2.0, 0.8, 1.5, 0.7],
+                  distance=0, color=1, position=2, w_out=3, radius=4, vector=5, w=6, scale=7, detail=8, roughness=9,
+                  lacunarity=10, smoothness=11, exponent=12, randomness=13,
+                  flags=tex.pack_flags(3, tex.VORONOI_SMOOTH_F1, tex.METRIC_MINKOWSKI, 1))
+    out = tex.voronoi(p, 3, 1.5, 1.5, 0.6, 2.0, 0.8, 1.5, 0.7, "SMOOTH_F1", "MINKOWSKI", True)
+    np.testing.assert_allclose(regs[0, 0], out["Distance"][0], rtol=1e-6)
+    np.testing.assert_allclose(regs[1], out["Color"][0], rtol=1e-6)
+    np.testing.assert_allclose(regs[2], out["Position"][0], rtol=1e-6)
+    regs = run_op("tex_brick", [0, 0, vec, (1, 0, 0), (0, 1, 0), (0, 0, 1), 3.0, 0.05, 0.2, 0.1, 0.5, 0.25],
+                  data=(0.3, 1.4), color=0, fac=1, vector=2, color1=3, color2=4, mortar=5, scale=6, mortar_size=7,
+                  mortar_smooth=8, bias=9, brick_width=10, row_height=11, frequencies=tex.pack_flags(3, 2), params=0)
+    fac, color = tex.brick(p, 3.0, 0.05, 0.2, 0.1, 0.5, 0.25, 0.3, 3, 1.4, 2, (1, 0, 0), (0, 1, 0), (0, 0, 1))
+    np.testing.assert_allclose(regs[1, 0], fac[0], rtol=1e-6)
+    np.testing.assert_allclose(regs[0], color[0], rtol=1e-6)
+    regs = run_op("tex_wave", [0, vec, 1.3, 2.0, 2.5, 1.5, 0.6, 0.7], fac=0, vector=1, scale=2, distortion=3,
+                  detail=4, detail_scale=5, detail_roughness=6, phase=7, flags=tex.pack_flags(1, 3, 2))
+    np.testing.assert_allclose(regs[0, 0], tex.wave(p, 1.3, 2.0, 2.5, 1.5, 0.6, 0.7, "RINGS", "SPHERICAL",
+                                                    "TRI")[0], rtol=1e-6)
+
+
+def test_pack_flags_refuses_fields_beyond_4_bits():
+    with pytest.raises(ValueError, match="flag field 1 = 16 does not fit in 4 bits"):
+        tex.pack_flags(3, 16)
