@@ -175,3 +175,13 @@ def test_program_opcodes_equal_the_batch_functions():
 def test_pack_flags_refuses_fields_beyond_4_bits():
     with pytest.raises(ValueError, match="flag field 1 = 16 does not fit in 4 bits"):
         tex.pack_flags(3, 16)
+
+
+def test_gabor_is_zero_mean_with_unit_range_and_refuses_unknown_types():
+    co = (np.random.default_rng(7).random((3000, 4)) * 8 - 4).astype(np.float32)
+    for gt in ("2D", "3D"):
+        out = tex.gabor(co, gt)
+        assert abs(float(out["Value"].mean()) - 0.5) < 0.02
+        assert 0.0 <= out["Phase"].min() and out["Phase"].max() <= 1.0 and out["Intensity"].min() >= 0.0
+    with pytest.raises(ValueError, match="unknown Gabor type '4D'; expected one of 2D, 3D"):
+        tex.gabor(co, "4D")

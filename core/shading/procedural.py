@@ -1223,6 +1223,116 @@ def checker_color(fac, c1, c2):
     return c1 if fac == np.float32(1.0) else c2
 
 
+# ------------------------------------------------------------------------------------------------ Gabor
+_PI = np.float32(math.pi)
+_GABOR_IMPULSES = 8
+# Normalisation: 6 x the standard deviation sqrt(impulses x 0.5 x integral of the squared kernel), the integral
+# 1/4 in 2D and 1/(4 sqrt 2) in 3D (Cycles' values).
+_GABOR_NORM_2D = np.float32(6.0) * np.sqrt(np.float32(_GABOR_IMPULSES * 0.5 * 0.25))
+_GABOR_NORM_3D = np.float32(6.0) * np.sqrt(np.float32(_GABOR_IMPULSES * 0.5) * (np.float32(1.0) / (
+    np.float32(4.0) * np.float32(math.sqrt(2.0)))))
+
+
+@jit
+def _gabor_kernel(d2, phase_arg):
+    """The Hann-windowed Gaussian times the phasor exp(i 2 pi <p, f>): (real, imaginary)."""
+    hann = np.float32(0.5) + np.float32(0.5) * np.cos(_PI * d2)
+    env = np.exp(-_PI * d2) * hann
+    angle = np.float32(2.0) * _PI * phase_arg
+    return env * np.cos(angle), env * np.sin(angle)
+
+
+@jit
+def _gabor_2d(x, y, frequency, isotropy, orientation):
+    cx, cy = np.floor(x), np.floor(y)
+    lx, ly = x - cx, y - cy
+    re = np.float32(0.0)
+    im = np.float32(0.0)
+    for j in range(-1, 2):
+        for i in range(-1, 2):
+            gx, gy = cx + np.float32(i), cy + np.float32(j)
+            px, py = lx - np.float32(i), ly - np.float32(j)
+            for n in range(_GABOR_IMPULSES):
+                s0, s1, s2 = np.float32(n * 3), np.float32(n * 3 + 1), np.float32(n * 3 + 2)
+                rnd = (hash_float3_to_float(gx, gy, s0) - np.float32(0.5)) * _PI
+                ori = orientation + rnd * isotropy
+                kx = px - hash_float3_to_float(gx, gy, s1)
+                ky = py - hash_float3_to_float(s1, gx, gy)
+                d2 = kx * kx + ky * ky
+                if d2 >= np.float32(1.0):
+                    continue
+                weight = np.float32(-1.0) if hash_float3_to_float(gx, gy, s2) < np.float32(0.5) else np.float32(1.0)
+                fx = frequency * np.cos(ori)
+                fy = frequency * np.sin(ori)
+                kr, ki = _gabor_kernel(d2, kx * fx + ky * fy)
+                re += weight * kr
+                im += weight * ki
+    return re, im
+
+
+@jit
+def _gabor_3d(x, y, z, frequency, isotropy, ox, oy, oz):
+    cx, cy, cz = np.floor(x), np.floor(y), np.floor(z)
+    lx, ly, lz = x - cx, y - cy, z - cz
+    re = np.float32(0.0)
+    im = np.float32(0.0)
+    if isotropy != np.float32(0.0):
+        inclination0 = np.arccos(oz)
+        azimuth0 = (np.float32(-1.0) if oy < np.float32(0.0) else np.float32(1.0)) * np.arccos(
+            ox / np.sqrt(ox * ox + oy * oy))
+    else:
+        inclination0 = np.float32(0.0)
+        azimuth0 = np.float32(0.0)
+    for k in range(-1, 2):
+        for j in range(-1, 2):
+            for i in range(-1, 2):
+                gx, gy, gz = cx + np.float32(i), cy + np.float32(j), cz + np.float32(k)
+                px, py, pz = lx - np.float32(i), ly - np.float32(j), lz - np.float32(k)
+                for n in range(_GABOR_IMPULSES):
+                    s0, s1, s2 = np.float32(n * 3), np.float32(n * 3 + 1), np.float32(n * 3 + 2)
+                    if isotropy == np.float32(0.0):
+                        fx, fy, fz = ox, oy, oz
+                    else:
+                        incl = inclination0 + hash_float4_to_float(gx, gy, gz, s0) * _PI * isotropy
+                        azim = azimuth0 + hash_float4_to_float(gz, gx, s0, gy) * _PI * isotropy
+                        st = np.sin(incl)
+                        fx, fy, fz = st * np.cos(azim), st * np.sin(azim), np.cos(incl)
+                    kx = px - hash_float4_to_float(gx, gy, gz, s1)
+                    ky = py - hash_float4_to_float(gz, gx, s1, gy)
+                    kz = pz - hash_float4_to_float(s1, gz, gy, gx)
+                    d2 = kx * kx + ky * ky + kz * kz
+                    if d2 >= np.float32(1.0):
+                        continue
+                    weight = (np.float32(-1.0) if hash_float4_to_float(gx, gy, gz, s2) < np.float32(0.5)
+                              else np.float32(1.0))
+                    kr, ki = _gabor_kernel(d2, kx * (frequency * fx) + ky * (frequency * fy) + kz * (frequency * fz))
+                    re += weight * kr
+                    im += weight * ki
+    return re, im
+
+
+@jit
+def gabor_texture(gabor_type, x, y, z, scale, frequency, anisotropy, orientation, ox, oy, oz):
+    """The Gabor Texture node (Blender 4.3+): (Value, Phase, Intensity). gabor_type 2 or 3 (dimensions);
+    orientation: the 2D angle in radians; (ox, oy, oz) the 3D direction (normalized here)."""
+    x = x * scale
+    y = y * scale
+    z = z * scale
+    isotropy = np.float32(1.0) - min(max(anisotropy, np.float32(0.0)), np.float32(1.0))
+    frequency = max(np.float32(0.001), frequency)
+    if gabor_type == 2:
+        re, im = _gabor_2d(x, y, frequency, isotropy, orientation)
+        norm = _GABOR_NORM_2D
+    else:
+        inv = np.float32(1.0) / np.sqrt(ox * ox + oy * oy + oz * oz)
+        re, im = _gabor_3d(x, y, z, frequency, isotropy, ox * inv, oy * inv, oz * inv)
+        norm = _GABOR_NORM_3D
+    value = (im / norm) * np.float32(0.5) + np.float32(0.5)
+    phase = (np.arctan2(im, re) + _PI) / (np.float32(2.0) * _PI)
+    intensity = np.sqrt(re * re + im * im) / norm
+    return value, phase, intensity
+
+
 # ------------------------------------------------------------------------------------------------ batches
 @jit
 def _white_noise_batch(dim, co, fac, color):
@@ -1304,6 +1414,16 @@ def _brick_batch(co, scale, mortar_size, mortar_smooth, bias, brick_width, row_h
         tint[n] = t
 
 
+@jit
+def _gabor_batch(gabor_type, co, scale, frequency, anisotropy, orientation, ox, oy, oz, value, phase, intensity):
+    for n in range(co.shape[0]):
+        v, p, i = gabor_texture(gabor_type, co[n, 0], co[n, 1], co[n, 2], scale, frequency, anisotropy, orientation,
+                                ox, oy, oz)
+        value[n] = v
+        phase[n] = p
+        intensity[n] = i
+
+
 def _coords(coords: np.ndarray) -> np.ndarray:
     """(N, 3) or (N, 4) coordinates -> contiguous float32 (N, 4), W = 0 where absent."""
     co = np.asarray(coords)
@@ -1366,6 +1486,23 @@ def voronoi(coords: np.ndarray, dimensions: int = 3, scale: float = 5.0, detail:
                    f32(smoothness), f32(exponent), f32(randomness), _enum(feature, VORONOI_FEATURES, "Voronoi feature"),
                    _enum(distance, VORONOI_METRICS, "Voronoi distance metric"), bool(normalize), out["Distance"],
                    out["Color"], out["Position"], out["W"], out["Radius"])
+    return out
+
+
+GABOR_TYPES = {"2D": 2, "3D": 3}
+
+
+def gabor(coords: np.ndarray, gabor_type: str | int = "2D", scale: float = 5.0, frequency: float = 2.0,
+          anisotropy: float = 1.0, orientation: float = math.pi / 4,
+          orientation_3d=(math.sqrt(2.0), math.sqrt(2.0), 0.0)) -> dict:
+    """Gabor Texture (defaults as Blender's node): float32 "Value", "Phase", "Intensity" (N,)."""
+    co = _coords(coords)
+    gt = _enum(gabor_type, GABOR_TYPES, "Gabor type")
+    o = np.asarray(orientation_3d, np.float32).reshape(3)
+    n = len(co)
+    out = {"Value": np.empty(n, np.float32), "Phase": np.empty(n, np.float32), "Intensity": np.empty(n, np.float32)}
+    _gabor_batch(gt, co, f32(scale), f32(frequency), f32(anisotropy), f32(orientation), o[0], o[1], o[2],
+                 out["Value"], out["Phase"], out["Intensity"])
     return out
 
 
@@ -1482,6 +1619,12 @@ OP_BRICK = R.register(R.OpSpec(
     "squash")).code
 
 
+OP_GABOR = R.register(R.OpSpec(
+    "tex_gabor", R.PROCEDURAL_BASE + 8, _ops("out?", "value", "phase", "intensity")
+    + _ops("in", "vector", "scale", "frequency", "anisotropy", "orientation", "orientation_3d")
+    + _ops("int", "gabor_type"), "Gabor Texture; gabor_type 2 or 3 (dimensions)")).code
+
+
 @jit
 def _set3(regs, r, x, y, z):
     if r >= 0:
@@ -1544,6 +1687,13 @@ def run(op, a, regs, data):
         f, r, g, b = magic_texture(regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], regs[a[4], 0], regs[a[5], 0], a[6])
         _set3(regs, a[1], r, g, b)
         _setf(regs, a[2], f)
+    elif op == OP_GABOR:
+        v, ph, inten = gabor_texture(a[10], regs[a[4], 0], regs[a[4], 1], regs[a[4], 2], regs[a[5], 0],
+                                     regs[a[6], 0], regs[a[7], 0], regs[a[8], 0], regs[a[9], 0], regs[a[9], 1],
+                                     regs[a[9], 2])
+        _setf(regs, a[1], v)
+        _setf(regs, a[2], ph)
+        _setf(regs, a[3], inten)
     elif op == OP_BRICK:
         freq = a[13]
         f, tint = brick_texture(regs[a[3], 0], regs[a[3], 1], regs[a[7], 0], regs[a[8], 0], regs[a[9], 0],

@@ -153,3 +153,20 @@ def _brick(c, node, ctx):
     outs = c.emit("tex_brick", color=True, fac=True, vector=_vector(c, node, ctx),
                   frequencies=tex.pack_flags(*freqs), params=params, **ins)
     return {"Color": (outs["color"], RGBA), "Fac": (outs["fac"], FLOAT)}
+
+
+@rule("ShaderNodeTexGabor", "Gabor Texture", "texture",
+      inputs=("Vector", "Scale", "Frequency", "Anisotropy", "Orientation 2D", "Orientation 3D"),
+      outputs=("Value", "Phase", "Intensity"), notes="2D and 3D.")
+def _gabor(c, node, ctx):
+    _mapping_check(c, node)
+    gt = tex.GABOR_TYPES[node.gabor_type]
+    orient = [s for s in node.inputs if s.name == "Orientation"]
+    o2 = c.socket_value(orient[0], FLOAT, ctx) if gt == 2 else c.const(0.0)
+    o3 = c.socket_value(orient[1], VECTOR, ctx) if gt == 3 else c.const([0.0, 0.0, 1.0])
+    used = {k.lower(): c.output_used(node, k, ctx) for k in ("Value", "Phase", "Intensity")}
+    outs = c.emit("tex_gabor", vector=_vector(c, node, ctx), scale=_float(c, node, "Scale", ctx),
+                  frequency=_float(c, node, "Frequency", ctx), anisotropy=_float(c, node, "Anisotropy", ctx),
+                  orientation=o2, orientation_3d=o3, gabor_type=gt, **used)
+    return {"Value": (outs["value"], FLOAT), "Phase": (outs["phase"], FLOAT),
+            "Intensity": (outs["intensity"], FLOAT)}
