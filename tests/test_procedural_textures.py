@@ -20,7 +20,7 @@ marked slow: `pytest -m slow tests/test_procedural_textures.py`.
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -493,3 +493,25 @@ def test_texture_sweep_matches_cycles(slow_renders, index):
     group, local = divmod(index, SLOW_GROUP)
     count = len(SLOW_CASES[group * SLOW_GROUP:(group + 1) * SLOW_GROUP])
     check(SLOW_CASES[index], slow_renders[group], local, -(-count // COLUMNS))
+
+
+@pytest.fixture(scope="module")
+def slow_monte_renders(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("procedural-slow-monte")
+    return [render_cases(SLOW_CASES[i:i + SLOW_GROUP], tmp, engine="MONTE")
+            for i in range(0, len(SLOW_CASES), SLOW_GROUP)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index", range(len(SLOW_CASES)), ids=[c.name for c in SLOW_CASES])
+def test_monte_texture_sweep(slow_monte_renders, index):
+    """The sweep through Monte's shading program. Monte's Vector Math rounds the tile's multiply-add once (Cycles
+    twice), so a coordinate may differ by one float32 ulp: white noise of unfloored coordinates hashes those bits
+    and is left out; every case may differ at 2% of its pixels (a cell boundary of Voronoi's 5^4-cell Smooth F1
+    window crossed), and values by 3x the tolerance (ulp differences grown by distortion)."""
+    case = SLOW_CASES[index]
+    if "unfloored" in case.name:
+        pytest.skip("white noise hashes the coordinates' bits; Monte's differ from Cycles' by an ulp at some pixels")
+    group, local = divmod(index, SLOW_GROUP)
+    count = len(SLOW_CASES[group * SLOW_GROUP:(group + 1) * SLOW_GROUP])
+    check(replace(case, steps=True), slow_monte_renders[group], local, -(-count // COLUMNS), slack=3.0)
