@@ -18,6 +18,7 @@ from .. import microfacet as mf
 from ..jit_cache import jit_no_nrt as _jit
 from . import registry as R
 from . import procedural
+from .regs import get3, set3, setf  # noqa: F401  (re-exported for node modules)
 from .program import (BIND_F0, BIND_IOR, BIND_ROUGHNESS, BIND_TINT_R, BIND_TINT_T, BIND_WEIGHT, N_BIND,
                       OBJECT_BOX_MIN, OBJECT_BOX_SIZE, OBJECT_COLOR, OBJECT_INVERSE, OBJECT_LOCATION,
                       OBJECT_PASS_INDEX, OBJECT_RANDOM, WIDTH, ShadingProgram, identity_object_row)
@@ -239,29 +240,6 @@ def srgb_to_linear(c):
     if c < 0.04045:
         return 0.0 if c < 0.0 else c * (1.0 / 12.92)
     return ((c + 0.055) * (1.0 / 1.055)) ** 2.4
-
-
-# ------------------------------------------------------------------------------------------- register helpers
-@_jit
-def get3(regs, r):
-    return float(regs[r, 0]), float(regs[r, 1]), float(regs[r, 2])
-
-
-@_jit
-def set3(regs, r, x, y, z):
-    if r >= 0:
-        regs[r, 0] = x
-        regs[r, 1] = y
-        regs[r, 2] = z
-
-
-@_jit
-def setf(regs, r, x):
-    """A float output: component 0 (the others mirror it, so a stray vector read sees a grey)."""
-    if r >= 0:
-        regs[r, 0] = x
-        regs[r, 1] = x
-        regs[r, 2] = x
 
 
 # -------------------------------------------------------------------------------------------------- vectors
@@ -693,10 +671,9 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
         if changed:
             bk._select_row(kind, weight, t_scale, m, k, select)
         e = emit_reg[p]
-        if e >= 0:
+        if e >= 0:  # not clamped: Cycles renders a negative emission colour as negative radiance
             for c in range(3):
-                ev = scratch[e, c]
-                emission[k, c] = ev if ev > _F32_0 else _F32_0
+                emission[k, c] = scratch[e, c]
 
 
 # ----------------------------------------------------------------------------------------------- Python face

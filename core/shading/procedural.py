@@ -25,8 +25,9 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from ..jit_cache import jit, jit_inline
+from ..jit_cache import jit, jit_no_nrt
 from . import registry as R
+from .regs import set3, setf
 
 f32 = np.float32
 _M32 = 0xFFFFFFFF
@@ -1625,23 +1626,7 @@ OP_GABOR = R.register(R.OpSpec(
     + _ops("int", "gabor_type"), "Gabor Texture; gabor_type 2 or 3 (dimensions)")).code
 
 
-@jit
-def _set3(regs, r, x, y, z):
-    if r >= 0:
-        regs[r, 0] = x
-        regs[r, 1] = y
-        regs[r, 2] = z
-
-
-@jit
-def _setf(regs, r, x):
-    if r >= 0:
-        regs[r, 0] = x
-        regs[r, 1] = x
-        regs[r, 2] = x
-
-
-@jit_inline
+@jit_no_nrt
 def run(op, a, regs, data):
     """One procedural-texture instruction of a shading program (see the OpSpecs above for the slots)."""
     if op == OP_NOISE:
@@ -1650,56 +1635,56 @@ def run(op, a, regs, data):
                                    regs[a[5], 0], regs[a[6], 0], regs[a[7], 0], regs[a[8], 0], regs[a[9], 0],
                                    regs[a[10], 0], regs[a[11], 0], (flags >> 4) & 15, ((flags >> 8) & 15) != 0,
                                    a[2] >= 0)
-        _setf(regs, a[1], v)
-        _set3(regs, a[2], r, g, b)
+        setf(regs, a[1], v)
+        set3(regs, a[2], r, g, b)
     elif op == OP_VORONOI:
         flags = a[15]
         d, r, g, b, px, py, pz, pw, rad = voronoi_texture(
             flags & 15, regs[a[6], 0], regs[a[6], 1], regs[a[6], 2], regs[a[7], 0], regs[a[8], 0], regs[a[9], 0],
             regs[a[10], 0], regs[a[11], 0], regs[a[12], 0], regs[a[13], 0], regs[a[14], 0], (flags >> 4) & 15,
             (flags >> 8) & 15, ((flags >> 12) & 15) != 0)
-        _setf(regs, a[1], d)
-        _set3(regs, a[2], r, g, b)
-        _set3(regs, a[3], px, py, pz)
-        _setf(regs, a[4], pw)
-        _setf(regs, a[5], rad)
+        setf(regs, a[1], d)
+        set3(regs, a[2], r, g, b)
+        set3(regs, a[3], px, py, pz)
+        setf(regs, a[4], pw)
+        setf(regs, a[5], rad)
     elif op == OP_WHITE_NOISE:
         v, r, g, b = white_noise_texture(a[5], regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], regs[a[4], 0])
-        _setf(regs, a[1], v)
-        _set3(regs, a[2], r, g, b)
+        setf(regs, a[1], v)
+        set3(regs, a[2], r, g, b)
     elif op == OP_CHECKER:
         f = checker_texture(regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], regs[a[6], 0])
-        _set3(regs, a[1], checker_color(f, regs[a[4], 0], regs[a[5], 0]), checker_color(f, regs[a[4], 1], regs[a[5], 1]),
+        set3(regs, a[1], checker_color(f, regs[a[4], 0], regs[a[5], 0]), checker_color(f, regs[a[4], 1], regs[a[5], 1]),
               checker_color(f, regs[a[4], 2], regs[a[5], 2]))
-        _setf(regs, a[2], f)
+        setf(regs, a[2], f)
     elif op == OP_GRADIENT:
         f = gradient_texture(regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], a[4])
-        _setf(regs, a[1], f)
-        _setf(regs, a[2], f)
+        setf(regs, a[1], f)
+        setf(regs, a[2], f)
     elif op == OP_WAVE:
         flags = a[10]
         f = wave_texture(regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], regs[a[4], 0], regs[a[5], 0], regs[a[6], 0],
                          regs[a[7], 0], regs[a[8], 0], regs[a[9], 0], flags & 15, (flags >> 4) & 15,
                          (flags >> 8) & 15)
-        _setf(regs, a[1], f)
-        _setf(regs, a[2], f)
+        setf(regs, a[1], f)
+        setf(regs, a[2], f)
     elif op == OP_MAGIC:
         f, r, g, b = magic_texture(regs[a[3], 0], regs[a[3], 1], regs[a[3], 2], regs[a[4], 0], regs[a[5], 0], a[6])
-        _set3(regs, a[1], r, g, b)
-        _setf(regs, a[2], f)
+        set3(regs, a[1], r, g, b)
+        setf(regs, a[2], f)
     elif op == OP_GABOR:
         v, ph, inten = gabor_texture(a[10], regs[a[4], 0], regs[a[4], 1], regs[a[4], 2], regs[a[5], 0],
                                      regs[a[6], 0], regs[a[7], 0], regs[a[8], 0], regs[a[9], 0], regs[a[9], 1],
                                      regs[a[9], 2])
-        _setf(regs, a[1], v)
-        _setf(regs, a[2], ph)
-        _setf(regs, a[3], inten)
+        setf(regs, a[1], v)
+        setf(regs, a[2], ph)
+        setf(regs, a[3], inten)
     elif op == OP_BRICK:
         freq = a[13]
         f, tint = brick_texture(regs[a[3], 0], regs[a[3], 1], regs[a[7], 0], regs[a[8], 0], regs[a[9], 0],
                                 regs[a[10], 0], regs[a[11], 0], regs[a[12], 0], data[a[14]], freq & 15,
                                 data[a[14] + 1], (freq >> 4) & 15)
-        _set3(regs, a[1], brick_color(f, tint, regs[a[4], 0], regs[a[5], 0], regs[a[6], 0]),
+        set3(regs, a[1], brick_color(f, tint, regs[a[4], 0], regs[a[5], 0], regs[a[6], 0]),
               brick_color(f, tint, regs[a[4], 1], regs[a[5], 1], regs[a[6], 1]),
               brick_color(f, tint, regs[a[4], 2], regs[a[5], 2], regs[a[6], 2]))
-        _setf(regs, a[2], f)
+        setf(regs, a[2], f)

@@ -163,6 +163,3 @@ OP_SQRT_SATURATE = register(OpSpec("sqrt_saturate", 52, _r("out", kind="out") + 
                                    "per component sqrt(clamp(a, 0, 1)) (Principled transmission tint)")).code
 OP_ONE_MINUS_SATURATE = register(OpSpec("one_minus_saturate", 53, _r("out", kind="out") + _r("a", kind="in"),
                                         "per component clamp(1 - a, 0, 1) (Principled metal Schlick tint)")).code
-
-# Family modules register their opcodes on import (they import this module's names above, never the reverse).
-from . import procedural  # noqa: E402,F401
