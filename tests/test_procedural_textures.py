@@ -515,3 +515,35 @@ def test_monte_texture_sweep(slow_monte_renders, index):
     group, local = divmod(index, SLOW_GROUP)
     count = len(SLOW_CASES[group * SLOW_GROUP:(group + 1) * SLOW_GROUP])
     check(replace(case, steps=True), slow_monte_renders[group], local, -(-count // COLUMNS), slack=3.0)
+
+
+# --------------------------------------------------------------------------------------------- unlinked Vector
+def test_unlinked_vector_reads_generated_coordinates():
+    """Textures with nothing in their Vector input read Generated coordinates in Blender: a Noise, a Voronoi and
+    a Brick texture side by side in one material (summed into the Emission colour) on the shared emission-plane
+    harness, Monte against Cycles. Both put samples within 0.005 px of the pixel centres (different jitters):
+    at these scales the sum's slope is below 0.1 per pixel, so pixels must agree to 1e-3, except at most 2% near
+    the brick's and the cells' steps."""
+    import shading_crosscheck as sc
+
+    def build(tree, nodes):
+        noise = nodes.new("ShaderNodeTexNoise")
+        noise.inputs["Scale"].default_value = 2.0
+        vor = nodes.new("ShaderNodeTexVoronoi")
+        vor.inputs["Scale"].default_value = 3.0
+        brick = nodes.new("ShaderNodeTexBrick")
+        add = nodes.new("ShaderNodeVectorMath")
+        add.operation = "ADD"
+        tree.links.new(noise.outputs["Color"], add.inputs[0])
+        tree.links.new(vor.outputs["Color"], add.inputs[1])
+        add2 = nodes.new("ShaderNodeVectorMath")
+        add2.operation = "ADD"
+        tree.links.new(add.outputs[0], add2.inputs[0])
+        tree.links.new(brick.outputs["Color"], add2.inputs[1])
+        return add2.outputs[0]
+
+    monte, cycles = sc.compare(sc.emission_plane(build, size=48))
+    err = np.abs(monte - cycles).max(axis=2)
+    assert cycles.max() > 0.5 and np.ptp(cycles) > 0.5  # the textures are there
+    assert (err > 1e-3).mean() <= 0.02, f"{(err > 1e-3).sum()} pixels differ by more than 1e-3; worst {err.max()}"
+    assert np.median(err) < 1e-4
