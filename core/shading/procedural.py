@@ -389,7 +389,10 @@ def _perlin_4d(x, y, z, w):
 def _wrap_coordinate(p):
     """Cycles repeats Perlin noise every 100000 on each axis (float precision), shifted by half a cell beyond
     1e6 so integer lattice points do not land on exact zeros."""
-    corr = np.float32(0.5) if abs(p) >= np.float32(1000000.0) else np.float32(0.0)
+    a = abs(p)
+    if a < np.float32(100000.0):  # fmod would return p itself: skip the libm call
+        return p
+    corr = np.float32(0.5) if a >= np.float32(1000000.0) else np.float32(0.0)
     return np.fmod(p, np.float32(100000.0)) + corr
 
 
