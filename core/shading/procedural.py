@@ -13,7 +13,9 @@ and a PCG-style hash on signed int32 (2D-4D Voronoi cells); a hash becomes a flo
 other rounding differences stay near float32 precision (about 1e-6 on values of order 1).
 
 Settings that are enums in Blender are small integers here; the `*_TYPES` dictionaries map Blender's enum
-identifiers (as bpy spells them) to them.
+identifiers (as bpy spells them) to them. In materials the textures run as shading-program instructions
+(opcodes 400-408, registered at the end of this module; `run` is the family's dispatcher called by
+core.shading.evaluator; the compiler rules are in addon/export/nodes/textures.py).
 """
 
 from __future__ import annotations
