@@ -152,12 +152,52 @@ def inputs_and_fresnel(tree, nodes):
     return comb2.outputs[0]
 
 
-CASES = {"math": math_chain, "vectors": vectors, "inputs-fresnel": inputs_and_fresnel}
+def object_info(tree, nodes):
+    """Object Info (location, colour, pass index, material index) mixed by a stepped Map Range and Clamp of the
+    UV Map node's coordinates; the plane is moved, coloured and given a pass index by the test."""
+    info = nodes.new("ShaderNodeObjectInfo")
+    uvmap = nodes.new("ShaderNodeUVMap")
+    sep = nodes.new("ShaderNodeSeparateXYZ")
+    link(tree, uvmap.outputs["UV"], sep, 0)
+    steps = nodes.new("ShaderNodeMapRange")
+    steps.interpolation_type = "STEPPED"
+    steps.inputs["Steps"].default_value = 3.0
+    link(tree, sep.outputs["X"], steps, "Value")
+    scale = nodes.new("ShaderNodeVectorMath")
+    scale.operation = "SCALE"
+    link(tree, info.outputs["Color"], scale, 0)
+    link(tree, steps.outputs["Result"], scale, "Scale")
+    index = nodes.new("ShaderNodeMath")
+    index.operation = "MULTIPLY_ADD"
+    link(tree, info.outputs["Object Index"], index, 0)
+    index.inputs[1].default_value = 0.1
+    link(tree, info.outputs["Material Index"], index, 2)
+    loc = nodes.new("ShaderNodeVectorMath")
+    loc.operation = "ADD"
+    link(tree, info.outputs["Location"], loc, 0)
+    link(tree, sep.outputs["Y"], loc, 1)
+    clamp = nodes.new("ShaderNodeClamp")
+    link(tree, loc.outputs["Vector"], clamp, 0)  # vector -> float: the average
+    clamp.inputs["Max"].default_value = 0.7
+    comb = nodes.new("ShaderNodeCombineXYZ")
+    link(tree, index.outputs[0], comb, 0)
+    link(tree, clamp.outputs[0], comb, 1)
+    add = nodes.new("ShaderNodeVectorMath")
+    add.operation = "ADD"
+    link(tree, comb.outputs[0], add, 0)
+    link(tree, scale.outputs["Vector"], add, 1)
+    return add.outputs["Vector"]
+
+
+CASES = {"math": math_chain, "vectors": vectors, "inputs-fresnel": inputs_and_fresnel, "object-info": object_info}
 
 
 @pytest.mark.parametrize("name", list(CASES))
 def test_smooth_node_outputs_match_cycles_per_pixel(name):
     scene = sc.emission_plane(CASES[name], size=24, name=name)
+    ob = scene.objects["plane"]
+    ob.location, ob.scale, ob.pass_index, ob.color = (0.1, -0.05, 0.3), (1.2, 1.1, 1.0), 3, (0.9, 0.4, 0.2, 1.0)
+    bpy.data.materials[name].pass_index = 2
     monte, cycles = sc.compare(scene, spp=2)
     diff = np.abs(monte - cycles)
     print(f"\n{name}: max |Monte - Cycles| {diff.max():.2e}, mean {diff.mean():.2e}, "
