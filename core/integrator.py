@@ -23,6 +23,7 @@ from .accel import Accelerator
 from .lights import EmissiveTriangles, LightSampler
 from .scene import Scene
 from .settings import RenderSettings
+from .shading import PreparedShading
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
 # camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce.
@@ -109,6 +110,8 @@ class PreparedScene:
     radius: float
     specular: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (M,) has a glossy/glass lobe
     features: dict = field(default_factory=dict)
+    shading: PreparedShading | None = None  # the node programs of materials that vary per point, or None
+    object_of_triangle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))  # (T,) object rows
 
     # The same per-triangle data as the compiled kernels take it: empty arrays instead of None.
     @property
@@ -128,7 +131,7 @@ class PreparedScene:
         """sample_world: whether light sampling may pick the (uniform) world, see LightSampler; only the
         light-sampling-only estimator needs it (it counts no emission that BSDF sampling finds)."""
         shift = scene.camera.position.copy()
-        verts, tris, mats, normals, uvs, smooth = [], [], [], [], [], []
+        verts, tris, mats, normals, uvs, smooth, objs = [], [], [], [], [], [], []
         offset = 0
         any_smooth = any(m.normals is not None for m in scene.meshes)
         any_uv = any(m.uvs is not None for m in scene.meshes)
@@ -140,6 +143,9 @@ class PreparedScene:
             offset += len(mesh.vertices)
             mats.append(mesh.material_index)
             t = mesh.triangle_count
+            # object rows: 0 is "no object" (identity), the scene's rows follow
+            objs.append(np.zeros(t, np.int32) if mesh.object_index is None
+                        else np.broadcast_to(np.asarray(mesh.object_index, np.int32) + 1, (t,)))
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
                 smooth.append(np.full(t, mesh.normals is not None))
@@ -160,6 +166,12 @@ class PreparedScene:
         uv_arr = np.concatenate(uvs).astype(np.float32) if any_uv and uvs else None
 
         materials = bsdf_mod.MaterialTable.build(scene.materials, scene.textures)
+        from .shading.program import identity_object_row
+
+        object_rows = [identity_object_row()[None]] + ([scene.objects] if scene.objects is not None else [])
+        shading = PreparedShading.build(scene.materials, scene.textures, materials.max_lobes,
+                                        np.concatenate(object_rows).astype(np.float32))
+        object_of_triangle = np.concatenate(objs).astype(np.int32) if objs else np.zeros(0, np.int32)
         emissive = EmissiveTriangles.from_mesh_arrays(tri_vertices, material_index, materials.emission)
         if len(vertices):
             lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
@@ -175,11 +187,12 @@ class PreparedScene:
             "lights": sorted(lights.kinds_present),
             "textures": bool(scene.textures),
             "smooth_normals": corner_normals is not None,
+            "node_programs": 0 if shading is None else int(shading.needs_program.sum()),
         }
         specular = np.array([any(lobe.kind != "diffuse" for lobe in m.lobes) for m in scene.materials], bool)
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
-                   specular, features)
+                   specular, features, shading, object_of_triangle)
 
 
 @dataclass
@@ -391,6 +404,18 @@ class PathTracer:
                     self._add(radiance, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
+            # Emission that varies per point (a node program drives it): such emitters are not light-sampled, so
+            # what BSDF sampling (or the camera) finds counts in full.
+            if ps.shading is not None and ps.shading.any_emits:
+                e = np.flatnonzero(hit & ps.shading.emits[ps.material_index[prim]])
+                if len(e):
+                    ge = self._surface(e, prim, hits.u, hits.v, d)
+                    mat_e = ps.material_index[prim[e]]
+                    le = np.zeros((len(e), 3), np.float32)
+                    self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le)
+                    self._add(radiance, idx[e], throughput[e] * le)
+                    if features is not None:
+                        features.add_emission(idx[e], throughput[e] * le)
 
             if depth == s.max_bounces + 1:
                 self._lap("emission", clock)
@@ -413,8 +438,11 @@ class PathTracer:
             if want_aovs and depth == 0:
                 hit_rows = np.flatnonzero(hit)
                 g = self._surface(hit_rows, prim, hits.u, hits.v, d)
-                first.albedo[idx[hit_rows]] = bsdf_mod.albedo(ps.materials.gather(ps.material_index[prim[hit_rows]],
-                                                                                   g.uv))
+                mat_first = ps.material_index[prim[hit_rows]]
+                lobes_first = ps.materials.gather(mat_first, g.uv)
+                if ps.shading is not None:
+                    self._shade(g, mat_first, prim[hit_rows], d[hit_rows], lobes_first)
+                first.albedo[idx[hit_rows]] = bsdf_mod.albedo(lobes_first)
                 first.normal[idx[hit_rows]] = g.ns_raw
                 first.depth[idx[hit_rows]] = (t_start[hit_rows] + hits.t[hit_rows]) * depth_scale[hit_rows]
                 if len(rows) < len(hit_rows):
@@ -429,6 +457,8 @@ class PathTracer:
                 throughput /= q[rows][:, None]
             mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
+            if ps.shading is not None:
+                self._shade(g, mat, prim[rows], d[rows], lobes)
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
 
@@ -471,6 +501,21 @@ class PathTracer:
                         ps.kernel_uvs, ps.tri_magnitude, ps.material_index, ps.specular, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
                         g.n_view, g.mag, g.cos_o_geo, g.uv_buffer)
         return g
+
+    def _shade(self, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
+               lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None) -> None:
+        """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
+        The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir."""
+        sh = self.ps.shading
+        rows = np.flatnonzero(sh.needs_program[mat])
+        if len(rows) == 0:
+            return
+        back = g.cos_o_geo < 0
+        p_world = (g.p + self.ps.shift.astype(np.float32)).astype(np.float32)
+        ng = np.where(back[:, None], -g.ng, g.ng)
+        obj = self.ps.object_of_triangle[prim]
+        sh.evaluate(rows, mat, p_world, g.n_view, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
+                    self.ps.materials.select_scale, emission)
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""

@@ -69,7 +69,8 @@ if _InTree is not None and _CacheImpl is not None:
 
         @classmethod
         def from_function(cls, py_func, py_file):
-            if os.path.dirname(os.path.abspath(py_file)) != _CORE_DIR:
+            folder = os.path.dirname(os.path.abspath(py_file))
+            if folder != _CORE_DIR and os.path.dirname(folder) != _CORE_DIR:  # core/ and its packages (shading/)
                 return None
             return super().from_function(py_func, py_file)
 
@@ -86,8 +87,8 @@ jit_inline = numba.njit(**_OPTIONS, _nrt=False, inline="always")
 
 # Modules of this folder that define cached kernels (their cache index files are named after them).
 KERNEL_MODULES = ("geometry_kernels", "path_kernels", "mesh_checks", "camera", "sampling", "warps", "bsdf_kernels",
-                  "world_kernels",
-                  "light_kernels", "embree")
+                  "world_kernels", "light_kernels", "embree", "shading/regs", "shading/evaluator",
+                  "shading/procedural")
 
 
 def compile_cache_is_cold() -> bool:
@@ -95,4 +96,5 @@ def compile_cache_is_cold() -> bool:
     after an install or an update of the sources): that render compiles the kernels first, about a minute on a
     2-core machine."""
     cache = cache_dir()
-    return any(not glob.glob(os.path.join(cache, f"{name}.*.nbi")) for name in KERNEL_MODULES)
+    return any(not glob.glob(os.path.join(cache, f"{os.path.basename(name)}.*.nbi"))
+               for name in KERNEL_MODULES)

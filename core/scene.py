@@ -16,11 +16,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from .mesh_checks import triangle_checks
 from .world import EnvironmentMap, EnvironmentMapError
+
+if TYPE_CHECKING:
+    from .shading.program import ShadingProgram
 
 LobeKind = Literal["diffuse", "glossy", "glass", "refraction"]
 FresnelMode = Literal["none", "schlick", "dielectric", "generalized_schlick"]
@@ -128,11 +131,14 @@ class Material:
 
     emission: emitted radiance in W/(sr m^2) per colour unit (Blender's Emission colour x strength),
     emitted from both faces of the triangle, as Cycles' mesh emission is.
+    program: optional core.shading ShadingProgram (a compiled node tree) that overrides lobe parameters and the
+    emission per shading point (see core.shading.program); `lobes` then give the lobe kinds and constant values.
     """
 
     name: str
     lobes: list[Lobe] = field(default_factory=list)
     emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    program: "ShadingProgram | None" = None
 
     def validate(self, n_textures: int) -> None:
         owner = f"material {self.name!r}"
@@ -141,6 +147,13 @@ class Material:
             lobe.validate(owner)
             if not (-1 <= lobe.color_texture < n_textures):
                 raise SceneError(f"{owner}: texture index {lobe.color_texture} out of range")
+        if self.program is not None:
+            from .shading.program import ProgramError
+
+            try:
+                self.program.validate(owner, len(self.lobes), n_textures)
+            except ProgramError as exc:
+                raise SceneError(str(exc)) from None
 
     @property
     def is_emissive(self) -> bool:
@@ -149,8 +162,10 @@ class Material:
 
 @dataclass
 class Texture:
-    """An RGB image in linear colour, (H, W, 3) float32, row 0 at the top; sampled with UV in [0, 1]
-    (v = 0 at the bottom, Blender's convention), repeat wrapping, bilinear filtering."""
+    """An RGB or RGBA image, (H, W, 3 or 4) float32, row 0 at the top; sampled with UV in [0, 1] (v = 0 at the
+    bottom, Blender's convention). A lobe's `color_texture` reads its RGB as linear colour with repeat wrapping
+    and bilinear filtering; a shading program's image opcode chooses filtering, extension, alpha association
+    and sRGB decoding itself (core.shading.registry, "image")."""
 
     name: str
     pixels: np.ndarray
@@ -158,8 +173,9 @@ class Texture:
     def validate(self) -> None:
         px = np.asarray(self.pixels, dtype=np.float32)
         if px.ndim != 3 or px.shape[2] not in (3, 4) or px.shape[0] < 1 or px.shape[1] < 1:
-            raise SceneError(f"texture {self.name!r}: expected an (H, W, 3) image, got shape {px.shape}")
-        px = np.ascontiguousarray(px[..., :3])
+            raise SceneError(f"texture {self.name!r}: expected an (H, W, 3) or (H, W, 4) image, got shape "
+                             f"{px.shape}")
+        px = np.ascontiguousarray(px)
         bad = ~np.isfinite(px)
         if bad.any():
             raise SceneError(f"texture {self.name!r}: {int(bad.sum())} NaN/Inf texel values")
@@ -176,6 +192,8 @@ class Mesh:
       None means flat shading (the geometric normal).
     uvs: optional (T, 3, 2) per-corner texture coordinates.
     material_index: (T,) int index into `Scene.materials` (a single int broadcasts).
+    object_index: optional (T,) int (or one int) row of `Scene.objects` each triangle belongs to: the object data
+      shading nodes read (object space, texture space, Object Info); None = no object (identity space).
     """
 
     name: str
@@ -184,12 +202,13 @@ class Mesh:
     material_index: np.ndarray | int = 0
     normals: np.ndarray | None = None
     uvs: np.ndarray | None = None
+    object_index: np.ndarray | int | None = None
 
     @property
     def triangle_count(self) -> int:
         return int(np.asarray(self.triangles).shape[0])
 
-    def validate(self, n_materials: int, warnings: list[str]) -> None:
+    def validate(self, n_materials: int, warnings: list[str], n_objects: int = 0) -> None:
         """Check shapes and indices; drop degenerate or non-finite triangles with a counted warning."""
         owner = f"mesh {self.name!r}"
         v = np.asarray(self.vertices)
@@ -216,6 +235,12 @@ class Mesh:
                 f"{owner}: material index out of range [0, {n_materials - 1}]: "
                 f"min {int(mat.min())}, max {int(mat.max())}"
             )
+        objs = None
+        if self.object_index is not None:
+            objs = np.broadcast_to(np.asarray(self.object_index), (n_tri,)).astype(np.int64)
+            if n_tri and (objs.min() < 0 or objs.max() >= n_objects):
+                raise SceneError(f"{owner}: object index out of range [0, {n_objects - 1}]: "
+                                 f"min {int(objs.min())}, max {int(objs.max())}")
         normals = None if self.normals is None else np.asarray(self.normals, dtype=np.float32)
         if normals is not None and normals.shape != (n_tri, 3, 3):
             raise SceneError(f"{owner}: normals must have shape (T, 3, 3) = ({n_tri}, 3, 3), got {normals.shape}")
@@ -255,11 +280,13 @@ class Mesh:
             tri, mat = tri[keep], mat[keep]
             normals = None if normals is None else normals[keep]
             uvs = None if uvs is None else uvs[keep]
+            objs = None if objs is None else objs[keep]
         # Non-finite vertices that no kept triangle uses are harmless; replace them so later arithmetic is clean.
         if not np.all(np.isfinite(v)):
             v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
         self.vertices, self.triangles, self.material_index = v, tri.astype(np.int32), mat.astype(np.int32)
         self.normals, self.uvs = normals, uvs
+        self.object_index = None if objs is None else objs.astype(np.int32)
 
 
 # ------------------------------------------------------------------------------------------------------ lights
@@ -490,6 +517,7 @@ class Scene:
     textures: list[Texture] = field(default_factory=list)
     name: str = "scene"
     warnings: list[str] = field(default_factory=list)
+    objects: np.ndarray | None = None  # (O, core.shading.program.OBJECT_COLUMNS) float32 rows, see Mesh.object_index
 
     @property
     def triangle_count(self) -> int:
@@ -504,8 +532,16 @@ class Scene:
             raise SceneError("scene has no materials: add at least one (meshes index into the material list)")
         for mat in self.materials:
             mat.validate(len(self.textures))
+        n_objects = 0
+        if self.objects is not None:
+            from .shading.program import OBJECT_COLUMNS
+
+            self.objects = np.ascontiguousarray(np.asarray(self.objects, np.float32).reshape(-1, OBJECT_COLUMNS))
+            if not np.all(np.isfinite(self.objects)):
+                raise SceneError("scene objects: NaN/Inf in the object table (a degenerate object transform?)")
+            n_objects = len(self.objects)
         for mesh in self.meshes:
-            mesh.validate(len(self.materials), self.warnings)
+            mesh.validate(len(self.materials), self.warnings, n_objects)
         self.world.color = _as_rgb(self.world.color, "world background")
         if self.world.environment is not None:
             try:

@@ -42,8 +42,9 @@ def test_the_list_names_every_module_a_render_compiles():
     microfacet, whose kernels only the table generator and tests run (listing it would make every render
     announce a compile that never happens)."""
     core = os.path.dirname(jit_cache.__file__)
-    decorators = re.compile(r"from \.jit_cache import (jit|jit_no_nrt|jit_inline)\b")
-    users = {name[:-3] for name in os.listdir(core) if name.endswith(".py")
-             and decorators.search(open(os.path.join(core, name)).read())}
+    decorators = re.compile(r"from \.\.?jit_cache import (jit|jit_no_nrt|jit_inline)\b")
+    users = {os.path.join(folder, name[:-3]) for folder in ("", "shading")
+             for name in os.listdir(os.path.join(core, folder)) if name.endswith(".py")
+             and decorators.search(open(os.path.join(core, folder, name)).read())}
     assert users - set(jit_cache.KERNEL_MODULES) == {"microfacet"}
     assert set(jit_cache.KERNEL_MODULES) <= users
