@@ -109,6 +109,11 @@ class PreparedScene:
     radius: float
     specular: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (M,) has a glossy/glass lobe
     features: dict = field(default_factory=dict)
+    # Alpha (Film > Transparent, holdout; see core.scene.Film): kept only when the scene can have alpha < 1.
+    alpha: bool = False
+    holdout: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))  # (M,) holdout weight
+    # (M,) a path that goes through this material's surface (transmission) still counts as transparent
+    keeps_transparent: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     # The same per-triangle data as the compiled kernels take it: empty arrays instead of None.
     @property
@@ -177,9 +182,29 @@ class PreparedScene:
             "smooth_normals": corner_normals is not None,
         }
         specular = np.array([any(lobe.kind != "diffuse" for lobe in m.lobes) for m in scene.materials], bool)
+        alpha = scene.has_alpha
+        features["alpha"] = alpha
+        holdout = np.array([m.holdout for m in scene.materials], np.float32)
+        keeps = np.array([_keeps_transparent(m, scene.film) for m in scene.materials], bool)
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
-                   specular, features)
+                   specular, features, alpha, holdout, keeps)
+
+
+def _keeps_transparent(material, film) -> bool:
+    """Whether a path transmitted through `material` still counts as transparent for the film's alpha (Cycles'
+    transparent background flag): every transmitting lobe is a Transparent BSDF (refraction, IOR 1, roughness 0),
+    or, with Film > Transparent Glass, a glass/refraction lobe with GGX alpha = roughness^2 at most the threshold.
+    A material with no transmitting lobe keeps nothing (nothing goes through it)."""
+    through = [lobe for lobe in material.lobes if lobe.kind in ("glass", "refraction")]
+    if not through:
+        return False
+    for lobe in through:
+        clear = lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
+        glass = film.transparent_glass and lobe.roughness * lobe.roughness <= film.transparent_roughness
+        if not (clear or glass):
+            return False
+    return True
 
 
 @dataclass
@@ -245,8 +270,10 @@ class PathTracer:
         depth_scale: np.ndarray,
         t_start: np.ndarray,
         want_aovs: bool,
-    ) -> tuple[np.ndarray, FirstHit | None]:
-        """Radiance (N, 3) float32 of N camera paths. pixel_id/sample_id (uint32) key the random numbers."""
+    ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
+        """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs) and their transparency
+        (N,) float32 in [0, 1] (alpha = 1 - transparency; None when the scene has no alpha, see
+        core.scene.Film). pixel_id/sample_id (uint32) key the random numbers."""
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
@@ -262,6 +289,10 @@ class PathTracer:
         prev_transmits = None  # whether the material at each ray's origin transmits (weighs light selection)
         pix, smp = pixel_id, sample_id
         self.stats.paths += n
+        transparent = np.zeros(n, np.float32) if ps.alpha else None
+        # Per sample: the path still counts as transparent (camera ray, or only through transparent surfaces).
+        clear = np.ones(n, bool) if ps.alpha else None
+        film_transparent = ps.alpha and ps.scene.film.transparent
 
         for depth in range(s.max_bounces + 2):
             if len(idx) == 0:
@@ -271,20 +302,35 @@ class PathTracer:
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
+            clear_here = clear[idx] if ps.alpha else None
+            if film_transparent:
+                # Rays that still count as transparent and escape: alpha 0 and no world colour.
+                gone = np.flatnonzero(~hit & clear_here)
+                transparent[idx[gone]] += throughput[gone].mean(axis=1)
             if ps.lights.has_emission:
                 mis_here = self.mis and depth > 0
-                le = ps.lights.intersect(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf, prev_delta,
-                                         mis_here, n=prev_normal, camera=depth == 0, transmits=prev_transmits)
+                le = self._light_emission(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf, prev_delta,
+                                          mis_here, prev_normal, depth == 0, prev_transmits,
+                                          clear_here if film_transparent else None)
                 if depth > 0 and not self.use_bsdf_emission:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
                 self._add(radiance, idx, throughput * le)
             prim = hits.prim
+            held = None
+            if ps.alpha:
+                # Holdout surfaces seen by transparent-counting rays: that share of the throughput becomes
+                # transparent; a full holdout ends the path there (no emission, no scattering), as in Cycles.
+                h = np.where(hit & clear_here, ps.holdout[ps.material_index[prim]], np.float32(0))
+                seen = np.flatnonzero(h > 0)
+                if len(seen):
+                    transparent[idx[seen]] += h[seen] * throughput[seen].mean(axis=1)
+                    held = h >= 1
 
             # Emission of an emissive triangle hit (two-sided), MIS-weighted against light sampling.
             if ps.emissive is not None:
                 em_idx = ps.emissive.emitter_of_triangle[prim]  # prim -1 (a miss) reads a value masked out here
-                e = np.flatnonzero(hit & (em_idx >= 0))
+                e = np.flatnonzero(hit & (em_idx >= 0) & (True if held is None else ~held))
                 if len(e):
                     em_idx, t_e = em_idx[e], hits.t[e]
                     le = ps.materials.emission[ps.material_index[prim[e]]]
@@ -313,10 +359,10 @@ class PathTracer:
             # survived) are selected once, here; random numbers of paths that missed are drawn and unused (they
             # depend only on pixel, sample and dimension).
             u_vertex = self.sampler.get_4d(pix, smp, self._dim(depth, _D_VERTEX))
-            survive = hit
+            survive = hit if held is None else hit & ~held
             if depth >= s.rr_depth:
                 q = np.minimum(np.sqrt(_max3(throughput)), np.float32(1.0))
-                survive = hit & (u_vertex[:, 3] < q)
+                survive = survive & (u_vertex[:, 3] < q)
             rows = np.flatnonzero(survive)
             if want_aovs and depth == 0:
                 hit_rows = np.flatnonzero(hit)
@@ -346,6 +392,8 @@ class PathTracer:
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
             u_dir, u_lobe = np.ascontiguousarray(u_vertex[:, :2]), np.ascontiguousarray(u_vertex[:, 2])
             bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir, back=g.cos_o_geo < 0)
+            if ps.alpha:  # idx is unique among live paths: the flag of each sample that goes on
+                clear[idx] &= np.asarray(bs.transmitted, bool) & ps.keeps_transparent[mat]
             m = len(idx)
             o, d = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
             next_throughput, prev_pdf, prev_delta = np.empty((m, 3), np.float32), np.empty(m, np.float32), np.empty(m, bool)
@@ -365,7 +413,28 @@ class PathTracer:
             idx, pix, smp = next_idx[:count], next_pix[:count], next_smp[:count]
             tm = np.full(count, np.float32(3e38))
             self._lap("scatter", clock)
-        return radiance, first
+        if transparent is not None:
+            np.clip(transparent, 0.0, 1.0, out=transparent)
+        return radiance, first, transparent
+
+    def _light_emission(self, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,
+                        clear) -> np.ndarray:
+        """Emission of lights and the world along the rays (core.lights.LightSampler.intersect); rays where
+        `clear` (None: none) count as transparent and see no world."""
+        lights = self.ps.lights
+        if clear is None or not clear.any():
+            return lights.intersect(o, d, tmax, prev_pdf, prev_delta, mis_here, n=prev_normal, camera=camera,
+                                    transmits=prev_transmits)
+        if clear.all():
+            return lights.intersect(o, d, tmax, prev_pdf, prev_delta, mis_here, n=prev_normal, camera=camera,
+                                    transmits=prev_transmits, world=False)
+        out = np.empty((len(o), 3), np.float32)
+        for rows, world in ((np.flatnonzero(~clear), True), (np.flatnonzero(clear), False)):
+            out[rows] = lights.intersect(o[rows], d[rows], tmax[rows], prev_pdf[rows], prev_delta[rows], mis_here,
+                                         n=None if prev_normal is None else prev_normal[rows], camera=camera,
+                                         transmits=None if prev_transmits is None else prev_transmits[rows],
+                                         world=world)
+        return out
 
     def _surface(self, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
         """Surface interactions of the hits `rows` (see core.geometry_kernels.surface)."""

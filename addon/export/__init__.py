@@ -16,6 +16,7 @@ import numpy as np
 
 from ...core.scene import Scene, SceneError
 from .camera import export_camera, render_region, render_resolution  # noqa: F401  (re-exported)
+from .film import export_film
 from .light import export_light
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
@@ -57,17 +58,18 @@ class ExportCancelled(Exception):
     """should_cancel returned True during the export."""
 
 
-def _prototype_for(obj, kind, prototypes, materials, warnings, stats):
+def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer=None):
     """The prototype key for an (object, data) pair seen for the first time, converting its mesh if new;
     None when it has nothing to render."""
     original = obj.original
     if _special_visibility(obj):
-        msg = (f"object {original.name!r}: ray visibility and holdout settings are not supported; "
+        msg = (f"object {original.name!r}: ray visibility settings are not supported; "
                "rendered fully visible")
         if msg not in warnings:
             warnings.append(msg)
+    held = is_holdout(original, view_layer)
     slots = tuple(slot.material for slot in obj.material_slots)
-    slot_key = tuple(0 if m is None else m.as_pointer() for m in slots)
+    slot_key = tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ())
     if kind == "MESH" and obj.data is not None:
         key = ("mesh", obj.data.as_pointer(), slot_key)
     else:
@@ -83,8 +85,9 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats):
     n_slots = max(len(slots), 1)
     used = np.unique(np.clip(local.slots, 0, n_slots - 1))
     lut = np.zeros(n_slots, dtype=np.int32)
+    material_of = materials.holdout_index if held else materials.index
     for slot in used:
-        lut[slot] = materials.index(slots[slot] if slot < len(slots) else None)
+        lut[slot] = material_of(slots[slot] if slot < len(slots) else None)
     prototypes[key] = _Prototype(local, lut, original.name)
     stats.meshes_converted += 1
     return key
@@ -92,7 +95,20 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats):
 
 def _special_visibility(obj) -> bool:
     flags = ("visible_camera", "visible_shadow", "visible_diffuse", "visible_glossy", "visible_transmission")
-    return not all(getattr(obj, f, True) for f in flags) or bool(getattr(obj, "is_holdout", False))
+    return not all(getattr(obj, f, True) for f in flags)
+
+
+def is_holdout(obj, view_layer) -> bool:
+    """Whether an (original) object is held out: its own Holdout setting, or a collection set to Holdout in the
+    view layer (Blender's `holdout_get`)."""
+    if getattr(obj, "is_holdout", False):
+        return True
+    if view_layer is None:
+        return False
+    try:
+        return bool(obj.holdout_get(view_layer=view_layer))
+    except (AttributeError, RuntimeError, TypeError):
+        return False
 
 
 def _read_geometry(obj, warnings: list[str]) -> LocalMesh | None:
@@ -158,7 +174,8 @@ def export_scene(
         if rkey in resolved:
             key = resolved[rkey]
         else:
-            key = resolved[rkey] = _prototype_for(obj, kind, prototypes, materials, warnings, stats)
+            key = resolved[rkey] = _prototype_for(obj, kind, prototypes, materials, warnings, stats,
+                                                  depsgraph.view_layer)
         if key is not None:
             prototypes[key].matrices.append(inst.matrix_world.copy())
 
@@ -182,7 +199,7 @@ def export_scene(
         materials.index(None)  # core needs at least one material
     world = export_world(scene.world, warnings)
     out = Scene(camera=camera, meshes=meshes, materials=materials.materials, lights=lights, world=world,
-                textures=materials.textures, name=scene.name, warnings=warnings)
+                textures=materials.textures, name=scene.name, warnings=warnings, film=export_film(scene))
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "
                          "metaballs); check the objects' render visibility and the view layer's collections")

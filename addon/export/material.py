@@ -186,7 +186,7 @@ class MaterialExporter:
         self.materials: list[Material] = []
         self.textures: list[Texture] = []
         self.textured: set[int] = set()  # material indices that sample a texture (need UVs)
-        self._by_key: dict[int, int] = {}
+        self._by_key: dict[int | tuple, int] = {}
         self._tex_by_key: dict[int, int] = {}
         self._default: int | None = None
 
@@ -229,13 +229,29 @@ class MaterialExporter:
             return Material(name, [])
         lobes: list[Lobe] = []
         emission = np.zeros(3)
+        self._holdout = 0.0
         try:
             emission = self._shader(node, 1.0, lobes, owner, 0)
         except UnsupportedShader as exc:
             self.warnings.append(f"{owner}: {exc}; falling back to a diffuse of the material's viewport colour "
                                  f"{np.round(viewport, 4).tolist()}")
             return Material(name, [Lobe("diffuse", viewport)])
-        return Material(name, _drop_black_lobes(lobes), emission=np.maximum(emission, 0.0))
+        return Material(name, _drop_black_lobes(lobes), emission=np.maximum(emission, 0.0),
+                        holdout=min(max(self._holdout, 0.0), 1.0))
+
+    def holdout_index(self, material) -> int:
+        """Index of `material` held out (an object or collection set to holdout): its lobes and emission for
+        the rays that see it normally, holdout weight 1 for camera rays (core.scene.Material.holdout)."""
+        base = self.index(material)
+        key = ("holdout", base)
+        found = self._by_key.get(key)
+        if found is None:
+            src = self.materials[base]
+            found = self._by_key[key] = self._add(Material(f"{src.name} (holdout)", list(src.lobes),
+                                                           emission=src.emission.copy(), holdout=1.0))
+            if base in self.textured:
+                self.textured.add(found)
+        return found
 
     # ----------------------------------------------------------------------------------------- internals
     def _add(self, mat: Material) -> int:
@@ -293,6 +309,9 @@ class MaterialExporter:
             self._check_normal(node, owner)
             lobe_kind = "glass" if kind == "ShaderNodeBsdfGlass" else "refraction"
             lobes.append(Lobe(lobe_kind, weight * color, roughness=rough, ior=ior, color_texture=tex))
+            return zero
+        if kind == "ShaderNodeHoldout":
+            self._holdout += weight
             return zero
         if kind == "ShaderNodeBsdfTransparent":
             color, _ = self._color(node.inputs["Color"], owner, allow_texture=False)
