@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import threading
 import time
 
 import numpy as np
@@ -114,6 +115,23 @@ class PreparedScene:
     holdout: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))  # (M,) holdout weight
     # (M,) a path that goes through this material's surface (transmission) still counts as transparent
     keeps_transparent: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    # Ray visibility (core.scene.Mesh.visible_camera / visible_shadow): (T,) bool of the triangles camera rays /
+    # shadow rays see, None when they see every triangle (then no extra ray-casting structure exists).
+    camera_visible: np.ndarray | None = None
+    shadow_visible: np.ndarray | None = None
+    _subsets: dict = field(default_factory=dict)
+    _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def visible_subset(self, which: str) -> tuple[Accelerator, np.ndarray]:
+        """(ray-casting structure of the triangles `which` rays ("camera" or "shadow") see, the scene triangle
+        index of each of its triangles), built once on first use."""
+        with self._subsets_lock:
+            found = self._subsets.get(which)
+            if found is None:
+                keep = np.flatnonzero(self.camera_visible if which == "camera" else self.shadow_visible)
+                found = self._subsets[which] = (Accelerator(self.vertices, self.triangles[keep]),
+                                                keep.astype(np.int32))
+            return found
 
     # The same per-triangle data as the compiled kernels take it: empty arrays instead of None.
     @property
@@ -133,7 +151,7 @@ class PreparedScene:
         """sample_world: whether light sampling may pick the (uniform) world, see LightSampler; only the
         light-sampling-only estimator needs it (it counts no emission that BSDF sampling finds)."""
         shift = scene.camera.position.copy()
-        verts, tris, mats, normals, uvs, smooth = [], [], [], [], [], []
+        verts, tris, mats, normals, uvs, smooth, seen_by = [], [], [], [], [], [], []
         offset = 0
         any_smooth = any(m.normals is not None for m in scene.meshes)
         any_uv = any(m.uvs is not None for m in scene.meshes)
@@ -145,6 +163,7 @@ class PreparedScene:
             offset += len(mesh.vertices)
             mats.append(mesh.material_index)
             t = mesh.triangle_count
+            seen_by.append((t, bool(mesh.visible_camera), bool(mesh.visible_shadow)))
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
                 smooth.append(np.full(t, mesh.normals is not None))
@@ -186,9 +205,19 @@ class PreparedScene:
         features["alpha"] = alpha
         holdout = np.array([m.holdout for m in scene.materials], np.float32)
         keeps = np.array([_keeps_transparent(m, scene.film) for m in scene.materials], bool)
+        camera_visible = _visibility(seen_by, 1)
+        shadow_visible = _visibility(seen_by, 2)
+        features["ray_visibility"] = camera_visible is not None or shadow_visible is not None
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
-                   specular, features, alpha, holdout, keeps)
+                   specular, features, alpha, holdout, keeps, camera_visible, shadow_visible)
+
+
+def _visibility(seen_by: list[tuple[int, bool, bool]], column: int) -> np.ndarray | None:
+    """(T,) bool per triangle from each mesh's (triangle count, camera, shadow) flags; None when all are seen."""
+    if all(entry[column] for entry in seen_by):
+        return None
+    return np.concatenate([np.full(entry[0], entry[column]) for entry in seen_by])
 
 
 def _keeps_transparent(material, film) -> bool:
@@ -298,7 +327,10 @@ class PathTracer:
             if len(idx) == 0:
                 break
             clock = time.perf_counter()
-            hits = self.accel.intersect(o, d, tm)
+            if depth == 0 and ps.camera_visible is not None:
+                hits = self._intersect_subset("camera", o, d, tm)
+            else:
+                hits = self.accel.intersect(o, d, tm)
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
@@ -436,6 +468,16 @@ class PathTracer:
                                          world=world)
         return out
 
+    def _intersect_subset(self, which: str, o, d, tm):
+        """Closest hits among the triangles `which` rays see, with the scene's triangle indices."""
+        accel, keep = self.ps.visible_subset(which)
+        hits = accel.intersect(o, d, tm)
+        if len(keep) == 0:
+            return hits  # all misses
+        found = hits.prim >= 0
+        hits.prim = np.where(found, keep[np.where(found, hits.prim, 0)], np.int32(-1)).astype(np.int32)
+        return hits
+
     def _surface(self, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
         """Surface interactions of the hits `rows` (see core.geometry_kernels.surface)."""
         ps = self.ps
@@ -480,7 +522,10 @@ class PathTracer:
         if count == 0:
             return
         clock = time.perf_counter()
-        blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count])
+        if ps.shadow_visible is not None:
+            blocked = ps.visible_subset("shadow")[0].occluded(origin[:count], direction[:count], tmax[:count])
+        else:
+            blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count])
         self.stats.seconds_occluded += time.perf_counter() - clock
         self.stats.seconds_nee -= time.perf_counter() - clock  # counted once, as shadow rays
         vis = np.flatnonzero(~blocked)

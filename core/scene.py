@@ -185,6 +185,8 @@ class Mesh:
       None means flat shading (the geometric normal).
     uvs: optional (T, 3, 2) per-corner texture coordinates.
     material_index: (T,) int index into `Scene.materials` (a single int broadcasts).
+    visible_camera: False hides the mesh from camera rays (Blender's Object > Visibility > Ray Visibility >
+      Camera); visible_shadow: False lets shadow rays pass through it (Ray Visibility > Shadow). Other rays see it.
     """
 
     name: str
@@ -193,6 +195,8 @@ class Mesh:
     material_index: np.ndarray | int = 0
     normals: np.ndarray | None = None
     uvs: np.ndarray | None = None
+    visible_camera: bool = True
+    visible_shadow: bool = True
 
     @property
     def triangle_count(self) -> int:
@@ -282,6 +286,7 @@ class PointLight:
     position: np.ndarray
     power: np.ndarray
     radius: float = 0.0
+    visible_camera: bool = False
 
 
 @dataclass
@@ -297,6 +302,7 @@ class SpotLight:
     radius: float = 0.0
     spot_size: float = math.radians(45.0)
     spot_blend: float = 0.15
+    visible_camera: bool = False
 
 
 @dataclass
@@ -309,6 +315,7 @@ class SunLight:
     direction: np.ndarray
     strength: np.ndarray
     angle: float = math.radians(0.526)
+    visible_camera: bool = False
 
 
 @dataclass
@@ -326,9 +333,12 @@ class AreaLight:
     size_x: float = 1.0
     size_y: float = 1.0
     spread: float = math.pi
+    visible_camera: bool = False
 
 
 Light = PointLight | SpotLight | SunLight | AreaLight
+# Every light has visible_camera: camera rays see its surface (a sphere light's, an area light's, the sun's disc;
+# Blender's Object > Visibility > Ray Visibility > Camera on the light, off by default).
 
 
 @dataclass

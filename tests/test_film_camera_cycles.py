@@ -195,3 +195,28 @@ def test_panoramic_cameras_match_cycles(name, tmp_path):
     mon, mon_var = monte_rgba(scene, spp, 2)
     cyc, cyc_var = cycles_rgba(scene, tmp_path, spp // 2, 2)
     check(f"panorama {name}", mon, mon_var, cyc, cyc_var, spp)
+
+
+VISIBILITY = {
+    "object-camera-off": lambda scene: setattr(bpy.data.objects["ball"], "visible_camera", False),
+    "object-shadow-off": lambda scene: setattr(bpy.data.objects["ball"], "visible_shadow", False),
+    "light-camera-on": lambda scene: setattr(bpy.data.objects["lamp"], "visible_camera", True),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(VISIBILITY))
+def test_ray_visibility_matches_cycles(name, tmp_path):
+    """Object > Visibility > Ray Visibility: a ball hidden from camera rays (its shadow and bounce light stay), or
+    from shadow rays (seen, casting no shadow); an area light in view made visible to the camera."""
+    scene = ball_on_floor(_diffuse_ball, world=0.2)
+    # Tilted towards the camera, so that its emitting side is in view.
+    bf.add_light(scene, "AREA", (0.6, -0.2, 2.2), (-1.0, 0.1, 0), name="lamp", energy=150.0, shape="SQUARE",
+                 size=0.8)
+    before, _ = monte_rgba(scene, SPP, BOUNCES)
+    VISIBILITY[name](scene)
+    mon, mon_var = monte_rgba(scene, SPP, BOUNCES)
+    changed = np.abs(mon - before)[..., :3].max(axis=2) > 0.1
+    assert changed.mean() > 0.01, "the setting must change the image for this test to see anything"
+    cyc, cyc_var = cycles_rgba(scene, tmp_path, SPP // 2, BOUNCES)
+    check(f"visibility {name}", mon, mon_var, cyc, cyc_var, SPP)

@@ -48,6 +48,13 @@ class _Prototype:
     slot_materials: np.ndarray
     name: str
     matrices: list = field(default_factory=list)
+    visible_camera: bool = True
+    visible_shadow: bool = True
+
+
+# Object > Visibility > Ray Visibility flags Monte does not render (property -> the name Blender's panel shows).
+UNSUPPORTED_RAY_VISIBILITY = {"visible_diffuse": "Diffuse", "visible_glossy": "Glossy",
+                              "visible_transmission": "Transmission", "visible_volume_scatter": "Volume Scatter"}
 
 
 def _matrix(m) -> np.ndarray:
@@ -62,14 +69,11 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     """The prototype key for an (object, data) pair seen for the first time, converting its mesh if new;
     None when it has nothing to render."""
     original = obj.original
-    if _special_visibility(obj):
-        msg = (f"object {original.name!r}: ray visibility settings are not supported; "
-               "rendered fully visible")
-        if msg not in warnings:
-            warnings.append(msg)
+    _warn_object_settings(obj, original, view_layer, warnings)
     held = is_holdout(original, view_layer)
+    seen = (bool(getattr(obj, "visible_camera", True)), bool(getattr(obj, "visible_shadow", True)))
     slots = tuple(slot.material for slot in obj.material_slots)
-    slot_key = tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ())
+    slot_key = tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ()) + seen
     if kind == "MESH" and obj.data is not None:
         key = ("mesh", obj.data.as_pointer(), slot_key)
     else:
@@ -88,14 +92,49 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     material_of = materials.holdout_index if held else materials.index
     for slot in used:
         lut[slot] = material_of(slots[slot] if slot < len(slots) else None)
-    prototypes[key] = _Prototype(local, lut, original.name)
+    prototypes[key] = _Prototype(local, lut, original.name, visible_camera=seen[0], visible_shadow=seen[1])
     stats.meshes_converted += 1
     return key
 
 
-def _special_visibility(obj) -> bool:
-    flags = ("visible_camera", "visible_shadow", "visible_diffuse", "visible_glossy", "visible_transmission")
-    return not all(getattr(obj, f, True) for f in flags)
+def _warn_once(warnings: list[str], msg: str) -> None:
+    if msg not in warnings:
+        warnings.append(msg)
+
+
+def _warn_light_settings(obj, warnings: list[str]) -> None:
+    """Name each light setting that changes Cycles' image and that Monte does not render."""
+    name = obj.original.name
+    if not getattr(obj.data, "use_shadow", True):
+        _warn_once(warnings, f"light {name!r}: Cast Shadow off is not supported; its light is shadowed")
+    off = [label for prop, label in UNSUPPORTED_RAY_VISIBILITY.items() if not getattr(obj, prop, True)]
+    if off:
+        _warn_once(warnings, f"light {name!r}: Ray Visibility {', '.join(off)} off is not supported; the light "
+                             f"is seen by {', '.join(label.lower() for label in off)} rays")
+
+
+def _warn_object_settings(obj, original, view_layer, warnings: list[str]) -> None:
+    """Name each object setting that changes Cycles' image and that Monte does not render."""
+    name = original.name
+    off = [label for prop, label in UNSUPPORTED_RAY_VISIBILITY.items() if not getattr(obj, prop, True)]
+    if off:
+        _warn_once(warnings, f"object {name!r}: Ray Visibility {', '.join(off)} off is not supported; rendered "
+                             f"visible to {', '.join(label.lower() for label in off)} rays")
+    if getattr(obj, "is_shadow_catcher", False):
+        _warn_once(warnings, f"object {name!r}: Shadow Catcher is not supported; rendered as an ordinary object")
+    if view_layer is not None:
+        try:
+            indirect = bool(original.indirect_only_get(view_layer=view_layer))
+        except (AttributeError, RuntimeError, TypeError):
+            indirect = False
+        if indirect:
+            _warn_once(warnings, f"object {name!r}: its collection's Indirect Only is not supported; rendered "
+                                 "directly visible")
+    for system in getattr(obj, "particle_systems", ()):
+        settings = system.settings
+        if settings.type == "HAIR" and settings.render_type == "PATH":
+            _warn_once(warnings, f"object {name!r}: particle hair (particle system {system.name!r}) is not "
+                                 "supported and is skipped")
 
 
 def is_holdout(obj, view_layer) -> bool:
@@ -161,6 +200,8 @@ def export_scene(
             if inst.show_self:
                 light = export_light(obj.name, obj.data, _matrix(inst.matrix_world), warnings)
                 if light is not None:
+                    light.visible_camera = bool(getattr(obj, "visible_camera", False))
+                    _warn_light_settings(obj, warnings)
                     lights.append(light)
             continue
         if kind not in GEOMETRY_TYPES:
@@ -193,7 +234,9 @@ def export_scene(
             warnings.append(f"mesh {proto.name!r} has an image-textured material but no UV map; the texture is "
                             "sampled at UV (0, 0)")
         matrices = np.array(proto.matrices, dtype=np.float64).reshape(k, 4, 4)
-        meshes.append(instances_to_mesh(proto.local, matrices, proto.slot_materials, name))
+        mesh = instances_to_mesh(proto.local, matrices, proto.slot_materials, name)
+        mesh.visible_camera, mesh.visible_shadow = proto.visible_camera, proto.visible_shadow
+        meshes.append(mesh)
 
     if not materials.materials:
         materials.index(None)  # core needs at least one material

@@ -220,7 +220,9 @@ class MaterialExporter:
             self.warnings.append(f"{owner}: no active Material Output node; using the viewport colour as diffuse")
             return Material(name, [Lobe("diffuse", viewport)])
         if output.inputs.get("Volume") is not None and output.inputs["Volume"].is_linked:
-            self.warnings.append(f"{owner}: volumes are not supported; the volume shader is ignored")
+            vol = follow_link(output.inputs["Volume"])
+            label = f" {vol.name!r} ({vol.bl_label})" if vol is not None else ""
+            self.warnings.append(f"{owner}: volumes are not supported; the volume shader{label} is ignored")
         if output.inputs.get("Displacement") is not None and output.inputs["Displacement"].is_linked:
             self.warnings.append(f"{owner}: displacement is not supported and is ignored")
         node = follow_link(output.inputs["Surface"])

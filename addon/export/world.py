@@ -24,6 +24,9 @@ def export_world(world, warnings: list[str]) -> World:
     if output is None:
         warnings.append(f"world {name!r}: no active World Output node; the background is black")
         return World(np.zeros(3))
+    volume = output.inputs.get("Volume")
+    if volume is not None and volume.is_linked:
+        warnings.append(f"world {name!r}: world volumes are not supported; the volume shader is ignored")
     surface = output.inputs.get("Surface")
     node = follow_link(surface)
     if node is None:
