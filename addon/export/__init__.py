@@ -102,9 +102,21 @@ def _warn_once(warnings: list[str], msg: str) -> None:
         warnings.append(msg)
 
 
+def _warn_light_linking(obj, what: str, warnings: list[str]) -> None:
+    linking = getattr(obj, "light_linking", None)
+    if linking is None:
+        return
+    for attr, label in (("receiver_collection", "Light Linking"), ("blocker_collection", "Shadow Linking")):
+        coll = getattr(linking, attr, None)
+        if coll is not None:
+            _warn_once(warnings, f"{what} {obj.original.name!r}: {label} (collection {coll.name!r}) is not "
+                                 "supported; it lights (shadows) every object")
+
+
 def _warn_light_settings(obj, warnings: list[str]) -> None:
     """Name each light setting that changes Cycles' image and that Monte does not render."""
     name = obj.original.name
+    _warn_light_linking(obj, "light", warnings)
     if not getattr(obj.data, "use_shadow", True):
         _warn_once(warnings, f"light {name!r}: Cast Shadow off is not supported; its light is shadowed")
     off = [label for prop, label in UNSUPPORTED_RAY_VISIBILITY.items() if not getattr(obj, prop, True)]
@@ -116,6 +128,7 @@ def _warn_light_settings(obj, warnings: list[str]) -> None:
 def _warn_object_settings(obj, original, view_layer, warnings: list[str]) -> None:
     """Name each object setting that changes Cycles' image and that Monte does not render."""
     name = original.name
+    _warn_light_linking(obj, "object", warnings)
     off = [label for prop, label in UNSUPPORTED_RAY_VISIBILITY.items() if not getattr(obj, prop, True)]
     if off:
         _warn_once(warnings, f"object {name!r}: Ray Visibility {', '.join(off)} off is not supported; rendered "

@@ -17,6 +17,14 @@ def export_world(world, warnings: list[str]) -> World:
     if world is None:
         return World(np.zeros(3))
     name = world.name
+    visibility = getattr(world, "cycles_visibility", None)
+    if visibility is not None:
+        off = [label for prop, label in (("camera", "Camera"), ("diffuse", "Diffuse"), ("glossy", "Glossy"),
+                                         ("transmission", "Transmission"), ("scatter", "Volume Scatter"))
+               if not getattr(visibility, prop, True)]
+        if off:
+            warnings.append(f"world {name!r}: Ray Visibility {', '.join(off)} off is not supported; the world is "
+                            "seen by every ray")
     tree = node_tree(world)
     if tree is None:
         return World(np.array(world.color[:3], dtype=np.float64))
