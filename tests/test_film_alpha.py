@@ -104,3 +104,35 @@ def test_bad_film_and_holdout_settings_name_themselves():
         _diffuse_square_scene(Film(True, True, 1.5)).validate()
     with pytest.raises(SceneError, match=r"material 'grey': holdout weight 2.0 outside \[0, 1\]"):
         _diffuse_square_scene(holdout=2.0).validate()
+
+
+def test_alpha_reaches_the_exr_and_the_png(tmp_path):
+    """The EXR holds the alpha as channel A; the PNG preview becomes RGBA (straight alpha, colour divided by
+    alpha), while an opaque image keeps its RGB PNG."""
+    import struct
+    import zlib
+
+    from monte.core import exr
+
+    result = render(_diffuse_square_scene(Film(transparent=True)), SETTINGS)
+    exr.write_exr(tmp_path / "a.exr", exr.image_channels(result.color, result.variance))
+    np.testing.assert_array_equal(exr.read_exr(tmp_path / "a.exr")["A"], result.color[..., 3])
+
+    def png_pixels(path):
+        data = path.read_bytes()
+        width, height, _, colour_type = struct.unpack(">IIBB", data[16:26])
+        idat = data.index(b"IDAT")
+        size = struct.unpack(">I", data[idat - 4:idat])[0]
+        raw = np.frombuffer(zlib.decompress(data[idat + 4:idat + 4 + size]), np.uint8)
+        channels = 4 if colour_type == 6 else 3
+        return colour_type, raw.reshape(height, width * channels + 1)[:, 1:].reshape(height, width, channels)
+
+    exr.write_png(tmp_path / "a.png", result.color)
+    kind, px = png_pixels(tmp_path / "a.png")
+    assert kind == 6
+    np.testing.assert_array_equal(px[..., 3], (np.clip(result.color[..., 3], 0, 1) * 255 + 0.5).astype(np.uint8))
+    inside = result.color[INSIDE]
+    np.testing.assert_array_equal(px[INSIDE][..., :3], exr.linear_to_srgb8(inside[..., :3] / inside[..., 3:4]))
+    opaque = render(_diffuse_square_scene(), SETTINGS)
+    exr.write_png(tmp_path / "b.png", opaque.color)
+    assert png_pixels(tmp_path / "b.png")[0] == 2

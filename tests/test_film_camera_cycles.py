@@ -108,6 +108,9 @@ def test_transparent_film_matches_cycles(tmp_path):
     scene = ball_on_floor(_diffuse_ball)
     scene.render.film_transparent = True
     mon, mon_var = monte_rgba(scene, SPP, BOUNCES)
+    # Blender's render result holds the alpha (saved as an EXR, row 0 at the top as Monte's).
+    saved = bf.save_render_exr(scene, tmp_path / "monte.exr")
+    np.testing.assert_allclose(saved[f"{scene.view_layers[0].name}.Combined.A"], mon[..., 3], atol=1e-6)
     cyc, cyc_var = cycles_rgba(scene, tmp_path, SPP // 2, BOUNCES)
     assert mon[..., 3].min() == 0.0 and mon[..., 3].max() == 1.0  # both the world and the floor are seen
     check("transparent film", mon, mon_var, cyc, cyc_var, SPP)
