@@ -131,7 +131,8 @@ def _lens_camera_rays(raster_x, raster_y, width, height, frame, right, up, back,
 
 
 # Panorama kinds as the compiled kernel numbers them (core.scene.PANORAMA_TYPES order).
-_PANO_KIND = {"EQUIRECTANGULAR": 0, "FISHEYE_EQUIDISTANT": 1, "FISHEYE_EQUISOLID": 2, "MIRRORBALL": 3}
+_PANO_KIND = {"EQUIRECTANGULAR": 0, "FISHEYE_EQUIDISTANT": 1, "FISHEYE_EQUISOLID": 2, "MIRRORBALL": 3,
+              "FISHEYE_LENS_POLYNOMIAL": 4, "CENTRAL_CYLINDRICAL": 5}
 
 
 @jit
@@ -140,7 +141,9 @@ def _panorama_rays(raster_x, raster_y, width, height, kind, params, right, up, b
     """Panoramic camera rays (Cycles' panorama projections; see core.scene.Camera for each kind).
 
     params: (shift_x, shift_y, then per kind) equirectangular: lon_min, lon_max, lat_min, lat_max; fisheye
-    equidistant: fov; equisolid: lens, fov, sensor width, sensor height (mm). Directions are first found in
+    equidistant: fov; equisolid: lens, fov, sensor width, sensor height (mm); lens polynomial: fov, sensor width,
+    sensor height, k0..k4; central cylindrical: lon_min, lon_max, height_min / radius, height_max / radius.
+    Directions are first found in
     Cycles' panorama space (x ahead, y left, z up; for the mirror ball x right, y ahead, z up), then turned to
     the camera's axes."""
     for k in range(raster_x.shape[0]):
@@ -152,12 +155,21 @@ def _panorama_rays(raster_x, raster_y, width, height, kind, params, right, up, b
             phi = (params[2] - params[3]) * u - params[2]
             theta = (params[4] - params[5]) * v + 0.5 * math.pi - params[4]
             px, py, pz = math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)
-        elif kind == 1 or kind == 2:
+        elif kind == 5:
+            theta = params[2] + (params[3] - params[2]) * u
+            # Longitude grows to the left as u grows to the right (as equirectangular): angle -theta.
+            px, py, pz = math.cos(theta), -math.sin(theta), params[4] + (params[5] - params[4]) * v
+        elif kind == 1 or kind == 2 or kind == 4:
             if kind == 1:
                 fu, fv = (u - 0.5) * 2.0, (v - 0.5) * 2.0
                 r = math.sqrt(fu * fu + fv * fv)
                 ok = r <= 1.0
                 theta = r * params[2] * 0.5
+            elif kind == 4:
+                fu, fv = (u - 0.5) * params[3], (v - 0.5) * params[4]
+                r = math.sqrt(fu * fu + fv * fv)
+                theta = -(params[5] + r * (params[6] + r * (params[7] + r * (params[8] + r * params[9]))))
+                ok = abs(theta) <= 0.5 * params[2]
             else:
                 lens = params[2]
                 fu, fv = (u - 0.5) * params[4], (v - 0.5) * params[5]
@@ -203,18 +215,26 @@ def panorama_params(camera: Camera) -> np.ndarray:
     the equisolid sensor fitted as Cycles fits it (the fitted side's sensor size, the other by the aspect)."""
     w, h = camera.resolution
     kind = camera.panorama_type
-    params = np.zeros(6, np.float64)
+    params = np.zeros(10, np.float64)
     params[0], params[1] = camera.shift_x, camera.shift_y
     if kind == "EQUIRECTANGULAR":
         params[2:6] = camera.longitude_min, camera.longitude_max, camera.latitude_min, camera.latitude_max
     elif kind == "FISHEYE_EQUIDISTANT":
         params[2] = camera.fisheye_fov
-    elif kind == "FISHEYE_EQUISOLID":
+    elif kind in ("FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL"):
         fit = camera.sensor_fit
         horizontal = w > h if fit == "AUTO" else fit == "HORIZONTAL"
         size = camera.sensor_height if fit == "VERTICAL" else camera.sensor_width
         sw, sh = (size, size * h / w) if horizontal else (size * w / h, size)
-        params[2:6] = camera.fisheye_lens, camera.fisheye_fov, sw, sh
+        if kind == "FISHEYE_EQUISOLID":
+            params[2:6] = camera.fisheye_lens, camera.fisheye_fov, sw, sh
+        else:
+            params[2:5] = camera.fisheye_fov, sw, sh
+            params[5:10] = camera.fisheye_polynomial
+    elif kind == "CENTRAL_CYLINDRICAL":
+        r = camera.cylinder_radius
+        params[2:6] = (camera.longitude_min, camera.longitude_max, camera.cylinder_height_min / r,
+                       camera.cylinder_height_max / r)
     return params
 
 

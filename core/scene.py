@@ -24,8 +24,10 @@ from .mesh_checks import triangle_checks
 LobeKind = Literal["diffuse", "glossy", "glass", "refraction"]
 FresnelMode = Literal["none", "schlick", "dielectric", "generalized_schlick"]
 AreaShape = Literal["SQUARE", "RECTANGLE", "DISK", "ELLIPSE"]
-PanoramaType = Literal["EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL"]
-PANORAMA_TYPES = ("EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL")
+PanoramaType = Literal["EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL",
+                       "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL"]
+PANORAMA_TYPES = ("EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL",
+                  "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL")
 
 
 class SceneError(ValueError):
@@ -379,7 +381,11 @@ class Camera:
     radius 1 stretches with the image's aspect). "FISHEYE_EQUISOLID": a lens of fisheye_lens mm on the fitted
     sensor (sensor_fit; the other side by the aspect) at angle theta from the axis images at radius
     2 lens sin(theta / 2), up to fisheye_fov. "MIRRORBALL": the image is a mirror ball seen from afar along
-    the view axis. Rays outside the fisheye circle or the ball are dead (black and opaque). Clipping: rays
+    the view axis. "FISHEYE_LENS_POLYNOMIAL": the angle off the axis is -(k0 + k1 r + ... + k4 r^4)
+    (fisheye_polynomial) at radius r mm on the fitted sensor, up to fisheye_fov / 2. "CENTRAL_CYLINDRICAL": a
+    cylinder of cylinder_radius around the camera's up axis, longitude from longitude_min (left) to
+    longitude_max (right), height from cylinder_height_min (bottom) to cylinder_height_max (top).
+    Rays outside the fisheye circle or the ball are dead (black and opaque). Clipping: rays
     start clip_start from the camera and end at clip_end; the depth pass is the distance along the ray.
     """
 
@@ -408,6 +414,12 @@ class Camera:
     latitude_max: float = 0.5 * math.pi
     longitude_min: float = -math.pi
     longitude_max: float = math.pi
+    fisheye_polynomial: tuple[float, float, float, float, float] = (
+        -1.1735143712967577e-05, -0.019988736953434998, -3.3525322965709175e-06, 3.099275275886036e-06,
+        -2.6064646454854524e-08)
+    cylinder_height_min: float = -1.0
+    cylinder_height_max: float = 1.0
+    cylinder_radius: float = 1.0
 
     @classmethod
     def look_at(
@@ -466,7 +478,7 @@ class Camera:
         if self.panorama_type not in PANORAMA_TYPES:
             raise SceneError(f"camera: unknown panorama type {self.panorama_type!r} ({', '.join(PANORAMA_TYPES)})")
         for name in ("fisheye_fov", "fisheye_lens", "latitude_min", "latitude_max", "longitude_min",
-                     "longitude_max"):
+                     "longitude_max", "cylinder_height_min", "cylinder_height_max", "cylinder_radius"):
             value = float(getattr(self, name))
             if not math.isfinite(value):
                 raise SceneError(f"camera: panorama {name} is {value}, it must be a finite number")
@@ -475,6 +487,12 @@ class Camera:
             raise SceneError(f"camera: fisheye field of view {self.fisheye_fov} must be positive")
         if self.panorama_type == "FISHEYE_EQUISOLID" and not self.fisheye_lens > 0:
             raise SceneError(f"camera: fisheye lens {self.fisheye_lens} mm must be positive")
+        coefficients = tuple(float(k) for k in np.asarray(self.fisheye_polynomial, np.float64).reshape(-1))
+        if len(coefficients) != 5 or not all(math.isfinite(k) for k in coefficients):
+            raise SceneError(f"camera: fisheye polynomial needs 5 finite coefficients, got {self.fisheye_polynomial!r}")
+        self.fisheye_polynomial = coefficients
+        if self.panorama_type == "CENTRAL_CYLINDRICAL" and not self.cylinder_radius > 0:
+            raise SceneError(f"camera: central cylindrical radius {self.cylinder_radius} must be positive")
 
     def validate(self) -> None:
         self.matrix_world = _as_matrix(self.matrix_world, "camera matrix")

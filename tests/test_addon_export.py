@@ -576,10 +576,6 @@ def _set_pano(kind: str, dof: bool = False):
 UNSUPPORTED_CAMERA_FILM = {
     "panoramic-cubemap-face": (_set_pano("EQUIANGULAR_CUBEMAP_FACE"),
                                ["panoramic", "Equiangular Cubemap Face", "perspective"]),
-    "panoramic-lens-polynomial": (_set_pano("FISHEYE_LENS_POLYNOMIAL"),
-                                  ["panoramic", "Fisheye Lens Polynomial", "perspective"]),
-    "panoramic-central-cylindrical": (_set_pano("CENTRAL_CYLINDRICAL"),
-                                      ["panoramic", "Central Cylindrical", "perspective"]),
     "panoramic-depth-of-field": (_set_pano("EQUIRECTANGULAR", dof=True), ["depth of field", "panoramic"]),
     "motion-blur": (lambda scene, cam: setattr(scene.render, "use_motion_blur", True), ["motion blur"]),
     "f-stop-0": (lambda scene, cam: (setattr(cam.data.dof, "use_dof", True),
@@ -606,7 +602,8 @@ def test_film_and_panorama_settings_are_exported(scene):
     cam.data.type = "PANO"
     cam.data.fisheye_fov, cam.data.fisheye_lens = 2.5, 7.0
     cam.data.latitude_min, cam.data.longitude_max = -0.4, 1.2
-    for kind in ("EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL"):
+    for kind in ("EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL",
+                 "FISHEYE_LENS_POLYNOMIAL"):
         cam.data.panorama_type = kind
         got, _ = export()
         assert got.warnings == [], kind

@@ -164,6 +164,13 @@ PANORAMAS = {
     "fisheye-equidistant": dict(panorama_type="FISHEYE_EQUIDISTANT", fisheye_fov=math.radians(160)),
     "fisheye-equisolid": dict(panorama_type="FISHEYE_EQUISOLID", fisheye_lens=8.0, fisheye_fov=math.radians(170)),
     "mirrorball": dict(panorama_type="MIRRORBALL"),
+    # Blender's default polynomial (a 10.5 mm-like lens) on its 36 mm sensor, and a steeper one.
+    "fisheye-lens-polynomial": dict(panorama_type="FISHEYE_LENS_POLYNOMIAL", fisheye_fov=math.radians(170)),
+    "fisheye-lens-polynomial-steep": dict(panorama_type="FISHEYE_LENS_POLYNOMIAL", fisheye_fov=math.radians(120),
+                                          fisheye_polynomial_k1=-0.05, fisheye_polynomial_k2=0.0003),
+    "central-cylindrical": dict(panorama_type="CENTRAL_CYLINDRICAL", central_cylindrical_range_u_min=-2.2,
+                                central_cylindrical_range_u_max=0.9, central_cylindrical_range_v_min=-0.6,
+                                central_cylindrical_range_v_max=1.4, central_cylindrical_radius=1.3),
 }
 
 

@@ -146,8 +146,11 @@ AUDIT = {
     "panorama fisheye equisolid": (_pano("FISHEYE_EQUISOLID", fisheye_lens=8.0),
                                    ("renders", lambda c: c.camera.fisheye_lens == 8.0)),
     "panorama mirror ball": (_pano("MIRRORBALL"), ("renders", lambda c: c.camera.panorama_type == "MIRRORBALL")),
-    "panorama central cylindrical": (_pano("CENTRAL_CYLINDRICAL"), ("warns", ["Central Cylindrical"])),
-    "panorama lens polynomial": (_pano("FISHEYE_LENS_POLYNOMIAL"), ("warns", ["Fisheye Lens Polynomial"])),
+    "panorama central cylindrical": (_pano("CENTRAL_CYLINDRICAL", central_cylindrical_radius=2.0),
+                                     ("renders", lambda c: c.camera.cylinder_radius == 2.0)),
+    "panorama lens polynomial": (_pano("FISHEYE_LENS_POLYNOMIAL", fisheye_polynomial_k1=-0.5),
+                                 ("renders", lambda c: c.camera.fisheye_polynomial[1] == -0.5)),
+    "panorama cubemap face": (_pano("EQUIANGULAR_CUBEMAP_FACE"), ("warns", ["Equiangular Cubemap Face"])),
     # render and film
     "resolution percentage": (lambda s: _set(s.render, resolution_percentage=50),
                               ("renders", lambda c: c.camera.resolution == (16, 12))),

@@ -133,6 +133,14 @@ def _panorama(cam, name: str, warnings: list[str]) -> dict:
         warnings.append(f"camera {name!r}: panoramic camera type {pretty} is not supported; rendering it as a "
                         f"perspective camera with its {cam.lens:g} mm lens")
         return {}
-    return {"panorama_type": kind, "fisheye_fov": float(cam.fisheye_fov), "fisheye_lens": float(cam.fisheye_lens),
-            "latitude_min": float(cam.latitude_min), "latitude_max": float(cam.latitude_max),
-            "longitude_min": float(cam.longitude_min), "longitude_max": float(cam.longitude_max)}
+    fields = {"panorama_type": kind, "fisheye_fov": float(cam.fisheye_fov), "fisheye_lens": float(cam.fisheye_lens),
+              "latitude_min": float(cam.latitude_min), "latitude_max": float(cam.latitude_max),
+              "longitude_min": float(cam.longitude_min), "longitude_max": float(cam.longitude_max),
+              "fisheye_polynomial": tuple(float(getattr(cam, f"fisheye_polynomial_k{i}")) for i in range(5))}
+    if kind == "CENTRAL_CYLINDRICAL":
+        fields.update(longitude_min=float(cam.central_cylindrical_range_u_min),
+                      longitude_max=float(cam.central_cylindrical_range_u_max),
+                      cylinder_height_min=float(cam.central_cylindrical_range_v_min),
+                      cylinder_height_max=float(cam.central_cylindrical_range_v_max),
+                      cylinder_radius=float(cam.central_cylindrical_radius))
+    return fields
