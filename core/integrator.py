@@ -21,6 +21,7 @@ import numpy as np
 from . import bsdf as bsdf_mod
 from . import geometry_kernels, path_kernels
 from .accel import Accelerator
+from .light_shadow import NoShadowLights
 from .lights import EmissiveTriangles, LightSampler
 from .scene import Scene
 from .settings import RenderSettings
@@ -119,6 +120,7 @@ class PreparedScene:
     # shadow rays see, None when they see every triangle (then no extra ray-casting structure exists).
     camera_visible: np.ndarray | None = None
     shadow_visible: np.ndarray | None = None
+    no_shadow: "NoShadowLights | None" = None  # lights whose Cast Shadow is off (core.light_shadow)
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -208,9 +210,11 @@ class PreparedScene:
         camera_visible = _visibility(seen_by, 1)
         shadow_visible = _visibility(seen_by, 2)
         features["ray_visibility"] = camera_visible is not None or shadow_visible is not None
+        no_shadow = NoShadowLights.build(scene.lights, shift)
+        features["lights_without_shadow"] = no_shadow is not None
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
-                   specular, features, alpha, holdout, keeps, camera_visible, shadow_visible)
+                   specular, features, alpha, holdout, keeps, camera_visible, shadow_visible, no_shadow)
 
 
 def _visibility(seen_by: list[tuple[int, bool, bool]], column: int) -> np.ndarray | None:
@@ -528,6 +532,12 @@ class PathTracer:
             blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count])
         self.stats.seconds_occluded += time.perf_counter() - clock
         self.stats.seconds_nee -= time.perf_counter() - clock  # counted once, as shadow rays
+        if ps.no_shadow is not None:
+            # Samples of lights that cast no shadow are never occluded; one light sample per path, so the
+            # sample index names it.
+            free = np.zeros(len(radiance), bool)
+            free[idx[can][ps.no_shadow.matches(gc.p, wi, ls.dist)]] = True
+            blocked &= ~free[sample_of[:count]]
         vis = np.flatnonzero(~blocked)
         self._add(radiance, sample_of[vis], contrib[vis])
 

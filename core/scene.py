@@ -289,6 +289,7 @@ class PointLight:
     power: np.ndarray
     radius: float = 0.0
     visible_camera: bool = False
+    cast_shadow: bool = True
 
 
 @dataclass
@@ -305,6 +306,7 @@ class SpotLight:
     spot_size: float = math.radians(45.0)
     spot_blend: float = 0.15
     visible_camera: bool = False
+    cast_shadow: bool = True
 
 
 @dataclass
@@ -318,6 +320,7 @@ class SunLight:
     strength: np.ndarray
     angle: float = math.radians(0.526)
     visible_camera: bool = False
+    cast_shadow: bool = True
 
 
 @dataclass
@@ -336,11 +339,13 @@ class AreaLight:
     size_y: float = 1.0
     spread: float = math.pi
     visible_camera: bool = False
+    cast_shadow: bool = True
 
 
 Light = PointLight | SpotLight | SunLight | AreaLight
 # Every light has visible_camera: camera rays see its surface (a sphere light's, an area light's, the sun's disc;
-# Blender's Object > Visibility > Ray Visibility > Camera on the light, off by default).
+# Blender's Object > Visibility > Ray Visibility > Camera on the light, off by default), and cast_shadow: False
+# (Blender's Cast Shadow off) lets its light samples through every object (core.light_shadow).
 
 
 @dataclass

@@ -144,6 +144,7 @@ def _light_object(light, collection):
     obj = bpy.data.objects.new(light.name, data)
     obj.matrix_world = matrix
     obj.visible_camera = bool(light.visible_camera)
+    data.use_shadow = bool(light.cast_shadow)
     collection.objects.link(obj)
     return obj
 

@@ -211,6 +211,7 @@ VISIBILITY = {
     "object-camera-off": lambda scene: setattr(bpy.data.objects["ball"], "visible_camera", False),
     "object-shadow-off": lambda scene: setattr(bpy.data.objects["ball"], "visible_shadow", False),
     "light-camera-on": lambda scene: setattr(bpy.data.objects["lamp"], "visible_camera", True),
+    "light-cast-shadow-off": lambda scene: setattr(bpy.data.objects["lamp"].data, "use_shadow", False),
 }
 
 
@@ -218,7 +219,8 @@ VISIBILITY = {
 @pytest.mark.parametrize("name", list(VISIBILITY))
 def test_ray_visibility_matches_cycles(name, tmp_path):
     """Object > Visibility > Ray Visibility: a ball hidden from camera rays (its shadow and bounce light stay), or
-    from shadow rays (seen, casting no shadow); an area light in view made visible to the camera."""
+    from shadow rays (seen, casting no shadow); an area light in view made visible to the camera; the light's
+    Cast Shadow off (its light samples pass the ball; BSDF rays towards it are still blocked)."""
     scene = ball_on_floor(_diffuse_ball, world=0.2)
     # Tilted towards the camera, so that its emitting side is in view.
     bf.add_light(scene, "AREA", (0.6, -0.2, 2.2), (-1.0, 0.1, 0), name="lamp", energy=150.0, shape="SQUARE",

@@ -165,7 +165,8 @@ AUDIT = {
     # lights
     "light power": (lambda s: _set(obj("lamp").data, energy=1000.0),
                     ("renders", lambda c: np.allclose(c.lights[0].power, 1000.0))),
-    "light cast shadow": (lambda s: _set(obj("lamp").data, use_shadow=False), ("warns", ["Cast Shadow"])),
+    "light cast shadow": (lambda s: _set(obj("lamp").data, use_shadow=False),
+                          ("renders", lambda c: not c.lights[0].cast_shadow)),
     "light camera visibility": (lambda s: _set(obj("lamp"), visible_camera=True),
                                 ("renders", lambda c: c.lights[0].visible_camera)),
     "light diffuse visibility": (lambda s: _set(obj("lamp"), visible_diffuse=False),

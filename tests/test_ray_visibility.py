@@ -19,14 +19,14 @@ def _quad(name: str, half: float, z: float, material: int, **flags) -> Mesh:
     return Mesh(name, v, np.array([[0, 1, 2], [0, 2, 3]], np.int32), material_index=material, **flags)
 
 
-def _scene(square_flags: dict | None) -> Scene:
+def _scene(square_flags: dict | None, **light) -> Scene:
     cam = Camera(np.eye(4), resolution=(24, 24), lens=20.0, sensor_width=36.0, sensor_fit="HORIZONTAL")
     cam.matrix_world[:3, 3] = (0.0, 0.0, 3.0)
     meshes = [_quad("floor", 3.0, -1.0, 0)]
     if square_flags is not None:
         meshes.append(_quad("square", 0.4, 0.5, 1, **square_flags))
     mats = [Material("grey", [Lobe("diffuse", np.full(3, 0.5))]), Material("red", [Lobe("diffuse", (0.9, 0.1, 0.1))])]
-    light = PointLight("lamp", np.array([0.0, 0.0, 2.0]), np.full(3, 200.0))
+    light = PointLight("lamp", np.array([0.0, 0.0, 2.0]), np.full(3, 200.0), **light)
     return Scene(camera=cam, meshes=meshes, materials=mats, lights=[light], world=World(np.zeros(3)))
 
 
@@ -55,6 +55,23 @@ def test_hidden_from_shadow_rays_is_seen_but_casts_no_shadow(alone):
     red = got[..., 0] != got[..., 1]  # pixels the square covers, even in part (the floor is grey)
     assert red.mean() > 0.02 and (got[red][:, 0] > got[red][:, 1]).all()  # the square is seen
     np.testing.assert_array_equal(got[~red], alone[~red])  # and the floor around it is fully lit
+
+
+@pytest.mark.parametrize("radius", [0.0, 0.3])
+def test_a_light_that_casts_no_shadow_lights_through_the_square(radius):
+    """Cast Shadow off: next-event estimation ignores the square (with max_bounces 0 and a point light no BSDF
+    sample reaches the light: the floor is lit as if the square were absent, while the square is still seen)."""
+    alone_r = render(_scene(None, radius=radius), SETTINGS).color
+    got = render(_scene({}, radius=radius, cast_shadow=False), SETTINGS)
+    shadowed = render(_scene({}, radius=radius), SETTINGS).color
+    red = got.color[..., 0] != got.color[..., 1]
+    assert red.mean() > 0.02
+    if radius == 0:
+        np.testing.assert_array_equal(got.color[~red], alone_r[~red])
+    else:  # a sphere light is also reached by BSDF samples, which the square still blocks (as in Cycles)
+        assert (got.color[~red][:, 0] >= shadowed[~red][:, 0]).all()
+        np.testing.assert_allclose(got.color[~red].mean(), alone_r[~red].mean(), rtol=0.05)
+    assert got.stats["features"]["lights_without_shadow"]
 
 
 def test_default_visibility_builds_no_extra_structure():

@@ -117,8 +117,6 @@ def _warn_light_settings(obj, warnings: list[str]) -> None:
     """Name each light setting that changes Cycles' image and that Monte does not render."""
     name = obj.original.name
     _warn_light_linking(obj, "light", warnings)
-    if not getattr(obj.data, "use_shadow", True):
-        _warn_once(warnings, f"light {name!r}: Cast Shadow off is not supported; its light is shadowed")
     off = [label for prop, label in UNSUPPORTED_RAY_VISIBILITY.items() if not getattr(obj, prop, True)]
     if off:
         _warn_once(warnings, f"light {name!r}: Ray Visibility {', '.join(off)} off is not supported; the light "
@@ -214,6 +212,7 @@ def export_scene(
                 light = export_light(obj.name, obj.data, _matrix(inst.matrix_world), warnings)
                 if light is not None:
                     light.visible_camera = bool(getattr(obj, "visible_camera", False))
+                    light.cast_shadow = bool(getattr(obj.data, "use_shadow", True))
                     _warn_light_settings(obj, warnings)
                     lights.append(light)
             continue
