@@ -20,9 +20,10 @@ import numpy as np
 
 from . import bsdf as bsdf_mod
 from . import geometry_kernels, path_kernels
-from .accel import Accelerator
+from .accel import Accelerator, Hits
 from .light_shadow import NoShadowLights
 from .lights import EmissiveTriangles, LightSampler
+from .ray_visibility import RAY_KIND_NAMES, bounce_kinds
 from .scene import Scene
 from .settings import RenderSettings
 
@@ -116,21 +117,22 @@ class PreparedScene:
     holdout: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))  # (M,) holdout weight
     # (M,) a path that goes through this material's surface (transmission) still counts as transparent
     keeps_transparent: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    # Ray visibility (core.scene.Mesh.visible_camera / visible_shadow): (T,) bool of the triangles camera rays /
-    # shadow rays see, None when they see every triangle (then no extra ray-casting structure exists).
-    camera_visible: np.ndarray | None = None
-    shadow_visible: np.ndarray | None = None
+    # Ray visibility (core.scene.Mesh.visible_*): ray kind ("camera", "shadow", "diffuse", "glossy",
+    # "transmission") -> (T,) bool of the triangles those rays see, only for kinds some mesh hides from (the
+    # others cast against the whole scene, with no extra ray-casting structure).
+    visible_to: dict = field(default_factory=dict)
     no_shadow: "NoShadowLights | None" = None  # lights whose Cast Shadow is off (core.light_shadow)
+    has_clear: bool = False  # some material has a Transparent BSDF (a refraction lobe of IOR 1, roughness 0)
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
     def visible_subset(self, which: str) -> tuple[Accelerator, np.ndarray]:
-        """(ray-casting structure of the triangles `which` rays ("camera" or "shadow") see, the scene triangle
+        """(ray-casting structure of the triangles `which` rays (a key of visible_to) see, the scene triangle
         index of each of its triangles), built once on first use."""
         with self._subsets_lock:
             found = self._subsets.get(which)
             if found is None:
-                keep = np.flatnonzero(self.camera_visible if which == "camera" else self.shadow_visible)
+                keep = np.flatnonzero(self.visible_to[which])
                 found = self._subsets[which] = (Accelerator(self.vertices, self.triangles[keep]),
                                                 keep.astype(np.int32))
             return found
@@ -165,7 +167,7 @@ class PreparedScene:
             offset += len(mesh.vertices)
             mats.append(mesh.material_index)
             t = mesh.triangle_count
-            seen_by.append((t, bool(mesh.visible_camera), bool(mesh.visible_shadow)))
+            seen_by.append((t, *(bool(getattr(mesh, f"visible_{kind}")) for kind in RAY_KINDS)))
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
                 smooth.append(np.full(t, mesh.normals is not None))
@@ -207,18 +209,24 @@ class PreparedScene:
         features["alpha"] = alpha
         holdout = np.array([m.holdout for m in scene.materials], np.float32)
         keeps = np.array([_keeps_transparent(m, scene.film) for m in scene.materials], bool)
-        camera_visible = _visibility(seen_by, 1)
-        shadow_visible = _visibility(seen_by, 2)
-        features["ray_visibility"] = camera_visible is not None or shadow_visible is not None
+        visible_to = {kind: _visibility(seen_by, 1 + i) for i, kind in enumerate(RAY_KINDS)}
+        visible_to = {kind: mask for kind, mask in visible_to.items() if mask is not None}
+        features["ray_visibility"] = sorted(visible_to)
         no_shadow = NoShadowLights.build(scene.lights, shift)
         features["lights_without_shadow"] = no_shadow is not None
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
-                   specular, features, alpha, holdout, keeps, camera_visible, shadow_visible, no_shadow)
+                   specular, features, alpha, holdout, keeps, visible_to, no_shadow,
+                   any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
+                       for m in scene.materials for lobe in m.lobes))
 
 
-def _visibility(seen_by: list[tuple[int, bool, bool]], column: int) -> np.ndarray | None:
-    """(T,) bool per triangle from each mesh's (triangle count, camera, shadow) flags; None when all are seen."""
+RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
+
+
+def _visibility(seen_by: list[tuple], column: int) -> np.ndarray | None:
+    """(T,) bool per triangle from each mesh's (triangle count, then a flag per RAY_KINDS) entry; None when all
+    are seen."""
     if all(entry[column] for entry in seen_by):
         return None
     return np.concatenate([np.full(entry[0], entry[column]) for entry in seen_by])
@@ -326,12 +334,18 @@ class PathTracer:
         # Per sample: the path still counts as transparent (camera ray, or only through transparent surfaces).
         clear = np.ones(n, bool) if ps.alpha else None
         film_transparent = ps.alpha and ps.scene.film.transparent
+        # Per sample: the kind of ray its path casts next (core.ray_visibility), kept only when some mesh hides
+        # from diffuse, glossy or transmission rays.
+        bounce_kind = (np.zeros(n, np.int8) if any(k in ps.visible_to for k in ("diffuse", "glossy", "transmission"))
+                       or ("camera" in ps.visible_to and ps.has_clear) else None)
 
         for depth in range(s.max_bounces + 2):
             if len(idx) == 0:
                 break
             clock = time.perf_counter()
-            if depth == 0 and ps.camera_visible is not None:
+            if bounce_kind is not None:
+                hits = self._intersect_by_kind(bounce_kind[idx], o, d, tm)
+            elif depth == 0 and "camera" in ps.visible_to:
                 hits = self._intersect_subset("camera", o, d, tm)
             else:
                 hits = self.accel.intersect(o, d, tm)
@@ -430,6 +444,10 @@ class PathTracer:
             bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir, back=g.cos_o_geo < 0)
             if ps.alpha:  # idx is unique among live paths: the flag of each sample that goes on
                 clear[idx] &= np.asarray(bs.transmitted, bool) & ps.keeps_transparent[mat]
+            if bounce_kind is not None:
+                kinds = bounce_kind[idx]
+                bounce_kinds(lobes.arrays(), u_lobe, bs.transmitted, kinds)
+                bounce_kind[idx] = kinds
             m = len(idx)
             o, d = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
             next_throughput, prev_pdf, prev_delta = np.empty((m, 3), np.float32), np.empty(m, np.float32), np.empty(m, bool)
@@ -471,6 +489,27 @@ class PathTracer:
                                          transmits=None if prev_transmits is None else prev_transmits[rows],
                                          world=world)
         return out
+
+    def _intersect_by_kind(self, kinds: np.ndarray, o, d, tm):
+        """Closest hits of rays of several kinds (core.ray_visibility), each against the triangles its kind of ray
+        sees."""
+        ps = self.ps
+        groups = [(kind, np.flatnonzero(kinds == code)) for code, kind in RAY_KIND_NAMES.items()
+                  if kind in ps.visible_to]
+        hidden = np.zeros(len(o), bool)
+        for _, rows in groups:
+            hidden[rows] = True
+        if not hidden.any():
+            return self.accel.intersect(o, d, tm)
+        hits = Hits(np.full(len(o), -1, np.int32), np.zeros(len(o), np.float32), np.zeros(len(o), np.float32),
+                    np.full(len(o), np.inf, np.float32))
+        rest = np.flatnonzero(~hidden)
+        parts = [(rows, self._intersect_subset(kind, o[rows], d[rows], tm[rows])) for kind, rows in groups if len(rows)]
+        if len(rest):
+            parts.append((rest, self.accel.intersect(o[rest], d[rest], tm[rest])))
+        for rows, part in parts:
+            hits.prim[rows], hits.u[rows], hits.v[rows], hits.t[rows] = part.prim, part.u, part.v, part.t
+        return hits
 
     def _intersect_subset(self, which: str, o, d, tm):
         """Closest hits among the triangles `which` rays see, with the scene's triangle indices."""
@@ -526,7 +565,7 @@ class PathTracer:
         if count == 0:
             return
         clock = time.perf_counter()
-        if ps.shadow_visible is not None:
+        if "shadow" in ps.visible_to:
             blocked = ps.visible_subset("shadow")[0].occluded(origin[:count], direction[:count], tmax[:count])
         else:
             blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count])

@@ -188,7 +188,9 @@ class Mesh:
     uvs: optional (T, 3, 2) per-corner texture coordinates.
     material_index: (T,) int index into `Scene.materials` (a single int broadcasts).
     visible_camera: False hides the mesh from camera rays (Blender's Object > Visibility > Ray Visibility >
-      Camera); visible_shadow: False lets shadow rays pass through it (Ray Visibility > Shadow). Other rays see it.
+      Camera); visible_shadow: False lets shadow rays pass through it (Ray Visibility > Shadow);
+      visible_diffuse / visible_glossy / visible_transmission: False hides it from rays that a diffuse lobe,
+      a glossy lobe (or a glass's reflection), or a transmission started (core.ray_visibility). Other rays see it.
     """
 
     name: str
@@ -199,6 +201,9 @@ class Mesh:
     uvs: np.ndarray | None = None
     visible_camera: bool = True
     visible_shadow: bool = True
+    visible_diffuse: bool = True
+    visible_glossy: bool = True
+    visible_transmission: bool = True
 
     @property
     def triangle_count(self) -> int:

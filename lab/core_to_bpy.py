@@ -106,8 +106,8 @@ def _mesh_object(core_mesh, materials: list, collection):
         mesh.normals_split_custom_set(np.asarray(core_mesh.normals, dtype=np.float64).reshape(-1, 3).tolist())
     mesh.update()
     obj = bpy.data.objects.new(core_mesh.name, mesh)
-    obj.visible_camera = bool(core_mesh.visible_camera)
-    obj.visible_shadow = bool(core_mesh.visible_shadow)
+    for kind in ("camera", "shadow", "diffuse", "glossy", "transmission"):
+        setattr(obj, f"visible_{kind}", bool(getattr(core_mesh, f"visible_{kind}")))
     collection.objects.link(obj)
     return obj
 

@@ -48,13 +48,15 @@ class _Prototype:
     slot_materials: np.ndarray
     name: str
     matrices: list = field(default_factory=list)
-    visible_camera: bool = True
-    visible_shadow: bool = True
+    visibility: tuple = (True,) * 5  # Mesh.visible_<kind> for each of MESH_RAY_VISIBILITY
 
 
-# Object > Visibility > Ray Visibility flags Monte does not render (property -> the name Blender's panel shows).
-UNSUPPORTED_RAY_VISIBILITY = {"visible_diffuse": "Diffuse", "visible_glossy": "Glossy",
-                              "visible_transmission": "Transmission", "visible_volume_scatter": "Volume Scatter"}
+# Object > Visibility > Ray Visibility flags Monte renders on meshes (core.scene.Mesh.visible_<kind>).
+MESH_RAY_VISIBILITY = ("camera", "shadow", "diffuse", "glossy", "transmission")
+# Ray Visibility flags Monte does not render (property -> the name Blender's panel shows): on meshes, and on lights.
+UNSUPPORTED_RAY_VISIBILITY = {"visible_volume_scatter": "Volume Scatter"}
+UNSUPPORTED_LIGHT_VISIBILITY = {"visible_diffuse": "Diffuse", "visible_glossy": "Glossy",
+                                "visible_transmission": "Transmission", "visible_volume_scatter": "Volume Scatter"}
 
 
 def _matrix(m) -> np.ndarray:
@@ -71,7 +73,7 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     original = obj.original
     _warn_object_settings(obj, original, view_layer, warnings)
     held = is_holdout(original, view_layer)
-    seen = (bool(getattr(obj, "visible_camera", True)), bool(getattr(obj, "visible_shadow", True)))
+    seen = tuple(bool(getattr(obj, f"visible_{kind}", True)) for kind in MESH_RAY_VISIBILITY)
     slots = tuple(slot.material for slot in obj.material_slots)
     slot_key = tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ()) + seen
     if kind == "MESH" and obj.data is not None:
@@ -92,7 +94,7 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     material_of = materials.holdout_index if held else materials.index
     for slot in used:
         lut[slot] = material_of(slots[slot] if slot < len(slots) else None)
-    prototypes[key] = _Prototype(local, lut, original.name, visible_camera=seen[0], visible_shadow=seen[1])
+    prototypes[key] = _Prototype(local, lut, original.name, visibility=seen)
     stats.meshes_converted += 1
     return key
 
@@ -117,7 +119,7 @@ def _warn_light_settings(obj, warnings: list[str]) -> None:
     """Name each light setting that changes Cycles' image and that Monte does not render."""
     name = obj.original.name
     _warn_light_linking(obj, "light", warnings)
-    off = [label for prop, label in UNSUPPORTED_RAY_VISIBILITY.items() if not getattr(obj, prop, True)]
+    off = [label for prop, label in UNSUPPORTED_LIGHT_VISIBILITY.items() if not getattr(obj, prop, True)]
     if off:
         _warn_once(warnings, f"light {name!r}: Ray Visibility {', '.join(off)} off is not supported; the light "
                              f"is seen by {', '.join(label.lower() for label in off)} rays")
@@ -247,7 +249,8 @@ def export_scene(
                             "sampled at UV (0, 0)")
         matrices = np.array(proto.matrices, dtype=np.float64).reshape(k, 4, 4)
         mesh = instances_to_mesh(proto.local, matrices, proto.slot_materials, name)
-        mesh.visible_camera, mesh.visible_shadow = proto.visible_camera, proto.visible_shadow
+        for kind, seen in zip(MESH_RAY_VISIBILITY, proto.visibility):
+            setattr(mesh, f"visible_{kind}", seen)
         meshes.append(mesh)
 
     if not materials.materials:
