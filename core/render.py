@@ -313,8 +313,8 @@ class _TileRender:
             if sorted(tile_order) != list(range(len(self.tiles))):
                 raise ValueError("tile_order must be a permutation of the tile indices")
             self.tiles = [self.tiles[i] for i in tile_order]
-        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, alpha=scene.has_alpha)
-                      for t in self.tiles}
+        alpha = scene.has_alpha
+        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, alpha=alpha) for t in self.tiles}
 
         self.spp = int(settings.spp)
         self.total_paths = self.spp * rw * rh
@@ -538,11 +538,16 @@ class _TileRender:
         if self.on_progress is None:
             return
         elapsed = time.perf_counter() - self.t_start
-        rays = self.accel.rays_closest + self.accel.rays_shadow
+        rays = sum(self._ray_counts())
         frac = self.done_paths / self.total_paths if self.total_paths else 1.0
         eta = elapsed * (1 - frac) / frac if frac > 0 else float("inf")
         self.on_progress(Progress(frac, tiles_done, len(self.tiles), sample, self.spp, rays, elapsed,
                                   rays / max(elapsed, 1e-9), eta))
+
+    def _ray_counts(self) -> tuple[int, int]:
+        """(closest-hit rays, shadow rays) cast so far, those cast against the ray-visibility structures included."""
+        structures = [self.accel] + [accel for accel, _ in list(self.prepared._subsets.values())]
+        return (sum(a.rays_closest for a in structures), sum(a.rays_shadow for a in structures))
 
     def _tile_result(self, tile: TileRect, film: TileFilm, samples: int) -> Tile:
         return tile_result(tile, film, samples, self.settings.aovs)
@@ -555,7 +560,8 @@ class _TileRender:
             self.tiles, [self.films[t] for t in self.tiles], settings, self.region)
         elapsed = time.perf_counter() - self.t_start
         st = PathStats.total([t.stats for t in self.tracers])
-        rays = accel.rays_closest + accel.rays_shadow
+        rays_closest, rays_shadow = self._ray_counts()
+        rays = rays_closest + rays_shadow
         stats = {
             "scene": scene.name,
             "resolution": list(scene.camera.resolution),
@@ -565,8 +571,8 @@ class _TileRender:
             "seconds": elapsed,
             "prepare_seconds": t_prepare,
             "samples_per_second": counts.sum() / max(elapsed, 1e-9),
-            "rays_closest": accel.rays_closest,
-            "rays_shadow": accel.rays_shadow,
+            "rays_closest": rays_closest,
+            "rays_shadow": rays_shadow,
             "rays_per_second": rays / max(elapsed, 1e-9),
             "embree_seconds": st.seconds_intersect + st.seconds_occluded,
             # Share of all worker thread-time (wall time x workers) spent inside Embree.

@@ -38,7 +38,10 @@ def alone() -> np.ndarray:
 def test_hidden_from_camera_and_shadow_rays_is_as_if_absent(alone):
     got = render(_scene(dict(visible_camera=False, visible_shadow=False)), SETTINGS)
     np.testing.assert_array_equal(got.color, alone)
-    assert got.stats["features"]["ray_visibility"]
+    assert got.stats["features"]["ray_visibility"] == ["camera", "shadow"]
+    # Rays cast against the camera's and the shadow rays' own structures are counted too.
+    assert got.stats["rays_closest"] >= 24 * 24 * SETTINGS.spp
+    assert got.stats["rays_shadow"] == render(_scene(None), SETTINGS).stats["rays_shadow"]
 
 
 def test_hidden_from_camera_still_casts_its_shadow(alone):
