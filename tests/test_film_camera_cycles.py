@@ -5,7 +5,8 @@ Cycles' per-pixel variance comes from K renders with different seeds (core.compa
 Monte's from its film. Small images (32x32 or 48x32) at sample counts where a 1 % difference of the means is
 several sigma. The default suite runs transparent film and object holdout (about 15 s); the rest (holdout by
 shader and collection, transparent glass, every panorama type, every ray visibility flag, Cast Shadow) is
-`@pytest.mark.slow` (about 5 minutes on 2 cores): `.venv/bin/python -m pytest -m slow tests/test_film_camera_cycles.py`.
+`@pytest.mark.slow` (about 30 s on 2 cores with compiled kernels cached):
+`.venv/bin/python -m pytest -m slow tests/test_film_camera_cycles.py`.
 """
 
 from __future__ import annotations
