@@ -136,3 +136,23 @@ def test_alpha_reaches_the_exr_and_the_png(tmp_path):
     opaque = render(_diffuse_square_scene(), SETTINGS)
     exr.write_png(tmp_path / "b.png", opaque.color)
     assert png_pixels(tmp_path / "b.png")[0] == 2
+
+
+def test_alpha_of_sample_ranges_merged_equals_one_render():
+    """A render split into sample ranges (core.distributed's unit of work) carries the transparency in its film
+    sums: merged, colour and alpha equal one render's bit for bit."""
+    from monte.core.render import merge_tile_samples, render_samples
+    from monte.core.schedule import pass_bounds, tiles
+
+    scene = _diffuse_square_scene(Film(transparent=True))
+    settings = SETTINGS.replace(tile_size=16, batch_paths=1024)
+    whole = render(scene, settings)
+    bounds = pass_bounds(tiles(0, 0, RES[0], RES[1], 16), settings.spp, settings)
+    parts = []
+    for ti, b in enumerate(bounds):
+        for start, end in zip(b[:-1], b[1:]):
+            parts += render_samples(scene, settings, {ti: (start, end)})
+    assert len(parts) > len(bounds)  # some tile was split
+    merged = merge_tile_samples(scene, settings, parts)
+    np.testing.assert_array_equal(merged.color, whole.color)
+    assert 0 < merged.color[..., 3].mean() < 1
