@@ -211,6 +211,7 @@ def test_panoramic_cameras_match_cycles(name, tmp_path):
 
 VISIBILITY = {
     "object-camera-off": lambda scene: setattr(bpy.data.objects["ball"], "visible_camera", False),
+    "collection-indirect-only": lambda scene: _collection_of_ball(scene, "indirect_only"),
     "object-shadow-off": lambda scene: setattr(bpy.data.objects["ball"], "visible_shadow", False),
     "light-camera-on": lambda scene: setattr(bpy.data.objects["lamp"], "visible_camera", True),
     "light-cast-shadow-off": lambda scene: setattr(bpy.data.objects["lamp"].data, "use_shadow", False),
@@ -219,6 +220,15 @@ VISIBILITY = {
     "object-transmission-off": lambda scene: (_glass_pane(scene),
                                               setattr(bpy.data.objects["ball"], "visible_transmission", False)),
 }
+
+
+def _collection_of_ball(scene, flag: str) -> None:
+    coll = bpy.data.collections.new(flag)
+    scene.collection.children.link(coll)
+    ball = bpy.data.objects["ball"]
+    scene.collection.objects.unlink(ball)
+    coll.objects.link(ball)
+    setattr(scene.view_layers[0].layer_collection.children[flag], flag, True)
 
 
 def _glossy_floor():

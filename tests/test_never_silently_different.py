@@ -191,7 +191,8 @@ AUDIT = {
     "shadow catcher": (lambda s: _set(obj("floor"), is_shadow_catcher=True), ("warns", ["Shadow Catcher"])),
     "collection holdout": (_collection_flag("holdout"),
                            ("renders", lambda c: _material_of(c, "cube").holdout == 1.0)),
-    "collection indirect only": (_collection_flag("indirect_only"), ("warns", ["Indirect Only"])),
+    "collection indirect only": (_collection_flag("indirect_only"),  # Cycles: the same image as camera-hidden
+                                 ("renders", lambda c: not _mesh(c, "cube").visible_camera)),
     "particle hair": (_particle_hair, ("warns", ["particle hair", "'floor'"])),
     # materials and world
     "holdout shader": (lambda s: _holdout_shader(_material(s)),

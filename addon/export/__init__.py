@@ -74,6 +74,8 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     _warn_object_settings(obj, original, view_layer, warnings)
     held = is_holdout(original, view_layer)
     seen = tuple(bool(getattr(obj, f"visible_{kind}", True)) for kind in MESH_RAY_VISIBILITY)
+    if is_indirect_only(original, view_layer):
+        seen = (False,) + seen[1:]  # Cycles renders an Indirect Only collection as hidden from camera rays
     slots = tuple(slot.material for slot in obj.material_slots)
     slot_key = tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ()) + seen
     if kind == "MESH" and obj.data is not None:
@@ -135,19 +137,21 @@ def _warn_object_settings(obj, original, view_layer, warnings: list[str]) -> Non
                              f"visible to {', '.join(label.lower() for label in off)} rays")
     if getattr(obj, "is_shadow_catcher", False):
         _warn_once(warnings, f"object {name!r}: Shadow Catcher is not supported; rendered as an ordinary object")
-    if view_layer is not None:
-        try:
-            indirect = bool(original.indirect_only_get(view_layer=view_layer))
-        except (AttributeError, RuntimeError, TypeError):
-            indirect = False
-        if indirect:
-            _warn_once(warnings, f"object {name!r}: its collection's Indirect Only is not supported; rendered "
-                                 "directly visible")
     for system in getattr(obj, "particle_systems", ()):
         settings = system.settings
         if settings.type == "HAIR" and settings.render_type == "PATH":
             _warn_once(warnings, f"object {name!r}: particle hair (particle system {system.name!r}) is not "
                                  "supported and is skipped")
+
+
+def is_indirect_only(obj, view_layer) -> bool:
+    """Whether an (original) object is in a collection set to Indirect Only in the view layer."""
+    if view_layer is None:
+        return False
+    try:
+        return bool(obj.indirect_only_get(view_layer=view_layer))
+    except (AttributeError, RuntimeError, TypeError):
+        return False
 
 
 def is_holdout(obj, view_layer) -> bool:
