@@ -1,8 +1,10 @@
 """Monte's panels, where Cycles users look for them, and Blender's own panels opted in for Monte.
 
-Render properties: Sampling (samples, sampler, seed, clamp, time limit, light sampling), Denoise (on/off,
-quality, whether Open Image Denoise is installed), Light Paths (max
-bounces, Russian roulette depth), Film (pixel filter and width), Performance (threads, batch size, tiles).
+Render properties: Sampling (samples, sampler, seed, clamp, time limit, light sampling), Viewport and Previews,
+Denoise (on/off, quality, whether Open Image Denoise is installed), Light Paths (max bounces, Russian roulette
+depth), Film (pixel filter and width, Transparent, Transparent Glass), Performance (threads, batch size, tiles).
+Camera properties: Panorama (a panoramic camera's type and settings). Object properties: Visibility (ray
+visibility, holdout, shadow catcher).
 View layer properties: Passes (Depth, Normal, Albedo, Variance). Material, world and light properties: the
 node inputs Monte reads (the active output for Cycles/All) and the light settings Monte uses.
 Blender's generic panels (those that list 'BLENDER_RENDER' in COMPAT_ENGINES: dimensions, output, camera
@@ -151,6 +153,82 @@ class MONTE_RENDER_PT_film(MonteButtonsPanel, Panel):
     bl_label = "Film"
     SCENE_PROPS = ("filter_type", "filter_width")
 
+    def draw(self, context):
+        MonteButtonsPanel.draw(self, context)
+        scene = context.scene
+        col = split_layout(self.layout).column(heading="Transparent")
+        col.prop(scene.render, "film_transparent", text="")
+        cycles = getattr(scene, "cycles", None)  # Transparent Glass lives with Cycles' settings, as Monte reads it
+        if cycles is not None and "film_transparent_glass" in cycles.bl_rna.properties:
+            sub = col.column()
+            sub.active = scene.render.film_transparent
+            sub.prop(cycles, "film_transparent_glass", text="Transparent Glass")
+            sub = sub.column()
+            sub.active = scene.render.film_transparent and cycles.film_transparent_glass
+            sub.prop(cycles, "film_transparent_roughness", text="Roughness Threshold")
+
+
+class MONTE_CAMERA_PT_panorama(MonteButtonsPanel, Panel):
+    """The panoramic camera's settings (Blender's Lens panel draws them for Cycles only)."""
+
+    bl_label = "Panorama"
+    bl_context = "data"
+    CONTEXT_MEMBER = "camera"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.camera.type == "PANO"
+
+    def draw(self, context):
+        cam = context.camera
+        col = split_layout(self.layout).column()
+        col.prop(cam, "panorama_type")
+        kind = cam.panorama_type
+        if kind == "EQUIRECTANGULAR":
+            sub = col.column(align=True)
+            sub.prop(cam, "latitude_min", text="Latitude Min")
+            sub.prop(cam, "latitude_max", text="Max")
+            sub = col.column(align=True)
+            sub.prop(cam, "longitude_min", text="Longitude Min")
+            sub.prop(cam, "longitude_max", text="Max")
+        elif kind == "FISHEYE_EQUIDISTANT":
+            col.prop(cam, "fisheye_fov")
+        elif kind == "FISHEYE_EQUISOLID":
+            col.prop(cam, "fisheye_lens", text="Lens")
+            col.prop(cam, "fisheye_fov")
+        elif kind == "FISHEYE_LENS_POLYNOMIAL":
+            col.prop(cam, "fisheye_fov")
+            for i in range(5):
+                col.prop(cam, f"fisheye_polynomial_k{i}", text=f"K{i}")
+        elif kind == "CENTRAL_CYLINDRICAL":
+            sub = col.column(align=True)
+            sub.prop(cam, "central_cylindrical_range_v_min", text="Height Min")
+            sub.prop(cam, "central_cylindrical_range_v_max", text="Max")
+            sub = col.column(align=True)
+            sub.prop(cam, "central_cylindrical_range_u_min", text="Longitude Min")
+            sub.prop(cam, "central_cylindrical_range_u_max", text="Max")
+            col.prop(cam, "central_cylindrical_radius", text="Cylinder Radius")
+
+
+class MONTE_OBJECT_PT_visibility(MonteButtonsPanel, Panel):
+    """Ray visibility, holdout and shadow catcher (Cycles' object visibility settings, which Monte reads)."""
+
+    bl_label = "Visibility"
+    bl_context = "object"
+    CONTEXT_MEMBER = "object"
+
+    def draw(self, context):
+        ob = context.object
+        layout = split_layout(self.layout)
+        col = layout.column(heading="Ray Visibility", align=True)
+        for name, text in (("visible_camera", "Camera"), ("visible_diffuse", "Diffuse"),
+                           ("visible_glossy", "Glossy"), ("visible_transmission", "Transmission"),
+                           ("visible_volume_scatter", "Volume Scatter"), ("visible_shadow", "Shadow")):
+            col.prop(ob, name, text=text)
+        col = layout.column(heading="Mask", align=True)
+        col.prop(ob, "is_shadow_catcher")
+        col.prop(ob, "is_holdout")
+
 
 class MONTE_RENDER_PT_performance(MonteButtonsPanel, Panel):
     bl_label = "Performance"
@@ -267,6 +345,8 @@ classes = (
     MONTE_RENDER_PT_denoise,
     MONTE_RENDER_PT_light_paths,
     MONTE_RENDER_PT_film,
+    MONTE_CAMERA_PT_panorama,
+    MONTE_OBJECT_PT_visibility,
     MONTE_RENDER_PT_performance,
     MONTE_RENDER_PT_crosscheck,
     MONTE_VIEWLAYER_PT_passes,

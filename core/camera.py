@@ -19,13 +19,16 @@ from .warps import sample_disk
 @dataclass
 class CameraRays:
     """origins (N,3) float32 relative to the camera position; directions (N,3) float32 unit; tmax (N,) from
-    clip_end; z-depth of a hit at distance t along the ray = (t_start + t) x depth_scale."""
+    clip_end; z-depth of a hit at distance t along the ray = (t_start + t) x depth_scale. alive (N,) bool: False
+    for rays a panoramic camera does not cast (outside the fisheye circle or the mirror ball), which add nothing
+    to their pixel (black, opaque); None when every ray is alive (perspective and orthographic cameras)."""
 
     origins: np.ndarray
     directions: np.ndarray
     tmax: np.ndarray
     depth_scale: np.ndarray
     t_start: np.ndarray
+    alive: np.ndarray | None = None
 
 
 
@@ -127,6 +130,114 @@ def _lens_camera_rays(raster_x, raster_y, width, height, frame, right, up, back,
         t_start[k] = t0
 
 
+# Panorama kinds as the compiled kernel numbers them (core.scene.PANORAMA_TYPES order).
+_PANO_KIND = {"EQUIRECTANGULAR": 0, "FISHEYE_EQUIDISTANT": 1, "FISHEYE_EQUISOLID": 2, "MIRRORBALL": 3,
+              "FISHEYE_LENS_POLYNOMIAL": 4, "CENTRAL_CYLINDRICAL": 5}
+
+
+@jit
+def _panorama_rays(raster_x, raster_y, width, height, kind, params, right, up, back, clip_start, clip_end,
+                   origins, directions, tmax, depth_scale, t_start, alive):
+    """Panoramic camera rays (Cycles' panorama projections; see core.scene.Camera for each kind).
+
+    params: (shift_x, shift_y, then per kind) equirectangular: lon_min, lon_max, lat_min, lat_max; fisheye
+    equidistant: fov; equisolid: lens, fov, sensor width, sensor height (mm); lens polynomial: fov, sensor width,
+    sensor height, k0..k4; central cylindrical: lon_min, lon_max, height_min / radius, height_max / radius.
+    Directions are first found in
+    Cycles' panorama space (x ahead, y left, z up; for the mirror ball x right, y ahead, z up), then turned to
+    the camera's axes."""
+    for k in range(raster_x.shape[0]):
+        u = raster_x[k] / width + params[0]
+        v = 1.0 - raster_y[k] / height + params[1]
+        px, py, pz = 0.0, 0.0, 0.0
+        ok = True
+        if kind == 0:
+            phi = (params[2] - params[3]) * u - params[2]
+            theta = (params[4] - params[5]) * v + 0.5 * math.pi - params[4]
+            px, py, pz = math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)
+        elif kind == 5:
+            theta = params[2] + (params[3] - params[2]) * u
+            # Longitude grows to the left as u grows to the right (as equirectangular): angle -theta.
+            px, py, pz = math.cos(theta), -math.sin(theta), params[4] + (params[5] - params[4]) * v
+        elif kind == 1 or kind == 2 or kind == 4:
+            if kind == 1:
+                fu, fv = (u - 0.5) * 2.0, (v - 0.5) * 2.0
+                r = math.sqrt(fu * fu + fv * fv)
+                ok = r <= 1.0
+                theta = r * params[2] * 0.5
+            elif kind == 4:
+                fu, fv = (u - 0.5) * params[3], (v - 0.5) * params[4]
+                r = math.sqrt(fu * fu + fv * fv)
+                theta = -(params[5] + r * (params[6] + r * (params[7] + r * (params[8] + r * params[9]))))
+                ok = abs(theta) <= 0.5 * params[2]
+            else:
+                lens = params[2]
+                fu, fv = (u - 0.5) * params[4], (v - 0.5) * params[5]
+                r = math.sqrt(fu * fu + fv * fv)
+                ok = r <= 2.0 * lens * math.sin(params[3] * 0.25)
+                theta = 2.0 * math.asin(min(r / (2.0 * lens), 1.0))
+            phi = math.acos(max(-1.0, min(1.0, fu / r))) if r != 0.0 else 0.5 * math.pi
+            if fv < 0.0:
+                phi = -phi
+            px, py, pz = math.cos(theta), -math.cos(phi) * math.sin(theta), math.sin(phi) * math.sin(theta)
+        else:
+            bx, bz = 2.0 * u - 1.0, 2.0 * v - 1.0
+            ok = bx * bx + bz * bz <= 1.0
+            by = -math.sqrt(max(1.0 - bx * bx - bz * bz, 0.0))
+            # The view direction (0, -1, 0) reflected about the ball's normal (bx, by, bz).
+            twice = -2.0 * by
+            px, py, pz = twice * bx, twice * by + 1.0, twice * bz
+        if kind == 3:
+            cx, cy, cz = px, pz, py  # mirror ball space -> camera local (x right, y up, z back)
+        else:
+            cx, cy, cz = -py, pz, -px
+        length = math.sqrt(cx * cx + cy * cy + cz * cz)
+        if not ok or length == 0.0:
+            alive[k] = False
+            origins[k, 0], origins[k, 1], origins[k, 2] = 0.0, 0.0, 0.0
+            directions[k, 0], directions[k, 1], directions[k, 2] = 0.0, 0.0, 1.0
+            tmax[k], depth_scale[k], t_start[k] = 0.0, 1.0, 0.0
+            continue
+        cx, cy, cz = cx / length, cy / length, cz / length
+        dx = cx * right[0] + cy * up[0] + cz * back[0]
+        dy = cx * right[1] + cy * up[1] + cz * back[1]
+        dz = cx * right[2] + cy * up[2] + cz * back[2]
+        alive[k] = True
+        origins[k, 0], origins[k, 1], origins[k, 2] = dx * clip_start, dy * clip_start, dz * clip_start
+        directions[k, 0], directions[k, 1], directions[k, 2] = dx, dy, dz
+        tmax[k] = min(clip_end - clip_start, 3e38)
+        depth_scale[k] = 1.0  # the depth pass of a panorama is the distance along the ray
+        t_start[k] = clip_start
+
+
+def panorama_params(camera: Camera) -> np.ndarray:
+    """The kernel's parameter row of a panoramic camera (see _panorama_rays): shift, then the kind's own, with
+    the equisolid sensor fitted as Cycles fits it (the fitted side's sensor size, the other by the aspect)."""
+    w, h = camera.resolution
+    kind = camera.panorama_type
+    params = np.zeros(10, np.float64)
+    params[0], params[1] = camera.shift_x, camera.shift_y
+    if kind == "EQUIRECTANGULAR":
+        params[2:6] = camera.longitude_min, camera.longitude_max, camera.latitude_min, camera.latitude_max
+    elif kind == "FISHEYE_EQUIDISTANT":
+        params[2] = camera.fisheye_fov
+    elif kind in ("FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL"):
+        fit = camera.sensor_fit
+        horizontal = w > h if fit == "AUTO" else fit == "HORIZONTAL"
+        size = camera.sensor_height if fit == "VERTICAL" else camera.sensor_width
+        sw, sh = (size, size * h / w) if horizontal else (size * w / h, size)
+        if kind == "FISHEYE_EQUISOLID":
+            params[2:6] = camera.fisheye_lens, camera.fisheye_fov, sw, sh
+        else:
+            params[2:5] = camera.fisheye_fov, sw, sh
+            params[5:10] = camera.fisheye_polynomial
+    elif kind == "CENTRAL_CYLINDRICAL":
+        r = camera.cylinder_radius
+        params[2:6] = (camera.longitude_min, camera.longitude_max, camera.cylinder_height_min / r,
+                       camera.cylinder_height_max / r)
+    return params
+
+
 def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray,
                 lens_u: np.ndarray | None = None) -> CameraRays:
     """Rays through raster positions (pixels; x from the left edge, y from the TOP edge, pixel (i, j)'s centre
@@ -155,6 +266,14 @@ def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray,
             raise ValueError(f"camera_rays: {lens.shape[0]} lens samples for {n} rays")
     rays = CameraRays(np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
                       np.empty(n, np.float32), np.empty(n, np.float32))
+    if camera.kind == "PANO":
+        rays.alive = np.empty(n, bool)
+        _panorama_rays(rx, ry, float(w), float(h), _PANO_KIND[camera.panorama_type], panorama_params(camera),
+                       right, up, back, float(camera.clip_start), float(camera.clip_end), rays.origins,
+                       rays.directions, rays.tmax, rays.depth_scale, rays.t_start, rays.alive)
+        if rays.alive.all():
+            rays.alive = None
+        return rays
     common = (rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
               camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end))
     outputs = (rays.origins, rays.directions, rays.tmax, rays.depth_scale, rays.t_start)

@@ -108,16 +108,25 @@ def linear_to_srgb8(rgb: np.ndarray) -> np.ndarray:
 
 
 def write_png(path: str | os.PathLike, rgb: np.ndarray) -> Path:
-    """Write a linear (H, W, 3) image as an sRGB 8-bit PNG preview (row 0 at the top), atomically.
+    """Write a linear (H, W, 3) image, or (H, W, 4) RGBA premultiplied by alpha as Monte renders it, as an sRGB
+    8-bit PNG preview (row 0 at the top), atomically. An image whose alpha is below 1 somewhere is written
+    with an alpha channel (PNG's alpha is straight: the colour is divided by alpha first); otherwise RGB.
     A minimal PNG encoder (zlib + CRC from the standard library) so core needs no imaging package."""
-    img = linear_to_srgb8(rgb[..., :3])
-    h, w, _ = img.shape
-    raw = np.concatenate([np.zeros((h, 1), np.uint8), img.reshape(h, w * 3)], axis=1).tobytes()  # filter 0 rows
+    colour = rgb[..., :3]
+    alpha = rgb[..., 3] if rgb.ndim == 3 and rgb.shape[2] == 4 and np.any(rgb[..., 3] < 1) else None
+    if alpha is not None:
+        a = np.clip(np.nan_to_num(alpha, nan=0.0), 0.0, 1.0)
+        colour = np.where(a[..., None] > 0, colour / np.maximum(a, 1e-12)[..., None], 0.0)
+        img = np.concatenate([linear_to_srgb8(colour), (a * 255.0 + 0.5).astype(np.uint8)[..., None]], axis=2)
+    else:
+        img = linear_to_srgb8(colour)
+    h, w, c = img.shape
+    raw = np.concatenate([np.zeros((h, 1), np.uint8), img.reshape(h, w * c)], axis=1).tobytes()  # filter 0 rows
 
     def chunk(kind: bytes, payload: bytes) -> bytes:
         return struct.pack(">I", len(payload)) + kind + payload + struct.pack(">I", zlib.crc32(kind + payload))
 
-    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 6 if c == 4 else 2, 0, 0, 0))
            + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
 
     return write_bytes_atomically(path, png, ".png")

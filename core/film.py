@@ -34,7 +34,9 @@ class TileFilm:
     row 0 at the top) and their sample index (which picks their variance group, see the module docstring)."""
 
     def __init__(self, width: int, height: int, aovs: bool, sampler: Sampler | None = None,
-                 features: bool = False) -> None:
+                 features: bool = False, alpha: bool = False) -> None:
+        """features: keep the denoising features' sums; alpha: keep each pixel's summed transparency
+        (core.scene.Film); without it alpha is 1."""
         self.width, self.height = width, height
         n = width * height
         # Independent samples need no groups: s^2 / n is exact for them and has the most degrees of freedom.
@@ -44,6 +46,9 @@ class TileFilm:
         self.group_count = np.zeros((n, self.groups), np.int32)
         self.sum_sq = np.zeros((n, 3), np.float64)
         self.aovs = aovs
+        self.alpha = alpha
+        if alpha:
+            self.transparent_sum = np.zeros(n, np.float64)
         if aovs:
             self.albedo = np.zeros((n, 3), np.float64)
             self.normal = np.zeros((n, 3), np.float64)
@@ -64,9 +69,11 @@ class TileFilm:
         """(n,) samples each pixel has taken."""
         return self.group_count.sum(axis=1, dtype=np.int64)
 
-    def add(self, pixel: np.ndarray, radiance: np.ndarray, sample: np.ndarray | None = None) -> None:
+    def add(self, pixel: np.ndarray, radiance: np.ndarray, sample: np.ndarray | None = None,
+            transparent: np.ndarray | None = None) -> None:
         """Accumulate samples: pixel (N,) tile-local index, radiance (N, 3) finite values, sample (N,) their
-        sample indices (needed when the film has variance groups)."""
+        sample indices (needed when the film has variance groups), transparent (N,) their transparency in
+        [0, 1] (needed when the film keeps alpha)."""
         n = self.group_count.shape[0]
         slot = np.asarray(pixel, np.int64)
         if self.groups > 1:
@@ -79,11 +86,17 @@ class TileFilm:
         for c in range(3):
             self.group_sum[:, :, c] += np.bincount(slot, weights=r[:, c], minlength=slots).reshape(n, self.groups)
             self.sum_sq[:, c] += np.bincount(pixel, weights=r[:, c] * r[:, c], minlength=n)
+        if self.alpha:
+            if transparent is None:
+                raise ValueError("this film keeps alpha: pass the samples' transparency")
+            self.transparent_sum += np.bincount(pixel, weights=np.asarray(transparent, np.float64), minlength=n)
 
     def sums(self) -> dict[str, np.ndarray]:
         """The film's raw accumulators by name (the arrays themselves, not copies): what a render split across
         machines sends back and merges with add_sums."""
         names = ["group_sum", "group_count", "sum_sq"]
+        if self.alpha:
+            names.append("transparent_sum")
         if self.aovs:
             names += ["albedo", "normal", "depth_sum", "depth_count"]
         if self.features:
@@ -138,6 +151,13 @@ class TileFilm:
     def mean(self) -> np.ndarray:
         """(h, w, 3) pixel means (0 where no sample has landed yet)."""
         return self._image(self.sum / np.maximum(self.count, 1)[:, None])
+
+    def alpha_image(self) -> np.ndarray:
+        """(h, w) alpha: 1 minus each pixel's mean transparency (1 everywhere for a film without alpha and where
+        no sample has landed yet)."""
+        if not self.alpha:
+            return np.ones((self.height, self.width), np.float32)
+        return self._image(1.0 - self.transparent_sum / np.maximum(self.count, 1))
 
     def _variance_of_mean(self) -> np.ndarray:
         """(n, 3) estimated variance of each pixel's mean (see the module docstring); 0 with fewer than 2

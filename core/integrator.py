@@ -13,14 +13,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import threading
 import time
 
 import numpy as np
 
 from . import bsdf as bsdf_mod
 from . import geometry_kernels, path_kernels
-from .accel import Accelerator
+from .accel import Accelerator, Hits
+from .light_shadow import NoShadowLights
 from .lights import EmissiveTriangles, LightSampler
+from .ray_visibility import RAY_KIND_NAMES, bounce_kinds
 from .scene import Scene
 from .settings import RenderSettings
 from .shading import PreparedShading
@@ -112,6 +115,30 @@ class PreparedScene:
     features: dict = field(default_factory=dict)
     shading: PreparedShading | None = None  # the node programs of materials that vary per point, or None
     object_of_triangle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))  # (T,) object rows
+    # Alpha (Film > Transparent, holdout; see core.scene.Film): kept only when the scene can have alpha < 1.
+    alpha: bool = False
+    holdout: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))  # (M,) holdout weight
+    # (M,) a path that goes through this material's surface (transmission) still counts as transparent
+    keeps_transparent: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    # Ray visibility (core.scene.Mesh.visible_*): ray kind ("camera", "shadow", "diffuse", "glossy",
+    # "transmission") -> (T,) bool of the triangles those rays see, only for kinds some mesh hides from (the
+    # others cast against the whole scene, with no extra ray-casting structure).
+    visible_to: dict = field(default_factory=dict)
+    no_shadow: "NoShadowLights | None" = None  # lights whose Cast Shadow is off (core.light_shadow)
+    has_clear: bool = False  # some material has a Transparent BSDF (a refraction lobe of IOR 1, roughness 0)
+    _subsets: dict = field(default_factory=dict)
+    _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def visible_subset(self, which: str) -> tuple[Accelerator, np.ndarray]:
+        """(ray-casting structure of the triangles `which` rays (a key of visible_to) see, the scene triangle
+        index of each of its triangles), built once on first use."""
+        with self._subsets_lock:
+            found = self._subsets.get(which)
+            if found is None:
+                keep = np.flatnonzero(self.visible_to[which])
+                found = self._subsets[which] = (Accelerator(self.vertices, self.triangles[keep]),
+                                                keep.astype(np.int32))
+            return found
 
     # The same per-triangle data as the compiled kernels take it: empty arrays instead of None.
     @property
@@ -131,7 +158,7 @@ class PreparedScene:
         """sample_world: whether light sampling may pick the (uniform) world, see LightSampler; only the
         light-sampling-only estimator needs it (it counts no emission that BSDF sampling finds)."""
         shift = scene.camera.position.copy()
-        verts, tris, mats, normals, uvs, smooth, objs = [], [], [], [], [], [], []
+        verts, tris, mats, normals, uvs, smooth, objs, seen_by = [], [], [], [], [], [], [], []
         offset = 0
         any_smooth = any(m.normals is not None for m in scene.meshes)
         any_uv = any(m.uvs is not None for m in scene.meshes)
@@ -146,6 +173,7 @@ class PreparedScene:
             # object rows: 0 is "no object" (identity), the scene's rows follow
             objs.append(np.zeros(t, np.int32) if mesh.object_index is None
                         else np.broadcast_to(np.asarray(mesh.object_index, np.int32) + 1, (t,)))
+            seen_by.append((t, *(bool(getattr(mesh, f"visible_{kind}")) for kind in RAY_KINDS)))
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
                 smooth.append(np.full(t, mesh.normals is not None))
@@ -190,9 +218,48 @@ class PreparedScene:
             "node_programs": 0 if shading is None else int(shading.needs_program.sum()),
         }
         specular = np.array([any(lobe.kind != "diffuse" for lobe in m.lobes) for m in scene.materials], bool)
+        alpha = scene.has_alpha
+        features["alpha"] = alpha
+        holdout = np.array([m.holdout for m in scene.materials], np.float32)
+        keeps = np.array([_keeps_transparent(m, scene.film) for m in scene.materials], bool)
+        visible_to = {kind: _visibility(seen_by, 1 + i) for i, kind in enumerate(RAY_KINDS)}
+        visible_to = {kind: mask for kind, mask in visible_to.items() if mask is not None}
+        features["ray_visibility"] = sorted(visible_to)
+        no_shadow = NoShadowLights.build(scene.lights, shift)
+        features["lights_without_shadow"] = no_shadow is not None
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
-                   specular, features, shading, object_of_triangle)
+                   specular, features, shading, object_of_triangle,
+                   alpha, holdout, keeps, visible_to, no_shadow,
+                   any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
+                       for m in scene.materials for lobe in m.lobes))
+
+
+RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
+
+
+def _visibility(seen_by: list[tuple], column: int) -> np.ndarray | None:
+    """(T,) bool per triangle from each mesh's (triangle count, then a flag per RAY_KINDS) entry; None when all
+    are seen."""
+    if all(entry[column] for entry in seen_by):
+        return None
+    return np.concatenate([np.full(entry[0], entry[column]) for entry in seen_by])
+
+
+def _keeps_transparent(material, film) -> bool:
+    """Whether a path transmitted through `material` still counts as transparent for the film's alpha (Cycles'
+    transparent background flag): every transmitting lobe is a Transparent BSDF (refraction, IOR 1, roughness 0),
+    or, with Film > Transparent Glass, a glass/refraction lobe with GGX alpha = roughness^2 at most the threshold.
+    A material with no transmitting lobe keeps nothing (nothing goes through it)."""
+    through = [lobe for lobe in material.lobes if lobe.kind in ("glass", "refraction")]
+    if not through:
+        return False
+    for lobe in through:
+        clear = lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
+        glass = film.transparent_glass and lobe.roughness * lobe.roughness <= film.transparent_roughness
+        if not (clear or glass):
+            return False
+    return True
 
 
 @dataclass
@@ -339,9 +406,11 @@ class PathTracer:
         t_start: np.ndarray,
         want_aovs: bool,
         want_features: bool = False,
-    ) -> tuple[np.ndarray, FirstHit | None]:
-        """Radiance (N, 3) float32 of N camera paths. pixel_id/sample_id (uint32) key the random numbers.
-        want_aovs: fill the first-hit AOVs; want_features: the denoising features (FirstHit.features)."""
+    ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
+        """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs; want_features adds the
+        denoising features, FirstHit.features) and their transparency (N,) float32 in [0, 1] (alpha = 1 -
+        transparency; None when the scene has no alpha, see core.scene.Film). pixel_id/sample_id (uint32) key the
+        random numbers."""
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
@@ -363,19 +432,38 @@ class PathTracer:
         prev_transmits = None  # whether the material at each ray's origin transmits (weighs light selection)
         pix, smp = pixel_id, sample_id
         self.stats.paths += n
+        transparent = np.zeros(n, np.float32) if ps.alpha else None
+        # Per sample: the path still counts as transparent (camera ray, or only through transparent surfaces).
+        clear = np.ones(n, bool) if ps.alpha else None
+        film_transparent = ps.alpha and ps.scene.film.transparent
+        # Per sample: the kind of ray its path casts next (core.ray_visibility), kept only when some mesh hides
+        # from diffuse, glossy or transmission rays.
+        bounce_kind = (np.zeros(n, np.int8) if any(k in ps.visible_to for k in ("diffuse", "glossy", "transmission"))
+                       or ("camera" in ps.visible_to and ps.has_clear) else None)
 
         for depth in range(s.max_bounces + 2):
             if len(idx) == 0:
                 break
             clock = time.perf_counter()
-            hits = self.accel.intersect(o, d, tm)
+            if bounce_kind is not None:
+                hits = self._intersect_by_kind(bounce_kind[idx], o, d, tm)
+            elif depth == 0 and "camera" in ps.visible_to:
+                hits = self._intersect_subset("camera", o, d, tm)
+            else:
+                hits = self.accel.intersect(o, d, tm)
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
+            clear_here = clear[idx] if ps.alpha else None
+            if film_transparent:
+                # Rays that still count as transparent and escape: alpha 0 and no world colour.
+                gone = np.flatnonzero(~hit & clear_here)
+                transparent[idx[gone]] += throughput[gone].mean(axis=1)
             if ps.lights.has_emission:
                 mis_here = self.mis and depth > 0
-                le = ps.lights.intersect(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf, prev_delta,
-                                         mis_here, n=prev_normal, camera=depth == 0, transmits=prev_transmits)
+                le = self._light_emission(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf, prev_delta,
+                                          mis_here, prev_normal, depth == 0, prev_transmits,
+                                          clear_here if film_transparent else None)
                 if depth > 0 and not self.use_bsdf_emission:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
@@ -383,11 +471,20 @@ class PathTracer:
                 if features is not None:
                     features.add_emission(idx, throughput * le)
             prim = hits.prim
+            held = None
+            if ps.alpha:
+                # Holdout surfaces seen by transparent-counting rays: that share of the throughput becomes
+                # transparent; a full holdout ends the path there (no emission, no scattering), as in Cycles.
+                h = np.where(hit & clear_here, ps.holdout[ps.material_index[prim]], np.float32(0))
+                seen = np.flatnonzero(h > 0)
+                if len(seen):
+                    transparent[idx[seen]] += h[seen] * throughput[seen].mean(axis=1)
+                    held = h >= 1
 
             # Emission of an emissive triangle hit (two-sided), MIS-weighted against light sampling.
             if ps.emissive is not None:
                 em_idx = ps.emissive.emitter_of_triangle[prim]  # prim -1 (a miss) reads a value masked out here
-                e = np.flatnonzero(hit & (em_idx >= 0))
+                e = np.flatnonzero(hit & (em_idx >= 0) & (True if held is None else ~held))
                 if len(e):
                     em_idx, t_e = em_idx[e], hits.t[e]
                     le = ps.materials.emission[ps.material_index[prim[e]]]
@@ -430,10 +527,10 @@ class PathTracer:
             # survived) are selected once, here; random numbers of paths that missed are drawn and unused (they
             # depend only on pixel, sample and dimension).
             u_vertex = self.sampler.get_4d(pix, smp, self._dim(depth, _D_VERTEX))
-            survive = hit
+            survive = hit if held is None else hit & ~held
             if depth >= s.rr_depth:
                 q = np.minimum(np.sqrt(_max3(throughput)), np.float32(1.0))
-                survive = hit & (u_vertex[:, 3] < q)
+                survive = survive & (u_vertex[:, 3] < q)
             rows = np.flatnonzero(survive)
             if want_aovs and depth == 0:
                 hit_rows = np.flatnonzero(hit)
@@ -470,6 +567,12 @@ class PathTracer:
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
             u_dir, u_lobe = np.ascontiguousarray(u_vertex[:, :2]), np.ascontiguousarray(u_vertex[:, 2])
             bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir, back=g.cos_o_geo < 0)
+            if ps.alpha:  # idx is unique among live paths: the flag of each sample that goes on
+                clear[idx] &= np.asarray(bs.transmitted, bool) & ps.keeps_transparent[mat]
+            if bounce_kind is not None:
+                kinds = bounce_kind[idx]
+                bounce_kinds(lobes.arrays(), u_lobe, bs.transmitted, kinds)
+                bounce_kind[idx] = kinds
             m = len(idx)
             o, d = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
             next_throughput, prev_pdf, prev_delta = np.empty((m, 3), np.float32), np.empty(m, np.float32), np.empty(m, bool)
@@ -489,7 +592,59 @@ class PathTracer:
             idx, pix, smp = next_idx[:count], next_pix[:count], next_smp[:count]
             tm = np.full(count, np.float32(3e38))
             self._lap("scatter", clock)
-        return radiance, first
+        if transparent is not None:
+            np.clip(transparent, 0.0, 1.0, out=transparent)
+        return radiance, first, transparent
+
+    def _light_emission(self, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,
+                        clear) -> np.ndarray:
+        """Emission of lights and the world along the rays (core.lights.LightSampler.intersect); rays where
+        `clear` (None: none) count as transparent and see no world."""
+        lights = self.ps.lights
+        if clear is None or not clear.any():
+            return lights.intersect(o, d, tmax, prev_pdf, prev_delta, mis_here, n=prev_normal, camera=camera,
+                                    transmits=prev_transmits)
+        if clear.all():
+            return lights.intersect(o, d, tmax, prev_pdf, prev_delta, mis_here, n=prev_normal, camera=camera,
+                                    transmits=prev_transmits, world=False)
+        out = np.empty((len(o), 3), np.float32)
+        for rows, world in ((np.flatnonzero(~clear), True), (np.flatnonzero(clear), False)):
+            out[rows] = lights.intersect(o[rows], d[rows], tmax[rows], prev_pdf[rows], prev_delta[rows], mis_here,
+                                         n=None if prev_normal is None else prev_normal[rows], camera=camera,
+                                         transmits=None if prev_transmits is None else prev_transmits[rows],
+                                         world=world)
+        return out
+
+    def _intersect_by_kind(self, kinds: np.ndarray, o, d, tm):
+        """Closest hits of rays of several kinds (core.ray_visibility), each against the triangles its kind of ray
+        sees."""
+        ps = self.ps
+        groups = [(kind, np.flatnonzero(kinds == code)) for code, kind in RAY_KIND_NAMES.items()
+                  if kind in ps.visible_to]
+        hidden = np.zeros(len(o), bool)
+        for _, rows in groups:
+            hidden[rows] = True
+        if not hidden.any():
+            return self.accel.intersect(o, d, tm)
+        hits = Hits(np.full(len(o), -1, np.int32), np.zeros(len(o), np.float32), np.zeros(len(o), np.float32),
+                    np.full(len(o), np.inf, np.float32))
+        rest = np.flatnonzero(~hidden)
+        parts = [(rows, self._intersect_subset(kind, o[rows], d[rows], tm[rows])) for kind, rows in groups if len(rows)]
+        if len(rest):
+            parts.append((rest, self.accel.intersect(o[rest], d[rest], tm[rest])))
+        for rows, part in parts:
+            hits.prim[rows], hits.u[rows], hits.v[rows], hits.t[rows] = part.prim, part.u, part.v, part.t
+        return hits
+
+    def _intersect_subset(self, which: str, o, d, tm):
+        """Closest hits among the triangles `which` rays see, with the scene's triangle indices."""
+        accel, keep = self.ps.visible_subset(which)
+        hits = accel.intersect(o, d, tm)
+        if len(keep) == 0:
+            return hits  # all misses
+        found = hits.prim >= 0
+        hits.prim = np.where(found, keep[np.where(found, hits.prim, 0)], np.int32(-1)).astype(np.int32)
+        return hits
 
     def _surface(self, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
         """Surface interactions of the hits `rows` (see core.geometry_kernels.surface)."""
@@ -550,9 +705,18 @@ class PathTracer:
         if count == 0:
             return
         clock = time.perf_counter()
-        blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count])
+        if "shadow" in ps.visible_to:
+            blocked = ps.visible_subset("shadow")[0].occluded(origin[:count], direction[:count], tmax[:count])
+        else:
+            blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count])
         self.stats.seconds_occluded += time.perf_counter() - clock
         self.stats.seconds_nee -= time.perf_counter() - clock  # counted once, as shadow rays
+        if ps.no_shadow is not None:
+            # Samples of lights that cast no shadow are never occluded; one light sample per path, so the
+            # sample index names it.
+            free = np.zeros(len(radiance), bool)
+            free[idx[can][ps.no_shadow.matches(gc.p, wi, ls.dist)]] = True
+            blocked &= ~free[sample_of[:count]]
         vis = np.flatnonzero(~blocked)
         self._add(radiance, sample_of[vis], contrib[vis])
 

@@ -690,6 +690,15 @@ class LightSampler:
                 *self._tri_table.kernel_tables(), np.ascontiguousarray(self._tri_table.unit, np.int64),
                 *self.environment.tables)
 
+    def _tables_without_world(self) -> tuple:
+        """The kernel tables with the world row unlit (for `intersect(world=False)`); sampling never uses them."""
+        cached = getattr(self, "_no_world", None)
+        if cached is None:
+            world = self._tables[8].copy()
+            world[lk.W_LIT] = 0.0
+            cached = self._no_world = (*self._tables[:8], world, *self._tables[9:])
+        return cached
+
     def _scratch(self) -> np.ndarray:
         """Per-call scratch for the kernels' per-point selection probabilities (K,) (calls may run in threads)."""
         return np.empty(max(self._units.kind.size, 1))
@@ -802,7 +811,7 @@ class LightSampler:
 
     def intersect(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, bsdf_pdf: np.ndarray,
                   bsdf_delta: np.ndarray, mis: bool, n: np.ndarray | None = None,
-                  camera: bool = False, transmits: np.ndarray | None = None) -> np.ndarray:
+                  camera: bool = False, transmits: np.ndarray | None = None, world: bool = True) -> np.ndarray:
         """Emission (N, 3) of every analytic light surface the rays o + t d (unit d, (N, 3)) pass for
         0 < t < tmax, summed (lights are transparent), each MIS-weighted by the power heuristic against
         bsdf_pdf (N,) (solid angle), weight 1 where bsdf_delta (N,) or when mis is False.
@@ -812,7 +821,8 @@ class LightSampler:
         (the selection, the world and the inside of sphere lights depend on it), None if `sample` got None;
         transmits: the flags given to `sample` there (None likewise).
         camera=True: camera rays, which see the world but no light unless the light has
-        `visible_camera = True` (Blender's default is False); no MIS weighting."""
+        `visible_camera = True` (Blender's default is False); no MIS weighting.
+        world=False: the world is not seen (rays that count as transparent under Film > Transparent)."""
         o = _rows(o)
         N = o.shape[0]
         if N == 0:
@@ -829,6 +839,7 @@ class LightSampler:
             nr = _rows(n, N) if n is not None and self._n_matters else None
         tc = self._transmits(transmits, N, nr)
         out = np.empty((N, 3), _F32)
+        tables = self._tables if world else self._tables_without_world()
         lk.emission_batch(o, dr, tmax, bsdf_pdf, no_mis, use_mis, *self._n_t_args(nr, tc), bool(camera),
-                          self._per_point, self._tables, self._scratch(), out)
+                          self._per_point, tables, self._scratch(), out)
         return out

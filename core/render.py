@@ -24,7 +24,7 @@ from .accel import Accelerator
 from .camera import camera_rays
 from .film import TileFilm
 from .filters import PixelFilter
-from .integrator import DIM_FILM, DIM_LENS, PathStats, PathTracer, PreparedScene
+from .integrator import DIM_FILM, DIM_LENS, DenoisingFeatures, FirstHit, PathStats, PathTracer, PreparedScene
 from .jit_cache import compile_cache_is_cold
 from .memory import check_render_memory
 from .sampling import VARIANCE_GROUPS, make_sampler
@@ -45,8 +45,9 @@ except ImportError:  # not on Windows
 class Tile:
     """A finished tile. x0, y0: its top-left pixel in the full frame (y0 counted from the top).
 
-    color: (h, w, 4) RGBA float32 linear radiance (alpha 1 where a surface or the world was seen; Monte
-    renders an opaque world, so alpha is 1 everywhere). variance: (h, w, 3) variance of each pixel's mean.
+    color: (h, w, 4) RGBA float32 linear radiance, premultiplied by alpha: alpha is 1 where surfaces or an
+    opaque world were seen, lower where the pixel's samples escaped to the world under Film > Transparent or
+    met a holdout (core.scene.Film, Material.holdout), which add no colour. variance: (h, w, 3) variance of each pixel's mean.
     albedo, normal: (h, w, 3) first-hit AOVs (normal in world space); depth: (h, w) distance along the camera
     axis to the first hit (Blender's Z pass; 1e10 where nothing was hit). samples: samples taken per pixel.
     denoising_albedo, denoising_normal: (h, w, 3) Cycles' Denoising Albedo and Denoising Normal passes (normal in
@@ -206,7 +207,8 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     region = (0, 0, width, height)
     tile_list = tiles(0, 0, width, height, settings.tile_size)
     sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
-    films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features) for t in tile_list]
+    films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha)
+             for t in tile_list]
     reached = [0] * len(tile_list)
     for part in sorted(parts, key=lambda p: (p.tile_index, p.sample_start)):
         ti = part.tile_index
@@ -255,7 +257,7 @@ def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
                 world_to_camera: np.ndarray | None = None) -> Tile:
     """A tile's images from its film (samples: what Tile.samples reports; world_to_camera: the rotation that
     turns the denoising normal to camera space, needed when the film keeps the denoising features)."""
-    color = np.concatenate([film.mean(), np.ones((tile[3], tile[2], 1), np.float32)], axis=2)
+    color = np.concatenate([film.mean(), film.alpha_image()[:, :, None]], axis=2)
     albedo = normal = depth = None
     if aovs:
         albedo, normal, depth = film.aov_images()
@@ -376,7 +378,8 @@ class _TileRender:
             if sorted(tile_order) != list(range(len(self.tiles))):
                 raise ValueError("tile_order must be a permutation of the tile indices")
             self.tiles = [self.tiles[i] for i in tile_order]
-        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features)
+        alpha = scene.has_alpha
+        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features, alpha=alpha)
                       for t in self.tiles}
 
         self.spp = int(settings.spp)
@@ -514,20 +517,49 @@ class _TileRender:
         if self.camera_offset is not None:  # prepared for another camera position (render(prepared=...))
             rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
+        if rays.alive is not None:  # a panoramic camera's dead rays: nothing traced, nothing added
+            return self._trace_alive(tracer, pixel_id, smp, rays)
         return tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
                             rays.t_start, self.settings.aovs, self.settings.denoising_features)
+
+    def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays):
+        """Trace only the rays that are alive; dead ones get radiance 0, no transparency and no first hit."""
+        live = np.flatnonzero(rays.alive)
+        n = len(rays.alive)
+        radiance_l, first_l, transparent_l = tracer.trace(
+            pixel_id[live], smp[live], rays.origins[live], rays.directions[live], rays.tmax[live],
+            rays.depth_scale[live], rays.t_start[live], self.settings.aovs, self.settings.denoising_features)
+        radiance = np.zeros((n, 3), np.float32)
+        radiance[live] = radiance_l
+        transparent = None
+        if transparent_l is not None:
+            transparent = np.zeros(n, np.float32)
+            transparent[live] = transparent_l
+        first = None
+        if first_l is not None:
+            first = FirstHit(None, None, None)
+            if first_l.albedo is not None:
+                first = FirstHit(np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32),
+                                 np.full(n, np.inf, np.float32))
+                first.albedo[live], first.normal[live], first.depth[live] = (first_l.albedo, first_l.normal,
+                                                                             first_l.depth)
+            if first_l.features is not None:
+                first.features = DenoisingFeatures(n)
+                first.features.albedo[live], first.features.normal[live] = (first_l.features.albedo,
+                                                                            first_l.features.normal)
+        return radiance, first, transparent
 
     def _finish_one(self, quiet: bool = False) -> None:
         """Wait for the oldest batch in flight and add it to its tiles' films (quiet: no callbacks)."""
         segments, job = self.in_flight.popleft()
-        radiance, first = job.result() if self.pool is not None else job()
+        radiance, first, transparent = job.result() if self.pool is not None else job()
         start = 0
         for seg in segments:
             rows = slice(start, start + len(seg.loc))
             start = rows.stop
             t0 = time.perf_counter()
             film = self.films[seg.tile]
-            film.add(seg.loc, radiance[rows], seg.smp)
+            film.add(seg.loc, radiance[rows], seg.smp, None if transparent is None else transparent[rows])
             if first is not None and first.albedo is not None:
                 film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
             if first is not None and first.features is not None:
@@ -583,11 +615,16 @@ class _TileRender:
         if self.on_progress is None:
             return
         elapsed = time.perf_counter() - self.t_start
-        rays = self.accel.rays_closest + self.accel.rays_shadow
+        rays = sum(self._ray_counts())
         frac = self.done_paths / self.total_paths if self.total_paths else 1.0
         eta = elapsed * (1 - frac) / frac if frac > 0 else float("inf")
         self.on_progress(Progress(frac, tiles_done, len(self.tiles), sample, self.spp, rays, elapsed,
                                   rays / max(elapsed, 1e-9), eta))
+
+    def _ray_counts(self) -> tuple[int, int]:
+        """(closest-hit rays, shadow rays) cast so far, those cast against the ray-visibility structures included."""
+        structures = [self.accel] + [accel for accel, _ in list(self.prepared._subsets.values())]
+        return (sum(a.rays_closest for a in structures), sum(a.rays_shadow for a in structures))
 
     def _tile_result(self, tile: TileRect, film: TileFilm, samples: int) -> Tile:
         rot = world_to_camera(self.scene) if self.settings.denoising_features else None
@@ -601,7 +638,8 @@ class _TileRender:
             self.tiles, [self.films[t] for t in self.tiles], settings, self.region)
         elapsed = time.perf_counter() - self.t_start
         st = PathStats.total([t.stats for t in self.tracers])
-        rays = accel.rays_closest + accel.rays_shadow
+        rays_closest, rays_shadow = self._ray_counts()
+        rays = rays_closest + rays_shadow
         stats = {
             "scene": scene.name,
             "resolution": list(scene.camera.resolution),
@@ -611,8 +649,8 @@ class _TileRender:
             "seconds": elapsed,
             "prepare_seconds": t_prepare,
             "samples_per_second": counts.sum() / max(elapsed, 1e-9),
-            "rays_closest": accel.rays_closest,
-            "rays_shadow": accel.rays_shadow,
+            "rays_closest": rays_closest,
+            "rays_shadow": rays_shadow,
             "rays_per_second": rays / max(elapsed, 1e-9),
             "embree_seconds": st.seconds_intersect + st.seconds_occluded,
             # Share of all worker thread-time (wall time x workers) spent inside Embree.

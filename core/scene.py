@@ -28,6 +28,10 @@ if TYPE_CHECKING:
 LobeKind = Literal["diffuse", "glossy", "glass", "refraction"]
 FresnelMode = Literal["none", "schlick", "dielectric", "generalized_schlick"]
 AreaShape = Literal["SQUARE", "RECTANGLE", "DISK", "ELLIPSE"]
+PanoramaType = Literal["EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL",
+                       "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL"]
+PANORAMA_TYPES = ("EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL",
+                  "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL")
 
 
 class SceneError(ValueError):
@@ -133,16 +137,24 @@ class Material:
     emitted from both faces of the triangle, as Cycles' mesh emission is.
     program: optional core.shading ShadingProgram (a compiled node tree) that overrides lobe parameters and the
     emission per shading point (see core.shading.program); `lobes` then give the lobe kinds and constant values.
+    holdout: weight in [0, 1] of a holdout (Blender's Holdout shader, or an object or collection set to
+    holdout): where a camera ray (or a ray that went on through transparent surfaces, see `Film`) meets the
+    surface, that fraction of the path's throughput is made transparent in the alpha channel and adds no colour;
+    at 1 the path ends there. Other rays see only the lobes and emission (a Holdout shader alone absorbs), as
+    Cycles does.
     """
 
     name: str
     lobes: list[Lobe] = field(default_factory=list)
     emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
     program: "ShadingProgram | None" = None
+    holdout: float = 0.0
 
     def validate(self, n_textures: int) -> None:
         owner = f"material {self.name!r}"
         self.emission = _as_rgb(self.emission, f"{owner} emission")
+        if not (math.isfinite(self.holdout) and 0.0 <= self.holdout <= 1.0):
+            raise SceneError(f"{owner}: holdout weight {self.holdout} outside [0, 1]")
         for lobe in self.lobes:
             lobe.validate(owner)
             if not (-1 <= lobe.color_texture < n_textures):
@@ -194,6 +206,10 @@ class Mesh:
     material_index: (T,) int index into `Scene.materials` (a single int broadcasts).
     object_index: optional (T,) int (or one int) row of `Scene.objects` each triangle belongs to: the object data
       shading nodes read (object space, texture space, Object Info); None = no object (identity space).
+    visible_camera: False hides the mesh from camera rays (Blender's Object > Visibility > Ray Visibility >
+      Camera); visible_shadow: False lets shadow rays pass through it (Ray Visibility > Shadow);
+      visible_diffuse / visible_glossy / visible_transmission: False hides it from rays that a diffuse lobe,
+      a glossy lobe (or a glass's reflection), or a transmission started (core.ray_visibility). Other rays see it.
     """
 
     name: str
@@ -203,6 +219,11 @@ class Mesh:
     normals: np.ndarray | None = None
     uvs: np.ndarray | None = None
     object_index: np.ndarray | int | None = None
+    visible_camera: bool = True
+    visible_shadow: bool = True
+    visible_diffuse: bool = True
+    visible_glossy: bool = True
+    visible_transmission: bool = True
 
     @property
     def triangle_count(self) -> int:
@@ -300,6 +321,8 @@ class PointLight:
     position: np.ndarray
     power: np.ndarray
     radius: float = 0.0
+    visible_camera: bool = False
+    cast_shadow: bool = True
 
 
 @dataclass
@@ -315,6 +338,8 @@ class SpotLight:
     radius: float = 0.0
     spot_size: float = math.radians(45.0)
     spot_blend: float = 0.15
+    visible_camera: bool = False
+    cast_shadow: bool = True
 
 
 @dataclass
@@ -327,6 +352,8 @@ class SunLight:
     direction: np.ndarray
     strength: np.ndarray
     angle: float = math.radians(0.526)
+    visible_camera: bool = False
+    cast_shadow: bool = True
 
 
 @dataclass
@@ -344,9 +371,14 @@ class AreaLight:
     size_x: float = 1.0
     size_y: float = 1.0
     spread: float = math.pi
+    visible_camera: bool = False
+    cast_shadow: bool = True
 
 
 Light = PointLight | SpotLight | SunLight | AreaLight
+# Every light has visible_camera: camera rays see its surface (a sphere light's, an area light's, the sun's disc;
+# Blender's Object > Visibility > Ray Visibility > Camera on the light, off by default), and cast_shadow: False
+# (Blender's Cast Shadow off) lets its light samples through every object (core.light_shadow).
 
 
 @dataclass
@@ -383,11 +415,27 @@ class Camera:
     polygon of that many sides inscribed in the aperture's circle, turned by aperture_rotation (radians);
     0 (or 1, 2) keeps it round. aperture_ratio squeezes the aperture horizontally by 1 / ratio (anamorphic
     bokeh). An f-stop or focus distance of 0 renders as a pinhole (see `aperture_radius`).
+
+    kind "PANO" (Cycles' panoramic camera; no depth of field): rays leave the camera position in the directions
+    panorama_type maps the image to, u = x / width + shift_x and v = y / height + shift_y (from the bottom),
+    each in [0, 1] across the image. "EQUIRECTANGULAR": longitude from longitude_min at the left edge to
+    longitude_max at the right (0 straight ahead, positive to the left), latitude from latitude_min at the
+    bottom to latitude_max at the top (radians). "FISHEYE_EQUIDISTANT": the angle off the view axis is
+    r x fisheye_fov / 2 with r the distance from the image centre in units of half the image (the circle of
+    radius 1 stretches with the image's aspect). "FISHEYE_EQUISOLID": a lens of fisheye_lens mm on the fitted
+    sensor (sensor_fit; the other side by the aspect) at angle theta from the axis images at radius
+    2 lens sin(theta / 2), up to fisheye_fov. "MIRRORBALL": the image is a mirror ball seen from afar along
+    the view axis. "FISHEYE_LENS_POLYNOMIAL": the angle off the axis is -(k0 + k1 r + ... + k4 r^4)
+    (fisheye_polynomial) at radius r mm on the fitted sensor, up to fisheye_fov / 2. "CENTRAL_CYLINDRICAL": a
+    cylinder of cylinder_radius around the camera's up axis, longitude from longitude_min (left) to
+    longitude_max (right), height from cylinder_height_min (bottom) to cylinder_height_max (top).
+    Rays outside the fisheye circle or the ball are dead (black and opaque). Clipping: rays
+    start clip_start from the camera and end at clip_end; the depth pass is the distance along the ray.
     """
 
     matrix_world: np.ndarray
     resolution: tuple[int, int] = (256, 256)
-    kind: Literal["PERSP", "ORTHO"] = "PERSP"
+    kind: Literal["PERSP", "ORTHO", "PANO"] = "PERSP"
     lens: float = 50.0
     sensor_width: float = 36.0
     sensor_height: float = 24.0
@@ -403,6 +451,19 @@ class Camera:
     aperture_blades: int = 0
     aperture_rotation: float = 0.0
     aperture_ratio: float = 1.0
+    panorama_type: PanoramaType = "EQUIRECTANGULAR"
+    fisheye_fov: float = math.pi
+    fisheye_lens: float = 10.5
+    latitude_min: float = -0.5 * math.pi
+    latitude_max: float = 0.5 * math.pi
+    longitude_min: float = -math.pi
+    longitude_max: float = math.pi
+    fisheye_polynomial: tuple[float, float, float, float, float] = (
+        -1.1735143712967577e-05, -0.019988736953434998, -3.3525322965709175e-06, 3.099275275886036e-06,
+        -2.6064646454854524e-08)
+    cylinder_height_min: float = -1.0
+    cylinder_height_max: float = 1.0
+    cylinder_radius: float = 1.0
 
     @classmethod
     def look_at(
@@ -435,7 +496,7 @@ class Camera:
     def aperture_radius(self) -> float:
         """The lens aperture's radius in metres; 0 renders a pinhole camera (depth of field off, an f-stop of
         0 or a focus distance of 0: Blender lets both be typed in, and a pinhole is what they mean)."""
-        if not self.use_dof or self.aperture_fstop == 0 or self.focus_distance == 0:
+        if not self.use_dof or self.aperture_fstop == 0 or self.focus_distance == 0 or self.kind == "PANO":
             return 0.0
         numerator = 1.0 if self.kind == "ORTHO" else self.lens * 1e-3
         return numerator / (2.0 * self.aperture_fstop)
@@ -457,6 +518,26 @@ class Camera:
         dx, dy = self.shift_x * view, self.shift_y * view
         return ((-0.5 * w + dx) * pixel, (0.5 * w + dx) * pixel, (-0.5 * h + dy) * pixel, (0.5 * h + dy) * pixel)
 
+    def _validate_panorama(self) -> None:
+        if self.panorama_type not in PANORAMA_TYPES:
+            raise SceneError(f"camera: unknown panorama type {self.panorama_type!r} ({', '.join(PANORAMA_TYPES)})")
+        for name in ("fisheye_fov", "fisheye_lens", "latitude_min", "latitude_max", "longitude_min",
+                     "longitude_max", "cylinder_height_min", "cylinder_height_max", "cylinder_radius"):
+            value = float(getattr(self, name))
+            if not math.isfinite(value):
+                raise SceneError(f"camera: panorama {name} is {value}, it must be a finite number")
+            setattr(self, name, value)
+        if self.panorama_type.startswith("FISHEYE") and not self.fisheye_fov > 0:
+            raise SceneError(f"camera: fisheye field of view {self.fisheye_fov} must be positive")
+        if self.panorama_type == "FISHEYE_EQUISOLID" and not self.fisheye_lens > 0:
+            raise SceneError(f"camera: fisheye lens {self.fisheye_lens} mm must be positive")
+        coefficients = tuple(float(k) for k in np.asarray(self.fisheye_polynomial, np.float64).reshape(-1))
+        if len(coefficients) != 5 or not all(math.isfinite(k) for k in coefficients):
+            raise SceneError(f"camera: fisheye polynomial needs 5 finite coefficients, got {self.fisheye_polynomial!r}")
+        self.fisheye_polynomial = coefficients
+        if self.panorama_type == "CENTRAL_CYLINDRICAL" and not self.cylinder_radius > 0:
+            raise SceneError(f"camera: central cylindrical radius {self.cylinder_radius} must be positive")
+
     def validate(self) -> None:
         self.matrix_world = _as_matrix(self.matrix_world, "camera matrix")
         w, h = self.resolution
@@ -465,8 +546,10 @@ class Camera:
         self.resolution = (int(w), int(h))
         if w * h > 2**31 - 1:
             raise SceneError(f"camera: resolution {w}x{h} has too many pixels")
-        if self.kind not in ("PERSP", "ORTHO"):
-            raise SceneError(f"camera: unknown camera type {self.kind!r} (PERSP or ORTHO)")
+        if self.kind not in ("PERSP", "ORTHO", "PANO"):
+            raise SceneError(f"camera: unknown camera type {self.kind!r} (PERSP, ORTHO or PANO)")
+        if self.kind == "PANO":
+            self._validate_panorama()
         for name in ("lens", "sensor_width", "sensor_height", "ortho_scale", "shift_x", "shift_y", "clip_start"):
             if not math.isfinite(float(getattr(self, name))):
                 raise SceneError(f"camera: {name} is {getattr(self, name)}, it must be a finite number")
@@ -504,6 +587,28 @@ class Camera:
         self.aperture_blades = int(blades)
 
 
+# -------------------------------------------------------------------------------------------------------- film
+@dataclass
+class Film:
+    """Blender's Film > Transparent settings (Cycles' conventions).
+
+    transparent: camera rays that escape to the world add no world colour and count as transparent (alpha 0),
+    as do rays that went on through a Transparent BSDF (a "refraction" lobe of IOR 1 and roughness 0).
+    transparent_glass: rays that went on through glass or refraction lobes whose GGX alpha (roughness^2) is at
+    most `transparent_roughness` count likewise (Film > Transparent Glass and its Roughness Threshold).
+    Without `transparent` the world is opaque; holdout surfaces (`Material.holdout`) are transparent either way.
+    """
+
+    transparent: bool = False
+    transparent_glass: bool = False
+    transparent_roughness: float = 0.1
+
+    def validate(self) -> None:
+        if not (math.isfinite(self.transparent_roughness) and 0.0 <= self.transparent_roughness <= 1.0):
+            raise SceneError(f"film: transparent glass roughness threshold {self.transparent_roughness} outside "
+                             "[0, 1]")
+
+
 # ------------------------------------------------------------------------------------------------------- scene
 @dataclass
 class Scene:
@@ -518,6 +623,13 @@ class Scene:
     name: str = "scene"
     warnings: list[str] = field(default_factory=list)
     objects: np.ndarray | None = None  # (O, core.shading.program.OBJECT_COLUMNS) float32 rows, see Mesh.object_index
+    film: Film = field(default_factory=Film)
+
+    @property
+    def has_alpha(self) -> bool:
+        """Whether the image can have alpha below 1 (transparent film or a holdout material); otherwise the
+        renderer keeps no transparency and alpha is 1 everywhere."""
+        return bool(self.film.transparent) or any(m.holdout > 0 for m in self.materials)
 
     @property
     def triangle_count(self) -> int:
@@ -526,6 +638,7 @@ class Scene:
     def validate(self) -> "Scene":
         """Validate in place; raise SceneError for what cannot be rendered, drop and count what can be."""
         self.camera.validate()
+        self.film.validate()
         for tex in self.textures:
             tex.validate()
         if not self.materials:

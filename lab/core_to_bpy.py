@@ -106,6 +106,8 @@ def _mesh_object(core_mesh, materials: list, collection):
         mesh.normals_split_custom_set(np.asarray(core_mesh.normals, dtype=np.float64).reshape(-1, 3).tolist())
     mesh.update()
     obj = bpy.data.objects.new(core_mesh.name, mesh)
+    for kind in ("camera", "shadow", "diffuse", "glossy", "transmission"):
+        setattr(obj, f"visible_{kind}", bool(getattr(core_mesh, f"visible_{kind}")))
     collection.objects.link(obj)
     return obj
 
@@ -141,6 +143,8 @@ def _light_object(light, collection):
         raise ValueError(f"unknown light {type(light).__name__}")
     obj = bpy.data.objects.new(light.name, data)
     obj.matrix_world = matrix
+    obj.visible_camera = bool(light.visible_camera)
+    data.use_shadow = bool(light.cast_shadow)
     collection.objects.link(obj)
     return obj
 
@@ -185,6 +189,18 @@ def build_bpy_scene(core_scene: Scene) -> tuple[object, list[str]]:
     dof.aperture_fstop, dof.focus_distance = float(cam.aperture_fstop), float(cam.focus_distance)
     dof.aperture_blades, dof.aperture_rotation = int(cam.aperture_blades), float(cam.aperture_rotation)
     dof.aperture_ratio = float(cam.aperture_ratio)
+    if cam.kind == "PANO":
+        data.panorama_type = cam.panorama_type
+        data.fisheye_fov, data.fisheye_lens = float(cam.fisheye_fov), float(cam.fisheye_lens)
+        data.latitude_min, data.latitude_max = float(cam.latitude_min), float(cam.latitude_max)
+        data.longitude_min, data.longitude_max = float(cam.longitude_min), float(cam.longitude_max)
+    film = core_scene.film
+    scene.render.film_transparent = bool(film.transparent)
+    scene.cycles.film_transparent_glass = bool(film.transparent_glass)
+    scene.cycles.film_transparent_roughness = float(film.transparent_roughness)
+    for mat in core_scene.materials:
+        if mat.holdout > 0:
+            unsupported.append(f"material {mat.name!r}: holdout weight {mat.holdout:g} not converted")
     obj = bpy.data.objects.new("Camera", data)
     obj.matrix_world = Matrix([[float(v) for v in row] for row in np.asarray(cam.matrix_world)])
     scene.collection.objects.link(obj)

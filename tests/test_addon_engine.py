@@ -288,8 +288,11 @@ def test_panels_draw_real_properties_and_blender_panels_are_opted_in():
     mat = bf.diffuse("m", (0.5, 0.5, 0.5))
     light = bpy.data.lights.new("L", "AREA")
     world = bf.set_world(scene, (0.1, 0.1, 0.1))
+    cam = bpy.data.cameras.new("C")
+    cam.type = "PANO"
+    ob = bpy.data.objects.new("O", None)
     ctx = types.SimpleNamespace(scene=scene, view_layer=scene.view_layers[0], material=mat, world=world,
-                                light=light, engine="MONTE")
+                                light=light, camera=cam, object=ob, engine="MONTE")
     drawn = []
     for cls in ui.classes:
         assert cls.poll(ctx)
@@ -297,7 +300,12 @@ def test_panels_draw_real_properties_and_blender_panels_are_opted_in():
                                       SCENE_PROPS=cls.SCENE_PROPS)
         cls.draw(panel, ctx)
     assert {"samples", "seed", "sampler", "clamp", "time_limit", "max_bounces", "rr_depth", "filter_type",
-            "filter_width", "threads", "batch_paths", "use_pass_z", "use_pass_albedo", "energy"} <= set(drawn)
+            "filter_width", "threads", "batch_paths", "use_pass_z", "use_pass_albedo", "energy", "film_transparent",
+            "film_transparent_glass", "panorama_type", "visible_diffuse", "is_holdout"} <= set(drawn)
+    for kind in ("FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL", "EQUIRECTANGULAR"):
+        cam.panorama_type = kind
+        ui.MONTE_CAMERA_PT_panorama.draw(types.SimpleNamespace(layout=_Recorder(drawn)), ctx)
+    assert {"fisheye_lens", "fisheye_polynomial_k4", "central_cylindrical_radius", "latitude_min"} <= set(drawn)
     for name in ("RENDER_PT_format", "RENDER_PT_output", "DATA_PT_lens", "DATA_PT_camera",
                  "EEVEE_MATERIAL_PT_context_material", "DATA_PT_spot", "RENDER_PT_color_management"):
         assert "MONTE" in getattr(bpy.types, name).COMPAT_ENGINES, name

@@ -582,31 +582,53 @@ def test_focus_object_distance_is_along_the_view_axis(scene):
     assert got.camera.focus_distance == pytest.approx(15.0, abs=1e-5)
 
 
-def _set_pano(scene, cam):
-    cam.data.type = "PANO"
-    if "panorama_type" in cam.data.bl_rna.properties:
-        cam.data.panorama_type = "EQUIRECTANGULAR"
-
-
-def _set_transparent_glass(scene, cam):
-    scene.render.film_transparent = True
-    scene.cycles.film_transparent_glass = True
+def _set_pano(kind: str, dof: bool = False):
+    def turn_on(scene, cam):
+        cam.data.type = "PANO"
+        cam.data.panorama_type = kind
+        cam.data.dof.use_dof = dof
+    return turn_on
 
 
 # setting -> (how to turn it on, words its warning must hold)
 UNSUPPORTED_CAMERA_FILM = {
-    "panoramic": (_set_pano, ["panoramic", "perspective"]
-                  + (["Equirectangular"] if "panorama_type" in bpy.types.Camera.bl_rna.properties else [])),
+    "panoramic-cubemap-face": (_set_pano("EQUIANGULAR_CUBEMAP_FACE"),
+                               ["panoramic", "Equiangular Cubemap Face", "perspective"]),
+    "panoramic-depth-of-field": (_set_pano("EQUIRECTANGULAR", dof=True), ["depth of field", "panoramic"]),
     "motion-blur": (lambda scene, cam: setattr(scene.render, "use_motion_blur", True), ["motion blur"]),
-    "film-transparent": (lambda scene, cam: setattr(scene.render, "film_transparent", True),
-                         ["Film > Transparent", "opaque"]),
-    "transparent-glass": (_set_transparent_glass, ["Transparent Glass"]),
     "f-stop-0": (lambda scene, cam: (setattr(cam.data.dof, "use_dof", True),
                                      setattr(cam.data.dof, "aperture_fstop", 0.0)), ["F-Stop 0", "pinhole"]),
     "focus-distance-0": (lambda scene, cam: (setattr(cam.data.dof, "use_dof", True),
                                              setattr(cam.data.dof, "focus_distance", 0.0)),
                          ["Focus Distance 0", "pinhole"]),
 }
+
+
+def test_film_and_panorama_settings_are_exported(scene):
+    """Film > Transparent, Transparent Glass and its threshold, and each panorama type Monte renders with its
+    settings, reach the core scene without a warning."""
+    cam = add_camera(scene)
+    cube("C")
+    got, _ = export()
+    assert (got.film.transparent, got.film.transparent_glass) == (False, False)
+    scene.render.film_transparent = True
+    scene.cycles.film_transparent_glass = True
+    scene.cycles.film_transparent_roughness = 0.25
+    got, _ = export()
+    assert (got.film.transparent, got.film.transparent_glass) == (True, True)
+    assert got.film.transparent_roughness == pytest.approx(0.25)
+    cam.data.type = "PANO"
+    cam.data.fisheye_fov, cam.data.fisheye_lens = 2.5, 7.0
+    cam.data.latitude_min, cam.data.longitude_max = -0.4, 1.2
+    for kind in ("EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL",
+                 "FISHEYE_LENS_POLYNOMIAL"):
+        cam.data.panorama_type = kind
+        got, _ = export()
+        assert got.warnings == [], kind
+        c = got.camera
+        assert (c.kind, c.panorama_type) == ("PANO", kind)
+        assert (c.fisheye_fov, c.fisheye_lens) == pytest.approx((2.5, 7.0))
+        assert (c.latitude_min, c.longitude_max) == pytest.approx((-0.4, 1.2))
 
 
 @pytest.mark.parametrize("name", list(UNSUPPORTED_CAMERA_FILM))

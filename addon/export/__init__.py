@@ -16,6 +16,7 @@ import numpy as np
 
 from ...core.scene import Scene, SceneError
 from .camera import export_camera, render_region, render_resolution  # noqa: F401  (re-exported)
+from .film import export_film
 from .light import export_light
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
@@ -49,6 +50,15 @@ class _Prototype:
     matrices: list = field(default_factory=list)
     instance_info: list = field(default_factory=list)  # per instance: (r, g, b, a, pass index, random id)
     texspace: tuple | None = None  # (location, size) of the mesh's texture space (Generated coordinates)
+    visibility: tuple = (True,) * 5  # Mesh.visible_<kind> for each of MESH_RAY_VISIBILITY
+
+
+# Object > Visibility > Ray Visibility flags Monte renders on meshes (core.scene.Mesh.visible_<kind>).
+MESH_RAY_VISIBILITY = ("camera", "shadow", "diffuse", "glossy", "transmission")
+# Ray Visibility flags Monte does not render (property -> the name Blender's panel shows): on meshes, and on lights.
+UNSUPPORTED_RAY_VISIBILITY = {"visible_volume_scatter": "Volume Scatter"}
+UNSUPPORTED_LIGHT_VISIBILITY = {"visible_diffuse": "Diffuse", "visible_glossy": "Glossy",
+                                "visible_transmission": "Transmission", "visible_volume_scatter": "Volume Scatter"}
 
 
 def _matrix(m) -> np.ndarray:
@@ -59,17 +69,17 @@ class ExportCancelled(Exception):
     """should_cancel returned True during the export."""
 
 
-def _prototype_for(obj, kind, prototypes, materials, warnings, stats):
+def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer=None):
     """The prototype key for an (object, data) pair seen for the first time, converting its mesh if new;
     None when it has nothing to render."""
     original = obj.original
-    if _special_visibility(obj):
-        msg = (f"object {original.name!r}: ray visibility and holdout settings are not supported; "
-               "rendered fully visible")
-        if msg not in warnings:
-            warnings.append(msg)
+    _warn_object_settings(obj, original, view_layer, warnings)
+    held = is_holdout(original, view_layer)
+    seen = tuple(bool(getattr(obj, f"visible_{kind}", True)) for kind in MESH_RAY_VISIBILITY)
+    if is_indirect_only(original, view_layer):
+        seen = (False,) + seen[1:]  # Cycles renders an Indirect Only collection as hidden from camera rays
     slots = tuple(slot.material for slot in obj.material_slots)
-    slot_key = tuple(0 if m is None else m.as_pointer() for m in slots)
+    slot_key = tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ()) + seen
     if kind == "MESH" and obj.data is not None:
         key = ("mesh", obj.data.as_pointer(), slot_key)
     else:
@@ -85,16 +95,78 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats):
     n_slots = max(len(slots), 1)
     used = np.unique(np.clip(local.slots, 0, n_slots - 1))
     lut = np.zeros(n_slots, dtype=np.int32)
+    material_of = materials.holdout_index if held else materials.index
     for slot in used:
-        lut[slot] = materials.index(slots[slot] if slot < len(slots) else None)
-    prototypes[key] = _Prototype(local, lut, original.name, texspace=_texspace(obj, local))
+        lut[slot] = material_of(slots[slot] if slot < len(slots) else None)
+    prototypes[key] = _Prototype(local, lut, original.name, texspace=_texspace(obj, local), visibility=seen)
     stats.meshes_converted += 1
     return key
 
 
-def _special_visibility(obj) -> bool:
-    flags = ("visible_camera", "visible_shadow", "visible_diffuse", "visible_glossy", "visible_transmission")
-    return not all(getattr(obj, f, True) for f in flags) or bool(getattr(obj, "is_holdout", False))
+def _warn_once(warnings: list[str], msg: str) -> None:
+    if msg not in warnings:
+        warnings.append(msg)
+
+
+def _warn_light_linking(obj, what: str, warnings: list[str]) -> None:
+    linking = getattr(obj, "light_linking", None)
+    if linking is None:
+        return
+    for attr, label in (("receiver_collection", "Light Linking"), ("blocker_collection", "Shadow Linking")):
+        coll = getattr(linking, attr, None)
+        if coll is not None:
+            _warn_once(warnings, f"{what} {obj.original.name!r}: {label} (collection {coll.name!r}) is not "
+                                 "supported; it lights (shadows) every object")
+
+
+def _warn_light_settings(obj, warnings: list[str]) -> None:
+    """Name each light setting that changes Cycles' image and that Monte does not render."""
+    name = obj.original.name
+    _warn_light_linking(obj, "light", warnings)
+    off = [label for prop, label in UNSUPPORTED_LIGHT_VISIBILITY.items() if not getattr(obj, prop, True)]
+    if off:
+        _warn_once(warnings, f"light {name!r}: Ray Visibility {', '.join(off)} off is not supported; the light "
+                             f"is seen by {', '.join(label.lower() for label in off)} rays")
+
+
+def _warn_object_settings(obj, original, view_layer, warnings: list[str]) -> None:
+    """Name each object setting that changes Cycles' image and that Monte does not render."""
+    name = original.name
+    _warn_light_linking(obj, "object", warnings)
+    off = [label for prop, label in UNSUPPORTED_RAY_VISIBILITY.items() if not getattr(obj, prop, True)]
+    if off:
+        _warn_once(warnings, f"object {name!r}: Ray Visibility {', '.join(off)} off is not supported; rendered "
+                             f"visible to {', '.join(label.lower() for label in off)} rays")
+    if getattr(obj, "is_shadow_catcher", False):
+        _warn_once(warnings, f"object {name!r}: Shadow Catcher is not supported; rendered as an ordinary object")
+    for system in getattr(obj, "particle_systems", ()):
+        settings = system.settings
+        if settings.type == "HAIR" and settings.render_type == "PATH":
+            _warn_once(warnings, f"object {name!r}: particle hair (particle system {system.name!r}) is not "
+                                 "supported and is skipped")
+
+
+def is_indirect_only(obj, view_layer) -> bool:
+    """Whether an (original) object is in a collection set to Indirect Only in the view layer."""
+    if view_layer is None:
+        return False
+    try:
+        return bool(obj.indirect_only_get(view_layer=view_layer))
+    except (AttributeError, RuntimeError, TypeError):
+        return False
+
+
+def is_holdout(obj, view_layer) -> bool:
+    """Whether an (original) object is held out: its own Holdout setting, or a collection set to Holdout in the
+    view layer (Blender's `holdout_get`)."""
+    if getattr(obj, "is_holdout", False):
+        return True
+    if view_layer is None:
+        return False
+    try:
+        return bool(obj.holdout_get(view_layer=view_layer))
+    except (AttributeError, RuntimeError, TypeError):
+        return False
 
 
 def _read_geometry(obj, warnings: list[str]) -> LocalMesh | None:
@@ -147,6 +219,9 @@ def export_scene(
             if inst.show_self:
                 light = export_light(obj.name, obj.data, _matrix(inst.matrix_world), warnings)
                 if light is not None:
+                    light.visible_camera = bool(getattr(obj, "visible_camera", False))
+                    light.cast_shadow = bool(getattr(obj.data, "use_shadow", True))
+                    _warn_light_settings(obj, warnings)
                     lights.append(light)
             continue
         if kind not in GEOMETRY_TYPES:
@@ -160,7 +235,8 @@ def export_scene(
         if rkey in resolved:
             key = resolved[rkey]
         else:
-            key = resolved[rkey] = _prototype_for(obj, kind, prototypes, materials, warnings, stats)
+            key = resolved[rkey] = _prototype_for(obj, kind, prototypes, materials, warnings, stats,
+                                                  depsgraph.view_layer)
         if key is not None:
             proto = prototypes[key]
             proto.matrices.append(inst.matrix_world.copy())
@@ -186,13 +262,15 @@ def export_scene(
         object_rows.append(_object_rows(matrices, np.array(proto.instance_info, np.float64).reshape(k, 6),
                                         proto.texspace))
         mesh.object_index = np.repeat(np.arange(start, start + k, dtype=np.int32), proto.local.triangle_count)
+        for kind, seen in zip(MESH_RAY_VISIBILITY, proto.visibility):
+            setattr(mesh, f"visible_{kind}", seen)
         meshes.append(mesh)
 
     if not materials.materials:
         materials.index(None)  # core needs at least one material
     world = export_world(scene.world, warnings)
     out = Scene(camera=camera, meshes=meshes, materials=materials.materials, lights=lights, world=world,
-                textures=materials.textures, name=scene.name, warnings=warnings,
+                textures=materials.textures, name=scene.name, warnings=warnings, film=export_film(scene),
                 objects=np.concatenate(object_rows).astype(np.float32) if object_rows else None)
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "

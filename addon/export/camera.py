@@ -1,5 +1,5 @@
-"""Blender camera -> core Camera (perspective and orthographic, Blender's sensor fit, shift and clipping, depth
-of field), and a warning naming each camera or film setting Monte does not render yet.
+"""Blender camera -> core Camera (perspective, orthographic and panoramic, Blender's sensor fit, shift and
+clipping, depth of field), and a warning naming each camera setting Monte does not render yet.
 
 core.Camera.frame() reproduces BKE_camera_params_compute_viewplane, so the fields are copied as they are;
 tests compare the frame with `camera.data.view_frame(scene=scene)`.
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core.scene import Camera, SceneError
+from ...core.scene import PANORAMA_TYPES, Camera, SceneError
 
 
 def render_resolution(scene) -> tuple[int, int]:
@@ -65,17 +65,6 @@ def focus_distance(camera_object, dof) -> float:
     return float(abs(np.dot(m[:3, 2], m[:3, 3] - where[:3, 3])))
 
 
-def unsupported_film_warnings(scene, warnings: list[str]) -> None:
-    """Film settings that change Cycles' image and that Monte does not render yet, each named in a warning."""
-    r = scene.render
-    if r.film_transparent:
-        warnings.append("render: Film > Transparent is not supported; the world is rendered opaque (alpha 1)")
-        cycles = getattr(scene, "cycles", None)
-        if cycles is not None and getattr(cycles, "film_transparent_glass", False):
-            warnings.append("render: Film > Transparent Glass is not supported; glass is rendered opaque "
-                            "(alpha 1)")
-
-
 def export_camera(camera_object, scene, warnings: list[str]) -> Camera:
     """Build core's Camera from an evaluated camera object and the scene's render settings."""
     if camera_object is None:
@@ -85,11 +74,11 @@ def export_camera(camera_object, scene, warnings: list[str]) -> Camera:
     cam = camera_object.data
     name = camera_object.name
     kind = cam.type
+    panorama = {}
     if kind == "PANO":
-        pano = str(getattr(cam, "panorama_type", "")).replace("_", " ").title()  # on the camera since Blender 4.x
-        warnings.append(f"camera {name!r}: panoramic camera type{f' ({pano})' if pano else ''} is not "
-                        f"supported; rendering it as a perspective camera with its {cam.lens:g} mm lens")
-        kind = "PERSP"
+        panorama = _panorama(cam, name, warnings)
+        if not panorama:
+            kind = "PERSP"
     elif kind not in ("PERSP", "ORTHO"):
         raise SceneError(f"camera {name!r}: camera type {kind} is not supported by Monte")
     r = scene.render
@@ -98,8 +87,10 @@ def export_camera(camera_object, scene, warnings: list[str]) -> Camera:
                         "supported; rendering square pixels")
     if r.use_motion_blur:
         warnings.append("render: motion blur is not supported; rendering the frame's instant")
-    unsupported_film_warnings(scene, warnings)
     dof = cam.dof
+    if kind == "PANO" and dof.use_dof and dof.aperture_fstop > 0:
+        warnings.append(f"camera {name!r}: depth of field on a panoramic camera is not supported; rendered in "
+                        "focus (a pinhole)")
     focus = focus_distance(camera_object, dof) if dof.use_dof else float(dof.focus_distance)
     if dof.use_dof and dof.aperture_fstop == 0:
         # Cycles clamps the f-stop to 1e-5: an aperture kilometres wide that blurs everything into one colour.
@@ -129,4 +120,27 @@ def export_camera(camera_object, scene, warnings: list[str]) -> Camera:
         aperture_blades=int(dof.aperture_blades),
         aperture_rotation=float(dof.aperture_rotation),
         aperture_ratio=float(dof.aperture_ratio),
+        **panorama,
     )
+
+
+def _panorama(cam, name: str, warnings: list[str]) -> dict:
+    """core Camera fields of a panoramic camera, or {} (with a warning naming the type) for a panorama type
+    Monte does not render, which then renders as a perspective camera with the camera's lens."""
+    kind = str(getattr(cam, "panorama_type", ""))
+    if kind not in PANORAMA_TYPES:
+        pretty = kind.replace("_", " ").title() or "unknown"
+        warnings.append(f"camera {name!r}: panoramic camera type {pretty} is not supported; rendering it as a "
+                        f"perspective camera with its {cam.lens:g} mm lens")
+        return {}
+    fields = {"panorama_type": kind, "fisheye_fov": float(cam.fisheye_fov), "fisheye_lens": float(cam.fisheye_lens),
+              "latitude_min": float(cam.latitude_min), "latitude_max": float(cam.latitude_max),
+              "longitude_min": float(cam.longitude_min), "longitude_max": float(cam.longitude_max),
+              "fisheye_polynomial": tuple(float(getattr(cam, f"fisheye_polynomial_k{i}")) for i in range(5))}
+    if kind == "CENTRAL_CYLINDRICAL":
+        fields.update(longitude_min=float(cam.central_cylindrical_range_u_min),
+                      longitude_max=float(cam.central_cylindrical_range_u_max),
+                      cylinder_height_min=float(cam.central_cylindrical_range_v_min),
+                      cylinder_height_max=float(cam.central_cylindrical_range_v_max),
+                      cylinder_radius=float(cam.central_cylindrical_radius))
+    return fields

@@ -158,7 +158,7 @@ class MaterialExporter:
         self.textures: list[Texture] = []
         self.textured: set[int] = set()  # material indices that read UVs (image textures, UV coordinates)
         self.nonfinite_texels = 0
-        self._by_key: dict[int, int] = {}
+        self._by_key: dict[int | tuple, int] = {}
         self._tex_by_key: dict[tuple, int] = {}
         self._default: int | None = None
 
@@ -207,14 +207,16 @@ class MaterialExporter:
             self.warnings.append(f"{owner}: no active Material Output node; using the viewport colour as diffuse")
             return Material(name, [Lobe("diffuse", viewport)])
         if output.inputs.get("Volume") is not None and output.inputs["Volume"].is_linked:
-            self.warnings.append(f"{owner}: volumes are not supported; the volume shader is ignored")
+            vol = follow_link(output.inputs["Volume"])
+            label = f" {vol.name!r} ({vol.bl_label})" if vol is not None else ""
+            self.warnings.append(f"{owner}: volumes are not supported; the volume shader{label} is ignored")
         if output.inputs.get("Displacement") is not None and output.inputs["Displacement"].is_linked:
             self.warnings.append(f"{owner}: displacement is not supported and is ignored")
         builder = ProgramBuilder(owner, self.warnings, self.textures,
                                  lambda node, alpha_used: self._image_texture(node, owner, alpha_used),
                                  material_pass_index=int(getattr(material, "pass_index", 0)))
         try:
-            lobes, bind, emission = compile_surface(builder, output)
+            lobes, bind, emission, holdout = compile_surface(builder, output)
         except (UnsupportedShader, CompileError) as exc:
             self.warnings.append(f"{owner}: {exc}; falling back to a diffuse of the material's viewport colour "
                                  f"{np.round(viewport, 4).tolist()}")
@@ -222,9 +224,24 @@ class MaterialExporter:
         emit_const = builder.is_const(emission)
         constant_emission = np.maximum(builder.value(emission).astype(np.float64), 0.0) if emit_const else np.zeros(3)
         if not np.any(bind >= 0) and emit_const:
-            return Material(name, lobes, emission=constant_emission)
+            return Material(name, lobes, emission=constant_emission, holdout=holdout)
         program = builder.finish(bind, -1 if emit_const else emission)
-        return Material(name, lobes, emission=constant_emission, program=program)
+        return Material(name, lobes, emission=constant_emission, program=program, holdout=holdout)
+
+    def holdout_index(self, material) -> int:
+        """Index of `material` held out (an object or collection set to holdout): its lobes and emission for
+        the rays that see it normally, holdout weight 1 for camera rays (core.scene.Material.holdout)."""
+        base = self.index(material)
+        key = ("holdout", base)
+        found = self._by_key.get(key)
+        if found is None:
+            src = self.materials[base]
+            found = self._by_key[key] = self._add(Material(f"{src.name} (holdout)", list(src.lobes),
+                                                           emission=src.emission.copy(), program=src.program,
+                                                           holdout=1.0))
+            if base in self.textured:
+                self.textured.add(found)
+        return found
 
     # ----------------------------------------------------------------------------------------- internals
     def _add(self, mat: Material) -> int:

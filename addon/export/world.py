@@ -27,6 +27,14 @@ def export_world(world, warnings: list[str]) -> World:
     if world is None:
         return World(np.zeros(3))
     name = world.name
+    visibility = getattr(world, "cycles_visibility", None)
+    if visibility is not None:
+        off = [label for prop, label in (("camera", "Camera"), ("diffuse", "Diffuse"), ("glossy", "Glossy"),
+                                         ("transmission", "Transmission"), ("scatter", "Volume Scatter"))
+               if not getattr(visibility, prop, True)]
+        if off:
+            warnings.append(f"world {name!r}: Ray Visibility {', '.join(off)} off is not supported; the world is "
+                            "seen by every ray")
     tree = node_tree(world)
     if tree is None:
         return World(np.array(world.color[:3], dtype=np.float64))
@@ -34,6 +42,9 @@ def export_world(world, warnings: list[str]) -> World:
     if output is None:
         warnings.append(f"world {name!r}: no active World Output node; the background is black")
         return World(np.zeros(3))
+    volume = output.inputs.get("Volume")
+    if volume is not None and volume.is_linked:
+        warnings.append(f"world {name!r}: world volumes are not supported; the volume shader is ignored")
     surface = output.inputs.get("Surface")
     node = follow_link(surface)
     if node is None:

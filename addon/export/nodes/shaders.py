@@ -36,6 +36,8 @@ SHADERS = {
                            "noisier than a constant emitter."),
     "ShaderNodeMixShader": ("Mix Shader", ("Fac", "Shader", "Shader"), "The factor may vary per point."),
     "ShaderNodeAddShader": ("Add Shader", ("Shader", "Shader"), ""),
+    "ShaderNodeHoldout": ("Holdout", (), "Camera rays (and rays through transparent surfaces) see zero colour and "
+                          "zero alpha; other rays see nothing. A weight that varies per point warns and is ignored."),
     "ShaderNodeBsdfPrincipled": ("Principled BSDF",
                                  ("Base Color", "Metallic", "Roughness", "IOR", "Alpha", "Transmission Weight",
                                   "Specular IOR Level", "Specular Tint", "Emission Color", "Emission Strength"),
@@ -75,6 +77,7 @@ class ShaderWalk:
         self.c = c
         self.lobes: list[LobeSpec] = []
         self.emission = c.const(0.0)
+        self.holdout = 0.0  # Holdout shader weight (core.scene.Material.holdout); constant weights only
 
     # ---------------------------------------------------------------------------------------------- walk
     def surface(self, sock, ctx: Ctx) -> None:
@@ -101,6 +104,12 @@ class ShaderWalk:
         if kind == "ShaderNodeAddShader":
             self._socket(node.inputs[0], ctx, w, depth + 1)
             self._socket(node.inputs[1], ctx, w, depth + 1)
+            return
+        if kind == "ShaderNodeHoldout":
+            if c.is_const(w):
+                self.holdout += float(np.mean(c.value(w)))
+            else:
+                c.warn(node, "a Holdout weighted by a factor that varies per point is not supported; ignored")
             return
         if kind == "ShaderNodeEmission":
             e = c.vmath("SCALE", c.input(node, "Color", RGBA, ctx), scale=c.math(
@@ -263,13 +272,14 @@ class ShaderWalk:
         return lobes, bind
 
 
-def compile_surface(c, output_node) -> tuple[list[Lobe], np.ndarray, int]:
-    """(template lobes, bindings, emission register) of a Material Output's Surface input."""
+def compile_surface(c, output_node) -> tuple[list[Lobe], np.ndarray, int, float]:
+    """(template lobes, bindings, emission register, holdout weight in [0, 1]) of a Material Output's Surface
+    input."""
     walk = ShaderWalk(c)
     sock = output_node.inputs["Surface"]
     walk.surface(sock, Ctx())
     lobes, bind = walk.lobes_and_bindings()
-    return lobes, bind, walk.emission
+    return lobes, bind, walk.emission, min(max(walk.holdout, 0.0), 1.0)
 
 
 __all__ = ["compile_surface", "UnsupportedShader", "CompileError"]
