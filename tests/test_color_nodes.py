@@ -1,0 +1,186 @@
+"""The colour and converter nodes (core/shading/color.py, baked by addon/export/color_nodes.py) against Cycles,
+per pixel.
+
+Each material is Texture Coordinate (Generated) -> Separate XYZ -> Math nodes (affine functions of the plane's
+(u, v)) -> the node under test -> Emission (strength 1) on a 2 x 2 plane; several planes sit side by side in one
+render, each filling a BLOCK x BLOCK block of an orthographic camera's image, no lights, a black world. One
+sample per pixel with a 0.01 px Gaussian pixel filter puts that sample on the pixel centre (measured: within
+3e-6 px; more samples spread over about +-0.3 px whatever the filter width, so they would blur the inputs), and
+with nothing but emission in view the image is the node's value at the pixel centres, which the batch
+functions evaluate here from the same (u, v). Tolerances: 1e-4 absolute where values
+lie in about [0, 1]; 1e-4 relative to max(1, |value|) for HDR outputs (Blackbody). Cycles computes in float32
+and this in float64: the measured gaps are ~1e-6 (printed with -s).
+
+Inputs are chosen away from the nodes' discontinuities (a Constant ramp's steps, hue's wrap at red), where a
+sample 0.005 px off the centre could fall on the other side.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import blender_fixtures as bf  # noqa: E402
+
+from monte.addon import crosscheck as cc  # noqa: E402
+from monte.addon.export import color_nodes as export  # noqa: E402
+from monte.core.shading import color  # noqa: E402
+
+pytestmark = pytest.mark.blender
+
+BLOCK = 32  # pixels per plane side
+SPP = 1  # the one sample at the pixel centre (see above)
+ABS_TOL = 1e-4
+
+
+# ------------------------------------------------------------------------------------------ scene and inputs
+def pixel_uv() -> tuple[np.ndarray, np.ndarray]:
+    """(u, v) of the Generated coordinates at the pixel centres of one block, row 0 at the top, as float32."""
+    j = (np.arange(BLOCK) + 0.5) / BLOCK
+    u = np.broadcast_to(j[None, :], (BLOCK, BLOCK))
+    v = np.broadcast_to(1.0 - j[:, None], (BLOCK, BLOCK))
+    return u.astype(np.float32).ravel(), v.astype(np.float32).ravel()
+
+
+def affine(coeffs, u, v) -> np.ndarray:
+    """a u + b v + c in float32, as the Math nodes compute it (Multiply Add twice)."""
+    a, b, c = (np.float32(x) for x in coeffs)
+    return (u * a + (v * b + c)).astype(np.float64)
+
+
+def affine_color(rows, u, v) -> np.ndarray:
+    return np.stack([affine(r, u, v) for r in rows], axis=-1)
+
+
+@pytest.fixture(autouse=True)
+def fresh_scene():
+    """An empty factory scene for each test (made before its materials)."""
+    return bf.reset()
+
+
+class Material:
+    """An emission material whose colour is `build(tree, inputs)`: inputs.scalar((a, b, c)) and
+    inputs.color(rows) give affine functions of (u, v) as node sockets."""
+
+    def __init__(self, name: str):
+        self.mat = bpy.data.materials.new(name)
+        tree = self.tree = bf.node_tree_of(self.mat)
+        tree.nodes.clear()
+        out = tree.nodes.new("ShaderNodeOutputMaterial")
+        self.emission = tree.nodes.new("ShaderNodeEmission")
+        self.emission.inputs["Strength"].default_value = 1.0
+        tree.links.new(self.emission.outputs[0], out.inputs["Surface"])
+        coords = tree.nodes.new("ShaderNodeTexCoord")
+        self.sep = tree.nodes.new("ShaderNodeSeparateXYZ")
+        tree.links.new(coords.outputs["Generated"], self.sep.inputs[0])
+
+    def node(self, kind: str, **props):
+        n = self.tree.nodes.new(kind)
+        for key, value in props.items():
+            setattr(n, key, value)
+        return n
+
+    def link(self, socket, target) -> None:
+        self.tree.links.new(socket, target)
+
+    def scalar(self, coeffs):
+        a, b, c = coeffs
+        inner = self.node("ShaderNodeMath", operation="MULTIPLY_ADD")
+        self.link(self.sep.outputs["Y"], inner.inputs[0])
+        inner.inputs[1].default_value, inner.inputs[2].default_value = b, c
+        outer = self.node("ShaderNodeMath", operation="MULTIPLY_ADD")
+        self.link(self.sep.outputs["X"], outer.inputs[0])
+        outer.inputs[1].default_value = a
+        self.link(inner.outputs[0], outer.inputs[2])
+        return outer.outputs[0]
+
+    def color(self, rows):
+        comb = self.node("ShaderNodeCombineXYZ")
+        for k, r in enumerate(rows):
+            self.link(self.scalar(r), comb.inputs[k])
+        return comb.outputs[0]
+
+    def emit(self, socket) -> None:
+        self.link(socket, self.emission.inputs["Color"])
+
+
+def render_blocks(materials: list[Material], tmp_path) -> list[np.ndarray]:
+    """One Cycles render of a row of planes, one per material; each block (BLOCK * BLOCK, 3), row-major from
+    the top. The materials are made after `fresh_scene` reset Blender."""
+    scene = bpy.context.scene
+    k = len(materials)
+    for i, m in enumerate(materials):
+        x = -k + 1 + 2 * i
+        bf.mesh_object(f"plane{i}", [(x - 1, -1, 0), (x + 1, -1, 0), (x + 1, 1, 0), (x - 1, 1, 0)], [(0, 1, 2, 3)],
+                       m.mat)
+    bf.camera_object(scene, (0, 0, 2), (0, 0, 0), kind="ORTHO", ortho_scale=2.0 * k)
+    bf.set_world(scene, (0.0, 0.0, 0.0), 1.0)
+    scene.render.resolution_x, scene.render.resolution_y = BLOCK * k, BLOCK
+    scene.render.resolution_percentage = 100
+    scene.render.film_transparent = False
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure, scene.view_settings.gamma = 0.0, 1.0
+    cc.configure_cycles(scene, SPP, 0, threads=2, seed=1, filter_type="gaussian", filter_width=0.01)
+    rgb = cc.render_cycles(scene, tmp_path)[0]
+    assert rgb.shape == (BLOCK, BLOCK * k, 3)
+    return [rgb[:, i * BLOCK:(i + 1) * BLOCK].reshape(-1, 3) for i in range(k)]
+
+
+def check(name: str, got: np.ndarray, want: np.ndarray, rel: bool = False) -> float:
+    """Assert Cycles' block `got` equals `want` per pixel (absolute ABS_TOL, or relative to max(1, |want|))."""
+    want = np.broadcast_to(np.asarray(want, np.float64).reshape(len(got), -1), got.shape)
+    scale = np.maximum(1.0, np.abs(want)) if rel else 1.0
+    err = np.abs(got - want) / scale
+    worst = float(err.max())
+    print(f"{name}: max {'relative ' if rel else ''}error {worst:.2e}")
+    if worst > ABS_TOL:
+        i = int(np.argmax(err.max(axis=-1)))
+        raise AssertionError(f"{name}: pixel {divmod(i, BLOCK)} Cycles {got[i]} vs {want[i]} (error {worst:.2e})")
+    return worst
+
+
+# ------------------------------------------------------------------------------------------------------- Mix
+# Colours A and B and the factor as affine functions (a u + b v + c) of the plane's coordinates: A and B vary
+# in different directions, B stays away from 0 (Divide's special case) and the factor inside (0, 1) (Dodge and
+# Burn jump where t B reaches 1 and beyond).
+MIX_A = ((0.9, 0.0, 0.05), (0.0, 0.9, 0.05), (0.5, -0.4, 0.5))
+MIX_B = ((0.0, 0.8, 0.1), (-0.7, 0.0, 0.8), (0.3, 0.3, 0.2))
+MIX_FAC = (0.3, 0.5, 0.1)
+
+
+def mix_material(name: str, blend_type: str, fac=MIX_FAC, a=MIX_A, b=MIX_B, clamp_factor=False,
+                 clamp_result=False, legacy=False) -> Material:
+    m = Material(name)
+    if legacy:
+        node = m.node("ShaderNodeMixRGB", blend_type=blend_type, use_clamp=clamp_result)
+        fac_in, a_in, b_in, out = node.inputs[0], node.inputs[1], node.inputs[2], node.outputs[0]
+    else:
+        node = m.node("ShaderNodeMix", data_type="RGBA", blend_type=blend_type, clamp_factor=clamp_factor,
+                      clamp_result=clamp_result)
+        by_id = {s.identifier: s for s in node.inputs}
+        fac_in, a_in, b_in = by_id["Factor_Float"], by_id["A_Color"], by_id["B_Color"]
+        out = next(s for s in node.outputs if s.identifier == "Result_Color")
+    m.link(m.scalar(fac), fac_in)
+    m.link(m.color(a), a_in)
+    m.link(m.color(b), b_in)
+    m.emit(out)
+    m.constants = export.mix_constants(node)
+    return m
+
+
+def test_mix_every_blend_mode_matches_cycles(tmp_path):
+    u, v = pixel_uv()
+    modes = list(color.BLEND_TYPES)
+    mats = [mix_material(f"mix-{mode}", mode) for mode in modes]
+    blocks = render_blocks(mats, tmp_path)
+    fac, a, b = affine(MIX_FAC, u, v), affine_color(MIX_A, u, v), affine_color(MIX_B, u, v)
+    for mode, m, got in zip(modes, mats, blocks):
+        k = m.constants
+        assert k.blend == color.BLEND_TYPES[mode] and not k.clamp_factor and not k.clamp_result
+        check(f"Mix {mode}", got, color.mix_color_many(mode, fac, a, b, k.clamp_factor, k.clamp_result))
