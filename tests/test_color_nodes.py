@@ -184,3 +184,72 @@ def test_mix_every_blend_mode_matches_cycles(tmp_path):
         k = m.constants
         assert k.blend == color.BLEND_TYPES[mode] and not k.clamp_factor and not k.clamp_result
         check(f"Mix {mode}", got, color.mix_color_many(mode, fac, a, b, k.clamp_factor, k.clamp_result))
+
+
+def test_mix_clamping_and_legacy_mixrgb_match_cycles(tmp_path):
+    """Clamp Factor and Clamp Result on the Mix node, the legacy MixRGB node (factor always clamped, Clamp on the
+    result), with a factor from -0.3 to 1.3 and colours outside [0, 1]."""
+    u, v = pixel_uv()
+    fac_rows = (1.6, 0.0, -0.3)
+    a_rows = ((1.5, 0.0, -0.2), (0.0, 1.2, 0.1), (0.4, 0.4, 0.3))
+    b_rows = ((0.0, 0.9, 0.3), (-1.0, 0.0, 1.1), (0.2, 0.0, 0.9))
+    cases = [(mode, cf, cr, legacy) for mode in ("MIX", "LINEAR_LIGHT", "ADD")
+             for cf, cr, legacy in ((False, False, False), (True, False, False), (False, True, False),
+                                    (True, True, False), (True, False, True), (True, True, True))]
+    mats = [mix_material(f"clamp-{i}", mode, fac_rows, a_rows, b_rows, cf, cr, legacy)
+            for i, (mode, cf, cr, legacy) in enumerate(cases)]
+    blocks = render_blocks(mats, tmp_path)
+    fac, a, b = affine(fac_rows, u, v), affine_color(a_rows, u, v), affine_color(b_rows, u, v)
+    for (mode, cf, cr, legacy), m, got in zip(cases, mats, blocks):
+        k = m.constants
+        assert (k.clamp_factor, k.clamp_result) == (cf, cr)
+        want = color.mix_color_many(mode, fac, a, b, k.clamp_factor, k.clamp_result)
+        check(f"{'MixRGB' if legacy else 'Mix'} {mode} clamp factor {cf} result {cr}", got, want)
+    # the cases differ: clamping is visible in this image (a check that could not fail would prove nothing)
+    assert np.abs(blocks[0] - blocks[3]).max() > 0.1
+
+
+# ------------------------------------------------------------------------------------------------ Color Ramp
+RAMP_STOPS = ((0.1, (0.9, 0.1, 0.05, 1.0)), (0.35, (0.1, 0.7, 0.2, 0.6)), (0.7, (0.2, 0.3, 0.95, 0.2)),
+              (0.9, (1.0, 0.9, 0.3, 0.9)))
+# The factor runs from -0.04 to 1.06 across a block, its pixel centres at least 0.07 table steps from a step of
+# a Constant ramp's table.
+RAMP_FAC = (1.1, 0.0, -0.037)
+
+
+def ramp_material(name: str, interpolation: str, mode: str = "RGB", hue: str = "NEAR",
+                  alpha: bool = False) -> Material:
+    m = Material(name)
+    node = m.node("ShaderNodeValToRGB")
+    ramp = node.color_ramp
+    ramp.interpolation, ramp.color_mode, ramp.hue_interpolation = interpolation, mode, hue
+    (pos0, col0), (pos1, col1) = RAMP_STOPS[0], RAMP_STOPS[-1]
+    ramp.elements[0].position, ramp.elements[0].color = pos0, col0
+    ramp.elements[1].position, ramp.elements[1].color = pos1, col1
+    for pos, col in RAMP_STOPS[1:-1]:
+        ramp.elements.new(pos).color = col
+    m.link(m.scalar(RAMP_FAC), node.inputs["Fac"])
+    m.emit(node.outputs["Alpha" if alpha else "Color"])
+    m.constants = export.color_ramp_constants(node)
+    m.alpha = alpha
+    return m
+
+
+def test_color_ramp_matches_cycles(tmp_path):
+    """Every interpolation (Linear, Ease, Constant, Cardinal, B-Spline) in RGB, HSV with each hue
+    interpolation, and HSL; the Alpha output."""
+    u, v = pixel_uv()
+    cases = [(i, "RGB", "NEAR", False) for i in ("LINEAR", "EASE", "CONSTANT", "CARDINAL", "B_SPLINE")]
+    cases += [("LINEAR", "HSV", h, False) for h in ("NEAR", "FAR", "CW", "CCW")]
+    cases += [("EASE", "HSL", "NEAR", False), ("LINEAR", "RGB", "NEAR", True)]
+    mats = [ramp_material(f"ramp-{k}", *case) for k, case in enumerate(cases)]
+    blocks = render_blocks(mats, tmp_path)
+    fac = affine(RAMP_FAC, u, v)
+    for case, m, got in zip(cases, mats, blocks):
+        k = m.constants
+        assert k.table.shape == (color.TABLE_SIZE, 4) and k.interpolate == (case[0] != "CONSTANT")
+        rgba = color.color_ramp_many(k.table, k.interpolate, fac)
+        want = rgba[:, 3:4] if m.alpha else rgba[:, :3]
+        check(f"Color Ramp {case}", got, want)
+    # Constant really steps: its image differs from Linear's
+    assert np.abs(blocks[2] - blocks[0]).max() > 0.05
