@@ -253,3 +253,153 @@ def test_color_ramp_matches_cycles(tmp_path):
         check(f"Color Ramp {case}", got, want)
     # Constant really steps: its image differs from Linear's
     assert np.abs(blocks[2] - blocks[0]).max() > 0.05
+
+
+# -------------------------------------------------------------------------------------------------- curves
+def set_points(curve, points, handles=None) -> None:
+    """Replace a curve map's points by `points` [(x, y), ...] (handle types by index where given)."""
+    while len(curve.points) > 2:
+        curve.points.remove(curve.points[-1])
+    curve.points[0].location, curve.points[1].location = points[0], points[-1]
+    for x, y in points[1:-1]:
+        curve.points.new(x, y)
+    for i, h in (handles or {}).items():
+        curve.points[i].handle_type = h
+
+
+def curve_material(name: str, kind: str, extend: str, value_rows, fac_rows, shape: str) -> Material:
+    m = Material(name)
+    node = m.node(kind)
+    mapping = node.mapping
+    mapping.extend = extend
+    mapping.use_clip = False
+    curves = mapping.curves
+    if kind == "ShaderNodeRGBCurve":
+        set_points(curves[3], [(0.0, 0.05), (0.3, 0.45), (1.0, 0.9)])                      # C
+        set_points(curves[0], [(0.0, 0.1), (0.5, 0.3), (1.0, 1.0)], {1: "VECTOR"})          # R
+        set_points(curves[1], [(0.0, 0.0), (0.25, 0.6), (0.6, 0.4), (1.0, 0.8)], {2: "AUTO_CLAMPED"})  # G
+        if shape == "wide":  # B spans x beyond [0, 1]: the table covers every curve's x range
+            set_points(curves[2], [(-0.2, 0.3), (0.4, 0.1), (1.3, 0.7)])
+    elif kind == "ShaderNodeVectorCurve":
+        set_points(curves[0], [(-1.0, -0.8), (0.0, 0.3), (1.0, 0.6)])
+        set_points(curves[1], [(-1.0, 0.5), (-0.2, -0.4), (0.5, 0.2), (1.0, -0.6)], {1: "VECTOR"})
+        if shape == "wide":
+            set_points(curves[2], [(-1.3, 0.0), (0.7, 0.9), (1.2, 0.2)])
+    else:
+        points = [(0.0, 0.2), (0.4, 0.9), (1.0, 0.5)] if shape != "wide" else [(0.2, 0.1), (0.5, 0.8), (0.8, 0.3)]
+        set_points(curves[0], points, {1: "AUTO_CLAMPED"})
+    mapping.update()
+    value_in = node.inputs[1]
+    if kind == "ShaderNodeFloatCurve":
+        m.link(m.scalar(value_rows), value_in)
+    else:
+        m.link(m.color(value_rows), value_in)
+    m.link(m.scalar(fac_rows), node.inputs[0])
+    m.emit(node.outputs[0])
+    m.constants = export.curve_constants(node)
+    return m
+
+
+def test_curves_match_cycles(tmp_path):
+    """RGB Curves (C curve applied first, Vector and Auto Clamped handles), Vector Curves and Float Curve, Extend
+    Horizontal and Extrapolated, inputs beyond the curves' x range, curves whose points span other ranges than
+    [0, 1] (and, for Float Curve, less than [0, 1])."""
+    u, v = pixel_uv()
+    rgb_in = ((1.4, 0.0, -0.2), (0.0, 1.4, -0.2), (0.5, 0.3, 0.1))
+    vec_in = ((2.6, 0.0, -1.3), (0.0, 2.4, -1.2), (1.0, -1.0, 0.1))
+    float_in = (1.4, 0.1, -0.25)
+    fac = (0.3, 0.0, 0.8)
+    cases = []
+    for kind, rows in (("ShaderNodeRGBCurve", rgb_in), ("ShaderNodeVectorCurve", vec_in),
+                       ("ShaderNodeFloatCurve", float_in)):
+        for extend in ("HORIZONTAL", "EXTRAPOLATED"):
+            for shape in ("unit", "wide"):
+                cases.append((kind, extend, rows, shape))
+    mats = [curve_material(f"curve-{i}", kind, extend, rows, fac, shape)
+            for i, (kind, extend, rows, shape) in enumerate(cases)]
+    blocks = render_blocks(mats, tmp_path)
+    f = affine(fac, u, v)
+    for (kind, extend, rows, shape), m, got in zip(cases, mats, blocks):
+        k = m.constants
+        assert k.extrapolate == (extend == "EXTRAPOLATED")
+        if kind == "ShaderNodeFloatCurve":
+            want = color.float_curve_many(k.table, k.lo, k.hi, k.extrapolate, f, affine(rows, u, v))[:, None]
+        else:
+            want = color.curves_many(k.table, k.lo, k.hi, k.extrapolate, f, affine_color(rows, u, v))
+        check(f"{kind[10:]} {extend} {shape} [{k.lo:g}, {k.hi:g}]", got, want)
+    # extrapolation shows in these images
+    assert np.abs(blocks[0] - blocks[2]).max() > 0.05
+
+
+# ------------------------------------------------------------------------------- adjustments and converters
+COLOR_IN = ((0.9, 0.0, 0.05), (0.0, 0.8, 0.1), (0.4, -0.3, 0.5))
+
+
+def _node_material(name: str, kind: str, props: dict, inputs: dict, output: str | int = 0,
+                   combine_outputs: bool = False) -> Material:
+    """A material with one node of `kind`: inputs maps input index -> ("s", coeffs) for a scalar or
+    ("c", rows) for a colour; with combine_outputs its three float outputs go to the emission as (x, y, z)."""
+    m = Material(name)
+    node = m.node(kind, **props)
+    for index, (what, coeffs) in inputs.items():
+        m.link(m.scalar(coeffs) if what == "s" else m.color(coeffs), node.inputs[index])
+    if combine_outputs:
+        comb = m.node("ShaderNodeCombineXYZ")
+        for k in range(3):
+            m.link(node.outputs[k], comb.inputs[k])
+        m.emit(comb.outputs[0])
+    else:
+        m.emit(node.outputs[output])
+    m.node_ref = node
+    return m
+
+
+def test_adjustment_and_converter_nodes_match_cycles(tmp_path):
+    """Hue/Saturation/Value, Invert, Bright/Contrast, Gamma, RGB to BW, Separate and Combine Color (RGB, HSV,
+    HSL). Separate's colour keeps hue away from its wrap at red (where red is the largest channel, green and blue
+    never cross within a sample's reach)."""
+    u, v = pixel_uv()
+    c = affine_color(COLOR_IN, u, v)
+    s = lambda coeffs: affine(coeffs, u, v)  # noqa: E731
+    hsv_in = ((0.9, 0.0, 0.05), (0.0, 0.9, 0.05), (0.2, 0.3, 0.4))
+    cases = {
+        "hsv": (("ShaderNodeHueSaturation", {}, {0: ("s", (0.6, 0.0, 0.2)), 1: ("s", (0.0, 1.6, 0.2)),
+                                                 2: ("s", (0.5, 0.5, 0.5)), 3: ("s", (0.0, 0.4, 0.6)),
+                                                 4: ("c", COLOR_IN)}),
+                lambda: color.hue_saturation_value_many(s((0.6, 0.0, 0.2)), s((0.0, 1.6, 0.2)), s((0.5, 0.5, 0.5)),
+                                                        s((0.0, 0.4, 0.6)), c)),
+        "invert": (("ShaderNodeInvert", {}, {0: ("s", (0.0, 1.2, -0.1)), 1: ("c", COLOR_IN)}),
+                   lambda: color.invert_many(s((0.0, 1.2, -0.1)), c)),
+        "bright-contrast": (("ShaderNodeBrightContrast", {}, {0: ("c", COLOR_IN), 1: ("s", (0.4, 0.0, -0.2)),
+                                                             2: ("s", (0.0, 1.5, -0.5))}),
+                            lambda: color.bright_contrast_many(c, s((0.4, 0.0, -0.2)), s((0.0, 1.5, -0.5)))),
+        "gamma": (("ShaderNodeGamma", {}, {0: ("c", COLOR_IN), 1: ("s", (2.0, 0.5, 0.1))}),
+                  lambda: color.gamma_many(c, s((2.0, 0.5, 0.1)))),
+        "rgb-to-bw": (("ShaderNodeRGBToBW", {}, {0: ("c", COLOR_IN)}),
+                      lambda: color.rgb_to_bw_many(c)[:, None]),
+    }
+    for mode in ("RGB", "HSV", "HSL"):
+        cases[f"separate-{mode}"] = (("ShaderNodeSeparateColor", {"mode": mode}, {0: ("c", hsv_in)}, 0, True),
+                                     lambda mode=mode: color.separate_color_many(mode, affine_color(hsv_in, u, v)))
+        comb_in = ((1.0, 0.0, 0.0), (0.0, 1.1, -0.05), (0.3, 0.3, 0.3))
+        cases[f"combine-{mode}"] = (("ShaderNodeCombineColor", {"mode": mode},
+                                     {k: ("s", r) for k, r in enumerate(comb_in)}),
+                                    lambda mode=mode, comb_in=comb_in: color.combine_color_many(
+                                        mode, affine_color(comb_in, u, v)))
+    names = list(cases)
+    mats = [_node_material(name, *cases[name][0]) for name in names]
+    blocks = render_blocks(mats, tmp_path)
+    for name, got in zip(names, blocks):
+        check(name, got, cases[name][1]())
+
+
+def test_blackbody_and_wavelength_match_cycles(tmp_path):
+    """Blackbody over 600-12800 K (every segment of the fit and both ends; HDR: relative tolerance) and
+    Wavelength over 370-790 nm (both ends black)."""
+    u, v = pixel_uv()
+    temp, nm = (12000.0, 200.0, 600.0), (420.0, 3.0, 370.0)
+    mats = [_node_material("blackbody", "ShaderNodeBlackbody", {}, {0: ("s", temp)}),
+            _node_material("wavelength", "ShaderNodeWavelength", {}, {0: ("s", nm)})]
+    blackbody, wavelength = render_blocks(mats, tmp_path)
+    check("Blackbody", blackbody, color.blackbody_many(affine(temp, u, v)), rel=True)
+    check("Wavelength", wavelength, color.wavelength_many(affine(nm, u, v)))

@@ -43,12 +43,21 @@ COLOR_RGB, COLOR_HSV, COLOR_HSL = 0, 1, 2
 COLOR_MODES = {"RGB": COLOR_RGB, "HSV": COLOR_HSV, "HSL": COLOR_HSL}
 
 # ------------------------------------------------------------------------------------------- colour-space data
-# Luminance weights of scene-linear Rec.709 (the second row of its RGB -> CIE XYZ matrix): RGB to BW's output.
-RGB_TO_Y = (0.2126729, 0.7151522, 0.0721750)
-# CIE XYZ (D65) -> scene-linear Rec.709, rows r, g, b: the Wavelength node's conversion.
-XYZ_TO_RGB = ((3.2404542, -1.5371385, -0.4985314),
-              (-0.9692660, 1.8760108, 0.0415560),
-              (0.0556434, -0.2040259, 1.0572252))
+def _rec709_to_xyz() -> np.ndarray:
+    """The RGB -> CIE XYZ matrix of Rec.709 (primaries r (0.64, 0.33), g (0.30, 0.60), b (0.15, 0.06); white D65
+    (0.3127, 0.3290) at Y = 1): the columns are the primaries' XYZ, scaled so that RGB (1, 1, 1) is the white."""
+    xy = np.array([[0.64, 0.33], [0.30, 0.60], [0.15, 0.06]])
+    primaries = np.stack([xy[:, 0] / xy[:, 1], np.ones(3), (1.0 - xy[:, 0] - xy[:, 1]) / xy[:, 1]])
+    wx, wy = 0.3127, 0.3290
+    white = np.array([wx / wy, 1.0, (1.0 - wx - wy) / wy])
+    return primaries * np.linalg.solve(primaries, white)[None, :]
+
+
+_RGB_TO_XYZ = _rec709_to_xyz()
+# Luminance weights of scene-linear Rec.709 (the Y row of RGB -> XYZ): RGB to BW's output.
+RGB_TO_Y = tuple(float(x) for x in _RGB_TO_XYZ[1])
+# CIE XYZ -> scene-linear Rec.709, rows r, g, b: the Wavelength node's conversion.
+XYZ_TO_RGB = tuple(tuple(float(x) for x in row) for row in np.linalg.inv(_RGB_TO_XYZ))
 
 # Blackbody: Cycles' piecewise fit of the Planckian locus in Rec.709 with unit luminance, 800 K .. 12000 K
 # (red and green a / T + b T + c, blue a cubic in T), seven segments starting at these temperatures.
