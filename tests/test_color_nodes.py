@@ -403,3 +403,21 @@ def test_blackbody_and_wavelength_match_cycles(tmp_path):
     blackbody, wavelength = render_blocks(mats, tmp_path)
     check("Blackbody", blackbody, color.blackbody_many(affine(temp, u, v)), rel=True)
     check("Wavelength", wavelength, color.wavelength_many(affine(nm, u, v)))
+
+
+# ------------------------------------------------------------------------------------------------ bad input
+def test_export_names_the_node_it_cannot_use():
+    mat = bpy.data.materials.new("bad")
+    tree = bf.node_tree_of(mat)
+    curve = tree.nodes.new("ShaderNodeFloatCurve")
+    curve.name = "Flat"
+    points = curve.mapping.curves[0].points
+    points[0].location, points[1].location = (0.5, 0.0), (0.5, 1.0)
+    with pytest.raises(ValueError, match=r"^node 'Flat' \(Float Curve\): the curve's points span no x range "
+                                         r"\(\[0.5, 0.5\]\)$"):
+        export.curve_constants(curve)
+    mix = tree.nodes.new("ShaderNodeMix")
+    mix.name, mix.data_type = "Floats", "FLOAT"
+    with pytest.raises(ValueError, match=r"^node 'Floats' \(Mix\) is not a Mix node in Color mode$"):
+        export.mix_constants(mix)
+    assert export.working_space_warning(bpy.context.scene) is None  # the factory default is Linear Rec.709
