@@ -17,8 +17,8 @@ package was imported as `monte.core` (the CLI, pytest) and read when it is impor
 folder is both) fails with ModuleNotFoundError instead of compiling. One folder per name keeps them apart.
 
 Kernel modules take their decorators from here, so the locator below is installed before any kernel is defined
-(numba picks a function's cache folder when the function is decorated). Only functions defined in this folder and
-its subpackages are affected; other numba users in the process (other Blender add-ons) keep numba's own choice.
+(numba picks a function's cache folder when the function is decorated). Only functions defined in this folder are
+affected; other numba users in the process (other Blender add-ons) keep numba's own choice.
 """
 
 from __future__ import annotations
@@ -58,10 +58,7 @@ if _InTree is not None and _CacheImpl is not None:
 
         def __init__(self, py_func, py_file):
             super().__init__(py_func, py_file)
-            # A subpackage's kernels (core/shading/...) cache in a subfolder of the same name, so cache files
-            # of two modules with one file name (core/texture.py, core/shading/texture.py) never meet.
-            sub = os.path.relpath(os.path.dirname(os.path.abspath(py_file)), _CORE_DIR)
-            self._cache_path = cache_dir() if sub == os.curdir else os.path.join(cache_dir(), sub)
+            self._cache_path = cache_dir()
 
         def get_source_stamp(self):
             """The function's own file and every kernel module: numba checks only the file a function is defined
@@ -72,7 +69,8 @@ if _InTree is not None and _CacheImpl is not None:
 
         @classmethod
         def from_function(cls, py_func, py_file):
-            if not os.path.abspath(py_file).startswith(_CORE_DIR + os.sep):
+            folder = os.path.dirname(os.path.abspath(py_file))
+            if folder != _CORE_DIR and os.path.dirname(folder) != _CORE_DIR:  # core/ and its packages (shading/)
                 return None
             return super().from_function(py_func, py_file)
 
@@ -87,8 +85,7 @@ jit = numba.njit(**_OPTIONS)
 jit_no_nrt = numba.njit(**_OPTIONS, _nrt=False)
 jit_inline = numba.njit(**_OPTIONS, _nrt=False, inline="always")
 
-# Modules of this folder that define cached kernels (their cache index files are named after them); a module of a
-# subpackage is named by its path below this folder ("shading/color").
+# Modules of this folder that define cached kernels (their cache index files are named after them).
 KERNEL_MODULES = ("geometry_kernels", "path_kernels", "mesh_checks", "camera", "sampling", "warps", "bsdf_kernels",
                   "light_kernels", "embree")
 
@@ -98,4 +95,5 @@ def compile_cache_is_cold() -> bool:
     after an install or an update of the sources): that render compiles the kernels first, about a minute on a
     2-core machine."""
     cache = cache_dir()
-    return any(not glob.glob(os.path.join(cache, f"{name}.*.nbi")) for name in KERNEL_MODULES)
+    return any(not glob.glob(os.path.join(cache, f"{os.path.basename(name)}.*.nbi"))
+               for name in KERNEL_MODULES)

@@ -38,28 +38,24 @@ def test_every_kernel_module_is_there(name):
 
 
 def test_the_list_names_every_module_a_render_compiles():
-    """KERNEL_MODULES (the cold-cache notice and the stamp above) lists every module that defines kernels, in
-    core/ and its subpackages, but microfacet, whose kernels only the table generator and tests run, and
-    shading/color, whose node functions no render calls until the node program is wired in (listing them would
-    make every render announce a compile that never happens)."""
+    """KERNEL_MODULES (the cold-cache notice and the stamp above) lists every module that defines kernels, but
+    microfacet, whose kernels only the table generator and tests run (listing it would make every render
+    announce a compile that never happens)."""
     core = os.path.dirname(jit_cache.__file__)
-    decorators = re.compile(r"from \.+jit_cache import (jit|jit_no_nrt|jit_inline)\b")
-    users = set()
-    for folder, _, files in os.walk(core):
-        for name in files:
-            path = os.path.join(folder, name)
-            if name.endswith(".py") and decorators.search(open(path).read()):
-                users.add(os.path.relpath(path, core)[:-3].replace(os.sep, "/"))
-    assert users - set(jit_cache.KERNEL_MODULES) == {"microfacet", "shading/color"}
+    decorators = re.compile(r"from \.\.?jit_cache import (jit|jit_no_nrt|jit_inline)\b")
+    users = {os.path.join(folder, name[:-3]) for folder in ("", "shading")
+             for name in os.listdir(os.path.join(core, folder)) if name.endswith(".py")
+             and decorators.search(open(os.path.join(core, folder, name)).read())}
+    # shading/color: its node functions run once the node program calls them (it is listed then)
+    assert users - set(jit_cache.KERNEL_MODULES) == {"microfacet", os.path.join("shading", "color")}
     assert set(jit_cache.KERNEL_MODULES) <= users
 
 
-def test_a_subpackage_caches_in_its_own_folder():
-    """Kernels of core/shading/ cache under the import name's folder, in a subfolder named after the
-    subpackage (not next to their sources, where another import name would read them)."""
+def test_a_subpackage_kernel_is_cached_by_the_per_import_name_locator():
+    """core/shading/'s kernels cache in the import name's folder too (not next to their sources, where another
+    import name of the package would read them)."""
     from monte.core.shading import color
 
     py_func = color.mix_color.py_func
     locator = jit_cache._PerImportNameLocator.from_function(py_func, py_func.__code__.co_filename)
-    assert locator is not None
-    assert locator.get_cache_path() == os.path.join(jit_cache.cache_dir(), "shading")
+    assert locator is not None and locator.get_cache_path() == jit_cache.cache_dir()
