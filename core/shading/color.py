@@ -10,7 +10,8 @@ Nodes whose settings are curves or ramps read a baked lookup table, as Cycles do
 (addon/export/color_nodes.py) evaluates Blender's own Color Ramp / Curve Mapping at `TABLE_SIZE` evenly spaced
 positions and the device functions interpolate linearly between the entries (with Cycles' linear extrapolation
 beyond the curve's range when the curve's Extend is Extrapolated). Tables are float32 arrays of shape
-(TABLE_SIZE, channels).
+(TABLE_SIZE, channels); the device functions read them row-major from a flat float array at an offset (a node
+program's data pool), the batch forms take them whole.
 
 Factors: the Mix node clamps its factor to [0, 1] only with Clamp Factor, the legacy MixRGB node always; the other
 nodes blend with the factor as given (Cycles does not clamp them either).
@@ -324,49 +325,53 @@ def mix_color(mode, fac, r1, g1, b1, r2, g2, b2, clamp_factor, clamp_result):
 
 # ------------------------------------------------------------------------------------------ ramps and curves
 @jit
-def table_lookup(table, c, f, interpolate, extrapolate):
-    """Channel c of a lookup table (TABLE_SIZE rows spanning f in [0, 1]) at f: linear between rows (the row
-    below with interpolate False), the end rows outside [0, 1], or with extrapolate the line through the two end
-    rows."""
-    n = table.shape[0]
+def table_lookup(data, offset, rows, width, c, f, interpolate, extrapolate):
+    """Channel c of a lookup table spanning f in [0, 1], stored row-major in data[offset:] as `rows` rows of
+    `width` floats (a program's data pool, or one table flattened): linear between rows (the row below with
+    interpolate False), the end rows outside [0, 1], or with extrapolate the line through the two end rows."""
+    base = offset + c
     if extrapolate and (f < 0.0 or f > 1.0):
         if f < 0.0:
-            t0 = float(table[0, c])
-            return t0 + (t0 - float(table[1, c])) * -f * (n - 1)
-        t0 = float(table[n - 1, c])
-        return t0 + (t0 - float(table[n - 2, c])) * (f - 1.0) * (n - 1)
-    x = _clamp01(f) * (n - 1)
-    i = min(int(x), n - 1)
+            t0 = float(data[base])
+            return t0 + (t0 - float(data[base + width])) * -f * (rows - 1)
+        last = base + (rows - 1) * width
+        t0 = float(data[last])
+        return t0 + (t0 - float(data[last - width])) * (f - 1.0) * (rows - 1)
+    x = _clamp01(f) * (rows - 1)
+    i = min(int(x), rows - 1)
     t = x - i
-    a = float(table[i, c])
+    a = float(data[base + i * width])
     if interpolate and t > 0.0:
-        a = (1.0 - t) * a + t * float(table[i + 1, c])
+        a = (1.0 - t) * a + t * float(data[base + (i + 1) * width])
     return a
 
 
 @jit
-def color_ramp(table, interpolate, fac):
-    """Color Ramp: (r, g, b, alpha) at fac from its baked RGBA table; interpolate False for Constant
-    interpolation."""
-    return (table_lookup(table, 0, fac, interpolate, False), table_lookup(table, 1, fac, interpolate, False),
-            table_lookup(table, 2, fac, interpolate, False), table_lookup(table, 3, fac, interpolate, False))
+def color_ramp(data, offset, rows, interpolate, fac):
+    """Color Ramp: (r, g, b, alpha) at fac from its baked RGBA table (rows x 4 floats at data[offset:]);
+    interpolate False for Constant interpolation."""
+    return (table_lookup(data, offset, rows, 4, 0, fac, interpolate, False),
+            table_lookup(data, offset, rows, 4, 1, fac, interpolate, False),
+            table_lookup(data, offset, rows, 4, 2, fac, interpolate, False),
+            table_lookup(data, offset, rows, 4, 3, fac, interpolate, False))
 
 
 @jit
-def curves_rgb(table, lo, hi, extrapolate, fac, r, g, b):
-    """RGB Curves and Vector Curves: each channel through its column of the table baked over [lo, hi], blended
-    with the input by fac."""
+def curves_rgb(data, offset, rows, lo, hi, extrapolate, fac, r, g, b):
+    """RGB Curves and Vector Curves: each channel through its column of the table (rows x 3 floats at
+    data[offset:]) baked over [lo, hi], blended with the input by fac."""
     span = hi - lo
-    cr = table_lookup(table, 0, (r - lo) / span, True, extrapolate)
-    cg = table_lookup(table, 1, (g - lo) / span, True, extrapolate)
-    cb = table_lookup(table, 2, (b - lo) / span, True, extrapolate)
+    cr = table_lookup(data, offset, rows, 3, 0, (r - lo) / span, True, extrapolate)
+    cg = table_lookup(data, offset, rows, 3, 1, (g - lo) / span, True, extrapolate)
+    cb = table_lookup(data, offset, rows, 3, 2, (b - lo) / span, True, extrapolate)
     return (1.0 - fac) * r + fac * cr, (1.0 - fac) * g + fac * cg, (1.0 - fac) * b + fac * cb
 
 
 @jit
-def float_curve(table, lo, hi, extrapolate, fac, value):
-    """Float Curve: value through the table baked over [lo, hi], blended with the input by fac."""
-    v = table_lookup(table, 0, (value - lo) / (hi - lo), True, extrapolate)
+def float_curve(data, offset, rows, lo, hi, extrapolate, fac, value):
+    """Float Curve: value through the table (rows floats at data[offset:]) baked over [lo, hi], blended with the
+    input by fac."""
+    v = table_lookup(data, offset, rows, 1, 0, (value - lo) / (hi - lo), True, extrapolate)
     return (1.0 - fac) * value + fac * v
 
 
@@ -487,21 +492,22 @@ def _mix_batch(mode, fac, a, b, clamp_factor, clamp_result, out):
 
 
 @jit
-def _ramp_batch(table, interpolate, fac, out):
+def _ramp_batch(table, rows, interpolate, fac, out):
     for k in range(out.shape[0]):
-        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = color_ramp(table, interpolate, fac[k])
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = color_ramp(table, 0, rows, interpolate, fac[k])
 
 
 @jit
-def _curves_batch(table, lo, hi, extrapolate, fac, c, out):
+def _curves_batch(table, rows, lo, hi, extrapolate, fac, c, out):
     for k in range(out.shape[0]):
-        out[k, 0], out[k, 1], out[k, 2] = curves_rgb(table, lo, hi, extrapolate, fac[k], c[k, 0], c[k, 1], c[k, 2])
+        out[k, 0], out[k, 1], out[k, 2] = curves_rgb(table, 0, rows, lo, hi, extrapolate, fac[k], c[k, 0], c[k, 1],
+                                                     c[k, 2])
 
 
 @jit
-def _float_curve_batch(table, lo, hi, extrapolate, fac, value, out):
+def _float_curve_batch(table, rows, lo, hi, extrapolate, fac, value, out):
     for k in range(out.shape[0]):
-        out[k] = float_curve(table, lo, hi, extrapolate, fac[k], value[k])
+        out[k] = float_curve(table, 0, rows, lo, hi, extrapolate, fac[k], value[k])
 
 
 @jit
@@ -640,7 +646,7 @@ def color_ramp_many(table, interpolate: bool, fac) -> np.ndarray:
     t = _table(table, 4, "ramp table")
     n = _length((fac,))
     out = np.empty((n, 4))
-    _ramp_batch(t, bool(interpolate), _values(fac, n, "fac"), out)
+    _ramp_batch(t.ravel(), t.shape[0], bool(interpolate), _values(fac, n, "fac"), out)
     return out
 
 
@@ -651,8 +657,8 @@ def curves_many(table, lo: float, hi: float, extrapolate: bool, fac, color) -> n
         raise ValueError(f"curve range [{lo}, {hi}] is empty")
     n = _length((fac,), (color,))
     out = np.empty((n, 3))
-    _curves_batch(t, float(lo), float(hi), bool(extrapolate), _values(fac, n, "fac"), _colors(color, n, "color"),
-                  out)
+    _curves_batch(t.ravel(), t.shape[0], float(lo), float(hi), bool(extrapolate), _values(fac, n, "fac"),
+                  _colors(color, n, "color"), out)
     return out
 
 
@@ -663,7 +669,7 @@ def float_curve_many(table, lo: float, hi: float, extrapolate: bool, fac, value)
         raise ValueError(f"curve range [{lo}, {hi}] is empty")
     n = _length((fac, value))
     out = np.empty(n)
-    _float_curve_batch(t, float(lo), float(hi), bool(extrapolate), _values(fac, n, "fac"),
+    _float_curve_batch(t.ravel(), t.shape[0], float(lo), float(hi), bool(extrapolate), _values(fac, n, "fac"),
                        _values(value, n, "value"), out)
     return out
 
