@@ -241,7 +241,10 @@ class MaterialTable:
         self.kinds_present: frozenset[str] = frozenset(KINDS[k] for k in np.unique(self.kind) if k >= 0)
         self.has_transmission: np.ndarray = np.any((self.kind == GLASS) | (self.kind == REFRACTION), axis=1)
         self._texture_ids = sorted(int(t) for t in np.unique(self.texture) if t >= 0)
-        self._texture_pack = self._pack_textures(self.textures)
+        # Only images a lobe reads are packed here (node programs hold theirs in core.shading): each once.
+        used = set(self._texture_ids)
+        self._texture_pack = self._pack_textures([t if i in used else np.zeros((1, 1, 3), F32)
+                                                  for i, t in enumerate(self.textures)])
 
     @staticmethod
     def _pack_textures(textures: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -253,6 +256,12 @@ class MaterialTable:
         h = np.array([t.shape[0] for t in textures], np.int64)
         w = np.array([t.shape[1] for t in textures], np.int64)
         return pixels, offset, h, w
+
+    @property
+    def select_scale(self) -> np.ndarray:
+        """(M, L) float32 albedo estimates relative to lobe colour, used for lobe selection (also by node programs,
+        which keep a material's constant estimate: selection only shapes the variance, never the expectation)."""
+        return self._select_scale
 
     @property
     def max_lobes(self) -> int:

@@ -23,6 +23,7 @@ from .accel import Accelerator
 from .lights import EmissiveTriangles, LightSampler
 from .scene import Scene
 from .settings import RenderSettings
+from .shading import PreparedShading
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
 # camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce.
@@ -109,6 +110,7 @@ class PreparedScene:
     radius: float
     specular: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (M,) has a glossy/glass lobe
     features: dict = field(default_factory=dict)
+    shading: PreparedShading | None = None  # the node programs of materials that vary per point, or None
 
     # The same per-triangle data as the compiled kernels take it: empty arrays instead of None.
     @property
@@ -160,6 +162,7 @@ class PreparedScene:
         uv_arr = np.concatenate(uvs).astype(np.float32) if any_uv and uvs else None
 
         materials = bsdf_mod.MaterialTable.build(scene.materials, scene.textures)
+        shading = PreparedShading.build(scene.materials, scene.textures, materials.max_lobes)
         emissive = EmissiveTriangles.from_mesh_arrays(tri_vertices, material_index, materials.emission)
         if len(vertices):
             lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
@@ -175,11 +178,12 @@ class PreparedScene:
             "lights": sorted(lights.kinds_present),
             "textures": bool(scene.textures),
             "smooth_normals": corner_normals is not None,
+            "node_programs": 0 if shading is None else int(shading.needs_program.sum()),
         }
         specular = np.array([any(lobe.kind != "diffuse" for lobe in m.lobes) for m in scene.materials], bool)
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
-                   specular, features)
+                   specular, features, shading)
 
 
 @dataclass
@@ -299,6 +303,16 @@ class PathTracer:
                         pb = prev_pdf[e]
                         w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
                     self._add(radiance, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
+            # Emission that varies per point (a node program drives it): such emitters are not light-sampled, so
+            # what BSDF sampling (or the camera) finds counts in full.
+            if ps.shading is not None and ps.shading.any_emits:
+                e = np.flatnonzero(hit & ps.shading.emits[ps.material_index[prim]])
+                if len(e):
+                    ge = self._surface(e, prim, hits.u, hits.v, d)
+                    mat_e = ps.material_index[prim[e]]
+                    le = np.zeros((len(e), 3), np.float32)
+                    self._shade(ge, mat_e, d[e], ps.materials.gather(mat_e, ge.uv), le)
+                    self._add(radiance, idx[e], throughput[e] * le)
 
             if depth == s.max_bounces + 1:
                 self._lap("emission", clock)
@@ -321,8 +335,11 @@ class PathTracer:
             if want_aovs and depth == 0:
                 hit_rows = np.flatnonzero(hit)
                 g = self._surface(hit_rows, prim, hits.u, hits.v, d)
-                first.albedo[idx[hit_rows]] = bsdf_mod.albedo(ps.materials.gather(ps.material_index[prim[hit_rows]],
-                                                                                   g.uv))
+                mat_first = ps.material_index[prim[hit_rows]]
+                lobes_first = ps.materials.gather(mat_first, g.uv)
+                if ps.shading is not None:
+                    self._shade(g, mat_first, d[hit_rows], lobes_first)
+                first.albedo[idx[hit_rows]] = bsdf_mod.albedo(lobes_first)
                 first.normal[idx[hit_rows]] = g.ns_raw
                 first.depth[idx[hit_rows]] = (t_start[hit_rows] + hits.t[hit_rows]) * depth_scale[hit_rows]
                 if len(rows) < len(hit_rows):
@@ -337,6 +354,8 @@ class PathTracer:
                 throughput /= q[rows][:, None]
             mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
+            if ps.shading is not None:
+                self._shade(g, mat, d[rows], lobes)
 
             clock = self._lap("emission", clock)
             if self.use_nee:
@@ -377,6 +396,21 @@ class PathTracer:
                         ps.kernel_uvs, ps.tri_magnitude, ps.material_index, ps.specular, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
                         g.n_view, g.mag, g.cos_o_geo, g.uv_buffer)
         return g
+
+    def _shade(self, g: "SurfaceBatch", mat: np.ndarray, dirs: np.ndarray, lobes: "bsdf_mod.LobeBatch",
+               emission: np.ndarray | None = None) -> None:
+        """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
+        The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir."""
+        sh = self.ps.shading
+        rows = np.flatnonzero(sh.needs_program[mat])
+        if len(rows) == 0:
+            return
+        back = g.cos_o_geo < 0
+        p_world = (g.p + self.ps.shift.astype(np.float32)).astype(np.float32)
+        ng = np.where(back[:, None], -g.ng, g.ng)
+        obj = np.zeros(len(mat), np.int32)
+        sh.evaluate(rows, mat, p_world, g.n_view, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
+                    self.ps.materials.select_scale, emission)
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""

@@ -16,10 +16,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from .mesh_checks import triangle_checks
+
+if TYPE_CHECKING:
+    from .shading.program import ShadingProgram
 
 LobeKind = Literal["diffuse", "glossy", "glass", "refraction"]
 FresnelMode = Literal["none", "schlick", "dielectric", "generalized_schlick"]
@@ -127,11 +130,14 @@ class Material:
 
     emission: emitted radiance in W/(sr m^2) per colour unit (Blender's Emission colour x strength),
     emitted from both faces of the triangle, as Cycles' mesh emission is.
+    program: optional core.shading ShadingProgram (a compiled node tree) that overrides lobe parameters and the
+    emission per shading point (see core.shading.program); `lobes` then give the lobe kinds and constant values.
     """
 
     name: str
     lobes: list[Lobe] = field(default_factory=list)
     emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    program: "ShadingProgram | None" = None
 
     def validate(self, n_textures: int) -> None:
         owner = f"material {self.name!r}"
@@ -140,6 +146,13 @@ class Material:
             lobe.validate(owner)
             if not (-1 <= lobe.color_texture < n_textures):
                 raise SceneError(f"{owner}: texture index {lobe.color_texture} out of range")
+        if self.program is not None:
+            from .shading.program import ProgramError
+
+            try:
+                self.program.validate(owner, len(self.lobes), n_textures)
+            except ProgramError as exc:
+                raise SceneError(str(exc)) from None
 
     @property
     def is_emissive(self) -> bool:
@@ -148,8 +161,10 @@ class Material:
 
 @dataclass
 class Texture:
-    """An RGB image in linear colour, (H, W, 3) float32, row 0 at the top; sampled with UV in [0, 1]
-    (v = 0 at the bottom, Blender's convention), repeat wrapping, bilinear filtering."""
+    """An RGB or RGBA image, (H, W, 3 or 4) float32, row 0 at the top; sampled with UV in [0, 1] (v = 0 at the
+    bottom, Blender's convention). A lobe's `color_texture` reads its RGB as linear colour with repeat wrapping
+    and bilinear filtering; a shading program's image opcode chooses filtering, extension, alpha association
+    and sRGB decoding itself (core.shading.registry, "image")."""
 
     name: str
     pixels: np.ndarray
@@ -157,8 +172,9 @@ class Texture:
     def validate(self) -> None:
         px = np.asarray(self.pixels, dtype=np.float32)
         if px.ndim != 3 or px.shape[2] not in (3, 4) or px.shape[0] < 1 or px.shape[1] < 1:
-            raise SceneError(f"texture {self.name!r}: expected an (H, W, 3) image, got shape {px.shape}")
-        px = np.ascontiguousarray(px[..., :3])
+            raise SceneError(f"texture {self.name!r}: expected an (H, W, 3) or (H, W, 4) image, got shape "
+                             f"{px.shape}")
+        px = np.ascontiguousarray(px)
         bad = ~np.isfinite(px)
         if bad.any():
             raise SceneError(f"texture {self.name!r}: {int(bad.sum())} NaN/Inf texel values")

@@ -56,13 +56,6 @@ def node_tree(idblock):
 _MAX_DEPTH = 64
 
 
-class UnsupportedShader(Exception):
-    """Raised inside the tree walk: the material falls back to its viewport colour."""
-
-    def __init__(self, node, why: str = "is not supported by Monte") -> None:
-        super().__init__(f"node {node.name!r} ({node.bl_label}) {why}")
-
-
 def follow_link(socket):
     """The node feeding `socket` (through reroutes and muted-free links), or None if unlinked."""
     seen = 0
@@ -79,19 +72,6 @@ def follow_link(socket):
             # A muted node passes its first matching input through; treat as unlinked.
             return None
         return node
-    return None
-
-
-def _from_socket(socket):
-    """The output socket feeding `socket` (through reroutes), or None."""
-    seen = 0
-    while socket is not None and socket.is_linked and seen < _MAX_DEPTH:
-        link = socket.links[0]
-        if link.from_node.bl_idname == "NodeReroute":
-            socket = link.from_node.inputs[0]
-            seen += 1
-            continue
-        return link.from_socket
     return None
 
 
@@ -164,30 +144,21 @@ def specular_layer(ior: float, level: float) -> tuple[float, float]:
     return f0, eta
 
 
-def _drop_black_lobes(lobes: list[Lobe]) -> list[Lobe]:
-    """The lobes with some non-zero colour, their `under` indices renumbered (a lobe under a dropped layer keeps
-    its full weight, as it would with a black layer above)."""
-    keep = [i for i, lobe in enumerate(lobes) if np.any(lobe.color > 0)]
-    new_index = {old: new for new, old in enumerate(keep)}
-    out = []
-    for i in keep:
-        lobe = lobes[i]
-        if lobe.under >= 0:
-            lobe.under = new_index.get(lobe.under, -1)
-        out.append(lobe)
-    return out
-
-
 class MaterialExporter:
-    """Converts each Blender material once; `index(material)` gives its position in `materials`."""
+    """Converts each Blender material once; `index(material)` gives its position in `materials`.
+
+    A material's node tree is compiled by addon/export/nodes (a ShaderWalk over a ProgramBuilder): when every lobe
+    parameter and the emission fold to constants the material is plain constant lobes (rendered as before, at no
+    per-point cost); otherwise it carries a core.shading ShadingProgram that drives them per shading point."""
 
     def __init__(self, warnings: list[str]) -> None:
         self.warnings = warnings
         self.materials: list[Material] = []
         self.textures: list[Texture] = []
-        self.textured: set[int] = set()  # material indices that sample a texture (need UVs)
+        self.textured: set[int] = set()  # material indices that read UVs (image textures, UV coordinates)
+        self.nonfinite_texels = 0
         self._by_key: dict[int, int] = {}
-        self._tex_by_key: dict[int, int] = {}
+        self._tex_by_key: dict[tuple, int] = {}
         self._default: int | None = None
 
     # ----------------------------------------------------------------------------------------- public
@@ -200,15 +171,17 @@ class MaterialExporter:
         key = material.original.as_pointer() if getattr(material, "original", None) else material.as_pointer()
         found = self._by_key.get(key)
         if found is None:
-            textures_before = len(self.textures)
             mat = self.convert(material)
             found = self._add(mat)
-            if any(lobe.color_texture >= 0 for lobe in mat.lobes) or len(self.textures) > textures_before:
+            if mat.program is not None and _reads_uv(mat.program):
                 self.textured.add(found)
             self._by_key[key] = found
         return found
 
     def convert(self, material) -> Material:
+        from .nodes.compiler import CompileError, ProgramBuilder
+        from .nodes.shaders import UnsupportedShader, compile_surface
+
         name = material.name
         owner = f"material {name!r}"
         viewport = np.array(material.diffuse_color[:3], dtype=np.float64)
@@ -223,221 +196,101 @@ class MaterialExporter:
             self.warnings.append(f"{owner}: volumes are not supported; the volume shader is ignored")
         if output.inputs.get("Displacement") is not None and output.inputs["Displacement"].is_linked:
             self.warnings.append(f"{owner}: displacement is not supported and is ignored")
-        node = follow_link(output.inputs["Surface"])
-        if node is None:
-            # Cycles renders an unlinked surface black.
-            return Material(name, [])
-        lobes: list[Lobe] = []
-        emission = np.zeros(3)
+        builder = ProgramBuilder(owner, self.warnings, self.textures,
+                                 lambda node, alpha_used: self._image_texture(node, owner, alpha_used),
+                                 material_pass_index=int(getattr(material, "pass_index", 0)))
         try:
-            emission = self._shader(node, 1.0, lobes, owner, 0)
-        except UnsupportedShader as exc:
+            lobes, bind, emission = compile_surface(builder, output)
+        except (UnsupportedShader, CompileError) as exc:
             self.warnings.append(f"{owner}: {exc}; falling back to a diffuse of the material's viewport colour "
                                  f"{np.round(viewport, 4).tolist()}")
             return Material(name, [Lobe("diffuse", viewport)])
-        return Material(name, _drop_black_lobes(lobes), emission=np.maximum(emission, 0.0))
+        emit_const = builder.is_const(emission)
+        constant_emission = np.maximum(builder.value(emission).astype(np.float64), 0.0) if emit_const else np.zeros(3)
+        if not np.any(bind >= 0) and emit_const:
+            return Material(name, lobes, emission=constant_emission)
+        program = builder.finish(bind, -1 if emit_const else emission)
+        return Material(name, lobes, emission=constant_emission, program=program)
 
     # ----------------------------------------------------------------------------------------- internals
     def _add(self, mat: Material) -> int:
         self.materials.append(mat)
         return len(self.materials) - 1
 
-    def _shader(self, node, weight: float, lobes: list[Lobe], owner: str, depth: int) -> np.ndarray:
-        """Append the lobes of the shader `node` scaled by `weight`; return its emission."""
-        if depth > _MAX_DEPTH:
-            raise UnsupportedShader(node, "nests too deeply")
-        kind = node.bl_idname
-        zero = np.zeros(3)
-        if weight == 0.0:
-            return zero
-        if kind == "ShaderNodeMixShader":
-            fac = min(max(socket_value(node.inputs[0], owner, self.warnings), 0.0), 1.0)
-            e = zero
-            for sock, w in ((node.inputs[1], 1.0 - fac), (node.inputs[2], fac)):
-                child = follow_link(sock)
-                if child is not None and w > 0:
-                    e = e + self._shader(child, weight * w, lobes, owner, depth + 1)
-            return e
-        if kind == "ShaderNodeAddShader":
-            e = zero
-            for sock in (node.inputs[0], node.inputs[1]):
-                child = follow_link(sock)
-                if child is not None:
-                    e = e + self._shader(child, weight, lobes, owner, depth + 1)
-            return e
-        if kind == "ShaderNodeEmission":
-            color, _ = self._color(node.inputs["Color"], owner, allow_texture=False)
-            strength = socket_value(node.inputs["Strength"], owner, self.warnings)
-            return weight * color * strength
-        if kind == "ShaderNodeBsdfDiffuse":
-            color, tex = self._color(node.inputs["Color"], owner)
-            if socket_value(node.inputs["Roughness"], owner, self.warnings) > 0:
-                self.warnings.append(f"{owner}: node {node.name!r}: Oren-Nayar roughness is not supported; "
-                                     "rendered as Lambertian")
-            self._check_normal(node, owner)
-            lobes.append(Lobe("diffuse", weight * color, color_texture=tex))
-            return zero
-        if kind in ("ShaderNodeBsdfAnisotropic", "ShaderNodeBsdfGlossy"):
-            color, tex = self._color(node.inputs["Color"], owner)
-            rough = self._roughness(node.inputs["Roughness"], owner)
-            aniso = node.inputs.get("Anisotropy")
-            if aniso is not None and socket_value(aniso, owner, self.warnings) != 0:
-                self.warnings.append(f"{owner}: node {node.name!r}: anisotropy is not supported; rendered isotropic")
-            self._check_normal(node, owner)
-            lobes.append(Lobe("glossy", weight * color, roughness=rough, fresnel="none", color_texture=tex))
-            return zero
-        if kind in ("ShaderNodeBsdfGlass", "ShaderNodeBsdfRefraction"):
-            color, tex = self._color(node.inputs["Color"], owner)
-            rough = self._roughness(node.inputs["Roughness"], owner)
-            ior = self._ior(node.inputs["IOR"], owner)
-            self._check_normal(node, owner)
-            lobe_kind = "glass" if kind == "ShaderNodeBsdfGlass" else "refraction"
-            lobes.append(Lobe(lobe_kind, weight * color, roughness=rough, ior=ior, color_texture=tex))
-            return zero
-        if kind == "ShaderNodeBsdfTransparent":
-            color, _ = self._color(node.inputs["Color"], owner, allow_texture=False)
-            lobes.append(Lobe("refraction", weight * color, roughness=0.0, ior=1.0))
-            return zero
-        if kind == "ShaderNodeBsdfPrincipled":
-            return self._principled(node, weight, lobes, owner)
-        raise UnsupportedShader(node)
-
-    def _principled(self, node, weight: float, lobes: list[Lobe], owner: str) -> np.ndarray:
-        inp = node.inputs
-        w = self.warnings
-
-        def val(name: str, default: float = 0.0) -> float:
-            sock = inp.get(name)
-            return default if sock is None else socket_value(sock, owner, w)
-
-        base, tex = self._color(inp["Base Color"], owner)
-        metallic = min(max(val("Metallic"), 0.0), 1.0)
-        rough = self._roughness(inp["Roughness"], owner)
-        ior = self._ior(inp["IOR"], owner)
-        transmission = min(max(val("Transmission Weight", val("Transmission")), 0.0), 1.0)
-        alpha = min(max(val("Alpha", 1.0), 0.0), 1.0)
-        level = max(val("Specular IOR Level", 0.5), 0.0)
-        tint_sock = inp.get("Specular Tint")
-        tint = np.ones(3)
-        if tint_sock is not None and tint_sock.type == "RGBA":
-            tint, _ = self._color(tint_sock, owner, allow_texture=False)
-        for name, what in (("Coat Weight", "coat"), ("Sheen Weight", "sheen"), ("Anisotropic", "anisotropy"),
-                           ("Thin Film Thickness", "thin film")):
-            if val(name) > 0:
-                w.append(f"{owner}: node {node.name!r}: {what} is not supported and is ignored")
-        if val("Subsurface Weight") > 0:
-            w.append(f"{owner}: node {node.name!r}: subsurface scattering is not supported; rendered as diffuse")
-        self._check_normal(node, owner)
-
-        a = weight * alpha
-        dielectric = (1.0 - metallic) * (1.0 - transmission)
-        if a * dielectric > 0:
-            f0, eta = specular_layer(ior, level)
-            spec = -1
-            if eta != 1.0:
-                spec = len(lobes)
-                lobes.append(Lobe("glossy", np.full(3, a * dielectric), roughness=rough, ior=eta,
-                                  fresnel="generalized_schlick", f0=np.clip(f0 * tint, 0.0, 1.0)))
-            lobes.append(Lobe("diffuse", a * dielectric * base, color_texture=tex, under=spec))
-        if a * metallic > 0:
-            # Schlick on the base colour, F = base + (1 - base)(1 - cos)^5, as the sum of a Fresnel-free lobe
-            # (base) and a Schlick lobe with F0 = 0 (IOR 1) tinted 1 - base. A textured base colour cannot
-            # tint by 1 - texture: it keeps the first lobe only (darker near grazing angles).
-            lobes.append(Lobe("glossy", a * metallic * base, roughness=rough, fresnel="none", color_texture=tex))
-            if tex < 0 and np.any(base < 1):
-                lobes.append(Lobe("glossy", a * metallic * np.clip(1.0 - base, 0.0, 1.0), roughness=rough,
-                                  ior=1.0, fresnel="schlick"))
-        if a * (1.0 - metallic) * transmission > 0:
-            # Cycles' Principled glass closure: the real IOR (Specular IOR Level does not apply), reflection
-            # f0 = F0(IOR) x Specular Tint remapped as for the specular layer and untinted otherwise,
-            # transmission tinted by sqrt(base colour) (light crosses two interfaces through a closed object);
-            # a textured base colour tints the transmission by the texel's square root (see core.scene.Lobe).
-            r0 = (ior - 1.0) / (ior + 1.0)
-            lobes.append(Lobe("glass", np.full(3, a * (1.0 - metallic) * transmission), roughness=rough, ior=ior,
-                              fresnel="generalized_schlick", f0=np.clip(r0 * r0 * tint, 0.0, 1.0),
-                              transmission_tint=np.sqrt(np.clip(base, 0.0, 1.0)), color_texture=tex))
-        if alpha < 1.0:
-            lobes.append(Lobe("refraction", np.full(3, weight * (1.0 - alpha)), roughness=0.0, ior=1.0))
-        emission = np.zeros(3)
-        strength_sock = inp.get("Emission Strength")
-        strength = 1.0 if strength_sock is None else socket_value(strength_sock, owner, w)
-        if strength != 0:
-            ecolor, _ = self._color(inp.get("Emission Color") or inp["Emission"], owner, allow_texture=False)
-            emission = weight * alpha * ecolor * strength
-        return emission
-
-    def _roughness(self, sock, owner: str) -> float:
-        return min(max(socket_value(sock, owner, self.warnings), 0.0), 1.0)
-
-    def _ior(self, sock, owner: str) -> float:
-        ior = socket_value(sock, owner, self.warnings)
-        if not (math.isfinite(ior) and ior > 0):
-            self.warnings.append(f"{owner}: IOR {ior:g} is not physical; using 1.5")
-            return 1.5
-        return ior
-
-    def _check_normal(self, node, owner: str) -> None:
-        sock = node.inputs.get("Normal")
-        if sock is not None and sock.is_linked:
-            src = follow_link(sock)
-            if src is not None:
-                self.warnings.append(f"{owner}: node {src.name!r} ({src.bl_label}) on {node.name!r}'s Normal: "
-                                     "bump and normal maps are not supported and are ignored")
-
-    def _color(self, sock, owner: str, allow_texture: bool = True) -> tuple[np.ndarray, int]:
-        """(linear RGB weight, texture index or -1) of a colour input."""
-        default = np.array(sock.default_value[:3], dtype=np.float64)
-        src = follow_link(sock)
-        if src is None:
-            return default, -1
-        if src.bl_idname == "ShaderNodeRGB":
-            return np.array(src.outputs[0].default_value[:3], dtype=np.float64), -1
-        if src.bl_idname == "ShaderNodeTexImage" and allow_texture:
-            out = _from_socket(sock)
-            if out is not None and out.name != "Color":
-                self.warnings.append(f"{owner}: the {out.name!r} output of {src.name!r} is not supported as a "
-                                     "colour; using the image's colour")
-            tex = self._texture(src, owner)
-            if tex is not None:
-                return np.ones(3), tex
-            return default, -1
-        why = "is not supported" if allow_texture or src.bl_idname != "ShaderNodeTexImage" else \
-            "is not supported on this input"
-        self.warnings.append(f"{owner}: node {src.name!r} ({src.bl_label}) driving {sock.name!r} {why}; using "
-                             f"the socket's colour {np.round(default, 4).tolist()}")
-        return default, -1
-
-    def _texture(self, node, owner: str) -> int | None:
+    def _image_texture(self, node, owner: str, alpha_used: bool) -> tuple[int | None, int]:
+        """(texture index, image-op flags) of an Image Texture node, Cycles' alpha association applied through
+        the flags; (None, 0) with a warning naming material, node and path when the image is missing."""
         image = node.image
         if image is None:
-            self.warnings.append(f"{owner}: image texture {node.name!r} has no image; using the socket's colour")
-            return None
-        vec = follow_link(node.inputs["Vector"])
-        if vec is not None:
-            ok = vec.bl_idname == "ShaderNodeTexCoord" and _from_socket(node.inputs["Vector"]).name == "UV"
-            ok = ok or vec.bl_idname == "ShaderNodeUVMap"
-            if not ok:
-                self.warnings.append(f"{owner}: node {vec.name!r} ({vec.bl_label}) mapping {node.name!r} is not "
-                                     "supported; the texture uses the active UV map")
-            elif vec.bl_idname == "ShaderNodeUVMap" and vec.uv_map:
-                self.warnings.append(f"{owner}: {node.name!r} asks for UV map {vec.uv_map!r}; Monte uses the "
-                                     "active (render) UV map")
-        if node.projection != "FLAT":
-            self.warnings.append(f"{owner}: {node.name!r}: {node.projection.lower()} projection is not supported; "
-                                 "using UV mapping")
+            self.warnings.append(f"{owner}: image texture {node.name!r} has no image; using Cycles' missing-"
+                                 "texture colour (magenta)")
+            return None, 0
         if image.source not in ("FILE", "GENERATED"):
             self.warnings.append(f"{owner}: image {image.name!r} is a {image.source.lower()} image; Monte reads its "
                                  "first frame/tile only")
         key = image.original.as_pointer() if getattr(image, "original", None) else image.as_pointer()
-        if key in self._tex_by_key:
-            return self._tex_by_key[key]
-        try:
-            pixels = image_pixels(image, self.warnings)
-        except Exception as exc:  # missing file, unreadable image
-            self.warnings.append(f"{owner}: image {image.name!r} could not be read ({exc}); using the socket's "
-                                 "colour")
-            return None
-        self.textures.append(Texture(image.name, pixels))
-        idx = len(self.textures) - 1
-        self._tex_by_key[key] = idx
-        return idx
+        if key not in self._tex_by_key:
+            try:
+                pixels, encoded = image_rgba(image, self.warnings)
+            except Exception as exc:  # missing file, unreadable image
+                self.warnings.append(f"{owner}: node {node.name!r}: image {image.name!r} ({image.filepath!r}) could "
+                                     f"not be read ({exc}); using Cycles' missing-texture colour (magenta)")
+                return None, 0
+            bad = ~np.isfinite(pixels)
+            if bad.any():
+                count = int(bad.sum())
+                self.nonfinite_texels += count
+                self.warnings.append(f"{owner}: node {node.name!r}: image {image.name!r} has {count} NaN/Inf "
+                                     "texel values; they read as 0")
+                pixels = np.where(bad, np.float32(0), pixels)
+            self.textures.append(Texture(image.name, pixels))
+            self._tex_by_key[key] = len(self.textures) - 1
+            self._tex_by_key[(key, "srgb")] = int(encoded)
+        idx = self._tex_by_key[key]
+        flags = 2 if self._tex_by_key[(key, "srgb")] else 0
+        mode = getattr(image, "alpha_mode", "STRAIGHT")
+        data = image.colorspace_settings.name.lower() in ("non-color", "raw")
+        if not data and mode not in ("CHANNEL_PACKED", "NONE"):
+            if mode == "STRAIGHT" and not alpha_used:
+                flags |= 1  # Cycles associates straight alpha on load; the colour output stays associated
+            elif mode == "PREMUL" and alpha_used:
+                flags |= 4  # the Alpha output in use: Cycles unassociates the colour
+        return idx, flags
+
+
+def _reads_uv(program) -> bool:
+    from ...core.shading import registry as R
+
+    for inst in program.code:
+        if inst[0] == R.OP_IMAGE and inst[R.op("image").slot("vector")] < 0:
+            return True
+        if inst[0] == R.OP_TEXCOORD and inst[R.op("texture_coordinate").slot("uv")] >= 0:
+            return True
+    return False
+
+
+def image_rgba(image, warnings: list[str] | None = None) -> tuple[np.ndarray, bool]:
+    """An image's pixels as (H, W, 4) float32 RGBA, row 0 at the TOP, and whether the colour is sRGB-encoded
+    (8-bit images in an sRGB colour space, decoded by the image opcode after filtering as Cycles does); other
+    images are linear as Blender holds them. Alpha mode None reads alpha 1. One foreach_get call."""
+    w, h = int(image.size[0]), int(image.size[1])
+    if w == 0 or h == 0:
+        raise ValueError(f"image {image.name!r} has no pixels (missing file {image.filepath!r}?)")
+    ch = int(image.channels)
+    buf = np.empty(w * h * ch, dtype=np.float32)
+    image.pixels.foreach_get(buf)
+    px = buf.reshape(h, w, ch)[::-1]
+    rgba = np.ones((h, w, 4), np.float32)
+    if ch >= 3:
+        rgba[..., :3] = px[..., :3]
+    else:
+        rgba[..., :3] = px[..., :1]
+    if ch == 4 or ch == 2:
+        rgba[..., 3] = px[..., ch - 1]
+    if getattr(image, "alpha_mode", "STRAIGHT") == "NONE":
+        rgba[..., 3] = 1.0
+    space = image.colorspace_settings.name.lower()
+    encoded = not image.is_float and space not in _LINEAR_SPACES
+    if encoded and space != "srgb" and warnings is not None:
+        warnings.append(f"image {image.name!r}: colour space {image.colorspace_settings.name!r} is treated as sRGB")
+    return np.ascontiguousarray(rgba), encoded

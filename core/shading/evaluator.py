@@ -1,0 +1,788 @@
+"""The compiled evaluator of shading programs (core.shading.program) and its Python face, `PreparedShading`.
+
+`run_programs` runs each shading point's material program: it loads the program's initial registers into a
+scratch register file, executes the instructions in order (`_execute` dispatches on the opcode family: core
+opcodes here, colour nodes in core.shading.color, procedural textures in core.shading.procedural), then writes
+the bound registers over the point's lobe parameters and emission. Arithmetic of the node functions is float64
+(registers are float32), following Cycles' SVM semantics (safe division, roots, logarithms, as named per op).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import bsdf_kernels as bk
+from .. import microfacet as mf
+from ..jit_cache import jit_no_nrt as _jit
+from . import registry as R
+from .regs import get3, set3, setf  # noqa: F401  (re-exported for node modules)
+from .program import (BIND_F0, BIND_IOR, BIND_ROUGHNESS, BIND_TINT_R, BIND_TINT_T, BIND_WEIGHT, N_BIND,
+                      OBJECT_BOX_MIN, OBJECT_BOX_SIZE, OBJECT_COLOR, OBJECT_INVERSE, OBJECT_LOCATION,
+                      OBJECT_PASS_INDEX, OBJECT_RANDOM, WIDTH, ShadingProgram, identity_object_row)
+
+# Blender's enum identifiers in the order of the evaluator's operation numbers (the compiler maps names to these).
+MATH_OPS = ("ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "POWER", "LOGARITHM", "SQRT", "INVERSE_SQRT",
+            "ABSOLUTE", "EXPONENT", "MINIMUM", "MAXIMUM", "LESS_THAN", "GREATER_THAN", "SIGN", "COMPARE",
+            "SMOOTH_MIN", "SMOOTH_MAX", "ROUND", "FLOOR", "CEIL", "TRUNC", "FRACT", "MODULO", "FLOORED_MODULO",
+            "WRAP", "SNAP", "PINGPONG", "SINE", "COSINE", "TANGENT", "ARCSINE", "ARCCOSINE", "ARCTANGENT",
+            "ARCTAN2", "SINH", "COSH", "TANH", "RADIANS", "DEGREES")
+VECTOR_MATH_OPS = ("ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "CROSS_PRODUCT", "PROJECT", "REFLECT",
+                   "REFRACT", "FACEFORWARD", "DOT_PRODUCT", "DISTANCE", "LENGTH", "SCALE", "NORMALIZE", "SNAP",
+                   "FLOOR", "CEIL", "MODULO", "WRAP", "FRACTION", "ABSOLUTE", "MINIMUM", "MAXIMUM", "SINE",
+                   "COSINE", "TANGENT", "POWER", "SIGN")
+# Vector Math operations whose result is the Value output (the Vector output is then 0).
+VECTOR_MATH_VALUE_OPS = ("DOT_PRODUCT", "DISTANCE", "LENGTH")
+
+_OP_CONST = {name: spec.code for name, spec in R.OPS_BY_NAME.items()}
+_COPY, _F2V, _C2F, _V2F = R.OP_COPY, R.OP_FLOAT_TO_VEC, R.OP_COLOR_TO_FLOAT, R.OP_VEC_TO_FLOAT
+_MATH, _VMATH, _MAPRANGE, _CLAMP = R.OP_MATH, R.OP_VECTOR_MATH, R.OP_MAP_RANGE, R.OP_CLAMP
+_SEPXYZ, _COMBXYZ, _MAPPING, _MIX = R.OP_SEPARATE_XYZ, R.OP_COMBINE_XYZ, R.OP_MAPPING, R.OP_MIX
+_FRESNEL, _LAYER = R.OP_FRESNEL, R.OP_LAYER_WEIGHT
+_TEXCO, _GEOM, _OBJINFO, _IMAGE = R.OP_TEXCOORD, R.OP_GEOMETRY, R.OP_OBJECT_INFO, R.OP_IMAGE
+_SPEC, _GLASSF0, _SQRTSAT, _OMS = R.OP_SPECULAR_LAYER, R.OP_GLASS_F0, R.OP_SQRT_SATURATE, R.OP_ONE_MINUS_SATURATE
+_COLOR_BASE, _PROC_BASE = R.COLOR_BASE, R.PROCEDURAL_BASE
+_SINGULAR = np.float32(mf.SINGULAR_ROUGHNESS)
+_F32_0 = np.float32(0.0)
+_F32_1 = np.float32(1.0)
+
+
+# --------------------------------------------------------------------------------------- scalar node functions
+@_jit
+def safe_divide(a, b):
+    return a / b if b != 0.0 else 0.0
+
+
+@_jit
+def _fract(a):
+    return a - math.floor(a)
+
+
+@_jit
+def _smoothmin(a, b, c):
+    if c != 0.0:
+        h = max(c - abs(a - b), 0.0) / c
+        return min(a, b) - h * h * h * c * (1.0 / 6.0)
+    return min(a, b)
+
+
+@_jit
+def _wrap(a, hi, lo):
+    rng = hi - lo
+    return a - rng * math.floor((a - lo) / rng) if rng != 0.0 else lo
+
+
+@_jit
+def _pingpong(a, b):
+    return abs(_fract((a - b) / (b * 2.0)) * b * 2.0 - b) if b != 0.0 else 0.0
+
+
+@_jit
+def _safe_pow(a, b):
+    if a < 0.0 and b != math.floor(b):
+        return 0.0
+    if a == 0.0 and b < 0.0:
+        return 0.0
+    return a ** b
+
+
+@_jit
+def math_op(op, a, b, c):
+    """Blender's Math node operation `op` (index into MATH_OPS) with Cycles' safe semantics."""
+    if op == 0:
+        return a + b
+    if op == 1:
+        return a - b
+    if op == 2:
+        return a * b
+    if op == 3:
+        return safe_divide(a, b)
+    if op == 4:
+        return a * b + c
+    if op == 5:
+        return _safe_pow(a, b)
+    if op == 6:
+        return math.log(a) / math.log(b) if a > 0.0 and b > 0.0 and b != 1.0 else 0.0
+    if op == 7:
+        return math.sqrt(a) if a > 0.0 else 0.0
+    if op == 8:
+        return 1.0 / math.sqrt(a) if a > 0.0 else 0.0
+    if op == 9:
+        return abs(a)
+    if op == 10:
+        return math.exp(min(a, 709.0))
+    if op == 11:
+        return min(a, b)
+    if op == 12:
+        return max(a, b)
+    if op == 13:
+        return 1.0 if a < b else 0.0
+    if op == 14:
+        return 1.0 if a > b else 0.0
+    if op == 15:
+        return 1.0 if a > 0.0 else (-1.0 if a < 0.0 else 0.0)
+    if op == 16:
+        return 1.0 if abs(a - b) <= max(c, 1e-5) else 0.0
+    if op == 17:
+        return _smoothmin(a, b, c)
+    if op == 18:
+        return -_smoothmin(-a, -b, c)
+    if op == 19:
+        return math.floor(a + 0.5)
+    if op == 20:
+        return math.floor(a)
+    if op == 21:
+        return math.ceil(a)
+    if op == 22:
+        return float(math.trunc(a)) if math.isfinite(a) else a
+    if op == 23:
+        return _fract(a)
+    if op == 24:
+        return np.fmod(a, b) if b != 0.0 else 0.0
+    if op == 25:
+        return a - math.floor(a / b) * b if b != 0.0 else 0.0
+    if op == 26:
+        return _wrap(a, b, c)
+    if op == 27:
+        return math.floor(safe_divide(a, b)) * b
+    if op == 28:
+        return _pingpong(a, b)
+    if op == 29:
+        return math.sin(a)
+    if op == 30:
+        return math.cos(a)
+    if op == 31:
+        return math.tan(a)
+    if op == 32:
+        return math.asin(min(max(a, -1.0), 1.0))
+    if op == 33:
+        return math.acos(min(max(a, -1.0), 1.0))
+    if op == 34:
+        return math.atan(a)
+    if op == 35:
+        return math.atan2(a, b)
+    if op == 36:
+        return math.sinh(a)
+    if op == 37:
+        return math.cosh(a)
+    if op == 38:
+        return math.tanh(a)
+    if op == 39:
+        return a * (math.pi / 180.0)
+    if op == 40:
+        return a * (180.0 / math.pi)
+    return 0.0
+
+
+@_jit
+def _smoothstep(e0, e1, x):
+    if x < e0:
+        return 0.0
+    if x >= e1:
+        return 1.0
+    t = (x - e0) / (e1 - e0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+@_jit
+def _smootherstep(e0, e1, x):
+    t = min(max((x - e0) / (e1 - e0), 0.0), 1.0)
+    return t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
+
+
+@_jit
+def map_range(value, fmin, fmax, tmin, tmax, steps, interp, clamp):
+    """Blender's Map Range node for one component (Cycles' svm_map_range): 0 when from_min == from_max."""
+    if fmax == fmin:
+        return 0.0
+    if interp == 0 or interp == 1:
+        f = (value - fmin) / (fmax - fmin)
+        if interp == 1:
+            f = math.floor(f * (steps + 1.0)) / steps if steps > 0.0 else 0.0
+    elif interp == 2:
+        f = 1.0 - _smoothstep(fmax, fmin, value) if fmin > fmax else _smoothstep(fmin, fmax, value)
+    else:
+        f = 1.0 - _smootherstep(fmax, fmin, value) if fmin > fmax else _smootherstep(fmin, fmax, value)
+    r = tmin + f * (tmax - tmin)
+    if clamp != 0 and interp <= 1:
+        r = min(max(r, tmax), tmin) if tmin > tmax else min(max(r, tmin), tmax)
+    return r
+
+
+@_jit
+def fresnel_dielectric_cos(cosi, eta):
+    """Cycles' fresnel_dielectric_cos (1 under total internal reflection)."""
+    c = abs(cosi)
+    g = eta * eta - 1.0 + c * c
+    if g > 0.0:
+        g = math.sqrt(g)
+        a = (g - c) / (g + c)
+        b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
+        return 0.5 * a * a * (1.0 + b * b)
+    return 1.0
+
+
+@_jit
+def euler_matrix(rx, ry, rz):
+    """Rows of the XYZ-Euler rotation Rz Ry Rx (Cycles' euler_to_transform)."""
+    cx, cy, cz = math.cos(rx), math.cos(ry), math.cos(rz)
+    sx, sy, sz = math.sin(rx), math.sin(ry), math.sin(rz)
+    return (cy * cz, sy * sx * cz - cx * sz, sy * cx * cz + sx * sz,
+            cy * sz, sy * sx * sz + cx * cz, sy * cx * sz - sx * cz,
+            -sy, cy * sx, cy * cx)
+
+
+@_jit
+def srgb_to_linear(c):
+    """The sRGB transfer function's inverse (Cycles' color_srgb_to_linear)."""
+    if c < 0.04045:
+        return 0.0 if c < 0.0 else c * (1.0 / 12.92)
+    return ((c + 0.055) * (1.0 / 1.055)) ** 2.4
+
+
+# -------------------------------------------------------------------------------------------------- vectors
+@_jit
+def _vector_math(a, regs, o):
+    """Vector Math: a = instruction operand slots, o = operation index (VECTOR_MATH_OPS)."""
+    ax, ay, az = get3(regs, a[3])
+    bx, by, bz = get3(regs, a[4])
+    cx, cy, cz = get3(regs, a[5])
+    s = float(regs[a[6], 0])
+    x = y = z = 0.0
+    v = 0.0
+    if o == 0:
+        x, y, z = ax + bx, ay + by, az + bz
+    elif o == 1:
+        x, y, z = ax - bx, ay - by, az - bz
+    elif o == 2:
+        x, y, z = ax * bx, ay * by, az * bz
+    elif o == 3:
+        x, y, z = safe_divide(ax, bx), safe_divide(ay, by), safe_divide(az, bz)
+    elif o == 4:
+        x, y, z = ax * bx + cx, ay * by + cy, az * bz + cz
+    elif o == 5:
+        x, y, z = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    elif o == 6:
+        ll = bx * bx + by * by + bz * bz
+        t = (ax * bx + ay * by + az * bz) / ll if ll != 0.0 else 0.0
+        x, y, z = bx * t, by * t, bz * t
+    elif o == 7 or o == 8:
+        ll = math.sqrt(bx * bx + by * by + bz * bz)
+        nx, ny, nz = (bx / ll, by / ll, bz / ll) if ll != 0.0 else (bx, by, bz)
+        d = nx * ax + ny * ay + nz * az
+        if o == 7:
+            x, y, z = ax - 2.0 * d * nx, ay - 2.0 * d * ny, az - 2.0 * d * nz
+        else:
+            k = 1.0 - s * s * (1.0 - d * d)
+            if k >= 0.0:
+                q = s * d + math.sqrt(k)
+                x, y, z = s * ax - q * nx, s * ay - q * ny, s * az - q * nz
+    elif o == 9:
+        if cx * bx + cy * by + cz * bz < 0.0:
+            x, y, z = ax, ay, az
+        else:
+            x, y, z = -ax, -ay, -az
+    elif o == 10:
+        v = ax * bx + ay * by + az * bz
+    elif o == 11:
+        v = math.sqrt((ax - bx) ** 2 + (ay - by) ** 2 + (az - bz) ** 2)
+    elif o == 12:
+        v = math.sqrt(ax * ax + ay * ay + az * az)
+    elif o == 13:
+        x, y, z = ax * s, ay * s, az * s
+    elif o == 14:
+        ll = math.sqrt(ax * ax + ay * ay + az * az)
+        x, y, z = (ax / ll, ay / ll, az / ll) if ll != 0.0 else (ax, ay, az)
+    elif o == 15:
+        x, y, z = math_op(27, ax, bx, 0.0), math_op(27, ay, by, 0.0), math_op(27, az, bz, 0.0)
+    elif o == 16:
+        x, y, z = math.floor(ax), math.floor(ay), math.floor(az)
+    elif o == 17:
+        x, y, z = math.ceil(ax), math.ceil(ay), math.ceil(az)
+    elif o == 18:
+        x, y, z = math_op(24, ax, bx, 0.0), math_op(24, ay, by, 0.0), math_op(24, az, bz, 0.0)
+    elif o == 19:
+        x, y, z = _wrap(ax, bx, cx), _wrap(ay, by, cy), _wrap(az, bz, cz)
+    elif o == 20:
+        x, y, z = _fract(ax), _fract(ay), _fract(az)
+    elif o == 21:
+        x, y, z = abs(ax), abs(ay), abs(az)
+    elif o == 22:
+        x, y, z = min(ax, bx), min(ay, by), min(az, bz)
+    elif o == 23:
+        x, y, z = max(ax, bx), max(ay, by), max(az, bz)
+    elif o == 24:
+        x, y, z = math.sin(ax), math.sin(ay), math.sin(az)
+    elif o == 25:
+        x, y, z = math.cos(ax), math.cos(ay), math.cos(az)
+    elif o == 26:
+        x, y, z = math.tan(ax), math.tan(ay), math.tan(az)
+    elif o == 27:
+        x, y, z = _safe_pow(ax, bx), _safe_pow(ay, by), _safe_pow(az, bz)
+    elif o == 28:
+        x, y, z = math_op(15, ax, 0.0, 0.0), math_op(15, ay, 0.0, 0.0), math_op(15, az, 0.0, 0.0)
+    set3(regs, a[1], x, y, z)
+    setf(regs, a[2], v)
+
+
+@_jit
+def _mapping(a, regs):
+    vx, vy, vz = get3(regs, a[2])
+    lx, ly, lz = get3(regs, a[3])
+    rx, ry, rz = get3(regs, a[4])
+    sx, sy, sz = get3(regs, a[5])
+    t = a[6]
+    m = euler_matrix(rx, ry, rz)
+    if t == 1:  # texture: the inverse of point
+        px, py, pz = vx - lx, vy - ly, vz - lz
+        x = m[0] * px + m[3] * py + m[6] * pz
+        y = m[1] * px + m[4] * py + m[7] * pz
+        z = m[2] * px + m[5] * py + m[8] * pz
+        set3(regs, a[1], safe_divide(x, sx), safe_divide(y, sy), safe_divide(z, sz))
+        return
+    if t == 3:
+        px, py, pz = safe_divide(vx, sx), safe_divide(vy, sy), safe_divide(vz, sz)
+    else:
+        px, py, pz = vx * sx, vy * sy, vz * sz
+    x = m[0] * px + m[1] * py + m[2] * pz
+    y = m[3] * px + m[4] * py + m[5] * pz
+    z = m[6] * px + m[7] * py + m[8] * pz
+    if t == 0:
+        x, y, z = x + lx, y + ly, z + lz
+    elif t == 3:
+        ll = math.sqrt(x * x + y * y + z * z)
+        if ll != 0.0:
+            x, y, z = x / ll, y / ll, z / ll
+    set3(regs, a[1], x, y, z)
+
+
+# --------------------------------------------------------------------------------------------------- images
+@_jit
+def _texel(tex_pixels, off, h, w, ix, iy, ext, c):
+    """Channel c of texel (ix, iy) (iy counted from the BOTTOM row, Blender's v) with the extension mode;
+    0 outside the image for clip."""
+    if ext == 0:
+        ix = ix % w
+        iy = iy % h
+    elif ext == 1:
+        ix = min(max(ix, 0), w - 1)
+        iy = min(max(iy, 0), h - 1)
+    elif ext == 2:
+        if ix < 0 or iy < 0 or ix >= w or iy >= h:
+            return 0.0
+    else:
+        mx = abs(ix + (1 if ix < 0 else 0)) % (2 * w)
+        ix = 2 * w - mx - 1 if mx >= w else mx
+        my = abs(iy + (1 if iy < 0 else 0)) % (2 * h)
+        iy = 2 * h - my - 1 if my >= h else my
+    return float(tex_pixels[off + ((h - 1 - iy) * w + ix) * 4 + c])
+
+
+@_jit
+def _bspline(t):
+    """Cubic B-spline weights of the 4 texels around a fractional position t (Cycles' bicubic)."""
+    t2 = t * t
+    t3 = t2 * t
+    w0 = (1.0 / 6.0) * (-t3 + 3.0 * t2 - 3.0 * t + 1.0)
+    w1 = (1.0 / 6.0) * (3.0 * t3 - 6.0 * t2 + 4.0)
+    w2 = (1.0 / 6.0) * (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0)
+    w3 = (1.0 / 6.0) * t3
+    return w0, w1, w2, w3
+
+
+@_jit
+def image_lookup(tex_pixels, off, h, w, u, v, interp, ext, c):
+    """Channel c of an RGBA image (stored flat from `off`, row 0 at the top) at (u, v), Cycles' image
+    interpolation: linear = bilinear between texel centres, closest = the texel containing (u, v), cubic =
+    cubic B-spline; extension as in `_texel`. Non-finite coordinates read as 0."""
+    if not math.isfinite(u):
+        u = 0.0
+    if not math.isfinite(v):
+        v = 0.0
+    if interp == 1:
+        return _texel(tex_pixels, off, h, w, np.int64(math.floor(u * w)), np.int64(math.floor(v * h)), ext, c)
+    x = u * w - 0.5
+    y = v * h - 0.5
+    fx0 = math.floor(x)
+    fy0 = math.floor(y)
+    ix = np.int64(fx0)
+    iy = np.int64(fy0)
+    tx = x - fx0
+    ty = y - fy0
+    if interp == 0:
+        t00 = _texel(tex_pixels, off, h, w, ix, iy, ext, c)
+        t10 = _texel(tex_pixels, off, h, w, ix + 1, iy, ext, c)
+        t01 = _texel(tex_pixels, off, h, w, ix, iy + 1, ext, c)
+        t11 = _texel(tex_pixels, off, h, w, ix + 1, iy + 1, ext, c)
+        return (1.0 - ty) * ((1.0 - tx) * t00 + tx * t10) + ty * ((1.0 - tx) * t01 + tx * t11)
+    wx = _bspline(tx)
+    wy = _bspline(ty)
+    acc = 0.0
+    for j in range(4):
+        row = 0.0
+        for i in range(4):
+            row += wx[i] * _texel(tex_pixels, off, h, w, ix - 1 + i, iy - 1 + j, ext, c)
+        acc += wy[j] * row
+    return acc
+
+
+# ------------------------------------------------------------------------------------------------- dispatch
+@_jit
+def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
+             tex_w):
+    """Execute core opcode `op` with operand slots `a` (a[1..]) for shading point k."""
+    if op == _COPY:
+        x, y, z = get3(regs, a[2])
+        set3(regs, a[1], x, y, z)
+    elif op == _F2V:
+        setf(regs, a[1], float(regs[a[2], 0]))
+    elif op == _C2F:
+        setf(regs, a[1], 0.2126 * regs[a[2], 0] + 0.7152 * regs[a[2], 1] + 0.0722 * regs[a[2], 2])
+    elif op == _V2F:
+        setf(regs, a[1], (float(regs[a[2], 0]) + regs[a[2], 1] + regs[a[2], 2]) / 3.0)
+    elif op == _MATH:
+        r = math_op(a[5], float(regs[a[2], 0]), float(regs[a[3], 0]), float(regs[a[4], 0]))
+        if a[6] != 0:
+            r = min(max(r, 0.0), 1.0)
+        setf(regs, a[1], r)
+    elif op == _VMATH:
+        _vector_math(a, regs, a[7])
+    elif op == _MAPRANGE:
+        if a[10] != 0:
+            x = map_range(regs[a[2], 0], regs[a[3], 0], regs[a[4], 0], regs[a[5], 0], regs[a[6], 0], regs[a[7], 0],
+                          a[8], a[9])
+            y = map_range(regs[a[2], 1], regs[a[3], 1], regs[a[4], 1], regs[a[5], 1], regs[a[6], 1], regs[a[7], 1],
+                          a[8], a[9])
+            z = map_range(regs[a[2], 2], regs[a[3], 2], regs[a[4], 2], regs[a[5], 2], regs[a[6], 2], regs[a[7], 2],
+                          a[8], a[9])
+            set3(regs, a[1], x, y, z)
+        else:
+            setf(regs, a[1], map_range(float(regs[a[2], 0]), float(regs[a[3], 0]), float(regs[a[4], 0]),
+                                       float(regs[a[5], 0]), float(regs[a[6], 0]), float(regs[a[7], 0]), a[8], a[9]))
+    elif op == _CLAMP:
+        v, lo, hi = float(regs[a[2], 0]), float(regs[a[3], 0]), float(regs[a[4], 0])
+        if a[5] != 0 and lo > hi:
+            lo, hi = hi, lo
+        setf(regs, a[1], min(max(v, lo), hi))
+    elif op == _SEPXYZ:
+        x, y, z = get3(regs, a[4])
+        setf(regs, a[1], x)
+        setf(regs, a[2], y)
+        setf(regs, a[3], z)
+    elif op == _COMBXYZ:
+        set3(regs, a[1], regs[a[2], 0], regs[a[3], 0], regs[a[4], 0])
+    elif op == _MAPPING:
+        _mapping(a, regs)
+    elif op == _MIX:
+        fx = float(regs[a[2], 0])
+        fy = float(regs[a[2], 1]) if a[6] != 0 else fx
+        fz = float(regs[a[2], 2]) if a[6] != 0 else fx
+        if a[5] != 0:
+            fx, fy, fz = min(max(fx, 0.0), 1.0), min(max(fy, 0.0), 1.0), min(max(fz, 0.0), 1.0)
+        ax, ay, az = get3(regs, a[3])
+        bx, by, bz = get3(regs, a[4])
+        set3(regs, a[1], ax + fx * (bx - ax), ay + fy * (by - ay), az + fz * (bz - az))
+    elif op == _FRESNEL:
+        n0, n1, n2 = (float(N[k, 0]), float(N[k, 1]), float(N[k, 2])) if a[3] < 0 else get3(regs, a[3])
+        eta = max(float(regs[a[2], 0]), 1e-5)
+        if back[k]:
+            eta = 1.0 / eta
+        setf(regs, a[1], fresnel_dielectric_cos(I[k, 0] * n0 + I[k, 1] * n1 + I[k, 2] * n2, eta))
+    elif op == _LAYER:
+        n0, n1, n2 = (float(N[k, 0]), float(N[k, 1]), float(N[k, 2])) if a[4] < 0 else get3(regs, a[4])
+        blend = min(max(float(regs[a[3], 0]), 0.0), 1.0 - 1e-5)
+        cosi = I[k, 0] * n0 + I[k, 1] * n1 + I[k, 2] * n2
+        eta = max(1.0 - blend, 1e-5)
+        eta = eta if back[k] else 1.0 / eta
+        setf(regs, a[1], fresnel_dielectric_cos(cosi, eta))
+        f = abs(cosi)
+        if blend != 0.5:
+            f = f ** (2.0 * blend if blend < 0.5 else 0.5 / (1.0 - blend))
+        setf(regs, a[2], 1.0 - f)
+    elif op == _TEXCO:
+        _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects)
+    elif op == _GEOM:
+        set3(regs, a[1], P[k, 0], P[k, 1], P[k, 2])
+        set3(regs, a[2], N[k, 0], N[k, 1], N[k, 2])
+        set3(regs, a[3], Ng[k, 0], Ng[k, 1], Ng[k, 2])
+        set3(regs, a[4], I[k, 0], I[k, 1], I[k, 2])
+        setf(regs, a[5], 1.0 if back[k] else 0.0)
+        set3(regs, a[6], 0.0, 0.0, 0.0)  # parametric: not computed (the compiler warns when it is used)
+    elif op == _OBJINFO:
+        o = obj[k]
+        set3(regs, a[1], objects[o, OBJECT_LOCATION], objects[o, OBJECT_LOCATION + 1], objects[o, OBJECT_LOCATION + 2])
+        set3(regs, a[2], objects[o, OBJECT_COLOR], objects[o, OBJECT_COLOR + 1], objects[o, OBJECT_COLOR + 2])
+        setf(regs, a[3], objects[o, OBJECT_COLOR + 3])
+        setf(regs, a[4], objects[o, OBJECT_PASS_INDEX])
+        setf(regs, a[5], objects[o, OBJECT_RANDOM])
+    elif op == _IMAGE:
+        if a[3] >= 0:
+            u, v = float(regs[a[3], 0]), float(regs[a[3], 1])
+        elif has_uv:
+            u, v = float(uv[k, 0]), float(uv[k, 1])
+        else:
+            u, v = 0.0, 0.0
+        t = a[4]
+        off, h, w = tex_offset[t], tex_h[t], tex_w[t]
+        alpha = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 3)
+        r = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 0)
+        g = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 1)
+        b = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 2)
+        flags = a[7]
+        if flags & 1:
+            r, g, b = r * alpha, g * alpha, b * alpha
+        elif flags & 4 and alpha != 0.0 and alpha != 1.0:
+            r, g, b = r / alpha, g / alpha, b / alpha
+        if flags & 2:
+            r, g, b = srgb_to_linear(r), srgb_to_linear(g), srgb_to_linear(b)
+        set3(regs, a[1], r, g, b)
+        setf(regs, a[2], alpha)
+    elif op == _SPEC:
+        ior = float(regs[a[3], 0])
+        level = float(regs[a[4], 0])
+        rr = (ior - 1.0) / (ior + 1.0)
+        f0 = rr * rr
+        eta = ior
+        if level != 0.5:
+            f0 *= 2.0 * level
+            c = math.sqrt(min(max(f0, 0.0), 0.99))
+            eta = (1.0 + c) / (1.0 - c)
+            if ior < 1.0:
+                eta = 1.0 / eta
+        tx, ty, tz = get3(regs, a[5])
+        set3(regs, a[1], min(max(f0 * tx, 0.0), 1.0), min(max(f0 * ty, 0.0), 1.0), min(max(f0 * tz, 0.0), 1.0))
+        setf(regs, a[2], eta)
+    elif op == _GLASSF0:
+        ior = float(regs[a[2], 0])
+        rr = (ior - 1.0) / (ior + 1.0)
+        f0 = rr * rr
+        tx, ty, tz = get3(regs, a[3])
+        set3(regs, a[1], min(max(f0 * tx, 0.0), 1.0), min(max(f0 * ty, 0.0), 1.0), min(max(f0 * tz, 0.0), 1.0))
+    elif op == _SQRTSAT:
+        x, y, z = get3(regs, a[2])
+        set3(regs, a[1], math.sqrt(min(max(x, 0.0), 1.0)), math.sqrt(min(max(y, 0.0), 1.0)),
+             math.sqrt(min(max(z, 0.0), 1.0)))
+    elif op == _OMS:
+        x, y, z = get3(regs, a[2])
+        set3(regs, a[1], min(max(1.0 - x, 0.0), 1.0), min(max(1.0 - y, 0.0), 1.0), min(max(1.0 - z, 0.0), 1.0))
+
+
+@_jit
+def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects):
+    o = obj[k]
+    px, py, pz = float(P[k, 0]), float(P[k, 1]), float(P[k, 2])
+    m = objects[o]
+    ox = m[OBJECT_INVERSE + 0] * px + m[OBJECT_INVERSE + 1] * py + m[OBJECT_INVERSE + 2] * pz + m[OBJECT_INVERSE + 3]
+    oy = m[OBJECT_INVERSE + 4] * px + m[OBJECT_INVERSE + 5] * py + m[OBJECT_INVERSE + 6] * pz + m[OBJECT_INVERSE + 7]
+    oz = m[OBJECT_INVERSE + 8] * px + m[OBJECT_INVERSE + 9] * py + m[OBJECT_INVERSE + 10] * pz + m[OBJECT_INVERSE + 11]
+    set3(regs, a[1], safe_divide(ox - m[OBJECT_BOX_MIN], m[OBJECT_BOX_SIZE]),
+         safe_divide(oy - m[OBJECT_BOX_MIN + 1], m[OBJECT_BOX_SIZE + 1]),
+         safe_divide(oz - m[OBJECT_BOX_MIN + 2], m[OBJECT_BOX_SIZE + 2]))
+    # Object-space normal: the inverse transform's transpose inverse is the forward matrix's rotation part;
+    # for the rigid and uniformly scaled objects this uses, world -> object rotates N by the inverse's 3x3.
+    nx, ny, nz = float(N[k, 0]), float(N[k, 1]), float(N[k, 2])
+    qx = m[OBJECT_INVERSE + 0] * nx + m[OBJECT_INVERSE + 1] * ny + m[OBJECT_INVERSE + 2] * nz
+    qy = m[OBJECT_INVERSE + 4] * nx + m[OBJECT_INVERSE + 5] * ny + m[OBJECT_INVERSE + 6] * nz
+    qz = m[OBJECT_INVERSE + 8] * nx + m[OBJECT_INVERSE + 9] * ny + m[OBJECT_INVERSE + 10] * nz
+    ll = math.sqrt(qx * qx + qy * qy + qz * qz)
+    if ll > 0.0:
+        qx, qy, qz = qx / ll, qy / ll, qz / ll
+    set3(regs, a[2], qx, qy, qz)
+    if has_uv:
+        set3(regs, a[3], uv[k, 0], uv[k, 1], 0.0)
+    else:
+        set3(regs, a[3], 0.0, 0.0, 0.0)
+    set3(regs, a[4], ox, oy, oz)
+    set3(regs, a[5], 0.0, 0.0, 0.0)  # camera/window: not computed (the compiler warns when they are used)
+    set3(regs, a[6], 0.0, 0.0, 0.0)
+    d = I[k, 0] * nx + I[k, 1] * ny + I[k, 2] * nz
+    set3(regs, a[7], 2.0 * d * nx - I[k, 0], 2.0 * d * ny - I[k, 1], 2.0 * d * nz - I[k, 2])
+
+
+@_jit
+def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
+             tex_w):
+    """One instruction. A new opcode family hooks in here: `elif op < NEXT_BASE: family.run(op, a, regs, data)`."""
+    if op < _COLOR_BASE:
+        _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
+                 tex_w)
+    # elif op < _PROC_BASE: color.run(op, a, regs, data)        <- core.shading.color registers here
+    # else: procedural.run(op, a, regs, data)                     <- core.shading.procedural registers here
+
+
+@_jit
+def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg,
+                 tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, has_uv, back, obj, objects, scratch,
+                 kind, weight, rough, ior, f0, tint, select, t_scale, emission):
+    """Evaluate the programs of the points `rows` (indices into the per-point arrays); write the bound lobe
+    parameters of point k into row k of the LobeBatch arrays (kind .. select), `emission` (N, 3) likewise (rows
+    whose program binds no emission are left as they are). scratch (R_max, 3) float32 is the register file."""
+    for j in range(rows.shape[0]):
+        k = rows[j]
+        m = mat[k]
+        p = prog_of_mat[m]
+        if p < 0:
+            continue
+        r0, r1 = reg_start[p], reg_start[p + 1]
+        for r in range(r1 - r0):
+            scratch[r, 0] = regs0[r0 + r, 0]
+            scratch[r, 1] = regs0[r0 + r, 1]
+            scratch[r, 2] = regs0[r0 + r, 2]
+        pdata = data[data_start[p]:data_start[p + 1]]
+        for i in range(code_start[p], code_start[p + 1]):
+            a = code[i]
+            _execute(a[0], a, scratch, pdata, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels,
+                     tex_offset, tex_h, tex_w)
+        L = bind.shape[1]
+        changed = False
+        for l in range(L):
+            if kind[k, l] < 0:
+                continue
+            b = bind[p, l, BIND_WEIGHT]
+            if b >= 0:
+                changed = True
+                for c in range(3):
+                    wv = scratch[b, c]
+                    weight[k, l, c] = wv if wv > _F32_0 else _F32_0
+            b = bind[p, l, BIND_ROUGHNESS]
+            if b >= 0:
+                rv = min(max(scratch[b, 0], _F32_0), _F32_1)
+                if not rv > _SINGULAR:
+                    rv = _F32_0
+                rough[k, l] = rv
+            b = bind[p, l, BIND_IOR]
+            if b >= 0:
+                iv = scratch[b, 0]
+                ior[k, l] = iv if iv > np.float32(1e-5) else np.float32(1e-5)
+            b = bind[p, l, BIND_F0]
+            if b >= 0:
+                for c in range(3):
+                    f0[k, l, c] = min(max(scratch[b, c], _F32_0), _F32_1)
+            for t in range(2):
+                b = bind[p, l, BIND_TINT_R + t]
+                if b >= 0:
+                    changed = True
+                    for c in range(3):
+                        tv = scratch[b, c]
+                        tint[k, l, t, c] = tv if tv > _F32_0 else _F32_0
+        if changed:
+            bk._select_row(kind, weight, t_scale, m, k, select)
+        e = emit_reg[p]
+        if e >= 0:
+            for c in range(3):
+                ev = scratch[e, c]
+                emission[k, c] = ev if ev > _F32_0 else _F32_0
+
+
+# ----------------------------------------------------------------------------------------------- Python face
+class PreparedShading:
+    """The scene's programs packed for `run_programs`, and the textures they read (RGBA float32, once per image).
+
+    Built by `build(materials, textures, max_lobes)`; None when no material has a program (renders then pay
+    nothing). `needs_program` (M,) bool marks the materials whose lobes vary per point, `emits` (M,) bool those
+    whose emission does."""
+
+    def __init__(self, programs: list[ShadingProgram | None], textures, max_lobes: int,
+                 objects: np.ndarray | None = None) -> None:
+        m = len(programs)
+        self.prog_of_mat = np.full(m, -1, np.int32)
+        live = [(i, p) for i, p in enumerate(programs) if p is not None]
+        code, regs, data, binds, emits = [], [], [], [], []
+        for n, (i, p) in enumerate(live):
+            self.prog_of_mat[i] = n
+            code.append(p.code)
+            regs.append(p.registers)
+            data.append(p.data)
+            b = np.full((max_lobes, N_BIND), -1, np.int32)
+            b[:p.lobes.shape[0]] = p.lobes
+            binds.append(b)
+            emits.append(p.emission)
+        self.code = np.ascontiguousarray(np.concatenate(code) if code else np.zeros((0, WIDTH), np.int32), np.int32)
+        self.code_start = np.concatenate([[0], np.cumsum([len(c) for c in code])]).astype(np.int64)
+        self.regs0 = np.ascontiguousarray(np.concatenate(regs) if regs else np.zeros((0, 3), np.float32), np.float32)
+        self.reg_start = np.concatenate([[0], np.cumsum([len(r) for r in regs])]).astype(np.int64)
+        self.data = np.ascontiguousarray(np.concatenate(data) if data else np.zeros(0, np.float32), np.float32)
+        self.data_start = np.concatenate([[0], np.cumsum([len(d) for d in data])]).astype(np.int64)
+        self.bind = np.ascontiguousarray(np.stack(binds) if binds else np.zeros((0, max_lobes, N_BIND), np.int32))
+        self.emit_reg = np.asarray(emits, np.int32).reshape(-1)
+        self.max_registers = max([1] + [len(r) for r in regs])
+        self.needs_program = self.prog_of_mat >= 0
+        self.emits = np.zeros(m, bool)
+        for i, p in live:
+            self.emits[i] = p.emission >= 0
+        self.any_emits = bool(self.emits.any())
+        self.objects = np.ascontiguousarray(objects if objects is not None else identity_object_row()[None], np.float32)
+        self.texture_pack = pack_textures_rgba(textures)
+
+    @classmethod
+    def build(cls, materials, textures, max_lobes: int, objects: np.ndarray | None = None) -> "PreparedShading | None":
+        programs = [getattr(mat, "program", None) for mat in materials]
+        if all(p is None for p in programs):
+            return None
+        return cls(programs, textures, max_lobes, objects)
+
+    def evaluate(self, rows: np.ndarray, mat: np.ndarray, P, N, Ng, I, uv, back, obj, lobes, select_scale,
+                 emission: np.ndarray | None = None) -> None:
+        """Run the programs of points `rows` in place on `lobes` (a LobeBatch with one row per point) and
+        `emission` ((N, 3), optional). P, N, Ng, I (N, 3) float32 world space, uv (N, 2) or None, back (N,)
+        bool, obj (N,) int32 object rows."""
+        n = len(mat)
+        if emission is None:
+            emission = np.zeros((n, 3), np.float32)
+        has_uv = uv is not None
+        uvs = np.ascontiguousarray(uv, np.float32) if has_uv else np.zeros((0, 2), np.float32)
+        scratch = np.empty((self.max_registers, 3), np.float32)
+        run_programs(np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(mat, np.int64), self.prog_of_mat,
+                     self.code, self.code_start, self.regs0, self.reg_start, self.data, self.data_start, self.bind,
+                     self.emit_reg, *self.texture_pack, _f3(P), _f3(N), _f3(Ng), _f3(I), uvs, has_uv,
+                     np.ascontiguousarray(back, np.bool_), np.ascontiguousarray(obj, np.int32), self.objects,
+                     scratch, lobes.kind, lobes.weight, lobes.roughness, lobes.ior, lobes.f0, lobes.tint,
+                     lobes.select, select_scale, emission)
+
+
+def _f3(a) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(a, np.float32).reshape(-1, 3))
+
+
+def pack_textures_rgba(textures) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Images as one flat RGBA float32 buffer (row 0 at the top): (pixels, offset, height, width). An RGB image
+    gets alpha 1."""
+    parts, offsets, hs, ws = [], [], [], []
+    at = 0
+    for t in textures:
+        px = np.asarray(getattr(t, "pixels", t), np.float32)
+        h, w, ch = px.shape
+        rgba = np.ones((h, w, 4), np.float32)
+        rgba[..., :min(ch, 4)] = px[..., :4]
+        parts.append(rgba.reshape(-1))
+        offsets.append(at)
+        at += rgba.size
+        hs.append(h)
+        ws.append(w)
+    pixels = np.concatenate(parts) if parts else np.zeros(4, np.float32)
+    return (np.ascontiguousarray(pixels, np.float32), np.asarray(offsets, np.int64), np.asarray(hs, np.int64),
+            np.asarray(ws, np.int64))
+
+
+def run_single(program: ShadingProgram, textures=(), P=(0, 0, 0), N=(0, 0, 1), Ng=None, I=(0, 0, 1), uv=(0.0, 0.0),
+               back=False, objects: np.ndarray | None = None) -> np.ndarray:
+    """The program's final register file at one shading point (tests, and the compiler's constant folding)."""
+    n_regs = max(program.registers.shape[0], 1)
+    code = np.ascontiguousarray(program.code, np.int32).reshape(-1, WIDTH)
+    P3, N3, I3 = (np.asarray(v, np.float32).reshape(1, 3) for v in (P, N, I))
+    Ng3 = N3 if Ng is None else np.asarray(Ng, np.float32).reshape(1, 3)
+    regs = np.array(program.registers, np.float32).reshape(-1, 3).copy()
+    pack = pack_textures_rgba(textures)
+    objs = np.ascontiguousarray(objects if objects is not None else identity_object_row()[None], np.float32)
+    _run_one(code, regs, np.ascontiguousarray(program.data, np.float32), *pack, P3, N3, Ng3, I3,
+             np.asarray(uv, np.float32).reshape(1, 2), np.array([bool(back)]), np.zeros(1, np.int32), objs)
+    return regs[:n_regs]
+
+
+@_jit
+def _run_one(code, regs, data, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, back, obj, objects):
+    for i in range(code.shape[0]):
+        a = code[i]
+        _execute(a[0], a, regs, data, 0, P, N, Ng, I, uv, True, back, obj, objects, tex_pixels, tex_offset, tex_h,
+                 tex_w)
