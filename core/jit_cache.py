@@ -87,7 +87,8 @@ jit_inline = numba.njit(**_OPTIONS, _nrt=False, inline="always")
 
 # Modules of this folder that define cached kernels (their cache index files are named after them).
 KERNEL_MODULES = ("geometry_kernels", "path_kernels", "mesh_checks", "camera", "sampling", "warps", "bsdf_kernels",
-                  "light_kernels", "embree", "shading/regs", "shading/evaluator")
+                  "light_kernels", "embree", "shading/regs", "shading/evaluator",
+                  "shading/color")
 
 
 def compile_cache_is_cold() -> bool:

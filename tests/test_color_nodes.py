@@ -420,4 +420,4 @@ def test_export_names_the_node_it_cannot_use():
     mix.name, mix.data_type = "Floats", "FLOAT"
     with pytest.raises(ValueError, match=r"^node 'Floats' \(Mix\) is not a Mix node in Color mode$"):
         export.mix_constants(mix)
-    assert export.working_space_warning(bpy.context.scene) is None  # the factory default is Linear Rec.709
+    assert export.working_space_warning() is None  # the factory default is Linear Rec.709

@@ -80,3 +80,63 @@ def test_bad_input_is_named(call, message):
     with pytest.raises(ValueError) as info:
         call()
     assert str(info.value).startswith(message)
+
+
+# --------------------------------------------------------------------------- through the node program's evaluator
+def _run(name: str, registers, data=(), **operands) -> np.ndarray:
+    """One instruction of the colour family run by the compiled evaluator; the final register file."""
+    from monte.core.shading import evaluator as ev
+    from monte.core.shading import registry as R
+    from monte.core.shading.program import N_BIND, WIDTH, ShadingProgram
+
+    spec = R.op(name)
+    code = np.full((1, WIDTH), -1, np.int32)
+    code[0, 0] = spec.code
+    for key, value in operands.items():
+        code[0, spec.slot(key)] = value
+    regs = np.asarray([np.broadcast_to(np.asarray(r, np.float32), 3) for r in registers], np.float32)
+    program = ShadingProgram(code, regs, np.zeros((0, N_BIND), np.int32), data=np.asarray(data, np.float32))
+    program.validate("test", 0, 0)
+    return ev.run_single(program)
+
+
+def test_every_colour_opcode_runs_in_the_evaluator_as_its_batch_form():
+    """Each opcode's operand slots reach the right device function (checked against the batch forms)."""
+    c1, c2 = np.array([0.2, 0.7, 0.4]), np.array([0.9, 0.3, 0.5])
+    x = np.linspace(0.0, 1.0, color.TABLE_SIZE)
+    ramp = np.stack([x, x ** 2, 1 - x, 0.5 + 0.5 * x], axis=1)
+    curve = np.stack([np.sqrt(x), x ** 2, 1 - x], axis=1)
+    near = dict(atol=2e-7)
+    regs = _run("mix_color", [0, 0.3, c1, c2], out=0, factor=1, a=2, b=3, blend=color.MIX_OVERLAY,
+                clamp_factor=0, clamp_result=0)
+    np.testing.assert_allclose(regs[0], color.mix_color_many("OVERLAY", 0.3, c1, c2)[0], **near)
+    regs = _run("color_ramp", [0, 0, 0.37], ramp.reshape(-1), color=0, alpha=1, fac=2, table=0,
+                rows=color.TABLE_SIZE, interpolate=1)
+    want = color.color_ramp_many(ramp, True, 0.37)[0]
+    np.testing.assert_allclose(np.r_[regs[0], regs[1, 0]], want, **near)
+    pool = np.r_[-0.5, 1.5, curve.reshape(-1)]
+    regs = _run("curves", [0, 0.8, c1], pool, out=0, fac=1, color=2, table=0, rows=color.TABLE_SIZE, extrapolate=1)
+    np.testing.assert_allclose(regs[0], color.curves_many(curve, -0.5, 1.5, True, 0.8, c1)[0], **near)
+    pool = np.r_[0.0, 2.0, curve[:, 0]]
+    regs = _run("float_curve", [0, 0.9, 2.5], pool, out=0, fac=1, value=2, table=0, rows=color.TABLE_SIZE,
+                extrapolate=1)
+    np.testing.assert_allclose(regs[0, 0], color.float_curve_many(curve[:, 0], 0.0, 2.0, True, 0.9, 2.5)[0], **near)
+    regs = _run("hue_saturation_value", [0, 0.6, 1.3, 0.8, 0.9, c1], out=0, hue=1, saturation=2, value=3, fac=4,
+                color=5)
+    np.testing.assert_allclose(regs[0], color.hue_saturation_value_many(0.6, 1.3, 0.8, 0.9, c1)[0], **near)
+    regs = _run("invert", [0, 0.7, c1], out=0, fac=1, color=2)
+    np.testing.assert_allclose(regs[0], color.invert_many(0.7, c1)[0], **near)
+    regs = _run("bright_contrast", [0, c1, 0.1, 0.6], out=0, color=1, bright=2, contrast=3)
+    np.testing.assert_allclose(regs[0], color.bright_contrast_many(c1, 0.1, 0.6)[0], **near)
+    regs = _run("gamma", [0, c1, 2.2], out=0, color=1, gamma=2)
+    np.testing.assert_allclose(regs[0], color.gamma_many(c1, 2.2)[0], **near)
+    regs = _run("rgb_to_bw", [0, c1], out=0, color=1)
+    np.testing.assert_allclose(regs[0], color.rgb_to_bw_many(c1)[0], **near)
+    regs = _run("separate_color", [0, 0, 0, c1], x=0, y=1, z=2, color=3, mode=color.COLOR_HSL)
+    np.testing.assert_allclose(regs[:3, 0], color.separate_color_many("HSL", c1)[0], **near)
+    regs = _run("combine_color", [0, 0.3, 0.6, 0.8], out=0, x=1, y=2, z=3, mode=color.COLOR_HSV)
+    np.testing.assert_allclose(regs[0], color.combine_color_many("HSV", [0.3, 0.6, 0.8])[0], **near)
+    regs = _run("blackbody", [0, 3300.0], out=0, temperature=1)
+    np.testing.assert_allclose(regs[0], color.blackbody_many(3300.0)[0], rtol=2e-7)
+    regs = _run("wavelength", [0, 512.5], out=0, wavelength=1)
+    np.testing.assert_allclose(regs[0], color.wavelength_many(512.5)[0], **near)

@@ -124,14 +124,14 @@ def color_mode(node) -> int:
     return color.COLOR_MODES[node.mode]
 
 
-def working_space_warning(scene) -> str | None:
-    """A warning when the scene's scene-linear working space is not Rec.709: RGB to BW, Blackbody and Wavelength
-    then use Rec.709's constants (their colours are off by the gamut difference). None when it is Rec.709 or
-    Blender has no per-file working space (before 5.0: always Rec.709 with the default configuration)."""
+def working_space_warning() -> str | None:
+    """A warning when the blend file's scene-linear working space is not Rec.709: RGB to BW, Blackbody and
+    Wavelength then use Rec.709's constants (their colours are off by the gamut difference). None when it is
+    Rec.709 or Blender has no per-file working space (before 5.0: Rec.709 with the default configuration)."""
     import bpy
 
-    settings = getattr(getattr(bpy.data, "colorspace", None), "working_space", None)
-    if settings is None or settings in _REC709_NAMES:
+    space = getattr(getattr(bpy.data, "colorspace", None), "working_space", None)
+    if space is None or space in _REC709_NAMES:
         return None
-    return (f"scene {scene.name!r}: working colour space {settings!r} is not Linear Rec.709; RGB to BW, Blackbody "
-            f"and Wavelength use Rec.709's luminance and primaries")
+    return (f"the working colour space {space!r} is not Linear Rec.709; this node uses Rec.709's luminance and "
+            f"primaries")

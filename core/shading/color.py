@@ -24,6 +24,8 @@ import math
 import numpy as np
 
 from ..jit_cache import jit_no_nrt as jit  # device functions never allocate
+from . import registry as R
+from .regs import get3, getf, set3, setf
 
 # Lookup tables hold the ramp or curve at TABLE_SIZE positions t_i = lo + i / (TABLE_SIZE - 1) (hi - lo).
 TABLE_SIZE = 257
@@ -481,6 +483,113 @@ def wavelength(nanometres):
     g = (XYZ_TO_RGB[1][0] * cx + XYZ_TO_RGB[1][1] * cy + XYZ_TO_RGB[1][2] * cz) * _WAVELENGTH_SCALE
     b = (XYZ_TO_RGB[2][0] * cx + XYZ_TO_RGB[2][1] * cy + XYZ_TO_RGB[2][2] * cz) * _WAVELENGTH_SCALE
     return max(r, 0.0), max(g, 0.0), max(b, 0.0)
+
+
+# ---------------------------------------------------------------------- opcodes and the program's dispatcher
+def _ops(*pairs: str) -> tuple[tuple[str, str], ...]:
+    """Operands from "name:kind" strings, in slot order."""
+    return tuple(tuple(p.split(":")) for p in pairs)
+
+
+# Tables in a program's data pool: curves store lo, hi, then the table (rows x width floats, row-major); ramps the
+# table alone.
+OP_MIX_COLOR = R.register(R.OpSpec(
+    "mix_color", R.COLOR_BASE + 0, _ops("out:out", "factor:in", "a:in", "b:in", "blend:int", "clamp_factor:int",
+                                        "clamp_result:int"),
+    "Mix node (Color), every blend mode: blend = core.shading.color.MIX_* code")).code
+OP_COLOR_RAMP = R.register(R.OpSpec(
+    "color_ramp", R.COLOR_BASE + 1, _ops("color:out?", "alpha:out?", "fac:in", "table:data", "rows:int",
+                                         "interpolate:int"),
+    "Color Ramp: RGBA table of `rows` rows at data[table]; interpolate 0 for Constant")).code
+OP_CURVES = R.register(R.OpSpec(
+    "curves", R.COLOR_BASE + 2, _ops("out:out", "fac:in", "color:in", "table:data", "rows:int", "extrapolate:int"),
+    "RGB Curves / Vector Curves: data[table] = lo, hi, then the rows x 3 table")).code
+OP_FLOAT_CURVE = R.register(R.OpSpec(
+    "float_curve", R.COLOR_BASE + 3, _ops("out:out", "fac:in", "value:in", "table:data", "rows:int",
+                                          "extrapolate:int"),
+    "Float Curve: data[table] = lo, hi, then the rows x 1 table")).code
+OP_HSV = R.register(R.OpSpec(
+    "hue_saturation_value", R.COLOR_BASE + 4, _ops("out:out", "hue:in", "saturation:in", "value:in", "fac:in",
+                                                   "color:in"), "Hue/Saturation/Value node")).code
+OP_INVERT = R.register(R.OpSpec("invert", R.COLOR_BASE + 5, _ops("out:out", "fac:in", "color:in"),
+                                "Invert node")).code
+OP_BRIGHT_CONTRAST = R.register(R.OpSpec(
+    "bright_contrast", R.COLOR_BASE + 6, _ops("out:out", "color:in", "bright:in", "contrast:in"),
+    "Bright/Contrast node")).code
+OP_GAMMA = R.register(R.OpSpec("gamma", R.COLOR_BASE + 7, _ops("out:out", "color:in", "gamma:in"),
+                               "Gamma node")).code
+OP_RGB_TO_BW = R.register(R.OpSpec("rgb_to_bw", R.COLOR_BASE + 8, _ops("out:out", "color:in"),
+                                   "RGB to BW node: Rec.709 luminance (float)")).code
+OP_SEPARATE_COLOR = R.register(R.OpSpec(
+    "separate_color", R.COLOR_BASE + 9, _ops("x:out?", "y:out?", "z:out?", "color:in", "mode:int"),
+    "Separate Color node: mode COLOR_RGB / HSV / HSL")).code
+OP_COMBINE_COLOR = R.register(R.OpSpec(
+    "combine_color", R.COLOR_BASE + 10, _ops("out:out", "x:in", "y:in", "z:in", "mode:int"),
+    "Combine Color node: mode COLOR_RGB / HSV / HSL")).code
+OP_BLACKBODY = R.register(R.OpSpec("blackbody", R.COLOR_BASE + 11, _ops("out:out", "temperature:in"),
+                                   "Blackbody node (kelvin)")).code
+OP_WAVELENGTH = R.register(R.OpSpec("wavelength", R.COLOR_BASE + 12, _ops("out:out", "wavelength:in"),
+                                    "Wavelength node (nm)")).code
+
+
+@jit
+def run(op, a, regs, data):
+    """One colour-family instruction: `a` its int32 slots (a[0] = op), registers (R, 3) float32, the program's
+    float data pool. Operand slots follow the OpSpecs above."""
+    if op == OP_MIX_COLOR:
+        r1, g1, b1 = get3(regs, a[3])
+        r2, g2, b2 = get3(regs, a[4])
+        r, g, b = mix_color(a[5], getf(regs, a[2]), r1, g1, b1, r2, g2, b2, a[6] != 0, a[7] != 0)
+        set3(regs, a[1], r, g, b)
+    elif op == OP_COLOR_RAMP:
+        r, g, b, alpha = color_ramp(data, a[4], a[5], a[6] != 0, getf(regs, a[3]))
+        set3(regs, a[1], r, g, b)
+        setf(regs, a[2], alpha)
+    elif op == OP_CURVES:
+        r, g, b = get3(regs, a[3])
+        o = a[4]
+        r, g, b = curves_rgb(data, o + 2, a[5], float(data[o]), float(data[o + 1]), a[6] != 0, getf(regs, a[2]),
+                             r, g, b)
+        set3(regs, a[1], r, g, b)
+    elif op == OP_FLOAT_CURVE:
+        o = a[4]
+        setf(regs, a[1], float_curve(data, o + 2, a[5], float(data[o]), float(data[o + 1]), a[6] != 0,
+                                     getf(regs, a[2]), getf(regs, a[3])))
+    elif op == OP_HSV:
+        r, g, b = get3(regs, a[6])
+        r, g, b = hue_saturation_value(getf(regs, a[2]), getf(regs, a[3]), getf(regs, a[4]), getf(regs, a[5]),
+                                       r, g, b)
+        set3(regs, a[1], r, g, b)
+    elif op == OP_INVERT:
+        r, g, b = get3(regs, a[3])
+        r, g, b = invert(getf(regs, a[2]), r, g, b)
+        set3(regs, a[1], r, g, b)
+    elif op == OP_BRIGHT_CONTRAST:
+        r, g, b = get3(regs, a[2])
+        r, g, b = bright_contrast(r, g, b, getf(regs, a[3]), getf(regs, a[4]))
+        set3(regs, a[1], r, g, b)
+    elif op == OP_GAMMA:
+        r, g, b = get3(regs, a[2])
+        r, g, b = gamma_correct(r, g, b, getf(regs, a[3]))
+        set3(regs, a[1], r, g, b)
+    elif op == OP_RGB_TO_BW:
+        r, g, b = get3(regs, a[2])
+        setf(regs, a[1], rgb_to_bw(r, g, b))
+    elif op == OP_SEPARATE_COLOR:
+        r, g, b = get3(regs, a[4])
+        x, y, z = separate_color(a[5], r, g, b)
+        setf(regs, a[1], x)
+        setf(regs, a[2], y)
+        setf(regs, a[3], z)
+    elif op == OP_COMBINE_COLOR:
+        r, g, b = combine_color(a[5], getf(regs, a[2]), getf(regs, a[3]), getf(regs, a[4]))
+        set3(regs, a[1], r, g, b)
+    elif op == OP_BLACKBODY:
+        r, g, b = blackbody(getf(regs, a[2]))
+        set3(regs, a[1], r, g, b)
+    elif op == OP_WAVELENGTH:
+        r, g, b = wavelength(getf(regs, a[2]))
+        set3(regs, a[1], r, g, b)
 
 
 # ------------------------------------------------------------------------- batch forms (tests and benchmarks)

@@ -16,6 +16,7 @@ import numpy as np
 from .. import bsdf_kernels as bk
 from .. import microfacet as mf
 from ..jit_cache import jit_no_nrt as _jit
+from . import color
 from . import registry as R
 from .regs import get3, set3, setf  # noqa: F401  (re-exported for node modules)
 from .program import (BIND_F0, BIND_IOR, BIND_ROUGHNESS, BIND_TINT_R, BIND_TINT_T, BIND_WEIGHT, N_BIND,
@@ -607,7 +608,8 @@ def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
     if op < _COLOR_BASE:
         _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
                  tex_w)
-    # elif op < _PROC_BASE: color.run(op, a, regs, data)        <- core.shading.color registers here
+    elif op < _PROC_BASE:
+        color.run(op, a, regs, data)
     # else: procedural.run(op, a, regs, data)                     <- core.shading.procedural registers here
 
 
