@@ -35,6 +35,7 @@ pytestmark = pytest.mark.blender
 
 BLOCK = 32  # pixels per plane side
 SPP = 1  # the one sample at the pixel centre (see above)
+MONTE_SPP = 4  # the range check below holds for any count; a few samples average the jitter
 ABS_TOL = 1e-4
 
 
@@ -67,7 +68,9 @@ class Material:
     """An emission material whose colour is `build(tree, inputs)`: inputs.scalar((a, b, c)) and
     inputs.color(rows) give affine functions of (u, v) as node sockets."""
 
-    def __init__(self, name: str):
+    def __init__(self, name: str, at_x: float | None = None):
+        """(u, v) are the Generated coordinates; with at_x, the same values from the world position of the plane
+        render_blocks centres at x = at_x (u = (x - at_x + 1) / 2, v = (y + 1) / 2)."""
         self.mat = bpy.data.materials.new(name)
         tree = self.tree = bf.node_tree_of(self.mat)
         tree.nodes.clear()
@@ -75,9 +78,17 @@ class Material:
         self.emission = tree.nodes.new("ShaderNodeEmission")
         self.emission.inputs["Strength"].default_value = 1.0
         tree.links.new(self.emission.outputs[0], out.inputs["Surface"])
-        coords = tree.nodes.new("ShaderNodeTexCoord")
         self.sep = tree.nodes.new("ShaderNodeSeparateXYZ")
-        tree.links.new(coords.outputs["Generated"], self.sep.inputs[0])
+        if at_x is None:
+            coords = tree.nodes.new("ShaderNodeTexCoord")
+            tree.links.new(coords.outputs["Generated"], self.sep.inputs[0])
+        else:
+            geometry = tree.nodes.new("ShaderNodeNewGeometry")
+            to_uv = self.node("ShaderNodeVectorMath", operation="MULTIPLY_ADD")
+            to_uv.inputs[1].default_value = (0.5, 0.5, 0.0)
+            to_uv.inputs[2].default_value = (0.5 - 0.5 * at_x, 0.5, 0.5)
+            tree.links.new(geometry.outputs["Position"], to_uv.inputs[0])
+            tree.links.new(to_uv.outputs[0], self.sep.inputs[0])
 
     def node(self, kind: str, **props):
         n = self.tree.nodes.new(kind)
@@ -109,25 +120,40 @@ class Material:
         self.link(socket, self.emission.inputs["Color"])
 
 
-def render_blocks(materials: list[Material], tmp_path) -> list[np.ndarray]:
-    """One Cycles render of a row of planes, one per material; each block (BLOCK * BLOCK, 3), row-major from
-    the top. The materials are made after `fresh_scene` reset Blender."""
+def plane_x(i: int, k: int) -> float:
+    """The x of the centre of plane i of k in render_blocks' row."""
+    return float(-k + 1 + 2 * i)
+
+
+def render_blocks(materials: list[Material], tmp_path, engine: str = "CYCLES") -> list[np.ndarray]:
+    """One render (Cycles, or Monte through its node program) of a row of planes, one per material; each block
+    (BLOCK * BLOCK, 3), row-major from the top. The materials are made after `fresh_scene` reset Blender; a
+    second call renders the same planes again."""
     scene = bpy.context.scene
     k = len(materials)
-    for i, m in enumerate(materials):
-        x = -k + 1 + 2 * i
-        bf.mesh_object(f"plane{i}", [(x - 1, -1, 0), (x + 1, -1, 0), (x + 1, 1, 0), (x - 1, 1, 0)], [(0, 1, 2, 3)],
-                       m.mat)
-    bf.camera_object(scene, (0, 0, 2), (0, 0, 0), kind="ORTHO", ortho_scale=2.0 * k)
-    bf.set_world(scene, (0.0, 0.0, 0.0), 1.0)
-    scene.render.resolution_x, scene.render.resolution_y = BLOCK * k, BLOCK
-    scene.render.resolution_percentage = 100
-    scene.render.film_transparent = False
-    scene.view_settings.view_transform = "Standard"
-    scene.view_settings.look = "None"
-    scene.view_settings.exposure, scene.view_settings.gamma = 0.0, 1.0
-    cc.configure_cycles(scene, SPP, 0, threads=2, seed=1, filter_type="gaussian", filter_width=0.01)
-    rgb = cc.render_cycles(scene, tmp_path)[0]
+    if scene.camera is None:
+        for i, m in enumerate(materials):
+            x = plane_x(i, k)
+            bf.mesh_object(f"plane{i}", [(x - 1, -1, 0), (x + 1, -1, 0), (x + 1, 1, 0), (x - 1, 1, 0)],
+                           [(0, 1, 2, 3)], m.mat)
+        bf.camera_object(scene, (0, 0, 2), (0, 0, 0), kind="ORTHO", ortho_scale=2.0 * k)
+        bf.set_world(scene, (0.0, 0.0, 0.0), 1.0)
+        scene.render.resolution_x, scene.render.resolution_y = BLOCK * k, BLOCK
+        scene.render.resolution_percentage = 100
+        scene.render.film_transparent = False
+        scene.view_settings.view_transform = "Standard"
+        scene.view_settings.look = "None"
+        scene.view_settings.exposure, scene.view_settings.gamma = 0.0, 1.0
+    if engine == "MONTE":
+        # Monte's samples spread over its narrowest box (0.01 px: the inputs move by up to 1.6e-4 across it)
+        m = scene.monte
+        m.samples, m.max_bounces, m.seed, m.threads = MONTE_SPP, 0, 1, 2
+        m.filter_type, m.filter_width = "box", 0.01
+        rgb = cc.render_monte(scene)[0]
+    else:
+        cc.configure_cycles(scene, SPP, 0, threads=2, seed=1, filter_type="gaussian", filter_width=0.01)
+        rgb = cc.render_cycles(scene, tmp_path)[0]
+        scene.render.engine = "MONTE"
     assert rgb.shape == (BLOCK, BLOCK * k, 3)
     return [rgb[:, i * BLOCK:(i + 1) * BLOCK].reshape(-1, 3) for i in range(k)]
 
@@ -155,8 +181,8 @@ MIX_FAC = (0.3, 0.5, 0.1)
 
 
 def mix_material(name: str, blend_type: str, fac=MIX_FAC, a=MIX_A, b=MIX_B, clamp_factor=False,
-                 clamp_result=False, legacy=False) -> Material:
-    m = Material(name)
+                 clamp_result=False, legacy=False, at_x=None) -> Material:
+    m = Material(name, at_x)
     if legacy:
         node = m.node("ShaderNodeMixRGB", blend_type=blend_type, use_clamp=clamp_result)
         fac_in, a_in, b_in, out = node.inputs[0], node.inputs[1], node.inputs[2], node.outputs[0]
@@ -218,8 +244,8 @@ RAMP_FAC = (1.1, 0.0, -0.037)
 
 
 def ramp_material(name: str, interpolation: str, mode: str = "RGB", hue: str = "NEAR",
-                  alpha: bool = False) -> Material:
-    m = Material(name)
+                  alpha: bool = False, at_x=None) -> Material:
+    m = Material(name, at_x)
     node = m.node("ShaderNodeValToRGB")
     ramp = node.color_ramp
     ramp.interpolation, ramp.color_mode, ramp.hue_interpolation = interpolation, mode, hue
@@ -267,8 +293,8 @@ def set_points(curve, points, handles=None) -> None:
         curve.points[i].handle_type = h
 
 
-def curve_material(name: str, kind: str, extend: str, value_rows, fac_rows, shape: str) -> Material:
-    m = Material(name)
+def curve_material(name: str, kind: str, extend: str, value_rows, fac_rows, shape: str, at_x=None) -> Material:
+    m = Material(name, at_x)
     node = m.node(kind)
     mapping = node.mapping
     mapping.extend = extend
@@ -333,13 +359,16 @@ def test_curves_match_cycles(tmp_path):
 
 # ------------------------------------------------------------------------------- adjustments and converters
 COLOR_IN = ((0.9, 0.0, 0.05), (0.0, 0.8, 0.1), (0.4, -0.3, 0.5))
+# Separate Color's input: green - blue = (0.2 (3 i + j) - 7.184) / 32 at pixel (i, j) is never within 5e-4 of 0,
+# so hue never wraps at red (green crossing blue while red is largest) within a sample's reach of a pixel centre.
+HSV_IN = ((0.9, 0.0, 0.05), (0.0, 0.9, 0.05), (0.2, 0.3, 0.413))
 
 
 def _node_material(name: str, kind: str, props: dict, inputs: dict, output: str | int = 0,
-                   combine_outputs: bool = False) -> Material:
+                   combine_outputs: bool = False, at_x=None) -> Material:
     """A material with one node of `kind`: inputs maps input index -> ("s", coeffs) for a scalar or
     ("c", rows) for a colour; with combine_outputs its three float outputs go to the emission as (x, y, z)."""
-    m = Material(name)
+    m = Material(name, at_x)
     node = m.node(kind, **props)
     for index, (what, coeffs) in inputs.items():
         m.link(m.scalar(coeffs) if what == "s" else m.color(coeffs), node.inputs[index])
@@ -356,12 +385,11 @@ def _node_material(name: str, kind: str, props: dict, inputs: dict, output: str 
 
 def test_adjustment_and_converter_nodes_match_cycles(tmp_path):
     """Hue/Saturation/Value, Invert, Bright/Contrast, Gamma, RGB to BW, Separate and Combine Color (RGB, HSV,
-    HSL). Separate's colour keeps hue away from its wrap at red (where red is the largest channel, green and blue
-    never cross within a sample's reach)."""
+    HSL). Separate's colour keeps hue away from its wrap at red (HSV_IN)."""
     u, v = pixel_uv()
     c = affine_color(COLOR_IN, u, v)
     s = lambda coeffs: affine(coeffs, u, v)  # noqa: E731
-    hsv_in = ((0.9, 0.0, 0.05), (0.0, 0.9, 0.05), (0.2, 0.3, 0.4))
+    hsv_in = HSV_IN
     cases = {
         "hsv": (("ShaderNodeHueSaturation", {}, {0: ("s", (0.6, 0.0, 0.2)), 1: ("s", (0.0, 1.6, 0.2)),
                                                  2: ("s", (0.5, 0.5, 0.5)), 3: ("s", (0.0, 0.4, 0.6)),
@@ -421,3 +449,119 @@ def test_export_names_the_node_it_cannot_use():
     with pytest.raises(ValueError, match=r"^node 'Floats' \(Mix\) is not a Mix node in Color mode$"):
         export.mix_constants(mix)
     assert export.working_space_warning() is None  # the factory default is Linear Rec.709
+
+
+# ------------------------------------------------------------------------ through Monte's node program
+JITTER = 0.005 / BLOCK  # how far in u or v Monte's samples stray from the pixel centre (its 0.01 px box)
+
+
+def _converter_cases() -> dict:
+    """The adjustment and converter nodes: name -> (_node_material arguments, reference(u, v) -> (N, channels))."""
+    s = affine
+    hsv_in = HSV_IN
+    comb_in = ((1.0, 0.0, 0.0), (0.0, 1.1, -0.05), (0.3, 0.3, 0.3))
+    out = {
+        "hsv": (("ShaderNodeHueSaturation", {}, {0: ("s", (0.6, 0.0, 0.2)), 1: ("s", (0.0, 1.6, 0.2)),
+                                                 2: ("s", (0.5, 0.5, 0.5)), 3: ("s", (0.0, 0.4, 0.6)),
+                                                 4: ("c", COLOR_IN)}),
+                lambda u, v: color.hue_saturation_value_many(s((0.6, 0.0, 0.2), u, v), s((0.0, 1.6, 0.2), u, v),
+                                                             s((0.5, 0.5, 0.5), u, v), s((0.0, 0.4, 0.6), u, v),
+                                                             affine_color(COLOR_IN, u, v))),
+        "invert": (("ShaderNodeInvert", {}, {0: ("s", (0.0, 1.2, -0.1)), 1: ("c", COLOR_IN)}),
+                   lambda u, v: color.invert_many(s((0.0, 1.2, -0.1), u, v), affine_color(COLOR_IN, u, v))),
+        "bright-contrast": (("ShaderNodeBrightContrast", {}, {0: ("c", COLOR_IN), 1: ("s", (0.4, 0.0, -0.2)),
+                                                             2: ("s", (0.0, 1.5, -0.5))}),
+                            lambda u, v: color.bright_contrast_many(affine_color(COLOR_IN, u, v),
+                                                                    s((0.4, 0.0, -0.2), u, v),
+                                                                    s((0.0, 1.5, -0.5), u, v))),
+        "gamma": (("ShaderNodeGamma", {}, {0: ("c", COLOR_IN), 1: ("s", (2.0, 0.5, 0.1))}),
+                  lambda u, v: color.gamma_many(affine_color(COLOR_IN, u, v), s((2.0, 0.5, 0.1), u, v))),
+        "rgb-to-bw": (("ShaderNodeRGBToBW", {}, {0: ("c", COLOR_IN)}),
+                      lambda u, v: color.rgb_to_bw_many(affine_color(COLOR_IN, u, v))[:, None]),
+        "blackbody": (("ShaderNodeBlackbody", {}, {0: ("s", (12000.0, 200.0, 600.0))}),
+                      lambda u, v: color.blackbody_many(s((12000.0, 200.0, 600.0), u, v))),
+        "wavelength": (("ShaderNodeWavelength", {}, {0: ("s", (420.0, 3.0, 370.0))}),
+                       lambda u, v: color.wavelength_many(s((420.0, 3.0, 370.0), u, v))),
+    }
+    for mode in ("RGB", "HSV", "HSL"):
+        out[f"separate-{mode}"] = (("ShaderNodeSeparateColor", {"mode": mode}, {0: ("c", hsv_in)}, 0, True),
+                                   lambda u, v, mode=mode: color.separate_color_many(mode, affine_color(hsv_in, u, v)))
+        out[f"combine-{mode}"] = (("ShaderNodeCombineColor", {"mode": mode},
+                                   {k: ("s", r) for k, r in enumerate(comb_in)}),
+                                  lambda u, v, mode=mode: color.combine_color_many(mode, affine_color(comb_in, u, v)))
+    return out
+
+
+def _monte_cases() -> list:
+    """(name, build(material name, plane x) -> Material, reference(material, u, v) -> (N, channels))."""
+    def mix_ref(mode, fac, a, b, cf, cr):
+        return lambda m, u, v: color.mix_color_many(mode, affine(fac, u, v), affine_color(a, u, v),
+                                                    affine_color(b, u, v), cf, cr)
+
+    cases = [(f"Mix {mode}", lambda name, x, mode=mode: mix_material(name, mode, at_x=x),
+              mix_ref(mode, MIX_FAC, MIX_A, MIX_B, False, False)) for mode in color.BLEND_TYPES]
+    rows = ((1.6, 0.0, -0.3), ((1.5, 0.0, -0.2), (0.0, 1.2, 0.1), (0.4, 0.4, 0.3)),
+            ((0.0, 0.9, 0.3), (-1.0, 0.0, 1.1), (0.2, 0.0, 0.9)))
+    for cf, cr, legacy in ((True, False, False), (False, True, False), (True, True, True)):
+        cases.append((f"Mix LINEAR_LIGHT clamp {cf} {cr} legacy {legacy}",
+                      lambda name, x, cf=cf, cr=cr, legacy=legacy: mix_material(name, "LINEAR_LIGHT", *rows, cf, cr,
+                                                                                legacy, at_x=x),
+                      mix_ref("LINEAR_LIGHT", *rows, cf, cr)))
+    ramps = [(i, "RGB", "NEAR", False) for i in ("LINEAR", "EASE", "CONSTANT", "CARDINAL", "B_SPLINE")]
+    for args in ramps + [("LINEAR", "HSV", "FAR", False), ("EASE", "HSL", "NEAR", False),
+                         ("LINEAR", "RGB", "NEAR", True)]:
+        cases.append((f"Color Ramp {' '.join(map(str, args))}",
+                      lambda name, x, args=args: ramp_material(name, *args, at_x=x),
+                      lambda m, u, v: (lambda rgba: rgba[:, 3:] if m.alpha else rgba[:, :3])(
+                          color.color_ramp_many(m.constants.table, m.constants.interpolate, affine(RAMP_FAC, u, v)))))
+    fac = (0.3, 0.0, 0.8)
+    for kind, value in (("ShaderNodeRGBCurve", ((1.4, 0.0, -0.2), (0.0, 1.4, -0.2), (0.5, 0.3, 0.1))),
+                        ("ShaderNodeVectorCurve", ((2.6, 0.0, -1.3), (0.0, 2.4, -1.2), (1.0, -1.0, 0.1))),
+                        ("ShaderNodeFloatCurve", (1.4, 0.1, -0.25))):
+        for extend, shape in (("HORIZONTAL", "unit"), ("EXTRAPOLATED", "wide")):
+            def ref(m, u, v, value=value, is_float=kind == "ShaderNodeFloatCurve"):
+                k = m.constants
+                if is_float:
+                    return color.float_curve_many(k.table, k.lo, k.hi, k.extrapolate, affine(fac, u, v),
+                                                  affine(value, u, v))[:, None]
+                return color.curves_many(k.table, k.lo, k.hi, k.extrapolate, affine(fac, u, v),
+                                         affine_color(value, u, v))
+            cases.append((f"{kind[10:]} {extend} {shape}",
+                          lambda name, x, a=(kind, extend, value, fac, shape): curve_material(name, *a, at_x=x), ref))
+    for name, (node_args, ref) in _converter_cases().items():
+        cases.append((name, lambda n, x, node_args=node_args: _node_material(n, *node_args, at_x=x),
+                      lambda m, u, v, ref=ref: ref(u, v)))
+    return cases
+
+
+def test_monte_renders_the_colour_nodes_as_cycles(tmp_path):
+    """The planes rendered by Monte (compiler rules -> opcodes -> evaluator -> emission) and by Cycles.
+
+    Every blend mode, the clamps and the legacy node, every ramp interpolation and colour mode, the curve nodes
+    (both Extend modes, wide ranges), the adjustments and converters, Blackbody and Wavelength. Inputs come from
+    the world position (the same (u, v) as Generated). Monte's samples stray up to 0.005 px from the pixel
+    centre (its narrowest box), so each Monte pixel, an average of MONTE_SPP samples, must lie within the range
+    the node takes over that square (its reference at the centre, corners and edge midpoints), widened by 1e-4
+    (relative above 1, for Divide and Blackbody); Monte's emission is clipped at 0 where Cycles lets a negative
+    colour through. Cycles' own image is checked against the same references at the centre (1e-4)."""
+    cases = _monte_cases()
+    k = len(cases)
+    mats = [build(f"monte-{i}", plane_x(i, k)) for i, (_, build, _) in enumerate(cases)]
+    monte = render_blocks(mats, tmp_path, engine="MONTE")
+    cycles = render_blocks(mats, tmp_path)
+    u, v = pixel_uv()
+    offsets = [(du, dv) for du in (-JITTER, 0.0, JITTER) for dv in (-JITTER, 0.0, JITTER)]
+    for (name, _, ref), m, got, cyc in zip(cases, mats, monte, cycles):
+        centre = ref(m, u, v)
+        check(f"Cycles {name}", cyc, centre, rel=True)
+        around = np.stack([np.maximum(ref(m, (u + du).astype(np.float32), (v + dv).astype(np.float32)), 0.0)
+                           for du, dv in offsets])
+        lo, hi = around.min(axis=0), around.max(axis=0)
+        tol = ABS_TOL * np.maximum(1.0, np.abs(hi))
+        below, above = (lo - tol) - got, got - (hi + tol)
+        worst = float(max(below.max(), above.max()))
+        print(f"Monte {name}: {float(np.max(np.abs(got - np.maximum(centre, 0.0)))):.2e} from the centre value, "
+              f"{'inside' if worst <= 0 else 'OUTSIDE'} the range over the sample square")
+        if worst > 0:
+            i = int(np.argmax(np.maximum(below, above).max(axis=-1)))
+            raise AssertionError(f"Monte {name}: pixel {divmod(i, BLOCK)} {got[i]} outside [{lo[i]}, {hi[i]}]")
