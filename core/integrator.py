@@ -111,6 +111,7 @@ class PreparedScene:
     specular: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (M,) has a glossy/glass lobe
     features: dict = field(default_factory=dict)
     shading: PreparedShading | None = None  # the node programs of materials that vary per point, or None
+    object_of_triangle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))  # (T,) object rows
 
     # The same per-triangle data as the compiled kernels take it: empty arrays instead of None.
     @property
@@ -130,7 +131,7 @@ class PreparedScene:
         """sample_world: whether light sampling may pick the (uniform) world, see LightSampler; only the
         light-sampling-only estimator needs it (it counts no emission that BSDF sampling finds)."""
         shift = scene.camera.position.copy()
-        verts, tris, mats, normals, uvs, smooth = [], [], [], [], [], []
+        verts, tris, mats, normals, uvs, smooth, objs = [], [], [], [], [], [], []
         offset = 0
         any_smooth = any(m.normals is not None for m in scene.meshes)
         any_uv = any(m.uvs is not None for m in scene.meshes)
@@ -142,6 +143,9 @@ class PreparedScene:
             offset += len(mesh.vertices)
             mats.append(mesh.material_index)
             t = mesh.triangle_count
+            # object rows: 0 is "no object" (identity), the scene's rows follow
+            objs.append(np.zeros(t, np.int32) if mesh.object_index is None
+                        else np.broadcast_to(np.asarray(mesh.object_index, np.int32) + 1, (t,)))
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
                 smooth.append(np.full(t, mesh.normals is not None))
@@ -162,7 +166,12 @@ class PreparedScene:
         uv_arr = np.concatenate(uvs).astype(np.float32) if any_uv and uvs else None
 
         materials = bsdf_mod.MaterialTable.build(scene.materials, scene.textures)
-        shading = PreparedShading.build(scene.materials, scene.textures, materials.max_lobes)
+        from .shading.program import identity_object_row
+
+        object_rows = [identity_object_row()[None]] + ([scene.objects] if scene.objects is not None else [])
+        shading = PreparedShading.build(scene.materials, scene.textures, materials.max_lobes,
+                                        np.concatenate(object_rows).astype(np.float32))
+        object_of_triangle = np.concatenate(objs).astype(np.int32) if objs else np.zeros(0, np.int32)
         emissive = EmissiveTriangles.from_mesh_arrays(tri_vertices, material_index, materials.emission)
         if len(vertices):
             lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
@@ -183,7 +192,7 @@ class PreparedScene:
         specular = np.array([any(lobe.kind != "diffuse" for lobe in m.lobes) for m in scene.materials], bool)
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
-                   specular, features, shading)
+                   specular, features, shading, object_of_triangle)
 
 
 @dataclass
@@ -311,7 +320,7 @@ class PathTracer:
                     ge = self._surface(e, prim, hits.u, hits.v, d)
                     mat_e = ps.material_index[prim[e]]
                     le = np.zeros((len(e), 3), np.float32)
-                    self._shade(ge, mat_e, d[e], ps.materials.gather(mat_e, ge.uv), le)
+                    self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le)
                     self._add(radiance, idx[e], throughput[e] * le)
 
             if depth == s.max_bounces + 1:
@@ -338,7 +347,7 @@ class PathTracer:
                 mat_first = ps.material_index[prim[hit_rows]]
                 lobes_first = ps.materials.gather(mat_first, g.uv)
                 if ps.shading is not None:
-                    self._shade(g, mat_first, d[hit_rows], lobes_first)
+                    self._shade(g, mat_first, prim[hit_rows], d[hit_rows], lobes_first)
                 first.albedo[idx[hit_rows]] = bsdf_mod.albedo(lobes_first)
                 first.normal[idx[hit_rows]] = g.ns_raw
                 first.depth[idx[hit_rows]] = (t_start[hit_rows] + hits.t[hit_rows]) * depth_scale[hit_rows]
@@ -355,7 +364,7 @@ class PathTracer:
             mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
             if ps.shading is not None:
-                self._shade(g, mat, d[rows], lobes)
+                self._shade(g, mat, prim[rows], d[rows], lobes)
 
             clock = self._lap("emission", clock)
             if self.use_nee:
@@ -397,8 +406,8 @@ class PathTracer:
                         g.n_view, g.mag, g.cos_o_geo, g.uv_buffer)
         return g
 
-    def _shade(self, g: "SurfaceBatch", mat: np.ndarray, dirs: np.ndarray, lobes: "bsdf_mod.LobeBatch",
-               emission: np.ndarray | None = None) -> None:
+    def _shade(self, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
+               lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None) -> None:
         """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
         The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir."""
         sh = self.ps.shading
@@ -408,7 +417,7 @@ class PathTracer:
         back = g.cos_o_geo < 0
         p_world = (g.p + self.ps.shift.astype(np.float32)).astype(np.float32)
         ng = np.where(back[:, None], -g.ng, g.ng)
-        obj = np.zeros(len(mat), np.int32)
+        obj = self.ps.object_of_triangle[prim]
         sh.evaluate(rows, mat, p_world, g.n_view, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
                     self.ps.materials.select_scale, emission)
 

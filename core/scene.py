@@ -191,6 +191,8 @@ class Mesh:
       None means flat shading (the geometric normal).
     uvs: optional (T, 3, 2) per-corner texture coordinates.
     material_index: (T,) int index into `Scene.materials` (a single int broadcasts).
+    object_index: optional (T,) int (or one int) row of `Scene.objects` each triangle belongs to: the object data
+      shading nodes read (object space, texture space, Object Info); None = no object (identity space).
     """
 
     name: str
@@ -199,12 +201,13 @@ class Mesh:
     material_index: np.ndarray | int = 0
     normals: np.ndarray | None = None
     uvs: np.ndarray | None = None
+    object_index: np.ndarray | int | None = None
 
     @property
     def triangle_count(self) -> int:
         return int(np.asarray(self.triangles).shape[0])
 
-    def validate(self, n_materials: int, warnings: list[str]) -> None:
+    def validate(self, n_materials: int, warnings: list[str], n_objects: int = 0) -> None:
         """Check shapes and indices; drop degenerate or non-finite triangles with a counted warning."""
         owner = f"mesh {self.name!r}"
         v = np.asarray(self.vertices)
@@ -231,6 +234,12 @@ class Mesh:
                 f"{owner}: material index out of range [0, {n_materials - 1}]: "
                 f"min {int(mat.min())}, max {int(mat.max())}"
             )
+        objs = None
+        if self.object_index is not None:
+            objs = np.broadcast_to(np.asarray(self.object_index), (n_tri,)).astype(np.int64)
+            if n_tri and (objs.min() < 0 or objs.max() >= n_objects):
+                raise SceneError(f"{owner}: object index out of range [0, {n_objects - 1}]: "
+                                 f"min {int(objs.min())}, max {int(objs.max())}")
         normals = None if self.normals is None else np.asarray(self.normals, dtype=np.float32)
         if normals is not None and normals.shape != (n_tri, 3, 3):
             raise SceneError(f"{owner}: normals must have shape (T, 3, 3) = ({n_tri}, 3, 3), got {normals.shape}")
@@ -270,11 +279,13 @@ class Mesh:
             tri, mat = tri[keep], mat[keep]
             normals = None if normals is None else normals[keep]
             uvs = None if uvs is None else uvs[keep]
+            objs = None if objs is None else objs[keep]
         # Non-finite vertices that no kept triangle uses are harmless; replace them so later arithmetic is clean.
         if not np.all(np.isfinite(v)):
             v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
         self.vertices, self.triangles, self.material_index = v, tri.astype(np.int32), mat.astype(np.int32)
         self.normals, self.uvs = normals, uvs
+        self.object_index = None if objs is None else objs.astype(np.int32)
 
 
 # ------------------------------------------------------------------------------------------------------ lights
@@ -499,6 +510,7 @@ class Scene:
     textures: list[Texture] = field(default_factory=list)
     name: str = "scene"
     warnings: list[str] = field(default_factory=list)
+    objects: np.ndarray | None = None  # (O, core.shading.program.OBJECT_COLUMNS) float32 rows, see Mesh.object_index
 
     @property
     def triangle_count(self) -> int:
@@ -513,8 +525,16 @@ class Scene:
             raise SceneError("scene has no materials: add at least one (meshes index into the material list)")
         for mat in self.materials:
             mat.validate(len(self.textures))
+        n_objects = 0
+        if self.objects is not None:
+            from .shading.program import OBJECT_COLUMNS
+
+            self.objects = np.ascontiguousarray(np.asarray(self.objects, np.float32).reshape(-1, OBJECT_COLUMNS))
+            if not np.all(np.isfinite(self.objects)):
+                raise SceneError("scene objects: NaN/Inf in the object table (a degenerate object transform?)")
+            n_objects = len(self.objects)
         for mesh in self.meshes:
-            mesh.validate(len(self.materials), self.warnings)
+            mesh.validate(len(self.materials), self.warnings, n_objects)
         self.world.color = _as_rgb(self.world.color, "world background")
         kept: list[Light] = []
         for light in self.lights:

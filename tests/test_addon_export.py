@@ -391,12 +391,22 @@ def test_image_texture_on_base_color(scene):
     got, _ = export()
     assert len(got.textures) == 1
     tx = got.textures[0].pixels
-    assert tx.shape == (2, 4, 3)
-    # Row 0 of a core texture is the top; 8-bit sRGB 0.5 becomes linear 0.214.
-    assert np.allclose(tx[0, 0], (1.0, 0.0, 0.0), atol=1e-3)
-    assert np.allclose(tx[1, 0], 0.2140, atol=2e-3)
-    diffuse = next(l for l in got.materials[0].lobes if l.kind == "diffuse")
-    assert diffuse.color_texture == 0
+    assert tx.shape == (2, 4, 4)
+    # Row 0 of a core texture is the top; an 8-bit sRGB image keeps its encoded values, which the material's
+    # image instruction decodes after filtering (as Cycles does): sRGB 0.5 reads as linear 0.214.
+    assert np.allclose(tx[0, 0], (1.0, 0.0, 0.0, 1.0), atol=1e-3)
+    assert np.allclose(tx[1, 0, :3], 0.5, atol=2e-3)
+    mat = got.materials[0]
+    diffuse = next(j for j, l in enumerate(mat.lobes) if l.kind == "diffuse")
+    from monte.core.shading import evaluator as ev
+    from monte.core.shading.program import BIND_WEIGHT
+
+    weight = mat.program.lobes[diffuse, BIND_WEIGHT]
+    assert weight >= 0  # the base colour is driven per point
+    at_bottom = ev.run_single(mat.program, got.textures, uv=(0.125, 0.25))
+    at_top = ev.run_single(mat.program, got.textures, uv=(0.125, 0.75))
+    assert np.allclose(at_bottom[weight], 0.2140, atol=2e-3)
+    assert np.allclose(at_top[weight], (1.0, 0.0, 0.0), atol=1e-3)
     assert got.meshes[0].uvs is not None and got.meshes[0].uvs.shape == (12, 3, 2)
 
 

@@ -47,6 +47,8 @@ class _Prototype:
     slot_materials: np.ndarray
     name: str
     matrices: list = field(default_factory=list)
+    instance_info: list = field(default_factory=list)  # per instance: (r, g, b, a, pass index, random id)
+    texspace: tuple | None = None  # (location, size) of the mesh's texture space (Generated coordinates)
 
 
 def _matrix(m) -> np.ndarray:
@@ -85,7 +87,7 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats):
     lut = np.zeros(n_slots, dtype=np.int32)
     for slot in used:
         lut[slot] = materials.index(slots[slot] if slot < len(slots) else None)
-    prototypes[key] = _Prototype(local, lut, original.name)
+    prototypes[key] = _Prototype(local, lut, original.name, texspace=_texspace(obj, local))
     stats.meshes_converted += 1
     return key
 
@@ -160,12 +162,15 @@ def export_scene(
         else:
             key = resolved[rkey] = _prototype_for(obj, kind, prototypes, materials, warnings, stats)
         if key is not None:
-            prototypes[key].matrices.append(inst.matrix_world.copy())
+            proto = prototypes[key]
+            proto.matrices.append(inst.matrix_world.copy())
+            proto.instance_info.append((*obj.color, obj.pass_index, inst.random_id))
 
     for kind, count in unsupported.items():
         warnings.append(f"{count} {kind.lower()} object(s) are not supported by Monte and are skipped")
 
     meshes = []
+    object_rows = []
     for proto in prototypes.values():
         if proto.local is None or not proto.matrices:
             continue
@@ -176,13 +181,19 @@ def export_scene(
             warnings.append(f"mesh {proto.name!r} has an image-textured material but no UV map; the texture is "
                             "sampled at UV (0, 0)")
         matrices = np.array(proto.matrices, dtype=np.float64).reshape(k, 4, 4)
-        meshes.append(instances_to_mesh(proto.local, matrices, proto.slot_materials, name))
+        mesh = instances_to_mesh(proto.local, matrices, proto.slot_materials, name)
+        start = sum(len(r) for r in object_rows)
+        object_rows.append(_object_rows(matrices, np.array(proto.instance_info, np.float64).reshape(k, 6),
+                                        proto.texspace))
+        mesh.object_index = np.repeat(np.arange(start, start + k, dtype=np.int32), proto.local.triangle_count)
+        meshes.append(mesh)
 
     if not materials.materials:
         materials.index(None)  # core needs at least one material
     world = export_world(scene.world, warnings)
     out = Scene(camera=camera, meshes=meshes, materials=materials.materials, lights=lights, world=world,
-                textures=materials.textures, name=scene.name, warnings=warnings)
+                textures=materials.textures, name=scene.name, warnings=warnings,
+                objects=np.concatenate(object_rows).astype(np.float32) if object_rows else None)
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "
                          "metaballs); check the objects' render visibility and the view layer's collections")
@@ -195,3 +206,38 @@ def export_scene(
     if log is not None:
         log(stats.line())
     return out, stats
+
+
+def _texspace(obj, local: LocalMesh) -> tuple[np.ndarray, np.ndarray]:
+    """(location, size) of the texture space Generated coordinates map to [0, 1]^3: the mesh's own (auto: its
+    bounding box), or the bounding box of the converted geometry for curves, text and metaballs."""
+    data = obj.data
+    if obj.type == "MESH" and data is not None and hasattr(data, "texspace_location"):
+        return np.array(data.texspace_location, np.float64), np.array(data.texspace_size, np.float64)
+    if local.vertices.size:
+        lo, hi = local.vertices.min(axis=0).astype(np.float64), local.vertices.max(axis=0).astype(np.float64)
+        return (lo + hi) / 2, np.maximum((hi - lo) / 2, 1e-30)
+    return np.zeros(3), np.ones(3)
+
+
+def _object_rows(matrices: np.ndarray, info: np.ndarray, texspace) -> np.ndarray:
+    """The core.shading object-table rows of K instances: world -> object transform, location, colour, pass index,
+    random value (Monte's hash of the instance's random id, uniform in [0, 1)), texture-space box."""
+    from ...core.shading.program import (OBJECT_BOX_MIN, OBJECT_BOX_SIZE, OBJECT_COLOR, OBJECT_COLUMNS,
+                                         OBJECT_INVERSE, OBJECT_LOCATION, OBJECT_PASS_INDEX, OBJECT_RANDOM)
+
+    k = matrices.shape[0]
+    rows = np.zeros((k, OBJECT_COLUMNS), np.float64)
+    det = np.linalg.det(matrices)
+    safe = np.where(np.abs(det)[:, None, None] > 1e-300, matrices, np.eye(4))
+    inv = np.linalg.inv(safe)
+    rows[:, OBJECT_INVERSE:OBJECT_INVERSE + 12] = inv[:, :3, :4].reshape(k, 12)
+    rows[:, OBJECT_LOCATION:OBJECT_LOCATION + 3] = matrices[:, :3, 3]
+    rows[:, OBJECT_COLOR:OBJECT_COLOR + 4] = info[:, :4]
+    rows[:, OBJECT_PASS_INDEX] = info[:, 4]
+    rid = info[:, 5].astype(np.int64) & 0xFFFFFFFF
+    rows[:, OBJECT_RANDOM] = ((rid * 2654435761 + 0x9E3779B9) & 0xFFFFFFFF) / 2.0**32
+    loc, size = texspace
+    rows[:, OBJECT_BOX_MIN:OBJECT_BOX_MIN + 3] = loc - size
+    rows[:, OBJECT_BOX_SIZE:OBJECT_BOX_SIZE + 3] = 2.0 * size
+    return rows

@@ -248,13 +248,8 @@ class MaterialExporter:
             self._tex_by_key[(key, "srgb")] = int(encoded)
         idx = self._tex_by_key[key]
         flags = 2 if self._tex_by_key[(key, "srgb")] else 0
-        mode = getattr(image, "alpha_mode", "STRAIGHT")
-        data = image.colorspace_settings.name.lower() in ("non-color", "raw")
-        if not data and mode not in ("CHANNEL_PACKED", "NONE"):
-            if mode == "STRAIGHT" and not alpha_used:
-                flags |= 1  # Cycles associates straight alpha on load; the colour output stays associated
-            elif mode == "PREMUL" and alpha_used:
-                flags |= 4  # the Alpha output in use: Cycles unassociates the colour
+        if alpha_used and _associates_alpha(image):
+            flags |= 4  # the Alpha output in use: Cycles unassociates the (associated) colour
         return idx, flags
 
 
@@ -269,10 +264,19 @@ def _reads_uv(program) -> bool:
     return False
 
 
+def _associates_alpha(image) -> bool:
+    """Whether Cycles holds the image with associated (premultiplied) alpha: not for data (Non-Color) images and
+    not for the Channel Packed and None alpha modes."""
+    data = image.colorspace_settings.name.lower() in ("non-color", "raw")
+    return not data and getattr(image, "alpha_mode", "STRAIGHT") not in ("CHANNEL_PACKED", "NONE")
+
+
 def image_rgba(image, warnings: list[str] | None = None) -> tuple[np.ndarray, bool]:
     """An image's pixels as (H, W, 4) float32 RGBA, row 0 at the TOP, and whether the colour is sRGB-encoded
     (8-bit images in an sRGB colour space, decoded by the image opcode after filtering as Cycles does); other
-    images are linear as Blender holds them. Alpha mode None reads alpha 1. One foreach_get call."""
+    images are linear as Blender holds them. As Cycles loads them, straight alpha is associated (colour times
+    alpha; 8-bit images in integer arithmetic on the bytes, so the image opcode's unassociation for the Alpha
+    output sees the same rounding); alpha mode None reads alpha 1. One foreach_get call."""
     w, h = int(image.size[0]), int(image.size[1])
     if w == 0 or h == 0:
         raise ValueError(f"image {image.name!r} has no pixels (missing file {image.filepath!r}?)")
@@ -289,6 +293,12 @@ def image_rgba(image, warnings: list[str] | None = None) -> tuple[np.ndarray, bo
         rgba[..., 3] = px[..., ch - 1]
     if getattr(image, "alpha_mode", "STRAIGHT") == "NONE":
         rgba[..., 3] = 1.0
+    if (ch == 4 or ch == 2) and _associates_alpha(image) and getattr(image, "alpha_mode", "STRAIGHT") == "STRAIGHT":
+        if image.is_float:
+            rgba[..., :3] *= rgba[..., 3:4]
+        else:
+            b = np.rint(rgba * 255.0).astype(np.int32)
+            rgba[..., :3] = ((b[..., :3] * b[..., 3:4]) // 255).astype(np.float32) / 255.0
     space = image.colorspace_settings.name.lower()
     encoded = not image.is_float and space not in _LINEAR_SPACES
     if encoded and space != "srgb" and warnings is not None:

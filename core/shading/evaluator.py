@@ -671,10 +671,9 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
         if changed:
             bk._select_row(kind, weight, t_scale, m, k, select)
         e = emit_reg[p]
-        if e >= 0:
+        if e >= 0:  # not clamped: Cycles renders a negative emission colour as negative radiance
             for c in range(3):
-                ev = scratch[e, c]
-                emission[k, c] = ev if ev > _F32_0 else _F32_0
+                emission[k, c] = scratch[e, c]
 
 
 # ----------------------------------------------------------------------------------------------- Python face
