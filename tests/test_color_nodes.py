@@ -13,6 +13,9 @@ and this in float64: the measured gaps are ~1e-6 (printed with -s).
 
 Inputs are chosen away from the nodes' discontinuities (a Constant ramp's steps, hue's wrap at red), where a
 sample 0.005 px off the centre could fall on the other side.
+
+The last test renders the same nodes with Monte, through its node program (compiler rules, opcodes, evaluator),
+and checks each pixel against the range the node takes over the square Monte's samples cover.
 """
 
 from __future__ import annotations
@@ -65,8 +68,8 @@ def fresh_scene():
 
 
 class Material:
-    """An emission material whose colour is `build(tree, inputs)`: inputs.scalar((a, b, c)) and
-    inputs.color(rows) give affine functions of (u, v) as node sockets."""
+    """An emission material for one plane: scalar((a, b, c)) and color(rows) give affine functions a u + b v + c
+    of the plane's (u, v) as node sockets, node() adds a node, emit(socket) drives the Emission colour."""
 
     def __init__(self, name: str, at_x: float | None = None):
         """(u, v) are the Generated coordinates; with at_x, the same values from the world position of the plane
@@ -159,7 +162,7 @@ def render_blocks(materials: list[Material], tmp_path, engine: str = "CYCLES") -
 
 
 def check(name: str, got: np.ndarray, want: np.ndarray, rel: bool = False) -> float:
-    """Assert Cycles' block `got` equals `want` per pixel (absolute ABS_TOL, or relative to max(1, |want|))."""
+    """Assert a rendered block `got` equals `want` per pixel (absolute ABS_TOL, or relative to max(1, |want|))."""
     want = np.broadcast_to(np.asarray(want, np.float64).reshape(len(got), -1), got.shape)
     scale = np.maximum(1.0, np.abs(want)) if rel else 1.0
     err = np.abs(got - want) / scale
@@ -383,78 +386,6 @@ def _node_material(name: str, kind: str, props: dict, inputs: dict, output: str 
     return m
 
 
-def test_adjustment_and_converter_nodes_match_cycles(tmp_path):
-    """Hue/Saturation/Value, Invert, Bright/Contrast, Gamma, RGB to BW, Separate and Combine Color (RGB, HSV,
-    HSL). Separate's colour keeps hue away from its wrap at red (HSV_IN)."""
-    u, v = pixel_uv()
-    c = affine_color(COLOR_IN, u, v)
-    s = lambda coeffs: affine(coeffs, u, v)  # noqa: E731
-    hsv_in = HSV_IN
-    cases = {
-        "hsv": (("ShaderNodeHueSaturation", {}, {0: ("s", (0.6, 0.0, 0.2)), 1: ("s", (0.0, 1.6, 0.2)),
-                                                 2: ("s", (0.5, 0.5, 0.5)), 3: ("s", (0.0, 0.4, 0.6)),
-                                                 4: ("c", COLOR_IN)}),
-                lambda: color.hue_saturation_value_many(s((0.6, 0.0, 0.2)), s((0.0, 1.6, 0.2)), s((0.5, 0.5, 0.5)),
-                                                        s((0.0, 0.4, 0.6)), c)),
-        "invert": (("ShaderNodeInvert", {}, {0: ("s", (0.0, 1.2, -0.1)), 1: ("c", COLOR_IN)}),
-                   lambda: color.invert_many(s((0.0, 1.2, -0.1)), c)),
-        "bright-contrast": (("ShaderNodeBrightContrast", {}, {0: ("c", COLOR_IN), 1: ("s", (0.4, 0.0, -0.2)),
-                                                             2: ("s", (0.0, 1.5, -0.5))}),
-                            lambda: color.bright_contrast_many(c, s((0.4, 0.0, -0.2)), s((0.0, 1.5, -0.5)))),
-        "gamma": (("ShaderNodeGamma", {}, {0: ("c", COLOR_IN), 1: ("s", (2.0, 0.5, 0.1))}),
-                  lambda: color.gamma_many(c, s((2.0, 0.5, 0.1)))),
-        "rgb-to-bw": (("ShaderNodeRGBToBW", {}, {0: ("c", COLOR_IN)}),
-                      lambda: color.rgb_to_bw_many(c)[:, None]),
-    }
-    for mode in ("RGB", "HSV", "HSL"):
-        cases[f"separate-{mode}"] = (("ShaderNodeSeparateColor", {"mode": mode}, {0: ("c", hsv_in)}, 0, True),
-                                     lambda mode=mode: color.separate_color_many(mode, affine_color(hsv_in, u, v)))
-        comb_in = ((1.0, 0.0, 0.0), (0.0, 1.1, -0.05), (0.3, 0.3, 0.3))
-        cases[f"combine-{mode}"] = (("ShaderNodeCombineColor", {"mode": mode},
-                                     {k: ("s", r) for k, r in enumerate(comb_in)}),
-                                    lambda mode=mode, comb_in=comb_in: color.combine_color_many(
-                                        mode, affine_color(comb_in, u, v)))
-    names = list(cases)
-    mats = [_node_material(name, *cases[name][0]) for name in names]
-    blocks = render_blocks(mats, tmp_path)
-    for name, got in zip(names, blocks):
-        check(name, got, cases[name][1]())
-
-
-def test_blackbody_and_wavelength_match_cycles(tmp_path):
-    """Blackbody over 600-12800 K (every segment of the fit and both ends; HDR: relative tolerance) and
-    Wavelength over 370-790 nm (both ends black)."""
-    u, v = pixel_uv()
-    temp, nm = (12000.0, 200.0, 600.0), (420.0, 3.0, 370.0)
-    mats = [_node_material("blackbody", "ShaderNodeBlackbody", {}, {0: ("s", temp)}),
-            _node_material("wavelength", "ShaderNodeWavelength", {}, {0: ("s", nm)})]
-    blackbody, wavelength = render_blocks(mats, tmp_path)
-    check("Blackbody", blackbody, color.blackbody_many(affine(temp, u, v)), rel=True)
-    check("Wavelength", wavelength, color.wavelength_many(affine(nm, u, v)))
-
-
-# ------------------------------------------------------------------------------------------------ bad input
-def test_export_names_the_node_it_cannot_use():
-    mat = bpy.data.materials.new("bad")
-    tree = bf.node_tree_of(mat)
-    curve = tree.nodes.new("ShaderNodeFloatCurve")
-    curve.name = "Flat"
-    points = curve.mapping.curves[0].points
-    points[0].location, points[1].location = (0.5, 0.0), (0.5, 1.0)
-    with pytest.raises(ValueError, match=r"^node 'Flat' \(Float Curve\): the curve's points span no x range "
-                                         r"\(\[0.5, 0.5\]\)$"):
-        export.curve_constants(curve)
-    mix = tree.nodes.new("ShaderNodeMix")
-    mix.name, mix.data_type = "Floats", "FLOAT"
-    with pytest.raises(ValueError, match=r"^node 'Floats' \(Mix\) is not a Mix node in Color mode$"):
-        export.mix_constants(mix)
-    assert export.working_space_warning() is None  # the factory default is Linear Rec.709
-
-
-# ------------------------------------------------------------------------ through Monte's node program
-JITTER = 0.005 / BLOCK  # how far in u or v Monte's samples stray from the pixel centre (its 0.01 px box)
-
-
 def _converter_cases() -> dict:
     """The adjustment and converter nodes: name -> (_node_material arguments, reference(u, v) -> (N, channels))."""
     s = affine
@@ -490,6 +421,40 @@ def _converter_cases() -> dict:
                                    {k: ("s", r) for k, r in enumerate(comb_in)}),
                                   lambda u, v, mode=mode: color.combine_color_many(mode, affine_color(comb_in, u, v)))
     return out
+
+
+def test_adjustment_and_converter_nodes_match_cycles(tmp_path):
+    """Hue/Saturation/Value, Invert, Bright/Contrast, Gamma, RGB to BW, Separate and Combine Color (RGB, HSV,
+    HSL; Separate's input keeps hue off its wrap at red, HSV_IN), Blackbody over 600-12800 K (every segment of the
+    fit and both ends; HDR: relative tolerance) and Wavelength over 370-790 nm (both ends black)."""
+    u, v = pixel_uv()
+    cases = _converter_cases()
+    names = list(cases)
+    blocks = render_blocks([_node_material(name, *cases[name][0]) for name in names], tmp_path)
+    for name, got in zip(names, blocks):
+        check(name, got, cases[name][1](u, v), rel=name == "blackbody")
+
+
+# ------------------------------------------------------------------------------------------------ bad input
+def test_export_names_the_node_it_cannot_use():
+    mat = bpy.data.materials.new("bad")
+    tree = bf.node_tree_of(mat)
+    curve = tree.nodes.new("ShaderNodeFloatCurve")
+    curve.name = "Flat"
+    points = curve.mapping.curves[0].points
+    points[0].location, points[1].location = (0.5, 0.0), (0.5, 1.0)
+    with pytest.raises(ValueError, match=r"^node 'Flat' \(Float Curve\): the curve's points span no x range "
+                                         r"\(\[0.5, 0.5\]\)$"):
+        export.curve_constants(curve)
+    mix = tree.nodes.new("ShaderNodeMix")
+    mix.name, mix.data_type = "Floats", "FLOAT"
+    with pytest.raises(ValueError, match=r"^node 'Floats' \(Mix\) is not a Mix node in Color mode$"):
+        export.mix_constants(mix)
+    assert export.working_space_warning() is None  # the factory default is Linear Rec.709
+
+
+# ------------------------------------------------------------------------ through Monte's node program
+JITTER = 0.005 / BLOCK  # how far in u or v Monte's samples stray from the pixel centre (its 0.01 px box)
 
 
 def _monte_cases() -> list:
