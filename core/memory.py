@@ -78,7 +78,9 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     # every worker thread traces one batch at a time (see core.schedule.batch_target)
     total_paths = pixels * max(int(settings.spp), 0)
     paths = min(batch_target(settings, total_paths), total_paths) * settings.thread_count
-    texels = sum(int(t.pixels.shape[0]) * int(t.pixels.shape[1]) for t in scene.textures)
+    # RGB texels as TEXEL_BYTES; RGBA ones (node-program images, packed RGBA once more for the evaluator) 4/3 of it
+    texels = sum(int(t.pixels.shape[0]) * int(t.pixels.shape[1]) * (4 if t.pixels.shape[2] == 4 else 3) // 3
+                 for t in scene.textures)
     scene_bytes = scene.triangle_count * TRIANGLE_BYTES + texels * TEXEL_BYTES
     return MemoryEstimate(film, result, paths * PATH_BYTES, scene_bytes)
 

@@ -1,6 +1,8 @@
-"""Blender materials (node trees) -> core Materials (sums of lobes plus emission) and Textures.
+"""Blender materials (node trees) -> core Materials (sums of lobes plus emission, optionally a node program).
 
-What is read, starting from the active Material Output (target Cycles/All) Surface socket:
+The surface shader tree is compiled by addon/export/nodes (see docs/shading-nodes.md for every supported node):
+every input of every shader may be driven by nodes, evaluated per shading point by a core.shading program; a
+material whose tree folds to constants is plain constant lobes (no per-point cost). Shaders map to lobes as:
 
 - Principled BSDF, approximated by a sum of Monte lobes (all multiplied by Alpha):
     specular  glossy GGX, weight (1 - metallic)(1 - transmission), Cycles' generalized-Schlick Fresnel: the
@@ -11,7 +13,7 @@ What is read, starting from the active Material Output (target Cycles/All) Surfa
               by 1 - max_c of the specular layer's albedo estimate at the view angle (Cycles 4.x/5.0 layering)
     metal     Schlick's Fresnel on the base colour (what Blender's F82 model reduces to with a white tint):
               a glossy GGX lobe of base colour x metallic without Fresnel plus one with Schlick F0 = 0 tinted
-              (1 - base colour) x metallic; with a textured base colour only the first (darker at grazing)
+              (1 - base colour) x metallic (both per point when the base colour is textured)
     glass     glass GGX with IOR, weight (1 - metallic) x transmission, as Cycles' glass closure: reflection
               with the generalized-Schlick Fresnel of F0(IOR) x Specular Tint (no Specular IOR Level),
               transmission (1 - F) x sqrt(base colour)
@@ -19,16 +21,15 @@ What is read, starting from the active Material Output (target Cycles/All) Surfa
     emission  Emission Color x Emission Strength
   Coat, sheen, subsurface (rendered as diffuse), anisotropy, thin film and normal/bump maps are not
   supported: a warning names each one that is in use.
-- Diffuse, Glossy (no Fresnel), Glass, Refraction, Transparent and Emission shaders.
-- Mix Shader (constant factor) and Add Shader of those: weights multiply down the tree.
-- Colour inputs: a constant, an RGB node, or an Image Texture on the active UV map (pixels loaded with
-  foreach_get, converted to linear; image alpha ignored). Scalar inputs: a constant or a Value node.
-- Reroutes are followed.
+- Diffuse, Glossy (no Fresnel), Glass, Refraction, Transparent and Emission shaders; Mix Shader (its factor may
+  vary per point) and Add Shader of those: weights multiply down the tree.
 
 Anything else gives a warning naming the material and the node, and a documented fallback: an unsupported
 shader makes the whole material a diffuse of the material's viewport colour (Viewport Display > Color); an
 unsupported node driving an input uses that socket's own value. No node tree: the viewport colour as
-diffuse. An empty material slot: a default grey (0.8) diffuse, as Cycles renders it.
+diffuse. An empty material slot: a default grey (0.8) diffuse, as Cycles renders it. Images are read once
+each (RGBA, as Cycles holds them: associated alpha, 8-bit sRGB decoded after filtering); a missing image reads
+Cycles' missing-texture magenta, NaN/Inf texels read 0 (counted warning).
 """
 
 from __future__ import annotations

@@ -151,12 +151,24 @@ class ProgramBuilder:
         raise CompileError(f"cannot convert a {src.lower()} to a {want.lower()}")
 
     # helpers for shader arithmetic (all fold when constant)
+    def _is(self, r: int | None, value: float) -> bool:
+        return r is not None and self.is_const(r) and bool(np.all(self.value(r) == value))
+
     def math(self, operation: str, a: int, b: int | None = None, c: int | None = None, clamp: bool = False) -> int:
+        # identities of the shader arithmetic (x 1, + 0) emit nothing, so a plain weight costs no instruction
+        if not clamp and operation == "MULTIPLY" and (self._is(a, 1.0) or self._is(b, 1.0)):
+            return b if self._is(a, 1.0) else a
+        if not clamp and operation == "ADD" and (self._is(a, 0.0) or self._is(b, 0.0)):
+            return b if self._is(a, 0.0) else a
         zero = self.const(0.0)
         return self.emit("math", a=a, b=zero if b is None else b, c=zero if c is None else c,
                          operation=ev.MATH_OPS.index(operation), clamp=int(clamp))["out"]
 
     def vmath(self, operation: str, a: int, b: int | None = None, scale: int | None = None) -> int:
+        if operation == "SCALE" and self._is(scale, 1.0):
+            return a
+        if operation == "ADD" and (self._is(a, 0.0) or self._is(b, 0.0)):
+            return b if self._is(a, 0.0) else a
         zero = self.const(0.0)
         out = "value" if operation in ev.VECTOR_MATH_VALUE_OPS else "vector"
         return self.emit("vector_math", a=a, b=zero if b is None else b, c=zero, scale=zero if scale is None else scale,
