@@ -237,8 +237,9 @@ def test_cli_missing_and_corrupt_blend_are_clear_errors(tmp_path, capsys):
 @pytest.mark.blender
 @pytest.mark.parametrize("problem", ["missing file", "not an image"])
 def test_bad_texture_file_warns_falls_back_and_renders(tmp_path, capfd, problem):
-    """A texture whose file is missing or not an image: a warning naming material and image, the socket's
-    colour as the fallback, and the render proceeds (plane albedo = the Base Color default, 0.5)."""
+    """A texture whose file is missing or not an image: a warning naming material, node, image and path, the
+    Image Texture node's fallback colour (Cycles' missing-texture magenta), and the render proceeds (the plane
+    under the white world shows albedo (1, 0, 1))."""
     bpy = pytest.importorskip("bpy")
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import blender_fixtures as bf
@@ -268,7 +269,9 @@ def test_bad_texture_file_warns_falls_back_and_renders(tmp_path, capfd, problem)
     out = tmp_path / "out.exr"
     render_blend_file(blend, out, {"spp": 4}, log=log.append)
     text = "\n".join(log) + capfd.readouterr().out  # the engine reports export warnings to Blender's log
-    assert "warning: material 'Textured': image 'Broken' could not be read" in text
-    assert "Textured" in text and "Broken" in text and "socket's colour" in text, text
+    assert f"warning: material 'Textured': node 'Image Texture': image 'Broken' ({str(path)!r}) could not be " \
+           "read" in text, text
+    assert "missing-texture colour (magenta)" in text, text
     rgb = exr.read_rgb(out)
-    assert np.all(np.isfinite(rgb)) and rgb.mean() == pytest.approx(0.5, rel=0.02)
+    assert np.all(np.isfinite(rgb))
+    assert np.allclose(rgb.reshape(-1, 3).mean(axis=0), (1.0, 0.0, 1.0), atol=0.02)

@@ -234,8 +234,8 @@ class MaterialExporter:
             try:
                 pixels, encoded = image_rgba(image, self.warnings)
             except Exception as exc:  # missing file, unreadable image
-                self.warnings.append(f"{owner}: node {node.name!r}: image {image.name!r} ({image.filepath!r}) could "
-                                     f"not be read ({exc}); using Cycles' missing-texture colour (magenta)")
+                self.warnings.append(f"{owner}: node {node.name!r}: image {image.name!r} ({_image_path(image)!r}) "
+                                     f"could not be read ({exc}); using Cycles' missing-texture colour (magenta)")
                 return None, 0
             bad = ~np.isfinite(pixels)
             if bad.any():
@@ -263,6 +263,16 @@ def _reads_uv(program) -> bool:
         if inst[0] == R.OP_TEXCOORD and inst[R.op("texture_coordinate").slot("uv")] >= 0:
             return True
     return False
+
+
+def _image_path(image) -> str:
+    """The image's file as an absolute path (Blender stores '//'-relative ones)."""
+    try:
+        import bpy
+
+        return bpy.path.abspath(image.filepath, library=image.library)
+    except Exception:  # not a file image, or no bpy path helpers
+        return image.filepath
 
 
 def _associates_alpha(image) -> bool:
