@@ -667,9 +667,12 @@ class PathTracer:
             return
         back = g.cos_o_geo < 0
         p_world = (g.p + self.ps.shift.astype(np.float32)).astype(np.float32)
+        # Cycles' sd->N and sd->Ng: the interpolated and the face normal, both negated on a back face (no
+        # specular-validity tilt: that belongs to the closures, not to what nodes read)
         ng = np.where(back[:, None], -g.ng, g.ng)
+        n = np.where(back[:, None], -g.ns_raw, g.ns_raw)
         obj = self.ps.object_of_triangle[prim]
-        sh.evaluate(rows, mat, p_world, g.n_view, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
+        sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
                     self.ps.materials.select_scale, emission)
 
     def _lap(self, stage: str, since: float) -> float:

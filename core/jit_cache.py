@@ -88,13 +88,14 @@ jit_inline = numba.njit(**_OPTIONS, _nrt=False, inline="always")
 # Modules of this folder that define cached kernels (their cache index files are named after them).
 KERNEL_MODULES = ("geometry_kernels", "path_kernels", "mesh_checks", "camera", "sampling", "warps", "bsdf_kernels",
                   "world_kernels", "light_kernels", "embree", "shading/regs", "shading/evaluator",
-                  "shading/procedural", "ray_visibility")
+                  "shading/procedural", "shading/color", "ray_visibility")
 
 
-def compile_cache_is_cold() -> bool:
+def compile_cache_is_cold(with_node_programs: bool = False) -> bool:
     """True when some kernel module has no numba cache index yet for this import of the package (first render
     after an install or an update of the sources): that render compiles the kernels first, about a minute on a
-    2-core machine."""
+    2-core machine. The node-program evaluator (core/shading/) compiles only for scenes with node programs:
+    counted when `with_node_programs`."""
     cache = cache_dir()
     return any(not glob.glob(os.path.join(cache, f"{os.path.basename(name)}.*.nbi"))
-               for name in KERNEL_MODULES)
+               for name in KERNEL_MODULES if with_node_programs or not name.startswith("shading/"))

@@ -303,7 +303,8 @@ def _check_inputs(scene: Scene, settings: RenderSettings, region, say, camera_on
     and the region (the whole frame when None), and refuse a render that would not fit in memory (a clear error
     instead of an out-of-memory kill). Returns the region."""
     settings.validate()
-    if say is not _silent and compile_cache_is_cold():  # the check reads the cache folder: only when it is said
+    programs = any(getattr(m, "program", None) is not None for m in scene.materials)
+    if say is not _silent and compile_cache_is_cold(programs):  # reads the cache folder: only when it is said
         say("compiling the render kernels (first render after an install or update, about a minute; cached after)")
     if camera_only:
         scene.camera.validate()

@@ -48,3 +48,13 @@ def test_the_list_names_every_module_a_render_compiles():
              and decorators.search(open(os.path.join(core, folder, name)).read())}
     assert users - set(jit_cache.KERNEL_MODULES) == {"microfacet"}
     assert set(jit_cache.KERNEL_MODULES) <= users
+
+
+def test_a_subpackage_kernel_is_cached_by_the_per_import_name_locator():
+    """core/shading/'s kernels cache in the import name's folder too (not next to their sources, where another
+    import name of the package would read them)."""
+    from monte.core.shading import color
+
+    py_func = color.mix_color.py_func
+    locator = jit_cache._PerImportNameLocator.from_function(py_func, py_func.__code__.co_filename)
+    assert locator is not None and locator.get_cache_path() == jit_cache.cache_dir()

@@ -16,6 +16,7 @@ import numpy as np
 from .. import bsdf_kernels as bk
 from .. import microfacet as mf
 from ..jit_cache import jit_no_nrt as _jit
+from . import color
 from . import registry as R
 from . import procedural
 from .regs import get3, set3, setf  # noqa: F401  (re-exported for node modules)
@@ -608,8 +609,9 @@ def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
     if op < _COLOR_BASE:
         _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
                  tex_w)
-    # elif op < _PROC_BASE: color.run(op, a, regs, data)        <- core.shading.color registers here
-    elif op >= _PROC_BASE:
+    elif op < _PROC_BASE:
+        color.run(op, a, regs, data)
+    else:
         procedural.run(op, a, regs, data)
 
 

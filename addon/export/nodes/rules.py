@@ -203,7 +203,7 @@ def _saturate(c, r: int) -> int:
 
 @rule("ShaderNodeMix", "Mix", "color", inputs=("Factor", "A", "B"), outputs=("Result",),
       notes="Float, Vector (uniform and non-uniform factor) and Color; Clamp Factor and Clamp Result. Colour "
-            "blend modes other than Mix come from the colour-node module (until then: mixed as Mix, warning).")
+            "in all 19 blend modes (those other than Mix: core.shading.color, as Cycles' kernel).")
 def _mix(c, node, ctx):
     dt = node.data_type
     clamp_fac = bool(getattr(node, "clamp_factor", True))
