@@ -345,7 +345,10 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         return session
 
     def __del__(self):
-        session = getattr(self, "_viewport", None)
+        try:
+            session = getattr(self, "_viewport", None)
+        except ReferenceError:  # Blender freed the engine before Python collected it: it had no viewport
+            return
         if session is not None:
             session.stop()
 

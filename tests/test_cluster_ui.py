@@ -111,8 +111,9 @@ def test_f12_on_the_cluster_writes_the_local_image_bits_tile_by_tile(scheduler, 
 
 def test_esc_cancels_the_units_and_keeps_the_tiles_done(scheduler, tmp_path, patch_engine):
     address, client = scheduler
-    # 12 tiles of 16x16 at 64 spp: 6 units of 2 tiles, each long enough that most are not done at the Esc.
-    scene = small_cornell((64, 48), spp=64)
+    # 12 tiles of 16x16 at 96 spp: 6 units of 2 tiles (3 per worker thread, one after another), each long
+    # enough that the client sees the first back well before the last could be done.
+    scene = small_cornell((64, 48), spp=96)
     scene.monte.tile_size = 16
     scene.monte.use_cluster = True
     scene.monte.cluster_address = address
