@@ -14,8 +14,8 @@ import bpy
 
 from ..core.distributed import DEFAULT_CONNECT_TIMEOUT, ClusterError, connect
 
-# Blender imports an extension as bl_ext.<repository>.monte; cluster workers unpickle the scene and the unit
-# function by their module path, which they can import only as monte (pip install monte[cluster]).
+# Cluster workers unpickle the scene, the settings and the unit function by their module path, and they
+# import Monte as `monte` (pip install monte[cluster]); Blender imports the extension as bl_ext.<repository>.monte.
 WORKER_PACKAGE = "monte"
 
 
@@ -29,13 +29,41 @@ def cluster_address(scene) -> tuple[str, float]:
     return address, float(monte.cluster_timeout)
 
 
-def check_package_name() -> None:
-    """ClusterError when this add-on is not importable as `monte`: the workers could not load its units."""
+def expose_core_to_workers() -> None:
+    """Make the core's objects travel to the workers as `monte.core.*`, the name the workers import them by.
+
+    Where Blender imports Monte under another name (bl_ext.<repository>.monte), each core module is also
+    registered as monte.core.<name> and its classes and functions take that module name, so pickles name
+    them as a worker (and, for what comes back, this process) finds them. ClusterError when another package
+    is already importable here as `monte`."""
+    import sys
+
     package = __name__.rpartition(".addon.")[0]
-    if package != WORKER_PACKAGE:
-        raise ClusterError(f"Monte is loaded as {package!r}, but cluster workers import Monte as "
-                           f"{WORKER_PACKAGE!r}: install Monte as a Python package (pip install monte[cluster]) "
-                           f"and enable it from there, or render with `monte render scene.blend --dask ADDRESS`")
+    if package == WORKER_PACKAGE:
+        return
+    existing = sys.modules.get(WORKER_PACKAGE)
+    if existing is not None and existing is not sys.modules[package]:
+        raise ClusterError(f"Monte is loaded as {package!r} but another {WORKER_PACKAGE!r} package "
+                           f"({getattr(existing, '__file__', '?')}) is loaded too: cluster units would be "
+                           "unpickled against it; remove one of them")
+    _expose_core_as(package, WORKER_PACKAGE)
+
+
+def _expose_core_as(package: str, alias: str) -> None:
+    import importlib
+    import pkgutil
+    import sys
+    import types
+
+    core = importlib.import_module(f"{package}.core")
+    sys.modules[alias] = sys.modules[package]
+    sys.modules[f"{alias}.core"] = core
+    for info in pkgutil.iter_modules(core.__path__):
+        module = importlib.import_module(f"{package}.core.{info.name}")
+        sys.modules[f"{alias}.core.{info.name}"] = module
+        for obj in list(vars(module).values()):
+            if isinstance(obj, (type, types.FunctionType)) and obj.__module__ == module.__name__:
+                obj.__module__ = f"{alias}.core.{info.name}"
 
 
 def describe_workers(client) -> str:
@@ -49,7 +77,7 @@ def probe_cluster(address: str, timeout: float = DEFAULT_CONNECT_TIMEOUT,
                     log: Callable[[str], None] | None = None) -> str:
     """Connect to the cluster as a render would (workers checked for the same Monte) and return the line
     "Connected to ADDRESS: N workers, T threads"; ClusterError with the reason otherwise."""
-    check_package_name()
+    expose_core_to_workers()
     with connect(address, timeout, log) as client:
         return f"Connected to {address}: {describe_workers(client)}"
 

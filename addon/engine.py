@@ -194,13 +194,13 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         when Esc cancelled it (its units cancelled on the cluster). ClusterError when the scheduler cannot be
         reached, has no worker or runs another Monte: the render fails, nothing is rendered here instead."""
         from ..core.distributed import connect, render_on_cluster
-        from .cluster import check_package_name, cluster_address
+        from .cluster import expose_core_to_workers, cluster_address
 
         if region is not None:
             raise ClusterError("a cluster render covers the whole frame: turn off Render Region (Output "
                                "Properties > Format) or Render on a Dask Cluster (Render Properties > Cluster)")
         address, timeout = cluster_address(depsgraph.scene)
-        check_package_name()
+        expose_core_to_workers()
         cancelled = []
 
         def should_cancel() -> bool:

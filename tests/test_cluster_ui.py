@@ -198,3 +198,41 @@ def test_test_connection_reports_the_workers_or_the_exact_error(scheduler):
     with pytest.raises(RuntimeError, match=f"Monte: cannot reach the Dask scheduler at {UNREACHABLE} within 1 s"):
         bpy.ops.monte.cluster_test()
     assert scene.monte.cluster_status.startswith(f"Failed: cannot reach the Dask scheduler at {UNREACHABLE}")
+
+
+_F12_AS_AN_EXTENSION = """
+import importlib, sys
+sys.path.insert(0, {path!r})
+sys.modules["monte"] = None  # as in Blender, where the extension is importable only as bl_ext.<repository>.monte
+import bpy
+import numpy as np
+ext = importlib.import_module("fakeext.monte")
+ext.register()
+scene = importlib.import_module("fakeext.monte.lab.bpy_scenes").cornell_box((24, 16))
+m = scene.monte
+m.samples, m.seed, m.batch_paths, m.tile_size, m.threads = 8, 3, 1024, 8, 1
+m.use_cluster, m.cluster_address = True, {address!r}
+(_, result, _, _), = ext.addon.engine.render_with_operator(scene)
+np.save({out!r}, result.color)
+print("UNITS", result.stats["units"], type(result).__module__)
+"""
+
+
+def test_f12_on_the_cluster_from_monte_loaded_as_a_blender_extension(scheduler, tmp_path):
+    """Blender imports the extension as bl_ext.<repository>.monte, which the workers cannot import: the scene
+    and units still reach them (as monte.core.*, the name they import) and the image is the local one."""
+    import subprocess
+
+    import monte
+
+    address, _ = scheduler
+    (tmp_path / "fakeext").mkdir()
+    (tmp_path / "fakeext" / "__init__.py").write_text("")
+    (tmp_path / "fakeext" / "monte").symlink_to(Path(monte.__file__).resolve().parent, target_is_directory=True)
+    out = tmp_path / "color.npy"
+    script = _F12_AS_AN_EXTENSION.format(path=str(tmp_path), address=address, out=str(out))
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "UNITS 6 monte.core.render" in run.stdout
+    local = render_with_operator(small_cornell())[0][1]
+    assert np.array_equal(np.load(out), local.color)
