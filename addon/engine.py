@@ -194,7 +194,7 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         when Esc cancelled it (its units cancelled on the cluster). ClusterError when the scheduler cannot be
         reached, has no worker or runs another Monte: the render fails, nothing is rendered here instead."""
         from ..core.distributed import connect, render_on_cluster
-        from .cluster import expose_core_to_workers, cluster_address
+        from .cluster import cluster_address, expose_core_to_workers
 
         if region is not None:
             raise ClusterError("a cluster render covers the whole frame: turn off Render Region (Output "
