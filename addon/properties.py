@@ -172,7 +172,6 @@ class MonteRenderSettings(bpy.types.PropertyGroup):
     )
     cluster_status: StringProperty(
         name="Cluster Status", description="What the last Test Connection found", default="",
-        options={"SKIP_SAVE"},
     )
 
 

@@ -142,6 +142,26 @@ def _scheduler_units(client) -> list[str]:
         lambda dask_scheduler: [str(k) for k in dask_scheduler.tasks if "monte-unit" in str(k)])
 
 
+def test_a_blend_saved_with_the_cluster_on_renders_there_headless(scheduler, tmp_path):
+    """`monte render scene.blend` / `blender -b -E MONTE` go through the engine: the saved Cluster settings
+    apply, and the EXR holds the local render's bits."""
+    from monte.addon.headless import render_blend_file
+    from monte.core.exr import read_exr
+
+    scene = small_cornell()
+    local = render_with_operator(scene)[0][1]
+    scene.monte.use_cluster = True
+    scene.monte.cluster_address = scheduler[0]
+    blend = tmp_path / "on_cluster.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    progress = []
+    render_blend_file(blend, tmp_path / "out.exr", log=lambda _m: None, on_progress=progress.append)
+    written = read_exr(tmp_path / "out.exr")
+    for c, name in enumerate("RGB"):
+        assert np.array_equal(written[name], local.color[..., c]), name
+    assert progress[-1].units_done == progress[-1].units_total == 6
+
+
 def test_unreachable_scheduler_fails_the_render_and_renders_nothing_here(monkeypatch):
     import monte.core.render
 
