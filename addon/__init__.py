@@ -15,11 +15,12 @@ def register() -> None:
         return
     import bpy
 
-    from . import engine, operators, properties, ui
+    from . import cluster, engine, operators, properties, ui
 
     properties.register()
     bpy.utils.register_class(engine.MonteRenderEngine)
     operators.register()
+    cluster.register()
     ui.register()
     _registered = True
 
@@ -30,9 +31,10 @@ def unregister() -> None:
         return
     import bpy
 
-    from . import engine, operators, properties, ui
+    from . import cluster, engine, operators, properties, ui
 
     ui.unregister()
+    cluster.unregister()
     operators.unregister()
     bpy.utils.unregister_class(engine.MonteRenderEngine)
     properties.unregister()

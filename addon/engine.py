@@ -16,6 +16,7 @@ import traceback
 import bpy
 import numpy as np
 
+from ..core.distributed import ClusterError
 from ..core.scene import SceneError
 from .export import ExportCancelled, export_camera, export_scene, render_region, render_resolution
 from .properties import render_settings
@@ -132,6 +133,11 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         except ExportCancelled:
             self._log("cancelled during export")
             self._write_black(depsgraph)
+        except ClusterError as exc:
+            # Never a silent local render instead: the user asked for the cluster.
+            self._log(f"cluster render failed: {exc}")
+            self._write_black(depsgraph)
+            self.report({"ERROR"}, f"Monte: cluster render failed: {exc}")
         except Exception as exc:  # noqa: BLE001 - anything escaping would crash Blender at save time
             self._log("render failed:\n" + traceback.format_exc())
             message = str(exc) if isinstance(exc, (SceneError, ValueError, OSError)) else \
@@ -166,8 +172,13 @@ class MonteRenderEngine(bpy.types.RenderEngine):
             lx, ly = tile.x0 - rx, tile.y0 - ry
             self._write(lx, rh - (ly + tile.height), tile.width, tile.height, tile, passes, layer_name)
 
-        result = core_render(core_scene, settings, region=region, on_tile=on_tile, on_progress=self._progress,
-                             should_cancel=self._cancel_requested, log=self._log)
+        if scene.monte.use_cluster:
+            result = self._render_on_cluster(depsgraph, core_scene, settings, region, on_tile)
+            if result is None:  # cancelled: the tiles already back stay written, the rest black
+                return
+        else:
+            result = core_render(core_scene, settings, region=region, on_tile=on_tile, on_progress=self._progress,
+                                 should_cancel=self._cancel_requested, log=self._log)
         if scene.monte.use_denoising:
             self._denoise(result, scene.monte.denoising_quality)
         # The whole region once more, all passes from the final accumulation: consistent even after a cancel.
@@ -176,12 +187,61 @@ class MonteRenderEngine(bpy.types.RenderEngine):
             listener(layer_name, result, region, (width, height))
         seconds = time.perf_counter() - t0
         samples = int(np.asarray(result.sample_count).sum())
-        summary = (f"{'cancelled, ' if result.cancelled else ''}{samples:,} samples in {seconds:.2f} s, "
-                   f"{result.stats.get('rays_per_second', 0.0) / 1e6:.2f} M rays/s")
+        if scene.monte.use_cluster:
+            st = result.stats
+            summary = (f"{samples:,} samples in {seconds:.2f} s on the cluster ({st['units']} units, "
+                       f"{st['workers']} workers, {st['threads']} threads)")
+        else:
+            summary = (f"{'cancelled, ' if result.cancelled else ''}{samples:,} samples in {seconds:.2f} s, "
+                       f"{result.stats.get('rays_per_second', 0.0) / 1e6:.2f} M rays/s")
         self.update_stats("", f"Monte | {summary}")
         self._log(summary)
         if result.cancelled:
             self.report({"WARNING"}, f"Monte: render stopped early ({summary}); the image holds the samples taken")
+
+    def _render_on_cluster(self, depsgraph, core_scene, settings, region, on_tile):
+        """The exported frame rendered on the Dask cluster of Render Properties > Cluster (addon/cluster.py):
+        tiles written as their units come back; the result equals a local render bit for bit. Returns None
+        when Esc cancelled it (its units cancelled on the cluster). ClusterError when the scheduler cannot be
+        reached, has no worker or runs another Monte: the render fails, nothing is rendered here instead."""
+        from ..core.distributed import connect, render_on_cluster
+        from .cluster import cluster_address, expose_core_to_workers
+
+        if region is not None:
+            raise ClusterError("a cluster render covers the whole frame: turn off Render Region (Output "
+                               "Properties > Format) or Render on a Dask Cluster (Render Properties > Cluster)")
+        address, timeout = cluster_address(depsgraph.scene)
+        expose_core_to_workers()
+        cancelled = []
+
+        def should_cancel() -> bool:
+            if self._cancel_requested():
+                cancelled.append(True)
+                return True
+            return False
+
+        tiles_done = []
+
+        def on_cluster_tile(tile) -> None:
+            tiles_done.append(tile)
+            on_tile(tile)
+
+        self.update_stats("", f"Monte | Connecting to the Dask scheduler at {address}")
+        self._log(f"connecting to the Dask scheduler at {address}")
+        try:
+            with connect(address, timeout, self._log) as client:
+                return render_on_cluster(core_scene, settings, client, on_progress=self._progress,
+                                         should_cancel=should_cancel, log=self._log, on_tile=on_cluster_tile)
+        except KeyboardInterrupt:
+            if not cancelled:
+                raise
+        self._log(f"cluster render cancelled with {len(tiles_done)} tiles done; its units were cancelled")
+        if not tiles_done:
+            self._write_black(depsgraph)
+        self.update_stats("", f"Monte | cancelled: {len(tiles_done)} tiles came back from the cluster")
+        self.report({"WARNING"}, f"Monte: cluster render cancelled; the image holds the {len(tiles_done)} tiles "
+                    "that were done, the rest is black")
+        return None
 
     def _render_preview(self, depsgraph) -> None:
         """A material/light/world preview: Blender's preview scene at its small size, in passes of growing
@@ -296,7 +356,10 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         return session
 
     def __del__(self):
-        session = getattr(self, "_viewport", None)
+        try:
+            session = getattr(self, "_viewport", None)
+        except ReferenceError:  # Blender freed the engine before Python collected it: it had no viewport
+            return
         if session is not None:
             session.stop()
 

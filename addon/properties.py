@@ -5,8 +5,9 @@ construction; `render_settings(scene)` turns the properties back into a validate
 """
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
+from ..core.distributed import DEFAULT_CONNECT_TIMEOUT
 from ..core.settings import PREVIEW_SAMPLES, VIEWPORT_SAMPLES, VIEWPORT_START_RESOLUTION, RenderSettings
 
 _DEFAULTS = RenderSettings()
@@ -166,6 +167,26 @@ class MonteRenderSettings(bpy.types.PropertyGroup):
     denoising_quality: EnumProperty(
         name="Quality", description="Open Image Denoise's quality", items=DENOISING_QUALITY_ITEMS,
         default="high",
+    )
+    # Cluster (Render Properties > Cluster): not render settings, they choose where the frame is rendered.
+    use_cluster: BoolProperty(
+        name="Render on a Dask Cluster",
+        description="F12 and command-line renders send the exported frame to a Dask cluster and merge the "
+        "workers' results into the same image, bit for bit, as a render on this machine",
+        default=False,
+    )
+    cluster_address: StringProperty(
+        name="Scheduler",
+        description="The Dask scheduler's address (tcp://host:8786), or local:N to start N worker processes on "
+        "this machine", default="tcp://127.0.0.1:8786",
+    )
+    cluster_timeout: FloatProperty(
+        name="Timeout",
+        description="Seconds to reach the scheduler and see a worker before the render fails",
+        default=DEFAULT_CONNECT_TIMEOUT, min=0.1, soft_max=120.0, subtype="TIME_ABSOLUTE", unit="TIME_ABSOLUTE",
+    )
+    cluster_status: StringProperty(
+        name="Cluster Status", description="What the last Test Connection found", default="",
     )
 
 

@@ -2,7 +2,8 @@
 
 Render properties: Sampling (samples, sampler, seed, clamp, time limit, light sampling), Viewport and Previews,
 Denoise (on/off, quality, whether Open Image Denoise is installed), Light Paths (max bounces, Russian roulette
-depth), Film (pixel filter and width, Transparent, Transparent Glass), Performance (threads, batch size, tiles).
+depth), Film (pixel filter and width, Transparent, Transparent Glass), Performance (threads, batch size, tiles),
+Cluster (render on a Dask cluster, test the connection).
 Camera properties: Panorama (a panoramic camera's type and settings). Object properties: Visibility (ray
 visibility, holdout, shadow catcher).
 View layer properties: Passes (Depth, Normal, Albedo, Variance). Material, world and light properties: the
@@ -246,6 +247,28 @@ class MONTE_RENDER_PT_crosscheck(MonteButtonsPanel, Panel):
         layout.operator("monte.crosscheck", icon="IMAGE")
 
 
+class MONTE_RENDER_PT_cluster(MonteButtonsPanel, Panel):
+    bl_label = "Cluster"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.monte, "use_cluster", text="")
+
+    def draw(self, context):
+        layout = split_layout(self.layout)
+        monte = context.scene.monte
+        col = layout.column()
+        col.prop(monte, "use_cluster")
+        sub = col.column()
+        sub.active = monte.use_cluster
+        sub.prop(monte, "cluster_address")
+        sub.prop(monte, "cluster_timeout")
+        layout.operator("monte.cluster_test", icon="NETWORK_DRIVE")
+        if monte.cluster_status:
+            layout.label(text=monte.cluster_status, icon="ERROR" if monte.cluster_status.startswith("Failed")
+                         else "CHECKMARK")
+
+
 class MONTE_VIEWLAYER_PT_passes(MonteButtonsPanel, Panel):
     bl_label = "Passes"
     bl_context = "view_layer"
@@ -349,6 +372,7 @@ classes = (
     MONTE_OBJECT_PT_visibility,
     MONTE_RENDER_PT_performance,
     MONTE_RENDER_PT_crosscheck,
+    MONTE_RENDER_PT_cluster,
     MONTE_VIEWLAYER_PT_passes,
     MONTE_MATERIAL_PT_surface,
     MONTE_WORLD_PT_surface,

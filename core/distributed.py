@@ -26,7 +26,10 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator
 
-from .render import CancelCallback, RenderResult, SampleRanges, TileSamples, merge_tile_samples, render_samples
+from .film import TileFilm
+from .render import (CancelCallback, RenderResult, SampleRanges, TileCallback, TileSamples, merge_tile_samples,
+                     render_samples, tile_result)
+from .sampling import VARIANCE_GROUPS, make_sampler
 from .scene import Scene
 from .schedule import pass_bounds, tiles
 from .settings import RenderSettings
@@ -217,17 +220,20 @@ def render_on_cluster(scene: Scene, settings: RenderSettings, client, *,
                       on_progress: Callable[[ClusterProgress], None] | None = None,
                       should_cancel: CancelCallback | None = None,
                       log: Callable[[str], None] | None = None,
-                      submit_seed: int | None = None) -> RenderResult:
+                      submit_seed: int | None = None,
+                      on_tile: TileCallback | None = None) -> RenderResult:
     """Render the whole frame on the cluster behind `client`; the images equal render()'s bit for bit.
 
     units: the work split (plan_units for the cluster's worker threads when None). submit_seed: submit the units
     in a shuffled order (for showing that the image does not depend on it). should_cancel is polled while units
     run: when it returns True every unit is cancelled and KeyboardInterrupt is raised (a cluster render keeps
     no partial image: a frame is all or nothing). A time limit does not apply (refused).
+    on_tile: called on this thread with each tile (core.render.Tile, all its samples) as soon as the units
+    holding its samples are back, so a viewer can show the frame filling in; its images equal the final ones.
     stats: seconds, samples/s, units, workers, threads, scene_bytes (the pickled scene sent once per worker),
     film_bytes (all film sums sent back) and film_bytes_per_unit.
     """
-    job = _FrameJob(client, scene, settings, units, submit_seed, log)
+    job = _FrameJob(client, scene, settings, units, submit_seed, log, on_tile=on_tile)
     _run_jobs([job], on_progress, should_cancel)
     return job.result()
 
@@ -278,7 +284,8 @@ class _FrameJob:
     """One frame's units on the cluster: submitted when made, their film sums collected as they finish."""
 
     def __init__(self, client, scene: Scene, settings: RenderSettings, units: list[SampleRanges] | None,
-                 submit_seed: int | None, log: Callable[[str], None] | None, key: object = None) -> None:
+                 submit_seed: int | None, log: Callable[[str], None] | None, key: object = None,
+                 on_tile: TileCallback | None = None) -> None:
         say = log or (lambda _m: None)
         settings.validate()
         if settings.time_limit > 0:
@@ -304,6 +311,8 @@ class _FrameJob:
                                       key=f"monte-unit-{frame_key}-{i}") for i in order]
         width, height = scene.camera.resolution
         tile_list = tiles(0, 0, width, height, settings.tile_size)
+        self.tile_list, self.on_tile = tile_list, on_tile
+        self.tile_parts: dict[int, list[TileSamples]] = {}
         self.unit_paths = {f.key: _unit_paths(tile_list, units[i]) for f, i in zip(self.futures, order)}
         self.total_paths = sum(self.unit_paths.values())
         self.pending = set(self.futures)
@@ -330,11 +339,32 @@ class _FrameJob:
             except Exception as exc:
                 raise ClusterError(f"unit {f.key} failed on its worker: {type(exc).__name__}: {exc}") from exc
             self.parts += result
+            if self.on_tile is not None:
+                self._show_finished_tiles(result)
             self.film_bytes += sum(a.nbytes for part in result for sums in part.films for a in sums.values())
             self.done_paths += self.unit_paths[f.key]
         if self.done:
             self.release()
         return len(finished)
+
+    def _show_finished_tiles(self, result: list[TileSamples]) -> None:
+        """Pass each tile whose samples are now all back to on_tile (its film added in pass order, as the final
+        merge adds it, so the tile shown is the tile of the final image)."""
+        spp = int(self.settings.spp)
+        for part in result:
+            self.tile_parts.setdefault(part.tile_index, []).append(part)
+        for ti in sorted({part.tile_index for part in result}):
+            parts = sorted(self.tile_parts[ti], key=lambda p: p.sample_start)
+            if sum(p.sample_end - p.sample_start for p in parts) != spp:
+                continue
+            tile = self.tile_list[ti]
+            sampler = make_sampler(self.settings.sampler, self.settings.seed, max(spp, 1), groups=VARIANCE_GROUPS)
+            film = TileFilm(tile[2], tile[3], self.settings.aovs, sampler)
+            for p in parts:
+                for sums in p.films:
+                    film.add_sums(sums)
+            del self.tile_parts[ti]
+            self.on_tile(tile_result(tile, film, spp, self.settings.aovs))
 
     def cancel(self) -> None:
         self.client.cancel(self.futures, force=True)

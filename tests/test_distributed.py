@@ -113,6 +113,25 @@ def test_cluster_render_equals_one_render(cluster, reference, ranges_per_tile, s
     assert seen[-1].fraction == 1.0 and seen[-1].samples_done == 32 * 24 * 12
 
 
+@pytest.mark.parametrize("ranges_per_tile", [1, 3])
+def test_each_tile_is_shown_once_its_units_are_back_as_the_final_image_holds_it(cluster, reference,
+                                                                                ranges_per_tile):
+    """on_tile (the add-on writes these into Blender's render result as they come): every tile once, after its
+    last sample range, with images equal to the final frame's (3 ranges per tile: merged from 3 units)."""
+    _, client = cluster
+    scene, settings = _scene(), _settings(aovs=True)
+    units = plan_units(scene, settings, 2, ranges_per_tile=ranges_per_tile)
+    shown = []
+    result = render_on_cluster(scene, settings, client, units=units, submit_seed=5, on_tile=shown.append)
+    assert sorted((t.x0, t.y0, t.width, t.height) for t in shown) == sorted(tiles(0, 0, 32, 24, 16))
+    for t in shown:
+        window = (slice(t.y0, t.y0 + t.height), slice(t.x0, t.x0 + t.width))
+        assert t.samples == 12
+        for name in ("color", "variance", "albedo", "normal", "depth"):
+            assert np.array_equal(getattr(t, name), getattr(result, name)[window]), name
+    _assert_same_images(result, render(scene, settings))
+
+
 def test_frames_in_flight_each_equal_their_own_render(cluster):
     """Three 'frames' (the seed changes, as Blender's animated seed does) with two in flight at once: each
     delivered frame equals render() of that frame, and the second frame's units were queued before the first

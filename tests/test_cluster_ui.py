@@ -1,0 +1,258 @@
+"""F12 on a Dask cluster from Blender (Render Properties > Cluster): the engine exports the frame, renders it on a
+real distributed.LocalCluster (2 worker processes, one thread each) and writes the same image bits as a local
+render, tile by tile as units come back; Esc cancels the units; an unreachable scheduler fails the render with
+core.distributed's message and renders nothing locally; Test Connection reports the workers or the error."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+distributed = pytest.importorskip("distributed")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import blender_fixtures as bf  # noqa: E402
+
+from monte.addon import engine as engine_mod  # noqa: E402
+from monte.addon.engine import render_with_operator  # noqa: E402
+from monte.core.distributed import ClusterProgress  # noqa: E402
+
+pytestmark = pytest.mark.blender
+Engine = engine_mod.MonteRenderEngine
+UNREACHABLE = "tcp://127.0.0.1:9"  # the discard port: nothing listens there
+
+
+@pytest.fixture(scope="module")
+def scheduler():
+    """A LocalCluster's scheduler address (tcp://127.0.0.1:PORT) with 2 worker processes of one thread."""
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=":0") as cluster:
+        with distributed.Client(cluster) as client:
+            yield cluster.scheduler_address, client
+
+
+@pytest.fixture
+def patch_engine():
+    saved = {}
+
+    def patch(name, value):
+        saved.setdefault(name, Engine.__dict__.get(name))
+        setattr(Engine, name, value)
+
+    yield patch
+    for name, value in saved.items():
+        if value is None:
+            delattr(Engine, name)
+        else:
+            setattr(Engine, name, value)
+
+
+def small_cornell(resolution=(24, 16), spp=8):
+    """The Cornell box cut into 8x8 tiles (6 at 24x16), one sample pass per tile: 6 units of one tile each."""
+    scene = bf.cornell_box(resolution)
+    monte = scene.monte
+    monte.samples, monte.seed, monte.batch_paths, monte.tile_size, monte.threads = spp, 3, 1024, 8, 1
+    return scene
+
+
+def render_still(scene, tmp_path, name):
+    """F12 written as a float multilayer EXR; its channels."""
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+    scene.render.filepath = str(tmp_path / name)
+    scene.render.use_file_extension = True
+    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+    return bf.read_exr_layers(tmp_path / f"{name}.exr")
+
+
+def test_f12_on_the_cluster_writes_the_local_image_bits_tile_by_tile(scheduler, tmp_path, patch_engine):
+    address, _ = scheduler
+    scene = small_cornell()
+    scene.view_layers[0].use_pass_z = True
+    local = render_still(scene, tmp_path, "local")
+
+    writes = []
+    original_write = Engine._write
+
+    def record_write(self, x, y, w, h, src, passes, layer_name):
+        writes.append((x, y, w, h))
+        original_write(self, x, y, w, h, src, passes, layer_name)
+
+    patch_engine("_write", record_write)
+    scene.monte.use_cluster = True
+    scene.monte.cluster_address = address
+    progress = []
+    captured = render_with_operator(scene, on_progress=progress.append)
+    on_cluster = render_still(scene, tmp_path, "cluster")
+    assert sorted(local) == sorted(on_cluster)
+    for name in local:
+        assert np.array_equal(local[name], on_cluster[name]), name
+    assert local["ViewLayer.Combined.R"].max() > 0
+
+    # Each of the 6 tiles was written as its unit came back, then the whole frame once (per render).
+    tile_writes = [wr for wr in writes[:len(writes) // 2] if wr[2:] != (24, 16)]
+    assert sorted(tile_writes) == sorted((x, y, 8, 8) for x in (0, 8, 16) for y in (0, 8))
+    assert writes[len(writes) // 2 - 1] == (0, 0, 24, 16)
+    # Progress: units done up to all 6, the 2 workers seen.
+    assert progress and all(isinstance(p, ClusterProgress) for p in progress)
+    assert [p.units_total for p in progress] == [6] * len(progress)
+    assert progress[-1].units_done == 6 and progress[-1].fraction == 1.0 and progress[-1].workers == 2
+    assert "Unit 6/6 | 2 workers" in progress[-1].stats_line()
+    (layer, result, region, size), = captured
+    assert result.stats["units"] == 6 and result.stats["workers"] == 2 and region is None and size == (24, 16)
+
+
+def test_esc_cancels_the_units_and_keeps_the_tiles_done(scheduler, tmp_path, patch_engine):
+    address, client = scheduler
+    # 12 tiles of 16x16 at 96 spp: 6 units of 2 tiles (3 per worker thread, one after another), each long
+    # enough that the client sees the first back well before the last could be done.
+    scene = small_cornell((64, 48), spp=96)
+    scene.monte.tile_size = 16
+    scene.monte.use_cluster = True
+    scene.monte.cluster_address = address
+    events = []
+    original_progress = Engine._progress
+
+    def progress(self, p):
+        events.append(p)
+        original_progress(self, p)
+
+    patch_engine("_progress", progress)
+    patch_engine("_cancel_requested", lambda self: bool(events))  # Esc once the first unit is back
+    image = render_still(scene, tmp_path, "cancelled")["ViewLayer.Combined.R"]
+    assert len(events) == 1 and events[0].units_done < events[0].units_total == 6
+    tiles_lit = sum(bool(image[y:y + 16, x:x + 16].max() > 0) for y in range(0, 48, 16) for x in range(0, 64, 16))
+    assert 2 <= tiles_lit < 12 and tiles_lit == 2 * events[0].units_done
+    # The scheduler forgets every unit: the ones not started never run.
+    deadline = time.monotonic() + 60
+    while _scheduler_units(client) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _scheduler_units(client) == []
+
+
+def _scheduler_units(client) -> list[str]:
+    return client.run_on_scheduler(
+        lambda dask_scheduler: [str(k) for k in dask_scheduler.tasks if "monte-unit" in str(k)])
+
+
+def test_a_blend_saved_with_the_cluster_on_renders_there_headless(scheduler, tmp_path):
+    """`monte render scene.blend` / `blender -b -E MONTE` go through the engine: the saved Cluster settings
+    apply, and the EXR holds the local render's bits."""
+    from monte.addon.headless import render_blend_file
+    from monte.core.exr import read_exr
+
+    scene = small_cornell()
+    local = render_with_operator(scene)[0][1]
+    scene.monte.use_cluster = True
+    scene.monte.cluster_address = scheduler[0]
+    blend = tmp_path / "on_cluster.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    progress = []
+    render_blend_file(blend, tmp_path / "out.exr", log=lambda _m: None, on_progress=progress.append)
+    written = read_exr(tmp_path / "out.exr")
+    for c, name in enumerate("RGB"):
+        assert np.array_equal(written[name], local.color[..., c]), name
+    assert progress[-1].units_done == progress[-1].units_total == 6
+
+
+def test_unreachable_scheduler_fails_the_render_and_renders_nothing_here(monkeypatch):
+    import monte.core.render
+
+    def no_local_render(*_a, **_k):
+        raise AssertionError("a local render ran instead of the cluster")
+
+    monkeypatch.setattr(monte.core.render, "render", no_local_render)
+    scene = small_cornell()
+    scene.monte.use_cluster = True
+    scene.monte.cluster_address = UNREACHABLE
+    scene.monte.cluster_timeout = 1.0
+    with pytest.raises(RuntimeError) as err:
+        render_with_operator(scene)
+    assert str(err.value).startswith(f"Monte: cluster render failed: cannot reach the Dask scheduler at "
+                                     f"{UNREACHABLE} within 1 s: ")
+
+
+@pytest.mark.parametrize("setting, message", [
+    ("empty address", "Monte: cluster render failed: Render on a Dask cluster is on but the scheduler address is "
+                      "empty (tcp://host:8786, or local:N for N worker processes on this machine)"),
+    ("no scheme", "Monte: cluster render failed: a Dask scheduler address looks like tcp://host:8786, "
+                  "got 'localhost:8786'"),
+    ("render region", "Monte: cluster render failed: a cluster render covers the whole frame: turn off Render "
+                      "Region (Output Properties > Format) or Render on a Dask Cluster (Render Properties > "
+                      "Cluster)"),
+    ("time limit", "Monte: a time limit does not apply to a cluster render (its units are not stopped halfway)"),
+])
+def test_bad_cluster_settings_are_exact_errors(setting, message, scheduler):
+    scene = small_cornell()
+    scene.monte.use_cluster = True
+    scene.monte.cluster_address = scheduler[0]
+    if setting == "empty address":
+        scene.monte.cluster_address = "  "
+    elif setting == "no scheme":
+        scene.monte.cluster_address = "localhost:8786"
+    elif setting == "render region":
+        scene.render.use_border = True
+        scene.render.border_min_x, scene.render.border_max_x = 0.25, 0.75
+    elif setting == "time limit":
+        scene.monte.time_limit = 5.0
+    with pytest.raises(RuntimeError) as err:
+        render_with_operator(scene)
+    assert str(err.value) == message
+
+
+def test_test_connection_reports_the_workers_or_the_exact_error(scheduler):
+    address, _ = scheduler
+    scene = small_cornell()
+    scene.monte.cluster_address = address
+    assert bpy.ops.monte.cluster_test() == {"FINISHED"}
+    assert scene.monte.cluster_status == f"Connected to {address}: 2 workers, 2 threads"
+    scene.monte.cluster_address = UNREACHABLE
+    scene.monte.cluster_timeout = 1.0
+    with pytest.raises(RuntimeError, match=f"Monte: cannot reach the Dask scheduler at {UNREACHABLE} within 1 s"):
+        bpy.ops.monte.cluster_test()
+    assert scene.monte.cluster_status.startswith(f"Failed: cannot reach the Dask scheduler at {UNREACHABLE}")
+
+
+_F12_AS_AN_EXTENSION = """
+import importlib, sys
+sys.path.insert(0, {path!r})
+sys.modules["monte"] = None  # as in Blender, where the extension is importable only as bl_ext.<repository>.monte
+import bpy
+import numpy as np
+ext = importlib.import_module("fakeext.monte")
+ext.register()
+scene = importlib.import_module("fakeext.monte.lab.bpy_scenes").cornell_box((24, 16))
+m = scene.monte
+m.samples, m.seed, m.batch_paths, m.tile_size, m.threads = 8, 3, 1024, 8, 1
+m.use_cluster, m.cluster_address = True, {address!r}
+(_, result, _, _), = ext.addon.engine.render_with_operator(scene)
+np.save({out!r}, result.color)
+print("UNITS", result.stats["units"], type(result).__module__)
+"""
+
+
+def test_f12_on_the_cluster_from_monte_loaded_as_a_blender_extension(scheduler, tmp_path):
+    """Blender imports the extension as bl_ext.<repository>.monte, which the workers cannot import: the scene
+    and units still reach them (as monte.core.*, the name they import) and the image is the local one."""
+    import subprocess
+
+    import monte
+
+    address, _ = scheduler
+    (tmp_path / "fakeext").mkdir()
+    (tmp_path / "fakeext" / "__init__.py").write_text("")
+    (tmp_path / "fakeext" / "monte").symlink_to(Path(monte.__file__).resolve().parent, target_is_directory=True)
+    out = tmp_path / "color.npy"
+    script = _F12_AS_AN_EXTENSION.format(path=str(tmp_path), address=address, out=str(out))
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "UNITS 6 monte.core.render" in run.stdout
+    local = render_with_operator(small_cornell())[0][1]
+    assert np.array_equal(np.load(out), local.color)
