@@ -106,6 +106,7 @@ def _mesh_object(core_mesh, materials: list, collection):
         mesh.normals_split_custom_set(np.asarray(core_mesh.normals, dtype=np.float64).reshape(-1, 3).tolist())
     mesh.update()
     obj = bpy.data.objects.new(core_mesh.name, mesh)
+    obj.shadow_terminator_geometry_offset = float(core_mesh.shadow_terminator_offset)
     collection.objects.link(obj)
     return obj
 

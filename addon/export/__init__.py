@@ -47,6 +47,7 @@ class _Prototype:
     slot_materials: np.ndarray
     name: str
     matrices: list = field(default_factory=list)
+    shadow_terminator_offset: float = 0.0
 
 
 def _matrix(m) -> np.ndarray:
@@ -68,10 +69,11 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats):
             warnings.append(msg)
     slots = tuple(slot.material for slot in obj.material_slots)
     slot_key = tuple(0 if m is None else m.as_pointer() for m in slots)
+    terminator = _terminator_offset(original, warnings)
     if kind == "MESH" and obj.data is not None:
-        key = ("mesh", obj.data.as_pointer(), slot_key)
+        key = ("mesh", obj.data.as_pointer(), slot_key, terminator)
     else:
-        key = ("object", original.as_pointer(), slot_key)
+        key = ("object", original.as_pointer(), slot_key, terminator)
     proto = prototypes.get(key)
     if proto is not None:
         return key if proto.local is not None else None
@@ -85,9 +87,21 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats):
     lut = np.zeros(n_slots, dtype=np.int32)
     for slot in used:
         lut[slot] = materials.index(slots[slot] if slot < len(slots) else None)
-    prototypes[key] = _Prototype(local, lut, original.name)
+    prototypes[key] = _Prototype(local, lut, original.name, shadow_terminator_offset=terminator)
     stats.meshes_converted += 1
     return key
+
+
+def _terminator_offset(obj, warnings: list[str]) -> float:
+    """The object's Shading > Shadow Terminator > Geometry Offset (Cycles' setting, Blender's default 0.1),
+    clamped to its range [0, 1] with a warning naming the object."""
+    value = float(getattr(obj, "shadow_terminator_geometry_offset", 0.1))
+    if not 0.0 <= value <= 1.0:  # NaN included
+        fallback = min(max(value, 0.0), 1.0) if value == value else 0.1
+        warnings.append(f"object {obj.name!r}: Shadow Terminator Geometry Offset {value!r} is outside [0, 1]; "
+                        f"using {fallback:g}")
+        value = fallback
+    return value
 
 
 def _special_visibility(obj) -> bool:
@@ -176,7 +190,8 @@ def export_scene(
             warnings.append(f"mesh {proto.name!r} has an image-textured material but no UV map; the texture is "
                             "sampled at UV (0, 0)")
         matrices = np.array(proto.matrices, dtype=np.float64).reshape(k, 4, 4)
-        meshes.append(instances_to_mesh(proto.local, matrices, proto.slot_materials, name))
+        meshes.append(instances_to_mesh(proto.local, matrices, proto.slot_materials, name,
+                                        proto.shadow_terminator_offset))
 
     if not materials.materials:
         materials.index(None)  # core needs at least one material
