@@ -176,7 +176,8 @@ class Mesh:
       None means flat shading (the geometric normal).
     uvs: optional (T, 3, 2) per-corner texture coordinates.
     material_index: (T,) int index into `Scene.materials` (a single int broadcasts).
-    shadow_terminator_offset: Cycles' object setting Shading > Shadow Terminator > Geometry Offset, in [0, 1]:
+    shadow_terminator_offset: Cycles' object setting Shading > Shadow Terminator > Geometry Offset, >= 0 (the
+      UI's range is [0, 1]; larger values act as 1 on almost every ray):
       on smooth-shaded triangles, shadow rays towards lights at grazing angles leave from the point lifted
       towards the smooth surface the shading normals describe (Cycles' shadow_ray_offset). 0 = off (the core's
       default); Blender objects default to 0.1 and the add-on exports their value.
@@ -225,9 +226,9 @@ class Mesh:
         if normals is not None and normals.shape != (n_tri, 3, 3):
             raise SceneError(f"{owner}: normals must have shape (T, 3, 3) = ({n_tri}, 3, 3), got {normals.shape}")
         offset = self.shadow_terminator_offset
-        if not (isinstance(offset, (int, float, np.floating, np.integer)) and 0.0 <= float(offset) <= 1.0):
-            raise SceneError(f"{owner}: shadow_terminator_offset (Shadow Terminator > Geometry Offset) must be in "
-                             f"[0, 1], got {offset!r}")
+        if not (isinstance(offset, (int, float, np.floating, np.integer)) and 0.0 <= float(offset) < math.inf):
+            raise SceneError(f"{owner}: shadow_terminator_offset (Shadow Terminator > Geometry Offset) must be a "
+                             f"finite number >= 0, got {offset!r}")
         uvs = None if self.uvs is None else np.asarray(self.uvs, dtype=np.float32)
         if uvs is not None and uvs.shape != (n_tri, 3, 2):
             raise SceneError(f"{owner}: uvs must have shape (T, 3, 2) = ({n_tri}, 3, 2), got {uvs.shape}")

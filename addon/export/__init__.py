@@ -69,7 +69,7 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats):
             warnings.append(msg)
     slots = tuple(slot.material for slot in obj.material_slots)
     slot_key = tuple(0 if m is None else m.as_pointer() for m in slots)
-    terminator = _terminator_offset(original, warnings)
+    terminator = _terminator_offset(original)
     if kind == "MESH" and obj.data is not None:
         key = ("mesh", obj.data.as_pointer(), slot_key, terminator)
     else:
@@ -92,16 +92,10 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats):
     return key
 
 
-def _terminator_offset(obj, warnings: list[str]) -> float:
-    """The object's Shading > Shadow Terminator > Geometry Offset (Cycles' setting, Blender's default 0.1),
-    clamped to its range [0, 1] with a warning naming the object."""
-    value = float(getattr(obj, "shadow_terminator_geometry_offset", 0.1))
-    if not 0.0 <= value <= 1.0:  # NaN included
-        fallback = min(max(value, 0.0), 1.0) if value == value else 0.1
-        warnings.append(f"object {obj.name!r}: Shadow Terminator Geometry Offset {value!r} is outside [0, 1]; "
-                        f"using {fallback:g}")
-        value = fallback
-    return value
+def _terminator_offset(obj) -> float:
+    """The object's Shading > Shadow Terminator > Geometry Offset (Cycles' setting; Blender keeps it in [0, 1],
+    default 0.1)."""
+    return float(getattr(obj, "shadow_terminator_geometry_offset", 0.1))
 
 
 def _special_visibility(obj) -> bool:
