@@ -107,3 +107,20 @@ def test_smooth_suzanne_under_an_hdri_matches_cycles_with_its_geometry_offset(tm
           f"vs Cycles (offset 0): {100 * rel0:+.3f} % +- {100 * sigma0:.3f} %")
     assert abs(rel) < 4 * sigma
     assert abs(rel0) > 4 * sigma0  # the control: the test sees the offset's effect
+
+
+@pytest.mark.blender
+def test_each_object_exports_its_own_offset():
+    """Two objects sharing one smooth mesh, one with Blender's default 0.1 and one at 0.35: two core meshes,
+    each with its object's value."""
+    bpy = pytest.importorskip("bpy")
+    from monte.addon.export import export_scene
+
+    scene, ob = _suzanne_under_forest(None, size=(8, 8))
+    other = ob.copy()  # shares ob.data
+    other.location = (2.5, 0, 0)
+    other.shadow_terminator_geometry_offset = 0.35
+    scene.collection.objects.link(other)
+    out, _ = export_scene(bpy.context.evaluated_depsgraph_get())
+    got = sorted((m.name, round(m.shadow_terminator_offset, 6)) for m in out.meshes)
+    assert got == [(ob.name, 0.1), (other.name, 0.35)]
