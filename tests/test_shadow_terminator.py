@@ -124,3 +124,20 @@ def test_each_object_exports_its_own_offset():
     out, _ = export_scene(bpy.context.evaluated_depsgraph_get())
     got = sorted((m.name, round(m.shadow_terminator_offset, 6)) for m in out.meshes)
     assert got == [(ob.name, 0.1), (other.name, 0.35)]
+
+
+@pytest.mark.blender
+def test_a_core_scene_rebuilt_for_cycles_keeps_each_mesh_offset():
+    """lab.core_to_bpy (the stress suite's Cycles side) sets the core meshes' offsets on the Blender objects,
+    so that a core mesh at the core's default 0 is not compared against Cycles at Blender's default 0.1."""
+    pytest.importorskip("bpy")
+    from monte.lab.core_to_bpy import build_bpy_scene
+
+    tri = np.array([[0, 1, 2]])
+    up = np.tile(np.array([0, 0, 1], F32), (1, 3, 1))
+    meshes = [Mesh("off", np.eye(3), tri, 0, normals=up),
+              Mesh("on", np.eye(3) + 2, tri, 0, normals=up, shadow_terminator_offset=0.25)]
+    cam = Camera.look_at((0, -5, 0), (0, 0, 0), horizontal_fov=0.5, resolution=(4, 4))
+    scene, _ = build_bpy_scene(Scene(camera=cam, meshes=meshes, materials=[Material("m", [Lobe("diffuse")])]))
+    got = {o.name: round(o.shadow_terminator_geometry_offset, 6) for o in scene.objects if o.type == "MESH"}
+    assert got == {"off": 0.0, "on": 0.25}
