@@ -292,7 +292,8 @@ class SceneSync:
             proto = self.prototypes[key]
             k = len(stacked)
             label = proto.name if k == 1 else f"{proto.name} (x{k} instances)"
-            self.meshes[key] = instances_to_mesh(proto.local, stacked, proto.slot_materials, label)
+            self.meshes[key] = instances_to_mesh(proto.local, stacked, proto.slot_materials, label,
+                                                 proto.shadow_terminator_offset)
             self.placed[key] = stacked
             if old is not None and names[key] not in read:
                 report.moved.append(names[key])

@@ -170,3 +170,64 @@ def triangle_frames(vertices, triangles, tri_vertices, face_normals, magnitude):
         cx, cy, cz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
         length = max(math.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
         face_normals[t, 0], face_normals[t, 1], face_normals[t, 2] = cx / length, cy / length, cz / length
+
+
+# ------------------------------------------------------------------------------------------- shadow terminator
+@_jit
+def _dot_vn(tri_vertices, corner_normals, t, a, b, i):
+    """(V_a - V_b) . N_i of triangle t."""
+    s = np.float32(0.0)
+    for c in range(3):
+        s += (tri_vertices[t, a, c] - tri_vertices[t, b, c]) * corner_normals[t, i, c]
+    return s
+
+
+@_jit
+def _dot_nv(tri_vertices, corner_normals, t, i, j, a, b):
+    """(N_i - N_j) . (V_a - V_b) of triangle t."""
+    s = np.float32(0.0)
+    for c in range(3):
+        s += (corner_normals[t, i, c] - corner_normals[t, j, c]) * (tri_vertices[t, a, c] - tri_vertices[t, b, c])
+    return s
+
+
+@_jit
+def smooth_surface_lift(t, w0, w1, w2, gx, gy, gz, tri_vertices, corner_normals):
+    """Cycles' shadow_ray_smooth_surface_offset: the vector that lifts the point with barycentric weights
+    (w0, w1, w2) of triangle t towards the smooth surface its corner normals describe, on the side of the unit
+    geometric normal g (the side the shadow ray leaves from).
+
+    The lift is h along the interpolated (unnormalised) normal n: h from the parabola through the corners with
+    the corner normals' slopes, kept at least half of it and bounded by the tangent planes at the corners (the
+    local linear envelope); with n on g's side h >= 0, else h <= 0, so the point always moves to g's side."""
+    v, n = tri_vertices, corner_normals
+    px = v[t, 0, 0] * w0 + v[t, 1, 0] * w1 + v[t, 2, 0] * w2
+    py = v[t, 0, 1] * w0 + v[t, 1, 1] * w1 + v[t, 2, 1] * w2
+    pz = v[t, 0, 2] * w0 + v[t, 1, 2] * w1 + v[t, 2, 2] * w2
+    nx = n[t, 0, 0] * w0 + n[t, 1, 0] * w1 + n[t, 2, 0] * w2  # unnormalised, as Cycles
+    ny = n[t, 0, 1] * w0 + n[t, 1, 1] * w1 + n[t, 2, 1] * w2
+    nz = n[t, 0, 2] * w0 + n[t, 1, 2] * w1 + n[t, 2, 2] * w2
+
+    # parabolic approximation over the triangle (weights of corners 0 and 1 as the free parameters)
+    a = _dot_nv(tri_vertices, corner_normals, t, 2, 0, 0, 2)
+    b = _dot_nv(tri_vertices, corner_normals, t, 2, 1, 1, 2)
+    c = _dot_nv(tri_vertices, corner_normals, t, 1, 0, 1, 0)
+    h = a * w0 * (w0 - 1) + (a + b + c) * w0 * w1 + b * w1 * (w1 - 1)
+    front = nx * gx + ny * gy + nz * gz > 0
+    env = np.float32(3.4e38)
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        pv = (tri_vertices[t, i, 0] - px) * corner_normals[t, i, 0] + (tri_vertices[t, i, 1] - py) * \
+            corner_normals[t, i, 1] + (tri_vertices[t, i, 2] - pz) * corner_normals[t, i, 2]
+        if front:
+            hi = max(max(_dot_vn(tri_vertices, corner_normals, t, j, i, i), _dot_vn(tri_vertices, corner_normals, t, k, i, i)), np.float32(0.0))
+            hi = max(pv + hi, np.float32(0.0))  # (V_i - P) . N_i + ...
+        else:
+            hi = max(max(_dot_vn(tri_vertices, corner_normals, t, i, j, i), _dot_vn(tri_vertices, corner_normals, t, i, k, i)), np.float32(0.0))
+            hi = max(-pv + hi, np.float32(0.0))  # (P - V_i) . N_i + ...
+        env = min(env, hi)
+    if front:
+        h = max(env, h * np.float32(0.5))
+    else:
+        h = min(-env, h * np.float32(0.5))
+    return nx * h, ny * h, nz * h

@@ -126,6 +126,8 @@ class PreparedScene:
     visible_to: dict = field(default_factory=dict)
     no_shadow: "NoShadowLights | None" = None  # lights whose Cast Shadow is off (core.light_shadow)
     has_clear: bool = False  # some material has a Transparent BSDF (a refraction lobe of IOR 1, roughness 0)
+    # (T,) float32 Shadow Terminator Geometry Offset of each smooth triangle (0 on flat ones), None when all are 0
+    terminator_offset: np.ndarray | None = None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -158,7 +160,7 @@ class PreparedScene:
         """sample_world: whether light sampling may pick the (uniform) world, see LightSampler; only the
         light-sampling-only estimator needs it (it counts no emission that BSDF sampling finds)."""
         shift = scene.camera.position.copy()
-        verts, tris, mats, normals, uvs, smooth, objs, seen_by = [], [], [], [], [], [], [], []
+        verts, tris, mats, normals, uvs, smooth, objs, seen_by, terminator = [], [], [], [], [], [], [], [], []
         offset = 0
         any_smooth = any(m.normals is not None for m in scene.meshes)
         any_uv = any(m.uvs is not None for m in scene.meshes)
@@ -177,6 +179,8 @@ class PreparedScene:
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
                 smooth.append(np.full(t, mesh.normals is not None))
+                terminator.append(np.full(t, float(mesh.shadow_terminator_offset) if mesh.normals is not None
+                                          else 0.0, np.float32))
             if any_uv:
                 uvs.append(mesh.uvs if mesh.uvs is not None else np.zeros((t, 3, 2), np.float32))
         vertices = np.concatenate(verts) if verts else np.zeros((0, 3), np.float32)
@@ -191,6 +195,9 @@ class PreparedScene:
                                 tri_vertices, face_normals, tri_magnitude)
         corner_normals = np.concatenate(normals).astype(np.float32) if any_smooth and normals else None
         smooth_mask = np.concatenate(smooth) if any_smooth and smooth else None
+        terminator_offset = np.concatenate(terminator) if any_smooth and terminator else None
+        if terminator_offset is not None and not terminator_offset.any():
+            terminator_offset = None  # nothing to do: shadow rays skip the terminator code entirely
         uv_arr = np.concatenate(uvs).astype(np.float32) if any_uv and uvs else None
 
         materials = bsdf_mod.MaterialTable.build(scene.materials, scene.textures)
@@ -232,7 +239,8 @@ class PreparedScene:
                    specular, features, shading, object_of_triangle,
                    alpha, holdout, keeps, visible_to, no_shadow,
                    any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
-                       for m in scene.materials for lobe in m.lobes))
+                       for m in scene.materials for lobe in m.lobes),
+                   terminator_offset=terminator_offset)
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
@@ -561,7 +569,10 @@ class PathTracer:
 
             clock = self._lap("emission", clock)
             if self.use_nee:
-                self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance)
+                bary = None
+                if ps.terminator_offset is not None:  # the shadow terminator lift needs the hits' triangles
+                    bary = (prim[rows], hits.u[rows], hits.v[rows])
+                self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary)
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
@@ -681,8 +692,10 @@ class PathTracer:
         setattr(self.stats, f"seconds_{stage}", getattr(self.stats, f"seconds_{stage}") + now - since)
         return now
 
-    def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance) -> None:
-        """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted."""
+    def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
+                    bary=None) -> None:
+        """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
+        u, v) of each path's hit when some mesh has a shadow terminator offset, else None."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
@@ -704,7 +717,7 @@ class PathTracer:
                                     np.asarray(ls.pdf, np.float32), np.asarray(pdf_b, np.float32),
                                     np.asarray(ls.delta, bool), self.mis, gc.cos_o_geo, gc.ng, transmits, gc.p, gc.mag,
                                     wi, np.asarray(ls.dist, np.float32), SHADOW_EPSILON, contrib, origin, direction,
-                                    tmax, sample_of)
+                                    tmax, sample_of, *self._terminator_args(bary, can, gc))
         if count == 0:
             return
         clock = time.perf_counter()
@@ -722,6 +735,18 @@ class PathTracer:
             blocked &= ~free[sample_of[:count]]
         vis = np.flatnonzero(~blocked)
         self._add(radiance, sample_of[vis], contrib[vis])
+
+    def _terminator_args(self, bary, can, gc: "SurfaceBatch") -> tuple:
+        """shadow_rays' shadow terminator inputs for the light samples of paths `can` (empty arrays: off)."""
+        ps = self.ps
+        if bary is None:
+            e3 = np.zeros((0, 3, 3), np.float32)
+            return (np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros(0, np.float32),
+                    np.zeros((0, 3), np.float32), e3, e3, np.zeros(0, np.float32))
+        prim, bu, bv = bary
+        return (np.ascontiguousarray(prim[can]), np.ascontiguousarray(bu[can], np.float32),
+                np.ascontiguousarray(bv[can], np.float32), np.ascontiguousarray(gc.n_view), ps.tri_vertices,
+                ps.corner_normals, ps.terminator_offset)
 
     def _add(self, radiance: np.ndarray, idx: np.ndarray, value: np.ndarray) -> None:
         """Add contributions to their samples, catching NaN/Inf (counted, dropped) and clamping if asked."""

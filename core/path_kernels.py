@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from .geometry_kernels import offset_point
+from .geometry_kernels import offset_point, smooth_surface_lift
 from .jit_cache import jit as _jit
 
 _F0 = np.float32(0.0)
@@ -68,7 +68,8 @@ def scatter(wi_local, tangent, bitangent, ns, ng, cos_o_geo, valid, transmitted,
 
 @_jit
 def shadow_rays(rows, throughput, idx, f_cos, radiance, pdf_light, pdf_bsdf, delta, use_mis, cos_o_geo, ng,
-                transmits, p, mag, wi, dist, shadow_epsilon, contrib, origin, direction, tmax, out_idx):
+                transmits, p, mag, wi, dist, shadow_epsilon, contrib, origin, direction, tmax, out_idx,
+                prim, bu, bv, n_view, tri_vertices, corner_normals, terminator_offset):
     """Next-event estimation's contribution (if unoccluded) and shadow ray per light sample.
 
     contrib = throughput f cos L w / pdf_light, with w the power-heuristic MIS weight (1 for delta lights or
@@ -79,7 +80,15 @@ def shadow_rays(rows, throughput, idx, f_cos, radiance, pdf_light, pdf_bsdf, del
     Light sample k belongs to path rows[k] (its throughput and sample id idx). Only samples that would contribute
     get a shadow ray: they are written compacted (contrib, origin, direction, tmax, out_idx rows [0, count));
     returns count.
+
+    Shadow terminator (Cycles' shadow_ray_offset), where terminator_offset (T,) is not empty: on a triangle
+    prim[k] whose offset o > 0 (smooth-shaded), with N = n_view (the shading normal on the viewer's side), the
+    geometric normal G on N's side of wi, NL = |N . wi| and GL = G . wi, the origin is lifted towards the smooth
+    surface (core.geometry_kernels.smooth_surface_lift at barycentrics bu, bv) by the amount
+    clamp(2 - (GL + NL) / o, 0, 1) if NL < o else clamp(1 - GL / o, 0, 1). A lifted ray going below the face
+    (GL <= 0) may hit the face itself, as in Cycles, instead of being dropped as crossing the surface.
     """
+    use_terminator = terminator_offset.shape[0] > 0
     count = 0
     for k in range(rows.shape[0]):
         r = rows[k]
@@ -93,7 +102,23 @@ def shadow_rays(rows, throughput, idx, f_cos, radiance, pdf_light, pdf_bsdf, del
             scale = w / max(pl, _TINY)
         wx, wy, wz = wi[k, 0], wi[k, 1], wi[k, 2]
         crosses = (cos_o_geo[k] > _F0) != (wx * ng[k, 0] + wy * ng[k, 1] + wz * ng[k, 2] > _F0)
-        if crosses and not transmits[k]:
+        lift = _F0
+        t = 0
+        g_side = _F1
+        if use_terminator:
+            t = prim[k]
+            cutoff = terminator_offset[t]
+            if cutoff > _F0:
+                nl = wx * n_view[k, 0] + wy * n_view[k, 1] + wz * n_view[k, 2]
+                g_side = _F1 if cos_o_geo[k] >= _F0 else -_F1  # G on the viewer's side ...
+                if nl < _F0:
+                    nl, g_side = -nl, -g_side  # ... or the other one for light through the surface
+                gl = g_side * (wx * ng[k, 0] + wy * ng[k, 1] + wz * ng[k, 2])
+                if nl < cutoff:
+                    lift = min(max(np.float32(2.0) - (gl + nl) / cutoff, _F0), _F1)
+                else:
+                    lift = min(max(_F1 - gl / cutoff, _F0), _F1)
+        if crosses and not transmits[k] and not lift > _F0:
             scale = _F0
         peak = _F0
         for c in range(3):
@@ -106,7 +131,15 @@ def shadow_rays(rows, throughput, idx, f_cos, radiance, pdf_light, pdf_bsdf, del
         count += 1
         out_idx[j] = idx[r]
         px, py, pz = p[k, 0], p[k, 1], p[k, 2]
-        ox, oy, oz = offset_point(px, py, pz, ng[k, 0], ng[k, 1], ng[k, 2], wx, wy, wz, mag[k])
+        if lift > _F0:
+            b1, b2 = bu[k], bv[k]
+            lx, ly, lz = smooth_surface_lift(t, _F1 - b1 - b2, b1, b2, ng[k, 0] * g_side, ng[k, 1] * g_side,
+                                             ng[k, 2] * g_side, tri_vertices, corner_normals)
+            ox, oy, oz = px + lx * lift, py + ly * lift, pz + lz * lift
+            if g_side * (wx * ng[k, 0] + wy * ng[k, 1] + wz * ng[k, 2]) > _F0:  # leaves the face: skip it
+                ox, oy, oz = offset_point(ox, oy, oz, ng[k, 0], ng[k, 1], ng[k, 2], wx, wy, wz, mag[k])
+        else:
+            ox, oy, oz = offset_point(px, py, pz, ng[k, 0], ng[k, 1], ng[k, 2], wx, wy, wz, mag[k])
         origin[j, 0], origin[j, 1], origin[j, 2] = ox, oy, oz
         dk = dist[k]
         if math.isfinite(dk):

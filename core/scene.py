@@ -210,6 +210,11 @@ class Mesh:
       Camera); visible_shadow: False lets shadow rays pass through it (Ray Visibility > Shadow);
       visible_diffuse / visible_glossy / visible_transmission: False hides it from rays that a diffuse lobe,
       a glossy lobe (or a glass's reflection), or a transmission started (core.ray_visibility). Other rays see it.
+    shadow_terminator_offset: Cycles' object setting Shading > Shadow Terminator > Geometry Offset, >= 0 (the
+      UI's range is [0, 1]; larger values act as 1 on almost every ray):
+      on smooth-shaded triangles, shadow rays towards lights at grazing angles leave from the point lifted
+      towards the smooth surface the shading normals describe (Cycles' shadow_ray_offset). 0 = off (the core's
+      default); Blender objects default to 0.1 and the add-on exports their value.
     """
 
     name: str
@@ -224,6 +229,7 @@ class Mesh:
     visible_diffuse: bool = True
     visible_glossy: bool = True
     visible_transmission: bool = True
+    shadow_terminator_offset: float = 0.0
 
     @property
     def triangle_count(self) -> int:
@@ -265,6 +271,10 @@ class Mesh:
         normals = None if self.normals is None else np.asarray(self.normals, dtype=np.float32)
         if normals is not None and normals.shape != (n_tri, 3, 3):
             raise SceneError(f"{owner}: normals must have shape (T, 3, 3) = ({n_tri}, 3, 3), got {normals.shape}")
+        offset = self.shadow_terminator_offset
+        if not (isinstance(offset, (int, float, np.floating, np.integer)) and 0.0 <= float(offset) < math.inf):
+            raise SceneError(f"{owner}: shadow_terminator_offset (Shadow Terminator > Geometry Offset) must be a "
+                             f"finite number >= 0, got {offset!r}")
         uvs = None if self.uvs is None else np.asarray(self.uvs, dtype=np.float32)
         if uvs is not None and uvs.shape != (n_tri, 3, 2):
             raise SceneError(f"{owner}: uvs must have shape (T, 3, 2) = ({n_tri}, 3, 2), got {uvs.shape}")

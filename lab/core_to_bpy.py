@@ -108,6 +108,7 @@ def _mesh_object(core_mesh, materials: list, collection):
     obj = bpy.data.objects.new(core_mesh.name, mesh)
     for kind in ("camera", "shadow", "diffuse", "glossy", "transmission"):
         setattr(obj, f"visible_{kind}", bool(getattr(core_mesh, f"visible_{kind}")))
+    obj.shadow_terminator_geometry_offset = float(core_mesh.shadow_terminator_offset)
     collection.objects.link(obj)
     return obj
 

@@ -51,6 +51,7 @@ class _Prototype:
     instance_info: list = field(default_factory=list)  # per instance: (r, g, b, a, pass index, random id)
     texspace: tuple | None = None  # (location, size) of the mesh's texture space (Generated coordinates)
     visibility: tuple = (True,) * 5  # Mesh.visible_<kind> for each of MESH_RAY_VISIBILITY
+    shadow_terminator_offset: float = 0.0
 
 
 # Object > Visibility > Ray Visibility flags Monte renders on meshes (core.scene.Mesh.visible_<kind>).
@@ -80,10 +81,11 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
         seen = (False,) + seen[1:]  # Cycles renders an Indirect Only collection as hidden from camera rays
     slots = tuple(slot.material for slot in obj.material_slots)
     slot_key = tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ()) + seen
+    terminator = _terminator_offset(original)
     if kind == "MESH" and obj.data is not None:
-        key = ("mesh", obj.data.as_pointer(), slot_key)
+        key = ("mesh", obj.data.as_pointer(), slot_key, terminator)
     else:
-        key = ("object", original.as_pointer(), slot_key)
+        key = ("object", original.as_pointer(), slot_key, terminator)
     proto = prototypes.get(key)
     if proto is not None:
         return key if proto.local is not None else None
@@ -98,7 +100,8 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     material_of = materials.holdout_index if held else materials.index
     for slot in used:
         lut[slot] = material_of(slots[slot] if slot < len(slots) else None)
-    prototypes[key] = _Prototype(local, lut, original.name, texspace=_texspace(obj, local), visibility=seen)
+    prototypes[key] = _Prototype(local, lut, original.name, texspace=_texspace(obj, local), visibility=seen,
+                                 shadow_terminator_offset=terminator)
     stats.meshes_converted += 1
     return key
 
@@ -167,6 +170,12 @@ def is_holdout(obj, view_layer) -> bool:
         return bool(obj.holdout_get(view_layer=view_layer))
     except (AttributeError, RuntimeError, TypeError):
         return False
+
+
+def _terminator_offset(obj) -> float:
+    """The object's Shading > Shadow Terminator > Geometry Offset (Cycles' setting; Blender keeps it in [0, 1],
+    default 0.1)."""
+    return float(getattr(obj, "shadow_terminator_geometry_offset", 0.1))
 
 
 def _read_geometry(obj, warnings: list[str]) -> LocalMesh | None:
@@ -257,7 +266,8 @@ def export_scene(
             warnings.append(f"mesh {proto.name!r} has an image-textured material but no UV map; the texture is "
                             "sampled at UV (0, 0)")
         matrices = np.array(proto.matrices, dtype=np.float64).reshape(k, 4, 4)
-        mesh = instances_to_mesh(proto.local, matrices, proto.slot_materials, name)
+        mesh = instances_to_mesh(proto.local, matrices, proto.slot_materials, name,
+                                 proto.shadow_terminator_offset)
         start = sum(len(r) for r in object_rows)
         object_rows.append(_object_rows(matrices, np.array(proto.instance_info, np.float64).reshape(k, 6),
                                         proto.texspace))

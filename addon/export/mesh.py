@@ -81,8 +81,10 @@ def read_mesh(mesh, name: str) -> LocalMesh:
     return LocalMesh(name, vertices, tri_verts, slots, normals, uvs)
 
 
-def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np.ndarray, name: str) -> Mesh:
-    """Place `local` at each of the (K, 4, 4) world matrices; slot_materials maps slot -> scene material."""
+def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np.ndarray, name: str,
+                      shadow_terminator_offset: float = 0.0) -> Mesh:
+    """Place `local` at each of the (K, 4, 4) world matrices; slot_materials maps slot -> scene material.
+    shadow_terminator_offset: the object's Shadow Terminator Geometry Offset (see core.scene.Mesh)."""
     k = matrices.shape[0]
     v = local.vertices.astype(np.float64)
     n_vert, n_tri = v.shape[0], local.triangle_count
@@ -120,4 +122,5 @@ def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np
         material_index=np.ascontiguousarray(mat, dtype=np.int32),
         normals=None if normals is None else normals.reshape(-1, 3, 3),
         uvs=None if uvs is None else np.ascontiguousarray(uvs.reshape(-1, 3, 2), dtype=np.float32),
+        shadow_terminator_offset=float(shadow_terminator_offset),
     )
