@@ -193,6 +193,8 @@ class Mesh:
     material_index: (T,) int index into `Scene.materials` (a single int broadcasts).
     object_index: optional (T,) int (or one int) row of `Scene.objects` each triangle belongs to: the object data
       shading nodes read (object space, texture space, Object Info); None = no object (identity space).
+    uv_layers: optional {name: (T, 3, 2)} every UV map of the mesh by name (UV Map nodes naming a map read
+      these through `Scene.uv_layer_names`; a mesh without the named map reads (0, 0), as Blender does).
     """
 
     name: str
@@ -202,6 +204,7 @@ class Mesh:
     normals: np.ndarray | None = None
     uvs: np.ndarray | None = None
     object_index: np.ndarray | int | None = None
+    uv_layers: dict | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -266,6 +269,13 @@ class Mesh:
                     cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
                 flat = (cross / np.maximum(area2[bad_n], 1e-300)[:, None]).astype(np.float32)
                 normals[bad_n] = flat[:, None, :]
+        layers = {}
+        for lname, luv in (self.uv_layers or {}).items():
+            luv = np.asarray(luv, dtype=np.float32)
+            if luv.shape != (n_tri, 3, 2):
+                raise SceneError(f"{owner}: UV map {lname!r} must have shape (T, 3, 2) = ({n_tri}, 3, 2), got "
+                                 f"{luv.shape}")
+            layers[lname] = np.nan_to_num(luv, nan=0.0, posinf=0.0, neginf=0.0)
         if uvs is not None and not np.all(np.isfinite(uvs)):
             warnings.append(f"{owner}: non-finite UVs replaced by 0")
             uvs = np.nan_to_num(uvs, nan=0.0, posinf=0.0, neginf=0.0)
@@ -280,12 +290,14 @@ class Mesh:
             normals = None if normals is None else normals[keep]
             uvs = None if uvs is None else uvs[keep]
             objs = None if objs is None else objs[keep]
+            layers = {lname: luv[keep] for lname, luv in layers.items()}
         # Non-finite vertices that no kept triangle uses are harmless; replace them so later arithmetic is clean.
         if not np.all(np.isfinite(v)):
             v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
         self.vertices, self.triangles, self.material_index = v, tri.astype(np.int32), mat.astype(np.int32)
         self.normals, self.uvs = normals, uvs
         self.object_index = None if objs is None else objs.astype(np.int32)
+        self.uv_layers = layers or None
 
 
 # ------------------------------------------------------------------------------------------------------ lights
@@ -511,6 +523,7 @@ class Scene:
     name: str = "scene"
     warnings: list[str] = field(default_factory=list)
     objects: np.ndarray | None = None  # (O, core.shading.program.OBJECT_COLUMNS) float32 rows, see Mesh.object_index
+    uv_layer_names: list[str] = field(default_factory=list)  # the UV maps node programs name (uv_layer operand)
 
     @property
     def triangle_count(self) -> int:
