@@ -128,6 +128,7 @@ class PreparedScene:
     has_clear: bool = False  # some material has a Transparent BSDF (a refraction lobe of IOR 1, roughness 0)
     # (T,) float32 Shadow Terminator Geometry Offset of each smooth triangle (0 on flat ones), None when all are 0
     terminator_offset: np.ndarray | None = None
+    uv_layers: np.ndarray | None = None  # (T, K, 3, 2) the named UV maps of Scene.uv_layer_names, or None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -160,7 +161,9 @@ class PreparedScene:
         """sample_world: whether light sampling may pick the (uniform) world, see LightSampler; only the
         light-sampling-only estimator needs it (it counts no emission that BSDF sampling finds)."""
         shift = scene.camera.position.copy()
-        verts, tris, mats, normals, uvs, smooth, objs, seen_by, terminator = [], [], [], [], [], [], [], [], []
+        verts, tris, mats, normals, uvs, smooth, objs, seen_by, terminator, layers = ([], [], [], [], [], [], [], [],
+                                                                              [], [])
+        layer_names = list(scene.uv_layer_names)
         offset = 0
         any_smooth = any(m.normals is not None for m in scene.meshes)
         any_uv = any(m.uvs is not None for m in scene.meshes)
@@ -176,6 +179,12 @@ class PreparedScene:
             objs.append(np.zeros(t, np.int32) if mesh.object_index is None
                         else np.broadcast_to(np.asarray(mesh.object_index, np.int32) + 1, (t,)))
             seen_by.append((t, *(bool(getattr(mesh, f"visible_{kind}")) for kind in RAY_KINDS)))
+            if layer_names:  # the named UV maps node programs read; (0, 0) where a mesh lacks one
+                per = np.zeros((t, len(layer_names), 3, 2), np.float32)
+                for j, lname in enumerate(layer_names):
+                    if mesh.uv_layers and lname in mesh.uv_layers:
+                        per[:, j] = mesh.uv_layers[lname]
+                layers.append(per)
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
                 smooth.append(np.full(t, mesh.normals is not None))
@@ -207,6 +216,7 @@ class PreparedScene:
         shading = PreparedShading.build(scene.materials, scene.textures, materials.max_lobes,
                                         np.concatenate(object_rows).astype(np.float32))
         object_of_triangle = np.concatenate(objs).astype(np.int32) if objs else np.zeros(0, np.int32)
+        uv_layers = np.concatenate(layers) if layers else None
         emissive = EmissiveTriangles.from_mesh_arrays(tri_vertices, material_index, materials.emission)
         if len(vertices):
             lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
@@ -240,7 +250,7 @@ class PreparedScene:
                    alpha, holdout, keeps, visible_to, no_shadow,
                    any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
                        for m in scene.materials for lobe in m.lobes),
-                   terminator_offset=terminator_offset)
+                   terminator_offset=terminator_offset, uv_layers=uv_layers)
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
@@ -517,7 +527,8 @@ class PathTracer:
                     ge = self._surface(e, prim, hits.u, hits.v, d)
                     mat_e = ps.material_index[prim[e]]
                     le = np.zeros((len(e), 3), np.float32)
-                    self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le)
+                    self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le,
+                                bary=(hits.u[e], hits.v[e]))
                     self._add(radiance, idx[e], throughput[e] * le)
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
@@ -546,7 +557,8 @@ class PathTracer:
                 mat_first = ps.material_index[prim[hit_rows]]
                 lobes_first = ps.materials.gather(mat_first, g.uv)
                 if ps.shading is not None:
-                    self._shade(g, mat_first, prim[hit_rows], d[hit_rows], lobes_first)
+                    self._shade(g, mat_first, prim[hit_rows], d[hit_rows], lobes_first,
+                                bary=(hits.u[hit_rows], hits.v[hit_rows]))
                 first.albedo[idx[hit_rows]] = bsdf_mod.albedo(lobes_first)
                 first.normal[idx[hit_rows]] = g.ns_raw
                 first.depth[idx[hit_rows]] = (t_start[hit_rows] + hits.t[hit_rows]) * depth_scale[hit_rows]
@@ -563,7 +575,7 @@ class PathTracer:
             mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
             if ps.shading is not None:
-                self._shade(g, mat, prim[rows], d[rows], lobes)
+                self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]))
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
 
@@ -669,7 +681,7 @@ class PathTracer:
         return g
 
     def _shade(self, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
-               lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None) -> None:
+               lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None) -> None:
         """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
         The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir."""
         sh = self.ps.shading
@@ -683,8 +695,14 @@ class PathTracer:
         ng = np.where(back[:, None], -g.ng, g.ng)
         n = np.where(back[:, None], -g.ns_raw, g.ns_raw)
         obj = self.ps.object_of_triangle[prim]
+        uvx = None
+        if self.ps.uv_layers is not None and bary is not None:  # the named UV maps at the hit points
+            b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
+            corners = self.ps.uv_layers[prim]  # (N, K, 3, 2)
+            uvx = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
+                   + corners[:, :, 2] * b2[:, None, None]).astype(np.float32)
         sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
-                    self.ps.materials.select_scale, emission)
+                    self.ps.materials.select_scale, emission, uvx)
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""

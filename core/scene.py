@@ -215,6 +215,8 @@ class Mesh:
       on smooth-shaded triangles, shadow rays towards lights at grazing angles leave from the point lifted
       towards the smooth surface the shading normals describe (Cycles' shadow_ray_offset). 0 = off (the core's
       default); Blender objects default to 0.1 and the add-on exports their value.
+    uv_layers: optional {name: (T, 3, 2)} every UV map of the mesh by name (UV Map nodes naming a map read
+      these through `Scene.uv_layer_names`; a mesh without the named map reads (0, 0), as Blender does).
     """
 
     name: str
@@ -230,6 +232,7 @@ class Mesh:
     visible_glossy: bool = True
     visible_transmission: bool = True
     shadow_terminator_offset: float = 0.0
+    uv_layers: dict | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -298,6 +301,13 @@ class Mesh:
                     cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
                 flat = (cross / np.maximum(area2[bad_n], 1e-300)[:, None]).astype(np.float32)
                 normals[bad_n] = flat[:, None, :]
+        layers = {}
+        for lname, luv in (self.uv_layers or {}).items():
+            luv = np.asarray(luv, dtype=np.float32)
+            if luv.shape != (n_tri, 3, 2):
+                raise SceneError(f"{owner}: UV map {lname!r} must have shape (T, 3, 2) = ({n_tri}, 3, 2), got "
+                                 f"{luv.shape}")
+            layers[lname] = np.nan_to_num(luv, nan=0.0, posinf=0.0, neginf=0.0)
         if uvs is not None and not np.all(np.isfinite(uvs)):
             warnings.append(f"{owner}: non-finite UVs replaced by 0")
             uvs = np.nan_to_num(uvs, nan=0.0, posinf=0.0, neginf=0.0)
@@ -312,12 +322,14 @@ class Mesh:
             normals = None if normals is None else normals[keep]
             uvs = None if uvs is None else uvs[keep]
             objs = None if objs is None else objs[keep]
+            layers = {lname: luv[keep] for lname, luv in layers.items()}
         # Non-finite vertices that no kept triangle uses are harmless; replace them so later arithmetic is clean.
         if not np.all(np.isfinite(v)):
             v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
         self.vertices, self.triangles, self.material_index = v, tri.astype(np.int32), mat.astype(np.int32)
         self.normals, self.uvs = normals, uvs
         self.object_index = None if objs is None else objs.astype(np.int32)
+        self.uv_layers = layers or None
 
 
 # ------------------------------------------------------------------------------------------------------ lights
@@ -634,6 +646,7 @@ class Scene:
     warnings: list[str] = field(default_factory=list)
     objects: np.ndarray | None = None  # (O, core.shading.program.OBJECT_COLUMNS) float32 rows, see Mesh.object_index
     film: Film = field(default_factory=Film)
+    uv_layer_names: list[str] = field(default_factory=list)  # the UV maps node programs name (uv_layer operand)
 
     @property
     def has_alpha(self) -> bool:

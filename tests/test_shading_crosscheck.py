@@ -321,3 +321,27 @@ def test_lit_textured_principled_mixed_by_layer_weight_matches_cycles(tmp_path):
     print(f"\nlit textured sphere: Cycles {np.round(c, 4)} Monte {np.round(mm, 4)} rel {np.round(mm / c - 1, 4)}")
     assert 0.1 * mask.size < mask.sum() < 0.4 * mask.size  # the sphere covers ~20 % of the frame
     assert np.allclose(mm, c, rtol=0.01)
+
+
+def test_uv_map_node_reads_a_named_non_active_uv_map():
+    """Two UV maps on the plane; a UV Map node names the second (not active for rendering), the Texture
+    Coordinate UV output reads the active one: both as Cycles shows them."""
+    def build(tree, nodes):
+        uvmap = nodes.new("ShaderNodeUVMap")
+        uvmap.uv_map = "Second"
+        add = nodes.new("ShaderNodeVectorMath")
+        add.operation = "MULTIPLY_ADD"
+        link(tree, uvmap.outputs["UV"], add, 0)
+        add.inputs[1].default_value = (1.0, 1.0, 0.0)
+        link(tree, nodes["Texture Coordinate"].outputs["UV"], add, 2)
+        return add.outputs[0]
+
+    scene = sc.emission_plane(build, size=16, name="uvmaps")
+    second = scene.objects["plane"].data.uv_layers.new(name="Second")
+    second.data.foreach_set("uv", [0.3, 0.9, 0.1, 0.2, 0.8, 0.0, 0.6, 0.7])
+    scene.objects["plane"].data.uv_layers["UVMap"].active_render = True
+    monte, cycles = sc.compare(scene, spp=2)
+    diff = np.abs(monte - cycles).max(axis=2)
+    print(f"\nuv maps: max |Monte - Cycles| {diff.max():.2e}")
+    assert cycles.std() > 0.05
+    assert np.mean(diff > SMOOTH_TOL) < 0.02 and diff.max() < 2e-2

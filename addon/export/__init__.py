@@ -281,7 +281,8 @@ def export_scene(
     world = export_world(scene.world, warnings)
     out = Scene(camera=camera, meshes=meshes, materials=materials.materials, lights=lights, world=world,
                 textures=materials.textures, name=scene.name, warnings=warnings, film=export_film(scene),
-                objects=np.concatenate(object_rows).astype(np.float32) if object_rows else None)
+                objects=np.concatenate(object_rows).astype(np.float32) if object_rows else None,
+                uv_layer_names=list(materials.uv_names))
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "
                          "metaballs); check the objects' render visibility and the view layer's collections")

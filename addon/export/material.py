@@ -158,6 +158,7 @@ class MaterialExporter:
         self.textures: list[Texture] = []
         self.textured: set[int] = set()  # material indices that read UVs (image textures, UV coordinates)
         self.nonfinite_texels = 0
+        self.uv_names: list[str] = []  # UV maps UV Map nodes name (core Scene.uv_layer_names)
         self._by_key: dict[int | tuple, int] = {}
         self._tex_by_key: dict[tuple, int] = {}
         self._default: int | None = None
@@ -214,7 +215,8 @@ class MaterialExporter:
             self.warnings.append(f"{owner}: displacement is not supported and is ignored")
         builder = ProgramBuilder(owner, self.warnings, self.textures,
                                  lambda node, alpha_used: self._image_texture(node, owner, alpha_used),
-                                 material_pass_index=int(getattr(material, "pass_index", 0)))
+                                 material_pass_index=int(getattr(material, "pass_index", 0)),
+                                 uv_layer_index=self._uv_layer_index)
         try:
             lobes, bind, emission, holdout = compile_surface(builder, output)
         except (UnsupportedShader, CompileError) as exc:
@@ -244,6 +246,11 @@ class MaterialExporter:
         return found
 
     # ----------------------------------------------------------------------------------------- internals
+    def _uv_layer_index(self, name: str) -> int:
+        if name not in self.uv_names:
+            self.uv_names.append(name)
+        return self.uv_names.index(name)
+
     def _add(self, mat: Material) -> int:
         self.materials.append(mat)
         return len(self.materials) - 1

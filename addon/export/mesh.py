@@ -29,6 +29,7 @@ class LocalMesh:
     slots: np.ndarray  # (T,) int32 material slot per triangle
     normals: np.ndarray | None  # (T, 3, 3) float32 or None (flat)
     uvs: np.ndarray | None  # (T, 3, 2) float32 or None
+    uv_layers: dict = None  # every UV map by name: (T, 3, 2) float32 (what UV Map nodes name)
 
     @property
     def triangle_count(self) -> int:
@@ -72,13 +73,17 @@ def read_mesh(mesh, name: str) -> LocalMesh:
         normals = cn.reshape(n_loop, 3)[loops()].reshape(n_tri, 3, 3)
 
     uvs = None
-    layer = mesh.uv_layers.active
-    if n_tri and layer is not None:
+    layers = {}
+    active = mesh.uv_layers.active
+    if n_tri and len(mesh.uv_layers):
         n_loop = len(mesh.loops)
-        uv = np.empty(n_loop * 2, dtype=np.float32)
-        layer.uv.foreach_get("vector", uv)
-        uvs = uv.reshape(n_loop, 2)[loops()].reshape(n_tri, 3, 2)
-    return LocalMesh(name, vertices, tri_verts, slots, normals, uvs)
+        for layer in mesh.uv_layers:
+            uv = np.empty(n_loop * 2, dtype=np.float32)
+            layer.uv.foreach_get("vector", uv)
+            layers[layer.name] = uv.reshape(n_loop, 2)[loops()].reshape(n_tri, 3, 2)
+        if active is not None:
+            uvs = layers[active.name]
+    return LocalMesh(name, vertices, tri_verts, slots, normals, uvs, layers)
 
 
 def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np.ndarray, name: str,
@@ -103,6 +108,7 @@ def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np
         n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-30)
         normals = n.reshape(k, n_tri, 3, 3)
     uvs = None if local.uvs is None else np.broadcast_to(local.uvs, (k, n_tri, 3, 2))
+    layers = {name: np.broadcast_to(uv, (k, n_tri, 3, 2)) for name, uv in (local.uv_layers or {}).items()}
 
     if mirrored.any():
         tri = tri.copy()
@@ -112,6 +118,10 @@ def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np
         if uvs is not None:
             uvs = uvs.copy()
             uvs[mirrored] = uvs[mirrored][:, :, [0, 2, 1]]
+        for name, uv in layers.items():
+            uv = uv.copy()
+            uv[mirrored] = uv[mirrored][:, :, [0, 2, 1]]
+            layers[name] = uv
 
     slots = np.clip(local.slots, 0, len(slot_materials) - 1)
     mat = np.broadcast_to(slot_materials[slots], (k, n_tri)).reshape(-1)
@@ -123,4 +133,6 @@ def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np
         normals=None if normals is None else normals.reshape(-1, 3, 3),
         uvs=None if uvs is None else np.ascontiguousarray(uvs.reshape(-1, 3, 2), dtype=np.float32),
         shadow_terminator_offset=float(shadow_terminator_offset),
+        uv_layers={name: np.ascontiguousarray(uv.reshape(-1, 3, 2), dtype=np.float32) for name, uv in layers.items()}
+        or None,
     )

@@ -43,6 +43,7 @@ _MATH, _VMATH, _MAPRANGE, _CLAMP = R.OP_MATH, R.OP_VECTOR_MATH, R.OP_MAP_RANGE, 
 _SEPXYZ, _COMBXYZ, _MAPPING, _MIX = R.OP_SEPARATE_XYZ, R.OP_COMBINE_XYZ, R.OP_MAPPING, R.OP_MIX
 _FRESNEL, _LAYER = R.OP_FRESNEL, R.OP_LAYER_WEIGHT
 _TEXCO, _GEOM, _OBJINFO, _IMAGE = R.OP_TEXCOORD, R.OP_GEOMETRY, R.OP_OBJECT_INFO, R.OP_IMAGE
+_UVLAYER = R.OP_UV_LAYER
 _SPEC, _GLASSF0, _SQRTSAT, _OMS = R.OP_SPECULAR_LAYER, R.OP_GLASS_F0, R.OP_SQRT_SATURATE, R.OP_ONE_MINUS_SATURATE
 _COLOR_BASE, _PROC_BASE = R.COLOR_BASE, R.PROCEDURAL_BASE
 _SINGULAR = np.float32(mf.SINGULAR_ROUGHNESS)
@@ -432,7 +433,7 @@ def image_lookup(tex_pixels, off, h, w, u, v, interp, ext, c):
 # ------------------------------------------------------------------------------------------------- dispatch
 @_jit
 def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-             tex_w):
+             tex_w, uvx):
     """Execute core opcode `op` with operand slots `a` (a[1..]) for shading point k."""
     if op == _COPY:
         x, y, z = get3(regs, a[2])
@@ -511,6 +512,12 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         set3(regs, a[4], I[k, 0], I[k, 1], I[k, 2])
         setf(regs, a[5], 1.0 if back[k] else 0.0)
         set3(regs, a[6], 0.0, 0.0, 0.0)  # parametric: not computed (the compiler warns when it is used)
+    elif op == _UVLAYER:
+        layer = a[2]
+        if layer < uvx.shape[1]:
+            set3(regs, a[1], uvx[k, layer, 0], uvx[k, layer, 1], 0.0)
+        else:
+            set3(regs, a[1], 0.0, 0.0, 0.0)
     elif op == _OBJINFO:
         o = obj[k]
         set3(regs, a[1], objects[o, OBJECT_LOCATION], objects[o, OBJECT_LOCATION + 1], objects[o, OBJECT_LOCATION + 2])
@@ -604,11 +611,11 @@ def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects):
 
 @_jit
 def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-             tex_w):
+             tex_w, uvx):
     """One instruction. A new opcode family hooks in here: `elif op < NEXT_BASE: family.run(op, a, regs, data)`."""
     if op < _COLOR_BASE:
         _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-                 tex_w)
+                 tex_w, uvx)
     elif op < _PROC_BASE:
         color.run(op, a, regs, data)
     else:
@@ -617,7 +624,7 @@ def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
 
 @_jit
 def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg,
-                 tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, has_uv, back, obj, objects, scratch,
+                 tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, has_uv, back, obj, objects, uvx, scratch,
                  kind, weight, rough, ior, f0, tint, select, t_scale, emission):
     """Evaluate the programs of the points `rows` (indices into the per-point arrays); write the bound lobe
     parameters of point k into row k of the LobeBatch arrays (kind .. select), `emission` (N, 3) likewise (rows
@@ -637,7 +644,7 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
         for i in range(code_start[p], code_start[p + 1]):
             a = code[i]
             _execute(a[0], a, scratch, pdata, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels,
-                     tex_offset, tex_h, tex_w)
+                     tex_offset, tex_h, tex_w, uvx)
         L = bind.shape[1]
         changed = False
         for l in range(L):
@@ -726,20 +733,21 @@ class PreparedShading:
         return cls(programs, textures, max_lobes, objects)
 
     def evaluate(self, rows: np.ndarray, mat: np.ndarray, P, N, Ng, I, uv, back, obj, lobes, select_scale,
-                 emission: np.ndarray | None = None) -> None:
+                 emission: np.ndarray | None = None, uv_layers: np.ndarray | None = None) -> None:
         """Run the programs of points `rows` in place on `lobes` (a LobeBatch with one row per point) and
         `emission` ((N, 3), optional). P, N, Ng, I (N, 3) float32 world space, uv (N, 2) or None, back (N,)
-        bool, obj (N,) int32 object rows."""
+        bool, obj (N,) int32 object rows, uv_layers (N, K, 2) the named UV maps (Scene.uv_layer_names) or None."""
         n = len(mat)
         if emission is None:
             emission = np.zeros((n, 3), np.float32)
         has_uv = uv is not None
         uvs = np.ascontiguousarray(uv, np.float32) if has_uv else np.zeros((0, 2), np.float32)
         scratch = np.empty((self.max_registers, 3), np.float32)
+        uvx = np.zeros((n, 0, 2), np.float32) if uv_layers is None else np.ascontiguousarray(uv_layers, np.float32)
         run_programs(np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(mat, np.int64), self.prog_of_mat,
                      self.code, self.code_start, self.regs0, self.reg_start, self.data, self.data_start, self.bind,
                      self.emit_reg, *self.texture_pack, _f3(P), _f3(N), _f3(Ng), _f3(I), uvs, has_uv,
-                     np.ascontiguousarray(back, np.bool_), np.ascontiguousarray(obj, np.int32), self.objects,
+                     np.ascontiguousarray(back, np.bool_), np.ascontiguousarray(obj, np.int32), self.objects, uvx,
                      scratch, lobes.kind, lobes.weight, lobes.roughness, lobes.ior, lobes.f0, lobes.tint,
                      lobes.select, select_scale, emission)
 
@@ -769,7 +777,7 @@ def pack_textures_rgba(textures) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
 
 
 def run_single(program: ShadingProgram, textures=(), P=(0, 0, 0), N=(0, 0, 1), Ng=None, I=(0, 0, 1), uv=(0.0, 0.0),
-               back=False, objects: np.ndarray | None = None) -> np.ndarray:
+               back=False, objects: np.ndarray | None = None, uv_layers=()) -> np.ndarray:
     """The program's final register file at one shading point (tests, and the compiler's constant folding)."""
     n_regs = max(program.registers.shape[0], 1)
     code = np.ascontiguousarray(program.code, np.int32).reshape(-1, WIDTH)
@@ -779,13 +787,14 @@ def run_single(program: ShadingProgram, textures=(), P=(0, 0, 0), N=(0, 0, 1), N
     pack = pack_textures_rgba(textures)
     objs = np.ascontiguousarray(objects if objects is not None else identity_object_row()[None], np.float32)
     _run_one(code, regs, np.ascontiguousarray(program.data, np.float32), *pack, P3, N3, Ng3, I3,
-             np.asarray(uv, np.float32).reshape(1, 2), np.array([bool(back)]), np.zeros(1, np.int32), objs)
+             np.asarray(uv, np.float32).reshape(1, 2), np.array([bool(back)]), np.zeros(1, np.int32), objs,
+             np.asarray(uv_layers, np.float32).reshape(1, -1, 2))
     return regs[:n_regs]
 
 
 @_jit
-def _run_one(code, regs, data, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, back, obj, objects):
+def _run_one(code, regs, data, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, back, obj, objects, uvx):
     for i in range(code.shape[0]):
         a = code[i]
         _execute(a[0], a, regs, data, 0, P, N, Ng, I, uv, True, back, obj, objects, tex_pixels, tex_offset, tex_h,
-                 tex_w)
+                 tex_w, uvx)

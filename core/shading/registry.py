@@ -144,6 +144,8 @@ OP_GEOMETRY = register(OpSpec("geometry", 31, _r("position", "normal", "true_nor
                                                  "parametric", kind="out?"), "Geometry node outputs")).code
 OP_OBJECT_INFO = register(OpSpec("object_info", 32, _r("location", "color", "alpha", "object_index", "random",
                                                        kind="out?"), "Object Info node outputs")).code
+OP_UV_LAYER = register(OpSpec("uv_layer", 33, _r("out", kind="out") + _r("layer", kind="int"),
+                              "UV Map node naming a map: layer = index into Scene.uv_layer_names")).code
 # Images.
 OP_IMAGE = register(OpSpec("image", 40, _r("color", "alpha", kind="out?") + _r("vector", kind="in?")
                            + _r("texture", kind="tex") + _r("interpolation", "extension", "flags", kind="int"),

@@ -59,6 +59,7 @@ class ProgramBuilder:
     image_texture: object  # callable(node, alpha_used) -> (texture index or None, image op flags); warns itself
     material_pass_index: int = 0
     active_uv_names: tuple = ()
+    uv_layer_index: object = None  # callable(name) -> index into Scene.uv_layer_names
     registers: list = field(default_factory=list)  # initial values, (3,) float32 each
     varying: list = field(default_factory=list)  # per register: computed per point
     code: list = field(default_factory=list)

@@ -53,13 +53,14 @@ def _texcoord(c, node, ctx):
 
 
 @rule("ShaderNodeUVMap", "UV Map", "input", outputs=("UV",),
-      notes="Only the mesh's active render UV map is exported: another map named here warns and uses it.")
+      notes="Any UV map by name (a mesh without it reads (0, 0), as Blender); empty name: the active render map. "
+            "From Instancer is not supported (warning).")
 def _uvmap(c, node, ctx):
     name = getattr(node, "uv_map", "")
-    if name and c.active_uv_names and name not in c.active_uv_names:
-        c.warn(node, f"UV map {name!r} is not the active render UV map; Monte uses the active one")
     if getattr(node, "from_instancer", False):
         c.warn(node, "From Instancer is not supported; using the instance's own UVs")
+    if name and c.uv_layer_index is not None:
+        return {"UV": _out(c.emit("uv_layer", layer=c.uv_layer_index(name), varying=True)["out"], VECTOR)}
     return {"UV": _out(c.emit("texture_coordinate", uv=True)["uv"], VECTOR)}
 
 
