@@ -28,7 +28,7 @@ from typing import Callable, Iterable, Iterator
 
 from .film import TileFilm
 from .render import (CancelCallback, RenderResult, SampleRanges, TileCallback, TileSamples, merge_tile_samples,
-                     render_samples, tile_result)
+                     render_samples, tile_result, world_to_camera)
 from .sampling import VARIANCE_GROUPS, make_sampler
 from .scene import Scene
 from .schedule import pass_bounds, tiles
@@ -359,12 +359,17 @@ class _FrameJob:
                 continue
             tile = self.tile_list[ti]
             sampler = make_sampler(self.settings.sampler, self.settings.seed, max(spp, 1), groups=VARIANCE_GROUPS)
-            film = TileFilm(tile[2], tile[3], self.settings.aovs, sampler)
+            film = TileFilm(tile[2], tile[3], self.settings.aovs, sampler, self.settings.denoising_features,
+                            alpha=self.scene.has_alpha)
             for p in parts:
-                for sums in p.films:
-                    film.add_sums(sums)
+                if p.sample_start == 0:  # the film's state after the first samples (TileSamples)
+                    film.set_state(p.films[0])
+                else:
+                    for sums in p.films:
+                        film.add_sums(sums)
             del self.tile_parts[ti]
-            self.on_tile(tile_result(tile, film, spp, self.settings.aovs))
+            rot = world_to_camera(self.scene) if self.settings.denoising_features else None
+            self.on_tile(tile_result(tile, film, spp, self.settings.aovs, rot))
 
     def cancel(self) -> None:
         self.client.cancel(self.futures, force=True)

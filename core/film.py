@@ -18,8 +18,22 @@ G' - 1 degrees of freedom per pixel, but summed over many pixels (an image or re
 With fewer than 2 groups holding samples (the first block of 4 stratified samples) it falls back to s^2 / n,
 which overstates the error there rather than claiming none.
 
-Memory per pixel: G x (3 float64 sums + an int32 count) + 3 float64 sums of squares = 136 B with G = 4
-(core.memory.FILM_BYTES), against 56 B for a sum, a sum of squares and a count alone.
+Storage: float32, shifted. Each pixel keeps a shift K (per channel, float32: the mean of its first pass of
+samples) and float32 sums of the samples' deviations from K: per variance group, and their squares. Every
+pass of samples (one add() call per pixel and pass) is first summed exactly enough in float64, then folded
+into the float32 sums once. Deviations from K are small next to the pixel's value wherever the pixel is not
+noisy, so float32 rounding of their sums costs the mean almost nothing (mean = K + sum / n in float64), and a
+constant pixel keeps sums of exactly 0: its mean is exact and its variance exactly 0 at any sample count. For a
+noisy pixel the rounding of each fold (2^-24 of a deviation sum) stays orders of magnitude below the noise
+the sums measure (tests/test_film_memory.py: 1e6 samples against float64 references).
+
+Memory per pixel (core.memory): K 12 B, group deviation sums 48 B (G = 4), group counts 16 B, sum of squared
+deviations 12 B = 88 B; the AOVs add 32 B (float32 albedo, normal and depth sums, int32 depth count), the
+denoising features 24 B, alpha (Film > Transparent, holdout) 4 B. (It was 136 + 64 + 48 B in float64.)
+
+A render split across machines (core.distributed) moves films two ways: a film's state (state() /
+set_state()), and the raw float64 sums of one pass of samples (a film in capture mode, capture_passes() /
+take_pass(); folded by add_sums() exactly as add() folds them), so merged films equal one render bit for bit.
 """
 
 from __future__ import annotations
@@ -28,10 +42,17 @@ import numpy as np
 
 from .sampling import Sampler
 
+_COLOUR_RAW = ("group_sum", "group_count", "dev_sq")
+_AOV_RAW = ("albedo", "normal", "depth_sum", "depth_count")
+_FEATURE_RAW = ("feature_albedo", "feature_normal")
+_ALPHA_RAW = ("transparent_sum",)
+
 
 class TileFilm:
     """Accumulators for a tile of h x w pixels. Samples arrive with their tile-local pixel index (row-major,
-    row 0 at the top) and their sample index (which picks their variance group, see the module docstring)."""
+    row 0 at the top) and their sample index (which picks their variance group, see the module docstring).
+    Each add() call must hold at most one pass of a pixel's samples (the render's batches do: a pass over a
+    tile is cut into chunks of whole pixels)."""
 
     def __init__(self, width: int, height: int, aovs: bool, sampler: Sampler | None = None,
                  features: bool = False, alpha: bool = False) -> None:
@@ -42,103 +63,197 @@ class TileFilm:
         # Independent samples need no groups: s^2 / n is exact for them and has the most degrees of freedom.
         self._sampler = sampler if sampler is not None and not sampler.iid and sampler.groups > 1 else None
         self.groups = self._sampler.groups if self._sampler is not None else 1
-        self.group_sum = np.zeros((n, self.groups, 3), np.float64)
+        self.shift = np.zeros((n, 3), np.float32)
+        self.group_dev = np.zeros((n, self.groups, 3), np.float32)
         self.group_count = np.zeros((n, self.groups), np.int32)
-        self.sum_sq = np.zeros((n, 3), np.float64)
+        self.dev_sq = np.zeros((n, 3), np.float32)
         self.aovs = aovs
         self.alpha = alpha
         if alpha:
-            self.transparent_sum = np.zeros(n, np.float64)
+            self.transparent_sum = np.zeros(n, np.float32)
         if aovs:
-            self.albedo = np.zeros((n, 3), np.float64)
-            self.normal = np.zeros((n, 3), np.float64)
-            self.depth_sum = np.zeros(n, np.float64)
-            self.depth_count = np.zeros(n, np.int64)
+            self.albedo = np.zeros((n, 3), np.float32)
+            self.normal = np.zeros((n, 3), np.float32)
+            self.depth_sum = np.zeros(n, np.float32)
+            self.depth_count = np.zeros(n, np.int32)
         self.features = features  # the denoising albedo and normal (core.integrator.DenoisingFeatures)
         if features:
-            self.feature_albedo = np.zeros((n, 3), np.float64)
-            self.feature_normal = np.zeros((n, 3), np.float64)
+            self.feature_albedo = np.zeros((n, 3), np.float32)
+            self.feature_normal = np.zeros((n, 3), np.float32)
+        self._capture: dict[str, np.ndarray] | None = None
 
+    # ------------------------------------------------------------------------------------------ totals
     @property
-    def sum(self) -> np.ndarray:
-        """(n, 3) sum of each pixel's samples."""
-        return self.group_sum.sum(axis=1)
+    def pixels(self) -> int:
+        return self.width * self.height
 
     @property
     def count(self) -> np.ndarray:
         """(n,) samples each pixel has taken."""
         return self.group_count.sum(axis=1, dtype=np.int64)
 
+    def _mean64(self) -> np.ndarray:
+        """(n, 3) float64 pixel means (the shift where no sample has landed: 0)."""
+        n = np.maximum(self.count, 1).astype(np.float64)[:, None]
+        return self.shift.astype(np.float64) + self.group_dev.astype(np.float64).sum(axis=1) / n
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the film's arrays hold."""
+        return sum(arr.nbytes for arr in self.state().values())
+
+    # ------------------------------------------------------------------------------------- accumulation
     def add(self, pixel: np.ndarray, radiance: np.ndarray, sample: np.ndarray | None = None,
             transparent: np.ndarray | None = None) -> None:
         """Accumulate samples: pixel (N,) tile-local index, radiance (N, 3) finite values, sample (N,) their
         sample indices (needed when the film has variance groups), transparent (N,) their transparency in
         [0, 1] (needed when the film keeps alpha)."""
-        n = self.group_count.shape[0]
-        slot = np.asarray(pixel, np.int64)
+        n = self.pixels
+        pixel = np.asarray(pixel, np.int64)
+        slot = pixel
         if self.groups > 1:
             if sample is None:
                 raise ValueError("this film keeps variance groups: pass the samples' indices")
-            slot = slot * self.groups + self._sampler.variance_group(sample)
+            slot = pixel * self.groups + self._sampler.variance_group(sample)
         slots = n * self.groups
-        self.group_count += np.bincount(slot, minlength=slots).reshape(n, self.groups).astype(np.int32)
-        r = radiance.astype(np.float64)
+        r = np.asarray(radiance, np.float64)
+        count = np.bincount(pixel, minlength=n)
+        group_sum = np.empty((n, self.groups, 3), np.float64)
         for c in range(3):
-            self.group_sum[:, :, c] += np.bincount(slot, weights=r[:, c], minlength=slots).reshape(n, self.groups)
-            self.sum_sq[:, c] += np.bincount(pixel, weights=r[:, c] * r[:, c], minlength=n)
+            group_sum[:, :, c] = np.bincount(slot, weights=r[:, c], minlength=slots).reshape(n, self.groups)
+        # squared deviations from this pass's own mean: exactly 0 for a constant pixel (no cancellation)
+        pass_mean = group_sum.sum(axis=1) / np.maximum(count, 1)[:, None]
+        dev = r - pass_mean[pixel]
+        dev_sq = np.empty((n, 3), np.float64)
+        for c in range(3):
+            dev_sq[:, c] = np.bincount(pixel, weights=dev[:, c] * dev[:, c], minlength=n)
+        raw = {"group_sum": group_sum,
+               "group_count": np.bincount(slot, minlength=slots).reshape(n, self.groups).astype(np.int32),
+               "dev_sq": dev_sq}
         if self.alpha:
             if transparent is None:
                 raise ValueError("this film keeps alpha: pass the samples' transparency")
-            self.transparent_sum += np.bincount(pixel, weights=np.asarray(transparent, np.float64), minlength=n)
-
-    def sums(self) -> dict[str, np.ndarray]:
-        """The film's raw accumulators by name (the arrays themselves, not copies): what a render split across
-        machines sends back and merges with add_sums."""
-        names = ["group_sum", "group_count", "sum_sq"]
-        if self.alpha:
-            names.append("transparent_sum")
-        if self.aovs:
-            names += ["albedo", "normal", "depth_sum", "depth_count"]
-        if self.features:
-            names += ["feature_albedo", "feature_normal"]
-        return {name: getattr(self, name) for name in names}
-
-    def add_sums(self, sums: dict[str, np.ndarray]) -> None:
-        """Add another film's raw accumulators (same tile, same groups, same AOV setting) into this one.
-
-        Adding the accumulators of a film that holds one pass of samples, started from zero, gives bit for bit
-        what add() of that pass's samples gives: each pixel's pass total is summed in the same order either way,
-        then added once to the running total. So films merged pass by pass, in pass order, equal one render."""
-        mine = self.sums()
-        if set(sums) != set(mine):
-            raise ValueError(f"film sums hold {sorted(sums)}, this film keeps {sorted(mine)}")
-        for name, arr in mine.items():
-            if sums[name].shape != arr.shape:
-                raise ValueError(f"film sums {name!r} have shape {sums[name].shape}, this film {arr.shape}")
-            arr += sums[name]
-
-    def clear(self) -> None:
-        """Set every accumulator back to zero."""
-        for arr in self.sums().values():
-            arr[...] = 0
+            raw["transparent_sum"] = np.bincount(pixel, weights=np.asarray(transparent, np.float64), minlength=n)
+        self._take(raw)
 
     def add_aovs(self, pixel: np.ndarray, albedo: np.ndarray, normal: np.ndarray, depth: np.ndarray) -> None:
         """Accumulate first-hit AOVs (averaged over the pixel's samples); depth only where finite (a hit)."""
-        n = self.group_count.shape[0]
-        for c in range(3):
-            self.albedo[:, c] += np.bincount(pixel, weights=albedo[:, c], minlength=n)
-            self.normal[:, c] += np.bincount(pixel, weights=normal[:, c], minlength=n)
+        n = self.pixels
         hit = np.isfinite(depth)
-        self.depth_sum += np.bincount(pixel[hit], weights=depth[hit], minlength=n)
-        self.depth_count += np.bincount(pixel[hit], minlength=n)
+        raw = {"albedo": _bincount3(pixel, albedo, n), "normal": _bincount3(pixel, normal, n),
+               "depth_sum": np.bincount(pixel[hit], weights=depth[hit], minlength=n),
+               "depth_count": np.bincount(pixel[hit], minlength=n).astype(np.int32)}
+        self._take(raw)
 
     def add_features(self, pixel: np.ndarray, albedo: np.ndarray, normal: np.ndarray) -> None:
         """Accumulate the denoising features of samples (averaged over the pixel's samples)."""
-        n = self.group_count.shape[0]
-        for c in range(3):
-            self.feature_albedo[:, c] += np.bincount(pixel, weights=albedo[:, c], minlength=n)
-            self.feature_normal[:, c] += np.bincount(pixel, weights=normal[:, c], minlength=n)
+        n = self.pixels
+        self._take({"feature_albedo": _bincount3(pixel, albedo, n),
+                    "feature_normal": _bincount3(pixel, normal, n)})
 
+    def _take(self, raw: dict[str, np.ndarray]) -> None:
+        if self._capture is not None:
+            _add_raw(self._capture, raw)
+        else:
+            self._fold(raw)
+
+    def _fold(self, raw: dict[str, np.ndarray]) -> None:
+        """Fold one pass's float64 sums (see _raw_names) into the float32 storage, once per pixel."""
+        if "group_sum" in raw:
+            group_sum, group_count = raw["group_sum"], raw["group_count"]
+            count = group_count.sum(axis=1, dtype=np.int64)
+            took = np.flatnonzero(count > 0)
+            if len(took):
+                gs, gc, c = group_sum[took], group_count[took].astype(np.float64), count[took].astype(np.float64)
+                pass_mean = gs.sum(axis=1) / c[:, None]
+                first = self.group_count[took].sum(axis=1) == 0
+                if np.any(first):
+                    self.shift[took[first]] = pass_mean[first].astype(np.float32)
+                k = self.shift[took].astype(np.float64)
+                # deviations of this pass from K: its sums minus their counts times K (exactly 0 when constant)
+                self.group_dev[took] = (self.group_dev[took].astype(np.float64)
+                                        + (gs - gc[:, :, None] * k[:, None, :])).astype(np.float32)
+                d = pass_mean - k  # sum (x - K)^2 = sum (x - pass mean)^2 + c (pass mean - K)^2
+                self.dev_sq[took] = (self.dev_sq[took].astype(np.float64) + raw["dev_sq"][took]
+                                     + c[:, None] * d * d).astype(np.float32)
+                self.group_count[took] += group_count[took]
+        for name in _AOV_RAW + _FEATURE_RAW + _ALPHA_RAW:
+            if name in raw:
+                arr = getattr(self, name)
+                if arr.dtype == np.float32:
+                    arr[...] = (arr.astype(np.float64) + raw[name]).astype(np.float32)
+                else:
+                    arr += raw[name]
+
+    # ------------------------------------------------------------------------------- moving films around
+    def _raw_names(self) -> list[str]:
+        names = list(_COLOUR_RAW)
+        if self.alpha:
+            names += _ALPHA_RAW
+        if self.aovs:
+            names += _AOV_RAW
+        if self.features:
+            names += _FEATURE_RAW
+        return names
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The film's accumulators by name (the arrays themselves, not copies): set_state() of a film of the
+        same tile and settings makes it this film."""
+        names = ["shift", "group_dev", "group_count", "dev_sq"]
+        if self.alpha:
+            names += list(_ALPHA_RAW)
+        if self.aovs:
+            names += list(_AOV_RAW)
+        if self.features:
+            names += list(_FEATURE_RAW)
+        return {name: getattr(self, name) for name in names}
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        """Make this film a copy of the film whose state() `state` is."""
+        self._check(state, self.state())
+        for name, arr in self.state().items():
+            arr[...] = state[name]
+
+    def capture_passes(self) -> None:
+        """Keep the raw float64 sums of the samples added from now on instead of folding them in, until
+        take_pass() (a render split across machines sends one pass at a time, see add_sums)."""
+        self._capture = self._zero_raw()
+
+    def take_pass(self) -> dict[str, np.ndarray]:
+        """The raw sums captured since capture_passes() or the last take_pass(); capturing starts over."""
+        if self._capture is None:
+            raise ValueError("this film is not capturing passes (capture_passes())")
+        out, self._capture = self._capture, self._zero_raw()
+        return out
+
+    def add_sums(self, sums: dict[str, np.ndarray]) -> None:
+        """Fold in the raw sums of one pass of samples (take_pass() of a film of the same tile and settings):
+        bit for bit what add() of that pass's samples gives, so films merged pass by pass, in pass order, equal
+        one render."""
+        self._check(sums, self._zero_raw())
+        self._fold(sums)
+
+    def _zero_raw(self) -> dict[str, np.ndarray]:
+        out = {}
+        for name in self._raw_names():
+            like = getattr(self, "group_dev" if name == "group_sum" else name)
+            out[name] = np.zeros(like.shape, np.int32 if like.dtype == np.int32 else np.float64)
+        return out
+
+    @staticmethod
+    def _check(given: dict[str, np.ndarray], mine: dict[str, np.ndarray]) -> None:
+        if set(given) != set(mine):
+            raise ValueError(f"film sums hold {sorted(given)}, this film keeps {sorted(mine)}")
+        for name, arr in mine.items():
+            if np.shape(given[name]) != arr.shape:
+                raise ValueError(f"film sums {name!r} have shape {np.shape(given[name])}, this film {arr.shape}")
+
+    def clear(self) -> None:
+        """Set every accumulator back to zero."""
+        for arr in self.state().values():
+            arr[...] = 0
+
+    # ---------------------------------------------------------------------------------------- images
     def feature_images(self) -> tuple[np.ndarray, np.ndarray]:
         """(denoising albedo (h,w,3), denoising normal (h,w,3), world space): plain means over the pixel's
         samples, the normal not renormalised (as Cycles' passes)."""
@@ -150,28 +265,30 @@ class TileFilm:
 
     def mean(self) -> np.ndarray:
         """(h, w, 3) pixel means (0 where no sample has landed yet)."""
-        return self._image(self.sum / np.maximum(self.count, 1)[:, None])
+        return self._image(self._mean64())
 
     def alpha_image(self) -> np.ndarray:
         """(h, w) alpha: 1 minus each pixel's mean transparency (1 everywhere for a film without alpha and where
         no sample has landed yet)."""
         if not self.alpha:
             return np.ones((self.height, self.width), np.float32)
-        return self._image(1.0 - self.transparent_sum / np.maximum(self.count, 1))
+        return self._image(1.0 - self.transparent_sum.astype(np.float64) / np.maximum(self.count, 1))
 
     def _variance_of_mean(self) -> np.ndarray:
         """(n, 3) estimated variance of each pixel's mean (see the module docstring); 0 with fewer than 2
         samples."""
         n = self.count.astype(np.float64)[:, None]
-        total = self.sum
+        group_dev = self.group_dev.astype(np.float64)
+        total = group_dev.sum(axis=1)  # deviations from K: the variance does not see K
         with np.errstate(invalid="ignore", divide="ignore"):
-            naive = (self.sum_sq - total * total / n) / (n - 1) / n
+            naive = (self.dev_sq.astype(np.float64) - total * total / n) / (n - 1) / n
         var = np.where(n > 1, naive, 0.0)
         if self.groups > 1:
             ng = self.group_count.astype(np.float64)[:, :, None]
             filled = (self.group_count > 0).sum(axis=1)[:, None].astype(np.float64)
             with np.errstate(invalid="ignore", divide="ignore"):
-                dev = self.group_sum / np.maximum(ng, 1) - (total / np.maximum(n, 1))[:, None, :]
+                dev = group_dev / np.maximum(ng, 1) - (total / np.maximum(n, 1))[:, None, :]
+                dev = np.where(ng > 0, dev, 0.0)
                 grouped = (ng * dev * dev).sum(axis=1) / ((filled - 1) * n)
             var = np.where(filled >= 2, grouped, var)
         return np.maximum(var, 0.0)
@@ -191,7 +308,7 @@ class TileFilm:
         of a converged region keeps being sampled.
         """
         n = self.count.astype(np.float64)
-        mean = self.sum / np.maximum(n, 1)[:, None]
+        mean = self._mean64()
         var = np.where(n[:, None] > 1, self._variance_of_mean(), np.inf)
         err = np.sqrt(var).sum(axis=1) / (1e-4 + np.sqrt(np.maximum(mean.sum(axis=1), 0.0)))
         active = (err >= threshold).reshape(self.height, self.width)
@@ -206,8 +323,23 @@ class TileFilm:
         """(albedo (h,w,3), normal (h,w,3) unit where hit, depth (h,w) with 1e10 where nothing was hit)."""
         n = np.maximum(self.count, 1)[:, None]
         albedo = self.albedo / n
-        normal = self.normal / n
+        normal = self.normal.astype(np.float64) / n
         length = np.linalg.norm(normal, axis=1, keepdims=True)
         normal = np.where(length > 0, normal / np.maximum(length, 1e-30), 0.0)
         depth = np.where(self.depth_count > 0, self.depth_sum / np.maximum(self.depth_count, 1), 1e10)
         return self._image(albedo), self._image(normal), self._image(depth)
+
+
+def _bincount3(pixel: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3) float64 per-pixel sums of (N, 3) values."""
+    out = np.empty((n, 3), np.float64)
+    for c in range(3):
+        out[:, c] = np.bincount(pixel, weights=values[:, c], minlength=n)
+    return out
+
+
+def _add_raw(into: dict[str, np.ndarray], raw: dict[str, np.ndarray]) -> None:
+    """Add one add() call's raw sums into a pass's. The chunks of a pass hold disjoint pixels, so each pixel's
+    pass total is its one chunk's value (adding exact zeros elsewhere): the pass folds as its chunks do."""
+    for name, arr in raw.items():
+        into[name] += arr

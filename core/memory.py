@@ -7,9 +7,11 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
           + threads x min(batch, pixels x spp) x PATH_BYTES      (batch: core.schedule.batch_target)
           + triangles x TRIANGLE_BYTES + texels x TEXEL_BYTES
 
-- film: per pixel, for each of the 4 variance groups a float64 RGB sum and an int32 count (4 x 28 B), and a
-  float64 RGB sum of squares (24 B) (core.film); with AOVs float64 albedo and normal sums (48 B), a depth sum
-  and count (16 B); with the denoising features float64 albedo and normal sums (48 B);
+- film (core.film, float32 storage): per pixel a float32 RGB shift (12 B), for each of the 4 variance groups a
+  float32 RGB deviation sum and an int32 count (4 x 16 B), a float32 RGB sum of squared deviations (12 B); with
+  AOVs float32 albedo and normal sums (24 B), a float32 depth sum and int32 count (8 B); with the denoising
+  features float32 albedo and normal sums (24 B). Each pass is summed in float64 over the batch's samples
+  (counted in the path batch) before it is folded in;
 - result: the assembled float32 colour RGBA (16 B), variance (12 B), int32 sample count (4 B); with AOVs
   albedo, normal (24 B) and depth (4 B); with the denoising features their albedo and normal (24 B);
 - batch: the integrator's float32 structure-of-arrays for every path in flight, ray buffers and temporaries
@@ -33,11 +35,11 @@ from .scene import Scene
 from .schedule import batch_target
 from .settings import RenderSettings
 
-FILM_BYTES = 136  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
-FILM_AOV_BYTES = 64
+FILM_BYTES = 88  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
+FILM_AOV_BYTES = 32
 RESULT_BYTES = 32
 RESULT_AOV_BYTES = 28
-FILM_FEATURE_BYTES = 48
+FILM_FEATURE_BYTES = 24
 RESULT_FEATURE_BYTES = 24
 PATH_BYTES = 800
 TRIANGLE_BYTES = 400

@@ -168,10 +168,11 @@ def render(
 class TileSamples:
     """Raw film sums of samples [sample_start, sample_end) of one tile (index into the frame's tile list).
 
-    films: TileFilm.sums() dictionaries. With sample_start 0 there is one, holding the tile's film after those
-    samples exactly as render() holds it; otherwise one per sample pass, in pass order, each summed from zero,
-    to be added to the film holding the earlier samples pass by pass (TileFilm.add_sums), which is what
-    render() does with them: the merge is bit-identical to one render() whatever machine took which range.
+    films: with sample_start 0 there is one, the tile's film state (TileFilm.state()) after those samples exactly
+    as render() holds it; otherwise one per sample pass, in pass order, each the pass's raw float64 sums
+    (TileFilm.take_pass()), to be folded into the film holding the earlier samples pass by pass
+    (TileFilm.add_sums), which is what render() does with them: the merge is bit-identical to one render()
+    whatever machine took which range.
     """
 
     tile_index: int
@@ -216,8 +217,13 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
             raise ValueError(f"tile index {ti} is not one of the frame's {len(tile_list)} tiles")
         if part.sample_start != reached[ti]:
             raise ValueError(f"tile {ti}: samples from {part.sample_start} follow samples up to {reached[ti]}")
-        for sums in part.films:
-            films[ti].add_sums(sums)
+        if part.sample_start == 0:
+            if len(part.films) != 1:
+                raise ValueError(f"tile {ti}: samples from 0 come as one film state, not {len(part.films)}")
+            films[ti].set_state(part.films[0])
+        else:
+            for sums in part.films:
+                films[ti].add_sums(sums)
         reached[ti] = part.sample_end
     missing = [ti for ti, r in enumerate(reached) if r != settings.spp]
     if missing:
@@ -397,6 +403,9 @@ class _TileRender:
         # sums apart (the merge adds them to the earlier passes' film one pass at a time, as render() does).
         self.work = self._check_work(work) if work is not None else None
         self.pass_sums: dict[int, list[dict[str, np.ndarray]]] = {}
+        for ti, (start, _end) in (self.work or {}).items():
+            if start > 0:  # these tiles' films keep each pass's raw sums apart (TileFilm.capture_passes)
+                self.films[self.tiles[ti]].capture_passes()
 
         self.workers = settings.thread_count
         self.target = batch_target(settings, self.total_paths)
@@ -572,9 +581,7 @@ class _TileRender:
             if seg.last_chunk:
                 self.samples_started[seg.tile_index] = seg.sample_end
                 if self.work is not None and self.work[seg.tile_index][0] > 0:
-                    self.pass_sums.setdefault(seg.tile_index, []).append(
-                        {name: arr.copy() for name, arr in film.sums().items()})
-                    film.clear()
+                    self.pass_sums.setdefault(seg.tile_index, []).append(film.take_pass())
                 if self.on_tile is not None and not quiet:
                     self.on_tile(self._tile_result(seg.tile, film, seg.sample_end))
 
@@ -607,7 +614,7 @@ class _TileRender:
             if start > 0:
                 films = self.pass_sums.get(ti, [])
             else:
-                films = [{name: arr.copy() for name, arr in self.films[self.tiles[ti]].sums().items()}]
+                films = [{name: arr.copy() for name, arr in self.films[self.tiles[ti]].state().items()}]
             out.append(TileSamples(ti, start, end, films))
         return out
 
