@@ -1,15 +1,24 @@
-"""A kernel's disk cache is invalidated when any kernel module changes, not only its own file: kernels call (and
-inline) functions of other modules (core.warps, core.geometry_kernels), and numba alone checks only the file a
-function is defined in, so an edit of a warp would leave the light kernels running the old one."""
+"""The kernels' disk cache: keyed by the sources' contents, so a cache built once (`make setup`, the extension
+zip) stays valid when checking out or unzipping rewrites the file times, and any edit of any kernel module
+invalidates every kernel (kernels call and inline functions of other modules: core.warps, core.geometry_kernels;
+numba alone checks only the file a function is defined in). Kernels are compiled for a generic CPU, so a cache
+built on one machine applies on another; a process that finds a built cache compiles nothing."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
+import shutil
+import subprocess
+import sys
+import textwrap
 
 import pytest
 
-from monte.core import jit_cache, light_kernels, warps
+from monte.core import jit_cache, light_kernels
+
+CORE = os.path.dirname(jit_cache.__file__)
 
 
 def _stamp(dispatcher):
@@ -19,31 +28,120 @@ def _stamp(dispatcher):
     return locator.get_source_stamp()
 
 
-def test_editing_a_callee_module_invalidates_the_caller():
-    before = _stamp(light_kernels.sample_batch)
-    path = warps.__file__
-    st = os.stat(path)
-    try:
-        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
-        assert _stamp(light_kernels.sample_batch) != before
-    finally:
-        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
-    assert _stamp(light_kernels.sample_batch) == before  # restored: the cache is valid again
+@pytest.fixture
+def sources(tmp_path):
+    """A copy of the kernel modules (the files the cache key covers)."""
+    for name in jit_cache.KERNEL_MODULES:
+        shutil.copy2(os.path.join(CORE, f"{name}.py"), tmp_path / f"{name}.py")
+    return tmp_path
+
+
+def test_the_stamp_is_the_contents_of_every_kernel_module():
+    own = light_kernels.__file__
+    assert _stamp(light_kernels.sample_batch) == ("sha256", jit_cache.file_digest(own), jit_cache.sources_digest())
+    assert len(jit_cache.sources_digest()) == 64
+
+
+@pytest.mark.parametrize("name", ["warps", "geometry_kernels", "light_kernels"])
+def test_editing_any_kernel_module_changes_the_key(sources, name):
+    before = jit_cache.sources_digest(str(sources))
+    path = sources / f"{name}.py"
+    path.write_text(path.read_text() + "\n# an edit\n")
+    assert jit_cache.sources_digest(str(sources)) != before
+
+
+def test_other_numba_options_change_the_key(sources, monkeypatch):
+    before = jit_cache.sources_digest(str(sources))
+    monkeypatch.setattr(jit_cache, "OPTIONS_KEY", jit_cache.OPTIONS_KEY.replace("'numpy'", "'python'"))
+    assert jit_cache.sources_digest(str(sources)) != before
+
+
+def test_new_file_times_alone_keep_the_key(sources):
+    """Unzipping the extension or checking out the repository writes new times: the cache must still apply."""
+    before = jit_cache.sources_digest(str(sources))
+    for name in jit_cache.KERNEL_MODULES:
+        path = sources / f"{name}.py"
+        st = os.stat(path)
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 3_600_000_000_000))
+    assert jit_cache.sources_digest(str(sources)) == before
+
+
+def test_an_unreadable_module_never_matches(sources):
+    before = jit_cache.sources_digest(str(sources))
+    os.remove(sources / "warps.py")
+    assert jit_cache.file_digest(str(sources / "warps.py")) == ""
+    assert jit_cache.sources_digest(str(sources)) != before
 
 
 @pytest.mark.parametrize("name", jit_cache.KERNEL_MODULES)
 def test_every_kernel_module_is_there(name):
     # a module missing from the list would not invalidate its callers; a stale name would stamp nothing
-    assert os.path.isfile(os.path.join(os.path.dirname(jit_cache.__file__), f"{name}.py"))
+    assert os.path.isfile(os.path.join(CORE, f"{name}.py"))
 
 
 def test_the_list_names_every_module_a_render_compiles():
     """KERNEL_MODULES (the cold-cache notice and the stamp above) lists every module that defines kernels, but
     microfacet, whose kernels only the table generator and tests run (listing it would make every render
     announce a compile that never happens)."""
-    core = os.path.dirname(jit_cache.__file__)
     decorators = re.compile(r"from \.jit_cache import (jit|jit_no_nrt|jit_inline)\b")
-    users = {name[:-3] for name in os.listdir(core) if name.endswith(".py")
-             and decorators.search(open(os.path.join(core, name)).read())}
+    users = {name[:-3] for name in os.listdir(CORE) if name.endswith(".py")
+             and decorators.search(open(os.path.join(CORE, name)).read())}
     assert users - set(jit_cache.KERNEL_MODULES) == {"microfacet"}
     assert set(jit_cache.KERNEL_MODULES) <= users
+
+
+def _python(code: str, **env) -> dict:
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != jit_cache.KERNEL_CPU_ENV}
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
+                          timeout=900, env={**clean, **env})
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, f"exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    return json.loads(lines[-1][len("RESULT "):])
+
+
+def test_kernels_are_compiled_for_a_generic_cpu():
+    result = _python("""
+        import json
+        from monte.core import jit_cache, warps
+        from numba.core.registry import cpu_target
+        print("RESULT " + json.dumps({"cpu": jit_cache.KERNEL_CPU,
+                                      "magic": list(cpu_target.target_context.codegen().magic_tuple())}))
+    """)
+    assert result["cpu"] == "generic"
+    assert result["magic"][1:] == ["generic", ""]  # the CPU name and features numba keys the cache by
+
+
+def test_host_tuned_kernels_on_request_and_after_another_package_compiled():
+    result = _python("""
+        import json, warnings
+        import numba
+        numba.njit(lambda x: x + 1)(1)  # another package's kernel: numba's code generator now exists
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            from monte.core import jit_cache
+        print("RESULT " + json.dumps({"cpu": jit_cache.KERNEL_CPU, "warnings": [str(w.message) for w in caught]}))
+    """)
+    assert result["cpu"] == "host"
+    assert any("compiled once on the first render" in w for w in result["warnings"]), result["warnings"]
+    assert _python("""
+        import json
+        from monte.core import jit_cache
+        print("RESULT " + json.dumps({"cpu": jit_cache.KERNEL_CPU}))
+    """, MONTE_KERNEL_CPU="host")["cpu"] == "host"
+
+
+PRECOMPILE = """
+    import json
+    from monte.core.precompile import precompile_kernels
+    print("RESULT " + json.dumps(precompile_kernels()))
+"""
+
+
+def test_a_process_finding_the_built_cache_compiles_nothing():
+    """The first process fills the cache (`make setup` already did: then it too compiles nothing); a second
+    process renders every warm-up case from the cache alone."""
+    first = _python(PRECOMPILE)
+    second = _python(PRECOMPILE)
+    assert second["compiled"] == 0, second
+    assert second["loaded"] == first["loaded"] + first["compiled"] > 0
+    assert second["used"] == first["used"] > 0
