@@ -7,26 +7,7 @@ this package alone does not register anything.
 from __future__ import annotations
 
 _registered = False
-_kernel_loader = None  # the thread loading the cached render kernels (started by register)
-
-
-def _load_kernels_in_background():
-    """Load the compiled render kernels (numba's cache, shipped in the zip) on a thread while Blender goes on,
-    so that the first render does not spend its first ~0.3 s loading them (later renders never do). Compiles
-    nothing; where no cache applies, the first render compiles as before."""
-    import threading
-
-    def work() -> None:
-        try:
-            from ..core.precompile import load_cached_kernels
-
-            load_cached_kernels()
-        except Exception:  # noqa: BLE001 - only a head start: the first render loads (or compiles) them itself
-            pass
-
-    thread = threading.Thread(target=work, name="monte-load-kernels", daemon=True)
-    thread.start()
-    return thread
+_kernel_loader = None  # the thread loading the cached render kernels (core.precompile), started by register
 
 
 def register() -> None:
@@ -43,8 +24,10 @@ def register() -> None:
     ui.register()
     _registered = True
     global _kernel_loader
-    if _kernel_loader is None:
-        _kernel_loader = _load_kernels_in_background()
+    if _kernel_loader is None:  # the first render then finds the compiled kernels loaded
+        from ..core.precompile import load_cached_kernels_in_background
+
+        _kernel_loader = load_cached_kernels_in_background()
 
 
 def unregister() -> None:
@@ -62,26 +45,6 @@ def unregister() -> None:
     _registered = False
     if _kernel_loader is not None:
         _kernel_loader.join(timeout=60)  # not still loading while Blender shuts down
-_kernel_loader = None  # the thread loading the cached render kernels (started by register)
-
-
-def _load_kernels_in_background():
-    """Load the compiled render kernels (numba's cache, shipped in the zip) on a thread while Blender goes on,
-    so that the first render does not spend its first ~0.3 s loading them (later renders never do). Compiles
-    nothing; where no cache applies, the first render compiles as before."""
-    import threading
-
-    def work() -> None:
-        try:
-            from ..core.precompile import load_cached_kernels
-
-            load_cached_kernels()
-        except Exception:  # noqa: BLE001 - only a head start: the first render loads (or compiles) them itself
-            pass
-
-    thread = threading.Thread(target=work, name="monte-load-kernels", daemon=True)
-    thread.start()
-    return thread
 
 
 def is_registered() -> bool:

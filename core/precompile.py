@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 import time
 from types import ModuleType
 from typing import Callable
@@ -79,6 +80,30 @@ def load_cached_kernels() -> int:
             d.compile(sig)
             loaded += 1
     return loaded
+
+
+_loader: threading.Thread | None = None
+_loader_lock = threading.Lock()
+
+
+def load_cached_kernels_in_background() -> threading.Thread:
+    """load_cached_kernels() on a daemon thread, started once per process (later calls return the same
+    thread): the add-on starts it when it registers, `monte render` before importing bpy, so the kernels load
+    while Blender starts or opens the file and the first render finds them loaded. Errors are left to the
+    first render, which loads (or compiles) the kernels itself."""
+    global _loader
+
+    def work() -> None:
+        try:
+            load_cached_kernels()
+        except Exception:  # noqa: BLE001 - only a head start
+            pass
+
+    with _loader_lock:
+        if _loader is None:
+            _loader = threading.Thread(target=work, name="monte-load-kernels", daemon=True)
+            _loader.start()
+        return _loader
 
 
 def every_feature_scene(resolution: tuple[int, int] = (12, 8)):

@@ -81,3 +81,27 @@ def test_bench_vs_cycles_time_ladder(tmp_path):
     # Each renderer stopped at its budget, not at the 65536 spp asked for (16x16 pixels).
     assert 0 < monte["samples"] < 65536 * 256
     assert monte["rmse"] > 0 and cycles["rmse"] > 0  # (corrected may be 0: the tiny reference is noisier)
+
+
+def test_bench_whole_process_tiny_end_to_end(tmp_path):
+    """Both renderers as whole processes on the same saved .blend: a fair pair (same samples, filter, bounces),
+    so their errors against the reference are alike, and the efficiency is taken with the process's time."""
+    out = tmp_path / "out"
+    assert main(["bench", "--vs", "cycles", "--whole-process", "--scene", "cornell", "--resolution", "16x16",
+                 "--spp", "8", "--repeats", "1", "--reference-dir", str(tmp_path / "refs"), "-o", str(out),
+                 "--reference-spp", "16", "--reference-seeds", "2", "--threads", "2"]) == 0
+    (scene,) = json.loads((out / "bench_whole_process.json").read_text())["scenes"]
+    assert scene["spp"] == 8 and scene["resolution"] == [16, 16] and scene["repeats"] == 1
+    monte, cycles = scene["renderers"]["monte"], scene["renderers"]["cycles"]
+    for r in (monte, cycles):
+        assert r["seconds"] == min(r["seconds_all"]) > 0 and len(r["seconds_all"]) == 1
+        assert r["efficiency"] == pytest.approx(1 / (r["seconds"] * r["rmse_corrected"] ** 2))
+    assert 0.5 < monte["rmse_corrected"] / cycles["rmse_corrected"] < 2.0  # same scene, same samples
+    assert scene["monte_over_cycles_efficiency"] == pytest.approx(monte["efficiency"] / cycles["efficiency"])
+
+
+def test_bench_whole_process_errors(tmp_path):
+    base = ["bench", "--vs", "cycles", "--whole-process", "--reference-dir", str(tmp_path), "-o", str(tmp_path)]
+    assert main([*base, "--ladder", "8,16"]) == 1  # renders at --spp: a ladder is refused, not ignored
+    assert main([*base, "--repeats", "0"]) == 1
+    assert main([*base, "--filter", "box"]) == 1  # the filter is fixed for a fair comparison

@@ -145,3 +145,23 @@ def test_a_process_finding_the_built_cache_compiles_nothing():
     assert second["compiled"] == 0, second
     assert second["loaded"] == first["loaded"] + first["compiled"] > 0
     assert second["used"] == first["used"] > 0
+
+
+def test_loading_the_cached_kernels_ahead_leaves_nothing_for_the_first_render():
+    """What the add-on does on a thread when it registers: every cached kernel loaded ahead, none compiled, so
+    the first render loads none itself."""
+    _python(PRECOMPILE)  # the cache is built (a no-op after `make setup`)
+    result = _python("""
+        import json
+        from monte.core.precompile import kernel_cache_counts, load_cached_kernels
+        from monte.core.builtin_scenes import builtin_scene
+        from monte.core.render import render
+        from monte.core.settings import RenderSettings
+        preloaded = load_cached_kernels()
+        before = kernel_cache_counts()
+        render(builtin_scene("cornell", (16, 16)), RenderSettings(spp=2, threads=2))
+        print("RESULT " + json.dumps({"preloaded": preloaded, "before": before, "after": kernel_cache_counts()}))
+    """)
+    assert result["preloaded"] == result["before"]["loaded"] > 0
+    assert result["before"]["compiled"] == result["after"]["compiled"] == 0
+    assert result["after"]["loaded"] == result["before"]["loaded"]  # the render found every kernel loaded
