@@ -198,6 +198,14 @@ KERNEL_MODULES = ("geometry_kernels", "path_kernels", "mesh_checks", "camera", "
 def compile_cache_is_cold() -> bool:
     """True when some kernel module has no numba cache index yet for this import of the package (first render
     after an install or an update of the sources): that render compiles the kernels first, about a minute on a
-    2-core machine."""
+    2-core machine. Once warm, it stays so for the process (no need to list the folder on every render)."""
+    global _cache_warm
+    if _cache_warm:
+        return False
     cache = cache_dir()
-    return any(not glob.glob(os.path.join(cache, f"{name}.*.nbi")) for name in KERNEL_MODULES)
+    cold = any(not glob.glob(os.path.join(cache, f"{name}.*.nbi")) for name in KERNEL_MODULES)
+    _cache_warm = not cold
+    return cold
+
+
+_cache_warm = False

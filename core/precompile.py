@@ -95,6 +95,9 @@ def load_cached_kernels_in_background() -> threading.Thread:
 
     def work() -> None:
         try:
+            import importlib
+
+            importlib.import_module(f"{jit_cache.PACKAGE}.render")  # the rest of the renderer's modules too
             load_cached_kernels()
         except Exception:  # noqa: BLE001 - only a head start
             pass
