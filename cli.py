@@ -84,27 +84,9 @@ class ProgressBar:
             sys.stderr.write("\n")
 
 
-def _load_kernels_ahead() -> None:
-    """Start loading the compiled render kernels on a thread (core.precompile), numba's import included, while
-    this thread imports bpy and opens the file or builds the scene."""
-    import threading
-
-    def start() -> None:
-        try:
-            from .core.precompile import load_cached_kernels_in_background
-
-            load_cached_kernels_in_background()
-        except Exception:  # noqa: BLE001 - only a head start: the render loads the kernels itself
-            pass
-
-    threading.Thread(target=start, name="monte-start-kernel-loading", daemon=True).start()
-
-
 def cmd_render(args: argparse.Namespace) -> int:
     from .core.builtin_scenes import BUILTIN_SCENES
 
-    if not args.list and not args.dask:
-        _load_kernels_ahead()
     if args.list:
         for name, (_, description) in BUILTIN_SCENES.items():
             print(f"{name:18s} {description}")

@@ -88,8 +88,9 @@ _loader_lock = threading.Lock()
 
 def load_cached_kernels_in_background() -> threading.Thread:
     """load_cached_kernels() on a daemon thread, started once per process (later calls return the same
-    thread): the add-on starts it when it registers, `monte render` before importing bpy, so the kernels load
-    while Blender starts or opens the file and the first render finds them loaded. Errors are left to the
+    thread): the add-on starts it when it registers (after bpy's import: a thread importing modules while
+    the bpy module itself is being imported can deadlock), so the kernels load while Blender starts or opens
+    the file and the first render finds them loaded. Errors are left to the
     first render, which loads (or compiles) the kernels itself."""
     global _loader
 
