@@ -1,4 +1,5 @@
 # Monte: `make render` sets everything up (first time) and renders the Cornell box; `make test` runs the tests.
+# Setting up compiles the render kernels once (numba's cache: core/precompile.py), so renders start at once.
 #
 # Environments, one per Blender version (PyPI's bpy module pins the Python it runs on):
 #   .venv      Blender 5.3 (bpy 5.3.0, Python 3.13, numpy 2.x): the default for everything below
@@ -25,6 +26,7 @@ define make_venv
 	$(1)/bin/python -m pip install --quiet --upgrade pip
 	$(1)/bin/python -m pip install --quiet -r $(3)
 	$(1)/bin/python -m pip install --quiet --no-deps -e .
+	$(1)/bin/python -m monte.core.precompile
 	touch $(1)/.installed
 endef
 
@@ -75,8 +77,10 @@ bench: $(VENV)/.installed
 crosscheck: $(VENV)/.installed
 	$(BIN)/python -m pytest tests/test_crosscheck.py -m slow -q -rA
 
+# The zips for this machine's platform carry the compiled kernels for Python 3.13 and, when .venv-5.0 exists
+# (make .venv-5.0/.installed), for Python 3.11 (Blender 4.2 - 5.0) too.
 extension: $(VENV)/.installed
-	$(BIN)/python tools/build_extension.py
+	$(BIN)/python tools/build_extension.py $(if $(wildcard .venv-5.0/bin/python),--kernel-python .venv-5.0/bin/python)
 
 clean:
 	rm -rf $(VENV) $(foreach v,$(OLDER_BLENDERS),.venv-$(v)) dist build *.egg-info cornell.exr cornell.png

@@ -7,6 +7,7 @@ this package alone does not register anything.
 from __future__ import annotations
 
 _registered = False
+_kernel_loader = None  # the thread loading the cached render kernels (core.precompile), started by register
 
 
 def register() -> None:
@@ -23,6 +24,11 @@ def register() -> None:
     cluster.register()
     ui.register()
     _registered = True
+    global _kernel_loader
+    if _kernel_loader is None:  # the first render then finds the compiled kernels loaded
+        from ..core.precompile import load_cached_kernels_in_background
+
+        _kernel_loader = load_cached_kernels_in_background()
 
 
 def unregister() -> None:
@@ -39,6 +45,8 @@ def unregister() -> None:
     bpy.utils.unregister_class(engine.MonteRenderEngine)
     properties.unregister()
     _registered = False
+    if _kernel_loader is not None:
+        _kernel_loader.join(timeout=60)  # not still loading while Blender shuts down
 
 
 def is_registered() -> bool:

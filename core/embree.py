@@ -26,6 +26,7 @@ import ctypes.util
 import glob
 import os
 import threading
+from typing import Iterator
 
 import numpy as np
 from llvmlite import ir
@@ -124,8 +125,9 @@ def trace_occluded(occluded1, scene, origins, directions, tmax, blocked):
         blocked[k] = words[8] < 0.0
 
 
-def _library_candidates() -> list[str]:
-    """Where the embreex wheels put Embree 4 (auditwheel, delvewheel, delocate), then the system's."""
+def _library_candidates() -> Iterator[str]:
+    """Where the embreex wheels put Embree 4 (auditwheel, delvewheel, delocate), then the system's (looked up
+    only when none of the wheel's loads: find_library runs ldconfig or a compiler, ~30 ms a first render paid)."""
     import embreex.rtcore_scene  # noqa: F401  (loads the library and its TBB the way embreex's wheel arranges)
 
     package = os.path.dirname(os.path.abspath(embreex.rtcore_scene.__file__))
@@ -134,9 +136,11 @@ def _library_candidates() -> list[str]:
         os.path.join(package, os.pardir, "embreex.libs", "embree4*.dll"),  # Windows
         os.path.join(package, ".dylibs", "libembree4*.dylib"),  # macOS
     ]
-    found = [path for pattern in patterns for path in sorted(glob.glob(pattern))]
+    for pattern in patterns:
+        yield from sorted(glob.glob(pattern))
     system = ctypes.util.find_library("embree4")
-    return found + ([system] if system else [])
+    if system:
+        yield system
 
 
 class EmbreeLibrary:

@@ -19,26 +19,121 @@ folder is both) fails with ModuleNotFoundError instead of compiling. One folder 
 Kernel modules take their decorators from here, so the locator below is installed before any kernel is defined
 (numba picks a function's cache folder when the function is decorated). Only functions defined in this folder are
 affected; other numba users in the process (other Blender add-ons) keep numba's own choice.
+
+A cache is valid while the sources are: its stamp is a SHA-256 of the kernel modules' contents and the numba
+options, not the files' times, so a cache built once and shipped (the extension zip,
+`make setup`) stays valid when unzipping or checking out rewrites the times, and any edit of a kernel module
+recompiles. Kernels are compiled for a generic CPU of the architecture (x86-64: SSE2; NUMBA_CPU_NAME=generic),
+so a cache built on one machine loads on every other: see `kernel_cpu()`.
 """
 
 from __future__ import annotations
 
 import glob
+import hashlib
 import os
+import warnings
 
 import numba
 from numba.core import caching
 
 _CORE_DIR = os.path.dirname(os.path.abspath(__file__))
+KERNEL_CPU_ENV = "MONTE_KERNEL_CPU"  # "generic" (the default) or "host"
+
+
+def _numba_codegen_exists() -> bool:
+    """True once numba has made its CPU code generator (the first kernel defined in the process, by any
+    package), after which the CPU it compiles for is fixed."""
+    from numba.core.registry import cpu_target
+
+    return "_toplevel_target_context" in vars(cpu_target)
+
+
+def _select_kernel_cpu() -> str:
+    """Make numba compile for a generic CPU of the architecture, so that cached kernels built elsewhere (the
+    extension zip, `make setup`) load here: numba keys each cached kernel by the CPU name and features it was
+    compiled for. Measured on Cornell renders, generic kernels run as fast as host-tuned ones (the kernels are
+    scalar per-path code: docs/performance.md), and give the same image bits (no fast-math, so no fused
+    multiply-adds either way).
+
+    Left alone when the user chose a CPU for numba (NUMBA_CPU_NAME), when MONTE_KERNEL_CPU=host asks for
+    host-tuned kernels (compiled on the first render, not shipped), and when numba already compiled for this
+    process's CPU before Monte was imported (another add-on's kernels): then Monte compiles its own kernels
+    once, with a warning. Returns the CPU name numba uses ("generic", or "host")."""
+    if os.environ.get("NUMBA_CPU_NAME"):
+        return os.environ["NUMBA_CPU_NAME"]
+    choice = os.environ.get(KERNEL_CPU_ENV, "generic").strip().lower() or "generic"
+    if choice not in ("generic", "host"):
+        warnings.warn(f"{KERNEL_CPU_ENV}={os.environ[KERNEL_CPU_ENV]!r} is neither 'generic' nor 'host'; "
+                      "using 'generic'", stacklevel=2)
+        choice = "generic"
+    if choice == "host":
+        return "host"
+    if _numba_codegen_exists():
+        warnings.warn("numba was already compiling for this machine's CPU before Monte was loaded (another "
+                      "package's kernels): Monte's shipped kernels do not apply and are compiled once on the "
+                      "first render", stacklevel=2)
+        return "host"
+    # The environment too: numba re-reads NUMBA_* variables before each compile and would reset the config.
+    os.environ["NUMBA_CPU_NAME"] = "generic"
+    os.environ["NUMBA_CPU_FEATURES"] = ""
+    numba.config.CPU_NAME = "generic"
+    numba.config.CPU_FEATURES = ""
+    return "generic"
+
+
+KERNEL_CPU = _select_kernel_cpu()
 PACKAGE = __name__.rpartition(".")[0] or "core"  # "monte.core", "bl_ext.user_default.monte.core", ...
 
 
-def _file_stamp(path: str) -> tuple[float, int]:
+# (path) -> ((mtime_ns, size, inode), sha256 hex): a file is hashed again only when its stat changes.
+_DIGESTS: dict[str, tuple[tuple[int, int, int], str]] = {}
+
+
+def file_digest(path: str) -> str:
+    """SHA-256 (hex) of a file's contents; "" for a file that cannot be read (so its cache can never match)."""
+    try:
+        st = os.stat(path)
+        key = (st.st_mtime_ns, st.st_size, st.st_ino)
+        memo = _DIGESTS.get(path)
+        if memo is not None and memo[0] == key:
+            return memo[1]
+        with open(path, "rb") as fh:
+            digest = hashlib.sha256(fh.read()).hexdigest()
+    except OSError:
+        return ""
+    _DIGESTS[path] = (key, digest)
+    return digest
+
+
+# (folder, names) -> (the files' stat keys, digest): recomputed only when a file's stat changes.
+_SOURCES: dict[tuple[str, tuple[str, ...]], tuple[tuple, str]] = {}
+
+
+def _stat_key(path: str) -> tuple[int, int, int]:
     try:
         st = os.stat(path)
     except OSError:
-        return 0.0, 0
-    return st.st_mtime, st.st_size
+        return (-1, -1, -1)
+    return st.st_mtime_ns, st.st_size, st.st_ino
+
+
+def sources_digest(folder: str | None = None, names: tuple[str, ...] | None = None) -> str:
+    """One SHA-256 (hex) over the numba options (OPTIONS_KEY) and the contents of the kernel modules `names`
+    (default KERNEL_MODULES) in `folder` (default this package's core/): the key every cached kernel is valid
+    for. Asked once per kernel when its module is imported, so it is memoized on the files' stat."""
+    folder = folder or _CORE_DIR
+    files = tuple(sorted(names if names is not None else KERNEL_MODULES))
+    paths = [os.path.join(folder, f"{name}.py") for name in files]
+    stats = (OPTIONS_KEY, *(_stat_key(path) for path in paths))
+    memo = _SOURCES.get((folder, files))
+    if memo is not None and memo[0] == stats:
+        return memo[1]
+    h = hashlib.sha256(OPTIONS_KEY.encode())
+    for name, path in zip(files, paths):
+        h.update(f"{name}.py:{file_digest(path)};".encode())
+    _SOURCES[(folder, files)] = (stats, h.hexdigest())
+    return h.hexdigest()
 
 
 def cache_dir() -> str:
@@ -49,6 +144,8 @@ def cache_dir() -> str:
 # numba >= 0.59 names it InTreeCacheLocator; earlier versions _InTreeCacheLocator.
 _InTree = getattr(caching, "InTreeCacheLocator", None) or getattr(caching, "_InTreeCacheLocator", None)
 _CacheImpl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)
+
+_WRITABLE: set[str] = set()  # cache folders this process found writable
 
 if _InTree is not None and _CacheImpl is not None:
 
@@ -61,11 +158,18 @@ if _InTree is not None and _CacheImpl is not None:
             self._cache_path = cache_dir()
 
         def get_source_stamp(self):
-            """The function's own file and every kernel module: numba checks only the file a function is defined
-            in, but kernels call (and inline) functions of other kernel modules (core.warps from the light and
-            BSDF kernels, core.geometry_kernels from core.path_kernels), whose edits must recompile them too."""
-            own = super().get_source_stamp()
-            return own, tuple(_file_stamp(os.path.join(_CORE_DIR, f"{name}.py")) for name in KERNEL_MODULES)
+            """The contents of the function's own file and of every kernel module: numba checks only the file a
+            function is defined in, but kernels call (and inline) functions of other kernel modules (core.warps
+            from the light and BSDF kernels, core.geometry_kernels from core.path_kernels), whose edits must
+            recompile them too. Contents, not numba's file times: see the module's docstring."""
+            return "sha256", file_digest(self._py_file), sources_digest()
+
+        def ensure_cache_path(self):
+            """numba's check (create the folder, write a temporary file in it), once per process instead of
+            once per kernel: it was a file created and deleted for each of ~130 kernels at import."""
+            if self._cache_path not in _WRITABLE:
+                super().ensure_cache_path()
+                _WRITABLE.add(self._cache_path)
 
         @classmethod
         def from_function(cls, py_func, py_file):
@@ -81,6 +185,8 @@ if _InTree is not None and _CacheImpl is not None:
 
 
 _OPTIONS = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
+# The options every kernel is compiled with, part of the cache key (edits elsewhere in this file are not).
+OPTIONS_KEY = repr(sorted(_OPTIONS.items())) + "; no NRT; inline always"
 jit = numba.njit(**_OPTIONS)
 jit_no_nrt = numba.njit(**_OPTIONS, _nrt=False)
 jit_inline = numba.njit(**_OPTIONS, _nrt=False, inline="always")
@@ -95,7 +201,17 @@ def compile_cache_is_cold(with_node_programs: bool = False) -> bool:
     """True when some kernel module has no numba cache index yet for this import of the package (first render
     after an install or an update of the sources): that render compiles the kernels first, about a minute on a
     2-core machine. The node-program evaluator (core/shading/) compiles only for scenes with node programs:
-    counted when `with_node_programs`."""
+    counted when `with_node_programs`. Once warm, it stays so for the process (no need to list the folder on
+    every render)."""
+    if _cache_warm[with_node_programs]:
+        return False
     cache = cache_dir()
-    return any(not glob.glob(os.path.join(cache, f"{os.path.basename(name)}.*.nbi"))
+    cold = any(not glob.glob(os.path.join(cache, f"{os.path.basename(name)}.*.nbi"))
                for name in KERNEL_MODULES if with_node_programs or not name.startswith("shading/"))
+    _cache_warm[with_node_programs] = not cold
+    if not cold and with_node_programs:
+        _cache_warm[False] = True
+    return cold
+
+
+_cache_warm = {False: False, True: False}

@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-from .mesh_checks import triangle_checks
 from .world import EnvironmentMap, EnvironmentMapError
 
 if TYPE_CHECKING:
@@ -286,6 +285,8 @@ class Mesh:
         finite = np.empty(n_tri, bool)
         area2 = np.empty(n_tri)
         edge = np.empty(n_tri)
+        from .mesh_checks import triangle_checks  # numba: imported when a mesh is checked, not with the data types
+
         triangle_checks(np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(tri), finite, area2, edge)
         with np.errstate(invalid="ignore", over="ignore"):
             # zero area relative to the triangle's own size: collinear or repeated vertices

@@ -42,6 +42,11 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output-dir", help="folder for bench.json and the plot (--vs, ladders, seed table)")
     p.add_argument("--ladder", type=_int_list, help="sample counts, e.g. 16,32,64,128,256")
     p.add_argument("--time-ladder", type=_float_list, help="with --vs cycles: time budgets in seconds instead")
+    p.add_argument("--whole-process", action="store_true",
+                   help="with --vs cycles: time each renderer as a whole process (monte render X.blend against "
+                        "Blender rendering it with Cycles), at --spp (default 64)")
+    p.add_argument("--repeats", type=int, default=3,
+                   help="with --whole-process: processes per renderer, the best time counts (default 3)")
     p.add_argument("--reference-spp", type=int, default=1024, help="reference samples per seed (default 1024)")
     p.add_argument("--reference-seeds", type=int, default=4, help="reference seeds averaged (default 4)")
     p.add_argument("--samplers", action="store_true", help="Monte's samplers against each other (no bpy)")

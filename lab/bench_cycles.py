@@ -339,6 +339,22 @@ def run_from_args(args, overrides: dict) -> dict:
     if args.reference_seeds < 2 or args.reference_spp < 1:
         raise ValueError("the reference needs --reference-seeds >= 2 (to estimate its own noise) and "
                          "--reference-spp >= 1")
+    if getattr(args, "whole_process", False):
+        unsupported = sorted(set(overrides) - {"threads", "max_bounces", "seed", "spp"})
+        if unsupported:
+            raise ValueError(f"--whole-process fixes these settings for a fair comparison: {', '.join(unsupported)}")
+        if args.ladder or args.time_ladder:
+            raise ValueError("--whole-process renders at --spp (default 64), not a ladder")
+        if args.repeats < 1:
+            raise ValueError(f"--repeats must be at least 1, got {args.repeats}")
+        from .bench_whole_process import run_whole_process
+
+        return run_whole_process(specs, args.reference_dir, args.output_dir, spp=overrides.get("spp", 64),
+                                 repeats=args.repeats, threads=overrides.get("threads") or 2,
+                                 max_bounces=overrides.get("max_bounces", 16),
+                                 resolution=tuple(args.resolution) if args.resolution else None,
+                                 reference_spp=args.reference_spp, reference_seeds=args.reference_seeds,
+                                 seed=overrides.get("seed", 1))
     unsupported = sorted(set(overrides) - {"threads", "max_bounces", "seed", "denoising_features"})
     if unsupported:
         raise ValueError(f"--vs cycles fixes these settings for a fair comparison: {', '.join(unsupported)}")

@@ -24,7 +24,6 @@ from typing import Callable
 
 import numpy as np
 
-from ..core import warps
 
 Integrand = Callable[[np.ndarray], np.ndarray]
 """A vectorised real function: array of points in, array of values of the same shape out."""
@@ -395,6 +394,8 @@ def sample_cosine_hemisphere(rng: np.random.Generator, n: int) -> tuple[np.ndarr
     """
     xi_phi = rng.random(n)
     xi_theta = rng.random(n)
+    from ..core import warps  # numba: imported when used (`monte` builds its parser from lab.mc_study)
+
     w = warps.cos_hemisphere_local_many(np.column_stack([xi_theta, xi_phi]))
     return np.arccos(np.clip(w[:, 2], -1.0, 1.0)), np.arctan2(w[:, 1], w[:, 0]) % (2.0 * math.pi)
 

@@ -23,13 +23,20 @@ import tracemalloc
 
 import numpy as np
 
-from ..core.render import render
 from ..core.scene import Lobe, Material
 from ..core.builtin_scenes import cornell_box, cornell_diffuse, spheres_under_sky
 from ..core.settings import RenderSettings
 from .bench_math import efficiency
 
 SECTIONS = ("stages", "threads", "memory", "skip", "adaptive")
+
+
+def render(scene, settings: RenderSettings):
+    """core.render.render, imported on the first measurement: `monte` builds its parser from this module's
+    add_arguments, and `monte render` should not import the renderer's kernels before it needs them."""
+    from ..core.render import render as core_render
+
+    return core_render(scene, settings)
 
 
 def _settings(**kw) -> RenderSettings:

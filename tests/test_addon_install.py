@@ -56,6 +56,9 @@ SCRIPT = textwrap.dedent(r"""
 
     # The renderer called Embree directly (the library found next to the embreex the extension installed).
     library, why_not = sys.modules["bl_ext.user_default.monte.core.embree"].load()
+    # What the render compiled and what it loaded from the kernel cache shipped in the zip.
+    import importlib
+    kernels = importlib.import_module("bl_ext.user_default.monte.core.precompile").kernel_cache_counts()
 
     before = selectable()
     bpy.ops.preferences.addon_disable(module="bl_ext.user_default.monte")
@@ -64,7 +67,7 @@ SCRIPT = textwrap.dedent(r"""
         "install": sorted(res), "engines": engines, "module_file": getattr(module, "__file__", None),
         "render": sorted(rendered), "shape": list(px.shape), "mean_rgb": px[..., :3].mean(),
         "alpha": px[..., 3].mean(), "menu_before_disable": before, "menu_after_disable": after,
-        "embree_library": library.path if library else None, "embree_error": why_not,
+        "embree_library": library.path if library else None, "embree_error": why_not, "kernels": kernels,
     }))
 """).replace("# PLANE_SCENE\n", PLANE_SCENE)  # the plane under a white world (tests/plane_scene.py)
 
@@ -91,11 +94,22 @@ def test_zip_holds_only_the_add_on(built_zip):
     names = zipfile.ZipFile(built_zip).namelist()
     tops = {n.split("/", 1)[0] for n in names}
     assert tops == {"__init__.py", "blender_manifest.toml", "LICENSE", "core", "addon", "wheels"}
+    # The compiled kernels for this Python, built under the name Blender imports the extension as: an index
+    # per kernel module (and no Python bytecode anywhere).
+    cache = "core/__pycache__/numba-bl_ext.user_default.monte.core/"
+    tag = f"py{sys.version_info[0]}{sys.version_info[1]}"
+    from monte.core.jit_cache import KERNEL_MODULES
+
+    for module in KERNEL_MODULES:
+        assert any(n.startswith(f"{cache}{module}.") and n.endswith(f".{tag}.nbi") for n in names), module
+    assert any(n.startswith(cache) and n.endswith(".nbc") for n in names)
+    assert not any(n.endswith(".pyc") for n in names)
+    assert all(n.startswith(cache) for n in names if "__pycache__" in n)
     wheels = sorted(Path(n).name for n in names if n.endswith(".whl"))
     # Each dependency for both Pythons Blender bundles: cp311 (Blender 4.2 - 5.0) and cp313 (Blender 5.3).
     assert sorted((w.split("-")[0], w.split("-")[2]) for w in wheels) == [
         (name, py) for name in ("embreex", "llvmlite", "numba", "openexr") for py in ("cp311", "cp313")]
-    assert not any(n.startswith(("tests/", "tools/", ".venv", "dist/")) or "__pycache__" in n for n in names)
+    assert not any(n.startswith(("tests/", "tools/", ".venv", "dist/")) for n in names)
 
 
 def test_zip_installs_enables_and_renders(built_zip, tmp_path):
@@ -121,3 +135,6 @@ def test_zip_installs_enables_and_renders(built_zip, tmp_path):
     assert result["mean_rgb"] == pytest.approx(0.5, abs=0.03)
     assert result["menu_before_disable"] and not result["menu_after_disable"]
     assert result["embree_error"] is None and "embree4" in Path(result["embree_library"]).name
+    # The first render after installing loaded every kernel it ran from the zip's cache and compiled none.
+    assert result["kernels"]["compiled"] == 0, result["kernels"]
+    assert result["kernels"]["loaded"] > 0

@@ -107,3 +107,26 @@ def test_bench_vs_cycles_denoised(tmp_path, capsys):
     assert report["quality"] == "fast" and report["monte_seconds_per_megapixel"] > 0
     assert len(report["target_rmse"]) == 3 and set(report["seconds_for_target"]) == {"monte", "cycles"}
     assert "denoising (fast): Monte" in capsys.readouterr().out
+
+def test_bench_whole_process_tiny_end_to_end(tmp_path):
+    """Both renderers as whole processes on the same saved .blend: a fair pair (same samples, filter, bounces),
+    so their errors against the reference are alike, and the efficiency is taken with the process's time."""
+    out = tmp_path / "out"
+    assert main(["bench", "--vs", "cycles", "--whole-process", "--scene", "cornell", "--resolution", "16x16",
+                 "--spp", "8", "--repeats", "1", "--reference-dir", str(tmp_path / "refs"), "-o", str(out),
+                 "--reference-spp", "16", "--reference-seeds", "2", "--threads", "2"]) == 0
+    (scene,) = json.loads((out / "bench_whole_process.json").read_text())["scenes"]
+    assert scene["spp"] == 8 and scene["resolution"] == [16, 16] and scene["repeats"] == 1
+    monte, cycles = scene["renderers"]["monte"], scene["renderers"]["cycles"]
+    for r in (monte, cycles):
+        assert r["seconds"] == min(r["seconds_all"]) > 0 and len(r["seconds_all"]) == 1
+        assert r["efficiency"] == pytest.approx(1 / (r["seconds"] * r["rmse_corrected"] ** 2))
+    assert 0.5 < monte["rmse_corrected"] / cycles["rmse_corrected"] < 2.0  # same scene, same samples
+    assert scene["monte_over_cycles_efficiency"] == pytest.approx(monte["efficiency"] / cycles["efficiency"])
+
+
+def test_bench_whole_process_errors(tmp_path):
+    base = ["bench", "--vs", "cycles", "--whole-process", "--reference-dir", str(tmp_path), "-o", str(tmp_path)]
+    assert main([*base, "--ladder", "8,16"]) == 1  # renders at --spp: a ladder is refused, not ignored
+    assert main([*base, "--repeats", "0"]) == 1
+    assert main([*base, "--filter", "box"]) == 1  # the filter is fixed for a fair comparison

@@ -1,15 +1,24 @@
-"""A kernel's disk cache is invalidated when any kernel module changes, not only its own file: kernels call (and
-inline) functions of other modules (core.warps, core.geometry_kernels), and numba alone checks only the file a
-function is defined in, so an edit of a warp would leave the light kernels running the old one."""
+"""The kernels' disk cache: keyed by the sources' contents, so a cache built once (`make setup`, the extension
+zip) stays valid when checking out or unzipping rewrites the file times, and any edit of any kernel module
+invalidates every kernel (kernels call and inline functions of other modules: core.warps, core.geometry_kernels;
+numba alone checks only the file a function is defined in). Kernels are compiled for a generic CPU, so a cache
+built on one machine applies on another; a process that finds a built cache compiles nothing."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
+import shutil
+import subprocess
+import sys
+import textwrap
 
 import pytest
 
-from monte.core import jit_cache, light_kernels, warps
+from monte.core import jit_cache, light_kernels
+
+CORE = os.path.dirname(jit_cache.__file__)
 
 
 def _stamp(dispatcher):
@@ -19,22 +28,55 @@ def _stamp(dispatcher):
     return locator.get_source_stamp()
 
 
-def test_editing_a_callee_module_invalidates_the_caller():
-    before = _stamp(light_kernels.sample_batch)
-    path = warps.__file__
-    st = os.stat(path)
-    try:
-        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
-        assert _stamp(light_kernels.sample_batch) != before
-    finally:
-        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
-    assert _stamp(light_kernels.sample_batch) == before  # restored: the cache is valid again
+@pytest.fixture
+def sources(tmp_path):
+    """A copy of the kernel modules (the files the cache key covers)."""
+    for name in jit_cache.KERNEL_MODULES:
+        shutil.copy2(os.path.join(CORE, f"{name}.py"), tmp_path / f"{name}.py")
+    return tmp_path
+
+
+def test_the_stamp_is_the_contents_of_every_kernel_module():
+    own = light_kernels.__file__
+    assert _stamp(light_kernels.sample_batch) == ("sha256", jit_cache.file_digest(own), jit_cache.sources_digest())
+    assert len(jit_cache.sources_digest()) == 64
+
+
+@pytest.mark.parametrize("name", ["warps", "geometry_kernels", "light_kernels"])
+def test_editing_any_kernel_module_changes_the_key(sources, name):
+    before = jit_cache.sources_digest(str(sources))
+    path = sources / f"{name}.py"
+    path.write_text(path.read_text() + "\n# an edit\n")
+    assert jit_cache.sources_digest(str(sources)) != before
+
+
+def test_other_numba_options_change_the_key(sources, monkeypatch):
+    before = jit_cache.sources_digest(str(sources))
+    monkeypatch.setattr(jit_cache, "OPTIONS_KEY", jit_cache.OPTIONS_KEY.replace("'numpy'", "'python'"))
+    assert jit_cache.sources_digest(str(sources)) != before
+
+
+def test_new_file_times_alone_keep_the_key(sources):
+    """Unzipping the extension or checking out the repository writes new times: the cache must still apply."""
+    before = jit_cache.sources_digest(str(sources))
+    for name in jit_cache.KERNEL_MODULES:
+        path = sources / f"{name}.py"
+        st = os.stat(path)
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 3_600_000_000_000))
+    assert jit_cache.sources_digest(str(sources)) == before
+
+
+def test_an_unreadable_module_never_matches(sources):
+    before = jit_cache.sources_digest(str(sources))
+    os.remove(sources / "warps.py")
+    assert jit_cache.file_digest(str(sources / "warps.py")) == ""
+    assert jit_cache.sources_digest(str(sources)) != before
 
 
 @pytest.mark.parametrize("name", jit_cache.KERNEL_MODULES)
 def test_every_kernel_module_is_there(name):
     # a module missing from the list would not invalidate its callers; a stale name would stamp nothing
-    assert os.path.isfile(os.path.join(os.path.dirname(jit_cache.__file__), f"{name}.py"))
+    assert os.path.isfile(os.path.join(CORE, f"{name}.py"))
 
 
 def test_the_list_names_every_module_a_render_compiles():
@@ -58,3 +100,80 @@ def test_a_subpackage_kernel_is_cached_by_the_per_import_name_locator():
     py_func = color.mix_color.py_func
     locator = jit_cache._PerImportNameLocator.from_function(py_func, py_func.__code__.co_filename)
     assert locator is not None and locator.get_cache_path() == jit_cache.cache_dir()
+
+
+def _python(code: str, **env) -> dict:
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != jit_cache.KERNEL_CPU_ENV}
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
+                          timeout=900, env={**clean, **env})
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, f"exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    return json.loads(lines[-1][len("RESULT "):])
+
+
+def test_kernels_are_compiled_for_a_generic_cpu():
+    result = _python("""
+        import json
+        from monte.core import jit_cache, warps
+        from numba.core.registry import cpu_target
+        print("RESULT " + json.dumps({"cpu": jit_cache.KERNEL_CPU,
+                                      "magic": list(cpu_target.target_context.codegen().magic_tuple())}))
+    """)
+    assert result["cpu"] == "generic"
+    assert result["magic"][1:] == ["generic", ""]  # the CPU name and features numba keys the cache by
+
+
+def test_host_tuned_kernels_on_request_and_after_another_package_compiled():
+    result = _python("""
+        import json, warnings
+        import numba
+        numba.njit(lambda x: x + 1)(1)  # another package's kernel: numba's code generator now exists
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            from monte.core import jit_cache
+        print("RESULT " + json.dumps({"cpu": jit_cache.KERNEL_CPU, "warnings": [str(w.message) for w in caught]}))
+    """)
+    assert result["cpu"] == "host"
+    assert any("compiled once on the first render" in w for w in result["warnings"]), result["warnings"]
+    assert _python("""
+        import json
+        from monte.core import jit_cache
+        print("RESULT " + json.dumps({"cpu": jit_cache.KERNEL_CPU}))
+    """, MONTE_KERNEL_CPU="host")["cpu"] == "host"
+
+
+PRECOMPILE = """
+    import json
+    from monte.core.precompile import precompile_kernels
+    print("RESULT " + json.dumps(precompile_kernels()))
+"""
+
+
+def test_a_process_finding_the_built_cache_compiles_nothing():
+    """The first process fills the cache (`make setup` already did: then it too compiles nothing); a second
+    process renders every warm-up case from the cache alone."""
+    first = _python(PRECOMPILE)
+    second = _python(PRECOMPILE)
+    assert second["compiled"] == 0, second
+    assert second["loaded"] == first["loaded"] + first["compiled"] > 0
+    assert second["used"] == first["used"] > 0
+
+
+def test_loading_the_cached_kernels_ahead_leaves_nothing_for_the_first_render():
+    """What the add-on does on a thread when it registers: every cached kernel loaded ahead, none compiled, so
+    the first render loads none itself."""
+    _python(PRECOMPILE)  # the cache is built (a no-op after `make setup`)
+    result = _python("""
+        import json
+        from monte.core.precompile import kernel_cache_counts, load_cached_kernels
+        from monte.core.builtin_scenes import builtin_scene
+        from monte.core.render import render
+        from monte.core.settings import RenderSettings
+        preloaded = load_cached_kernels()
+        before = kernel_cache_counts()
+        render(builtin_scene("cornell", (16, 16)), RenderSettings(spp=2, threads=2))
+        print("RESULT " + json.dumps({"preloaded": preloaded, "before": before, "after": kernel_cache_counts()}))
+    """)
+    assert result["preloaded"] == result["before"]["loaded"] > 0
+    assert result["before"]["compiled"] == result["after"]["compiled"] == 0
+    assert result["after"]["loaded"] == result["before"]["loaded"]  # the render found every kernel loaded

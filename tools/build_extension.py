@@ -11,6 +11,12 @@ Blender 5.3; files already there are reused). The zips are made by Blender's
 own extension builder, shipped inside the `bpy` wheel (bpy/<ver>/scripts/addons_core/bl_pkg/cli/
 blender_ext.py), with plain Python: no Blender binary needed. Each zip is then checked to hold only the
 add-on (the package __init__.py, core/, addon/, the manifest, LICENSE and its wheels).
+
+The zip for the platform the build runs on also carries the compiled render kernels (numba's cache, built by
+core/precompile.py under the name Blender imports the extension as, bl_ext.user_default.monte, for a generic
+CPU and keyed by the sources' contents), so the first render after installing does not compile: for this
+interpreter's Python, and for each --kernel-python interpreter (e.g. a Python 3.11 environment with the
+manifest's numba, for Blender 4.2 - 5.0). Zips for other platforms compile on their first render.
 """
 
 from __future__ import annotations
@@ -39,6 +45,10 @@ PIP_PLATFORMS = {
     "macos-x64": ["macosx_13_0_x86_64"],
     "macos-arm64": ["macosx_13_0_arm64"],  # pip takes older macOS tags (numba's 12.0, OpenEXR's 11.0) too
 }
+# Blender installs an extension from a file into the "user_default" repository, which it imports as this package;
+# numba's cache records the import name, so the shipped kernels are built under it.
+BLENDER_PACKAGE = "bl_ext.user_default.monte"
+KERNEL_CACHE_DIR = f"core/__pycache__/numba-{BLENDER_PACKAGE}.core"
 # Top-level entries a built zip may hold.
 ALLOWED_TOP = {"__init__.py", "blender_manifest.toml", "LICENSE", "core", "addon", "wheels"}  # the GPL travels with the code
 
@@ -149,12 +159,26 @@ def run_blender_ext(tool: Path, *args: str) -> str:
     return out
 
 
+def this_platform() -> str | None:
+    """The Blender platform name of the machine the build runs on (None: no Monte build for it)."""
+    import platform
+
+    return {("Linux", "x86_64"): "linux-x64", ("Windows", "AMD64"): "windows-x64",
+            ("Darwin", "x86_64"): "macos-x64", ("Darwin", "arm64"): "macos-arm64"}.get(
+        (platform.system(), platform.machine()))
+
+
 def stage_subset(manifest: dict, platforms: list[str], stage: Path) -> Path:
     """A copy of the source tree whose manifest lists only `platforms` and their wheels (Blender's builder
-    wants every listed wheel on disk, and one platform's build should not need the others' wheels)."""
-    src = stage / "src"
+    wants every listed wheel on disk, and one platform's build should not need the others' wheels), placed
+    where it imports as BLENDER_PACKAGE (stage/bl_ext/user_default/monte) for building the kernel cache. The
+    copy's manifest lets __pycache__ folders in (they hold only that cache: no .pyc is written there)."""
+    (stage / "bl_ext" / "user_default").mkdir(parents=True)
+    for pkg in (stage / "bl_ext", stage / "bl_ext" / "user_default"):
+        (pkg / "__init__.py").write_text("")
+    src = stage / "bl_ext" / "user_default" / "monte"
     shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(
-        ".git", ".venv", "dist", "build", "wheels", "__pycache__", ".pytest_cache", "*.egg-info", "out"))
+        ".git", ".venv", ".venv-*", "dist", "build", "wheels", "__pycache__", ".pytest_cache", "*.egg-info", "out"))
     wheels = [w for w in manifest.get("wheels", []) if wheel_platform(w) in platforms]
     (src / "wheels").mkdir()
     for w in wheels:
@@ -164,10 +188,42 @@ def stage_subset(manifest: dict, platforms: list[str], stage: Path) -> Path:
                        + "]", text, count=1)
     text, n2 = re.subn(r"(?ms)^wheels\s*=\s*\[.*?\]", "wheels = [" + ", ".join(f'"{w}"' for w in wheels) + "]",
                        text, count=1)
-    if n1 != 1 or n2 != 1:
-        raise BuildError("could not rewrite platforms/wheels in a copy of blender_manifest.toml")
+    text, n3 = re.subn(r'(?m)^\s*"__pycache__/",\n', "", text, count=1)
+    if n1 != 1 or n2 != 1 or n3 != 1:
+        raise BuildError("could not rewrite platforms, wheels and __pycache__/ in a copy of blender_manifest.toml")
     (src / "blender_manifest.toml").write_text(text)
     return src
+
+
+def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str) -> bool:
+    """Compile every render kernel of the staged copy `src` with `python` into src/KERNEL_CACHE_DIR (for a
+    generic CPU). Skipped, with a note, when that Python's numba is not the one the manifest bundles for it
+    (the cache would not match the numba Blender installs). Returns whether a cache was built."""
+    probe = subprocess.run([python, "-c", "import sys, numba; "
+                            "print(f'{sys.version_info[0]}.{sys.version_info[1]}', numba.__version__)"],
+                           capture_output=True, text=True)
+    if probe.returncode != 0:
+        log(f"kernel cache: skipped for {python}: it cannot import numba ({probe.stderr.strip()[-300:]})")
+        return False
+    py_version, numba_version = probe.stdout.split()
+    wanted = wheel_requirements(manifest.get("wheels", [])).get((platform, py_version), {}).get("numba")
+    if wanted != numba_version:
+        log(f"kernel cache: skipped for Python {py_version} ({python}): it has numba {numba_version}, the zip "
+            f"bundles {wanted or 'no numba'} for it on {platform}")
+        return False
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith("NUMBA_") and k not in ("MONTE_KERNEL_CPU", "PYTHONPATH")}
+    env["PYTHONDONTWRITEBYTECODE"] = "1"  # the cache folders ship: no .pyc in them
+    root = src.parent.parent.parent
+    code = (f"import sys; sys.path.insert(0, {str(root)!r}); "
+            f"from {BLENDER_PACKAGE}.core.precompile import main; sys.exit(main())")
+    log(f"kernel cache: compiling for Python {py_version} (numba {numba_version}) ...")
+    proc = subprocess.run([python, "-c", code], capture_output=True, text=True, env=env, cwd=root)
+    if proc.returncode != 0:
+        raise BuildError(f"compiling the kernel cache with {python} failed:\n{proc.stdout[-3000:]}\n"
+                         f"{proc.stderr[-3000:]}")
+    log(f"kernel cache: {proc.stdout.strip().splitlines()[-1]}")
+    return True
 
 
 def check_zip(path: Path, manifest: dict) -> None:
@@ -178,7 +234,8 @@ def check_zip(path: Path, manifest: dict) -> None:
     if unexpected:
         raise BuildError(f"{path.name} holds files the add-on does not need: {', '.join(unexpected)} "
                          "(extend [build] paths_exclude_pattern in blender_manifest.toml)")
-    junk = [n for n in names if "__pycache__" in n or n.endswith(".pyc")]
+    junk = [n for n in names if n.endswith(".pyc") or ("__pycache__" in n and not (
+        n.startswith(KERNEL_CACHE_DIR + "/") and n.endswith((".nbi", ".nbc"))))]
     if junk:
         raise BuildError(f"{path.name} holds compiled Python files: {junk[:5]}")
     for required in ("__init__.py", "blender_manifest.toml", "core/render.py", "addon/engine.py"):
@@ -195,6 +252,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output-dir", default=str(ROOT / "dist"), help="where the zips go (default dist/)")
     parser.add_argument("--refresh", action="store_true", help="download the wheels again")
     parser.add_argument("--no-download", action="store_true", help="use the wheels already in wheels/")
+    parser.add_argument("--kernel-python", action="append", default=[], metavar="PYTHON",
+                        help="also build the shipped kernel cache with this interpreter (repeatable; e.g. a Python "
+                             "3.11 with the manifest's numba, for Blender 4.2 - 5.0)")
+    parser.add_argument("--no-kernel-cache", action="store_true",
+                        help="ship no compiled kernels (the first render after installing compiles them)")
     args = parser.parse_args(argv)
 
     try:
@@ -215,14 +277,26 @@ def main(argv: list[str] | None = None) -> int:
         out_dir.mkdir(parents=True, exist_ok=True)  # the builder needs it to exist
         version = manifest["version"]
         before = {p: p.stat().st_mtime for p in out_dir.glob(f"{manifest['id']}-{version}*.zip")}
-        subset = not args.single and sorted(platforms) != sorted(manifest.get("platforms", []))
-        with tempfile.TemporaryDirectory(prefix="monte-ext-") as tmp:
-            source = stage_subset(manifest, platforms, Path(tmp)) if subset else ROOT
-            log(run_blender_ext(tool, "validate", str(source)).splitlines()[-1])
-            build_args = ["build", "--source-dir", str(source), "--output-dir", str(out_dir)]
-            if not args.single:
-                build_args.append("--split-platforms")
-            log(run_blender_ext(tool, *build_args).splitlines()[-1])
+        host = this_platform()
+        cache_platforms = [] if args.no_kernel_cache or host not in platforms else [host]
+        if args.single:
+            groups = [(platforms, bool(cache_platforms))]
+        else:  # the kernel cache is for this machine's platform: its zip is built from its own staged copy
+            others = [p for p in platforms if p not in cache_platforms]
+            groups = [(g, g == cache_platforms) for g in (cache_platforms, others) if g]
+        for group, with_cache in groups:
+            with tempfile.TemporaryDirectory(prefix="monte-ext-") as tmp:
+                source = stage_subset(manifest, group, Path(tmp))
+                if with_cache:
+                    built_for = [build_kernel_cache(source, py, manifest, host)
+                                 for py in [sys.executable, *args.kernel_python]]
+                    if not any(built_for):
+                        log("kernel cache: none built; the first render after installing compiles the kernels")
+                log(run_blender_ext(tool, "validate", str(source)).splitlines()[-1])
+                build_args = ["build", "--source-dir", str(source), "--output-dir", str(out_dir)]
+                if not args.single:
+                    build_args.append("--split-platforms")
+                log(run_blender_ext(tool, *build_args).splitlines()[-1])
         built = sorted(p for p in out_dir.glob(f"{manifest['id']}-{version}*.zip")
                        if before.get(p) != p.stat().st_mtime)
         if not built:

@@ -1,0 +1,217 @@
+"""Compile (or load) every render kernel ahead of the first render, so that cache can be built once and shipped.
+
+`precompile_kernels()` renders a few tiny scenes that together reach every kernel a render can call: each
+built-in scene, each sampler, pixel filter and light-sampling strategy, adaptive sampling and clamping, and
+one scene holding every light kind, every lobe kind, a texture, smooth normals and a thin-lens camera. numba
+writes each kernel it compiles into the on-disk cache (core/jit_cache.py), so a later process loads them all.
+
+Run by `make setup` (`python -m monte.core.precompile`) for a checkout and by tools/build_extension.py, under
+Blender's import name, for the extension zip. `kernel_cache_counts()` says what this process compiled and what
+it loaded from the cache (the tests check that a process using a built cache compiled nothing).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import time
+from types import ModuleType
+from typing import Callable
+
+import numpy as np
+
+from . import jit_cache
+
+
+def _kernel_modules() -> list[ModuleType]:
+    """The kernel modules as imported now (importing them defines their dispatchers)."""
+    import importlib
+
+    return [importlib.import_module(f"{jit_cache.PACKAGE}.{name}") for name in jit_cache.KERNEL_MODULES]
+
+
+def _dispatchers() -> list:
+    from numba.core.dispatcher import Dispatcher
+
+    out, seen = [], set()
+    for module in _kernel_modules():
+        for value in vars(module).values():
+            if isinstance(value, Dispatcher) and id(value) not in seen and \
+                    getattr(value.py_func, "__module__", None) == module.__name__:
+                seen.add(id(value))
+                out.append(value)
+    return out
+
+
+def kernel_cache_counts() -> dict[str, int]:
+    """Over the kernel modules' dispatchers in this process: `compiled` (signatures numba compiled because the
+    disk cache had no valid entry), `loaded` (signatures loaded from the cache), `kernels` (dispatchers) and
+    `used` (dispatchers with at least one signature)."""
+    compiled = loaded = used = 0
+    dispatchers = _dispatchers()
+    for d in dispatchers:
+        stats = d.stats
+        compiled += sum(stats.cache_misses.values())
+        loaded += sum(stats.cache_hits.values())
+        used += bool(d.signatures)
+    return {"compiled": compiled, "loaded": loaded, "kernels": len(dispatchers), "used": used}
+
+
+def load_cached_kernels() -> int:
+    """Load every kernel signature the disk cache holds for these sources and this CPU, as the first call of
+    each would (numba loads a kernel on its first call: about 0.3 s spread over a process's first render).
+    Compiles nothing: an entry that does not apply here is skipped. Returns how many signatures it loaded.
+    Safe beside a render on another thread: numba loads and compiles under one lock."""
+    from numba.core.registry import cpu_target
+
+    codegen = cpu_target.target_context.codegen()
+    loaded = 0
+    for d in _dispatchers():
+        cache = getattr(d, "_cache", None)
+        try:
+            index = cache._cache_file._load_index()  # {} when the cache is stale or absent
+        except Exception:  # noqa: BLE001 - an unreadable index is numba's to report on the first call
+            continue
+        for key in index:
+            sig = key[0]
+            if sig in d.overloads or cache._index_key(sig, codegen) != key:  # loaded, or another CPU / code
+                continue
+            d.compile(sig)
+            loaded += 1
+    return loaded
+
+
+_loader: threading.Thread | None = None
+_loader_lock = threading.Lock()
+
+
+def load_cached_kernels_in_background() -> threading.Thread:
+    """load_cached_kernels() on a daemon thread, started once per process (later calls return the same
+    thread): the add-on starts it when it registers (after bpy's import: a thread importing modules while
+    the bpy module itself is being imported can deadlock), so the kernels load while Blender starts or opens
+    the file and the first render finds them loaded. Errors are left to the
+    first render, which loads (or compiles) the kernels itself."""
+    global _loader
+
+    def work() -> None:
+        try:
+            import importlib
+
+            importlib.import_module(f"{jit_cache.PACKAGE}.render")  # the rest of the renderer's modules too
+            load_cached_kernels()
+        except Exception:  # noqa: BLE001 - only a head start
+            pass
+
+    with _loader_lock:
+        if _loader is None:
+            _loader = threading.Thread(target=work, name="monte-load-kernels", daemon=True)
+            _loader.start()
+        return _loader
+
+
+def every_feature_scene(resolution: tuple[int, int] = (12, 8)):
+    """A tiny scene using every light kind, every lobe kind and Fresnel mode, a texture, smooth normals and
+    UVs, seen through a thin-lens camera with aperture blades: one render reaches every material and light
+    kernel."""
+    from .builtin_scenes import icosphere, quad
+    from .scene import AreaLight, Camera, Lobe, Material, PointLight, Scene, SpotLight, SunLight, Texture, World
+
+    def moved(x: float, y: float, z: float) -> np.ndarray:
+        m = np.eye(4)
+        m[:3, 3] = (x, y, z)
+        return m
+
+    grey = np.full(3, 0.6)
+    materials = [
+        Material("diffuse", [Lobe("diffuse", grey, color_texture=0)]),
+        Material("mirror", [Lobe("glossy", grey, roughness=0.0, fresnel="schlick")]),
+        Material("rough-metal", [Lobe("glossy", grey, roughness=0.4, fresnel="none")]),
+        Material("dielectric-coat", [Lobe("glossy", grey, roughness=0.2, fresnel="dielectric")]),
+        Material("principled", [Lobe("glossy", np.ones(3), roughness=0.3, fresnel="generalized_schlick",
+                                     f0=np.full(3, 0.04)),
+                                Lobe("diffuse", grey, under=0)]),
+        Material("glass", [Lobe("glass", np.ones(3), roughness=0.0, ior=1.45)]),
+        Material("rough-glass", [Lobe("glass", np.ones(3), roughness=0.3, ior=1.45, fresnel="generalized_schlick",
+                                      color_texture=0)]),
+        Material("refraction", [Lobe("refraction", np.ones(3), roughness=0.2, ior=1.33)]),
+        Material("emitter", [Lobe("diffuse", grey)], emission=np.full(3, 2.0)),
+    ]
+    meshes = [quad("ground", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], 0)]
+    meshes[0].uvs = np.array([[(0, 0), (1, 0), (1, 1)], [(0, 0), (1, 1), (0, 1)]], np.float64)
+    for i, material in enumerate(range(1, len(materials))):
+        x = -2.4 + 0.6 * i
+        meshes.append(icosphere(materials[material].name, (x, 0.5 * (i % 2), 0.3), 0.25, material,
+                                smooth=i % 2 == 0))
+    texels = np.linspace(0.2, 0.9, 4 * 4 * 3, dtype=np.float32).reshape(4, 4, 3)
+    lights = [
+        PointLight("point", np.array((0.0, -1.0, 2.0)), np.full(3, 30.0)),
+        PointLight("point-radius", np.array((1.0, -1.0, 2.0)), np.full(3, 30.0), radius=0.1),
+        SpotLight("spot", np.array((-1.0, -1.0, 2.0)), np.array((0.0, 0.3, -1.0)), np.full(3, 40.0), radius=0.05),
+        SunLight("sun", np.array((0.3, 0.2, -1.0)), np.full(3, 1.5), angle=math.radians(3.0)),
+    ]
+    for i, shape in enumerate(("SQUARE", "RECTANGLE", "DISK", "ELLIPSE")):
+        flipped = moved(-1.5 + i, 1.5, 2.5)
+        flipped[:3, :3] = np.diag((1.0, -1.0, -1.0))  # facing down
+        lights.append(AreaLight(f"area-{shape.lower()}", flipped, np.full(3, 20.0), shape=shape, size_x=0.4,
+                                size_y=0.2, spread=math.radians(90.0) if i % 2 else math.pi))
+    camera = Camera.look_at((0.0, -5.0, 1.5), (0.0, 0.0, 0.3), horizontal_fov=math.radians(60.0),
+                            resolution=resolution)
+    camera.use_dof, camera.focus_distance, camera.aperture_fstop, camera.aperture_blades = True, 5.0, 2.0, 6
+    return Scene(camera=camera, meshes=meshes, materials=materials, lights=lights,
+                 world=World(np.array((0.2, 0.25, 0.3))), textures=[Texture("ramp", texels)], name="every-feature")
+
+
+def _cases() -> list[tuple[str, Callable[[], object], dict]]:
+    from .builtin_scenes import BUILTIN_SCENES, builtin_scene
+
+    small = (12, 8)
+    cases: list[tuple[str, Callable[[], object], dict]] = [
+        (name, (lambda n=name: builtin_scene(n, small)), {}) for name in BUILTIN_SCENES]
+    cases += [
+        ("every-feature", every_feature_scene, {}),
+        ("every-feature, no AOVs", every_feature_scene, {"aovs": False}),
+        ("cornell, stratified, tent", lambda: builtin_scene("cornell", small),
+         {"sampler": "stratified", "filter_type": "tent", "filter_width": 2.0}),
+        ("cornell, independent, gaussian", lambda: builtin_scene("cornell", small),
+         {"sampler": "independent", "filter_type": "gaussian"}),
+        ("cornell, box filter, clamp", lambda: builtin_scene("cornell", small),
+         {"filter_type": "box", "filter_width": 1.0, "clamp": 4.0}),
+        ("cornell, BSDF sampling only", lambda: builtin_scene("cornell", small), {"light_sampling": "bsdf"}),
+        ("spheres-sky, light sampling only", lambda: builtin_scene("spheres-sky", small),
+         {"light_sampling": "light"}),
+        ("cornell, adaptive", lambda: builtin_scene("cornell", small),
+         {"spp": 16, "adaptive_threshold": 0.05, "adaptive_min_samples": 4}),
+        ("cornell, one thread", lambda: builtin_scene("cornell", small), {"threads": 1}),
+    ]
+    return cases
+
+
+def precompile_kernels(log: Callable[[str], None] | None = None) -> dict[str, int]:
+    """Render every warm-up case (a few pixels, 2 samples each), compiling and caching each kernel the cache
+    does not hold yet; returns kernel_cache_counts() and the seconds it took."""
+    from .render import render
+    from .settings import RenderSettings
+
+    say = log or (lambda m: None)
+    t0 = time.perf_counter()
+    for name, build, overrides in _cases():
+        settings = RenderSettings(**{"spp": 2, "seed": 1, "threads": 2, "tile_size": 8, **overrides})
+        render(build(), settings.validate())
+        say(f"  {name}")
+    counts = kernel_cache_counts()
+    counts["seconds"] = time.perf_counter() - t0
+    return counts
+
+
+def main() -> int:
+    print(f"Monte: compiling the render kernels for a {jit_cache.KERNEL_CPU} CPU into {jit_cache.cache_dir()} "
+          "(cached: the first time takes about two minutes of CPU)", flush=True)
+    counts = precompile_kernels(log=lambda m: print(m, flush=True))
+    print(f"Monte: {counts['compiled']} kernel signatures compiled, {counts['loaded']} loaded from the cache, "
+          f"{counts['used']} of {counts['kernels']} kernels used, {counts['seconds']:.1f} s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

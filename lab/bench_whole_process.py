@@ -1,0 +1,129 @@
+"""`monte bench --vs cycles --whole-process`: Monte and Cycles timed as whole processes, as a user runs them.
+
+For each scene (a bench scene from bpy_scenes, or a user's .blend), the scene is saved to a temporary .blend
+and rendered, alternately, by two fresh processes: `python -m monte render X.blend -o m.exr --spp N ...` and
+a plain bpy process doing what `blender -b X.blend -E CYCLES -f 1` does (open the file, render with Cycles,
+write a 32-bit EXR). The time is the process's wall time, start to exit: the Python and bpy imports, opening
+the file, Monte's kernel loading and export or Cycles' sync, the render and writing the image, everything the
+render-call bench (lab/bench_cycles.py) leaves out. Settings as that bench's: the same samples, seed, bounce
+limit, Blackman-Harris 1.5 px filter and threads, Cycles without denoising, adaptive sampling or clamping.
+The error is the RMSE against the cached converged Cycles reference (its own noise removed), the efficiency
+1/(seconds x MSE) with the whole process's seconds.
+
+Writes OUTDIR/bench_whole_process.json and returns the report; prints a table.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+import bpy
+import numpy as np
+
+from ..addon.crosscheck import configure_cycles
+from ..core import metrics
+from . import bench_cycles
+from .bench_math import corrected_rmse, efficiency, format_table, write_json
+from .bench_reference import ReferenceCache
+
+# What `blender -b X.blend -E CYCLES -o OUT -f 1` does, in the bpy module (there is no Blender binary here).
+_CYCLES_PROCESS = textwrap.dedent("""
+    import sys
+    import bpy
+    blend, out = sys.argv[1], sys.argv[2]
+    bpy.ops.wm.open_mainfile(filepath=blend, load_ui=False)
+    scene = bpy.context.scene
+    scene.render.filepath = out
+    bpy.ops.render.render(write_still=True)
+""")
+
+
+def _run(command: list[str], env: dict) -> float:
+    """Wall seconds of one process from start to exit; a failure raises with its output."""
+    t0 = time.perf_counter()
+    proc = subprocess.run(command, capture_output=True, text=True, env=env)
+    seconds = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(command[:4])} ... failed (exit {proc.returncode}):\n{proc.stdout[-2000:]}\n"
+                           f"{proc.stderr[-2000:]}")
+    return seconds
+
+
+def _save_for_cycles(scene, path: Path, spp: int, seed: int, threads: int, max_bounces: int, out: Path) -> None:
+    configure_cycles(scene, spp, max_bounces, threads, seed=seed, filter_type="blackman-harris", filter_width=1.5)
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):  # Blender 5.0+
+        settings.media_type = "IMAGE"
+    settings.file_format = "OPEN_EXR"
+    settings.color_depth = "32"
+    scene.render.use_file_extension = False
+    scene.render.filepath = str(out)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True, compress=False)
+
+
+def bench_scene_whole_process(spec: str, *, cache: ReferenceCache, spp: int = 64, repeats: int = 3,
+                              threads: int = 2, max_bounces: int = 16, resolution: tuple[int, int] | None = None,
+                              reference_spp: int = 1024, reference_seeds: int = 4, seed: int = 1,
+                              log: Callable[[str], None] = print) -> dict:
+    """Both renderers as whole processes, `repeats` times each, alternating; returns the scene's report (the
+    best wall time of each, and the error of its image)."""
+    scene, name, version = bench_cycles._load_scene(spec, resolution)
+    res = bench_cycles._resolution_of(scene)
+    log(f"{name} {res[0]}x{res[1]}, {spp} spp, {threads} threads, whole processes x{repeats}")
+    params = bench_cycles.reference_params(name, version, res, max_bounces, reference_spp, reference_seeds)
+    ref = bench_cycles.ensure_reference(scene, params, cache, threads, log)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    with tempfile.TemporaryDirectory(prefix="monte-whole-") as tmp:
+        tmp_dir = Path(tmp)
+        blend, monte_out, cycles_out = tmp_dir / f"{name}.blend", tmp_dir / "monte.exr", tmp_dir / "cycles.exr"
+        _save_for_cycles(scene, blend, spp, seed, threads, max_bounces, cycles_out)
+        monte_cmd = [sys.executable, "-m", "monte", "render", str(blend), "-o", str(monte_out), "--no-png", "-q",
+                     "--spp", str(spp), "--seed", str(seed), "--threads", str(threads), "--max-bounces",
+                     str(max_bounces), "--filter", "blackman-harris", "--filter-width", "1.5", "--clamp", "0"]
+        cycles_cmd = [sys.executable, "-c", _CYCLES_PROCESS, str(blend), str(cycles_out)]
+        times: dict[str, list[float]] = {"monte": [], "cycles": []}
+        for _ in range(repeats):
+            times["monte"].append(_run(monte_cmd, env))
+            times["cycles"].append(_run(cycles_cmd, env))
+        images = {"monte": bench_cycles._read_combined(monte_out), "cycles": bench_cycles._read_combined(cycles_out)}
+    report = {"scene": name, "source": spec, "resolution": list(res), "spp": spp, "threads": threads,
+              "max_bounces": max_bounces, "repeats": repeats, "renderers": {}}
+    for renderer, image in images.items():
+        err = corrected_rmse(metrics.rmse(image, ref.image), ref.own_mse)
+        best = min(times[renderer])
+        report["renderers"][renderer] = {"seconds": best, "seconds_all": times[renderer], "rmse_corrected": err,
+                                         "efficiency": efficiency(best, err * err)}
+    m, c = report["renderers"]["monte"], report["renderers"]["cycles"]
+    report["monte_over_cycles_efficiency"] = m["efficiency"] / c["efficiency"]
+    log(f"  monte {m['seconds']:6.2f} s RMSE {m['rmse_corrected']:.4f} eff {m['efficiency']:8.1f} | cycles "
+        f"{c['seconds']:6.2f} s RMSE {c['rmse_corrected']:.4f} eff {c['efficiency']:8.1f} | "
+        f"ratio {report['monte_over_cycles_efficiency']:.2f}")
+    return report
+
+
+def run_whole_process(specs: Sequence[str], reference_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
+                      log: Callable[[str], None] = print, **options) -> dict:
+    """Every scene of specs as whole processes; writes OUTDIR/bench_whole_process.json, prints a table."""
+    out = Path(out_dir).expanduser()
+    out.mkdir(parents=True, exist_ok=True)
+    cache = ReferenceCache(reference_dir)
+    scenes = [bench_scene_whole_process(spec, cache=cache, log=log, **options) for spec in specs]
+    report = {"kind": "monte-vs-cycles-whole-process", "blender": bpy.app.version_string,
+              "cpu_count": os.cpu_count(), "time": time.strftime("%Y-%m-%d %H:%M:%S"), "scenes": scenes}
+    write_json(out / "bench_whole_process.json", report)
+    rows = [[s["scene"], s["spp"], s["renderers"]["monte"]["seconds"], s["renderers"]["monte"]["rmse_corrected"],
+             s["renderers"]["monte"]["efficiency"], s["renderers"]["cycles"]["seconds"],
+             s["renderers"]["cycles"]["rmse_corrected"], s["renderers"]["cycles"]["efficiency"],
+             s["monte_over_cycles_efficiency"]] for s in scenes]
+    log("")
+    log(format_table(["scene", "spp", "monte s", "monte RMSE", "monte eff", "cycles s", "cycles RMSE", "cycles eff",
+                      "monte/cycles"], rows))
+    log(f"wrote {out / 'bench_whole_process.json'}")
+    return report
