@@ -197,6 +197,12 @@ KERNEL_MODULES = ("geometry_kernels", "path_kernels", "mesh_checks", "camera", "
                   "shading/procedural", "shading/color", "ray_visibility")
 
 
+# Kernel modules whose kernels compile only for scenes that use their feature (an environment-map world, ray
+# visibility, node programs): every render compiles the others, so those decide whether a cache is cold.
+FEATURE_KERNEL_MODULES = ("world_kernels", "ray_visibility", "shading/regs", "shading/evaluator",
+                          "shading/procedural", "shading/color")
+
+
 def compile_cache_is_cold(with_node_programs: bool = False) -> bool:
     """True when some kernel module has no numba cache index yet for this import of the package (first render
     after an install or an update of the sources): that render compiles the kernels first, about a minute on a
@@ -207,7 +213,8 @@ def compile_cache_is_cold(with_node_programs: bool = False) -> bool:
         return False
     cache = cache_dir()
     cold = any(not glob.glob(os.path.join(cache, f"{os.path.basename(name)}.*.nbi"))
-               for name in KERNEL_MODULES if with_node_programs or not name.startswith("shading/"))
+               for name in KERNEL_MODULES if name not in FEATURE_KERNEL_MODULES
+               or (with_node_programs and name.startswith("shading/")))
     _cache_warm[with_node_programs] = not cold
     if not cold and with_node_programs:
         _cache_warm[False] = True
