@@ -28,7 +28,8 @@ def _kernel_modules() -> list[ModuleType]:
     """The kernel modules as imported now (importing them defines their dispatchers)."""
     import importlib
 
-    return [importlib.import_module(f"{jit_cache.PACKAGE}.{name}") for name in jit_cache.KERNEL_MODULES]
+    return [importlib.import_module(f"{jit_cache.PACKAGE}.{name.replace('/', '.')}")
+            for name in jit_cache.KERNEL_MODULES]
 
 
 def _dispatchers() -> list:

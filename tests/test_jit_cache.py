@@ -32,6 +32,7 @@ def _stamp(dispatcher):
 def sources(tmp_path):
     """A copy of the kernel modules (the files the cache key covers)."""
     for name in jit_cache.KERNEL_MODULES:
+        (tmp_path / f"{name}.py").parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(os.path.join(CORE, f"{name}.py"), tmp_path / f"{name}.py")
     return tmp_path
 
