@@ -415,8 +415,8 @@ def test_unsupported_node_warns_and_falls_back_to_viewport_colour(scene):
     mat = bf.node_material("Cartoon", "ShaderNodeBsdfToon")
     mat.diffuse_color = (0.1, 0.2, 0.3, 1.0)
     rough = bf.node_material("Bumpy", "ShaderNodeBsdfDiffuse", Color=(0.5, 0.5, 0.5))
-    density = rough.node_tree.nodes.new("ShaderNodeTexPointDensity")  # a texture Monte does not evaluate
-    rough.node_tree.links.new(density.outputs["Color"], rough.node_tree.nodes["Diffuse BSDF"].inputs["Color"])
+    occlusion = rough.node_tree.nodes.new("ShaderNodeAmbientOcclusion")  # a node Monte does not evaluate
+    rough.node_tree.links.new(occlusion.outputs["Color"], rough.node_tree.nodes["Diffuse BSDF"].inputs["Color"])
     cube("A", material=mat)
     cube("B", material=rough, location=(3, 0, 0))
     cube("C", location=(6, 0, 0))  # no material slot at all
@@ -426,7 +426,7 @@ def test_unsupported_node_warns_and_falls_back_to_viewport_colour(scene):
     assert np.allclose(by["Cartoon"].lobes[0].color, (0.1, 0.2, 0.3), atol=1e-6)
     assert any("Cartoon" in w and "Toon BSDF" in w and "viewport colour" in w for w in got.warnings)
     assert np.allclose(by["Bumpy"].lobes[0].color, 0.5)
-    assert any("Bumpy" in w and "Point Density" in w for w in got.warnings)
+    assert any("Bumpy" in w and "Ambient Occlusion" in w for w in got.warnings)
     default = next(m for m in got.materials if m.name.startswith("Monte default"))
     assert np.allclose(default.lobes[0].color, 0.8)
 
