@@ -29,8 +29,9 @@ import numpy as np
 
 from ..core.scene import Camera, Scene, SceneError
 from ..core.settings import RenderSettings
-from .export import GEOMETRY_TYPES, ExportStats, _prototype_for, _Prototype
+from .export import GEOMETRY_TYPES, MESH_RAY_VISIBILITY, ExportStats, _object_rows, _prototype_for, _Prototype
 from .export.camera import export_camera
+from .export.film import export_film
 from .export.light import export_light
 from .export.material import MaterialExporter
 from .export.mesh import instances_to_mesh
@@ -223,6 +224,9 @@ class SceneSync:
         self.owners: dict[tuple, set] = {}  # prototype key -> original object/mesh pointers it came from
         self.meshes: dict[tuple, object] = {}  # prototype key -> placed core Mesh
         self.placed: dict[tuple, np.ndarray] = {}  # prototype key -> the matrices its mesh was placed with
+        # prototype key -> per instance (r, g, b, a, pass index, random id): the object data node programs read
+        self.instance_info: dict[tuple, np.ndarray] = {}
+        self.film = None  # core.scene.Film of the scene (Film > Transparent...), exported on each sync
         self.light_matrices: list = []
         self.lights: list = []
         self.world = None
@@ -250,6 +254,7 @@ class SceneSync:
         stats = ExportStats()
         resolved: dict[tuple[int, int], tuple | None] = {}
         matrices: dict[tuple, list] = {}
+        infos: dict[tuple, list] = {}
         light_items = []
         for inst in depsgraph.object_instances:
             obj = inst.object
@@ -268,7 +273,7 @@ class SceneSync:
                 new = stats.meshes_converted
                 known = set(self.prototypes)
                 key = resolved[rkey] = _prototype_for(obj, kind, self.prototypes, self.materials, self.warnings,
-                                                      stats)
+                                                      stats, depsgraph.view_layer)
                 for k in set(self.prototypes) - known:
                     self.owners[k] = {obj.original.as_pointer()}
                     if data is not None and getattr(obj.original, "data", None) is not None:
@@ -277,6 +282,7 @@ class SceneSync:
                     report.meshes_read.append(obj.original.name)
             if key is not None:
                 matrices.setdefault(key, []).append(np.array(inst.matrix_world, np.float64))
+                infos.setdefault(key, []).append((*obj.color, obj.pass_index, inst.random_id))
                 names.setdefault(key, obj.original.name)
 
         for key in list(self.meshes):
@@ -286,14 +292,17 @@ class SceneSync:
         read = set(report.meshes_read)
         for key, mats in matrices.items():
             stacked = np.array(mats, np.float64).reshape(-1, 4, 4)
+            self.instance_info[key] = np.array(infos[key], np.float64).reshape(-1, 6)
             old = self.placed.get(key)
             if old is not None and old.shape == stacked.shape and np.array_equal(old, stacked):
                 continue
             proto = self.prototypes[key]
             k = len(stacked)
             label = proto.name if k == 1 else f"{proto.name} (x{k} instances)"
-            self.meshes[key] = instances_to_mesh(proto.local, stacked, proto.slot_materials, label,
-                                                 proto.shadow_terminator_offset)
+            mesh = self.meshes[key] = instances_to_mesh(proto.local, stacked, proto.slot_materials, label,
+                                                        proto.shadow_terminator_offset)
+            for ray_kind, seen in zip(MESH_RAY_VISIBILITY, proto.visibility):
+                setattr(mesh, f"visible_{ray_kind}", seen)
             self.placed[key] = stacked
             if old is not None and names[key] not in read:
                 report.moved.append(names[key])
@@ -312,6 +321,7 @@ class SceneSync:
             self.world = export_world(depsgraph.scene.world, self.warnings)
             report.world_exported = True
 
+        self.film = export_film(depsgraph.scene)
         if not self.materials.materials:
             self.materials.index(None)
         if report.meshes_read or report.moved or report.removed or changes.full:
@@ -324,17 +334,28 @@ class SceneSync:
         return report
 
     def _drop(self, key) -> None:
-        for table in (self.prototypes, self.owners, self.meshes, self.placed):
+        for table in (self.prototypes, self.owners, self.meshes, self.placed, self.instance_info):
             table.pop(key, None)
 
     def scene(self, camera: Camera, name: str = "viewport") -> Scene:
         """The current export as a core Scene seen through `camera` (raises SceneError when nothing is visible)."""
-        meshes = list(self.meshes.values())
-        if not meshes:
+        if not self.meshes:
             raise SceneError("nothing to render in the viewport: no visible meshes, curves, text or metaballs")
+        # The object table node programs read (object space, texture space, Object Info), as the exporter
+        # builds it: one row per instance, each mesh's triangles pointing at their instance's row.
+        meshes, rows, start = [], [], 0
+        for key, mesh in self.meshes.items():
+            proto, placed = self.prototypes[key], self.placed[key]
+            k = placed.shape[0]
+            rows.append(_object_rows(placed, self.instance_info[key], proto.texspace))
+            mesh.object_index = np.repeat(np.arange(start, start + k, dtype=np.int32), proto.local.triangle_count)
+            start += k
+            meshes.append(mesh)
+        extra = {} if self.film is None else {"film": self.film}
         return Scene(camera=camera, meshes=meshes, materials=list(self.materials.materials), lights=list(self.lights),
                      world=self.world, textures=list(self.materials.textures), name=name,
-                     warnings=list(self.warnings))
+                     warnings=list(self.warnings), objects=np.concatenate(rows).astype(np.float32),
+                     uv_layer_names=list(self.materials.uv_names), **extra)
 
 
 def scene_camera_view(depsgraph, size: tuple[int, int]) -> Camera:

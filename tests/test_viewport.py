@@ -136,6 +136,33 @@ def test_resolution_dividers_follow_start_resolution_and_pixel_size():
 
 
 # ------------------------------------------------------------------------------------------- the export
+def test_the_viewport_scene_carries_what_a_full_export_carries():
+    """The object table node programs read (object space, texture space, colour, pass index, random), each
+    triangle's row, the film settings and the ray visibility: the viewport's scene holds the same as F12's
+    export, so Object/Generated coordinates, Object Info, Film > Transparent and visibility render alike."""
+    from monte.addon.export import export_scene
+
+    scene = block_scene()
+    block = bpy.data.objects["block"]
+    block.location, block.rotation_euler, block.scale = (0.3, -0.2, 0.1), (0.2, 0.0, 0.7), (1.0, 2.0, 0.5)
+    block.color, block.pass_index = (0.2, 0.4, 0.6, 1.0), 7
+    block.visible_shadow = False
+    scene.render.film_transparent = True
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    sync = vp.SceneSync()
+    sync.sync(depsgraph)
+    got = sync.scene(vp.scene_camera_view(depsgraph, (40, 30)))
+    want, _ = export_scene(depsgraph)
+    assert got.film == want.film and got.film.transparent
+    for name in ("block", "floor"):
+        g, w = mesh_named(got, name), mesh_named(want, name)
+        assert [getattr(g, f"visible_{k}") for k in vp.MESH_RAY_VISIBILITY] == \
+            [getattr(w, f"visible_{k}") for k in vp.MESH_RAY_VISIBILITY]
+        assert np.allclose(got.objects[np.asarray(g.object_index)], want.objects[np.asarray(w.object_index)])
+    assert mesh_named(got, "block").visible_shadow is False
+    assert got.uv_layer_names == want.uv_layer_names
+
+
 def test_each_kind_of_change_reexports_only_what_changed(changes):
     scene = block_scene()
     sync = vp.SceneSync()
