@@ -34,3 +34,23 @@ def pytest_unconfigure(config):
     from monte.addon.headless import end_bpy_process
 
     end_bpy_process(_exit_status.get("status", 0))
+
+
+@pytest.fixture
+def patch_engine():
+    """patch(name, value) sets an attribute of Monte's RenderEngine class for one test; the class's own attributes
+    come back (or the patched ones go) afterwards. Needs the bpy module."""
+    from monte.addon.engine import MonteRenderEngine as Engine
+
+    saved = {}
+
+    def patch(name, value):
+        saved.setdefault(name, Engine.__dict__.get(name))
+        setattr(Engine, name, value)
+
+    yield patch
+    for name, value in saved.items():
+        if value is None:
+            delattr(Engine, name)
+        else:
+            setattr(Engine, name, value)

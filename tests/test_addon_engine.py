@@ -108,22 +108,6 @@ def test_exported_cornell_box_renders_like_core(fast_settings):
 
 
 # ---------------------------------------------------------------------------------------------- cancel, errors
-@pytest.fixture
-def patch_engine():
-    saved = {}
-
-    def patch(name, value):
-        saved.setdefault(name, Engine.__dict__.get(name))
-        setattr(Engine, name, value)
-
-    yield patch
-    for name, value in saved.items():
-        if value is None:
-            delattr(Engine, name)
-        else:
-            setattr(Engine, name, value)
-
-
 def test_cancel_stops_within_a_batch_and_keeps_a_valid_partial_image(tmp_path, patch_engine):
     scene = bf.plane_under_world(resolution=(32, 32))
     scene.monte.samples = 64

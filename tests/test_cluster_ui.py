@@ -35,22 +35,6 @@ def scheduler():
             yield cluster.scheduler_address, client
 
 
-@pytest.fixture
-def patch_engine():
-    saved = {}
-
-    def patch(name, value):
-        saved.setdefault(name, Engine.__dict__.get(name))
-        setattr(Engine, name, value)
-
-    yield patch
-    for name, value in saved.items():
-        if value is None:
-            delattr(Engine, name)
-        else:
-            setattr(Engine, name, value)
-
-
 def small_cornell(resolution=(24, 16), spp=8):
     """The Cornell box cut into 8x8 tiles (6 at 24x16), one sample pass per tile: 6 units of one tile each."""
     scene = bf.cornell_box(resolution)
