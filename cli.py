@@ -301,7 +301,8 @@ def _write_outputs(result, output: Path, no_png: bool) -> list[str]:
     exr.write_exr(output, exr.image_channels(result.color, result.variance, result.albedo, result.normal,
                                              result.depth, noisy=result.noisy,
                                              denoising_albedo=result.denoising_albedo,
-                                             denoising_normal=result.denoising_normal))
+                                             denoising_normal=result.denoising_normal,
+                                             shadow_catcher=result.shadow_catcher))
     written = [str(output)]
     if not no_png:
         png = output.with_suffix(".png")

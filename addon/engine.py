@@ -19,6 +19,7 @@ import numpy as np
 from ..core.distributed import ClusterError
 from ..core.scene import SceneError
 from .export import ExportCancelled, export_camera, export_scene, render_region, render_resolution
+from .export.film import uses_shadow_catcher_pass
 from .properties import render_settings
 
 # Pass name -> (channels, chanid, type). Combined is always there; the others when the view layer asks.
@@ -32,6 +33,9 @@ PASSES = {
     "Noisy Image": (4, "RGBA", "COLOR"),
     "Denoising Normal": (3, "XYZ", "VECTOR"),
     "Denoising Albedo": (3, "RGB", "COLOR"),
+    # Cycles' Passes > Light > Shadow Catcher (the view layer's Cycles property): 1 where nothing shadows a
+    # shadow catcher, below 1 in its shadows (core.film).
+    "Shadow Catcher": (3, "RGB", "COLOR"),
 }
 DENOISING_PASSES = ("Noisy Image", "Denoising Normal", "Denoising Albedo")
 
@@ -54,6 +58,8 @@ def requested_passes(view_layer, scene=None) -> list[str]:
         names.append("Albedo")
     if monte is not None and monte.use_pass_variance:
         names.append("Variance")
+    if uses_shadow_catcher_pass(view_layer):
+        names.append("Shadow Catcher")
     return names
 
 
@@ -423,8 +429,10 @@ def _pass_pixels(name: str, src, h: int, w: int, channels: int) -> np.ndarray:
         arr = src.denoising_normal
     elif name == "Denoising Albedo":
         arr = src.denoising_albedo
+    elif name == "Shadow Catcher":
+        arr = getattr(src, "shadow_catcher", None)
     if arr is None:
-        fill = 1e10 if name == "Depth" else 0.0
+        fill = 1e10 if name == "Depth" else 1.0 if name == "Shadow Catcher" else 0.0
         return np.full(h * w * channels, fill, dtype=np.float32)
     arr = np.asarray(arr, dtype=np.float32).reshape(h, w, -1)
     if arr.shape[2] != channels:

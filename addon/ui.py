@@ -282,6 +282,9 @@ class MONTE_VIEWLAYER_PT_passes(MonteButtonsPanel, Panel):
         col.prop(view_layer, "use_pass_normal")
         col.prop(view_layer.monte, "use_pass_albedo")
         col.prop(view_layer.monte, "use_pass_variance")
+        cycles = getattr(view_layer, "cycles", None)  # Cycles' own property (its add-on registers it)
+        if cycles is not None and hasattr(cycles, "use_pass_shadow_catcher"):
+            col.prop(cycles, "use_pass_shadow_catcher")
 
 
 def _draw_node_input(layout, tree, input_name: str) -> None:

@@ -26,7 +26,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator
 
-from .film import TileFilm
+from .film import CatcherOutput, TileFilm
 from .render import (CancelCallback, RenderResult, SampleRanges, TileCallback, TileSamples, merge_tile_samples,
                      render_samples, tile_result, world_to_camera)
 from .sampling import VARIANCE_GROUPS, make_sampler
@@ -360,7 +360,7 @@ class _FrameJob:
             tile = self.tile_list[ti]
             sampler = make_sampler(self.settings.sampler, self.settings.seed, max(spp, 1), groups=VARIANCE_GROUPS)
             film = TileFilm(tile[2], tile[3], self.settings.aovs, sampler, self.settings.denoising_features,
-                            alpha=self.scene.has_alpha)
+                            alpha=self.scene.has_alpha, catcher=CatcherOutput.of(self.scene))
             for p in parts:
                 if p.sample_start == 0:  # the film's state after the first samples (TileSamples)
                     film.set_state(p.films[0])

@@ -31,10 +31,12 @@ def image_channels(
     noisy: np.ndarray | None = None,
     denoising_albedo: np.ndarray | None = None,
     denoising_normal: np.ndarray | None = None,
+    shadow_catcher: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Monte's channel layout: R G B A, variance.R/G/B, albedo.R/G/B, normal.X/Y/Z, Z (depth); with denoising,
     R G B A hold the denoised image, noisy.R/G/B/A the image before denoising (Blender's Noisy Image pass),
-    denoising_albedo.R/G/B and denoising_normal.X/Y/Z the passes the denoiser read (camera space).
+    denoising_albedo.R/G/B and denoising_normal.X/Y/Z the passes the denoiser read (camera space); with a shadow
+    catcher, shadow_catcher.R/G/B (Cycles' Shadow Catcher pass, core.film).
     Arrays are (H, W, C) with row 0 at the top."""
     channels: dict[str, np.ndarray] = {}
     for i, name in enumerate("RGBA"[: color.shape[2]]):
@@ -44,7 +46,8 @@ def image_channels(
             channels["noisy." + name] = noisy[..., i]
     for prefix, arr, names in (("variance.", variance, "RGB"), ("albedo.", albedo, "RGB"), ("normal.", normal, "XYZ"),
                                ("denoising_albedo.", denoising_albedo, "RGB"),
-                               ("denoising_normal.", denoising_normal, "XYZ")):
+                               ("denoising_normal.", denoising_normal, "XYZ"),
+                               ("shadow_catcher.", shadow_catcher, "RGB")):
         if arr is not None:
             for i, name in enumerate(names):
                 channels[prefix + name] = arr[..., i]

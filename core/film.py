@@ -29,7 +29,20 @@ the sums measure (tests/test_film_memory.py: 1e6 samples against float64 referen
 
 Memory per pixel (core.memory): K 12 B, group deviation sums 48 B (G = 4), group counts 16 B, sum of squared
 deviations 12 B = 88 B; the AOVs add 32 B (float32 albedo, normal and depth sums, int32 depth count), the
-denoising features 24 B, alpha (Film > Transparent, holdout) 4 B. (It was 136 + 64 + 48 B in float64.)
+denoising features 24 B, alpha (Film > Transparent, holdout) 4 B, a shadow catcher 48 B. (It was 136 + 64 + 48
+B in float64.)
+
+Shadow catcher (core.scene.Mesh.shadow_catcher; core.integrator.CatcherSamples): the film also sums each
+pixel's matte M (the radiance gathered before paths met a catcher) with its transparency T_m, the catcher
+copies' radiance K, the count of samples that split S, and the world behind (B), and forms the images as
+Cycles' film does (C: the Combined sum, T_c its transparency, per pixel):
+
+    shadow catcher   = 1 where S = 0, else (1 - a) + a (C - M) / K per channel (1 where K = 0), a = 1 - T_c / n
+    Combined         = with the Shadow Catcher pass (Film.shadow_catcher_pass): (M / n, 1 - T_m / n);
+                       without it (Cycles' approximate catcher), with a = 1 - T_m / n and
+                       a_m = a + (1 - a) (1 - clamp(mean(shadow catcher), 0, 1)):
+                       transparent film: (M / n, a_m); opaque film: (M / n + (1 - a_m) B / n, 1)
+    Shadow Catcher Matte = (M / n, 1 - T_m / n)
 
 A render split across machines (core.distributed) moves films two ways: a film's state (state() /
 set_state()), and the raw float64 sums of one pass of samples (a film in capture mode, capture_passes() /
@@ -40,12 +53,30 @@ from __future__ import annotations
 
 import numpy as np
 
+from dataclasses import dataclass
+
 from .sampling import Sampler
 
 _COLOUR_RAW = ("group_sum", "group_count", "dev_sq")
 _AOV_RAW = ("albedo", "normal", "depth_sum", "depth_count")
 _FEATURE_RAW = ("feature_albedo", "feature_normal")
 _ALPHA_RAW = ("transparent_sum",)
+_CATCHER_RAW = ("matte_sum", "matte_transparent_sum", "catcher_sum", "catcher_count", "background_sum")
+
+
+@dataclass(frozen=True)
+class CatcherOutput:
+    """How a film with a shadow catcher forms Combined (core.scene.Film: shadow_catcher_pass, transparent)."""
+
+    shadow_catcher_pass: bool
+    transparent: bool
+
+    @classmethod
+    def of(cls, scene) -> "CatcherOutput | None":
+        """The scene's (a core.scene.Scene), None when no mesh is a shadow catcher (the film keeps nothing more)."""
+        if not scene.has_shadow_catcher:
+            return None
+        return cls(bool(scene.film.shadow_catcher_pass), bool(scene.film.transparent))
 
 
 class TileFilm:
@@ -55,9 +86,10 @@ class TileFilm:
     tile is cut into chunks of whole pixels)."""
 
     def __init__(self, width: int, height: int, aovs: bool, sampler: Sampler | None = None,
-                 features: bool = False, alpha: bool = False) -> None:
+                 features: bool = False, alpha: bool = False, catcher: CatcherOutput | None = None) -> None:
         """features: keep the denoising features' sums; alpha: keep each pixel's summed transparency
-        (core.scene.Film); without it alpha is 1."""
+        (core.scene.Film); without it alpha is 1; catcher: keep the shadow catcher's sums and form Combined
+        from them (see the module docstring), None without a shadow catcher."""
         self.width, self.height = width, height
         n = width * height
         # Independent samples need no groups: s^2 / n is exact for them and has the most degrees of freedom.
@@ -80,6 +112,13 @@ class TileFilm:
         if features:
             self.feature_albedo = np.zeros((n, 3), np.float32)
             self.feature_normal = np.zeros((n, 3), np.float32)
+        self.catcher = catcher
+        if catcher is not None:
+            self.matte_sum = np.zeros((n, 3), np.float32)
+            self.matte_transparent_sum = np.zeros(n, np.float32)
+            self.catcher_sum = np.zeros((n, 3), np.float32)
+            self.catcher_count = np.zeros(n, np.int32)
+            self.background_sum = np.zeros((n, 3), np.float32)
         self._capture: dict[str, np.ndarray] | None = None
 
     # ------------------------------------------------------------------------------------------ totals
@@ -151,6 +190,19 @@ class TileFilm:
         self._take({"feature_albedo": _bincount3(pixel, albedo, n),
                     "feature_normal": _bincount3(pixel, normal, n)})
 
+    def add_catcher(self, pixel: np.ndarray, samples) -> None:
+        """Accumulate the shadow catcher's samples (core.integrator.CatcherSamples) of the samples at `pixel`."""
+        n = self.pixels
+        pixel = np.asarray(pixel, np.int64)
+        raw = {"matte_sum": _bincount3(pixel, samples.matte, n),
+               "matte_transparent_sum": np.bincount(pixel, weights=np.asarray(samples.matte_transparent, np.float64),
+                                                    minlength=n),
+               "catcher_sum": _bincount3(pixel, samples.catcher, n),
+               "catcher_count": np.bincount(pixel[samples.split], minlength=n).astype(np.int32),
+               "background_sum": (np.zeros((n, 3)) if samples.background is None
+                                  else _bincount3(pixel, samples.background, n))}
+        self._take(raw)
+
     def _take(self, raw: dict[str, np.ndarray]) -> None:
         if self._capture is not None:
             _add_raw(self._capture, raw)
@@ -177,7 +229,7 @@ class TileFilm:
                 self.dev_sq[took] = (self.dev_sq[took].astype(np.float64) + raw["dev_sq"][took]
                                      + c[:, None] * d * d).astype(np.float32)
                 self.group_count[took] += group_count[took]
-        for name in _AOV_RAW + _FEATURE_RAW + _ALPHA_RAW:
+        for name in _AOV_RAW + _FEATURE_RAW + _ALPHA_RAW + _CATCHER_RAW:
             if name in raw:
                 arr = getattr(self, name)
                 if arr.dtype == np.float32:
@@ -194,6 +246,8 @@ class TileFilm:
             names += _AOV_RAW
         if self.features:
             names += _FEATURE_RAW
+        if self.catcher is not None:
+            names += _CATCHER_RAW
         return names
 
     def state(self) -> dict[str, np.ndarray]:
@@ -206,6 +260,8 @@ class TileFilm:
             names += list(_AOV_RAW)
         if self.features:
             names += list(_FEATURE_RAW)
+        if self.catcher is not None:
+            names += list(_CATCHER_RAW)
         return {name: getattr(self, name) for name in names}
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
@@ -273,6 +329,43 @@ class TileFilm:
         if not self.alpha:
             return np.ones((self.height, self.width), np.float32)
         return self._image(1.0 - self.transparent_sum.astype(np.float64) / np.maximum(self.count, 1))
+
+    def combined_rgba(self) -> np.ndarray:
+        """(h, w, 4) the image's Combined: the colour means with alpha_image(), or with a shadow catcher as
+        Cycles forms it (see the module docstring)."""
+        if self.catcher is None:
+            return np.concatenate([self.mean(), self.alpha_image()[:, :, None]], axis=2)
+        n = np.maximum(self.count, 1).astype(np.float64)
+        matte = self.matte_sum.astype(np.float64) / n[:, None]
+        alpha = np.clip(1.0 - self.matte_transparent_sum.astype(np.float64) / n, 0.0, 1.0)
+        if not self.catcher.shadow_catcher_pass:  # Cycles' approximate shadow catcher
+            shadow = np.clip(self._shadow_catcher64().mean(axis=1), 0.0, 1.0)
+            alpha = alpha + (1.0 - alpha) * (1.0 - shadow)
+            if not self.catcher.transparent:
+                matte = matte + (1.0 - alpha)[:, None] * self.background_sum.astype(np.float64) / n[:, None]
+                alpha = np.ones_like(alpha)
+        return self._image(np.concatenate([matte, alpha[:, None]], axis=1))
+
+    def shadow_catcher_images(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Shadow Catcher (h, w, 3), Shadow Catcher Matte (h, w, 4), Shadow Catcher Sample Count (h, w): the
+        share of the pixel's samples that met a catcher) of a film with a shadow catcher."""
+        n = np.maximum(self.count, 1).astype(np.float64)
+        matte = np.concatenate([self.matte_sum.astype(np.float64) / n[:, None],
+                                np.clip(1.0 - self.matte_transparent_sum / n, 0.0, 1.0)[:, None]], axis=1)
+        return (self._image(self._shadow_catcher64()), self._image(matte),
+                self._image(self.catcher_count / n))
+
+    def _shadow_catcher64(self) -> np.ndarray:
+        """(n, 3) the Shadow Catcher pass: the catcher's light with the other objects over its light without
+        them (see the module docstring)."""
+        count = self.count.astype(np.float64)
+        combined = self._mean64() * count[:, None]
+        catcher = self.catcher_sum.astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = np.where(catcher != 0, (combined - self.matte_sum) / np.where(catcher != 0, catcher, 1), 1.0)
+        alpha = np.clip(1.0 - self.transparent_sum / np.maximum(count, 1), 0.0, 1.0)[:, None]
+        out = (1.0 - alpha) + alpha * ratio
+        return np.where((self.catcher_count > 0)[:, None], out, 1.0)
 
     def _variance_of_mean(self) -> np.ndarray:
         """(n, 3) estimated variance of each pixel's mean (see the module docstring); 0 with fewer than 2

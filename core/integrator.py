@@ -129,16 +129,19 @@ class PreparedScene:
     # (T,) float32 Shadow Terminator Geometry Offset of each smooth triangle (0 on flat ones), None when all are 0
     terminator_offset: np.ndarray | None = None
     uv_layers: np.ndarray | None = None  # (T, K, 3, 2) the named UV maps of Scene.uv_layer_names, or None
+    # (T,) bool: the triangle belongs to a shadow catcher (core.scene.Mesh.shadow_catcher); None when none does
+    catcher: np.ndarray | None = None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
     def visible_subset(self, which: str) -> tuple[Accelerator, np.ndarray]:
-        """(ray-casting structure of the triangles `which` rays (a key of visible_to) see, the scene triangle
-        index of each of its triangles), built once on first use."""
+        """(ray-casting structure of the triangles `which` rays (a key of visible_to, or "catcher": the rays of
+        the shadow catcher's own paths, which see only catchers) see, the scene triangle index of each of its
+        triangles), built once on first use."""
         with self._subsets_lock:
             found = self._subsets.get(which)
             if found is None:
-                keep = np.flatnonzero(self.visible_to[which])
+                keep = np.flatnonzero(self.catcher if which == "catcher" else self.visible_to[which])
                 found = self._subsets[which] = (Accelerator(self.vertices, self.triangles[keep]),
                                                 keep.astype(np.int32))
             return found
@@ -163,6 +166,7 @@ class PreparedScene:
         shift = scene.camera.position.copy()
         verts, tris, mats, normals, uvs, smooth, objs, seen_by, terminator, layers = ([], [], [], [], [], [], [], [],
                                                                               [], [])
+        catchers = []
         layer_names = list(scene.uv_layer_names)
         offset = 0
         any_smooth = any(m.normals is not None for m in scene.meshes)
@@ -179,6 +183,7 @@ class PreparedScene:
             objs.append(np.zeros(t, np.int32) if mesh.object_index is None
                         else np.broadcast_to(np.asarray(mesh.object_index, np.int32) + 1, (t,)))
             seen_by.append((t, *(bool(getattr(mesh, f"visible_{kind}")) for kind in RAY_KINDS)))
+            catchers.append(np.full(t, bool(mesh.shadow_catcher)))
             if layer_names:  # the named UV maps node programs read; (0, 0) where a mesh lacks one
                 per = np.zeros((t, len(layer_names), 3, 2), np.float32)
                 for j, lname in enumerate(layer_names):
@@ -244,13 +249,16 @@ class PreparedScene:
         features["ray_visibility"] = sorted(visible_to)
         no_shadow = NoShadowLights.build(scene.lights, shift)
         features["lights_without_shadow"] = no_shadow is not None
+        catcher = np.concatenate(catchers) if catchers else np.zeros(0, bool)
+        catcher = catcher if catcher.any() else None
+        features["shadow_catcher"] = catcher is not None
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
                    specular, features, shading, object_of_triangle,
                    alpha, holdout, keeps, visible_to, no_shadow,
                    any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
                        for m in scene.materials for lobe in m.lobes),
-                   terminator_offset=terminator_offset, uv_layers=uv_layers)
+                   terminator_offset=terminator_offset, uv_layers=uv_layers, catcher=catcher)
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
@@ -309,14 +317,73 @@ class PathStats:
 
 
 @dataclass
+class CatcherSamples:
+    """Per camera sample, what Cycles' shadow catcher keeps (core.film forms Combined and the Shadow Catcher pass
+    from their pixel sums). A camera path (or one that went on through surfaces counting as transparent) that
+    meets a shadow catcher splits there, once: the path itself goes on as usual (its radiance, the Combined sum,
+    still sees every object), and a copy shades the catcher seeing only shadow catchers (no occluders, no other
+    objects to reflect).
+
+    matte: (N, 3) radiance the path gathered before it split (all of it when it never did): Cycles' Shadow
+    Catcher Matte. matte_transparent: (N,) its transparency: the film's, plus the path's mean throughput where it
+    split (the catcher leaves the matte). catcher: (N, 3) the copy's radiance (0 where no split). split: (N,) bool.
+    background: (N, 3) the world seen along the camera ray where it escaped or met the catcher (Cycles'
+    Background pass, which the approximate catcher on an opaque film lays under the matte), None when not
+    needed."""
+
+    matte: np.ndarray
+    matte_transparent: np.ndarray
+    catcher: np.ndarray
+    split: np.ndarray
+    background: np.ndarray | None
+
+    def take(self, rows: np.ndarray) -> "CatcherSamples":
+        return CatcherSamples(self.matte[rows], self.matte_transparent[rows], self.catcher[rows], self.split[rows],
+                              None if self.background is None else self.background[rows])
+
+    @classmethod
+    def spread(cls, part: "CatcherSamples", rows: np.ndarray, n: int) -> "CatcherSamples":
+        """The samples of `part` placed at `rows` of n samples, zero (no split) elsewhere."""
+        out = cls(np.zeros((n, 3), np.float32), np.zeros(n, np.float32), np.zeros((n, 3), np.float32),
+                  np.zeros(n, bool), None if part.background is None else np.zeros((n, 3), np.float32))
+        out.matte[rows], out.matte_transparent[rows], out.catcher[rows] = part.matte, part.matte_transparent, \
+            part.catcher
+        out.split[rows] = part.split
+        if part.background is not None:
+            out.background[rows] = part.background
+        return out
+
+
+@dataclass
+class _SplitPaths:
+    """The state of the paths that split at a shadow catcher at one depth, to trace the catcher's copies from
+    (see CatcherSamples): their sample rows and the ray that met the catcher."""
+
+    depth: int
+    rows: np.ndarray
+    pix: np.ndarray
+    smp: np.ndarray
+    o: np.ndarray
+    d: np.ndarray
+    tmax: np.ndarray
+    throughput: np.ndarray
+    prev_pdf: np.ndarray
+    prev_delta: np.ndarray
+    prev_normal: np.ndarray | None
+    prev_transmits: np.ndarray | None
+
+
+@dataclass
 class FirstHit:
     """Per camera sample: the first-hit AOVs (albedo, world-space shading normal, z-depth, inf on a miss; None
-    when not asked for) and the denoising features (see DenoisingFeatures; None when not asked for)."""
+    when not asked for), the denoising features (see DenoisingFeatures; None when not asked for) and the shadow
+    catcher's samples (CatcherSamples; None when the scene has no shadow catcher)."""
 
     albedo: np.ndarray | None
     normal: np.ndarray | None
     depth: np.ndarray | None
     features: "DenoisingFeatures | None" = None
+    catcher: "CatcherSamples | None" = None
 
 
 def _smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
@@ -397,6 +464,59 @@ class DenoisingFeatures:
         self.open[samples[~go_on]] = False
 
 
+class _CatcherState:
+    """A batch's shadow catcher bookkeeping while its paths are traced (see CatcherSamples)."""
+
+    def __init__(self, n: int, background: bool) -> None:
+        self.matte = np.zeros((n, 3), np.float32)
+        self.matte_transparent = np.zeros(n, np.float32)
+        self.split = np.zeros(n, bool)
+        self.background = np.zeros((n, 3), np.float32) if background else None
+        self.groups: list[_SplitPaths] = []
+
+    def visit(self, tracer: "PathTracer", depth, hit, prim, clear_here, idx, pix, smp, o, d, tm, throughput,
+              prev_pdf, prev_delta, prev_normal, prev_transmits, radiance, transparent) -> None:
+        """The live paths' rays at `depth` have been intersected: paths that still count as transparent and meet
+        a catcher for the first time split here (before anything at this vertex is added)."""
+        ps = tracer.ps
+        if self.background is not None:  # the world along camera rays that escape (Cycles' Background pass)
+            gone = np.flatnonzero(~hit & clear_here)
+            if len(gone):
+                self.background[idx[gone]] += throughput[gone] * self._world(tracer, o[gone], d[gone])
+        on = np.flatnonzero(hit & clear_here & ps.catcher[np.where(hit, prim, 0)] & ~self.split[idx])
+        if len(on) == 0:
+            return
+        rows = idx[on]
+        self.split[rows] = True
+        self.matte[rows] = radiance[rows]
+        self.matte_transparent[rows] = (0 if transparent is None else transparent[rows]) + throughput[on].mean(axis=1)
+        if self.background is not None:
+            self.background[rows] += throughput[on] * self._world(tracer, o[on], d[on])
+        self.groups.append(_SplitPaths(depth, rows, pix[on], smp[on], o[on], d[on], tm[on], throughput[on],
+                                       prev_pdf[on], prev_delta[on],
+                                       None if prev_normal is None else prev_normal[on],
+                                       None if prev_transmits is None else prev_transmits[on]))
+
+    @staticmethod
+    def _world(tracer: "PathTracer", o: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """The world (and lights visible to the camera) along rays, as a camera ray that escapes sees it."""
+        m = len(o)
+        return tracer.ps.lights.intersect(o, d, np.full(m, np.inf, np.float32), np.zeros(m, np.float32),
+                                          np.ones(m, bool), False, camera=True)
+
+    def finish(self, tracer: "PathTracer", radiance: np.ndarray, transparent: np.ndarray | None) -> CatcherSamples:
+        """The batch's CatcherSamples once its paths are done: trace the copies, fill the paths that never split."""
+        n = len(radiance)
+        catcher = np.zeros((n, 3), np.float32)
+        for group in self.groups:
+            catcher[group.rows] = tracer.trace(None, None, None, None, None, None, None, False, _copies=group)[0]
+        keep = ~self.split
+        self.matte[keep] = radiance[keep]
+        self.matte_transparent[keep] = 0 if transparent is None else transparent[keep]
+        np.clip(self.matte_transparent, 0.0, 1.0, out=self.matte_transparent)
+        return CatcherSamples(self.matte, self.matte_transparent, catcher, self.split, self.background)
+
+
 class PathTracer:
     """Traces batches of camera rays through a prepared scene and returns each sample's radiance."""
 
@@ -409,6 +529,7 @@ class PathTracer:
         self.use_nee = settings.light_sampling in ("mis", "light") and prepared.lights.has_lights
         self.use_bsdf_emission = settings.light_sampling in ("mis", "bsdf")
         self.mis = settings.light_sampling == "mis"
+        self._catcher_copies = False  # tracing shadow catcher copies: rays see only catchers (CatcherSamples)
 
     def _dim(self, depth: int, k: int) -> int:
         return DIM_BOUNCE_BASE + depth * DIM_STRIDE + k
@@ -424,11 +545,15 @@ class PathTracer:
         t_start: np.ndarray,
         want_aovs: bool,
         want_features: bool = False,
+        _copies: "_SplitPaths | None" = None,
     ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
         """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs; want_features adds the
-        denoising features, FirstHit.features) and their transparency (N,) float32 in [0, 1] (alpha = 1 -
-        transparency; None when the scene has no alpha, see core.scene.Film). pixel_id/sample_id (uint32) key the
-        random numbers."""
+        denoising features, FirstHit.features; a scene with a shadow catcher adds FirstHit.catcher) and their
+        transparency (N,) float32 in [0, 1] (alpha = 1 - transparency; None when the scene has no alpha, see
+        core.scene.Film). pixel_id/sample_id (uint32) key the random numbers. _copies: (internal) trace the
+        shadow catcher copies of paths that split instead (the other arguments unused)."""
+        if _copies is not None:
+            return self._trace_copies(_copies)
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
@@ -450,20 +575,35 @@ class PathTracer:
         prev_transmits = None  # whether the material at each ray's origin transmits (weighs light selection)
         pix, smp = pixel_id, sample_id
         self.stats.paths += n
-        transparent = np.zeros(n, np.float32) if ps.alpha else None
+        start_depth = 0
+        copies = self._catcher_copies
+        if copies:  # resuming the catcher copies (_trace_copies): the paths' state at their split
+            sp = self._resume
+            start_depth, n = sp.depth, len(sp.rows)
+            radiance = np.zeros((n, 3), np.float32)
+            idx, o, d, tm, throughput = np.arange(n), sp.o, sp.d, sp.tmax, sp.throughput.copy()
+            prev_pdf, prev_delta, prev_normal, prev_transmits = sp.prev_pdf, sp.prev_delta, sp.prev_normal, \
+                sp.prev_transmits
+            pix, smp = sp.pix, sp.smp
+        alpha = ps.alpha and not copies
+        transparent = np.zeros(n, np.float32) if alpha else None
         # Per sample: the path still counts as transparent (camera ray, or only through transparent surfaces).
-        clear = np.ones(n, bool) if ps.alpha else None
-        film_transparent = ps.alpha and ps.scene.film.transparent
+        clear = np.ones(n, bool) if alpha else None
+        film_transparent = alpha and ps.scene.film.transparent
         # Per sample: the kind of ray its path casts next (core.ray_visibility), kept only when some mesh hides
         # from diffuse, glossy or transmission rays.
-        bounce_kind = (np.zeros(n, np.int8) if any(k in ps.visible_to for k in ("diffuse", "glossy", "transmission"))
-                       or ("camera" in ps.visible_to and ps.has_clear) else None)
+        bounce_kind = (np.zeros(n, np.int8) if not copies and (
+            any(k in ps.visible_to for k in ("diffuse", "glossy", "transmission"))
+            or ("camera" in ps.visible_to and ps.has_clear)) else None)
+        catch = _CatcherState(n, self._needs_background()) if ps.catcher is not None and not copies else None
 
-        for depth in range(s.max_bounces + 2):
+        for depth in range(start_depth, s.max_bounces + 2):
             if len(idx) == 0:
                 break
             clock = time.perf_counter()
-            if bounce_kind is not None:
+            if copies:
+                hits = self._intersect_subset("catcher", o, d, tm)
+            elif bounce_kind is not None:
                 hits = self._intersect_by_kind(bounce_kind[idx], o, d, tm)
             elif depth == 0 and "camera" in ps.visible_to:
                 hits = self._intersect_subset("camera", o, d, tm)
@@ -472,7 +612,10 @@ class PathTracer:
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
-            clear_here = clear[idx] if ps.alpha else None
+            clear_here = clear[idx] if alpha else None
+            if catch is not None:
+                catch.visit(self, depth, hit, hits.prim, clear_here, idx, pix, smp, o, d, tm, throughput, prev_pdf,
+                            prev_delta, prev_normal, prev_transmits, radiance, transparent)
             if film_transparent:
                 # Rays that still count as transparent and escape: alpha 0 and no world colour.
                 gone = np.flatnonzero(~hit & clear_here)
@@ -490,7 +633,7 @@ class PathTracer:
                     features.add_emission(idx, throughput * le)
             prim = hits.prim
             held = None
-            if ps.alpha:
+            if alpha:
                 # Holdout surfaces seen by transparent-counting rays: that share of the throughput becomes
                 # transparent; a full holdout ends the path there (no emission, no scattering), as in Cycles.
                 h = np.where(hit & clear_here, ps.holdout[ps.material_index[prim]], np.float32(0))
@@ -590,7 +733,7 @@ class PathTracer:
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
             u_dir, u_lobe = np.ascontiguousarray(u_vertex[:, :2]), np.ascontiguousarray(u_vertex[:, 2])
             bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir, back=g.cos_o_geo < 0)
-            if ps.alpha:  # idx is unique among live paths: the flag of each sample that goes on
+            if alpha:  # idx is unique among live paths: the flag of each sample that goes on
                 clear[idx] &= np.asarray(bs.transmitted, bool) & ps.keeps_transparent[mat]
             if bounce_kind is not None:
                 kinds = bounce_kind[idx]
@@ -617,7 +760,26 @@ class PathTracer:
             self._lap("scatter", clock)
         if transparent is not None:
             np.clip(transparent, 0.0, 1.0, out=transparent)
+        if catch is not None:
+            if first is None:
+                first = FirstHit(None, None, None)
+            first.catcher = catch.finish(self, radiance, transparent)
         return radiance, first, transparent
+
+    def _needs_background(self) -> bool:
+        """Whether the shadow catcher needs the world behind it (Cycles' approximate catcher on an opaque film)."""
+        film = self.ps.scene.film
+        return not film.transparent and not film.shadow_catcher_pass
+
+    def _trace_copies(self, split: "_SplitPaths") -> tuple[np.ndarray, None, None]:
+        """Radiance (M, 3) of the shadow catcher copies of paths that split (see CatcherSamples): from the ray that
+        met the catcher on, every ray (and shadow ray) sees only the shadow catchers."""
+        self._catcher_copies, self._resume = True, split
+        try:
+            radiance, _, _ = self.trace(split.pix, split.smp, split.o, split.d, split.tmax, None, None, False)
+        finally:
+            self._catcher_copies, self._resume = False, None
+        return radiance, None, None
 
     def _light_emission(self, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,
                         clear) -> np.ndarray:
@@ -739,7 +901,9 @@ class PathTracer:
         if count == 0:
             return
         clock = time.perf_counter()
-        if "shadow" in ps.visible_to:
+        if self._catcher_copies:
+            blocked = ps.visible_subset("catcher")[0].occluded(origin[:count], direction[:count], tmax[:count])
+        elif "shadow" in ps.visible_to:
             blocked = ps.visible_subset("shadow")[0].occluded(origin[:count], direction[:count], tmax[:count])
         else:
             blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count])

@@ -22,9 +22,10 @@ import numpy as np
 
 from .accel import Accelerator
 from .camera import camera_rays
-from .film import TileFilm
+from .film import CatcherOutput, TileFilm
 from .filters import PixelFilter
-from .integrator import DIM_FILM, DIM_LENS, DenoisingFeatures, FirstHit, PathStats, PathTracer, PreparedScene
+from .integrator import (DIM_FILM, DIM_LENS, CatcherSamples, DenoisingFeatures, FirstHit, PathStats, PathTracer,
+                         PreparedScene)
 from .jit_cache import compile_cache_is_cold
 from .memory import check_render_memory
 from .sampling import VARIANCE_GROUPS, make_sampler
@@ -53,6 +54,9 @@ class Tile:
     denoising_albedo, denoising_normal: (h, w, 3) Cycles' Denoising Albedo and Denoising Normal passes (normal in
     camera space: +x right, +y up, +z along the view, so a surface facing the camera reads (0, 0, -1); means
     over the pixel's samples, not renormalised), None unless settings.denoising_features.
+    With a shadow catcher (core.scene.Mesh.shadow_catcher) color is Combined as Cycles forms it (core.film) and
+    shadow_catcher (h, w, 3) is Cycles' Shadow Catcher pass, shadow_catcher_matte (h, w, 4) its Shadow Catcher
+    Matte (both None without a catcher); variance stays that of the paths' radiance (the catcher seen).
     """
 
     x0: int
@@ -65,6 +69,8 @@ class Tile:
     samples: int = 0
     denoising_albedo: np.ndarray | None = None
     denoising_normal: np.ndarray | None = None
+    shadow_catcher: np.ndarray | None = None
+    shadow_catcher_matte: np.ndarray | None = None
 
     @property
     def width(self) -> int:
@@ -112,6 +118,8 @@ class RenderResult:
     denoising_albedo: np.ndarray | None = None
     denoising_normal: np.ndarray | None = None
     noisy: np.ndarray | None = None  # the colour before denoising, when a caller denoised `color` (core.denoise)
+    shadow_catcher: np.ndarray | None = None  # (h, w, 3) Cycles' Shadow Catcher pass (see Tile), or None
+    shadow_catcher_matte: np.ndarray | None = None  # (h, w, 4) its Shadow Catcher Matte, or None
 
 
 ProgressCallback = Callable[[Progress], None]
@@ -208,8 +216,8 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     region = (0, 0, width, height)
     tile_list = tiles(0, 0, width, height, settings.tile_size)
     sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
-    films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha)
-             for t in tile_list]
+    films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
+                      catcher=CatcherOutput.of(scene)) for t in tile_list]
     reached = [0] * len(tile_list)
     for part in sorted(parts, key=lambda p: (p.tile_index, p.sample_start)):
         ti = part.tile_index
@@ -233,6 +241,7 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
              "samples": int(counts.sum())}
     result = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings))
     _assemble_features(result, tile_list, films, scene, region)
+    _assemble_catcher(result, tile_list, films, region)
     return result
 
 
@@ -263,11 +272,13 @@ def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
                 world_to_camera: np.ndarray | None = None) -> Tile:
     """A tile's images from its film (samples: what Tile.samples reports; world_to_camera: the rotation that
     turns the denoising normal to camera space, needed when the film keeps the denoising features)."""
-    color = np.concatenate([film.mean(), film.alpha_image()[:, :, None]], axis=2)
+    color = film.combined_rgba()
     albedo = normal = depth = None
     if aovs:
         albedo, normal, depth = film.aov_images()
     out = Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
+    if film.catcher is not None:
+        out.shadow_catcher, out.shadow_catcher_matte = film.shadow_catcher_images()[:2]
     if film.features and world_to_camera is not None:
         out.denoising_albedo, world_normal = film.feature_images()
         out.denoising_normal = (world_normal @ world_to_camera.T).astype(np.float32)
@@ -298,6 +309,20 @@ def _assemble_features(result: RenderResult, tile_list: list[TileRect], films: l
         albedo, normal = film.feature_images()
         result.denoising_albedo[sl] = albedo
         result.denoising_normal[sl] = normal @ rot.T
+
+
+def _assemble_catcher(result: RenderResult, tile_list: list[TileRect], films: list[TileFilm], region: TileRect
+                      ) -> None:
+    """Fill result.shadow_catcher/shadow_catcher_matte from the tiles' films when the scene has a catcher."""
+    if not films or films[0].catcher is None:
+        return
+    rx, ry, rw, rh = region
+    result.shadow_catcher = np.ones((rh, rw, 3), np.float32)
+    result.shadow_catcher_matte = np.zeros((rh, rw, 4), np.float32)
+    for tile, film in zip(tile_list, films):
+        tx, ty, tw, th = tile
+        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
+        result.shadow_catcher[sl], result.shadow_catcher_matte[sl] = film.shadow_catcher_images()[:2]
 
 
 def _silent(_msg: str) -> None:
@@ -386,7 +411,9 @@ class _TileRender:
                 raise ValueError("tile_order must be a permutation of the tile indices")
             self.tiles = [self.tiles[i] for i in tile_order]
         alpha = scene.has_alpha
-        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features, alpha=alpha)
+        catcher = CatcherOutput.of(scene)
+        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features, alpha=alpha,
+                                  catcher=catcher)
                       for t in self.tiles}
 
         self.spp = int(settings.spp)
@@ -557,6 +584,8 @@ class _TileRender:
                 first.features = DenoisingFeatures(n)
                 first.features.albedo[live], first.features.normal[live] = (first_l.features.albedo,
                                                                             first_l.features.normal)
+            if first_l.catcher is not None:  # dead rays: no split, no matte, no transparency
+                first.catcher = CatcherSamples.spread(first_l.catcher, live, n)
         return radiance, first, transparent
 
     def _finish_one(self, quiet: bool = False) -> None:
@@ -574,6 +603,8 @@ class _TileRender:
                 film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
             if first is not None and first.features is not None:
                 film.add_features(seg.loc, first.features.albedo[rows], first.features.normal[rows])
+            if first is not None and first.catcher is not None:
+                film.add_catcher(seg.loc, first.catcher.take(rows))
             self.film_seconds += time.perf_counter() - t0
             self.done_paths += len(seg.loc)
             if not quiet:
@@ -679,4 +710,5 @@ class _TileRender:
         out = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings),
                            self.cancelled)
         _assemble_features(out, self.tiles, [self.films[t] for t in self.tiles], scene, self.region)
+        _assemble_catcher(out, self.tiles, [self.films[t] for t in self.tiles], self.region)
         return out

@@ -216,6 +216,8 @@ class Mesh:
       default); Blender objects default to 0.1 and the add-on exports their value.
     uv_layers: optional {name: (T, 3, 2)} every UV map of the mesh by name (UV Map nodes naming a map read
       these through `Scene.uv_layer_names`; a mesh without the named map reads (0, 0), as Blender does).
+    shadow_catcher: Cycles' Object > Visibility > Shadow Catcher: the mesh leaves the image (Combined) and only
+      the shadows and light other objects add to it remain, as alpha or the Shadow Catcher pass (see `Film`).
     """
 
     name: str
@@ -232,6 +234,7 @@ class Mesh:
     visible_transmission: bool = True
     shadow_terminator_offset: float = 0.0
     uv_layers: dict | None = None
+    shadow_catcher: bool = False
 
     @property
     def triangle_count(self) -> int:
@@ -620,11 +623,18 @@ class Film:
     transparent_glass: rays that went on through glass or refraction lobes whose GGX alpha (roughness^2) is at
     most `transparent_roughness` count likewise (Film > Transparent Glass and its Roughness Threshold).
     Without `transparent` the world is opaque; holdout surfaces (`Material.holdout`) are transparent either way.
+
+    shadow_catcher_pass: the view layer asks for Cycles' Shadow Catcher pass. With a shadow catcher mesh
+    (`Mesh.shadow_catcher`) in the scene this picks how Combined is formed, as Cycles does: with the pass,
+    Combined is the shadow catcher matte (the catchers transparent and black, their shadows only in the pass);
+    without it, Cycles' approximate shadow catcher puts the shadows into Combined (as alpha with a transparent
+    film, over the world otherwise).
     """
 
     transparent: bool = False
     transparent_glass: bool = False
     transparent_roughness: float = 0.1
+    shadow_catcher_pass: bool = False
 
     def validate(self) -> None:
         if not (math.isfinite(self.transparent_roughness) and 0.0 <= self.transparent_roughness <= 1.0):
@@ -653,7 +663,14 @@ class Scene:
     def has_alpha(self) -> bool:
         """Whether the image can have alpha below 1 (transparent film or a holdout material); otherwise the
         renderer keeps no transparency and alpha is 1 everywhere."""
-        return bool(self.film.transparent) or any(m.holdout > 0 for m in self.materials)
+        return (bool(self.film.transparent) or any(m.holdout > 0 for m in self.materials)
+                or self.has_shadow_catcher)
+
+    @property
+    def has_shadow_catcher(self) -> bool:
+        """Whether some mesh with triangles is a shadow catcher (Mesh.shadow_catcher): the render then keeps the
+        shadow catcher's sums (core.film) and forms Combined as Cycles does with a catcher."""
+        return any(m.shadow_catcher and m.triangle_count > 0 for m in self.meshes)
 
     @property
     def triangle_count(self) -> int:

@@ -188,7 +188,11 @@ AUDIT = {
                                          ("warns", ["Volume Scatter"])),
     "object holdout": (lambda s: _set(obj("cube"), is_holdout=True),
                        ("renders", lambda c: _material_of(c, "cube").holdout == 1.0)),
-    "shadow catcher": (lambda s: _set(obj("floor"), is_shadow_catcher=True), ("warns", ["Shadow Catcher"])),
+    "shadow catcher": (lambda s: _set(obj("floor"), is_shadow_catcher=True),
+                       ("renders", lambda c: _mesh(c, "floor").shadow_catcher and c.has_shadow_catcher)),
+    "shadow catcher pass": (lambda s: (_set(obj("floor"), is_shadow_catcher=True),
+                                       _set(s.view_layers[0].cycles, use_pass_shadow_catcher=True)),
+                            ("renders", lambda c: c.film.shadow_catcher_pass)),
     "collection holdout": (_collection_flag("holdout"),
                            ("renders", lambda c: _material_of(c, "cube").holdout == 1.0)),
     "collection indirect only": (_collection_flag("indirect_only"),  # Cycles: the same image as camera-hidden

@@ -52,6 +52,7 @@ class _Prototype:
     texspace: tuple | None = None  # (location, size) of the mesh's texture space (Generated coordinates)
     visibility: tuple = (True,) * 5  # Mesh.visible_<kind> for each of MESH_RAY_VISIBILITY
     shadow_terminator_offset: float = 0.0
+    shadow_catcher: bool = False  # Object > Visibility > Shadow Catcher (core.scene.Mesh.shadow_catcher)
 
 
 # Object > Visibility > Ray Visibility flags Monte renders on meshes (core.scene.Mesh.visible_<kind>).
@@ -80,7 +81,9 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     if is_indirect_only(original, view_layer):
         seen = (False,) + seen[1:]  # Cycles renders an Indirect Only collection as hidden from camera rays
     slots = tuple(slot.material for slot in obj.material_slots)
-    slot_key = tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ()) + seen
+    catcher = bool(getattr(obj, "is_shadow_catcher", False))
+    slot_key = (tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ()) + seen
+                + (("shadow catcher",) if catcher else ()))
     terminator = _terminator_offset(original)
     if kind == "MESH" and obj.data is not None:
         key = ("mesh", obj.data.as_pointer(), slot_key, terminator)
@@ -101,7 +104,7 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     for slot in used:
         lut[slot] = material_of(slots[slot] if slot < len(slots) else None)
     prototypes[key] = _Prototype(local, lut, original.name, texspace=_texspace(obj, local), visibility=seen,
-                                 shadow_terminator_offset=terminator)
+                                 shadow_terminator_offset=terminator, shadow_catcher=catcher)
     stats.meshes_converted += 1
     return key
 
@@ -140,8 +143,6 @@ def _warn_object_settings(obj, original, view_layer, warnings: list[str]) -> Non
     if off:
         _warn_once(warnings, f"object {name!r}: Ray Visibility {', '.join(off)} off is not supported; rendered "
                              f"visible to {', '.join(label.lower() for label in off)} rays")
-    if getattr(obj, "is_shadow_catcher", False):
-        _warn_once(warnings, f"object {name!r}: Shadow Catcher is not supported; rendered as an ordinary object")
     for system in getattr(obj, "particle_systems", ()):
         settings = system.settings
         if settings.type == "HAIR" and settings.render_type == "PATH":
@@ -274,13 +275,15 @@ def export_scene(
         mesh.object_index = np.repeat(np.arange(start, start + k, dtype=np.int32), proto.local.triangle_count)
         for kind, seen in zip(MESH_RAY_VISIBILITY, proto.visibility):
             setattr(mesh, f"visible_{kind}", seen)
+        mesh.shadow_catcher = proto.shadow_catcher
         meshes.append(mesh)
 
     if not materials.materials:
         materials.index(None)  # core needs at least one material
     world = export_world(scene.world, warnings)
     out = Scene(camera=camera, meshes=meshes, materials=materials.materials, lights=lights, world=world,
-                textures=materials.textures, name=scene.name, warnings=warnings, film=export_film(scene),
+                textures=materials.textures, name=scene.name, warnings=warnings,
+                film=export_film(scene, depsgraph.view_layer),
                 objects=np.concatenate(object_rows).astype(np.float32) if object_rows else None,
                 uv_layer_names=list(materials.uv_names))
     if not meshes:

@@ -1,0 +1,114 @@
+"""Shadow catcher (core.scene.Mesh.shadow_catcher) in the core renderer against closed forms.
+
+A catcher plane fills the frame, a black square hidden from the camera hangs between it and a sun that shines
+straight down the view, so its shadow is a sharp square in the middle of the image; the world is black. With
+nothing but the sun and black surfaces there is no indirect light: in the umbra the catcher receives nothing,
+elsewhere exactly what it receives without the square. So the Shadow Catcher pass is 0 in the umbra and 1
+elsewhere, and Cycles' approximate catcher on a transparent film gives Combined black with alpha 1 in the umbra
+and alpha 0 elsewhere (the catcher itself gone). With the Shadow Catcher pass asked for, Combined is the matte:
+the catcher transparent everywhere. On an opaque film with a lit world and nothing shadowing, the catcher
+vanishes into the world behind it. A scene without catcher keeps none of the catcher's sums.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from monte.core.render import render
+from monte.core.scene import Camera, Film, Lobe, Material, Mesh, Scene, SunLight, World
+from monte.core.settings import RenderSettings
+
+RES = (24, 24)
+SETTINGS = RenderSettings(spp=16, max_bounces=3, seed=5, filter_type="box", filter_width=1.0, threads=1)
+# The camera at the origin looks down -z and sees +-0.5 at distance 1 (24 pixels); the shadow of the square of
+# half-size 0.2 covers pixels 8..15: rows and columns 9..14 are deep inside, 0..4 and 19..23 far outside.
+UMBRA = (slice(9, 15), slice(9, 15))
+LIT = np.ones(RES[::-1], bool)
+LIT[5:19, 5:19] = False
+
+
+def _square(name: str, half: float, z: float, material: int) -> Mesh:
+    quad = np.array([[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]], np.float64)
+    return Mesh(name, quad, np.array([[0, 1, 2], [0, 2, 3]], np.int32), material_index=material)
+
+
+def _scene(film: Film, occluder: bool = True, world: float = 0.0, catcher: bool = True) -> Scene:
+    cam = Camera(np.eye(4), resolution=RES, lens=36.0, sensor_width=36.0, sensor_fit="HORIZONTAL")
+    materials = [Material("ground", [Lobe("diffuse", np.full(3, 0.5))]),
+                 Material("black", [Lobe("diffuse", np.zeros(3))])]
+    plane = _square("catcher", 2.0, -1.0, 0)
+    plane.shadow_catcher = catcher
+    meshes = [plane]
+    if occluder:
+        square = _square("occluder", 0.2, -0.5, 1)
+        square.visible_camera = False
+        meshes.append(square)
+    sun = SunLight("sun", np.array([0.0, 0.0, -1.0]), np.full(3, 3.0), angle=0.0)
+    return Scene(camera=cam, meshes=meshes, materials=materials, lights=[sun],
+                 world=World(color=np.full(3, world)), film=film)
+
+
+def test_shadow_catcher_pass_is_the_shadow():
+    result = render(_scene(Film(transparent=True)), SETTINGS)
+    shadow = result.shadow_catcher
+    assert shadow.shape == (RES[1], RES[0], 3)
+    np.testing.assert_array_equal(shadow[UMBRA], 0.0)
+    np.testing.assert_allclose(shadow[LIT], 1.0, atol=1e-5)
+    assert result.stats["features"]["shadow_catcher"]
+
+
+def test_approximate_catcher_on_transparent_film_puts_the_shadow_in_alpha():
+    result = render(_scene(Film(transparent=True)), SETTINGS)
+    rgba = result.color
+    np.testing.assert_array_equal(rgba[..., :3], 0.0)  # the catcher adds no colour, the world is transparent
+    np.testing.assert_allclose(rgba[UMBRA][..., 3], 1.0, atol=1e-6)
+    np.testing.assert_allclose(rgba[LIT][..., 3], 0.0, atol=1e-5)
+    # The matte (Cycles' Shadow Catcher Matte) is the catcher cut out: transparent everywhere.
+    np.testing.assert_array_equal(result.shadow_catcher_matte[..., 3], 0.0)
+
+
+def test_with_the_shadow_catcher_pass_combined_is_the_matte():
+    result = render(_scene(Film(transparent=True, shadow_catcher_pass=True)), SETTINGS)
+    np.testing.assert_array_equal(result.color, 0.0)  # black and transparent: the shadow is only in the pass
+    np.testing.assert_array_equal(result.shadow_catcher[UMBRA], 0.0)
+    np.testing.assert_allclose(result.shadow_catcher[LIT], 1.0, atol=1e-5)
+
+
+def test_opaque_film_shows_the_world_through_an_unshadowed_catcher():
+    world = 0.7
+    result = render(_scene(Film(), occluder=False, world=world), SETTINGS)
+    np.testing.assert_allclose(result.color[..., :3], world, rtol=1e-5)
+    np.testing.assert_array_equal(result.color[..., 3], 1.0)
+    np.testing.assert_allclose(result.shadow_catcher, 1.0, atol=1e-5)
+
+
+def test_opaque_film_darkens_the_world_by_the_shadow():
+    # A lit world adds indirect light to the catcher, so the umbra's shadow is not 0: the approximate catcher
+    # lays the world under it scaled by the shadow's mean, Combined = world x mean(shadow).
+    world = 0.7
+    result = render(_scene(Film(), world=world), SETTINGS)
+    expected = world * np.clip(result.shadow_catcher.mean(axis=2), 0, 1)
+    np.testing.assert_allclose(result.color[..., 0], expected, rtol=1e-4, atol=1e-6)
+    assert result.shadow_catcher[UMBRA].max() < 0.5 < result.shadow_catcher[LIT].min()
+
+
+def test_no_catcher_costs_nothing():
+    result = render(_scene(Film(transparent=True), catcher=False), SETTINGS)
+    assert result.shadow_catcher is None and result.shadow_catcher_matte is None
+    assert not result.stats["features"]["shadow_catcher"]
+    # The plane is an ordinary object again: lit by the sun outside the shadow (0.5 x 3 / pi), opaque.
+    np.testing.assert_allclose(result.color[LIT][..., :3], 0.5 * 3.0 / np.pi, rtol=1e-4)
+    np.testing.assert_array_equal(result.color[..., 3], 1.0)
+
+
+@pytest.mark.parametrize("transparent", [True, False])
+def test_objects_in_front_of_the_catcher_stay_in_combined(transparent):
+    # The square seen by the camera covers the umbra: there Combined is the square itself, opaque, as without
+    # a catcher.
+    with_catcher = _scene(Film(transparent=transparent))
+    with_catcher.meshes[1].visible_camera = True
+    plain = _scene(Film(transparent=transparent), catcher=False)
+    plain.meshes[1].visible_camera = True
+    a, b = render(with_catcher, SETTINGS), render(plain, SETTINGS)
+    np.testing.assert_allclose(a.color[UMBRA], b.color[UMBRA], atol=1e-6)

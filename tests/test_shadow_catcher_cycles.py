@@ -1,0 +1,139 @@
+"""Shadow catcher against real Cycles (bpy ships it): Blender's factory cube, lit by the factory point light, on a
+shadow-catcher plane, under a grey world, seen by the factory camera (48x27 pixels).
+
+Three set-ups, as Cycles forms the image in each: Film > Transparent with the view layer's Shadow Catcher pass
+(Combined is then the matte: the plane transparent and black; the pass holds the shadow), Film > Transparent
+without it (Cycles' approximate catcher: the shadow as alpha) and an opaque film without it (the world behind
+the plane, darkened by the shadow). Colour and alpha are compared by their means (within 1 %) and per-pixel
+z-scores (core.compare), as tests/test_film_camera_cycles.py does: Cycles' per-pixel variance from 4 seeds,
+Monte's from its film; the Shadow Catcher pass is a ratio of sums, whose variance Monte's film does not keep, so
+its Monte variance is taken as Cycles' per-render one at the same sample count (the two renderers' noise on
+this diffuse scene agrees within a few %). About 20 s on 2 cores with compiled kernels cached.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import blender_fixtures as bf  # noqa: E402
+
+from monte.addon import crosscheck as cc  # noqa: E402
+from monte.addon.engine import render_with_operator  # noqa: E402
+from monte.core import compare as cmp  # noqa: E402
+
+pytestmark = [pytest.mark.blender]
+
+CYCLES_RUNS = 4
+SPP, BOUNCES = 64, 4
+
+
+def cube_on_catcher(transparent: bool, shadow_catcher_pass: bool):
+    """The factory cube on a 10 m shadow-catcher plane (its bottom face on the plane), the factory light, camera
+    and world."""
+    scene = bf.reset()
+    v = [(x, y, z) for z in (-1, 1) for y in (-1, 1) for x in (-1, 1)]
+    faces = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    bf.mesh_object("Cube", v, faces, bf.diffuse("cube", (0.8, 0.8, 0.8)))
+    s = 5.0
+    plane = bf.mesh_object("catcher", [(-s, -s, -1), (s, -s, -1), (s, s, -1), (-s, s, -1)], [(0, 1, 2, 3)],
+                           bf.diffuse("ground", (0.8, 0.8, 0.8)))
+    plane.is_shadow_catcher = True
+    bf.add_light(scene, "POINT", (4.0762, 1.0055, 5.9039), energy=1000.0, shadow_soft_size=0.1)
+    bf.camera_object(scene, (7.3589, -6.9258, 4.9583), (math.radians(63.6), 0, math.radians(46.7)), lens=50.0)
+    bf.set_world(scene, (0.0509, 0.0509, 0.0509), 1.0)
+    scene.render.resolution_x, scene.render.resolution_y = 48, 27
+    scene.render.resolution_percentage = 100
+    scene.render.film_transparent = transparent
+    scene.view_layers[0].cycles.use_pass_shadow_catcher = shadow_catcher_pass
+    return scene
+
+
+def _channels(saved: dict, layer: str, name: str, chans: str) -> np.ndarray:
+    return np.stack([saved[f"{layer}.{name}.{c}"] for c in chans], axis=-1).astype(np.float64)
+
+
+def monte(scene, tmp_path):
+    """Monte's (RGBA, RGB variance, Shadow Catcher pass or None) through Blender's render operator; the pass is
+    read back from Blender's render result."""
+    scene.render.engine = "MONTE"
+    m = scene.monte
+    m.samples, m.max_bounces, m.seed, m.threads = SPP, BOUNCES, 1, 2
+    result = render_with_operator(scene)[0][1]
+    rgba = np.asarray(result.color, np.float64)
+    saved = bf.save_render_exr(scene, tmp_path / "monte.exr")
+    layer = scene.view_layers[0].name
+    np.testing.assert_allclose(_channels(saved, layer, "Combined", "RGBA"), rgba, atol=1e-6)
+    shadow = None
+    if scene.view_layers[0].cycles.use_pass_shadow_catcher:
+        shadow = _channels(saved, layer, "Shadow Catcher", "RGB")
+        np.testing.assert_allclose(shadow, result.shadow_catcher, atol=1e-6)
+    return rgba, np.asarray(result.variance, np.float64), shadow
+
+
+def cycles(scene, tmp_path):
+    """Cycles' mean RGBA over CYCLES_RUNS seeds at SPP / 2 and the variance of that mean, and the same of its
+    Shadow Catcher pass (None when not asked for)."""
+    runs, shadows = [], []
+    layer = scene.view_layers[0].name
+    for seed in range(1, CYCLES_RUNS + 1):
+        cc.configure_cycles(scene, SPP // 2, BOUNCES, threads=2, seed=seed)
+        render_with_operator(scene)
+        saved = bf.save_render_exr(scene, tmp_path / f"cycles{seed}.exr")
+        runs.append(_channels(saved, layer, "Combined", "RGBA"))
+        if scene.view_layers[0].cycles.use_pass_shadow_catcher:
+            shadows.append(_channels(saved, layer, "Shadow Catcher", "RGB"))
+    rgba = cmp.runs_mean_and_variance(np.stack(runs))
+    shadow = cmp.runs_mean_and_variance(np.stack(shadows)) if shadows else None
+    return rgba, shadow
+
+
+def check(name: str, mon, mon_var, cyc, cyc_var, alpha_var=None) -> None:
+    """Colour (and alpha as a grey image when alpha_var is given) agree: means within max(4 sigma, 1 %) capped
+    at 1 %, at most 1 % of pixels beyond 5 sigma."""
+    parts = [("colour", cmp.compare(mon[..., :3], mon_var, cyc[..., :3], cyc_var[..., :3], rel_cap=0.01))]
+    if alpha_var is not None:
+        a_m, a_c = np.repeat(mon[..., 3:4], 3, axis=2), np.repeat(cyc[..., 3:4], 3, axis=2)
+        parts.append(("alpha", cmp.compare(a_m, np.repeat(alpha_var[..., None], 3, axis=2), a_c,
+                                           np.repeat(cyc_var[..., 3:4], 3, axis=2), rel_cap=0.01)))
+    for what, c in parts:
+        ok, reasons = c.verdict()
+        print(f"\n{name} {what}: Monte {np.round(c.mean_a, 4)} Cycles {np.round(c.mean_b, 4)} "
+              f"rel {np.round(100 * c.relative_difference, 2)} % z {c.z_stats()}")
+        assert ok, f"{name} {what}: {reasons}"
+
+
+def test_transparent_film_with_the_shadow_catcher_pass_matches_cycles(tmp_path):
+    scene = cube_on_catcher(transparent=True, shadow_catcher_pass=True)
+    mon, mon_var, mon_shadow = monte(scene, tmp_path)
+    (cyc, cyc_var), (cyc_shadow, cyc_shadow_var) = cycles(scene, tmp_path)
+    # The matte: the cube opaque, the plane and the world transparent (coverage: a binomial per sample).
+    check("matte", mon, mon_var, cyc, cyc_var, alpha_var=mon[..., 3] * (1 - mon[..., 3]) / SPP)
+    assert mon_shadow.min() < 0.3  # the cube's shadow is in the pass
+    # Monte's pass noise: one Cycles render's (CYCLES_RUNS x the variance of the runs' mean) at half Monte's
+    # samples, halved.
+    check("shadow catcher pass", mon_shadow, cyc_shadow_var * CYCLES_RUNS / 2, cyc_shadow, cyc_shadow_var)
+
+
+def test_approximate_catcher_on_transparent_film_matches_cycles(tmp_path):
+    scene = cube_on_catcher(transparent=True, shadow_catcher_pass=False)
+    mon, mon_var, _ = monte(scene, tmp_path)
+    (cyc, cyc_var), _ = cycles(scene, tmp_path)
+    assert 0.0 < mon[..., 3].mean() < 0.9  # the shadow is in the alpha, the world transparent
+    check("approximate catcher, transparent film", mon, mon_var, cyc, cyc_var,
+          alpha_var=cyc_var[..., 3] * CYCLES_RUNS / 2)
+
+
+def test_approximate_catcher_on_opaque_film_matches_cycles(tmp_path):
+    scene = cube_on_catcher(transparent=False, shadow_catcher_pass=False)
+    mon, mon_var, _ = monte(scene, tmp_path)
+    (cyc, cyc_var), _ = cycles(scene, tmp_path)
+    np.testing.assert_array_equal(mon[..., 3], 1.0)
+    check("approximate catcher, opaque film", mon, np.maximum(mon_var, cyc_var[..., :3] * CYCLES_RUNS / 2), cyc,
+          cyc_var)
