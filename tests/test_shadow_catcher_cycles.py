@@ -94,6 +94,15 @@ def cycles(scene, tmp_path):
     return rgba, shadow
 
 
+def approximate_alpha_variance(mon: np.ndarray, cyc_var: np.ndarray) -> np.ndarray:
+    """Variance of Monte's alpha of the approximate catcher: the coverage of the objects' edges (a binomial over
+    the samples: Cycles' coverage comes out the same for every seed, variance 0) plus the shadow's noise (one
+    Cycles render's at half the samples, halved), plus 1e-8 for float rounding where both are exactly 0 or 1 (the
+    shadow ratio of a pixel nothing shadows is 1 to ~1e-9 in Monte, exactly 1 in Cycles)."""
+    alpha = np.clip(mon[..., 3], 0, 1)
+    return alpha * (1 - alpha) / SPP + cyc_var[..., 3] * CYCLES_RUNS / 2 + 1e-8
+
+
 def check(name: str, mon, mon_var, cyc, cyc_var, alpha_var=None) -> None:
     """Colour (and alpha as a grey image when alpha_var is given) agree: means within max(4 sigma, 1 %) capped
     at 1 %, at most 1 % of pixels beyond 5 sigma."""
@@ -127,7 +136,7 @@ def test_approximate_catcher_on_transparent_film_matches_cycles(tmp_path):
     (cyc, cyc_var), _ = cycles(scene, tmp_path)
     assert 0.0 < mon[..., 3].mean() < 0.9  # the shadow is in the alpha, the world transparent
     check("approximate catcher, transparent film", mon, mon_var, cyc, cyc_var,
-          alpha_var=cyc_var[..., 3] * CYCLES_RUNS / 2)
+          alpha_var=approximate_alpha_variance(mon, cyc_var))
 
 
 def test_approximate_catcher_on_opaque_film_matches_cycles(tmp_path):
@@ -137,3 +146,40 @@ def test_approximate_catcher_on_opaque_film_matches_cycles(tmp_path):
     np.testing.assert_array_equal(mon[..., 3], 1.0)
     check("approximate catcher, opaque film", mon, np.maximum(mon_var, cyc_var[..., :3] * CYCLES_RUNS / 2), cyc,
           cyc_var)
+
+
+def _glossy_ground():
+    """A mix of diffuse and a GGX Glossy BSDF (roughness 0.15): the cube's reflection on the catcher."""
+    mat = bpy.data.materials.new("glossy ground")
+    mat.use_nodes = True
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (0.5, 0.5, 0.5, 1.0)
+    glossy = tree.nodes.new("ShaderNodeBsdfGlossy")
+    glossy.inputs["Color"].default_value = (0.9, 0.9, 0.9, 1.0)
+    glossy.inputs["Roughness"].default_value = 0.15
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = 0.5
+    tree.links.new(diffuse.outputs[0], mix.inputs[1])
+    tree.links.new(glossy.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("shadow_catcher_pass", [True, False])
+def test_reflections_on_a_glossy_catcher_match_cycles(shadow_catcher_pass, tmp_path):
+    # The catcher reflects the cube: the pass goes above 1 where the reflection is brighter than the world the
+    # catcher reflects without the cube, and the approximate catcher's alpha carries it.
+    scene = cube_on_catcher(transparent=True, shadow_catcher_pass=shadow_catcher_pass)
+    bpy.data.objects["catcher"].data.materials[0] = _glossy_ground()
+    mon, mon_var, mon_shadow = monte(scene, tmp_path)
+    (cyc, cyc_var), shadow = cycles(scene, tmp_path)
+    check("glossy catcher", mon, np.maximum(mon_var, cyc_var[..., :3] * CYCLES_RUNS / 2), cyc, cyc_var,
+          alpha_var=approximate_alpha_variance(mon, cyc_var))
+    if shadow_catcher_pass:
+        cyc_shadow, cyc_shadow_var = shadow
+        assert mon_shadow.max() > 1.0  # the cube's reflection is brighter than the grey world's
+        check("glossy catcher pass", mon_shadow, cyc_shadow_var * CYCLES_RUNS / 2, cyc_shadow, cyc_shadow_var)
