@@ -303,6 +303,7 @@ class SceneSync:
                                                         proto.shadow_terminator_offset)
             for ray_kind, seen in zip(MESH_RAY_VISIBILITY, proto.visibility):
                 setattr(mesh, f"visible_{ray_kind}", seen)
+            mesh.shadow_catcher = proto.shadow_catcher  # the viewport forms Cycles' approximate catcher
             self.placed[key] = stacked
             if old is not None and names[key] not in read:
                 report.moved.append(names[key])

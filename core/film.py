@@ -29,7 +29,7 @@ the sums measure (tests/test_film_memory.py: 1e6 samples against float64 referen
 
 Memory per pixel (core.memory): K 12 B, group deviation sums 48 B (G = 4), group counts 16 B, sum of squared
 deviations 12 B = 88 B; the AOVs add 32 B (float32 albedo, normal and depth sums, int32 depth count), the
-denoising features 24 B, alpha (Film > Transparent, holdout) 4 B, a shadow catcher 48 B. (It was 136 + 64 + 48
+denoising features 24 B, alpha (Film > Transparent, holdout) 4 B, a shadow catcher 44 B. (It was 136 + 64 + 48
 B in float64.)
 
 Shadow catcher (core.scene.Mesh.shadow_catcher; core.integrator.CatcherSamples): the film also sums each

@@ -10,7 +10,9 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
 - film (core.film, float32 storage): per pixel a float32 RGB shift (12 B), for each of the 4 variance groups a
   float32 RGB deviation sum and an int32 count (4 x 16 B), a float32 RGB sum of squared deviations (12 B); with
   AOVs float32 albedo and normal sums (24 B), a float32 depth sum and int32 count (8 B); with the denoising
-  features float32 albedo and normal sums (24 B). Each pass is summed in float64 over the batch's samples
+  features float32 albedo and normal sums (24 B); with a shadow catcher float32 matte, catcher and world sums
+  (36 B), the matte's transparency (4 B) and an int32 count of samples that met the catcher (4 B) (+ 44 B, and
+  28 B more in the result: the Shadow Catcher pass and its matte). Each pass is summed in float64 over the batch's samples
   (counted in the path batch) before it is folded in;
 - result: the assembled float32 colour RGBA (16 B), variance (12 B), int32 sample count (4 B); with AOVs
   albedo, normal (24 B) and depth (4 B); with the denoising features their albedo and normal (24 B);
@@ -41,6 +43,8 @@ RESULT_BYTES = 32
 RESULT_AOV_BYTES = 28
 FILM_FEATURE_BYTES = 24
 RESULT_FEATURE_BYTES = 24
+FILM_CATCHER_BYTES = 44
+RESULT_CATCHER_BYTES = 28
 PATH_BYTES = 800
 TRIANGLE_BYTES = 400
 TEXEL_BYTES = 24
@@ -82,6 +86,9 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     features = bool(settings.denoising_features)
     film = pixels * (FILM_BYTES + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0))
     result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0))
+    if scene.has_shadow_catcher:
+        film += pixels * FILM_CATCHER_BYTES
+        result += pixels * RESULT_CATCHER_BYTES
     # every worker thread traces one batch at a time (see core.schedule.batch_target)
     total_paths = pixels * max(int(settings.spp), 0)
     paths = min(batch_target(settings, total_paths), total_paths) * settings.thread_count

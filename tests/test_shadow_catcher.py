@@ -112,3 +112,35 @@ def test_objects_in_front_of_the_catcher_stay_in_combined(transparent):
     plain.meshes[1].visible_camera = True
     a, b = render(with_catcher, SETTINGS), render(plain, SETTINGS)
     np.testing.assert_allclose(a.color[UMBRA], b.color[UMBRA], atol=1e-6)
+
+
+def test_memory_estimate_and_exr_carry_the_catcher(tmp_path):
+    from monte.core import exr
+    from monte.core.film import CatcherOutput, TileFilm
+    from monte.core.memory import FILM_CATCHER_BYTES, estimate_render_memory
+
+    scene, plain = _scene(Film(transparent=True)), _scene(Film(transparent=True), catcher=False)
+    pixels = RES[0] * RES[1]
+    assert (estimate_render_memory(scene, SETTINGS).film - estimate_render_memory(plain, SETTINGS).film
+            == pixels * FILM_CATCHER_BYTES)
+    with_catcher = TileFilm(RES[0], RES[1], False, alpha=True, catcher=CatcherOutput.of(scene))
+    assert with_catcher.nbytes - TileFilm(RES[0], RES[1], False, alpha=True).nbytes == pixels * FILM_CATCHER_BYTES
+    result = render(scene, SETTINGS)
+    path = exr.write_exr(tmp_path / "c.exr", exr.image_channels(result.color, result.variance,
+                                                               shadow_catcher=result.shadow_catcher))
+    back = exr.read_exr(path)
+    np.testing.assert_array_equal(back["shadow_catcher.G"], result.shadow_catcher[..., 1])
+
+
+def test_split_render_merges_to_the_same_catcher_images():
+    from monte.core.render import merge_tile_samples, render_samples
+    from monte.core.schedule import tiles
+
+    scene = _scene(Film(transparent=True))
+    settings = SETTINGS.replace(tile_size=12)
+    whole = render(scene, settings)
+    n_tiles = len(tiles(0, 0, RES[0], RES[1], settings.tile_size))
+    parts = render_samples(scene, settings, {ti: (0, settings.spp) for ti in range(n_tiles)})
+    merged = merge_tile_samples(scene, settings, parts)
+    np.testing.assert_array_equal(merged.color, whole.color)
+    np.testing.assert_array_equal(merged.shadow_catcher, whole.shadow_catcher)
