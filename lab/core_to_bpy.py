@@ -109,6 +109,7 @@ def _mesh_object(core_mesh, materials: list, collection):
     for kind in ("camera", "shadow", "diffuse", "glossy", "transmission"):
         setattr(obj, f"visible_{kind}", bool(getattr(core_mesh, f"visible_{kind}")))
     obj.shadow_terminator_geometry_offset = float(core_mesh.shadow_terminator_offset)
+    obj.is_shadow_catcher = bool(getattr(core_mesh, "shadow_catcher", False))
     collection.objects.link(obj)
     return obj
 
@@ -199,6 +200,7 @@ def build_bpy_scene(core_scene: Scene) -> tuple[object, list[str]]:
     scene.render.film_transparent = bool(film.transparent)
     scene.cycles.film_transparent_glass = bool(film.transparent_glass)
     scene.cycles.film_transparent_roughness = float(film.transparent_roughness)
+    scene.view_layers[0].cycles.use_pass_shadow_catcher = bool(getattr(film, "shadow_catcher_pass", False))
     for mat in core_scene.materials:
         if mat.holdout > 0:
             unsupported.append(f"material {mat.name!r}: holdout weight {mat.holdout:g} not converted")

@@ -8,7 +8,10 @@ the plane, darkened by the shadow). Colour and alpha are compared by their means
 z-scores (core.compare), as tests/test_film_camera_cycles.py does: Cycles' per-pixel variance from 4 seeds,
 Monte's from its film; the Shadow Catcher pass is a ratio of sums, whose variance Monte's film does not keep, so
 its Monte variance is taken as Cycles' per-render one at the same sample count (the two renderers' noise on
-this diffuse scene agrees within a few %). About 20 s on 2 cores with compiled kernels cached.
+this diffuse scene agrees within a few %). Measured: matte -0.35 % colour, -0.18 % alpha; pass -0.37 %;
+approximate catcher alpha -0.08 % (transparent film), colour -0.19 % (opaque film); at most 0.5 % of pixels
+beyond 5 sigma. About 12 s on 2 cores with compiled kernels cached; the glossy catcher (reflections, colour and
+pass within 0.7 %) is `@pytest.mark.slow` (~7 s).
 """
 
 from __future__ import annotations
