@@ -121,12 +121,16 @@ def check(name: str, mon, mon_var, cyc, cyc_var, alpha_var=None) -> None:
         assert ok, f"{name} {what}: {reasons}"
 
 
-def test_transparent_film_with_the_shadow_catcher_pass_matches_cycles(tmp_path):
-    scene = cube_on_catcher(transparent=True, shadow_catcher_pass=True)
+@pytest.mark.parametrize("transparent", [True, pytest.param(False, marks=pytest.mark.slow)])
+def test_the_shadow_catcher_pass_and_its_matte_match_cycles(transparent, tmp_path):
+    # With the pass asked for, Combined is the matte on an opaque film too: the world around, the catcher a hole.
+    scene = cube_on_catcher(transparent=transparent, shadow_catcher_pass=True)
     mon, mon_var, mon_shadow = monte(scene, tmp_path)
     (cyc, cyc_var), (cyc_shadow, cyc_shadow_var) = cycles(scene, tmp_path)
-    # The matte: the cube opaque, the plane and the world transparent (coverage: a binomial per sample).
-    check("matte", mon, mon_var, cyc, cyc_var, alpha_var=mon[..., 3] * (1 - mon[..., 3]) / SPP)
+    # The matte: the cube (and an opaque film's world) opaque, the plane transparent (coverage: a binomial per
+    # sample).
+    check(f"matte ({'transparent' if transparent else 'opaque'} film)", mon, mon_var, cyc, cyc_var,
+          alpha_var=mon[..., 3] * (1 - mon[..., 3]) / SPP)
     assert mon_shadow.min() < 0.3  # the cube's shadow is in the pass
     # Monte's pass noise: one Cycles render's (CYCLES_RUNS x the variance of the runs' mean) at half Monte's
     # samples, halved.
