@@ -144,3 +144,43 @@ def test_split_render_merges_to_the_same_catcher_images():
     merged = merge_tile_samples(scene, settings, parts)
     np.testing.assert_array_equal(merged.color, whole.color)
     np.testing.assert_array_equal(merged.shadow_catcher, whole.shadow_catcher)
+
+
+def test_catcher_seen_through_a_transparent_bsdf_still_splits():
+    # A Transparent BSDF sheet (white, IOR 1) in front of everything: paths through it still count as
+    # transparent, so they split at the catcher behind it and the closed forms hold unchanged.
+    scene = _scene(Film(transparent=True))
+    scene.materials.append(Material("clear", [Lobe("refraction", np.ones(3), roughness=0.0, ior=1.0)]))
+    sheet = _square("sheet", 1.0, -0.3, 2)
+    sheet.visible_shadow = False  # light passes it (the sun's shadow rays would otherwise stop at the sheet)
+    scene.meshes.append(sheet)
+    result = render(scene, SETTINGS)
+    np.testing.assert_allclose(result.color[UMBRA][..., 3], 1.0, atol=1e-6)
+    np.testing.assert_allclose(result.color[LIT][..., 3], 0.0, atol=1e-5)
+    np.testing.assert_array_equal(result.shadow_catcher[UMBRA], 0.0)
+
+
+def _mirror_scene(catcher: bool) -> Scene:
+    """The camera sees a mirror filling the frame (z = -1) that reflects a catcher plane behind the camera
+    (z = +1, facing the mirror) lit from below by the sun; the mirror lets the light through."""
+    cam = Camera(np.eye(4), resolution=RES, lens=36.0, sensor_width=36.0, sensor_fit="HORIZONTAL")
+    materials = [Material("ground", [Lobe("diffuse", np.full(3, 0.5))]),
+                 Material("mirror", [Lobe("glossy", np.full(3, 0.9), roughness=0.0)])]
+    mirror = _square("mirror", 2.0, -1.0, 1)
+    mirror.visible_shadow = False
+    plane = _square("catcher", 4.0, 1.0, 0)
+    plane.triangles = plane.triangles[:, ::-1].copy()  # facing -z, towards the mirror
+    plane.shadow_catcher = catcher
+    sun = SunLight("sun", np.array([0.0, 0.0, 1.0]), np.full(3, 3.0), angle=0.0)
+    return Scene(camera=cam, meshes=[mirror, plane], materials=materials, lights=[sun],
+                 world=World(color=np.zeros(3)), film=Film(transparent=True))
+
+
+def test_catcher_seen_in_a_mirror_is_an_ordinary_object():
+    # Cycles splits only paths that still count as transparent: a reflection shows the catcher as it is.
+    with_catcher, plain = render(_mirror_scene(True), SETTINGS), render(_mirror_scene(False), SETTINGS)
+    # at least the sun's light on the plane seen in the mirror (and more: the mirror sends it back to the plane)
+    assert (plain.color[..., :3] >= 0.9 * 0.5 * 3.0 / np.pi * (1 - 1e-4)).all()
+    np.testing.assert_array_equal(plain.color[..., 3], 1.0)
+    np.testing.assert_array_equal(with_catcher.color, plain.color)
+    np.testing.assert_array_equal(with_catcher.shadow_catcher, 1.0)
