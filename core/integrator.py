@@ -509,7 +509,7 @@ class _CatcherState:
         n = len(radiance)
         catcher = np.zeros((n, 3), np.float32)
         for group in self.groups:
-            catcher[group.rows] = tracer.trace(None, None, None, None, None, None, None, False, _copies=group)[0]
+            catcher[group.rows] = tracer._trace_copies(group)
         keep = ~self.split
         self.matte[keep] = radiance[keep]
         self.matte_transparent[keep] = 0 if transparent is None else transparent[keep]
@@ -530,6 +530,7 @@ class PathTracer:
         self.use_bsdf_emission = settings.light_sampling in ("mis", "bsdf")
         self.mis = settings.light_sampling == "mis"
         self._catcher_copies = False  # tracing shadow catcher copies: rays see only catchers (CatcherSamples)
+        self._resume: _SplitPaths | None = None  # the copies' state at their split, while _catcher_copies
 
     def _dim(self, depth: int, k: int) -> int:
         return DIM_BOUNCE_BASE + depth * DIM_STRIDE + k
@@ -545,15 +546,12 @@ class PathTracer:
         t_start: np.ndarray,
         want_aovs: bool,
         want_features: bool = False,
-        _copies: "_SplitPaths | None" = None,
     ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
         """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs; want_features adds the
         denoising features, FirstHit.features; a scene with a shadow catcher adds FirstHit.catcher) and their
         transparency (N,) float32 in [0, 1] (alpha = 1 - transparency; None when the scene has no alpha, see
-        core.scene.Film). pixel_id/sample_id (uint32) key the random numbers. _copies: (internal) trace the
-        shadow catcher copies of paths that split instead (the other arguments unused)."""
-        if _copies is not None:
-            return self._trace_copies(_copies)
+        core.scene.Film). pixel_id/sample_id (uint32) key the random numbers. While _trace_copies runs, the
+        paths are the shadow catcher copies of paths that split (the camera ray arguments are theirs)."""
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
@@ -771,7 +769,7 @@ class PathTracer:
         film = self.ps.scene.film
         return not film.transparent and not film.shadow_catcher_pass
 
-    def _trace_copies(self, split: "_SplitPaths") -> tuple[np.ndarray, None, None]:
+    def _trace_copies(self, split: "_SplitPaths") -> np.ndarray:
         """Radiance (M, 3) of the shadow catcher copies of paths that split (see CatcherSamples): from the ray that
         met the catcher on, every ray (and shadow ray) sees only the shadow catchers."""
         self._catcher_copies, self._resume = True, split
@@ -779,7 +777,7 @@ class PathTracer:
             radiance, _, _ = self.trace(split.pix, split.smp, split.o, split.d, split.tmax, None, None, False)
         finally:
             self._catcher_copies, self._resume = False, None
-        return radiance, None, None
+        return radiance
 
     def _light_emission(self, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,
                         clear) -> np.ndarray:
