@@ -317,6 +317,10 @@ class FirstHit:
     normal: np.ndarray | None
     depth: np.ndarray | None
     features: "DenoisingFeatures | None" = None
+    # The camera rays' hits (triangle, -1 on a miss; barycentrics u, v; distance t) for the data passes
+    # (core.data_passes); None when not asked for.
+    surface: tuple | None = None
+    data: dict | None = None  # what each sample adds to the data passes (core.data_passes.DataTables.samples)
 
 
 def _smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
@@ -424,6 +428,7 @@ class PathTracer:
         t_start: np.ndarray,
         want_aovs: bool,
         want_features: bool = False,
+        want_surface: bool = False,
     ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
         """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs; want_features adds the
         denoising features, FirstHit.features) and their transparency (N,) float32 in [0, 1] (alpha = 1 -
@@ -441,6 +446,8 @@ class PathTracer:
             if first is None:
                 first = FirstHit(None, None, None)
             first.features = features
+        if want_surface and first is None:  # want_surface: FirstHit.surface holds the camera rays' hits
+            first = FirstHit(None, None, None)
         idx = np.arange(n)  # which sample each live path belongs to
         o, d, tm = origins, directions, tmax
         throughput = np.ones((n, 3), np.float32)
@@ -471,6 +478,8 @@ class PathTracer:
                 hits = self.accel.intersect(o, d, tm)
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
+            if want_surface and depth == 0:
+                first.surface = (hits.prim.copy(), hits.u.copy(), hits.v.copy(), hits.t.copy())
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
             clear_here = clear[idx] if ps.alpha else None
             if film_transparent:

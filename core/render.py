@@ -22,6 +22,8 @@ import numpy as np
 
 from .accel import Accelerator
 from .camera import camera_rays
+from .data_passes import DataFilm, DataTables, manifests, transparency_warning
+from .data_passes import assemble as assemble_data
 from .film import TileFilm
 from .filters import PixelFilter
 from .integrator import DIM_FILM, DIM_LENS, DenoisingFeatures, FirstHit, PathStats, PathTracer, PreparedScene
@@ -53,6 +55,8 @@ class Tile:
     denoising_albedo, denoising_normal: (h, w, 3) Cycles' Denoising Albedo and Denoising Normal passes (normal in
     camera space: +x right, +y up, +z along the view, so a surface facing the camera reads (0, 0, -1); means
     over the pixel's samples, not renormalised), None unless settings.denoising_features.
+    data_passes: {Blender pass name: (h, w, C)} Cycles' data passes of settings.data_passes (core.data_passes:
+    Mist, Position, UV, IndexOB, IndexMA, CryptoObject00, ...); empty when none are asked for.
     """
 
     x0: int
@@ -65,6 +69,7 @@ class Tile:
     samples: int = 0
     denoising_albedo: np.ndarray | None = None
     denoising_normal: np.ndarray | None = None
+    data_passes: dict = field(default_factory=dict)
 
     @property
     def width(self) -> int:
@@ -112,6 +117,10 @@ class RenderResult:
     denoising_albedo: np.ndarray | None = None
     denoising_normal: np.ndarray | None = None
     noisy: np.ndarray | None = None  # the colour before denoising, when a caller denoised `color` (core.denoise)
+    data_passes: dict = field(default_factory=dict)  # see Tile.data_passes
+    # {"CryptoObject": [names], ...}: the names each requested Cryptomatte layer hashes (its manifest,
+    # core.data_passes.cryptomatte_metadata)
+    cryptomatte: dict = field(default_factory=dict)
 
 
 ProgressCallback = Callable[[Progress], None]
@@ -388,6 +397,16 @@ class _TileRender:
         alpha = scene.has_alpha
         self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features, alpha=alpha)
                       for t in self.tiles}
+        # Cycles' data passes (core.data_passes), local renders only (render_samples' merge does not carry them)
+        self.data_tables = None
+        self.data_films: dict = {}
+        if settings.data_passes and work is None:
+            self.data_tables = DataTables.build(scene, prepared, tuple(settings.data_passes),
+                                                2 * math.ceil(settings.cryptomatte_levels / 2))
+            self.data_films = {t: DataFilm(t[2], t[3], self.data_tables) for t in self.tiles}
+            warning = transparency_warning(prepared, tuple(settings.data_passes))
+            if warning is not None and warning not in scene.warnings:
+                scene.warnings.append(warning)
 
         self.spp = int(settings.spp)
         self.total_paths = self.spp * rw * rh
@@ -528,9 +547,15 @@ class _TileRender:
             rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
         if rays.alive is not None:  # a panoramic camera's dead rays: nothing traced, nothing added
-            return self._trace_alive(tracer, pixel_id, smp, rays)
-        return tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
-                            rays.t_start, self.settings.aovs, self.settings.denoising_features)
+            out = self._trace_alive(tracer, pixel_id, smp, rays)
+        else:
+            out = tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
+                               rays.t_start, self.settings.aovs, self.settings.denoising_features,
+                               self.data_tables is not None)
+        if self.data_tables is not None:
+            first = out[1]
+            first.data = self.data_tables.samples(self.prepared, *first.surface, rays.origins, rays.directions)
+        return out
 
     def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays):
         """Trace only the rays that are alive; dead ones get radiance 0, no transparency and no first hit."""
@@ -538,7 +563,8 @@ class _TileRender:
         n = len(rays.alive)
         radiance_l, first_l, transparent_l = tracer.trace(
             pixel_id[live], smp[live], rays.origins[live], rays.directions[live], rays.tmax[live],
-            rays.depth_scale[live], rays.t_start[live], self.settings.aovs, self.settings.denoising_features)
+            rays.depth_scale[live], rays.t_start[live], self.settings.aovs, self.settings.denoising_features,
+            self.data_tables is not None)
         radiance = np.zeros((n, 3), np.float32)
         radiance[live] = radiance_l
         transparent = None
@@ -557,6 +583,12 @@ class _TileRender:
                 first.features = DenoisingFeatures(n)
                 first.features.albedo[live], first.features.normal[live] = (first_l.features.albedo,
                                                                             first_l.features.normal)
+            if first_l.surface is not None:  # dead rays saw nothing
+                surface = (np.full(n, -1, np.int32), np.zeros(n, np.float32), np.zeros(n, np.float32),
+                           np.full(n, np.inf, np.float32))
+                for full, part in zip(surface, first_l.surface):
+                    full[live] = part
+                first.surface = surface
         return radiance, first, transparent
 
     def _finish_one(self, quiet: bool = False) -> None:
@@ -574,6 +606,8 @@ class _TileRender:
                 film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
             if first is not None and first.features is not None:
                 film.add_features(seg.loc, first.features.albedo[rows], first.features.normal[rows])
+            if self.data_tables is not None:
+                self.data_films[seg.tile].add(seg.loc, seg.smp, {k: v[rows] for k, v in first.data.items()})
             self.film_seconds += time.perf_counter() - t0
             self.done_paths += len(seg.loc)
             if not quiet:
@@ -636,7 +670,10 @@ class _TileRender:
 
     def _tile_result(self, tile: TileRect, film: TileFilm, samples: int) -> Tile:
         rot = world_to_camera(self.scene) if self.settings.denoising_features else None
-        return tile_result(tile, film, samples, self.settings.aovs, rot)
+        out = tile_result(tile, film, samples, self.settings.aovs, rot)
+        if self.data_tables is not None:
+            out.data_passes = self.data_films[tile].images()
+        return out
 
     def result(self, t_prepare: float, say) -> RenderResult:
         """The region's image assembled from the tiles, with the render's statistics."""
@@ -679,4 +716,7 @@ class _TileRender:
         out = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings),
                            self.cancelled)
         _assemble_features(out, self.tiles, [self.films[t] for t in self.tiles], scene, self.region)
+        if self.data_tables is not None:
+            out.data_passes = assemble_data([(t, self.data_films[t]) for t in self.tiles], self.region)
+            out.cryptomatte = manifests(self.data_tables)
         return out

@@ -1,0 +1,221 @@
+"""The data passes in Blender (the real bpy module) against Cycles: the same scene rendered by both, each pass
+compared; Cryptomatte mattes pulled by Blender's own compositor Cryptomatte node equal the object masks; the
+passes reach the render result and its multilayer EXR with Cycles' names and manifests; a selected pass Monte
+cannot produce (Vector) is named in a warning and not registered.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import blender_fixtures as bf  # noqa: E402
+
+from monte.addon import crosscheck as cc  # noqa: E402
+from monte.addon.engine import data_pass_names, requested_passes, unavailable_pass_warnings  # noqa: E402
+from monte.core import exr  # noqa: E402
+from monte.core.data_passes import hash_to_float, name_hash  # noqa: E402
+
+pytestmark = [pytest.mark.blender]
+
+SIZE = (40, 32)
+SPP = 16
+FLAGS = ("use_pass_mist", "use_pass_position", "use_pass_uv", "use_pass_object_index", "use_pass_material_index",
+         "use_pass_cryptomatte_object", "use_pass_cryptomatte_material", "use_pass_cryptomatte_asset")
+
+
+def data_scene():
+    """A floor, a ball and a box (the box parented to an empty "Rig": its Cryptomatte asset), each with its own
+    pass index and material (with pass indices), UV maps, linear mist from 2 to 12 m, under a grey world."""
+    scene = bf.reset()
+    s = 4.0
+    floor = bf.mesh_object("Floor", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)],
+                           bf.diffuse("FloorMat", (0.6, 0.6, 0.6)))
+    ball = bf.icosphere_object("Ball", (-0.7, 0.3, 0.6), 0.6, bf.diffuse("BallMat", (0.8, 0.2, 0.2)),
+                               subdivisions=3)
+    box = bf.box_object("Box", (0.2, -0.6, 0.0), (1.2, 0.4, 1.0), bf.diffuse("BoxMat", (0.2, 0.3, 0.8)))
+    rig = bpy.data.objects.new("Rig", None)
+    scene.collection.objects.link(rig)
+    box.parent = rig
+    for obj, index in ((floor, 1), (ball, 2), (box, 3)):
+        obj.pass_index = index
+        obj.data.uv_layers.new(name="UVMap")
+        obj.active_material.pass_index = 10 + index
+    bf.camera_object(scene, (0.0, -5.0, 3.0), (np.radians(60), 0.0, 0.0), lens=35.0)
+    bf.set_world(scene, (0.3, 0.3, 0.3), 1.0)
+    mist = scene.world.mist_settings
+    mist.start, mist.depth, mist.falloff = 2.0, 10.0, "LINEAR"
+    scene.render.resolution_x, scene.render.resolution_y = SIZE
+    scene.render.resolution_percentage = 100
+    layer = scene.view_layers[0]
+    for flag in FLAGS:
+        setattr(layer, flag, True)
+    layer.pass_cryptomatte_depth = 4
+    return scene
+
+
+def render_exr(scene, path: Path) -> tuple[dict, dict]:
+    """F12 with the scene's engine, saved as Blender's multilayer EXR: (channels, header)."""
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+    scene.render.filepath = str(path)
+    scene.render.use_compositing = False
+    bpy.ops.render.render(write_still=True, scene=scene.name)
+    return exr.read_exr(path), exr.read_header(path)
+
+
+def passes_of(channels: dict, layer: str) -> dict[str, np.ndarray]:
+    """{pass: (H, W, C)} from "<layer>.<pass>.<channel>" channels (Blender's order of the channel letters)."""
+    out: dict[str, list] = {}
+    for pass_name, letters in (("Mist", "Z"), ("Position", "XYZ"), ("UV", "UVA"), ("IndexOB", "X"),
+                               ("IndexMA", "X"), *((f"Crypto{k}{i:02d}", "RGBA") for k in ("Object", "Material",
+                                                                                            "Asset")
+                                                   for i in range(2))):
+        out[pass_name] = np.stack([channels[f"{layer}.{pass_name}.{c}"] for c in letters], axis=-1)
+    return out
+
+
+@pytest.fixture(scope="module")
+def renders(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("data_passes")
+    scene = data_scene()
+    layer = scene.view_layers[0].name
+    cc.configure_cycles(scene, SPP, 4, threads=2, seed=1, filter_type="blackman-harris", filter_width=1.5)
+    cycles_channels, cycles_header = render_exr(scene, tmp / "cycles.exr")
+    scene.render.engine = "MONTE"
+    m = scene.monte
+    m.samples, m.max_bounces, m.seed, m.threads = SPP, 4, 1, 2
+    m.filter_type, m.filter_width = "blackman-harris", 1.5
+    monte_channels, monte_header = render_exr(scene, tmp / "monte.exr")
+    return (scene, passes_of(cycles_channels, layer), cycles_header, passes_of(monte_channels, layer),
+            monte_header)
+
+
+def interior(index_image: np.ndarray) -> np.ndarray:
+    """Pixels whose 3x3 neighbourhood shows one object (no edge inside: the sample-0 passes agree there)."""
+    img = index_image[..., 0]
+    pad = np.pad(img, 1, mode="edge")
+    same = np.ones(img.shape, bool)
+    for dy in range(3):
+        for dx in range(3):
+            same &= pad[dy:dy + img.shape[0], dx:dx + img.shape[1]] == img
+    return same
+
+
+def test_index_and_position_passes_equal_cycles_per_pixel(renders):
+    _, cyc, _, mon, _ = renders
+    inside = interior(mon["IndexOB"]) & interior(cyc["IndexOB"])
+    assert inside.mean() > 0.6
+    for name in ("IndexOB", "IndexMA"):
+        assert np.array_equal(mon[name][inside], cyc[name][inside]), name
+    assert set(np.unique(mon["IndexOB"])) == {0.0, 1.0, 2.0, 3.0}
+    assert set(np.unique(mon["IndexMA"])) == {0.0, 11.0, 12.0, 13.0}
+    # Position: one sample's hit anywhere inside the pixel; pixels here span a few cm of the scene
+    diff = np.abs(mon["Position"] - cyc["Position"])[inside]
+    print(f"\nPosition: mean |Monte - Cycles| {diff.mean():.4f} m, max {diff.max():.4f} m")
+    assert diff.mean() < 0.03 and np.percentile(diff, 99) < 0.15
+    cm, mm = cyc["Position"].reshape(-1, 3).mean(0), mon["Position"].reshape(-1, 3).mean(0)
+    assert np.all(np.abs(mm - cm) <= 0.01 * np.abs(cyc["Position"]).mean()), (mm, cm)
+
+
+def test_mist_and_uv_match_cycles(renders):
+    _, cyc, _, mon, _ = renders
+    for name in ("Mist", "UV"):
+        cm, mm = cyc[name].reshape(-1, cyc[name].shape[2]).mean(0), mon[name].reshape(-1, mon[name].shape[2]).mean(0)
+        print(f"\n{name}: means Cycles {np.round(cm, 5)} Monte {np.round(mm, 5)}; mean |diff| per pixel "
+              f"{np.abs(mon[name] - cyc[name]).mean():.5f}")
+        assert np.all(np.abs(mm - cm) <= 0.01 * np.maximum(np.abs(cm), 1e-3)), name
+    inside = interior(mon["IndexOB"]) & interior(cyc["IndexOB"])
+    assert np.abs(mon["Mist"] - cyc["Mist"])[inside].max() < 0.01
+    assert np.all(mon["Mist"][mon["IndexOB"][..., 0] == 0] == 1.0)  # the world: no mist written, 1
+
+
+def test_cryptomatte_matches_cycles(renders):
+    _, cyc, cyc_header, mon, mon_header = renders
+    layer = renders[0].view_layers[0].name
+    for kind in ("Object", "Material", "Asset"):
+        c0, m0 = cyc[f"Crypto{kind}00"], mon[f"Crypto{kind}00"]
+        inside = interior(mon["IndexOB"]) & interior(cyc["IndexOB"])
+        assert np.array_equal(m0[inside][:, 0], c0[inside][:, 0]), kind  # the same top-ranked id
+        cov_c = sum(cyc[f"Crypto{kind}{i:02d}"][..., c].mean() for i in range(2) for c in (1, 3))
+        cov_m = sum(mon[f"Crypto{kind}{i:02d}"][..., c].mean() for i in range(2) for c in (1, 3))
+        assert abs(cov_m - cov_c) <= 0.01 * cov_c, (kind, cov_m, cov_c)
+    # the manifests in the file's metadata: Cycles' keys and names
+    for kind, names in (("Object", {"Floor", "Ball", "Box"}), ("Material", {"FloorMat", "BallMat", "BoxMat"}),
+                        ("Asset", {"Floor", "Ball", "Rig"})):
+        key = f"cryptomatte/{name_hash(f'{layer}.Crypto{kind}'):08x}"[:19]
+        assert str(mon_header[f"{key}/name"]) == f"{layer}.Crypto{kind}"
+        assert str(cyc_header[f"{key}/name"]) == f"{layer}.Crypto{kind}"
+        manifest = json.loads(str(mon_header[f"{key}/manifest"]))
+        assert set(manifest) == names
+        assert all(int(v, 16) == name_hash(n) for n, v in manifest.items())
+        cycles_manifest = json.loads(str(cyc_header[f"{key}/manifest"]))
+        assert all(cycles_manifest[n] == v for n, v in manifest.items())
+
+
+def test_compositor_cryptomatte_node_picks_each_object(renders, tmp_path):
+    """Blender's compositor (Cryptomatte node, source Render, matte by name) on Monte's render: each object's
+    matte equals its mask (the Object Index pass's coverage: 1 inside, partial only on edges)."""
+    scene, _, _, mon, _ = renders
+    scene.render.engine = "MONTE"
+    tree = bpy.data.node_groups.new("crypto comp", "CompositorNodeTree")
+    tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+    node = tree.nodes.new("CompositorNodeCryptomatteV2")
+    node.source = "RENDER"
+    node.scene = scene
+    node.layer_name = f"{scene.view_layers[0].name}.CryptoObject"
+    out = tree.nodes.new("NodeGroupOutput")
+    tree.links.new(node.outputs["Matte"], out.inputs[0])
+    scene.compositing_node_group = tree
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "IMAGE"
+    settings.file_format = "OPEN_EXR"
+    settings.color_depth = "32"
+    scene.view_settings.view_transform = "Standard"
+    scene.render.use_compositing = True
+    crypto = mon["CryptoObject00"]
+    for name in ("Ball", "Box", "Floor"):
+        node.matte_id = name
+        path = tmp_path / f"matte_{name}.exr"
+        scene.render.filepath = str(path)
+        bpy.ops.render.render(write_still=True, scene=scene.name)
+        matte = exr.read_exr(path)["R"]
+        fid = hash_to_float(name_hash(name))
+        expected = np.where(crypto[..., 0] == fid, crypto[..., 1], 0) + np.where(crypto[..., 2] == fid,
+                                                                                  crypto[..., 3], 0)
+        inside = interior(mon["IndexOB"])
+        mask = (mon["IndexOB"][..., 0] == {"Floor": 1, "Ball": 2, "Box": 3}[name]) & inside
+        print(f"\n{name}: matte sum {matte.sum():.2f}, coverage sum {expected.sum():.2f}, "
+              f"max |diff| {np.abs(matte - expected).max():.5f}")
+        assert mask.sum() > 10
+        assert np.allclose(matte, expected, atol=1e-4), name  # a different render, the same seed: equal
+        assert np.all(matte[mask] == 1.0) and np.all(matte[inside & ~mask] == 0.0)
+    scene.render.use_compositing = False
+
+
+def test_pass_registration_and_unavailable_pass_warning():
+    scene = data_scene()
+    layer = scene.view_layers[0]
+    assert data_pass_names(layer, scene) == ["Mist", "Position", "UV", "IndexOB", "IndexMA", "CryptoObject00",
+                                             "CryptoObject01", "CryptoMaterial00", "CryptoMaterial01",
+                                             "CryptoAsset00", "CryptoAsset01"]
+    layer.use_pass_vector = True
+    names = requested_passes(layer, scene)
+    assert "Vector" not in names
+    assert unavailable_pass_warnings(layer, scene) == [
+        f"view layer {layer.name!r}: the Vector pass needs motion blur, which Monte does not render; the pass is "
+        "not produced"]
+    for flag in FLAGS:
+        setattr(layer, flag, False)
+    layer.use_pass_vector = False
+    assert requested_passes(layer, scene) == ["Combined"]  # nothing selected: nothing registered or computed
