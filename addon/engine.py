@@ -37,10 +37,14 @@ PASSES = {
     "Mist": (1, "Z", "VALUE"),
     "Position": (3, "XYZ", "VECTOR"),
     "UV": (3, "UVA", "VECTOR"),
-    "IndexOB": (1, "X", "VALUE"),
-    "IndexMA": (1, "X", "VALUE"),
+    "Object Index": (1, "X", "VALUE"),
+    "Material Index": (1, "X", "VALUE"),
 }
-CRYPTO_LAYER = (4, "RGBA", "COLOR")  # CryptoObject00, CryptoObject01, ... (two (id, coverage) pairs each)
+# Blender before 5.0 names the index passes as Cycles did then.
+LEGACY_PASS_NAMES = {"Object Index": "IndexOB", "Material Index": "IndexMA"}
+if bpy.app.version < (5, 0, 0):
+    PASSES.update({old: PASSES.pop(new) for new, old in LEGACY_PASS_NAMES.items()})
+CRYPTO_LAYER = (4, "rgba", "COLOR")  # CryptoObject00, CryptoObject01, ... (two (id, coverage) pairs each)
 DENOISING_PASSES = ("Noisy Image", "Denoising Normal", "Denoising Albedo")
 # Blender's view layer flags of the data passes (View Layer Properties > Passes > Data, Cryptomatte) -> core key.
 DATA_PASS_FLAGS = {
@@ -82,7 +86,8 @@ def data_pass_names(view_layer, scene=None) -> list[str]:
     names = []
     for key in data_passes(view_layer, scene):
         if key in PASS_NAMES:
-            names.append(PASS_NAMES[key])
+            name = PASS_NAMES[key]
+            names.append(name if name in PASSES else LEGACY_PASS_NAMES[name])
         else:
             names += [f"{CRYPTO_NAMES[key]}{i:02d}" for i in range(cryptomatte_layers(view_layer))]
     return names
@@ -458,10 +463,12 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         """Copy a tile/result (row 0 at the top) into Blender's render result at region-local (x, y) with
         y from the bottom; every declared pass in one result so none is reset. metadata: fields added to the
         render result's metadata (Cryptomatte's manifests, as Cycles adds them)."""
+        if metadata:
+            full = self.get_result()  # the render's own result holds the metadata (Cycles writes it there too)
+            for key, value in metadata.items():
+                full.stamp_data_add_field(key, value)
         result = self.begin_result(x, y, w, h, layer=layer_name)
         try:
-            for key, value in (metadata or {}).items():
-                result.stamp_data_add_field(key, value)
             layer = result.layers[0]
             for rpass in layer.passes:
                 data = _pass_pixels(rpass.name, src, h, w, rpass.channels)
@@ -511,7 +518,10 @@ def _pass_pixels(name: str, src, h: int, w: int, channels: int) -> np.ndarray:
     elif name == "Denoising Albedo":
         arr = src.denoising_albedo
     else:
-        arr = getattr(src, "data_passes", {}).get(name)
+        data = getattr(src, "data_passes", {})
+        arr = data.get(name)
+        if arr is None:  # a legacy index pass name (Blender < 5.0)
+            arr = data.get(next((new for new, old in LEGACY_PASS_NAMES.items() if old == name), ""))
     if arr is None:
         fill = 1e10 if name == "Depth" else 0.0
         return np.full(h * w * channels, fill, dtype=np.float32)

@@ -198,7 +198,8 @@ def _monte_channels(result, region, size) -> dict:
     from ..core.exr import data_pass_channels
     from .engine import PASSES
 
-    channels.update(data_pass_channels(data, {name: spec[1] for name, spec in PASSES.items()}))
+    letters = {name: spec[1] for name, spec in PASSES.items()} | {"Object Index": "X", "Material Index": "X"}
+    channels.update(data_pass_channels(data, letters))
     return channels
 
 

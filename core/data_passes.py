@@ -2,8 +2,8 @@
 
 All of them read the surface a camera ray hits first (a miss writes nothing), with Cycles' (Blender 5.3) meaning:
 
-- Position (world space), Object Index (the object's Pass Index, Cycles' IndexOB) and Material Index (the
-  material's Pass Index, IndexMA) are taken from the pixel's first sample only and not averaged (Cycles
+- Position (world space), Object Index (the object's Pass Index) and Material Index (the
+  material's Pass Index) are taken from the pixel's first sample only and not averaged (Cycles
   overwrites them at sample 0): no blend of two indices at an edge, 0 where that sample saw nothing.
 - UV is the mean over the pixel's samples of (u, v, 1) of the active UV map at the hit ((0, 0, 0) on a miss or
   on geometry without UVs), Blender's channels U, V, A.
@@ -42,8 +42,8 @@ PASS_NAMES = {
     "mist": "Mist",
     "position": "Position",
     "uv": "UV",
-    "object_index": "IndexOB",
-    "material_index": "IndexMA",
+    "object_index": "Object Index",
+    "material_index": "Material Index",
 }
 CRYPTO_NAMES = {
     "crypto_object": "CryptoObject",
@@ -285,9 +285,9 @@ class DataFilm:
         if hasattr(self, "uv"):
             out["UV"] = (self.uv / denom[:, None]).reshape(h, w, 3)
         if hasattr(self, "object_index"):
-            out["IndexOB"] = self.object_index.reshape(h, w, 1)
+            out["Object Index"] = self.object_index.reshape(h, w, 1)
         if hasattr(self, "material_index"):
-            out["IndexMA"] = self.material_index.reshape(h, w, 1)
+            out["Material Index"] = self.material_index.reshape(h, w, 1)
         for kind, (keys, sums) in self.crypto.items():
             out.update(self._crypto_layers(kind, keys, sums, denom))
         return {name: np.ascontiguousarray(arr, np.float32) for name, arr in out.items()}

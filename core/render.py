@@ -56,7 +56,7 @@ class Tile:
     camera space: +x right, +y up, +z along the view, so a surface facing the camera reads (0, 0, -1); means
     over the pixel's samples, not renormalised), None unless settings.denoising_features.
     data_passes: {Blender pass name: (h, w, C)} Cycles' data passes of settings.data_passes (core.data_passes:
-    Mist, Position, UV, IndexOB, IndexMA, CryptoObject00, ...); empty when none are asked for.
+    Mist, Position, UV, Object Index, Material Index, CryptoObject00, ...); empty when none are asked for.
     """
 
     x0: int

@@ -77,8 +77,8 @@ def test_each_data_pass_on_a_scene_with_known_values():
     left, right = (slice(2, 14), slice(1, 7)), (slice(2, 14), slice(9, 15))  # away from the middle edge
     assert np.allclose(p["Position"][left][..., 2], 7.0) and np.allclose(p["Position"][right][..., 2], 4.0)
     assert np.all(p["Position"][left][..., 0] < 0) and np.all(p["Position"][right][..., 0] > 0)
-    assert np.all(p["IndexOB"][left] == 3) and np.all(p["IndexOB"][right] == 7)
-    assert np.all(p["IndexMA"][left] == 5) and np.all(p["IndexMA"][right] == 9)
+    assert np.all(p["Object Index"][left] == 3) and np.all(p["Object Index"][right] == 7)
+    assert np.all(p["Material Index"][left] == 5) and np.all(p["Material Index"][right] == 9)
     # linear mist from 2 to 6: distance 3 reads 0.25, distance 6 reads 1
     assert np.allclose(p["Mist"][left], 0.25, atol=1e-6) and np.allclose(p["Mist"][right], 1.0, atol=1e-6)
     # UV: the quad's (0..1) map; the A channel 1 wherever the pixel's samples all hit

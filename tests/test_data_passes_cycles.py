@@ -17,6 +17,8 @@ bpy = pytest.importorskip("bpy")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import blender_fixtures as bf  # noqa: E402
 
+from monte.lab.bpy_scenes import box_object  # noqa: E402
+
 from monte.addon import crosscheck as cc  # noqa: E402
 from monte.addon.engine import data_pass_names, requested_passes, unavailable_pass_warnings  # noqa: E402
 from monte.core import exr  # noqa: E402
@@ -39,7 +41,7 @@ def data_scene():
                            bf.diffuse("FloorMat", (0.6, 0.6, 0.6)))
     ball = bf.icosphere_object("Ball", (-0.7, 0.3, 0.6), 0.6, bf.diffuse("BallMat", (0.8, 0.2, 0.2)),
                                subdivisions=3)
-    box = bf.box_object("Box", (0.2, -0.6, 0.0), (1.2, 0.4, 1.0), bf.diffuse("BoxMat", (0.2, 0.3, 0.8)))
+    box = box_object("Box", (0.2, -0.6, 0.0), (1.2, 0.4, 1.0), bf.diffuse("BoxMat", (0.2, 0.3, 0.8)))
     rig = bpy.data.objects.new("Rig", None)
     scene.collection.objects.link(rig)
     box.parent = rig
@@ -74,12 +76,13 @@ def render_exr(scene, path: Path) -> tuple[dict, dict]:
 
 
 def passes_of(channels: dict, layer: str) -> dict[str, np.ndarray]:
-    """{pass: (H, W, C)} from "<layer>.<pass>.<channel>" channels (Blender's order of the channel letters)."""
+    """{pass: (H, W, C)} from "<layer>.<pass>.<channel>" channels (Blender's order of the channel letters;
+    Cryptomatte's in lower case, as Blender writes Cycles' layers)."""
     out: dict[str, list] = {}
-    for pass_name, letters in (("Mist", "Z"), ("Position", "XYZ"), ("UV", "UVA"), ("IndexOB", "X"),
-                               ("IndexMA", "X"), *((f"Crypto{k}{i:02d}", "RGBA") for k in ("Object", "Material",
-                                                                                            "Asset")
-                                                   for i in range(2))):
+    for pass_name, letters in (("Mist", "Z"), ("Position", "XYZ"), ("UV", "UVA"), ("Object Index", "X"),
+                               ("Material Index", "X"),
+                               *((f"Crypto{k}{i:02d}", "rgba") for k in ("Object", "Material", "Asset")
+                                 for i in range(2))):
         out[pass_name] = np.stack([channels[f"{layer}.{pass_name}.{c}"] for c in letters], axis=-1)
     return out
 
@@ -111,20 +114,33 @@ def interior(index_image: np.ndarray) -> np.ndarray:
     return same
 
 
+def footprint(image: np.ndarray) -> np.ndarray:
+    """(H, W, C) how much a pass changes across one pixel: the largest difference to a 4-neighbour."""
+    pad = np.pad(image, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    h, w = image.shape[:2]
+    return np.max([np.abs(pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - image)
+                   for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1))], axis=0)
+
+
 def test_index_and_position_passes_equal_cycles_per_pixel(renders):
     _, cyc, _, mon, _ = renders
-    inside = interior(mon["IndexOB"]) & interior(cyc["IndexOB"])
+    inside = interior(mon["Object Index"]) & interior(cyc["Object Index"])
     assert inside.mean() > 0.6
-    for name in ("IndexOB", "IndexMA"):
+    for name in ("Object Index", "Material Index"):
         assert np.array_equal(mon[name][inside], cyc[name][inside]), name
-    assert set(np.unique(mon["IndexOB"])) == {0.0, 1.0, 2.0, 3.0}
-    assert set(np.unique(mon["IndexMA"])) == {0.0, 11.0, 12.0, 13.0}
-    # Position: one sample's hit anywhere inside the pixel; pixels here span a few cm of the scene
+    assert set(np.unique(mon["Object Index"])) == {0.0, 1.0, 2.0, 3.0}
+    assert set(np.unique(mon["Material Index"])) == {0.0, 11.0, 12.0, 13.0}
+    # Position: one sample's hit within the filter's 1.5 pixels in each: at most 1.5 pixels' change apart
     diff = np.abs(mon["Position"] - cyc["Position"])[inside]
-    print(f"\nPosition: mean |Monte - Cycles| {diff.mean():.4f} m, max {diff.max():.4f} m")
-    assert diff.mean() < 0.03 and np.percentile(diff, 99) < 0.15
+    bound = 1.5 * footprint(cyc["Position"])[inside] + 1e-4
+    print(f"\nPosition: mean |Monte - Cycles| {diff.mean():.4f} m, max {diff.max():.4f} m, largest share of "
+          f"the bound {(diff / bound).max():.2f}")
+    assert np.all(diff <= bound)
+    # the means (each pixel one sample: its jitter does not average out per pixel) within 1% of the scene's size
     cm, mm = cyc["Position"].reshape(-1, 3).mean(0), mon["Position"].reshape(-1, 3).mean(0)
-    assert np.all(np.abs(mm - cm) <= 0.01 * np.abs(cyc["Position"]).mean()), (mm, cm)
+    size = np.ptp(cyc["Position"].reshape(-1, 3), axis=0).max()
+    print(f"Position means: Cycles {np.round(cm, 4)}, Monte {np.round(mm, 4)} (scene size {size:.2f} m)")
+    assert np.all(np.abs(mm - cm) <= 0.01 * size), (mm, cm)
 
 
 def test_mist_and_uv_match_cycles(renders):
@@ -134,9 +150,12 @@ def test_mist_and_uv_match_cycles(renders):
         print(f"\n{name}: means Cycles {np.round(cm, 5)} Monte {np.round(mm, 5)}; mean |diff| per pixel "
               f"{np.abs(mon[name] - cyc[name]).mean():.5f}")
         assert np.all(np.abs(mm - cm) <= 0.01 * np.maximum(np.abs(cm), 1e-3)), name
-    inside = interior(mon["IndexOB"]) & interior(cyc["IndexOB"])
-    assert np.abs(mon["Mist"] - cyc["Mist"])[inside].max() < 0.01
-    assert np.all(mon["Mist"][mon["IndexOB"][..., 0] == 0] == 1.0)  # the world: no mist written, 1
+    inside = interior(mon["Object Index"]) & interior(cyc["Object Index"])
+    # per pixel: means of 16 samples over the same footprint, apart by far less than the pass changes per pixel
+    diff = np.abs(mon["Mist"] - cyc["Mist"])[inside]
+    assert np.all(diff <= 0.5 * footprint(cyc["Mist"])[inside] + 2e-3), diff.max()
+    world = inside & (mon["Object Index"][..., 0] == 0)
+    assert world.sum() > 10 and np.all(mon["Mist"][world] == 1.0)  # the world: no mist written, 1
 
 
 def test_cryptomatte_matches_cycles(renders):
@@ -144,7 +163,7 @@ def test_cryptomatte_matches_cycles(renders):
     layer = renders[0].view_layers[0].name
     for kind in ("Object", "Material", "Asset"):
         c0, m0 = cyc[f"Crypto{kind}00"], mon[f"Crypto{kind}00"]
-        inside = interior(mon["IndexOB"]) & interior(cyc["IndexOB"])
+        inside = interior(mon["Object Index"]) & interior(cyc["Object Index"])
         assert np.array_equal(m0[inside][:, 0], c0[inside][:, 0]), kind  # the same top-ranked id
         cov_c = sum(cyc[f"Crypto{kind}{i:02d}"][..., c].mean() for i in range(2) for c in (1, 3))
         cov_m = sum(mon[f"Crypto{kind}{i:02d}"][..., c].mean() for i in range(2) for c in (1, 3))
@@ -193,8 +212,8 @@ def test_compositor_cryptomatte_node_picks_each_object(renders, tmp_path):
         fid = hash_to_float(name_hash(name))
         expected = np.where(crypto[..., 0] == fid, crypto[..., 1], 0) + np.where(crypto[..., 2] == fid,
                                                                                   crypto[..., 3], 0)
-        inside = interior(mon["IndexOB"])
-        mask = (mon["IndexOB"][..., 0] == {"Floor": 1, "Ball": 2, "Box": 3}[name]) & inside
+        inside = interior(mon["Object Index"])
+        mask = (mon["Object Index"][..., 0] == {"Floor": 1, "Ball": 2, "Box": 3}[name]) & inside
         print(f"\n{name}: matte sum {matte.sum():.2f}, coverage sum {expected.sum():.2f}, "
               f"max |diff| {np.abs(matte - expected).max():.5f}")
         assert mask.sum() > 10
@@ -206,7 +225,7 @@ def test_compositor_cryptomatte_node_picks_each_object(renders, tmp_path):
 def test_pass_registration_and_unavailable_pass_warning():
     scene = data_scene()
     layer = scene.view_layers[0]
-    assert data_pass_names(layer, scene) == ["Mist", "Position", "UV", "IndexOB", "IndexMA", "CryptoObject00",
+    assert data_pass_names(layer, scene) == ["Mist", "Position", "UV", "Object Index", "Material Index", "CryptoObject00",
                                              "CryptoObject01", "CryptoMaterial00", "CryptoMaterial01",
                                              "CryptoAsset00", "CryptoAsset01"]
     layer.use_pass_vector = True
