@@ -400,13 +400,12 @@ class _TileRender:
         # Cycles' data passes (core.data_passes), local renders only (render_samples' merge does not carry them)
         self.data_tables = None
         self.data_films: dict = {}
+        self.data_warning: str | None = None
         if settings.data_passes and work is None:
             self.data_tables = DataTables.build(scene, prepared, tuple(settings.data_passes),
                                                 2 * math.ceil(settings.cryptomatte_levels / 2))
             self.data_films = {t: DataFilm(t[2], t[3], self.data_tables) for t in self.tiles}
-            warning = transparency_warning(prepared, tuple(settings.data_passes))
-            if warning is not None and warning not in scene.warnings:
-                scene.warnings.append(warning)
+            self.data_warning = transparency_warning(prepared, tuple(settings.data_passes))
 
         self.spp = int(settings.spp)
         self.total_paths = self.spp * rw * rh
@@ -719,4 +718,6 @@ class _TileRender:
         if self.data_tables is not None:
             out.data_passes = assemble_data([(t, self.data_films[t]) for t in self.tiles], self.region)
             out.cryptomatte = manifests(self.data_tables)
+            if self.data_warning is not None:
+                out.warnings.append(self.data_warning)
         return out

@@ -129,3 +129,13 @@ def test_bad_data_pass_input_is_named():
         _render(_scene(Mist(0.0, 1.0, "CUBIC")), ("mist",), spp=1)
     with pytest.raises(SceneError, match="world mist depth is -1.0, it must be >= 0"):
         _render(_scene(Mist(0.0, -1.0)), ("mist",), spp=1)
+
+
+def test_a_transparent_bsdf_in_view_is_named_in_a_warning():
+    scene = _scene()
+    scene.materials[1] = Material("clear", [Lobe("refraction", (1.0, 1.0, 1.0), ior=1.0, roughness=0.0)])
+    result = _render(scene, ("mist", "position", "crypto_object"), spp=1)
+    assert ("data passes Mist, CryptoObject: a material has a Transparent BSDF; Monte's data passes read the first "
+            "surface a camera ray hits, where Cycles looks through transparent surfaces, so these passes differ "
+            "from Cycles' behind them") in result.warnings
+    assert not any("data passes" in w for w in _render(scene, ("position",), spp=1).warnings)

@@ -238,3 +238,29 @@ def test_pass_registration_and_unavailable_pass_warning():
         setattr(layer, flag, False)
     layer.use_pass_vector = False
     assert requested_passes(layer, scene) == ["Combined"]  # nothing selected: nothing registered or computed
+
+
+def test_headless_exr_carries_the_data_passes_and_manifests(tmp_path):
+    """`monte render scene.blend -o out.exr` (addon.headless): the data passes as <pass>.<channel> channels, the
+    Cryptomatte layers as the standard names them (CryptoObject00.R ...) with their manifests in the header.
+    Last in this module: it opens the saved file in place of the current one."""
+    from monte.addon.headless import render_blend_file
+
+    scene = data_scene()
+    scene.render.engine = "MONTE"
+    scene.monte.threads = 2
+    blend = tmp_path / "data.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp_path / "out.exr"
+    render_blend_file(blend, out, {"spp": 4}, log=lambda _msg: None)
+    channels, header = exr.read_exr(out), exr.read_header(out)
+    for name in ("Mist.Z", "Position.X", "Position.Z", "UV.U", "UV.A", "Object Index.X", "Material Index.X",
+                 "CryptoObject00.R", "CryptoObject01.A", "CryptoMaterial00.G", "CryptoAsset01.B"):
+        assert name in channels, name
+    assert set(np.unique(channels["Object Index.X"])) == {0.0, 1.0, 2.0, 3.0}
+    assert np.all(channels["Mist.Z"] >= 0) and np.all(channels["Mist.Z"] <= 1)
+    ids = set(np.unique(channels["CryptoObject00.R"])) - {0.0}
+    assert ids == {hash_to_float(name_hash(n)) for n in ("Floor", "Ball", "Box")}
+    key = f"cryptomatte/{name_hash('CryptoObject'):08x}"[:19]
+    assert str(header[f"{key}/name"]) == "CryptoObject"
+    assert set(json.loads(str(header[f"{key}/manifest"]))) == {"Floor", "Ball", "Box"}
