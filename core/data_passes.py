@@ -1,28 +1,30 @@
 """Cycles' data passes: Mist, Position, UV, Object Index, Material Index and Cryptomatte Object / Material / Asset.
 
-All of them read the surface a camera ray hits first (a miss writes nothing), with Cycles' (Blender 5.3) meaning:
+They read the surfaces a camera sample's path meets while it still sees the background: the camera ray's hit,
+and the surfaces behind it while the path goes on through Transparent BSDFs (DataPath; a miss writes nothing).
+Each with Cycles' (Blender 5.3) meaning, alpha = 1 - transparency (the summed colour of a surface's Transparent
+BSDF lobes):
 
-- Position (world space), Object Index (the object's Pass Index) and Material Index (the
-  material's Pass Index) are taken from the pixel's first sample only and not averaged (Cycles
-  overwrites them at sample 0): no blend of two indices at an edge, 0 where that sample saw nothing.
-- UV is the mean over the pixel's samples of (u, v, 1) of the active UV map at the hit ((0, 0, 0) on a miss or
-  on geometry without UVs), Blender's channels U, V, A.
-- Mist is 1 - mean over samples of (1 - m), m = clamp((distance - start) / depth, 0, 1) ** falloff exponent
-  (Quadratic 2, Linear 1, Inverse Quadratic 0.5); distance from the camera position (along the view axis for
-  an orthographic camera), as Cycles' camera_distance; a miss adds 0, so the world reads 1.
+- Position (world space), Object Index (the object's Pass Index) and Material Index (the material's Pass Index)
+  are taken from the pixel's first sample only and not averaged (Cycles overwrites them at sample 0): its first
+  surface whose mean alpha is at least 0.5 (Cycles' pass alpha threshold), or the last one it met; 0 where that
+  sample saw nothing.
+- UV is the mean over the pixel's samples of (u, v, 1) of the active UV map at that same surface (only where it
+  is opaque enough; (0, 0, 0) on a miss or on geometry without UVs), Blender's channels U, V, A.
+- Mist is 1 - mean over samples of the sum over the surfaces of (1 - m) x mean(throughput x alpha),
+  m = clamp((distance - start) / depth, 0, 1) ** falloff exponent (Quadratic 2, Linear 1, Inverse Quadratic
+  0.5); distance from the camera position (along the view axis for an orthographic camera), as Cycles'
+  camera_distance; the world reads 1.
 - Cryptomatte (the OpenEXR Cryptomatte standard): each name (object, material, or asset = the top-most parent
   of the object) is hashed with MurmurHash3_x86_32 (seed 0) and the hash made a float32 (exponent kept in
-  [1, 254]); a pixel's coverage of a name is the fraction of its samples whose first hit carries the name;
-  the `levels` largest (id, coverage) pairs, in decreasing coverage, fill layers of 4 channels
-  (id, coverage, id, coverage): CryptoObject00, CryptoObject01, ... The manifest ({name: 8 hex digits of
-  the hash}) goes into the file's metadata under cryptomatte/<first 7 hex digits of the hash of the layer
-  name>/{name, hash, conversion, manifest}.
+  [1, 254]); a pixel's coverage of a name is the mean over its samples of mean(throughput) x (1 - mean
+  transparency) of the surfaces carrying the name; the `levels` largest (id, coverage) pairs, in decreasing
+  coverage, fill layers of 4 channels (id, coverage, id, coverage): CryptoObject00, CryptoObject01, ... The
+  manifest ({name: 8 hex digits of the hash}) goes into the file's metadata under cryptomatte/<first 7 hex
+  digits of the hash of the layer name>/{name, hash, conversion, manifest}.
 
-Cycles looks through surfaces that are (partly) transparent (a Transparent BSDF) for UV (the first surface at
-least half opaque), Mist and Cryptomatte (weighted by each surface's opacity); Monte's passes stop at the
-first surface, so a scene where such a material is seen gets a warning naming the passes (see
-`transparency_warning`).
-
+Russian roulette may end a path before a surface behind a transparent one is recorded (Monte decides it before
+shading a vertex, Cycles after); the survivors' throughput carries 1 / q, so the passes' means are unchanged.
 Nothing here runs unless settings.data_passes names a pass: a render without them is unchanged.
 """
 
@@ -156,50 +158,137 @@ class DataTables:
         return cls(tuple(passes), int(levels), object_table[rows], material_pass, name_of_triangle, names, ids,
                    getattr(scene, "mist", None) or Mist(), matrix[:3, 3].copy(), forward)
 
-    def samples(self, prepared, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray,
-                origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
-        """Per camera sample, what it adds to each pass (see the module docstring): prim (-1 on a miss), the
-        hit's barycentrics and distance along the ray, the rays in the prepared (camera-shifted) frame."""
-        n = len(prim)
-        hit = prim >= 0
-        p = np.flatnonzero(hit)
-        tri = prim[p]
-        out: dict[str, np.ndarray] = {"hit": hit}
-        position = np.zeros((n, 3), np.float64)
-        position[p] = (origins[p].astype(np.float64) + directions[p].astype(np.float64) * t[p, None].astype(np.float64)
-                       + np.asarray(prepared.shift, np.float64))
+    def samples(self, path: "DataPath") -> dict:
+        """What each camera sample of a batch adds to the passes (see the module docstring), from the surfaces
+        its path recorded (DataPath). Per-sample arrays, except Cryptomatte: per kind (sample row, name index,
+        weight) of every surface that adds to it."""
+        n = len(path.prim)
+        out: dict = {}
+        done = path.prim >= 0
+        tri = path.prim[done]
         if "position" in self.passes:
-            out["position"] = position.astype(np.float32)
-        if "mist" in self.passes:
-            rel = position[p] - self.camera_position
-            dist = rel @ self.camera_forward if self.camera_forward is not None else np.linalg.norm(rel, axis=1)
-            inv_depth = 1.0 / self.mist.depth if self.mist.depth > 0 else 0.0
-            m = np.clip((dist - self.mist.start) * inv_depth, 0.0, 1.0) ** MIST_FALLOFF[self.mist.falloff]
-            mist = np.zeros(n, np.float64)
-            mist[p] = 1.0 - m
-            out["mist"] = mist
+            out["position"] = path.position.astype(np.float32)
         if "uv" in self.passes:
-            uv = np.zeros((n, 3), np.float64)
-            if prepared.uvs is not None:
-                corners = prepared.uvs[tri].astype(np.float64)  # (m, 3, 2)
-                b1, b2 = bu[p].astype(np.float64), bv[p].astype(np.float64)
-                uv[p, :2] = corners[:, 0] * (1 - b1 - b2)[:, None] + corners[:, 1] * b1[:, None] \
-                    + corners[:, 2] * b2[:, None]
-                uv[p, 2] = 1.0
-            out["uv"] = uv
+            out["uv"] = path.uv.astype(np.float64)
         if "object_index" in self.passes:
             v = np.zeros(n, np.float32)
-            v[p] = self.object_pass[tri]
+            v[done] = self.object_pass[tri]
             out["object_index"] = v
         if "material_index" in self.passes:
             v = np.zeros(n, np.float32)
-            v[p] = self.material_pass[prepared.material_index[tri]]
+            v[done] = self.material_pass[path.material[done]]
             out["material_index"] = v
+        rows, prim, position, mist_weight, matte_weight = path.surfaces()
+        if "mist" in self.passes:
+            rel = position - self.camera_position
+            dist = rel @ self.camera_forward if self.camera_forward is not None else np.linalg.norm(rel, axis=1)
+            inv_depth = 1.0 / self.mist.depth if self.mist.depth > 0 else 0.0
+            m = np.clip((dist - self.mist.start) * inv_depth, 0.0, 1.0) ** MIST_FALLOFF[self.mist.falloff]
+            out["mist"] = np.bincount(rows, weights=(1.0 - m) * mist_weight, minlength=n)
+        keep = matte_weight > 0
         for kind, table in self.name_of_triangle.items():
-            v = np.full(n, -1, np.int32)
-            v[p] = table[tri]
-            out[kind] = v
+            out[kind] = (rows[keep], table[prim[keep]], matte_weight[keep])
         return out
+
+
+def take_samples(values: dict, start: int, stop: int) -> dict:
+    """The part of DataTables.samples' values that belongs to samples [start, stop) of the batch, renumbered
+    from 0 (a batch spans several tiles)."""
+    out = {}
+    for key, value in values.items():
+        if isinstance(value, tuple):
+            rows, idx, weight = value
+            sel = (rows >= start) & (rows < stop)
+            out[key] = (rows[sel] - start, idx[sel], weight[sel])
+        else:
+            out[key] = value[start:stop]
+    return out
+
+
+# Cycles' film pass_alpha_threshold: the single-sample passes (Position, the indices, UV) are written at the first
+# surface at least this opaque.
+PASS_ALPHA_THRESHOLD = 0.5
+
+
+class DataPath:
+    """The surfaces each camera sample's path meets while it still sees the background through Transparent BSDFs
+    (Cycles' PATH_RAY_TRANSPARENT_BACKGROUND: the camera ray, and rays that went on through a Transparent BSDF):
+    at each, what it adds to Mist ((1 - mist) x mean(throughput x alpha)) and Cryptomatte (mean(throughput) x
+    (1 - mean(transparency))), and the surface the single-sample passes read (the first whose mean alpha reaches
+    PASS_ALPHA_THRESHOLD; until one does, the latest). alpha = 1 - transparency, transparency the summed colour
+    of the surface's Transparent BSDF lobes (refraction of IOR 1, roughness 0)."""
+
+    def __init__(self, n: int, prepared) -> None:
+        self.shift = np.asarray(prepared.shift, np.float64)
+        self.with_uv = prepared.uvs is not None
+        self.clear_only = _clear_only(prepared)
+        self.open = np.ones(n, bool)
+        self.done = np.zeros(n, bool)
+        self.prim = np.full(n, -1, np.int32)
+        self.material = np.zeros(n, np.int32)
+        self.position = np.zeros((n, 3), np.float64)
+        self.uv = np.zeros((n, 3), np.float32)
+        self._surfaces: list = []
+
+    def record(self, idx: np.ndarray, prim: np.ndarray, mat: np.ndarray, p: np.ndarray, uv: np.ndarray | None,
+               lobes, throughput: np.ndarray) -> None:
+        """Surfaces hit by the live paths of samples idx (their triangles, materials, points in the prepared
+        frame, UVs, lobes after shading, path throughput)."""
+        rows = np.flatnonzero(self.open[idx])
+        if len(rows) == 0:
+            return
+        samples = idx[rows]
+        clear = (lobes.kind[rows] == 3) & (lobes.ior[rows] == 1.0) & (lobes.roughness[rows] == 0.0)
+        transparency = np.clip((lobes.weight[rows] * clear[:, :, None]).sum(axis=1), 0.0, 1.0)
+        alpha = 1.0 - transparency
+        t = throughput[rows].astype(np.float64)
+        position = p[rows].astype(np.float64) + self.shift
+        self._surfaces.append((samples, prim[rows], position, (t * alpha).mean(axis=1),
+                               t.mean(axis=1) * (1.0 - transparency.mean(axis=1))))
+        single = ~self.done[samples]
+        s = samples[single]
+        self.prim[s], self.material[s], self.position[s] = prim[rows][single], mat[rows][single], position[single]
+        opaque = single & (alpha.mean(axis=1) >= PASS_ALPHA_THRESHOLD)
+        self.done[samples[opaque]] = True
+        if self.with_uv and uv is not None:
+            self.uv[samples[opaque], :2] = uv[rows][opaque]
+            self.uv[samples[opaque], 2] = 1.0
+
+    def scattered(self, idx: np.ndarray, transmitted: np.ndarray, mat: np.ndarray) -> None:
+        """After BSDF sampling at the surfaces of samples idx: only a path that went through a surface whose
+        transmission is all Transparent BSDF still sees the background."""
+        self.open[idx] &= np.asarray(transmitted, bool) & self.clear_only[mat]
+
+    def surfaces(self) -> tuple:
+        """(sample row, triangle, world position, mist weight, matte weight) of every recorded surface."""
+        if not self._surfaces:
+            return (np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros(0), np.zeros(0))
+        return tuple(np.concatenate(parts) for parts in zip(*self._surfaces))
+
+    def take_live(self, live: np.ndarray, n: int) -> "DataPath":
+        """This record (of the live rays `live` of n camera rays) spread back to all n: dead rays recorded
+        nothing."""
+        out = DataPath.__new__(DataPath)
+        out.prim = np.full(n, -1, np.int32)
+        out.material = np.zeros(n, np.int32)
+        out.position = np.zeros((n, 3), np.float64)
+        out.uv = np.zeros((n, 3), np.float32)
+        out.prim[live], out.material[live], out.position[live], out.uv[live] = (self.prim, self.material,
+                                                                                self.position, self.uv)
+        rows, prim, position, mist_w, matte_w = self.surfaces()
+        out._surfaces = [(np.asarray(live)[rows], prim, position, mist_w, matte_w)]
+        return out
+
+
+def _clear_only(prepared) -> np.ndarray:
+    """(M,) whether every transmitting lobe of a material is a Transparent BSDF (refraction, IOR 1, roughness 0)
+    and it has one."""
+    out = []
+    for material in prepared.scene.materials:
+        through = [lobe for lobe in material.lobes if lobe.kind in ("glass", "refraction")]
+        out.append(bool(through) and all(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
+                                         for lobe in through))
+    return np.array(out, bool)
 
 
 def _name_table(kind: str, scene, rows: np.ndarray, mesh_of_triangle: np.ndarray,
@@ -215,16 +304,6 @@ def _name_table(kind: str, scene, rows: np.ndarray, mesh_of_triangle: np.ndarray
         key = np.where(rows > 0, rows - 1, len(per_object) + mesh_of_triangle)
         return list(per_object) + mesh_names, key
     return mesh_names, mesh_of_triangle
-
-
-def transparency_warning(prepared, passes: tuple[str, ...]) -> str | None:
-    """The warning for a scene with a Transparent BSDF when passes Cycles defines through transparency are on."""
-    affected = [PASS_NAMES.get(k, CRYPTO_NAMES.get(k)) for k in passes if k in ("mist", "uv") or k in CRYPTO_NAMES]
-    if not affected or not prepared.has_clear:
-        return None
-    return (f"data passes {', '.join(affected)}: a material has a Transparent BSDF; Monte's data passes read the "
-            "first surface a camera ray hits, where Cycles looks through transparent surfaces, so these passes "
-            "differ from Cycles' behind them")
 
 
 # ------------------------------------------------------------------------------------------------ the film
@@ -264,12 +343,11 @@ class DataFilm:
             if name in values and len(first):
                 getattr(self, name)[pixel[first]] = values[name][first]
         for kind, (keys, sums) in self.crypto.items():
-            idx = values[kind]
-            hit = idx >= 0
+            rows, idx, weight = values[kind]
             k = len(self.tables.names[kind])
-            new_keys = pixel[hit] * k + idx[hit]
+            new_keys = pixel[rows] * k + idx
             all_keys, inverse = np.unique(np.concatenate([keys, new_keys]), return_inverse=True)
-            all_sums = np.bincount(inverse, weights=np.concatenate([sums, np.ones(len(new_keys))]),
+            all_sums = np.bincount(inverse.reshape(-1), weights=np.concatenate([sums, weight]),
                                    minlength=len(all_keys))
             self.crypto[kind] = (all_keys, all_sums)
 

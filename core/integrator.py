@@ -21,6 +21,7 @@ import numpy as np
 from . import bsdf as bsdf_mod
 from . import geometry_kernels, path_kernels
 from .accel import Accelerator, Hits
+from .data_passes import DataPath
 from .light_shadow import NoShadowLights
 from .lights import EmissiveTriangles, LightSampler
 from .ray_visibility import RAY_KIND_NAMES, bounce_kinds
@@ -317,9 +318,9 @@ class FirstHit:
     normal: np.ndarray | None
     depth: np.ndarray | None
     features: "DenoisingFeatures | None" = None
-    # The camera rays' hits (triangle, -1 on a miss; barycentrics u, v; distance t) for the data passes
-    # (core.data_passes); None when not asked for.
-    surface: tuple | None = None
+    # The surfaces each path met while it still saw the background (core.data_passes.DataPath), for the data
+    # passes; None when not asked for.
+    surface: "DataPath | None" = None
     data: dict | None = None  # what each sample adds to the data passes (core.data_passes.DataTables.samples)
 
 
@@ -446,8 +447,11 @@ class PathTracer:
             if first is None:
                 first = FirstHit(None, None, None)
             first.features = features
-        if want_surface and first is None:  # want_surface: FirstHit.surface holds the camera rays' hits
-            first = FirstHit(None, None, None)
+        data_path = None
+        if want_surface:  # FirstHit.surface records what the data passes need (core.data_passes.DataPath)
+            if first is None:
+                first = FirstHit(None, None, None)
+            data_path = first.surface = DataPath(n, ps)
         idx = np.arange(n)  # which sample each live path belongs to
         o, d, tm = origins, directions, tmax
         throughput = np.ones((n, 3), np.float32)
@@ -478,8 +482,6 @@ class PathTracer:
                 hits = self.accel.intersect(o, d, tm)
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
-            if want_surface and depth == 0:
-                first.surface = (hits.prim.copy(), hits.u.copy(), hits.v.copy(), hits.t.copy())
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
             clear_here = clear[idx] if ps.alpha else None
             if film_transparent:
@@ -587,6 +589,8 @@ class PathTracer:
                 self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]))
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
+            if data_path is not None:
+                data_path.record(idx, prim[rows], mat, g.p, g.uv, lobes, throughput)
 
             clock = self._lap("emission", clock)
             if self.use_nee:
@@ -601,6 +605,8 @@ class PathTracer:
             bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir, back=g.cos_o_geo < 0)
             if ps.alpha:  # idx is unique among live paths: the flag of each sample that goes on
                 clear[idx] &= np.asarray(bs.transmitted, bool) & ps.keeps_transparent[mat]
+            if data_path is not None:
+                data_path.scattered(idx, bs.transmitted, mat)
             if bounce_kind is not None:
                 kinds = bounce_kind[idx]
                 bounce_kinds(lobes.arrays(), u_lobe, bs.transmitted, kinds)

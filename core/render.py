@@ -22,7 +22,7 @@ import numpy as np
 
 from .accel import Accelerator
 from .camera import camera_rays
-from .data_passes import DataFilm, DataTables, manifests, transparency_warning
+from .data_passes import DataFilm, DataTables, manifests, take_samples
 from .data_passes import assemble as assemble_data
 from .film import TileFilm
 from .filters import PixelFilter
@@ -400,12 +400,10 @@ class _TileRender:
         # Cycles' data passes (core.data_passes), local renders only (render_samples' merge does not carry them)
         self.data_tables = None
         self.data_films: dict = {}
-        self.data_warning: str | None = None
         if settings.data_passes and work is None:
             self.data_tables = DataTables.build(scene, prepared, tuple(settings.data_passes),
                                                 2 * math.ceil(settings.cryptomatte_levels / 2))
             self.data_films = {t: DataFilm(t[2], t[3], self.data_tables) for t in self.tiles}
-            self.data_warning = transparency_warning(prepared, tuple(settings.data_passes))
 
         self.spp = int(settings.spp)
         self.total_paths = self.spp * rw * rh
@@ -553,7 +551,7 @@ class _TileRender:
                                self.data_tables is not None)
         if self.data_tables is not None:
             first = out[1]
-            first.data = self.data_tables.samples(self.prepared, *first.surface, rays.origins, rays.directions)
+            first.data = self.data_tables.samples(first.surface)
         return out
 
     def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays):
@@ -583,11 +581,7 @@ class _TileRender:
                 first.features.albedo[live], first.features.normal[live] = (first_l.features.albedo,
                                                                             first_l.features.normal)
             if first_l.surface is not None:  # dead rays saw nothing
-                surface = (np.full(n, -1, np.int32), np.zeros(n, np.float32), np.zeros(n, np.float32),
-                           np.full(n, np.inf, np.float32))
-                for full, part in zip(surface, first_l.surface):
-                    full[live] = part
-                first.surface = surface
+                first.surface = first_l.surface.take_live(live, n)
         return radiance, first, transparent
 
     def _finish_one(self, quiet: bool = False) -> None:
@@ -606,7 +600,7 @@ class _TileRender:
             if first is not None and first.features is not None:
                 film.add_features(seg.loc, first.features.albedo[rows], first.features.normal[rows])
             if self.data_tables is not None:
-                self.data_films[seg.tile].add(seg.loc, seg.smp, {k: v[rows] for k, v in first.data.items()})
+                self.data_films[seg.tile].add(seg.loc, seg.smp, take_samples(first.data, rows.start, rows.stop))
             self.film_seconds += time.perf_counter() - t0
             self.done_paths += len(seg.loc)
             if not quiet:
@@ -718,6 +712,4 @@ class _TileRender:
         if self.data_tables is not None:
             out.data_passes = assemble_data([(t, self.data_films[t]) for t in self.tiles], self.region)
             out.cryptomatte = manifests(self.data_tables)
-            if self.data_warning is not None:
-                out.warnings.append(self.data_warning)
         return out

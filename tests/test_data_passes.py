@@ -131,11 +131,41 @@ def test_bad_data_pass_input_is_named():
         _render(_scene(Mist(0.0, -1.0)), ("mist",), spp=1)
 
 
-def test_a_transparent_bsdf_in_view_is_named_in_a_warning():
-    scene = _scene()
-    scene.materials[1] = Material("clear", [Lobe("refraction", (1.0, 1.0, 1.0), ior=1.0, roughness=0.0)])
-    result = _render(scene, ("mist", "position", "crypto_object"), spp=1)
-    assert ("data passes Mist, CryptoObject: a material has a Transparent BSDF; Monte's data passes read the first "
-            "surface a camera ray hits, where Cycles looks through transparent surfaces, so these passes differ "
-            "from Cycles' behind them") in result.warnings
-    assert not any("data passes" in w for w in _render(scene, ("position",), spp=1).warnings)
+def test_passes_look_through_a_transparent_bsdf_as_cycles():
+    """The left quad 70 % transparent (Transparent BSDF 0.7 + diffuse 0.3) over a third quad at z = 1
+    (distance 9): Mist and Cryptomatte add both surfaces weighted by opacity and throughput; Position, the indices
+    and UV read the back one where the path went on through the front (whose alpha 0.3 is below Cycles' threshold
+    0.5), as Cycles' paths do with the Transparent BSDF's share of the lobe choice."""
+    scene = _scene(Mist(2.0, 8.0, "LINEAR"))
+    scene.materials.append(Material("veil", [Lobe("refraction", (0.7, 0.7, 0.7), ior=1.0, roughness=0.0),
+                                             Lobe("diffuse", (0.3, 0.3, 0.3))], pass_index=2))
+    scene.meshes[0].material_index = 2
+    back = _quad("back mesh", 1.0, -2.0, 0.0, 0, 0)
+    back.object_index = None  # no object: Cryptomatte names it by its mesh, Object Index 0
+    scene.meshes.append(back)
+    spp = 256
+    p = _render(scene, ("mist", "position", "object_index", "material_index", "uv", "crypto_object"),
+                spp=spp).data_passes
+    left = (slice(2, 14), slice(1, 6))
+    # mist: 1 - (0.3 (1 - m(3)) + 0.7 (1 - m(9))), m(3) = 1/8, m(9) = 7/8; each sample adds the back with 0 or 1
+    expected = 1 - (0.3 * (1 - 1 / 8) + 0.7 * (1 - 7 / 8))
+    mist = p["Mist"][left]
+    sigma = np.sqrt(0.7 * 0.3 / spp) * (1 - 7 / 8)  # per pixel: the back's share is a binomial mean
+    assert abs(mist.mean() - expected) < 4 * sigma / np.sqrt(mist.size) + 1e-4, (mist.mean(), expected)
+    obj = p["CryptoObject00"][left], p["CryptoObject01"][left]
+    cov = {}
+    for layer in obj:
+        for c in (0, 2):
+            for fid in np.unique(layer[..., c]):
+                cov[fid] = cov.get(fid, 0.0) + layer[..., c + 1][layer[..., c] == fid].sum() / (mist.size)
+    front, behind = hash_to_float(name_hash("Left")), hash_to_float(name_hash("back mesh"))
+    assert abs(cov[front] - 0.3) < 1e-6  # the front: opacity 0.3 at throughput 1, every sample
+    assert abs(cov[behind] - 0.7) < 4 * np.sqrt(0.21 / spp / mist.size) + 1e-4
+    # the single-sample passes: the back surface where sample 0 went through (probability 0.7), else the front
+    z = p["Position"][left][..., 2]
+    back = z == 1.0
+    assert np.all(back | (z == 7.0)) and abs(back.mean() - 0.7) < 4 * np.sqrt(0.21 / z.size)
+    assert np.all(p["Object Index"][left][..., 0] == np.where(back, 0, 3))
+    assert np.all(p["Material Index"][left][..., 0] == np.where(back, 5, 2))
+    # UV only where a sample reached an opaque enough surface: the back one, 0.7 of the samples
+    assert abs(p["UV"][left][..., 2].mean() - 0.7) < 4 * np.sqrt(0.21 / spp / z.size) + 1e-4
