@@ -240,6 +240,60 @@ def test_pass_registration_and_unavailable_pass_warning():
     assert requested_passes(layer, scene) == ["Combined"]  # nothing selected: nothing registered or computed
 
 
+def veil_material(transparency: float):
+    """Mix Shader: a diffuse and a Transparent BSDF, the latter with weight `transparency`."""
+    mat = bpy.data.materials.new("VeilMat")
+    tree = bf.node_tree_of(mat)
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = transparency
+    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (0.9, 0.8, 0.2, 1.0)
+    clear = tree.nodes.new("ShaderNodeBsdfTransparent")
+    tree.links.new(diffuse.outputs[0], mix.inputs[1])
+    tree.links.new(clear.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def test_passes_through_a_transparent_veil_match_cycles(tmp_path):
+    """A 70 % transparent veil over half the view: Mist, UV and each Cryptomatte name's total coverage as Cycles
+    (their means within 1 %); the veil and what is behind it share the coverage."""
+    scene = data_scene()
+    veil = bf.mesh_object("Veil", [(-3, -3, 1.4), (0.3, -3, 1.4), (0.3, 3, 1.4), (-3, 3, 1.4)], [(0, 1, 2, 3)],
+                          veil_material(0.7))
+    veil.data.uv_layers.new(name="UVMap")
+    layer = scene.view_layers[0].name
+    cc.configure_cycles(scene, 64, 4, threads=2, seed=1, filter_type="blackman-harris", filter_width=1.5)
+    cyc = passes_of(render_exr(scene, tmp_path / "cycles.exr")[0], layer)
+    scene.render.engine = "MONTE"
+    m = scene.monte
+    m.samples, m.max_bounces, m.seed, m.threads = 64, 4, 1, 2
+    m.filter_type, m.filter_width = "blackman-harris", 1.5
+    mon = passes_of(render_exr(scene, tmp_path / "monte.exr")[0], layer)
+    for name in ("Mist", "UV"):
+        cm, mm = cyc[name].reshape(-1, cyc[name].shape[2]).mean(0), mon[name].reshape(-1, mon[name].shape[2]).mean(0)
+        print(f"\n{name} with the veil: means Cycles {np.round(cm, 5)} Monte {np.round(mm, 5)}")
+        assert np.all(np.abs(mm - cm) <= 0.01 * np.maximum(np.abs(cm), 1e-3)), name
+
+    def coverage(passes, name):
+        """(H, W) the coverage of a name in every pixel."""
+        fid = hash_to_float(name_hash(name))
+        return sum(np.where(passes[f"CryptoObject{i:02d}"][..., c] == fid,
+                            passes[f"CryptoObject{i:02d}"][..., c + 1], 0) for i in range(2) for c in (0, 2))
+
+    for name in ("Veil", "Floor", "Ball"):
+        cyc_cov, mon_cov = coverage(cyc, name), coverage(mon, name)
+        # noise: pixels partly covered (behind the veil, on edges) are Bernoulli means of 64 samples in each
+        partial = ((cyc_cov > 0) & (cyc_cov < 1)) | ((mon_cov > 0) & (mon_cov < 1))
+        sigma = np.sqrt(2 * 0.25 / 64 * partial.sum())
+        print(f"{name}: coverage Cycles {cyc_cov.sum():.2f} Monte {mon_cov.sum():.2f} pixels (sigma {sigma:.2f})")
+        assert abs(mon_cov.sum() - cyc_cov.sum()) <= max(0.01 * cyc_cov.sum(), 4 * sigma), name
+    veil_cov = coverage(mon, "Veil")
+    assert (veil_cov > 0).sum() > 200 and np.median(veil_cov[veil_cov > 0]) == np.float32(0.3)  # opacity 0.3
+
+
 def test_headless_exr_carries_the_data_passes_and_manifests(tmp_path):
     """`monte render scene.blend -o out.exr` (addon.headless): the data passes as <pass>.<channel> channels, the
     Cryptomatte layers as the standard names them (CryptoObject00.R ...) with their manifests in the header.
