@@ -169,3 +169,18 @@ def test_passes_look_through_a_transparent_bsdf_as_cycles():
     assert np.all(p["Material Index"][left][..., 0] == np.where(back, 5, 2))
     # UV only where a sample reached an opaque enough surface: the back one, 0.7 of the samples
     assert abs(p["UV"][left][..., 2].mean() - 0.7) < 4 * np.sqrt(0.21 / spp / z.size) + 1e-4
+
+
+def test_a_region_holds_the_full_frames_pixels_and_dead_rays_add_nothing():
+    scene = _scene()
+    full = _render(scene, ALL, spp=4).data_passes
+    part = render(scene, RenderSettings(spp=4, threads=1, data_passes=ALL, tile_size=8), region=(3, 5, 9, 7))
+    for name, img in part.data_passes.items():  # every sample of a pixel is the same in both renders
+        assert np.array_equal(img, full[name][5:12, 3:12]), name
+    # a fisheye's rays outside its circle are dead: nothing seen, Mist 1, no index, no Cryptomatte
+    fisheye = _scene()
+    fisheye.camera = Camera(fisheye.camera.matrix_world, (16, 16), kind="PANO",
+                            panorama_type="FISHEYE_EQUIDISTANT", fisheye_fov=np.pi)
+    p = _render(fisheye, ALL, spp=4).data_passes
+    assert p["Mist"][0, 0, 0] == 1.0 and p["Object Index"][0, 0, 0] == 0 and np.all(p["CryptoObject00"][0, 0] == 0)
+    assert p["Object Index"][8, 6, 0] == 3 and p["Object Index"][8, 8, 0] == 7  # near the axis: both quads
