@@ -1,6 +1,8 @@
 """Cycles' data passes in the core (core.data_passes): hashing, and each pass on a scene whose values are known
 exactly (two quads at known depths seen by an orthographic camera)."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -184,3 +186,20 @@ def test_a_region_holds_the_full_frames_pixels_and_dead_rays_add_nothing():
     p = _render(fisheye, ALL, spp=4).data_passes
     assert p["Mist"][0, 0, 0] == 1.0 and p["Object Index"][0, 0, 0] == 0 and np.all(p["CryptoObject00"][0, 0] == 0)
     assert p["Object Index"][8, 6, 0] == 3 and p["Object Index"][8, 8, 0] == 7  # near the axis: both quads
+
+
+def test_the_command_line_writes_the_passes_and_manifests(tmp_path, capsys):
+    from monte.cli import main
+    from monte.core import exr
+
+    out = tmp_path / "out.exr"
+    assert main(["render", "cornell", "-o", str(out), "--spp", "2", "--resolution", "16x16", "--threads", "1",
+                 "--passes", "mist,object_index,crypto_material", "--no-png", "-q"]) == 0
+    channels, header = exr.read_exr(out), exr.read_header(out)
+    assert {"Mist.Z", "Object Index.X", "CryptoMaterial00.R", "CryptoMaterial02.A"} <= set(channels)
+    key = f"cryptomatte/{name_hash('CryptoMaterial'):08x}"[:19]
+    assert header[f"{key}/name"] == "CryptoMaterial"
+    assert set(json.loads(header[f"{key}/manifest"])) <= {"white", "red", "blue", "mirror", "glass", "lamp"}
+    with pytest.raises(SystemExit):
+        main(["render", "cornell", "--passes", "mist,vector"])
+    assert "unknown data pass 'vector'" in capsys.readouterr().err
