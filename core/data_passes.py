@@ -31,7 +31,6 @@ Nothing here runs unless settings.data_passes names a pass: a render without the
 from __future__ import annotations
 
 import json
-import math
 import struct
 from dataclasses import dataclass
 
