@@ -203,3 +203,13 @@ def test_the_command_line_writes_the_passes_and_manifests(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["render", "cornell", "--passes", "mist,vector"])
     assert "unknown data pass 'vector'" in capsys.readouterr().err
+
+
+def test_memory_estimate_counts_the_data_passes():
+    from monte.core.memory import estimate_render_memory
+
+    scene = _scene()
+    plain = estimate_render_memory(scene, RenderSettings())
+    some = estimate_render_memory(scene, RenderSettings(data_passes=("mist", "crypto_object"), cryptomatte_levels=6))
+    assert some.film - plain.film == 256 * (8 + 8 + 32)  # count, mist sum, Cryptomatte pairs
+    assert some.result - plain.result == 256 * (4 + 6 * 8)  # Mist, 3 layers of 4 float32
