@@ -104,7 +104,7 @@ def unavailable_pass_warnings(view_layer, scene=None) -> list[str]:
         chosen = [flag for flag in DATA_PASS_FLAGS if getattr(view_layer, flag, False)]
         if chosen:
             out.append(f"view layer {view_layer.name!r}: a render on a Dask cluster does not produce the data "
-                       f"passes ({', '.join(f.removeprefix('use_pass_') for f in chosen)}); they are not produced")
+                       f"passes ({', '.join(f.removeprefix('use_pass_') for f in chosen)}): they are left out")
     return out
 
 

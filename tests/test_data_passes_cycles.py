@@ -234,9 +234,16 @@ def test_pass_registration_and_unavailable_pass_warning():
     assert unavailable_pass_warnings(layer, scene) == [
         f"view layer {layer.name!r}: the Vector pass needs motion blur, which Monte does not render; the pass is "
         "not produced"]
+    layer.use_pass_vector = False
+    scene.monte.use_cluster = True  # a cluster render does not carry them: none registered, all named
+    assert data_pass_names(layer, scene) == []
+    assert unavailable_pass_warnings(layer, scene) == [
+        f"view layer {layer.name!r}: a render on a Dask cluster does not produce the data passes (mist, position, "
+        "uv, object_index, material_index, cryptomatte_object, cryptomatte_material, cryptomatte_asset): they are "
+        "left out"]
+    scene.monte.use_cluster = False
     for flag in FLAGS:
         setattr(layer, flag, False)
-    layer.use_pass_vector = False
     assert requested_passes(layer, scene) == ["Combined"]  # nothing selected: nothing registered or computed
 
 
