@@ -132,6 +132,10 @@ def cmd_render(args: argparse.Namespace) -> int:
               "built-in scenes are still images", file=sys.stderr)
         return 2
     if is_blend:
+        if args.passes:
+            print("monte render: --passes is for built-in scenes; a .blend renders the passes its view layers "
+                  "select (View Layer Properties > Passes)", file=sys.stderr)
+            return 2
         if args.dask:
             return _render_blend_on_cluster(args, overrides, output)
         try:
@@ -167,6 +171,12 @@ def cmd_render(args: argparse.Namespace) -> int:
     from .core.builtin_scenes import builtin_scene
 
     scene = builtin_scene(args.scene, args.resolution)
+    if args.passes:
+        if args.dask:
+            print("monte render: --passes: a render on a Dask cluster does not produce the data passes",
+                  file=sys.stderr)
+            return 2
+        overrides["data_passes"] = args.passes
     settings = RenderSettings(**overrides).validate()
     if output.suffix.lower() != ".exr":
         print(f"monte render: output must be an .exr file, got {output}", file=sys.stderr)
@@ -209,6 +219,17 @@ def cmd_render(args: argparse.Namespace) -> int:
     if result.cancelled:
         print("render stopped early (time limit or cancel): the image holds the samples taken", file=sys.stderr)
     return 0
+
+
+def _data_passes(text: str) -> tuple[str, ...]:
+    """--passes: comma-separated keys of core.data_passes.DATA_PASSES."""
+    from .core.data_passes import DATA_PASSES
+
+    names = tuple(name.strip() for name in text.split(",") if name.strip())
+    unknown = [name for name in names if name not in DATA_PASSES]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown data pass {unknown[0]!r}; choose from {', '.join(DATA_PASSES)}")
+    return names
 
 
 def _frames(text: str) -> list[int]:
@@ -298,11 +319,18 @@ def _write_outputs(result, output: Path, no_png: bool) -> list[str]:
     """The EXR (and PNG preview) of a render, each written atomically; reports what it wrote."""
     from .core import exr
 
-    exr.write_exr(output, exr.image_channels(result.color, result.variance, result.albedo, result.normal,
-                                             result.depth, noisy=result.noisy,
-                                             denoising_albedo=result.denoising_albedo,
-                                             denoising_normal=result.denoising_normal,
-                                             shadow_catcher=result.shadow_catcher))
+    from .core.data_passes import cryptomatte_metadata
+
+    channels = exr.image_channels(result.color, result.variance, result.albedo, result.normal, result.depth,
+                                  noisy=result.noisy, denoising_albedo=result.denoising_albedo,
+                                  denoising_normal=result.denoising_normal,
+                                  shadow_catcher=result.shadow_catcher)
+    data = getattr(result, "data_passes", {})
+    channels.update(exr.data_pass_channels(data, {"Mist": "Z", "Position": "XYZ", "UV": "UVA", "Object Index": "X",
+                                                  "Material Index": "X"}))
+    metadata = {k: v for base, names in getattr(result, "cryptomatte", {}).items()
+                for k, v in cryptomatte_metadata(base, names).items()}
+    exr.write_exr(output, channels, metadata)
     written = [str(output)]
     if not no_png:
         png = output.with_suffix(".png")
@@ -445,6 +473,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --dask and a .blend: frames A-B or A,B,C, each written as OUTPUT_####.exr when done")
     p.add_argument("--resume", action="store_true",
                    help="with --frames: skip frames whose output file exists")
+    p.add_argument("--passes", type=_data_passes, default=(),
+                   help="built-in scenes: Cycles' data passes to add to the EXR, comma-separated: mist, position, "
+                        "uv, object_index, material_index, crypto_object, crypto_material, crypto_asset (a .blend "
+                        "uses its view layer's pass checkboxes)")
     _add_render_options(p)
     p.set_defaults(func=cmd_render)
 

@@ -22,7 +22,8 @@ from .export import ExportCancelled, export_camera, export_scene, render_region,
 from .export.film import uses_shadow_catcher_pass
 from .properties import render_settings
 
-# Pass name -> (channels, chanid, type). Combined is always there; the others when the view layer asks.
+# The one table of passes Monte registers: pass name -> (channels, chanid, type), Cycles' names and layouts.
+# Combined is always there; the others when the view layer asks (requested_passes).
 PASSES = {
     "Combined": (4, "RGBA", "COLOR"),
     "Depth": (1, "Z", "VALUE"),
@@ -36,8 +37,79 @@ PASSES = {
     # Cycles' Passes > Light > Shadow Catcher (the view layer's Cycles property): 1 where nothing shadows a
     # shadow catcher, below 1 in its shadows (core.film).
     "Shadow Catcher": (3, "RGB", "COLOR"),
+    # Cycles' data passes (core.data_passes); Cryptomatte's layers are CRYPTO_LAYER below.
+    "Mist": (1, "Z", "VALUE"),
+    "Position": (3, "XYZ", "VECTOR"),
+    "UV": (3, "UVA", "VECTOR"),
+    "Object Index": (1, "X", "VALUE"),
+    "Material Index": (1, "X", "VALUE"),
 }
+# Blender before 5.0 names the index passes as Cycles did then.
+LEGACY_PASS_NAMES = {"Object Index": "IndexOB", "Material Index": "IndexMA"}
+if bpy.app.version < (5, 0, 0):
+    PASSES.update({old: PASSES.pop(new) for new, old in LEGACY_PASS_NAMES.items()})
+CRYPTO_LAYER = (4, "rgba", "COLOR")  # CryptoObject00, CryptoObject01, ... (two (id, coverage) pairs each)
 DENOISING_PASSES = ("Noisy Image", "Denoising Normal", "Denoising Albedo")
+# Blender's view layer flags of the data passes (View Layer Properties > Passes > Data, Cryptomatte) -> core key.
+DATA_PASS_FLAGS = {
+    "use_pass_mist": "mist",
+    "use_pass_position": "position",
+    "use_pass_uv": "uv",
+    "use_pass_object_index": "object_index",
+    "use_pass_material_index": "material_index",
+    "use_pass_cryptomatte_object": "crypto_object",
+    "use_pass_cryptomatte_material": "crypto_material",
+    "use_pass_cryptomatte_asset": "crypto_asset",
+}
+# Passes Blender offers that Monte cannot produce: flag -> the warning's reason (never registered: no black pass).
+UNAVAILABLE_PASSES = {
+    "use_pass_vector": "the Vector pass needs motion blur, which Monte does not render; the pass is not produced",
+}
+
+
+def data_passes(view_layer, scene=None) -> tuple[str, ...]:
+    """The core data pass keys (core.data_passes) this view layer asks for; none on a cluster render, which does
+    not carry them (see unavailable_pass_warnings)."""
+    if view_layer is None:
+        return ()
+    monte_scene = getattr(scene, "monte", None)
+    if monte_scene is not None and monte_scene.use_cluster:
+        return ()
+    return tuple(key for flag, key in DATA_PASS_FLAGS.items() if getattr(view_layer, flag, False))
+
+
+def cryptomatte_layers(view_layer) -> int:
+    """Cryptomatte layers per kind, as Cycles: Levels (1-16) in pairs, one layer per two levels."""
+    return (min(16, max(1, int(getattr(view_layer, "pass_cryptomatte_depth", 6)))) + 1) // 2
+
+
+def data_pass_names(view_layer, scene=None) -> list[str]:
+    """The Blender passes of the requested data passes, Cryptomatte's layers included."""
+    from ..core.data_passes import CRYPTO_NAMES, PASS_NAMES
+
+    names = []
+    for key in data_passes(view_layer, scene):
+        if key in PASS_NAMES:
+            name = PASS_NAMES[key]
+            names.append(name if name in PASSES else LEGACY_PASS_NAMES[name])
+        else:
+            names += [f"{CRYPTO_NAMES[key]}{i:02d}" for i in range(cryptomatte_layers(view_layer))]
+    return names
+
+
+def unavailable_pass_warnings(view_layer, scene=None) -> list[str]:
+    """Warnings naming the selected passes Monte does not produce."""
+    if view_layer is None:
+        return []
+    out = [f"view layer {view_layer.name!r}: {reason}" for flag, reason in UNAVAILABLE_PASSES.items()
+           if getattr(view_layer, flag, False)]
+    monte_scene = getattr(scene, "monte", None)
+    if monte_scene is not None and monte_scene.use_cluster:
+        chosen = [flag for flag in DATA_PASS_FLAGS if getattr(view_layer, flag, False)]
+        if chosen:
+            out.append(f"view layer {view_layer.name!r}: a render on a Dask cluster does not produce the data "
+                       f"passes ({', '.join(f.removeprefix('use_pass_') for f in chosen)}): they are left out")
+    return out
 
 
 def requested_passes(view_layer, scene=None) -> list[str]:
@@ -60,7 +132,7 @@ def requested_passes(view_layer, scene=None) -> list[str]:
         names.append("Variance")
     if uses_shadow_catcher_pass(view_layer):
         names.append("Shadow Catcher")
-    return names
+    return names + data_pass_names(view_layer, scene)
 
 
 # Extra progress callbacks (core.render.Progress -> None), e.g. the headless command's progress bar.
@@ -105,7 +177,7 @@ class MonteRenderEngine(bpy.types.RenderEngine):
     # ------------------------------------------------------------------------------------------ passes
     def update_render_passes(self, scene=None, renderlayer=None):
         for name in requested_passes(renderlayer, scene):
-            channels, chanid, kind = PASSES[name]
+            channels, chanid, kind = PASSES.get(name, CRYPTO_LAYER)
             self.register_pass(scene, renderlayer, name, channels, chanid, kind)
 
     # ------------------------------------------------------------------------------------------ render
@@ -160,10 +232,12 @@ class MonteRenderEngine(bpy.types.RenderEngine):
 
         core_scene, stats = export_scene(depsgraph, self.camera_override,
                                          should_cancel=self._cancel_requested)
-        for w in core_scene.warnings:
+        for w in core_scene.warnings + unavailable_pass_warnings(view_layer, scene):
             self.report({"WARNING"}, f"Monte: {w}")
         self.report({"INFO"}, f"Monte: {stats.line()}")
-        settings = render_settings(scene, {"aovs": any(p in passes for p in ("Depth", "Normal", "Albedo"))})
+        settings = render_settings(scene, {"aovs": any(p in passes for p in ("Depth", "Normal", "Albedo")),
+                                           "data_passes": data_passes(view_layer, scene),
+                                           "cryptomatte_levels": 2 * cryptomatte_layers(view_layer)})
         if settings.threads == 0:
             # Blender's own thread count: all cores, or Performance > Threads > Fixed, or `blender -t N`.
             settings = settings.replace(threads=max(1, int(scene.render.threads)))
@@ -187,8 +261,11 @@ class MonteRenderEngine(bpy.types.RenderEngine):
                                  should_cancel=self._cancel_requested, log=self._log)
         if scene.monte.use_denoising:
             self._denoise(result, scene.monte.denoising_quality)
+        for w in result.warnings:  # what the render found (e.g. data passes behind transparent surfaces)
+            if w not in core_scene.warnings:
+                self.report({"WARNING"}, f"Monte: {w}")
         # The whole region once more, all passes from the final accumulation: consistent even after a cancel.
-        self._write(0, 0, rw, rh, result, passes, layer_name)
+        self._write(0, 0, rw, rh, result, passes, layer_name, cryptomatte_metadata_of(result, layer_name))
         for listener in list(result_listeners):
             listener(layer_name, result, region, (width, height))
         seconds = time.perf_counter() - t0
@@ -387,9 +464,15 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         self._log(f"denoised ({quality}) in {result.stats['denoise_seconds']:.2f} s")
 
     # ------------------------------------------------------------------------------------------ results
-    def _write(self, x: int, y: int, w: int, h: int, src, passes: list[str], layer_name: str) -> None:
+    def _write(self, x: int, y: int, w: int, h: int, src, passes: list[str], layer_name: str,
+               metadata: dict | None = None) -> None:
         """Copy a tile/result (row 0 at the top) into Blender's render result at region-local (x, y) with
-        y from the bottom; every declared pass in one result so none is reset."""
+        y from the bottom; every declared pass in one result so none is reset. metadata: fields added to the
+        render result's metadata (Cryptomatte's manifests, as Cycles adds them)."""
+        if metadata:
+            full = self.get_result()  # the render's own result holds the metadata (Cycles writes it there too)
+            for key, value in metadata.items():
+                full.stamp_data_add_field(key, value)
         result = self.begin_result(x, y, w, h, layer=layer_name)
         try:
             layer = result.layers[0]
@@ -406,6 +489,17 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         rw, rh = (region[2], region[3]) if region is not None else (width, height)
         result = self.begin_result(0, 0, rw, rh, layer=depsgraph.view_layer.name)
         self.end_result(result)
+
+
+def cryptomatte_metadata_of(result, layer_name: str) -> dict[str, str]:
+    """The render result metadata of a result's Cryptomatte layers, as Cycles writes it (layer
+    "<view layer>.CryptoObject", ...)."""
+    from ..core.data_passes import cryptomatte_metadata
+
+    out: dict[str, str] = {}
+    for base, names in getattr(result, "cryptomatte", {}).items():
+        out.update(cryptomatte_metadata(f"{layer_name}.{base}", names))
+    return out
 
 
 def _pass_pixels(name: str, src, h: int, w: int, channels: int) -> np.ndarray:
@@ -431,6 +525,11 @@ def _pass_pixels(name: str, src, h: int, w: int, channels: int) -> np.ndarray:
         arr = src.denoising_albedo
     elif name == "Shadow Catcher":
         arr = getattr(src, "shadow_catcher", None)
+    else:
+        data = getattr(src, "data_passes", {})
+        arr = data.get(name)
+        if arr is None:  # a legacy index pass name (Blender < 5.0)
+            arr = data.get(next((new for new, old in LEGACY_PASS_NAMES.items() if old == name), ""))
     if arr is None:
         fill = 1e10 if name == "Depth" else 1.0 if name == "Shadow Catcher" else 0.0
         return np.full(h * w * channels, fill, dtype=np.float32)

@@ -185,8 +185,24 @@ def _monte_channels(result, region, size) -> dict:
             full[y0:y0 + h, x0:x0 + w] = arr
             padded.append(full)
         arrays = padded
-    return image_channels(*arrays[:5], noisy=arrays[5], denoising_albedo=arrays[6], denoising_normal=arrays[7],
-                          shadow_catcher=arrays[8])
+    channels = image_channels(*arrays[:5], noisy=arrays[5], denoising_albedo=arrays[6], denoising_normal=arrays[7],
+                              shadow_catcher=arrays[8])
+    data = dict(getattr(result, "data_passes", {}))
+    if region is not None and data:
+        x0, y0, w, h = region
+        width, height = size
+        for name, arr in data.items():
+            full = np.zeros((height, width, arr.shape[2]), np.float32)
+            if name == "Mist":
+                full[...] = 1.0  # outside the region: nothing seen, as a miss
+            full[y0:y0 + h, x0:x0 + w] = arr
+            data[name] = full
+    from ..core.exr import data_pass_channels
+    from .engine import PASSES
+
+    letters = {name: spec[1] for name, spec in PASSES.items()} | {"Object Index": "X", "Material Index": "X"}
+    channels.update(data_pass_channels(data, letters))
+    return channels
 
 
 def render_blend_file(
@@ -254,7 +270,12 @@ def render_blend_file(
             say("Monte: the render stopped early (time limit); the image holds the samples taken")
         if scene.render.use_crop_to_border:
             region = None  # the region alone, as Blender's cropped render
-        write_exr(out, _monte_channels(result, region, size))
+        from ..core.data_passes import cryptomatte_metadata
+
+        # Cryptomatte layers are named by their pass (CryptoObject00.R, ...): the metadata names "CryptoObject"
+        metadata = {k: v for base, names in getattr(result, "cryptomatte", {}).items()
+                    for k, v in cryptomatte_metadata(base, names).items()}
+        write_exr(out, _monte_channels(result, region, size), metadata)
     say(f"Monte: wrote {out}")
 
 

@@ -6,7 +6,8 @@ depth), Film (pixel filter and width, Transparent, Transparent Glass), Performan
 Cluster (render on a Dask cluster, test the connection).
 Camera properties: Panorama (a panoramic camera's type and settings). Object properties: Visibility (ray
 visibility, holdout, shadow catcher).
-View layer properties: Passes (Depth, Normal, Albedo, Variance). Material, world and light properties: the
+View layer properties: Passes (Depth, Normal, Albedo, Variance; Data: Mist, Position, UV, Vector (warns), Object and
+Material Index; Cryptomatte). World properties: Mist Pass. Material, world and light properties: the
 node inputs Monte reads (the active output for Cycles/All) and the light settings Monte uses.
 Blender's generic panels (those that list 'BLENDER_RENDER' in COMPAT_ENGINES: dimensions, output, camera
 lens, colour management, ...) get 'MONTE' added, except the few that describe features Monte lacks.
@@ -287,6 +288,44 @@ class MONTE_VIEWLAYER_PT_passes(MonteButtonsPanel, Panel):
             col.prop(cycles, "use_pass_shadow_catcher")
 
 
+class MONTE_VIEWLAYER_PT_passes_data(MonteButtonsPanel, Panel):
+    """Cycles' data passes (core.data_passes), with Blender's own view layer flags as Cycles shows them."""
+
+    bl_label = "Data"
+    bl_context = "view_layer"
+    bl_parent_id = "MONTE_VIEWLAYER_PT_passes"
+
+    def draw(self, context):
+        layout = split_layout(self.layout)
+        view_layer = context.view_layer
+        col = layout.column(heading="Include", align=True)
+        col.prop(view_layer, "use_pass_mist")
+        col.prop(view_layer, "use_pass_position")
+        col.prop(view_layer, "use_pass_uv")
+        row = col.row()
+        row.prop(view_layer, "use_pass_vector")
+        if view_layer.use_pass_vector:
+            layout.label(text="Vector needs motion blur: not produced", icon="ERROR")
+        col = layout.column(heading="Indexes", align=True)
+        col.prop(view_layer, "use_pass_object_index")
+        col.prop(view_layer, "use_pass_material_index")
+
+
+class MONTE_VIEWLAYER_PT_passes_cryptomatte(MonteButtonsPanel, Panel):
+    bl_label = "Cryptomatte"
+    bl_context = "view_layer"
+    bl_parent_id = "MONTE_VIEWLAYER_PT_passes"
+
+    def draw(self, context):
+        layout = split_layout(self.layout)
+        view_layer = context.view_layer
+        col = layout.column(heading="Include", align=True)
+        col.prop(view_layer, "use_pass_cryptomatte_object", text="Object")
+        col.prop(view_layer, "use_pass_cryptomatte_material", text="Material")
+        col.prop(view_layer, "use_pass_cryptomatte_asset", text="Asset")
+        layout.prop(view_layer, "pass_cryptomatte_depth", text="Levels")
+
+
 def _draw_node_input(layout, tree, input_name: str) -> None:
     output = tree.get_output_node("CYCLES") if tree is not None else None
     if output is None:
@@ -297,6 +336,26 @@ def _draw_node_input(layout, tree, input_name: str) -> None:
         layout.label(text="Incompatible output node")
         return
     layout.template_node_view(tree, output, sock)
+
+
+class MONTE_WORLD_PT_mist(MonteButtonsPanel, Panel):
+    """World > Mist Pass, shown as Cycles shows it: while the view layer has the Mist pass on."""
+
+    bl_label = "Mist Pass"
+    bl_context = "world"
+
+    @classmethod
+    def poll(cls, context):
+        return (super().poll(context) and context.world is not None and context.view_layer is not None
+                and context.view_layer.use_pass_mist)
+
+    def draw(self, context):
+        layout = split_layout(self.layout)
+        mist = context.world.mist_settings
+        col = layout.column(align=True)
+        col.prop(mist, "start")
+        col.prop(mist, "depth")
+        layout.prop(mist, "falloff")
 
 
 class MONTE_MATERIAL_PT_surface(MonteButtonsPanel, Panel):
@@ -377,8 +436,11 @@ classes = (
     MONTE_RENDER_PT_crosscheck,
     MONTE_RENDER_PT_cluster,
     MONTE_VIEWLAYER_PT_passes,
+    MONTE_VIEWLAYER_PT_passes_data,
+    MONTE_VIEWLAYER_PT_passes_cryptomatte,
     MONTE_MATERIAL_PT_surface,
     MONTE_WORLD_PT_surface,
+    MONTE_WORLD_PT_mist,
     MONTE_LIGHT_PT_light,
 )
 

@@ -17,7 +17,8 @@ import OpenEXR
 
 from .atomic_file import OutputError, check_writable, write_atomically, write_bytes_atomically
 
-__all__ = ["OutputError", "check_writable", "image_channels", "linear_to_srgb8", "read_exr", "read_rgb", "write_exr",
+__all__ = ["OutputError", "check_writable", "data_pass_channels", "image_channels", "linear_to_srgb8", "read_exr",
+           "read_header", "read_rgb", "write_exr",
            "write_png"]
 
 
@@ -56,8 +57,10 @@ def image_channels(
     return channels
 
 
-def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray]) -> Path:
-    """Write float32 channels (each (H, W), row 0 at the top) to a ZIP-compressed scanline EXR, atomically."""
+def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], metadata: dict[str, str] | None = None
+              ) -> Path:
+    """Write float32 channels (each (H, W), row 0 at the top) to a ZIP-compressed scanline EXR, atomically;
+    metadata: extra string attributes of the header (e.g. Cryptomatte's manifests)."""
     if not channels:
         raise ValueError("no channels to write")
     shapes = {np.shape(a) for a in channels.values()}
@@ -65,12 +68,30 @@ def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray]) -> Path:
         raise ValueError(f"all channels must be 2-D with one shape, got {sorted(shapes)}")
     data = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header.update({str(k): str(v) for k, v in (metadata or {}).items()})
 
     def write(tmp: str) -> None:
         with OpenEXR.File(header, data) as f:
             f.write(tmp)
 
     return write_atomically(path, write, ".exr")
+
+
+def data_pass_channels(data_passes: dict[str, np.ndarray], chanids: dict[str, str]) -> dict[str, np.ndarray]:
+    """Channels of the data passes ({pass name: (H, W, C)}): "<pass>.<channel>" with each pass's channel letters
+    (chanids, e.g. "UVA" for UV; Cryptomatte layers "RGBA": CryptoObject00.R ... as the standard names them)."""
+    channels: dict[str, np.ndarray] = {}
+    for name, arr in data_passes.items():
+        letters = chanids.get(name, "RGBA")
+        for i in range(arr.shape[2]):
+            channels[f"{name}.{letters[i]}"] = arr[..., i]
+    return channels
+
+
+def read_header(path: str | os.PathLike) -> dict:
+    """The header attributes of an EXR's first part."""
+    with OpenEXR.File(str(path)) as f:
+        return dict(f.header())
 
 
 def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:

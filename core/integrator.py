@@ -21,6 +21,7 @@ import numpy as np
 from . import bsdf as bsdf_mod
 from . import geometry_kernels, path_kernels
 from .accel import Accelerator, Hits
+from .data_passes import DataPath
 from .light_shadow import NoShadowLights
 from .lights import EmissiveTriangles, LightSampler
 from .ray_visibility import RAY_KIND_NAMES, bounce_kinds
@@ -384,6 +385,10 @@ class FirstHit:
     depth: np.ndarray | None
     features: "DenoisingFeatures | None" = None
     catcher: "CatcherSamples | None" = None
+    # The surfaces each path met while it still saw the background (core.data_passes.DataPath), for the data
+    # passes; None when not asked for.
+    surface: "DataPath | None" = None
+    data: dict | None = None  # what each sample adds to the data passes (core.data_passes.DataTables.samples)
 
 
 def _smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
@@ -546,6 +551,7 @@ class PathTracer:
         t_start: np.ndarray,
         want_aovs: bool,
         want_features: bool = False,
+        want_surface: bool = False,
     ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
         """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs; want_features adds the
         denoising features, FirstHit.features; a scene with a shadow catcher adds FirstHit.catcher) and their
@@ -564,6 +570,11 @@ class PathTracer:
             if first is None:
                 first = FirstHit(None, None, None)
             first.features = features
+        data_path = None
+        if want_surface:  # FirstHit.surface records what the data passes need (core.data_passes.DataPath)
+            if first is None:
+                first = FirstHit(None, None, None)
+            data_path = first.surface = DataPath(n, ps)
         idx = np.arange(n)  # which sample each live path belongs to
         o, d, tm = origins, directions, tmax
         throughput = np.ones((n, 3), np.float32)
@@ -719,6 +730,8 @@ class PathTracer:
                 self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]))
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
+            if data_path is not None:
+                data_path.record(idx, prim[rows], mat, g.p, g.uv, lobes, throughput)
 
             clock = self._lap("emission", clock)
             if self.use_nee:
@@ -733,6 +746,8 @@ class PathTracer:
             bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir, back=g.cos_o_geo < 0)
             if alpha:  # idx is unique among live paths: the flag of each sample that goes on
                 clear[idx] &= np.asarray(bs.transmitted, bool) & ps.keeps_transparent[mat]
+            if data_path is not None:
+                data_path.scattered(idx, bs.transmitted, mat)
             if bounce_kind is not None:
                 kinds = bounce_kind[idx]
                 bounce_kinds(lobes.arrays(), u_lobe, bs.transmitted, kinds)

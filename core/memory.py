@@ -16,6 +16,9 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
   (counted in the path batch) before it is folded in;
 - result: the assembled float32 colour RGBA (16 B), variance (12 B), int32 sample count (4 B); with AOVs
   albedo, normal (24 B) and depth (4 B); with the denoising features their albedo and normal (24 B);
+- data passes (core.data_passes), each requested one: per pixel a sample count (8 B) and film / result bytes of
+  DATA_PASS_BYTES (Mist float64 sum / float32; UV float64 RGB sums / float32; Position and the indices float32);
+  a Cryptomatte kind keeps sparse (key, coverage) pairs, about 2 per pixel (32 B), and levels x 8 B of layers;
 - batch: the integrator's float32 structure-of-arrays for every path in flight, ray buffers and temporaries
   (measured: about 800 B per path at 2^18 paths);
 - scene: the camera-shifted float32 triangle soup, face and corner normals, UVs, material indices and the Embree
@@ -48,6 +51,10 @@ RESULT_CATCHER_BYTES = 28
 PATH_BYTES = 800
 TRIANGLE_BYTES = 400
 TEXEL_BYTES = 24
+# Data passes: key -> (film bytes, result bytes) per pixel; Cryptomatte kinds add levels x 8 B of result layers.
+DATA_PASS_BYTES = {"mist": (8, 4), "uv": (24, 12), "position": (12, 12), "object_index": (4, 4),
+                   "material_index": (4, 4), "crypto_object": (32, 0), "crypto_material": (32, 0),
+                   "crypto_asset": (32, 0)}
 # Refuse when the estimate exceeds this share of the available memory (the rest: fragmentation, the EXR writer).
 SAFETY_SHARE = 0.9
 
@@ -89,6 +96,12 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     if scene.has_shadow_catcher:
         film += pixels * FILM_CATCHER_BYTES
         result += pixels * RESULT_CATCHER_BYTES
+    passes = tuple(getattr(settings, "data_passes", ()))
+    if passes:
+        levels = 2 * ((int(settings.cryptomatte_levels) + 1) // 2)
+        film += pixels * (8 + sum(DATA_PASS_BYTES[p][0] for p in passes))
+        result += pixels * sum(DATA_PASS_BYTES[p][1] + (8 * levels if p.startswith("crypto") else 0)
+                               for p in passes)
     # every worker thread traces one batch at a time (see core.schedule.batch_target)
     total_paths = pixels * max(int(settings.spp), 0)
     paths = min(batch_target(settings, total_paths), total_paths) * settings.thread_count

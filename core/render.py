@@ -22,6 +22,8 @@ import numpy as np
 
 from .accel import Accelerator
 from .camera import camera_rays
+from .data_passes import DataFilm, DataTables, manifests, take_samples
+from .data_passes import assemble as assemble_data
 from .film import CatcherOutput, TileFilm
 from .filters import PixelFilter
 from .integrator import (DIM_FILM, DIM_LENS, CatcherSamples, DenoisingFeatures, FirstHit, PathStats, PathTracer,
@@ -57,6 +59,8 @@ class Tile:
     With a shadow catcher (core.scene.Mesh.shadow_catcher) color is Combined as Cycles forms it (core.film) and
     shadow_catcher (h, w, 3) is Cycles' Shadow Catcher pass, shadow_catcher_matte (h, w, 4) its Shadow Catcher
     Matte (both None without a catcher); variance stays that of the paths' radiance (the catcher seen).
+    data_passes: {Blender pass name: (h, w, C)} Cycles' data passes of settings.data_passes (core.data_passes:
+    Mist, Position, UV, Object Index, Material Index, CryptoObject00, ...); empty when none are asked for.
     """
 
     x0: int
@@ -71,6 +75,7 @@ class Tile:
     denoising_normal: np.ndarray | None = None
     shadow_catcher: np.ndarray | None = None
     shadow_catcher_matte: np.ndarray | None = None
+    data_passes: dict = field(default_factory=dict)
 
     @property
     def width(self) -> int:
@@ -120,6 +125,10 @@ class RenderResult:
     noisy: np.ndarray | None = None  # the colour before denoising, when a caller denoised `color` (core.denoise)
     shadow_catcher: np.ndarray | None = None  # (h, w, 3) Cycles' Shadow Catcher pass (see Tile), or None
     shadow_catcher_matte: np.ndarray | None = None  # (h, w, 4) its Shadow Catcher Matte, or None
+    data_passes: dict = field(default_factory=dict)  # see Tile.data_passes
+    # {"CryptoObject": [names], ...}: the names each requested Cryptomatte layer hashes (its manifest,
+    # core.data_passes.cryptomatte_metadata)
+    cryptomatte: dict = field(default_factory=dict)
 
 
 ProgressCallback = Callable[[Progress], None]
@@ -415,6 +424,13 @@ class _TileRender:
         self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features, alpha=alpha,
                                   catcher=catcher)
                       for t in self.tiles}
+        # Cycles' data passes (core.data_passes), local renders only (render_samples' merge does not carry them)
+        self.data_tables = None
+        self.data_films: dict = {}
+        if settings.data_passes and work is None:
+            self.data_tables = DataTables.build(scene, prepared, tuple(settings.data_passes),
+                                                2 * math.ceil(settings.cryptomatte_levels / 2))
+            self.data_films = {t: DataFilm(t[2], t[3], self.data_tables) for t in self.tiles}
 
         self.spp = int(settings.spp)
         self.total_paths = self.spp * rw * rh
@@ -555,9 +571,15 @@ class _TileRender:
             rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
         if rays.alive is not None:  # a panoramic camera's dead rays: nothing traced, nothing added
-            return self._trace_alive(tracer, pixel_id, smp, rays)
-        return tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
-                            rays.t_start, self.settings.aovs, self.settings.denoising_features)
+            out = self._trace_alive(tracer, pixel_id, smp, rays)
+        else:
+            out = tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
+                               rays.t_start, self.settings.aovs, self.settings.denoising_features,
+                               self.data_tables is not None)
+        if self.data_tables is not None:
+            first = out[1]
+            first.data = self.data_tables.samples(first.surface)
+        return out
 
     def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays):
         """Trace only the rays that are alive; dead ones get radiance 0, no transparency and no first hit."""
@@ -565,7 +587,8 @@ class _TileRender:
         n = len(rays.alive)
         radiance_l, first_l, transparent_l = tracer.trace(
             pixel_id[live], smp[live], rays.origins[live], rays.directions[live], rays.tmax[live],
-            rays.depth_scale[live], rays.t_start[live], self.settings.aovs, self.settings.denoising_features)
+            rays.depth_scale[live], rays.t_start[live], self.settings.aovs, self.settings.denoising_features,
+            self.data_tables is not None)
         radiance = np.zeros((n, 3), np.float32)
         radiance[live] = radiance_l
         transparent = None
@@ -586,6 +609,8 @@ class _TileRender:
                                                                             first_l.features.normal)
             if first_l.catcher is not None:  # dead rays: no split, no matte, no transparency
                 first.catcher = CatcherSamples.spread(first_l.catcher, live, n)
+            if first_l.surface is not None:  # dead rays saw nothing
+                first.surface = first_l.surface.take_live(live, n)
         return radiance, first, transparent
 
     def _finish_one(self, quiet: bool = False) -> None:
@@ -605,6 +630,8 @@ class _TileRender:
                 film.add_features(seg.loc, first.features.albedo[rows], first.features.normal[rows])
             if first is not None and first.catcher is not None:
                 film.add_catcher(seg.loc, first.catcher.take(rows))
+            if self.data_tables is not None:
+                self.data_films[seg.tile].add(seg.loc, seg.smp, take_samples(first.data, rows.start, rows.stop))
             self.film_seconds += time.perf_counter() - t0
             self.done_paths += len(seg.loc)
             if not quiet:
@@ -667,7 +694,10 @@ class _TileRender:
 
     def _tile_result(self, tile: TileRect, film: TileFilm, samples: int) -> Tile:
         rot = world_to_camera(self.scene) if self.settings.denoising_features else None
-        return tile_result(tile, film, samples, self.settings.aovs, rot)
+        out = tile_result(tile, film, samples, self.settings.aovs, rot)
+        if self.data_tables is not None:
+            out.data_passes = self.data_films[tile].images()
+        return out
 
     def result(self, t_prepare: float, say) -> RenderResult:
         """The region's image assembled from the tiles, with the render's statistics."""
@@ -711,4 +741,7 @@ class _TileRender:
                            self.cancelled)
         _assemble_features(out, self.tiles, [self.films[t] for t in self.tiles], scene, self.region)
         _assemble_catcher(out, self.tiles, [self.films[t] for t in self.tiles], self.region)
+        if self.data_tables is not None:
+            out.data_passes = assemble_data([(t, self.data_films[t]) for t in self.tiles], self.region)
+            out.cryptomatte = manifests(self.data_tables)
         return out

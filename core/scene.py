@@ -141,6 +141,8 @@ class Material:
     surface, that fraction of the path's throughput is made transparent in the alpha channel and adds no colour;
     at 1 the path ends there. Other rays see only the lobes and emission (a Holdout shader alone absorbs), as
     Cycles does.
+    pass_index: the material's Pass Index (Blender's Material > Settings > Pass Index), read by the Material Index
+    pass (core.data_passes).
     """
 
     name: str
@@ -148,6 +150,7 @@ class Material:
     emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
     program: "ShadingProgram | None" = None
     holdout: float = 0.0
+    pass_index: int = 0
 
     def validate(self, n_textures: int) -> None:
         owner = f"material {self.name!r}"
@@ -642,6 +645,29 @@ class Film:
                              "[0, 1]")
 
 
+MIST_FALLOFF = {"QUADRATIC": 2.0, "LINEAR": 1.0, "INVERSE_QUADRATIC": 0.5}  # Blender's falloff -> exponent
+
+
+@dataclass
+class Mist:
+    """World > Mist Pass (Cycles' meaning, core.data_passes): start and depth in metres from the camera, falloff
+    one of MIST_FALLOFF. Blender's defaults."""
+
+    start: float = 5.0
+    depth: float = 25.0
+    falloff: str = "QUADRATIC"
+
+    def validate(self) -> None:
+        for name in ("start", "depth"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise SceneError(f"world mist {name} is {value!r}, it must be a finite number")
+        if self.depth < 0:
+            raise SceneError(f"world mist depth is {self.depth}, it must be >= 0")
+        if self.falloff not in MIST_FALLOFF:
+            raise SceneError(f"world mist falloff {self.falloff!r} is not one of {', '.join(MIST_FALLOFF)}")
+
+
 # ------------------------------------------------------------------------------------------------------- scene
 @dataclass
 class Scene:
@@ -658,6 +684,11 @@ class Scene:
     objects: np.ndarray | None = None  # (O, core.shading.program.OBJECT_COLUMNS) float32 rows, see Mesh.object_index
     film: Film = field(default_factory=Film)
     uv_layer_names: list[str] = field(default_factory=list)  # the UV maps node programs name (uv_layer operand)
+    # The data passes (core.data_passes): World > Mist Pass, and per row of `objects` the object's name and its
+    # asset's (its top-most parent's) name, which Cryptomatte hashes; empty: the meshes' names stand in.
+    mist: Mist = field(default_factory=lambda: Mist())
+    object_names: list[str] = field(default_factory=list)
+    asset_names: list[str] = field(default_factory=list)
 
     @property
     def has_alpha(self) -> bool:
@@ -680,6 +711,7 @@ class Scene:
         """Validate in place; raise SceneError for what cannot be rendered, drop and count what can be."""
         self.camera.validate()
         self.film.validate()
+        self.mist.validate()
         for tex in self.textures:
             tex.validate()
         if not self.materials:

@@ -45,6 +45,10 @@ class RenderSettings:
     (0 = automatic: 4 / sqrt(threshold), at least 16, at most spp).
     denoising_features: also produce Cycles' Denoising Albedo and Denoising Normal passes (what the denoiser of
     core.denoise reads; see core.integrator.DenoisingFeatures); off costs nothing.
+    data_passes: Cycles' data passes to produce, keys of core.data_passes.DATA_PASSES ("mist", "position", "uv",
+    "object_index", "material_index", "crypto_object", "crypto_material", "crypto_asset"); empty (the default)
+    costs nothing. cryptomatte_levels: (id, coverage) pairs kept per pixel (Blender's Cryptomatte Levels,
+    1-16, rounded up to even: two pairs per 4-channel layer).
     """
 
     spp: int = 64
@@ -64,6 +68,8 @@ class RenderSettings:
     adaptive_threshold: float = 0.0
     adaptive_min_samples: int = 0
     denoising_features: bool = False
+    data_passes: tuple[str, ...] = ()
+    cryptomatte_levels: int = 6
 
     def validate(self) -> "RenderSettings":
         """Raise ValueError naming the setting for absurd values (NaN, Inf and non-numbers included)."""
@@ -108,6 +114,15 @@ class RenderSettings:
         if int(self.adaptive_min_samples) != self.adaptive_min_samples or self.adaptive_min_samples < 0:
             raise ValueError(f"adaptive min samples must be a non-negative integer (0 = automatic), "
                              f"got {self.adaptive_min_samples}")
+        from .data_passes import DATA_PASSES
+
+        unknown = [p for p in self.data_passes if p not in DATA_PASSES]
+        if isinstance(self.data_passes, str) or unknown:
+            raise ValueError(f"unknown data pass {unknown[0] if unknown else self.data_passes!r}; choose from "
+                             f"{', '.join(DATA_PASSES)}")
+        if isinstance(self.cryptomatte_levels, bool) or not isinstance(self.cryptomatte_levels, numbers.Integral) \
+                or not 1 <= self.cryptomatte_levels <= 16:
+            raise ValueError(f"cryptomatte levels must be a whole number in [1, 16], got {self.cryptomatte_levels!r}")
         if not (0 <= self.seed < 2**32):
             raise ValueError(f"seed must be in [0, 2^32), got {self.seed}")
         return self

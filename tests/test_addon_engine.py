@@ -275,6 +275,7 @@ def test_panels_draw_real_properties_and_blender_panels_are_opted_in():
     cam = bpy.data.cameras.new("C")
     cam.type = "PANO"
     ob = bpy.data.objects.new("O", None)
+    scene.view_layers[0].use_pass_mist = True  # World > Mist Pass shows with the Mist pass on, as in Cycles
     ctx = types.SimpleNamespace(scene=scene, view_layer=scene.view_layers[0], material=mat, world=world,
                                 light=light, camera=cam, object=ob, engine="MONTE")
     drawn = []
@@ -285,7 +286,8 @@ def test_panels_draw_real_properties_and_blender_panels_are_opted_in():
         cls.draw(panel, ctx)
     assert {"samples", "seed", "sampler", "clamp", "time_limit", "max_bounces", "rr_depth", "filter_type",
             "filter_width", "threads", "batch_paths", "use_pass_z", "use_pass_albedo", "energy", "film_transparent",
-            "film_transparent_glass", "panorama_type", "visible_diffuse", "is_holdout"} <= set(drawn)
+            "film_transparent_glass", "panorama_type", "visible_diffuse", "is_holdout", "use_pass_mist",
+            "use_pass_object_index", "use_pass_cryptomatte_asset", "pass_cryptomatte_depth", "falloff"} <= set(drawn)
     for kind in ("FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL", "EQUIRECTANGULAR"):
         cam.panorama_type = kind
         ui.MONTE_CAMERA_PT_panorama.draw(types.SimpleNamespace(layout=_Recorder(drawn)), ctx)

@@ -20,7 +20,7 @@ from .film import export_film
 from .light import export_light
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
-from .world import export_world
+from .world import export_mist, export_world
 
 GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "META"}
 
@@ -49,6 +49,7 @@ class _Prototype:
     name: str
     matrices: list = field(default_factory=list)
     instance_info: list = field(default_factory=list)  # per instance: (r, g, b, a, pass index, random id)
+    instance_names: list = field(default_factory=list)  # per instance: (object name, asset name) for Cryptomatte
     texspace: tuple | None = None  # (location, size) of the mesh's texture space (Generated coordinates)
     visibility: tuple = (True,) * 5  # Mesh.visible_<kind> for each of MESH_RAY_VISIBILITY
     shadow_terminator_offset: float = 0.0
@@ -251,12 +252,15 @@ def export_scene(
             proto = prototypes[key]
             proto.matrices.append(inst.matrix_world.copy())
             proto.instance_info.append((*obj.color, obj.pass_index, inst.random_id))
+            proto.instance_names.append((obj.name, _asset_name(inst, obj)))
 
     for kind, count in unsupported.items():
         warnings.append(f"{count} {kind.lower()} object(s) are not supported by Monte and are skipped")
 
     meshes = []
     object_rows = []
+    object_names: list[str] = []
+    asset_names: list[str] = []
     for proto in prototypes.values():
         if proto.local is None or not proto.matrices:
             continue
@@ -273,6 +277,8 @@ def export_scene(
         object_rows.append(_object_rows(matrices, np.array(proto.instance_info, np.float64).reshape(k, 6),
                                         proto.texspace))
         mesh.object_index = np.repeat(np.arange(start, start + k, dtype=np.int32), proto.local.triangle_count)
+        object_names += [names[0] for names in proto.instance_names]
+        asset_names += [names[1] for names in proto.instance_names]
         for kind, seen in zip(MESH_RAY_VISIBILITY, proto.visibility):
             setattr(mesh, f"visible_{kind}", seen)
         mesh.shadow_catcher = proto.shadow_catcher
@@ -285,7 +291,8 @@ def export_scene(
                 textures=materials.textures, name=scene.name, warnings=warnings,
                 film=export_film(scene, depsgraph.view_layer),
                 objects=np.concatenate(object_rows).astype(np.float32) if object_rows else None,
-                uv_layer_names=list(materials.uv_names))
+                uv_layer_names=list(materials.uv_names), mist=export_mist(scene.world),
+                object_names=object_names, asset_names=asset_names)
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "
                          "metaballs); check the objects' render visibility and the view layer's collections")
@@ -298,6 +305,16 @@ def export_scene(
     if log is not None:
         log(stats.line())
     return out, stats
+
+
+def _asset_name(inst, obj) -> str:
+    """Cryptomatte Asset's name of an object instance, as Cycles names it: the top-most parent of the object (of
+    its instancer, for an instance), the object itself when it has no parent."""
+    top = inst.parent if getattr(inst, "is_instance", False) and inst.parent is not None else obj
+    seen = 0
+    while top.parent is not None and seen < 1000:  # Blender forbids parent loops; the bound is a guard
+        top, seen = top.parent, seen + 1
+    return top.name
 
 
 def _texspace(obj, local: LocalMesh) -> tuple[np.ndarray, np.ndarray]:

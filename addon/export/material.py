@@ -174,6 +174,7 @@ class MaterialExporter:
         found = self._by_key.get(key)
         if found is None:
             mat = self.convert(material)
+            mat.pass_index = int(getattr(material, "pass_index", 0))  # the Material Index pass
             found = self._add(mat)
             if mat.program is not None and _reads_uv(mat.program):
                 self.textured.add(found)
@@ -188,6 +189,7 @@ class MaterialExporter:
             return False
         textures_before = len(self.textures)
         mat = self.convert(material)
+        mat.pass_index = int(getattr(material, "pass_index", 0))
         self.materials[found] = mat
         if any(lobe.color_texture >= 0 for lobe in mat.lobes) or len(self.textures) > textures_before:
             self.textured.add(found)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core.scene import World
+from ...core.scene import Mist, World
 from ...core.world import EnvironmentMap
 from .material import follow_link, image_average_color, image_pixels, node_tree, socket_value
 
@@ -195,3 +195,11 @@ def _background_color(sock, world_name: str, warnings: list[str]) -> np.ndarray:
     warnings.append(f"world {world_name!r}: node {src.name!r} ({src.bl_label}) driving the background colour is "
                     "not supported; using the socket's own colour")
     return np.array(sock.default_value[:3], dtype=np.float64)
+
+
+def export_mist(world) -> Mist:
+    """World > Mist Pass (start, depth, falloff) for the Mist pass; Blender's defaults without a world."""
+    settings = getattr(world, "mist_settings", None)
+    if settings is None:
+        return Mist()
+    return Mist(float(settings.start), float(settings.depth), str(settings.falloff))
