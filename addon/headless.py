@@ -166,17 +166,19 @@ def _configure_output(scene, multilayer: bool) -> None:
 
 def _monte_channels(result, region, size) -> dict:
     """core.exr's channel layout (R G B A, variance.*, albedo.*, normal.*, Z; with denoising noisy.*,
-    denoising_albedo.*, denoising_normal.*), the same as `monte render` of a built-in scene; with a region,
+    denoising_albedo.*, denoising_normal.*; with light passes diffuse_direct.* ...), the same as `monte render`
+    of a built-in scene; with a region,
     padded to the full frame (black, depth 1e10) as an uncropped border."""
     from ..core.exr import image_channels
 
+    light = getattr(result, "light_passes", None) or {}
     arrays = [result.color, result.variance, result.albedo, result.normal, result.depth, result.noisy,
-              result.denoising_albedo, result.denoising_normal]
+              result.denoising_albedo, result.denoising_normal, *light.values()]
     if region is not None:
         x0, y0, w, h = region
         width, height = size
         padded = []
-        for arr, fill in zip(arrays, (0.0, 0.0, 0.0, 0.0, 1e10, 0.0, 0.0, 0.0)):
+        for arr, fill in zip(arrays, (0.0, 0.0, 0.0, 0.0, 1e10) + (0.0,) * (len(arrays) - 5)):
             if arr is None:
                 padded.append(None)
                 continue
@@ -184,7 +186,8 @@ def _monte_channels(result, region, size) -> dict:
             full[y0:y0 + h, x0:x0 + w] = arr
             padded.append(full)
         arrays = padded
-    return image_channels(*arrays[:5], noisy=arrays[5], denoising_albedo=arrays[6], denoising_normal=arrays[7])
+    return image_channels(*arrays[:5], noisy=arrays[5], denoising_albedo=arrays[6], denoising_normal=arrays[7],
+                          light_passes=dict(zip(light, arrays[8:])))
 
 
 def render_blend_file(

@@ -10,10 +10,11 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
 - film (core.film, float32 storage): per pixel a float32 RGB shift (12 B), for each of the 4 variance groups a
   float32 RGB deviation sum and an int32 count (4 x 16 B), a float32 RGB sum of squared deviations (12 B); with
   AOVs float32 albedo and normal sums (24 B), a float32 depth sum and int32 count (8 B); with the denoising
-  features float32 albedo and normal sums (24 B). Each pass is summed in float64 over the batch's samples
+  features float32 albedo and normal sums (24 B); with light passes float32 RGB sums of all 11 (132 B). Each pass is summed in float64 over the batch's samples
   (counted in the path batch) before it is folded in;
 - result: the assembled float32 colour RGBA (16 B), variance (12 B), int32 sample count (4 B); with AOVs
-  albedo, normal (24 B) and depth (4 B); with the denoising features their albedo and normal (24 B);
+  albedo, normal (24 B) and depth (4 B); with the denoising features their albedo and normal (24 B); 12 B per
+  light pass asked for;
 - batch: the integrator's float32 structure-of-arrays for every path in flight, ray buffers and temporaries
   (measured: about 800 B per path at 2^18 paths);
 - scene: the camera-shifted float32 triangle soup, face and corner normals, UVs, material indices and the Embree
@@ -37,6 +38,8 @@ from .settings import RenderSettings
 
 FILM_BYTES = 88  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
 FILM_AOV_BYTES = 32
+FILM_LIGHT_PASS_BYTES = 132  # float32 RGB sums of the 11 light passes (core.light_passes)
+RESULT_LIGHT_PASS_BYTES = 12  # per light pass asked for: float32 RGB
 RESULT_BYTES = 32
 RESULT_AOV_BYTES = 28
 FILM_FEATURE_BYTES = 24
@@ -80,8 +83,11 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
         pixels = int(w) * int(h)
     aovs = bool(settings.aovs)
     features = bool(settings.denoising_features)
-    film = pixels * (FILM_BYTES + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0))
-    result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0))
+    light = bool(getattr(settings, "light_passes", ()))
+    film = pixels * (FILM_BYTES + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0)
+                     + (FILM_LIGHT_PASS_BYTES if light else 0))
+    result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0)
+                       + RESULT_LIGHT_PASS_BYTES * len(getattr(settings, "light_passes", ())))
     # every worker thread traces one batch at a time (see core.schedule.batch_target)
     total_paths = pixels * max(int(settings.spp), 0)
     paths = min(batch_target(settings, total_paths), total_paths) * settings.thread_count
@@ -91,7 +97,9 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     scene_bytes = scene.triangle_count * TRIANGLE_BYTES + texels * TEXEL_BYTES
     if scene.world.environment is not None:  # the world's map (held once) and its importance tables
         scene_bytes += scene.world.environment.nbytes
-    return MemoryEstimate(film, result, paths * PATH_BYTES, scene_bytes)
+    # with light passes each path carries their float32 sums and its first bounce's weights (156 B)
+    path_bytes = PATH_BYTES + (156 if light else 0)
+    return MemoryEstimate(film, result, paths * path_bytes, scene_bytes)
 
 
 def available_memory() -> int | None:

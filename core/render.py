@@ -26,6 +26,7 @@ from .film import TileFilm
 from .filters import PixelFilter
 from .integrator import DIM_FILM, DIM_LENS, DenoisingFeatures, FirstHit, PathStats, PathTracer, PreparedScene
 from .jit_cache import compile_cache_is_cold
+from .light_passes import LightPassSamples
 from .memory import check_render_memory
 from .sampling import VARIANCE_GROUPS, make_sampler
 from .scene import Scene
@@ -65,6 +66,7 @@ class Tile:
     samples: int = 0
     denoising_albedo: np.ndarray | None = None
     denoising_normal: np.ndarray | None = None
+    light_passes: dict[str, np.ndarray] | None = None  # Cycles' light passes asked for (core.light_passes)
 
     @property
     def width(self) -> int:
@@ -112,6 +114,8 @@ class RenderResult:
     denoising_albedo: np.ndarray | None = None
     denoising_normal: np.ndarray | None = None
     noisy: np.ndarray | None = None  # the colour before denoising, when a caller denoised `color` (core.denoise)
+    # settings.light_passes: name -> (h, w, 3) float32 (core.light_passes: Direct/Indirect divided by Color)
+    light_passes: dict[str, np.ndarray] | None = None
 
 
 ProgressCallback = Callable[[Progress], None]
@@ -208,8 +212,8 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     region = (0, 0, width, height)
     tile_list = tiles(0, 0, width, height, settings.tile_size)
     sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
-    films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha)
-             for t in tile_list]
+    films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
+                      light_passes=settings.light_passes) for t in tile_list]
     reached = [0] * len(tile_list)
     for part in sorted(parts, key=lambda p: (p.tile_index, p.sample_start)):
         ti = part.tile_index
@@ -233,6 +237,7 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
              "samples": int(counts.sum())}
     result = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings))
     _assemble_features(result, tile_list, films, scene, region)
+    _assemble_light_passes(result, tile_list, films, region)
     return result
 
 
@@ -268,6 +273,8 @@ def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
     if aovs:
         albedo, normal, depth = film.aov_images()
     out = Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
+    if film.light_passes:
+        out.light_passes = film.light_pass_images()
     if film.features and world_to_camera is not None:
         out.denoising_albedo, world_normal = film.feature_images()
         out.denoising_normal = (world_normal @ world_to_camera.T).astype(np.float32)
@@ -298,6 +305,20 @@ def _assemble_features(result: RenderResult, tile_list: list[TileRect], films: l
         albedo, normal = film.feature_images()
         result.denoising_albedo[sl] = albedo
         result.denoising_normal[sl] = normal @ rot.T
+
+
+def _assemble_light_passes(result: RenderResult, tile_list: list[TileRect], films: list[TileFilm],
+                           region: TileRect) -> None:
+    """Fill result.light_passes from the tiles' films when they keep the light passes."""
+    if not films or not films[0].light_passes:
+        return
+    rx, ry, rw, rh = region
+    result.light_passes = {name: np.zeros((rh, rw, 3), np.float32) for name in films[0].light_passes}
+    for tile, film in zip(tile_list, films):
+        tx, ty, tw, th = tile
+        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
+        for name, arr in film.light_pass_images().items():
+            result.light_passes[name][sl] = arr
 
 
 def _silent(_msg: str) -> None:
@@ -386,7 +407,8 @@ class _TileRender:
                 raise ValueError("tile_order must be a permutation of the tile indices")
             self.tiles = [self.tiles[i] for i in tile_order]
         alpha = scene.has_alpha
-        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features, alpha=alpha)
+        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features, alpha=alpha,
+                                  light_passes=settings.light_passes)
                       for t in self.tiles}
 
         self.spp = int(settings.spp)
@@ -557,6 +579,9 @@ class _TileRender:
                 first.features = DenoisingFeatures(n)
                 first.features.albedo[live], first.features.normal[live] = (first_l.features.albedo,
                                                                             first_l.features.normal)
+            if first_l.light_passes is not None:
+                first.light_passes = LightPassSamples(n)
+                first.light_passes.values[live] = first_l.light_passes.values
         return radiance, first, transparent
 
     def _finish_one(self, quiet: bool = False) -> None:
@@ -574,6 +599,8 @@ class _TileRender:
                 film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
             if first is not None and first.features is not None:
                 film.add_features(seg.loc, first.features.albedo[rows], first.features.normal[rows])
+            if first is not None and first.light_passes is not None:
+                film.add_light_passes(seg.loc, first.light_passes.values[rows])
             self.film_seconds += time.perf_counter() - t0
             self.done_paths += len(seg.loc)
             if not quiet:
@@ -679,4 +706,5 @@ class _TileRender:
         out = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings),
                            self.cancelled)
         _assemble_features(out, self.tiles, [self.films[t] for t in self.tiles], scene, self.region)
+        _assemble_light_passes(out, self.tiles, [self.films[t] for t in self.tiles], self.region)
         return out

@@ -45,6 +45,8 @@ class RenderSettings:
     (0 = automatic: 4 / sqrt(threshold), at least 16, at most spp).
     denoising_features: also produce Cycles' Denoising Albedo and Denoising Normal passes (what the denoiser of
     core.denoise reads; see core.integrator.DenoisingFeatures); off costs nothing.
+    light_passes: Cycles' light passes to produce, by name (core.light_passes.LIGHT_PASSES: "Diffuse Direct",
+    ..., "Emission", "Environment"); empty (the default) costs nothing.
     """
 
     spp: int = 64
@@ -64,6 +66,7 @@ class RenderSettings:
     adaptive_threshold: float = 0.0
     adaptive_min_samples: int = 0
     denoising_features: bool = False
+    light_passes: tuple[str, ...] = ()
 
     def validate(self) -> "RenderSettings":
         """Raise ValueError naming the setting for absurd values (NaN, Inf and non-numbers included)."""
@@ -108,6 +111,9 @@ class RenderSettings:
         if int(self.adaptive_min_samples) != self.adaptive_min_samples or self.adaptive_min_samples < 0:
             raise ValueError(f"adaptive min samples must be a non-negative integer (0 = automatic), "
                              f"got {self.adaptive_min_samples}")
+        from .light_passes import check_names
+
+        check_names(self.light_passes)
         if not (0 <= self.seed < 2**32):
             raise ValueError(f"seed must be in [0, 2^32), got {self.seed}")
         return self

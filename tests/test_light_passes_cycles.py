@@ -1,0 +1,117 @@
+"""Light passes against real Cycles (the bpy module): every light pass Monte produces, asked for with Cycles' own
+view layer checkboxes, reaches Blender's render result (registered, so the compositor and the multilayer EXR
+see it) and has Cycles' mean; a ticked pass Monte cannot produce is named in a warning and left out."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import blender_fixtures as bf  # noqa: E402
+
+from monte.addon import crosscheck as cc  # noqa: E402
+from monte.addon.engine import LIGHT_PASS_PROPERTIES, render_with_operator  # noqa: E402
+from monte.core import exr  # noqa: E402
+
+pytestmark = [pytest.mark.blender]
+
+
+def light_scene(size=(32, 32)):
+    """Diffuse floor and wall, a diffuse, a glossy (roughness 0.3) and a clear glass sphere, an emissive panel,
+    a square area light and a blue-grey world seen above the wall; every light pass ticked."""
+    scene = bf.reset()
+    s = 3.0
+    bf.mesh_object("floor", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)],
+                   bf.diffuse("floor", (0.6, 0.55, 0.5)))
+    bf.mesh_object("wall", [(-s, 1.5, 0), (s, 1.5, 0), (s, 1.5, 2.2), (-s, 1.5, 2.2)], [(0, 1, 2, 3)],
+                   bf.diffuse("wall", (0.8, 0.8, 0.8)))
+    bf.icosphere_object("clay", (-1.0, 0.2, 0.45), 0.45, bf.diffuse("clay", (0.7, 0.2, 0.1)), subdivisions=4)
+    bf.icosphere_object("metal", (0.0, 0.5, 0.45), 0.45,
+                        bf.node_material("metal", "ShaderNodeBsdfGlossy", Color=(0.9, 0.8, 0.5, 1), Roughness=0.3),
+                        subdivisions=4)
+    bf.icosphere_object("glass", (0.9, -0.3, 0.45), 0.45,
+                        bf.node_material("glass", "ShaderNodeBsdfGlass", Color=(1, 1, 1, 1), Roughness=0.0,
+                                         IOR=1.45), subdivisions=4)
+    bf.mesh_object("panel", [(-1.6, 1.45, 1.3), (-0.8, 1.45, 1.3), (-0.8, 1.45, 1.8), (-1.6, 1.45, 1.8)],
+                   [(0, 1, 2, 3)], bf.node_material("panel", "ShaderNodeEmission", Color=(1, 0.8, 0.5, 1),
+                                                     Strength=2.0))
+    bf.add_light(scene, "AREA", (1.2, -1.0, 2.6), (0.4, 0.0, 0.6), energy=300.0, shape="SQUARE", size=1.0)
+    bf.camera_object(scene, (0, -4.5, 1.6), (math.radians(82), 0, 0), lens=30.0)
+    bf.set_world(scene, (0.3, 0.4, 0.6), 1.0)
+    scene.render.resolution_x, scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    layer = scene.view_layers[0]
+    for prop in LIGHT_PASS_PROPERTIES.values():
+        setattr(layer, prop, True)
+    return scene
+
+
+def cycles_passes(scene, spp: int, tmp_path) -> dict[str, np.ndarray]:
+    """Cycles' light passes (name -> (H, W, 3)) from the multilayer EXR of a still render."""
+    layer = scene.view_layers[0]
+    cc.configure_cycles(scene, spp, 8, threads=2, seed=1)
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+    path = tmp_path / "cycles.exr"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True, scene=scene.name)
+    ch = exr.read_exr(path)
+    return {name: np.stack([ch[f"{layer.name}.{name}.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
+            for name in LIGHT_PASS_PROPERTIES}
+
+
+def monte_render(scene, spp: int):
+    scene.render.engine = "MONTE"
+    m = scene.monte
+    m.samples, m.max_bounces, m.seed, m.threads = spp, 8, 1, 2
+    m.filter_type, m.filter_width = "blackman-harris", 1.5
+    return render_with_operator(scene)[0][1]
+
+
+def test_light_passes_match_cycles(tmp_path):
+    scene = light_scene()
+    cycles = cycles_passes(scene, 256, tmp_path)
+    result = monte_render(scene, 256)
+    lines = []
+    worst = {}
+    for name in LIGHT_PASS_PROPERTIES:
+        cm, mm = cycles[name].mean(), result.light_passes[name].astype(np.float64).mean()
+        worst[name] = abs(mm / cm - 1) if cm > 0 else abs(mm)
+        lines.append(f"{name:22s} Cycles {cm:.5f} Monte {mm:.5f} ({100 * (mm / cm - 1) if cm else 0:+.2f} %)")
+    print("\n" + "\n".join(lines))
+    # Blender's render result holds every pass (registered by update_render_passes, written by the engine)
+    saved = bf.save_render_exr(scene, tmp_path / "monte.exr")
+    layer = scene.view_layers[0].name
+    for name in LIGHT_PASS_PROPERTIES:
+        got = np.stack([saved[f"{layer}.{name}.{c}"] for c in "RGB"], axis=-1)[::-1]
+        np.testing.assert_allclose(got, result.light_passes[name], rtol=1e-6, atol=1e-7, err_msg=name)
+    for name, err in worst.items():
+        assert err < 0.01, f"{name}: Monte's mean is {100 * err:.2f} % off Cycles'"
+
+
+def test_unsupported_pass_is_named_and_left_out(tmp_path):
+    """Ambient Occlusion ticked: the render warns by name and the result has no such pass (never a black
+    pass that looks real)."""
+    scene = bf.plane_under_world(resolution=(8, 8))
+    scene.render.engine = "MONTE"
+    layer = scene.view_layers[0]
+    layer.use_pass_ambient_occlusion = True
+    layer.use_pass_emit = True
+    from monte.addon.engine import unsupported_passes, requested_passes
+
+    assert unsupported_passes(layer) == ["Ambient Occlusion"]
+    assert "Ambient Occlusion" not in requested_passes(layer, scene)
+    assert "Emission" in requested_passes(layer, scene)
+    render_with_operator(scene)
+    saved = bf.save_render_exr(scene, tmp_path / "m.exr")
+    assert not any("Ambient Occlusion" in key or ".AO." in key for key in saved)
+    assert f"{layer.name}.Emission.R" in saved
