@@ -51,8 +51,8 @@ LIGHT_PASS_PROPERTIES = {
     "Environment": "use_pass_environment",
 }
 PASSES.update({name: (3, "RGB", "COLOR") for name in LIGHT_PASS_PROPERTIES})
-# Light passes Cycles has and Monte cannot produce (no ambient occlusion pass, no volumes): when one is ticked the
-# render says so by name and the pass is not registered (never a black pass that looks real). (owner, property,
+# Light passes Cycles has and Monte cannot produce (no ambient occlusion pass, no volumes; shader AOVs are listed
+# by unsupported_passes too): when one is ticked the render says so by name and the pass is not registered (never a black pass that looks real). (owner, property,
 # pass name); owner "cycles" is view_layer.cycles (present while the Cycles add-on is enabled).
 UNSUPPORTED_PASSES = (
     ("view_layer", "use_pass_ambient_occlusion", "Ambient Occlusion"),
@@ -70,6 +70,8 @@ def unsupported_passes(view_layer) -> list[str]:
         holder = view_layer if owner == "view_layer" else getattr(view_layer, owner, None)
         if holder is not None and bool(getattr(holder, prop, False)):
             names.append(name)
+    # Shader AOVs (AOV Output nodes, View Layer Properties > Shader AOV): not rendered by Monte yet
+    names += [f"Shader AOV {aov.name!r}" for aov in getattr(view_layer, "aovs", ())]
     return names
 
 

@@ -104,3 +104,35 @@ def test_even_divide_fills_zero_colour_channels():
 def test_unknown_light_pass_is_refused():
     with pytest.raises(ValueError, match=r"unknown light pass\(es\) \['Shadow'\]"):
         RenderSettings(light_passes=("Emission", "Shadow")).validate()
+
+
+def test_light_passes_in_the_exr_and_merged_renders_equal_one(tmp_path):
+    """`monte render --light-passes` writes them as diffuse_direct.R ... environment.B; a render split into
+    sample ranges and merged (core.distributed's way) has the same light passes bit for bit."""
+    import subprocess
+    import sys
+
+    from monte.core import exr
+    from monte.core.render import merge_tile_samples, render_samples
+    from monte.core.schedule import pass_bounds, tiles
+
+    out = tmp_path / "a.exr"
+    proc = subprocess.run([sys.executable, "-m", "monte", "render", "plane-world", "-o", str(out), "--spp", "4",
+                           "--resolution", "8x8", "--light-passes", "--no-png"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    channels = exr.read_exr(out)
+    for name in LIGHT_PASSES:
+        for c in "RGB":
+            assert f"{name.lower().replace(' ', '_')}.{c}" in channels
+    np.testing.assert_allclose(channels["diffuse_color.G"], 0.8, rtol=1e-6)
+
+    scene = plane_under_world((8, 8))
+    settings = RenderSettings(spp=64, threads=1, batch_paths=1024, light_passes=("Diffuse Direct", "Diffuse Color"))
+    whole = render(scene, settings)
+    bounds = pass_bounds(tiles(0, 0, 8, 8, settings.tile_size), settings.spp, settings)[0]
+    assert len(bounds) > 2, bounds
+    cut = bounds[1]
+    parts = render_samples(scene, settings, {0: (0, cut)}) + render_samples(scene, settings, {0: (cut, 64)})
+    merged = merge_tile_samples(scene, settings, parts)
+    for name in settings.light_passes:
+        assert np.array_equal(merged.light_passes[name], whole.light_passes[name]), name

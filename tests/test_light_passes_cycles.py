@@ -115,9 +115,9 @@ def test_light_passes_match_cycles(tmp_path):
         assert abs(err) < TOLERANCE.get(name, 0.01), f"{name}: Monte's mean is {100 * err:+.2f} % off Cycles'"
 
 
-def test_unsupported_pass_is_named_and_left_out(tmp_path):
-    """Ambient Occlusion ticked: the render warns by name and the result has no such pass (never a black
-    pass that looks real)."""
+def test_unsupported_pass_is_named_and_left_out(tmp_path, capfd):
+    """Ambient Occlusion ticked and a shader AOV declared: the render warns by name and the result has no such
+    pass (never a black pass that looks real)."""
     scene = bf.plane_under_world(resolution=(8, 8))
     scene.render.engine = "MONTE"
     layer = scene.view_layers[0]
@@ -126,9 +126,14 @@ def test_unsupported_pass_is_named_and_left_out(tmp_path):
     from monte.addon.engine import unsupported_passes, requested_passes
 
     assert unsupported_passes(layer) == ["Ambient Occlusion"]
+    layer.aovs.add().name = "dirt"
+    assert unsupported_passes(layer) == ["Ambient Occlusion", "Shader AOV 'dirt'"]
     assert "Ambient Occlusion" not in requested_passes(layer, scene)
     assert "Emission" in requested_passes(layer, scene)
     render_with_operator(scene)
+    printed = capfd.readouterr()
+    assert "Monte: the Ambient Occlusion pass (view layer 'ViewLayer') is not produced by Monte" in \
+        printed.out + printed.err
     saved = bf.save_render_exr(scene, tmp_path / "m.exr")
-    assert not any("Ambient Occlusion" in key or ".AO." in key for key in saved)
+    assert not any("Ambient Occlusion" in key or ".AO." in key or "dirt" in key for key in saved)
     assert f"{layer.name}.Emission.R" in saved
