@@ -131,13 +131,20 @@ class LightPassSamples:
     weights of each sample (see the module docstring)."""
 
     def __init__(self, n: int) -> None:
-        self.values = np.zeros((n, len(LIGHT_PASSES), 3), np.float32)
+        # pass-major storage: each pass's (N, 3) block is contiguous for the indexed adds
+        self._passes = np.zeros((len(LIGHT_PASSES), n, 3), np.float32)
         self.weight_diffuse = np.zeros((n, 3), np.float32)
         self.weight_glossy = np.zeros((n, 3), np.float32)
 
     def add(self, which: int, idx: np.ndarray, value: np.ndarray) -> None:
-        """values[idx, which] += value (idx may repeat)."""
-        np.add.at(self.values[:, which], np.asarray(idx, np.int64), np.asarray(value, np.float32))
+        """values[idx, which] += value; idx holds each sample at most once (every caller adds one contribution
+        per live path, and a sample has one path), so a plain indexed add is exact."""
+        self._passes[which][idx] += np.asarray(value, np.float32)
+
+    @property
+    def values(self) -> np.ndarray:
+        """(N, len(LIGHT_PASSES), 3) view of the sums (writable)."""
+        return self._passes.transpose(1, 0, 2)
 
     def add_split(self, direct: bool, idx: np.ndarray, value: np.ndarray, d: np.ndarray | None = None,
                   g: np.ndarray | None = None) -> None:
