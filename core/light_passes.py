@@ -70,11 +70,18 @@ def split_ratios(lobes: "bsdf_mod.LobeBatch", wo: np.ndarray, wi: np.ndarray, ba
                  rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(diffuse share, glossy share) (M, 3) float32 of the lobes' value f(wo, wi) |cos wi| (local frame, as
     core.bsdf.eval_bsdf takes them, rows/back likewise): f_K / f per channel, 0 where f is 0. The transmission
-    share is the rest."""
+    share is the rest. Lobes of a single kind need no evaluation (kinds absent from the batch are skipped)."""
+    m = len(wo)
+    present = set(np.unique(lobes.kind).tolist()) - {-1}
+    if present == {bsdf_mod.KIND_CODE["diffuse"]}:
+        return np.ones((m, 3), np.float32), np.zeros((m, 3), np.float32)
+    if present == {bsdf_mod.KIND_CODE["glossy"]}:
+        return np.zeros((m, 3), np.float32), np.ones((m, 3), np.float32)
     f = {}
     for name, code in (("d", bsdf_mod.KIND_CODE["diffuse"]), ("g", bsdf_mod.KIND_CODE["glossy"]),
                        ("glass", bsdf_mod.KIND_CODE["glass"])):
-        f[name] = bsdf_mod.eval_bsdf(_masked(lobes, code), wo, wi, rows=rows, back=back)[0].astype(np.float64)
+        f[name] = (bsdf_mod.eval_bsdf(_masked(lobes, code), wo, wi, rows=rows, back=back)[0].astype(np.float64)
+                   if code in present else np.zeros((m, 3)))
     total = bsdf_mod.eval_bsdf(lobes, wo, wi, rows=rows, back=back)[0].astype(np.float64)
     reflected = (np.asarray(wi)[:, 2] > 0) != np.asarray(back, bool)  # wi on wo's (geometric) side
     glossy = f["g"] + np.where(reflected[:, None], f["glass"], 0.0)
