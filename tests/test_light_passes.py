@@ -47,12 +47,13 @@ def every_kind_scene(resolution=(32, 32)) -> Scene:
                  world=World(np.array((0.3, 0.4, 0.6))), name="every-kind")
 
 
-def test_light_passes_sum_to_combined_and_cost_nothing_when_off():
+@pytest.mark.parametrize("clamp", [0.0, 1.0])
+def test_light_passes_sum_to_combined_and_cost_nothing_when_off(clamp):
     """Cycles' relation (DiffDir + DiffInd) DiffCol + ... + Emission + Environment = Combined per pixel, on a
-    scene with every kind of surface and light; every pass holds light somewhere; the image is bit for bit the
-    image rendered without light passes."""
+    scene with every kind of surface and light, also with clamped contributions; every pass holds light
+    somewhere; the image is bit for bit the image rendered without light passes."""
     scene = every_kind_scene()
-    settings = RenderSettings(spp=8, threads=2, light_passes=LIGHT_PASSES)
+    settings = RenderSettings(spp=8, threads=2, clamp=clamp, light_passes=LIGHT_PASSES)
     result = render(scene, settings)
     combined = result.color[..., :3].astype(np.float64)
     rebuilt = recombine(result.light_passes).astype(np.float64)
