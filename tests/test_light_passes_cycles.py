@@ -137,3 +137,27 @@ def test_unsupported_pass_is_named_and_left_out(tmp_path, capfd):
     saved = bf.save_render_exr(scene, tmp_path / "m.exr")
     assert not any("Ambient Occlusion" in key or ".AO." in key or "dirt" in key for key in saved)
     assert f"{layer.name}.Emission.R" in saved
+
+
+def test_headless_blend_writes_the_ticked_light_passes(tmp_path):
+    """`monte render scene.blend` (addon.headless): the light passes the view layer ticks go into Monte's EXR
+    layout (with a render border, padded to the frame like the other passes)."""
+    from monte.addon.headless import render_blend_file
+
+    scene = bf.plane_under_world(albedo=0.5, world=2.0, resolution=(12, 10))
+    layer = scene.view_layers[0]
+    layer.use_pass_diffuse_direct = layer.use_pass_diffuse_color = layer.use_pass_environment = True
+    scene.render.use_border = True
+    scene.render.border_max_x = 0.5
+    blend = tmp_path / "plane.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp_path / "plane.exr"
+    render_blend_file(blend, out, {"spp": 4}, log=lambda _m: None)
+    channels = exr.read_exr(out)
+    assert {"diffuse_direct.R", "diffuse_color.G", "environment.B"} <= set(channels)
+    assert "emission.R" not in channels and "glossy_direct.R" not in channels
+    inside = channels["diffuse_color.R"][:, :6]
+    np.testing.assert_allclose(inside, 0.5, rtol=1e-5)  # the plane's albedo where the border rendered
+    # albedo 0.5 x world 2: direct light 2 after dividing by the colour, a zero-variance estimator
+    np.testing.assert_allclose(channels["diffuse_direct.G"][:, :6], 2.0, rtol=1e-4)
+    assert np.all(channels["diffuse_color.R"][:, 6:] == 0) and np.all(channels["environment.R"] == 0)
