@@ -105,10 +105,33 @@ def _fresnel_dielectric(cos_i: np.ndarray, eta: np.ndarray) -> np.ndarray:
     return np.where(g2 > 0, np.nan_to_num(f, nan=1.0), 1.0)
 
 
+def _multiscatter_darkening(lobes: "bsdf_mod.LobeBatch", slot: int, glossy: np.ndarray, wo: np.ndarray
+                            ) -> np.ndarray:
+    """(M, 3) factor E + Fms (1 - E) of the rough Fresnel-less glossy lobes in `slot` (Glossy BSDF): Cycles
+    folds the multiscatter compensation's darkening and saturation, (1 + Fms (1 - E) / E) / (1 / E) with
+    Fms = Fss Eavg / (1 - Fss (1 - Eavg)) and Fss the colour, into the closure's weight, so its Glossy Color
+    carries it; 1 for every other lobe."""
+    from . import microfacet
+
+    rough = lobes.roughness[:, slot].astype(np.float64)
+    apply = glossy & (rough > 0) & (lobes.fresnel[:, slot] == bsdf_mod.FRESNEL_CODE["none"])
+    out = np.ones((len(rough), 3), np.float32)
+    rows = np.flatnonzero(apply)
+    if len(rows) == 0:
+        return out
+    e = microfacet.ggx_E(rough[rows], np.abs(wo[rows, 2])).astype(np.float64)[:, None]
+    e_avg = microfacet.ggx_Eavg(rough[rows]).astype(np.float64)[:, None]
+    fss = np.clip(lobes.weight[rows, slot].astype(np.float64), 0.0, 1.0)
+    fms = fss * e_avg / np.maximum(1.0 - fss * (1.0 - e_avg), 1e-6)
+    out[rows] = (e + fms * (1.0 - e)).astype(np.float32)
+    return out
+
+
 def colors(lobes: "bsdf_mod.LobeBatch", wo: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, ...]:
     """(diffuse, glossy, transmission) colours (M, 3) float32 of first surfaces: per lobe kind the lobe albedos
-    at wo (core.bsdf.albedo, Fresnel and layering included), a glass lobe split F(cos wo) : 1 - F between
-    glossy and transmission."""
+    at wo (core.bsdf.albedo, Fresnel and layering included; a rough Glossy BSDF lobe with its multiscatter
+    darkening, see _multiscatter_darkening), a glass lobe split F(cos wo) : 1 - F between glossy and
+    transmission."""
     m, n_slots = lobes.kind.shape
     out = [np.zeros((m, 3), np.float32) for _ in COMPONENTS]
     wo = np.ascontiguousarray(wo, np.float32)
@@ -120,7 +143,10 @@ def colors(lobes: "bsdf_mod.LobeBatch", wo: np.ndarray, back: np.ndarray) -> tup
         only = replace(lobes, kind=np.where(slot_of == slot, lobes.kind, -1).astype(np.int8))
         albedo = bsdf_mod.albedo(only, wo)
         out[0] += np.where((kind == bsdf_mod.KIND_CODE["diffuse"])[:, None], albedo, 0)
-        out[1] += np.where((kind == bsdf_mod.KIND_CODE["glossy"])[:, None], albedo, 0)
+        glossy = kind == bsdf_mod.KIND_CODE["glossy"]
+        if glossy.any() and lobes.multiscatter:
+            albedo = albedo * _multiscatter_darkening(lobes, slot, glossy, wo)
+        out[1] += np.where(glossy[:, None], albedo, 0)
         out[2] += np.where((kind == bsdf_mod.KIND_CODE["refraction"])[:, None], albedo, 0)
         glass = kind == bsdf_mod.KIND_CODE["glass"]
         if glass.any():

@@ -79,11 +79,9 @@ def monte_render(scene, spp: int):
 
 # Measured at 1024 spp (two Monte seeds against one Cycles render): what each Direct / Indirect pass adds to
 # Combined (pass x its Color, image mean) within -0.7..+0.4 % of Cycles', the Color passes, Emission and
-# Environment within 0.2 % except Glossy Color (+1.3 %: core.bsdf.albedo's estimate for a rough multiscatter
-# glossy lobe against Cycles' bsdf_albedo). The divided passes themselves are ratios per pixel: where an
-# object's edge gives a pixel a colour near 0 the ratio is as noisy as one sample, so their image means are
-# compared through pass x Color.
-TOLERANCE = {"Glossy Color": 0.02}
+# Environment within 0.1 %. The divided passes themselves are ratios per pixel: where an object's edge gives a
+# pixel a colour near 0 the ratio is as noisy as one sample, so their image means are compared through
+# pass x Color.
 
 
 def test_light_passes_match_cycles(tmp_path):
@@ -112,7 +110,7 @@ def test_light_passes_match_cycles(tmp_path):
         got = np.stack([saved[f"{layer}.{name}.{c}"] for c in "RGB"], axis=-1)
         np.testing.assert_allclose(got, result.light_passes[name], rtol=1e-6, atol=1e-7, err_msg=name)
     for name, err in errors.items():
-        assert abs(err) < TOLERANCE.get(name, 0.01), f"{name}: Monte's mean is {100 * err:+.2f} % off Cycles'"
+        assert abs(err) < 0.01, f"{name}: Monte's mean is {100 * err:+.2f} % off Cycles'"
 
 
 def test_unsupported_pass_is_named_and_left_out(tmp_path, capfd):
