@@ -185,7 +185,7 @@ def _cases() -> list[tuple[str, Callable[[], object], dict]]:
         ("cornell, adaptive", lambda: builtin_scene("cornell", small),
          {"spp": 16, "adaptive_threshold": 0.05, "adaptive_min_samples": 4}),
         ("cornell, one thread", lambda: builtin_scene("cornell", small), {"threads": 1}),
-        ("cornell, light passes", lambda: builtin_scene("cornell", small), {"light_passes": LIGHT_PASSES}),
+        ("every-feature, light passes", every_feature_scene, {"light_passes": LIGHT_PASSES}),
     ]
     return cases
 
