@@ -776,11 +776,11 @@ class PathTracer:
             lp.add_split(False, sample_of[vis], value)
             return
         # At the first surface every path has one light sample: its sample index finds its row in `can`.
-        share_d, share_g = lp_mod.split_ratios(lobes, gc.wo, wi_local, gc.cos_o_geo < 0, rows=can)
+        shares = lp_mod.split_ratios(lobes, gc.wo, wi_local, gc.cos_o_geo < 0, rows=can)
         row_of = np.zeros(len(radiance), np.int64)
         row_of[idx[can]] = np.arange(m)
         k = row_of[sample_of[:count][vis]]
-        lp.add_split(True, sample_of[vis], value, share_d[k], share_g[k])
+        lp.add_split(True, sample_of[vis], value, tuple(share[k] for share in shares))
 
     def _terminator_args(self, bary, can, gc: "SurfaceBatch") -> tuple:
         """shadow_rays' shadow terminator inputs for the light samples of paths `can` (empty arrays: off)."""
@@ -835,15 +835,18 @@ class PathTracer:
                               u_lobe) -> None:
         """Each sample's diffuse and glossy share of its first bounce (core.light_passes): the lobes' values at
         the sampled direction, or for a delta sample the kind of the lobe it came from."""
-        share_d, share_g = lp_mod.split_ratios(lobes, g.wo, bs.wi, g.cos_o_geo < 0)
+        share_d, share_g, share_t = lp_mod.split_ratios(lobes, g.wo, bs.wi, g.cos_o_geo < 0)
         delta = np.flatnonzero(bs.delta)
         if len(delta):
             kinds = np.zeros(len(idx), np.int8)
             bounce_kinds(lobes.arrays(), u_lobe, bs.transmitted, kinds)
             share_d[delta] = (kinds[delta] == DIFFUSE_RAY)[:, None]
             share_g[delta] = (kinds[delta] == GLOSSY_RAY)[:, None]
+            # a transmission ray, or a ray through a Transparent BSDF (which stays a camera ray)
+            share_t[delta] = ((kinds[delta] != DIFFUSE_RAY) & (kinds[delta] != GLOSSY_RAY))[:, None]
         lp.weight_diffuse[idx] = share_d
         lp.weight_glossy[idx] = share_g
+        lp.weight_transmission[idx] = share_t
 
     def _add(self, radiance: np.ndarray, idx: np.ndarray, value: np.ndarray) -> None:
         """Add contributions to their samples, catching NaN/Inf (counted, dropped) and clamping if asked."""

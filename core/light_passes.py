@@ -13,8 +13,8 @@ The passes (Cycles' names and meaning, Blender 5.3):
 
 How a first-surface contribution is split (Cycles' bsdf_eval diffuse / glossy / sum): for a direction wi the
 lobes' values f_K(wi) are summed per kind K, a glass lobe counting as glossy where wi is on wo's side and as
-transmission where it crosses, and the contribution c goes c f_K / f to kind K (per channel; what is left after
-diffuse and glossy goes to transmission, so the three parts sum to c exactly). A delta (mirror, clear glass)
+transmission where it crosses, and the contribution c goes c f_K / f to kind K (per channel; the three shares
+sum to 1 up to float rounding). A delta (mirror, clear glass)
 sample goes whole to the kind of the lobe it came from. The weights of the first bounce are kept per camera
 sample and split everything the path gathers later.
 
@@ -67,29 +67,29 @@ def _masked(lobes: "bsdf_mod.LobeBatch", kind: int) -> "bsdf_mod.LobeBatch":
 
 
 def split_ratios(lobes: "bsdf_mod.LobeBatch", wo: np.ndarray, wi: np.ndarray, back: np.ndarray,
-                 rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(diffuse share, glossy share) (M, 3) float32 of the lobes' value f(wo, wi) |cos wi| (local frame, as
-    core.bsdf.eval_bsdf takes them, rows/back likewise): f_K / f per channel, 0 where f is 0. The transmission
-    share is the rest. Lobes of a single kind need no evaluation (kinds absent from the batch are skipped)."""
+                 rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(diffuse, glossy, transmission shares) (M, 3) float32 of the lobes' value f(wo, wi) |cos wi| (local
+    frame, as core.bsdf.eval_bsdf takes them, rows/back likewise): f_K / f per channel, 0 where f is 0. Lobes
+    of a single kind need no evaluation (kinds absent from the batch are skipped)."""
     m = len(wo)
     present = set(np.unique(lobes.kind).tolist()) - {-1}
+    ones, zeros = np.ones((m, 3), np.float32), np.zeros((m, 3), np.float32)
     if present == {bsdf_mod.KIND_CODE["diffuse"]}:
-        return np.ones((m, 3), np.float32), np.zeros((m, 3), np.float32)
+        return ones, zeros, zeros.copy()
     if present == {bsdf_mod.KIND_CODE["glossy"]}:
-        return np.zeros((m, 3), np.float32), np.ones((m, 3), np.float32)
+        return zeros, ones, zeros.copy()
     f = {}
-    for name, code in (("d", bsdf_mod.KIND_CODE["diffuse"]), ("g", bsdf_mod.KIND_CODE["glossy"]),
-                       ("glass", bsdf_mod.KIND_CODE["glass"])):
+    for name in ("diffuse", "glossy", "glass", "refraction"):
+        code = bsdf_mod.KIND_CODE[name]
         f[name] = (bsdf_mod.eval_bsdf(_masked(lobes, code), wo, wi, rows=rows, back=back)[0].astype(np.float64)
                    if code in present else np.zeros((m, 3)))
-    total = bsdf_mod.eval_bsdf(lobes, wo, wi, rows=rows, back=back)[0].astype(np.float64)
-    reflected = (np.asarray(wi)[:, 2] > 0) != np.asarray(back, bool)  # wi on wo's (geometric) side
-    glossy = f["g"] + np.where(reflected[:, None], f["glass"], 0.0)
+    total = f["diffuse"] + f["glossy"] + f["glass"] + f["refraction"]
+    reflected = ((np.asarray(wi)[:, 2] > 0) != np.asarray(back, bool))[:, None]  # wi on wo's geometric side
+    parts = (f["diffuse"], f["glossy"] + np.where(reflected, f["glass"], 0.0),
+             f["refraction"] + np.where(reflected, 0.0, f["glass"]))
     with np.errstate(invalid="ignore", divide="ignore"):
         safe = np.where(total > 0, total, 1.0)
-        d = np.where(total > 0, f["d"] / safe, 0.0)
-        g = np.where(total > 0, glossy / safe, 0.0)
-    return np.clip(d, 0, 1).astype(np.float32), np.clip(g, 0, 1).astype(np.float32)
+        return tuple(np.where(total > 0, np.clip(part / safe, 0, 1), 0.0).astype(np.float32) for part in parts)
 
 
 def _fresnel_dielectric(cos_i: np.ndarray, eta: np.ndarray) -> np.ndarray:
@@ -168,6 +168,7 @@ class LightPassSamples:
         self._passes = np.zeros((len(LIGHT_PASSES), n, 3), np.float32)
         self.weight_diffuse = np.zeros((n, 3), np.float32)
         self.weight_glossy = np.zeros((n, 3), np.float32)
+        self.weight_transmission = np.zeros((n, 3), np.float32)
 
     def add(self, which: int, idx: np.ndarray, value: np.ndarray) -> None:
         """values[idx, which] += value; idx holds each sample at most once (every caller adds one contribution
@@ -179,19 +180,17 @@ class LightPassSamples:
         """(N, len(LIGHT_PASSES), 3) view of the sums (writable)."""
         return self._passes.transpose(1, 0, 2)
 
-    def add_split(self, direct: bool, idx: np.ndarray, value: np.ndarray, d: np.ndarray | None = None,
-                  g: np.ndarray | None = None) -> None:
-        """Split contributions of samples idx by diffuse / glossy shares d, g (default: each sample's first
-        bounce weights) into the Direct or Indirect passes; transmission takes the rest."""
+    def add_split(self, direct: bool, idx: np.ndarray, value: np.ndarray,
+                  shares: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
+        """Split contributions of samples idx by (diffuse, glossy, transmission) shares (default: each sample's
+        first bounce weights) into the Direct or Indirect passes. The shares sum to 1 (to float rounding) where
+        the BSDF is not 0, so the parts sum to the contribution."""
         value = np.asarray(value, np.float32)
-        if d is None:
-            d, g = self.weight_diffuse[idx], self.weight_glossy[idx]
-        part_d = value * d
-        part_g = value * g
-        part_t = value - part_d - part_g
+        if shares is None:
+            shares = (self.weight_diffuse[idx], self.weight_glossy[idx], self.weight_transmission[idx])
         table = _DIRECT if direct else _INDIRECT
-        for comp, part in zip(COMPONENTS, (part_d, part_g, part_t)):
-            self.add(table[comp], idx, part)
+        for comp, share in zip(COMPONENTS, shares):
+            self.add(table[comp], idx, value * share)
 
     def add_colors(self, idx: np.ndarray, cols: tuple[np.ndarray, ...], throughput: np.ndarray) -> None:
         for comp, col in zip(COMPONENTS, cols):

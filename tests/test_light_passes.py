@@ -17,7 +17,8 @@ from monte.core.settings import RenderSettings
 
 def every_kind_scene(resolution=(32, 32)) -> Scene:
     """Diffuse ground and wall, a diffuse, a rough glossy, a clear glass, a rough glass and a diffuse + glossy
-    sphere, a square area light seen by the camera, an emissive quad, and a coloured world above the wall."""
+    sphere, a rough glass pane, a square area light seen by the camera, an emissive quad, and a coloured world
+    above the wall."""
     materials = [
         Material("ground", [Lobe("diffuse", np.array((0.6, 0.55, 0.5)))]),
         Material("clay", [Lobe("diffuse", np.array((0.7, 0.2, 0.1)))]),
@@ -37,6 +38,8 @@ def every_kind_scene(resolution=(32, 32)) -> Scene:
         icosphere("frosted", (1.3, 0.4, 0.4), 0.4, 4),
         icosphere("plastic", (0.0, -0.8, 0.9), 0.3, 5),
         quad("panel", [(-1.6, 1.45, 1.4), (-0.8, 1.45, 1.4), (-0.8, 1.45, 1.9), (-1.6, 1.45, 1.9)], 6),
+        # a frosted pane under the lamp, seen from below: light through one transmission (Transmission Direct)
+        quad("pane", [(0.4, -1.0, 1.9), (0.4, 0.0, 1.9), (1.6, 0.0, 1.9), (1.6, -1.0, 1.9)], 4),
     ]
     m = np.eye(4)
     m[:3, 3] = (1.0, -0.5, 2.5)
