@@ -60,12 +60,19 @@ def _add_render_options(p: argparse.ArgumentParser) -> None:
                         "Normal passes; the EXR keeps the image before denoising as the noisy.* layer")
     p.add_argument("--denoise-quality", choices=("high", "balanced", "fast"), default="high",
                    help="Open Image Denoise's quality (default high, as Cycles)")
+    p.add_argument("--light-passes", action="store_true",
+                   help="built-in scenes: also write Cycles' light passes (diffuse_direct.*, ..., emission.*, "
+                        "environment.*); a .blend writes the passes its view layer ticks")
 
 
 def _settings_from(args: argparse.Namespace) -> dict:
     out = {k: getattr(args, k) for k in CLI_SETTINGS if getattr(args, k, None) is not None}
     if getattr(args, "denoise", False):
         out["denoising_features"] = True
+    if getattr(args, "light_passes", False):
+        from .core.light_passes import LIGHT_PASSES
+
+        out["light_passes"] = LIGHT_PASSES
     return out
 
 
@@ -130,6 +137,10 @@ def cmd_render(args: argparse.Namespace) -> int:
     if (args.frames is not None or args.resume) and not (args.dask and is_blend):
         print("monte render: --frames and --resume render a .blend's frames on a cluster (with --dask); "
               "built-in scenes are still images", file=sys.stderr)
+        return 2
+    if is_blend and overrides.pop("light_passes", None):
+        print("monte render: --light-passes is for built-in scenes; a .blend writes the light passes its view "
+              "layer ticks (View Layer Properties > Passes > Light)", file=sys.stderr)
         return 2
     if is_blend:
         if args.passes:
@@ -324,7 +335,8 @@ def _write_outputs(result, output: Path, no_png: bool) -> list[str]:
     channels = exr.image_channels(result.color, result.variance, result.albedo, result.normal, result.depth,
                                   noisy=result.noisy, denoising_albedo=result.denoising_albedo,
                                   denoising_normal=result.denoising_normal,
-                                  shadow_catcher=result.shadow_catcher)
+                                  shadow_catcher=result.shadow_catcher,
+                                  light_passes=result.light_passes)
     data = getattr(result, "data_passes", {})
     channels.update(exr.data_pass_channels(data, {"Mist": "Z", "Position": "XYZ", "UV": "UVA", "Object Index": "X",
                                                   "Material Index": "X"}))

@@ -111,6 +111,45 @@ def unavailable_pass_warnings(view_layer, scene=None) -> list[str]:
                        f"passes ({', '.join(f.removeprefix('use_pass_') for f in chosen)}): they are left out")
     return out
 
+# Cycles' light passes (core.light_passes): Blender's pass name -> the view layer property that asks for it
+# (Cycles' own checkboxes, View Layer Properties > Passes > Light). One table: register, fill and write from it.
+LIGHT_PASS_PROPERTIES = {
+    "Diffuse Direct": "use_pass_diffuse_direct",
+    "Diffuse Indirect": "use_pass_diffuse_indirect",
+    "Diffuse Color": "use_pass_diffuse_color",
+    "Glossy Direct": "use_pass_glossy_direct",
+    "Glossy Indirect": "use_pass_glossy_indirect",
+    "Glossy Color": "use_pass_glossy_color",
+    "Transmission Direct": "use_pass_transmission_direct",
+    "Transmission Indirect": "use_pass_transmission_indirect",
+    "Transmission Color": "use_pass_transmission_color",
+    "Emission": "use_pass_emit",
+    "Environment": "use_pass_environment",
+}
+PASSES.update({name: (3, "RGB", "COLOR") for name in LIGHT_PASS_PROPERTIES})
+# Light passes Cycles has and Monte cannot produce (no ambient occlusion pass, no volumes; shader AOVs are listed
+# by unsupported_passes too): when one is ticked the render says so by name and the pass is not registered (never a black pass that looks real). (owner, property,
+# pass name); owner "cycles" is view_layer.cycles (present while the Cycles add-on is enabled).
+UNSUPPORTED_PASSES = (
+    ("view_layer", "use_pass_ambient_occlusion", "Ambient Occlusion"),
+    ("cycles", "use_pass_volume_direct", "Volume Direct"),
+    ("cycles", "use_pass_volume_indirect", "Volume Indirect"),
+)
+
+
+def unsupported_passes(view_layer) -> list[str]:
+    """Names of the passes ticked on `view_layer` that Monte does not produce (UNSUPPORTED_PASSES)."""
+    if view_layer is None:
+        return []
+    names = []
+    for owner, prop, name in UNSUPPORTED_PASSES:
+        holder = view_layer if owner == "view_layer" else getattr(view_layer, owner, None)
+        if holder is not None and bool(getattr(holder, prop, False)):
+            names.append(name)
+    # Shader AOVs (AOV Output nodes, View Layer Properties > Shader AOV): not rendered by Monte yet
+    names += [f"Shader AOV {aov.name!r}" for aov in getattr(view_layer, "aovs", ())]
+    return names
+
 
 def requested_passes(view_layer, scene=None) -> list[str]:
     """The passes Monte fills for this view layer (of `scene`, whose denoise setting adds the denoising
@@ -132,7 +171,13 @@ def requested_passes(view_layer, scene=None) -> list[str]:
         names.append("Variance")
     if uses_shadow_catcher_pass(view_layer):
         names.append("Shadow Catcher")
+    names += [name for name, prop in LIGHT_PASS_PROPERTIES.items() if getattr(view_layer, prop, False)]
     return names + data_pass_names(view_layer, scene)
+
+
+def requested_light_passes(passes: list[str]) -> tuple[str, ...]:
+    """The light passes among `passes` (core.settings.RenderSettings.light_passes)."""
+    return tuple(name for name in passes if name in LIGHT_PASS_PROPERTIES)
 
 
 # Extra progress callbacks (core.render.Progress -> None), e.g. the headless command's progress bar.
@@ -237,7 +282,11 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         self.report({"INFO"}, f"Monte: {stats.line()}")
         settings = render_settings(scene, {"aovs": any(p in passes for p in ("Depth", "Normal", "Albedo")),
                                            "data_passes": data_passes(view_layer, scene),
-                                           "cryptomatte_levels": 2 * cryptomatte_layers(view_layer)})
+                                           "cryptomatte_levels": 2 * cryptomatte_layers(view_layer),
+                                           "light_passes": requested_light_passes(passes)})
+        for name in unsupported_passes(view_layer):
+            self.report({"WARNING"}, f"Monte: the {name} pass (view layer {view_layer.name!r}) is not produced "
+                        "by Monte; it is left out of the render result")
         if settings.threads == 0:
             # Blender's own thread count: all cores, or Performance > Threads > Fixed, or `blender -t N`.
             settings = settings.replace(threads=max(1, int(scene.render.threads)))
@@ -525,6 +574,8 @@ def _pass_pixels(name: str, src, h: int, w: int, channels: int) -> np.ndarray:
         arr = src.denoising_albedo
     elif name == "Shadow Catcher":
         arr = getattr(src, "shadow_catcher", None)
+    elif name in LIGHT_PASS_PROPERTIES:
+        arr = (getattr(src, "light_passes", None) or {}).get(name)
     else:
         data = getattr(src, "data_passes", {})
         arr = data.get(name)

@@ -166,18 +166,20 @@ def _configure_output(scene, multilayer: bool) -> None:
 
 def _monte_channels(result, region, size) -> dict:
     """core.exr's channel layout (R G B A, variance.*, albedo.*, normal.*, Z; with denoising noisy.*,
-    denoising_albedo.*, denoising_normal.*; with a shadow catcher shadow_catcher.*), the same as `monte render`
-    of a built-in scene; with a region, padded to the full frame (black, depth 1e10, shadow catcher 1) as an
+    denoising_albedo.*, denoising_normal.*; with a shadow catcher shadow_catcher.*; with light passes
+    diffuse_direct.* ...), the same as `monte render` of a built-in scene; with a region, padded to the full frame (black, depth 1e10, shadow catcher 1) as an
     uncropped border."""
     from ..core.exr import image_channels
 
+    light = getattr(result, "light_passes", None) or {}
     arrays = [result.color, result.variance, result.albedo, result.normal, result.depth, result.noisy,
-              result.denoising_albedo, result.denoising_normal, getattr(result, "shadow_catcher", None)]
+              result.denoising_albedo, result.denoising_normal, getattr(result, "shadow_catcher", None),
+              *light.values()]
     if region is not None:
         x0, y0, w, h = region
         width, height = size
         padded = []
-        for arr, fill in zip(arrays, (0.0, 0.0, 0.0, 0.0, 1e10, 0.0, 0.0, 0.0, 1.0)):
+        for arr, fill in zip(arrays, (0.0, 0.0, 0.0, 0.0, 1e10, 0.0, 0.0, 0.0, 1.0) + (0.0,) * (len(arrays) - 9)):
             if arr is None:
                 padded.append(None)
                 continue
@@ -186,7 +188,7 @@ def _monte_channels(result, region, size) -> dict:
             padded.append(full)
         arrays = padded
     channels = image_channels(*arrays[:5], noisy=arrays[5], denoising_albedo=arrays[6], denoising_normal=arrays[7],
-                              shadow_catcher=arrays[8])
+                              shadow_catcher=arrays[8], light_passes=dict(zip(light, arrays[9:])))
     data = dict(getattr(result, "data_passes", {}))
     if region is not None and data:
         x0, y0, w, h = region

@@ -326,6 +326,26 @@ class MONTE_VIEWLAYER_PT_passes_cryptomatte(MonteButtonsPanel, Panel):
         layout.prop(view_layer, "pass_cryptomatte_depth", text="Levels")
 
 
+class MONTE_VIEWLAYER_PT_passes_light(MonteButtonsPanel, Panel):
+    """Cycles' light passes, with Cycles' own view layer checkboxes (addon.engine.LIGHT_PASS_PROPERTIES)."""
+
+    bl_label = "Light"
+    bl_context = "view_layer"
+    bl_parent_id = "MONTE_VIEWLAYER_PT_passes"
+
+    def draw(self, context):
+        layout = split_layout(self.layout)
+        view_layer = context.view_layer
+        for heading, kind in (("Diffuse", "diffuse"), ("Glossy", "glossy"), ("Transmission", "transmission")):
+            col = layout.column(heading=heading, align=True)
+            col.prop(view_layer, f"use_pass_{kind}_direct", text="Direct")
+            col.prop(view_layer, f"use_pass_{kind}_indirect", text="Indirect")
+            col.prop(view_layer, f"use_pass_{kind}_color", text="Color")
+        col = layout.column(heading="Other", align=True)
+        col.prop(view_layer, "use_pass_emit", text="Emission")
+        col.prop(view_layer, "use_pass_environment")
+
+
 def _draw_node_input(layout, tree, input_name: str) -> None:
     output = tree.get_output_node("CYCLES") if tree is not None else None
     if output is None:
@@ -438,6 +458,7 @@ classes = (
     MONTE_VIEWLAYER_PT_passes,
     MONTE_VIEWLAYER_PT_passes_data,
     MONTE_VIEWLAYER_PT_passes_cryptomatte,
+    MONTE_VIEWLAYER_PT_passes_light,
     MONTE_MATERIAL_PT_surface,
     MONTE_WORLD_PT_surface,
     MONTE_WORLD_PT_mist,

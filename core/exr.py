@@ -33,11 +33,13 @@ def image_channels(
     denoising_albedo: np.ndarray | None = None,
     denoising_normal: np.ndarray | None = None,
     shadow_catcher: np.ndarray | None = None,
+    light_passes: dict[str, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
     """Monte's channel layout: R G B A, variance.R/G/B, albedo.R/G/B, normal.X/Y/Z, Z (depth); with denoising,
     R G B A hold the denoised image, noisy.R/G/B/A the image before denoising (Blender's Noisy Image pass),
     denoising_albedo.R/G/B and denoising_normal.X/Y/Z the passes the denoiser read (camera space); with a shadow
-    catcher, shadow_catcher.R/G/B (Cycles' Shadow Catcher pass, core.film).
+    catcher, shadow_catcher.R/G/B (Cycles' Shadow Catcher pass, core.film); Cycles' light passes
+    (core.light_passes) as <name in snake case>.R/G/B: diffuse_direct.R, ..., emission.R, environment.R.
     Arrays are (H, W, C) with row 0 at the top."""
     channels: dict[str, np.ndarray] = {}
     for i, name in enumerate("RGBA"[: color.shape[2]]):
@@ -52,6 +54,10 @@ def image_channels(
         if arr is not None:
             for i, name in enumerate(names):
                 channels[prefix + name] = arr[..., i]
+    for name, arr in (light_passes or {}).items():
+        prefix = name.lower().replace(" ", "_") + "."
+        for i, c in enumerate("RGB"):
+            channels[prefix + c] = arr[..., i]
     if depth is not None:
         channels["Z"] = depth
     return channels

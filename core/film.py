@@ -29,8 +29,8 @@ the sums measure (tests/test_film_memory.py: 1e6 samples against float64 referen
 
 Memory per pixel (core.memory): K 12 B, group deviation sums 48 B (G = 4), group counts 16 B, sum of squared
 deviations 12 B = 88 B; the AOVs add 32 B (float32 albedo, normal and depth sums, int32 depth count), the
-denoising features 24 B, alpha (Film > Transparent, holdout) 4 B, a shadow catcher 44 B. (It was 136 + 64 + 48
-B in float64.)
+denoising features 24 B, alpha (Film > Transparent, holdout) 4 B, a shadow catcher 44 B, the light passes
+(core.light_passes) 132 B. (It was 136 + 64 + 48 B in float64.)
 
 Shadow catcher (core.scene.Mesh.shadow_catcher; core.integrator.CatcherSamples): the film also sums each
 pixel's matte M (the radiance gathered before paths met a catcher) with its transparency T_m, the catcher
@@ -51,16 +51,18 @@ take_pass(); folded by add_sums() exactly as add() folds them), so merged films 
 
 from __future__ import annotations
 
-import numpy as np
-
 from dataclasses import dataclass
 
+import numpy as np
+
+from .light_passes import LIGHT_PASSES, finish
 from .sampling import Sampler
 
 _COLOUR_RAW = ("group_sum", "group_count", "dev_sq")
 _AOV_RAW = ("albedo", "normal", "depth_sum", "depth_count")
 _FEATURE_RAW = ("feature_albedo", "feature_normal")
 _ALPHA_RAW = ("transparent_sum",)
+_LIGHT_RAW = ("light_pass_sum",)
 _CATCHER_RAW = ("matte_sum", "matte_transparent_sum", "catcher_sum", "catcher_count", "background_sum")
 
 
@@ -86,10 +88,13 @@ class TileFilm:
     tile is cut into chunks of whole pixels)."""
 
     def __init__(self, width: int, height: int, aovs: bool, sampler: Sampler | None = None,
-                 features: bool = False, alpha: bool = False, catcher: CatcherOutput | None = None) -> None:
+                 features: bool = False, alpha: bool = False, catcher: CatcherOutput | None = None,
+                 light_passes: tuple[str, ...] = ()) -> None:
         """features: keep the denoising features' sums; alpha: keep each pixel's summed transparency
         (core.scene.Film); without it alpha is 1; catcher: keep the shadow catcher's sums and form Combined
-        from them (see the module docstring), None without a shadow catcher."""
+        from them (see the module docstring), None without a shadow catcher; light_passes: the light passes asked
+        for (the film keeps the sums of all of core.light_passes.LIGHT_PASSES when any is asked for: Direct and
+        Indirect need their Color)."""
         self.width, self.height = width, height
         n = width * height
         # Independent samples need no groups: s^2 / n is exact for them and has the most degrees of freedom.
@@ -119,6 +124,9 @@ class TileFilm:
             self.catcher_sum = np.zeros((n, 3), np.float32)
             self.catcher_count = np.zeros(n, np.int32)
             self.background_sum = np.zeros((n, 3), np.float32)
+        self.light_passes = tuple(light_passes)
+        if self.light_passes:
+            self.light_pass_sum = np.zeros((n, len(LIGHT_PASSES), 3), np.float32)
         self._capture: dict[str, np.ndarray] | None = None
 
     # ------------------------------------------------------------------------------------------ totals
@@ -202,6 +210,13 @@ class TileFilm:
                "background_sum": (np.zeros((n, 3)) if samples.background is None
                                   else _bincount3(pixel, samples.background, n))}
         self._take(raw)
+    def add_light_passes(self, pixel: np.ndarray, values: np.ndarray) -> None:
+        """Accumulate the light passes of samples: values (N, len(LIGHT_PASSES), 3) (see core.light_passes)."""
+        n, k = self.pixels, len(LIGHT_PASSES) * 3
+        pixel = np.asarray(pixel, np.int64)
+        slot = (pixel[:, None] * k + np.arange(k)[None, :]).ravel()
+        sums = np.bincount(slot, weights=np.asarray(values, np.float64).reshape(-1), minlength=n * k)
+        self._take({"light_pass_sum": sums.reshape(n, len(LIGHT_PASSES), 3)})
 
     def _take(self, raw: dict[str, np.ndarray]) -> None:
         if self._capture is not None:
@@ -229,7 +244,7 @@ class TileFilm:
                 self.dev_sq[took] = (self.dev_sq[took].astype(np.float64) + raw["dev_sq"][took]
                                      + c[:, None] * d * d).astype(np.float32)
                 self.group_count[took] += group_count[took]
-        for name in _AOV_RAW + _FEATURE_RAW + _ALPHA_RAW + _CATCHER_RAW:
+        for name in _AOV_RAW + _FEATURE_RAW + _ALPHA_RAW + _CATCHER_RAW + _LIGHT_RAW:
             if name in raw:
                 arr = getattr(self, name)
                 if arr.dtype == np.float32:
@@ -248,6 +263,8 @@ class TileFilm:
             names += _FEATURE_RAW
         if self.catcher is not None:
             names += _CATCHER_RAW
+        if self.light_passes:
+            names += _LIGHT_RAW
         return names
 
     def state(self) -> dict[str, np.ndarray]:
@@ -262,6 +279,8 @@ class TileFilm:
             names += list(_FEATURE_RAW)
         if self.catcher is not None:
             names += list(_CATCHER_RAW)
+        if self.light_passes:
+            names += list(_LIGHT_RAW)
         return {name: getattr(self, name) for name in names}
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
@@ -315,6 +334,13 @@ class TileFilm:
         samples, the normal not renormalised (as Cycles' passes)."""
         n = np.maximum(self.count, 1)[:, None]
         return self._image(self.feature_albedo / n), self._image(self.feature_normal / n)
+
+    def light_pass_images(self) -> dict[str, np.ndarray]:
+        """The light passes asked for: name -> (h, w, 3) float32, Direct and Indirect divided by their Color
+        (core.light_passes.finish)."""
+        n = np.maximum(self.count, 1).astype(np.float64)[:, None, None]
+        passes = finish(self.light_pass_sum.astype(np.float64) / n)
+        return {name: self._image(passes[name]) for name in self.light_passes}
 
     def _image(self, arr: np.ndarray) -> np.ndarray:
         return arr.reshape(self.height, self.width, *arr.shape[1:]).astype(np.float32)

@@ -20,11 +20,12 @@ import numpy as np
 
 from . import bsdf as bsdf_mod
 from . import geometry_kernels, path_kernels
+from . import light_passes as lp_mod
 from .accel import Accelerator, Hits
 from .data_passes import DataPath
 from .light_shadow import NoShadowLights
 from .lights import EmissiveTriangles, LightSampler
-from .ray_visibility import RAY_KIND_NAMES, bounce_kinds
+from .ray_visibility import DIFFUSE_RAY, GLOSSY_RAY, RAY_KIND_NAMES, bounce_kinds
 from .scene import Scene
 from .settings import RenderSettings
 from .shading import PreparedShading
@@ -389,6 +390,7 @@ class FirstHit:
     # passes; None when not asked for.
     surface: "DataPath | None" = None
     data: dict | None = None  # what each sample adds to the data passes (core.data_passes.DataTables.samples)
+    light_passes: "lp_mod.LightPassSamples | None" = None  # Cycles' light passes (settings.light_passes)
 
 
 def _smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
@@ -575,6 +577,12 @@ class PathTracer:
             if first is None:
                 first = FirstHit(None, None, None)
             data_path = first.surface = DataPath(n, ps)
+        lp = None  # the light passes (core.light_passes), only when the render asks for one
+        if s.light_passes:
+            lp = lp_mod.LightPassSamples(n)
+            if first is None:
+                first = FirstHit(None, None, None)
+            first.light_passes = lp
         idx = np.arange(n)  # which sample each live path belongs to
         o, d, tm = origins, directions, tmax
         throughput = np.ones((n, 3), np.float32)
@@ -637,7 +645,10 @@ class PathTracer:
                 if depth > 0 and not self.use_bsdf_emission:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
-                self._add(radiance, idx, throughput * le)
+                if lp is not None and depth == 0:
+                    self._add_camera_light(radiance, lp, idx, throughput * le, o, d, hit, hits, prev_pdf, prev_delta)
+                else:
+                    self._add_split(radiance, lp, depth, idx, throughput * le)
                 if features is not None:
                     features.add_emission(idx, throughput * le)
             prim = hits.prim
@@ -668,7 +679,7 @@ class PathTracer:
                                                        transmits=prev_transmits[e])
                         pb = prev_pdf[e]
                         w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
-                    self._add(radiance, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
+                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
             # Emission that varies per point (a node program drives it): such emitters are not light-sampled, so
@@ -681,7 +692,7 @@ class PathTracer:
                     le = np.zeros((len(e), 3), np.float32)
                     self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le,
                                 bary=(hits.u[e], hits.v[e]))
-                    self._add(radiance, idx[e], throughput[e] * le)
+                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le)
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
 
@@ -732,13 +743,15 @@ class PathTracer:
                 features.record(idx, lobes, g.wo, g.n_view)
             if data_path is not None:
                 data_path.record(idx, prim[rows], mat, g.p, g.uv, lobes, throughput)
+            if lp is not None and depth == 0:  # the Color passes: the first surface's lobe albedos by kind
+                lp.add_colors(idx, lp_mod.colors(lobes, g.wo, g.cos_o_geo < 0), throughput)
 
             clock = self._lap("emission", clock)
             if self.use_nee:
                 bary = None
                 if ps.terminator_offset is not None:  # the shadow terminator lift needs the hits' triangles
                     bary = (prim[rows], hits.u[rows], hits.v[rows])
-                self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary)
+                self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp)
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
@@ -752,6 +765,8 @@ class PathTracer:
                 kinds = bounce_kind[idx]
                 bounce_kinds(lobes.arrays(), u_lobe, bs.transmitted, kinds)
                 bounce_kind[idx] = kinds
+            if lp is not None and depth == 0:
+                self._first_bounce_weights(lp, idx, lobes, g, bs, u_lobe)
             m = len(idx)
             o, d = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
             next_throughput, prev_pdf, prev_delta = np.empty((m, 3), np.float32), np.empty(m, np.float32), np.empty(m, bool)
@@ -886,9 +901,10 @@ class PathTracer:
         return now
 
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
-                    bary=None) -> None:
+                    bary=None, lp: "lp_mod.LightPassSamples | None" = None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
-        u, v) of each path's hit when some mesh has a shadow terminator offset, else None."""
+        u, v) of each path's hit when some mesh has a shadow terminator offset, else None; lp: the light passes
+        to split the contributions into (None: off)."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
@@ -929,7 +945,19 @@ class PathTracer:
             free[idx[can][ps.no_shadow.matches(gc.p, wi, ls.dist)]] = True
             blocked &= ~free[sample_of[:count]]
         vis = np.flatnonzero(~blocked)
-        self._add(radiance, sample_of[vis], contrib[vis])
+        if lp is None:
+            self._add(radiance, sample_of[vis], contrib[vis])
+            return
+        value = self._add_clean(radiance, sample_of[vis], contrib[vis])
+        if depth > 0:
+            lp.add_split(False, sample_of[vis], value)
+            return
+        # At the first surface every path has one light sample: its sample index finds its row in `can`.
+        shares = lp_mod.split_ratios(lobes, gc.wo, wi_local, gc.cos_o_geo < 0, rows=can)
+        row_of = np.zeros(len(radiance), np.int64)
+        row_of[idx[can]] = np.arange(m)
+        k = row_of[sample_of[:count][vis]]
+        lp.add_split(True, sample_of[vis], value, tuple(share[k] for share in shares))
 
     def _terminator_args(self, bary, can, gc: "SurfaceBatch") -> tuple:
         """shadow_rays' shadow terminator inputs for the light samples of paths `can` (empty arrays: off)."""
@@ -942,6 +970,60 @@ class PathTracer:
         return (np.ascontiguousarray(prim[can]), np.ascontiguousarray(bu[can], np.float32),
                 np.ascontiguousarray(bv[can], np.float32), np.ascontiguousarray(gc.n_view), ps.tri_vertices,
                 ps.corner_normals, ps.terminator_offset)
+
+    def _add_clean(self, radiance: np.ndarray, idx: np.ndarray, value: np.ndarray) -> np.ndarray:
+        """_add's work done in two steps, returning the contributions as they were added (non-finite rows 0,
+        clamped), so that the light passes split exactly what the image got."""
+        clean, nonfinite, clamped = lp_mod.clean_contributions(value, self.settings.clamp)
+        self.stats.nonfinite += nonfinite
+        self.stats.clamped += clamped
+        counters = np.zeros(2, np.int64)
+        path_kernels.accumulate(radiance, np.asarray(idx, np.int64), clean, np.float32(0), counters)
+        return clean
+
+    def _add_split(self, radiance: np.ndarray, lp: "lp_mod.LightPassSamples | None", depth: int, idx: np.ndarray,
+                   value: np.ndarray) -> None:
+        """Emission found at vertex `depth` added to the image and, with light passes, to Emission (seen by the
+        camera), the Direct passes (found by the first bounce) or the Indirect ones (later)."""
+        if lp is None:
+            self._add(radiance, idx, value)
+            return
+        clean = self._add_clean(radiance, idx, value)
+        if depth == 0:
+            lp.add(lp_mod.EMISSION, idx, clean)
+        else:
+            lp.add_split(depth == 1, idx, clean)
+
+    def _add_camera_light(self, radiance, lp: "lp_mod.LightPassSamples", idx, value, o, d, hit, hits, prev_pdf,
+                          prev_delta) -> None:
+        """Lights and world seen by camera rays, with light passes: the lights' share to Emission, the world's to
+        Environment (the lights alone are looked up once more, without the world)."""
+        clean = self._add_clean(radiance, idx, value)
+        lamps = self.ps.lights.intersect(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf, prev_delta,
+                                         False, camera=True, world=False)
+        total = np.asarray(value, np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            lamp_share = np.where(total > 0, np.clip(lamps / np.where(total > 0, total, 1.0), 0, 1), 0.0)
+        em = (clean * lamp_share).astype(np.float32)
+        lp.add(lp_mod.EMISSION, idx, em)
+        lp.add(lp_mod.ENVIRONMENT, idx, clean - em)
+
+    def _first_bounce_weights(self, lp: "lp_mod.LightPassSamples", idx, lobes, g: "SurfaceBatch", bs,
+                              u_lobe) -> None:
+        """Each sample's diffuse and glossy share of its first bounce (core.light_passes): the lobes' values at
+        the sampled direction, or for a delta sample the kind of the lobe it came from."""
+        share_d, share_g, share_t = lp_mod.split_ratios(lobes, g.wo, bs.wi, g.cos_o_geo < 0)
+        delta = np.flatnonzero(bs.delta)
+        if len(delta):
+            kinds = np.zeros(len(idx), np.int8)
+            bounce_kinds(lobes.arrays(), u_lobe, bs.transmitted, kinds)
+            share_d[delta] = (kinds[delta] == DIFFUSE_RAY)[:, None]
+            share_g[delta] = (kinds[delta] == GLOSSY_RAY)[:, None]
+            # a transmission ray, or a ray through a Transparent BSDF (which stays a camera ray)
+            share_t[delta] = ((kinds[delta] != DIFFUSE_RAY) & (kinds[delta] != GLOSSY_RAY))[:, None]
+        lp.weight_diffuse[idx] = share_d
+        lp.weight_glossy[idx] = share_g
+        lp.weight_transmission[idx] = share_t
 
     def _add(self, radiance: np.ndarray, idx: np.ndarray, value: np.ndarray) -> None:
         """Add contributions to their samples, catching NaN/Inf (counted, dropped) and clamping if asked."""

@@ -12,10 +12,12 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
   AOVs float32 albedo and normal sums (24 B), a float32 depth sum and int32 count (8 B); with the denoising
   features float32 albedo and normal sums (24 B); with a shadow catcher float32 matte, catcher and world sums
   (36 B), the matte's transparency (4 B) and an int32 count of samples that met the catcher (4 B) (+ 44 B, and
-  28 B more in the result: the Shadow Catcher pass and its matte). Each pass is summed in float64 over the batch's samples
+  28 B more in the result: the Shadow Catcher pass and its matte); with light passes float32 RGB sums of all 11
+  (132 B). Each pass is summed in float64 over the batch's samples
   (counted in the path batch) before it is folded in;
 - result: the assembled float32 colour RGBA (16 B), variance (12 B), int32 sample count (4 B); with AOVs
-  albedo, normal (24 B) and depth (4 B); with the denoising features their albedo and normal (24 B);
+  albedo, normal (24 B) and depth (4 B); with the denoising features their albedo and normal (24 B); 12 B per
+  light pass asked for;
 - data passes (core.data_passes), each requested one: per pixel a sample count (8 B) and film / result bytes of
   DATA_PASS_BYTES (Mist float64 sum / float32; UV float64 RGB sums / float32; Position and the indices float32);
   a Cryptomatte kind keeps sparse (key, coverage) pairs, about 2 per pixel (32 B), and levels x 8 B of layers;
@@ -42,6 +44,8 @@ from .settings import RenderSettings
 
 FILM_BYTES = 88  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
 FILM_AOV_BYTES = 32
+FILM_LIGHT_PASS_BYTES = 132  # float32 RGB sums of the 11 light passes (core.light_passes)
+RESULT_LIGHT_PASS_BYTES = 12  # per light pass asked for: float32 RGB
 RESULT_BYTES = 32
 RESULT_AOV_BYTES = 28
 FILM_FEATURE_BYTES = 24
@@ -91,8 +95,11 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
         pixels = int(w) * int(h)
     aovs = bool(settings.aovs)
     features = bool(settings.denoising_features)
-    film = pixels * (FILM_BYTES + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0))
-    result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0))
+    light = bool(getattr(settings, "light_passes", ()))
+    film = pixels * (FILM_BYTES + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0)
+                     + (FILM_LIGHT_PASS_BYTES if light else 0))
+    result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0)
+                       + RESULT_LIGHT_PASS_BYTES * len(getattr(settings, "light_passes", ())))
     if scene.has_shadow_catcher:
         film += pixels * FILM_CATCHER_BYTES
         result += pixels * RESULT_CATCHER_BYTES
@@ -111,7 +118,9 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     scene_bytes = scene.triangle_count * TRIANGLE_BYTES + texels * TEXEL_BYTES
     if scene.world.environment is not None:  # the world's map (held once) and its importance tables
         scene_bytes += scene.world.environment.nbytes
-    return MemoryEstimate(film, result, paths * PATH_BYTES, scene_bytes)
+    # with light passes each path carries their float32 sums and its first bounce's weights (156 B)
+    path_bytes = PATH_BYTES + (156 if light else 0)
+    return MemoryEstimate(film, result, paths * path_bytes, scene_bytes)
 
 
 def available_memory() -> int | None:

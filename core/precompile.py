@@ -165,6 +165,7 @@ def every_feature_scene(resolution: tuple[int, int] = (12, 8)):
 
 def _cases() -> list[tuple[str, Callable[[], object], dict]]:
     from .builtin_scenes import BUILTIN_SCENES, builtin_scene
+    from .light_passes import LIGHT_PASSES
 
     small = (12, 8)
     cases: list[tuple[str, Callable[[], object], dict]] = [
@@ -184,6 +185,7 @@ def _cases() -> list[tuple[str, Callable[[], object], dict]]:
         ("cornell, adaptive", lambda: builtin_scene("cornell", small),
          {"spp": 16, "adaptive_threshold": 0.05, "adaptive_min_samples": 4}),
         ("cornell, one thread", lambda: builtin_scene("cornell", small), {"threads": 1}),
+        ("every-feature, light passes", every_feature_scene, {"light_passes": LIGHT_PASSES}),
     ]
     return cases
 

@@ -29,6 +29,7 @@ from .filters import PixelFilter
 from .integrator import (DIM_FILM, DIM_LENS, CatcherSamples, DenoisingFeatures, FirstHit, PathStats, PathTracer,
                          PreparedScene)
 from .jit_cache import compile_cache_is_cold
+from .light_passes import LightPassSamples
 from .memory import check_render_memory
 from .sampling import VARIANCE_GROUPS, make_sampler
 from .scene import Scene
@@ -76,6 +77,7 @@ class Tile:
     shadow_catcher: np.ndarray | None = None
     shadow_catcher_matte: np.ndarray | None = None
     data_passes: dict = field(default_factory=dict)
+    light_passes: dict[str, np.ndarray] | None = None  # Cycles' light passes asked for (core.light_passes)
 
     @property
     def width(self) -> int:
@@ -129,6 +131,8 @@ class RenderResult:
     # {"CryptoObject": [names], ...}: the names each requested Cryptomatte layer hashes (its manifest,
     # core.data_passes.cryptomatte_metadata)
     cryptomatte: dict = field(default_factory=dict)
+    # settings.light_passes: name -> (h, w, 3) float32 (core.light_passes: Direct/Indirect divided by Color)
+    light_passes: dict[str, np.ndarray] | None = None
 
 
 ProgressCallback = Callable[[Progress], None]
@@ -226,7 +230,7 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     tile_list = tiles(0, 0, width, height, settings.tile_size)
     sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
     films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
-                      catcher=CatcherOutput.of(scene)) for t in tile_list]
+                      catcher=CatcherOutput.of(scene), light_passes=settings.light_passes) for t in tile_list]
     reached = [0] * len(tile_list)
     for part in sorted(parts, key=lambda p: (p.tile_index, p.sample_start)):
         ti = part.tile_index
@@ -251,6 +255,7 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     result = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings))
     _assemble_features(result, tile_list, films, scene, region)
     _assemble_catcher(result, tile_list, films, region)
+    _assemble_light_passes(result, tile_list, films, region)
     return result
 
 
@@ -288,6 +293,8 @@ def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
     out = Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
     if film.catcher is not None:
         out.shadow_catcher, out.shadow_catcher_matte = film.shadow_catcher_images()[:2]
+    if film.light_passes:
+        out.light_passes = film.light_pass_images()
     if film.features and world_to_camera is not None:
         out.denoising_albedo, world_normal = film.feature_images()
         out.denoising_normal = (world_normal @ world_to_camera.T).astype(np.float32)
@@ -332,6 +339,18 @@ def _assemble_catcher(result: RenderResult, tile_list: list[TileRect], films: li
         tx, ty, tw, th = tile
         sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
         result.shadow_catcher[sl], result.shadow_catcher_matte[sl] = film.shadow_catcher_images()[:2]
+def _assemble_light_passes(result: RenderResult, tile_list: list[TileRect], films: list[TileFilm],
+                           region: TileRect) -> None:
+    """Fill result.light_passes from the tiles' films when they keep the light passes."""
+    if not films or not films[0].light_passes:
+        return
+    rx, ry, rw, rh = region
+    result.light_passes = {name: np.zeros((rh, rw, 3), np.float32) for name in films[0].light_passes}
+    for tile, film in zip(tile_list, films):
+        tx, ty, tw, th = tile
+        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
+        for name, arr in film.light_pass_images().items():
+            result.light_passes[name][sl] = arr
 
 
 def _silent(_msg: str) -> None:
@@ -422,7 +441,7 @@ class _TileRender:
         alpha = scene.has_alpha
         catcher = CatcherOutput.of(scene)
         self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features, alpha=alpha,
-                                  catcher=catcher)
+                                  catcher=catcher, light_passes=settings.light_passes)
                       for t in self.tiles}
         # Cycles' data passes (core.data_passes), local renders only (render_samples' merge does not carry them)
         self.data_tables = None
@@ -611,6 +630,9 @@ class _TileRender:
                 first.catcher = CatcherSamples.spread(first_l.catcher, live, n)
             if first_l.surface is not None:  # dead rays saw nothing
                 first.surface = first_l.surface.take_live(live, n)
+            if first_l.light_passes is not None:
+                first.light_passes = LightPassSamples(n)
+                first.light_passes.values[live] = first_l.light_passes.values
         return radiance, first, transparent
 
     def _finish_one(self, quiet: bool = False) -> None:
@@ -632,6 +654,8 @@ class _TileRender:
                 film.add_catcher(seg.loc, first.catcher.take(rows))
             if self.data_tables is not None:
                 self.data_films[seg.tile].add(seg.loc, seg.smp, take_samples(first.data, rows.start, rows.stop))
+            if first is not None and first.light_passes is not None:
+                film.add_light_passes(seg.loc, first.light_passes.values[rows])
             self.film_seconds += time.perf_counter() - t0
             self.done_paths += len(seg.loc)
             if not quiet:
@@ -744,4 +768,5 @@ class _TileRender:
         if self.data_tables is not None:
             out.data_passes = assemble_data([(t, self.data_films[t]) for t in self.tiles], self.region)
             out.cryptomatte = manifests(self.data_tables)
+        _assemble_light_passes(out, self.tiles, [self.films[t] for t in self.tiles], self.region)
         return out

@@ -49,6 +49,8 @@ class RenderSettings:
     "object_index", "material_index", "crypto_object", "crypto_material", "crypto_asset"); empty (the default)
     costs nothing. cryptomatte_levels: (id, coverage) pairs kept per pixel (Blender's Cryptomatte Levels,
     1-16, rounded up to even: two pairs per 4-channel layer).
+    light_passes: Cycles' light passes to produce, by name (core.light_passes.LIGHT_PASSES: "Diffuse Direct",
+    ..., "Emission", "Environment"); empty (the default) costs nothing.
     """
 
     spp: int = 64
@@ -70,6 +72,7 @@ class RenderSettings:
     denoising_features: bool = False
     data_passes: tuple[str, ...] = ()
     cryptomatte_levels: int = 6
+    light_passes: tuple[str, ...] = ()
 
     def validate(self) -> "RenderSettings":
         """Raise ValueError naming the setting for absurd values (NaN, Inf and non-numbers included)."""
@@ -123,6 +126,9 @@ class RenderSettings:
         if isinstance(self.cryptomatte_levels, bool) or not isinstance(self.cryptomatte_levels, numbers.Integral) \
                 or not 1 <= self.cryptomatte_levels <= 16:
             raise ValueError(f"cryptomatte levels must be a whole number in [1, 16], got {self.cryptomatte_levels!r}")
+        from .light_passes import check_names
+
+        check_names(self.light_passes)
         if not (0 <= self.seed < 2**32):
             raise ValueError(f"seed must be in [0, 2^32), got {self.seed}")
         return self

@@ -1,0 +1,166 @@
+"""Light passes against real Cycles (the bpy module): every light pass Monte produces, asked for with Cycles' own
+view layer checkboxes, reaches Blender's render result (registered, so the compositor and the multilayer EXR
+see it) and has Cycles' mean; a ticked pass Monte cannot produce is named in a warning and left out."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import blender_fixtures as bf  # noqa: E402
+
+from monte.addon import crosscheck as cc  # noqa: E402
+from monte.addon.engine import LIGHT_PASS_PROPERTIES, render_with_operator  # noqa: E402
+from monte.core import exr  # noqa: E402
+
+pytestmark = [pytest.mark.blender]
+
+
+def light_scene(size=(32, 32)):
+    """Diffuse floor and wall, a diffuse, a glossy (roughness 0.4), a clear glass and a frosted glass (roughness
+    0.3) sphere, an emissive panel, a square area light and a blue-grey world seen above the wall; every light
+    pass ticked. (Closed glass: Transmission Direct is 0 in both renderers, light through a single transmission
+    needing a thin surface; tests/test_light_passes.py covers that pass.)"""
+    scene = bf.reset()
+    s = 3.0
+    bf.mesh_object("floor", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)],
+                   bf.diffuse("floor", (0.6, 0.55, 0.5)))
+    bf.mesh_object("wall", [(-s, 1.5, 0), (s, 1.5, 0), (s, 1.5, 2.2), (-s, 1.5, 2.2)], [(0, 1, 2, 3)],
+                   bf.diffuse("wall", (0.8, 0.8, 0.8)))
+    bf.icosphere_object("clay", (-1.0, 0.2, 0.45), 0.45, bf.diffuse("clay", (0.7, 0.2, 0.1)), subdivisions=4)
+    bf.icosphere_object("metal", (0.0, 0.5, 0.45), 0.45,
+                        bf.node_material("metal", "ShaderNodeBsdfGlossy", Color=(0.9, 0.8, 0.5, 1), Roughness=0.4),
+                        subdivisions=4)
+    bf.icosphere_object("glass", (0.9, -0.3, 0.45), 0.45,
+                        bf.node_material("glass", "ShaderNodeBsdfGlass", Color=(1, 1, 1, 1), Roughness=0.0,
+                                         IOR=1.45), subdivisions=4)
+    bf.icosphere_object("frosted", (-0.2, -0.9, 0.3), 0.3,
+                        bf.node_material("frosted", "ShaderNodeBsdfGlass", Color=(0.8, 0.9, 1.0, 1), Roughness=0.3,
+                                         IOR=1.5), subdivisions=4)
+    bf.mesh_object("panel", [(-1.6, 1.45, 1.3), (-0.8, 1.45, 1.3), (-0.8, 1.45, 1.8), (-1.6, 1.45, 1.8)],
+                   [(0, 1, 2, 3)], bf.node_material("panel", "ShaderNodeEmission", Color=(1, 0.8, 0.5, 1),
+                                                     Strength=2.0))
+    bf.add_light(scene, "AREA", (1.2, -1.0, 2.6), (0.4, 0.0, 0.6), energy=400.0, shape="SQUARE", size=2.0)
+    bf.camera_object(scene, (0, -4.5, 1.6), (math.radians(82), 0, 0), lens=30.0)
+    bf.set_world(scene, (0.3, 0.4, 0.6), 1.0)
+    scene.render.resolution_x, scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    layer = scene.view_layers[0]
+    for prop in LIGHT_PASS_PROPERTIES.values():
+        setattr(layer, prop, True)
+    return scene
+
+
+def cycles_passes(scene, spp: int, tmp_path) -> dict[str, np.ndarray]:
+    """Cycles' light passes (name -> (H, W, 3)) from the multilayer EXR of a still render."""
+    layer = scene.view_layers[0]
+    cc.configure_cycles(scene, spp, 8, threads=2, seed=1)
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+    path = tmp_path / "cycles.exr"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True, scene=scene.name)
+    ch = exr.read_exr(path)
+    return {name: np.stack([ch[f"{layer.name}.{name}.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
+            for name in LIGHT_PASS_PROPERTIES}
+
+
+def monte_render(scene, spp: int):
+    scene.render.engine = "MONTE"
+    m = scene.monte
+    m.samples, m.max_bounces, m.seed, m.threads = spp, 8, 1, 2
+    m.filter_type, m.filter_width = "blackman-harris", 1.5
+    return render_with_operator(scene)[0][1]
+
+
+# Measured at 1024 spp (two Monte seeds against one Cycles render): what each Direct / Indirect pass adds to
+# Combined (pass x its Color, image mean) within -0.7..+0.4 % of Cycles', the Color passes, Emission and
+# Environment within 0.1 %. The divided passes themselves are ratios per pixel: where an object's edge gives a
+# pixel a colour near 0 the ratio is as noisy as one sample, so their image means are compared through
+# pass x Color.
+
+
+def test_light_passes_match_cycles(tmp_path):
+    scene = light_scene()
+    cycles = cycles_passes(scene, 1024, tmp_path)
+    result = monte_render(scene, 1024)
+    monte = {name: arr.astype(np.float64) for name, arr in result.light_passes.items()}
+    lines, errors = [], {}
+    for name in LIGHT_PASS_PROPERTIES:
+        comp, _, part = name.partition(" ")
+        if part in ("Direct", "Indirect"):  # what the pass adds to Combined
+            cm = (cycles[name] * cycles[f"{comp} Color"]).mean()
+            mm = (monte[name] * monte[f"{comp} Color"]).mean()
+        else:
+            cm, mm = cycles[name].mean(), monte[name].mean()
+        if cm == 0:  # Transmission Direct of closed glass objects
+            assert mm == 0, name
+            continue
+        errors[name] = mm / cm - 1
+        lines.append(f"{name:22s} Cycles {cm:.5f} Monte {mm:.5f} ({100 * errors[name]:+.2f} %)")
+    print("\n" + "\n".join(lines))
+    # Blender's render result holds every pass (registered by update_render_passes, written by the engine)
+    saved = bf.save_render_exr(scene, tmp_path / "monte.exr")
+    layer = scene.view_layers[0].name
+    for name in LIGHT_PASS_PROPERTIES:
+        got = np.stack([saved[f"{layer}.{name}.{c}"] for c in "RGB"], axis=-1)
+        np.testing.assert_allclose(got, result.light_passes[name], rtol=1e-6, atol=1e-7, err_msg=name)
+    for name, err in errors.items():
+        assert abs(err) < 0.01, f"{name}: Monte's mean is {100 * err:+.2f} % off Cycles'"
+
+
+def test_unsupported_pass_is_named_and_left_out(tmp_path, capfd):
+    """Ambient Occlusion ticked and a shader AOV declared: the render warns by name and the result has no such
+    pass (never a black pass that looks real)."""
+    scene = bf.plane_under_world(resolution=(8, 8))
+    scene.render.engine = "MONTE"
+    layer = scene.view_layers[0]
+    layer.use_pass_ambient_occlusion = True
+    layer.use_pass_emit = True
+    from monte.addon.engine import unsupported_passes, requested_passes
+
+    assert unsupported_passes(layer) == ["Ambient Occlusion"]
+    layer.aovs.add().name = "dirt"
+    assert unsupported_passes(layer) == ["Ambient Occlusion", "Shader AOV 'dirt'"]
+    assert "Ambient Occlusion" not in requested_passes(layer, scene)
+    assert "Emission" in requested_passes(layer, scene)
+    render_with_operator(scene)
+    printed = capfd.readouterr()
+    assert "Monte: the Ambient Occlusion pass (view layer 'ViewLayer') is not produced by Monte" in \
+        printed.out + printed.err
+    saved = bf.save_render_exr(scene, tmp_path / "m.exr")
+    assert not any("Ambient Occlusion" in key or ".AO." in key or "dirt" in key for key in saved)
+    assert f"{layer.name}.Emission.R" in saved
+
+
+def test_headless_blend_writes_the_ticked_light_passes(tmp_path):
+    """`monte render scene.blend` (addon.headless): the light passes the view layer ticks go into Monte's EXR
+    layout (with a render border, padded to the frame like the other passes)."""
+    from monte.addon.headless import render_blend_file
+
+    scene = bf.plane_under_world(albedo=0.5, world=2.0, resolution=(12, 10))
+    layer = scene.view_layers[0]
+    layer.use_pass_diffuse_direct = layer.use_pass_diffuse_color = layer.use_pass_environment = True
+    scene.render.use_border = True
+    scene.render.border_max_x = 0.5
+    blend = tmp_path / "plane.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp_path / "plane.exr"
+    render_blend_file(blend, out, {"spp": 4}, log=lambda _m: None)
+    channels = exr.read_exr(out)
+    assert {"diffuse_direct.R", "diffuse_color.G", "environment.B"} <= set(channels)
+    assert "emission.R" not in channels and "glossy_direct.R" not in channels
+    inside = channels["diffuse_color.R"][:, :6]
+    np.testing.assert_allclose(inside, 0.5, rtol=1e-5)  # the plane's albedo where the border rendered
+    # albedo 0.5 x world 2: direct light 2 after dividing by the colour, a zero-variance estimator
+    np.testing.assert_allclose(channels["diffuse_direct.G"][:, :6], 2.0, rtol=1e-4)
+    assert np.all(channels["diffuse_color.R"][:, 6:] == 0) and np.all(channels["environment.R"] == 0)
