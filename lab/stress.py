@@ -636,9 +636,44 @@ def case_dielectrics(ctx: Context) -> list[CaseResult]:
     return out
 
 
+def clamp_closed_form_scenes(res: int) -> list[tuple[str, Scene, np.ndarray, float]]:
+    """Scenes whose every sample contribution is one known RGB value v, so that a clamp c has a closed form: each
+    contribution whose largest component exceeds c is scaled down to it, so the image is v min(1, c / max(v)).
+    (name, scene, v, c): a sky-lit plane (the uniform world, found by cosine-sampled BSDF rays: every sample
+    rho x Lw) and a plane under a delta sun (found by light sampling only: every sample strength x sin(elev) x
+    rho / pi), both coloured so that the scaling (one factor for all channels) shows."""
+    sky = scenes.plane_under_world((res, res), albedo=0.8)
+    sky.world = World(np.array([10.0, 5.0, 2.5]))
+    e = math.radians(30.0)
+    colour = np.array([1.0, 0.5, 0.25])
+    sun = SunLight("sun", np.array([0.0, -math.cos(e), -math.sin(e)]), colour * math.pi / (0.8 * math.sin(e)),
+                   angle=0.0)
+    sunlit = _plane_scene(res, (0, 0, 1), (0, 0, 0), 40.0, world=0.0, lights=[sun], up=(0, 1, 0))
+    return [("sky-lit plane", sky, 0.8 * np.array([10.0, 5.0, 2.5]), 2.0),
+            ("sun-lit plane", sunlit, colour, 0.5)]
+
+
+def case_clamp_closed_form(ctx: Context) -> list[CaseResult]:
+    """Clamping against its closed form (clamp_closed_form_scenes): exact, zero-variance answers."""
+    out = []
+    res = max(ctx.cfg.resolution // 2, 8)
+    for name, scene, value, clamp in clamp_closed_form_scenes(res):
+        r = ctx.render(scene, ctx.settings(clamp=clamp))
+        expected = value * min(1.0, clamp / float(value.max()))
+        out.append(measure(ctx, f"clamp {clamp:g}, {name}", "fireflies", f"{name}: every sample "
+                           f"{_fmt(value, 3)}, clamp {clamp:g} scales it to {_fmt(expected, 3)}", r, expected,
+                           reference_kind="analytic (clamped)",
+                           checks={"clamped_contributions": int(r.stats["clamped_contributions"]),
+                                   "ok_every_sample_clamped": int(r.stats["clamped_contributions"]) > 0}))
+    return out
+
+
 def case_fireflies(ctx: Context) -> list[CaseResult]:
     """A lamp 1/400 of the area at 400x the radiance (same power) in the Cornell box: light reaching the floor
-    through the glass sphere and off the mirror is found only by BSDF sampling, as rare huge samples."""
+    through the glass sphere and off the mirror is found only by BSDF sampling, as rare huge samples. The clamped
+    renders have no closed form (clamp_closed_form_scenes has those): they are held to the unclamped render with
+    the same seed, pixel by pixel (clamping only scales contributions down, it never changes a path: no pixel
+    may brighten), and to the independent unclamped reference (darker, with less variance)."""
     def tiny() -> Scene:
         scene = ctx.cornell()
         k = 0.015
@@ -650,7 +685,7 @@ def case_fireflies(ctx: Context) -> list[CaseResult]:
     ref = ctx.render(tiny(), ctx.settings(spp=ctx.cfg.spp * 4, seed=ctx.cfg.seed + 1000))
     ref_m, ref_s = metrics.channel_means(ref.color), _sigma(ref)
     out = []
-    unclamped_var = None
+    unclamped_var = unclamped = None
     for clamp in (0.0, 10.0, 1.0):
         r = ctx.render(tiny(), ctx.settings(clamp=clamp))
         m = metrics.channel_means(r.color)
@@ -659,16 +694,21 @@ def case_fireflies(ctx: Context) -> list[CaseResult]:
         checks = {"mean_pixel_variance": var, "bias_rel": bias, "clamped_contributions":
                   int(r.stats["clamped_contributions"])}
         if clamp == 0:
-            unclamped_var = var
+            unclamped_var, unclamped = var, r
             out.append(measure(ctx, "tiny bright lamp, unbiased", "fireflies", "lamp 1/400 the area, 400x radiance "
                                "(12 x 400); default estimator", r, ref_m, ref_s, checks=checks,
                                reference_kind="same scene, 4x spp, other seed"))
         else:
             checks["ok_variance_reduced"] = var < unclamped_var
             checks["ok_biased_down"] = bias <= K_SIGMA * float((ref_s @ metrics.BT709) / (ref_m @ metrics.BT709))
+            # same seed, same paths: every pixel at most the unclamped one's (float32 sums: 1e-5 relative), and
+            # darker only where contributions were clamped: the clamped image keeps most of the light
+            gap = unclamped.color[..., :3].astype(np.float64) - r.color[..., :3]
+            checks["ok_no_pixel_brighter"] = bool(np.all(gap >= -1e-5 * np.abs(unclamped.color[..., :3]) - 1e-7))
+            checks["ok_darker_than_unclamped"] = bool(np.all(m < metrics.channel_means(unclamped.color)))
             out.append(measure(ctx, f"tiny bright lamp, clamp {clamp:g}", "fireflies", f"the same with clamp "
                                f"{clamp:g}: less variance, darker (bias)", r, m, checks=checks,
-                               reference_kind="variance below unclamped, mean not above",
+                               reference_kind="unclamped render, same seed: no pixel brighter",
                                notes=f"bias {100 * bias:+.1f}%, pixel variance x{var / unclamped_var:.2g}"))
     return out
 
@@ -805,6 +845,7 @@ CASES: list[tuple[str, Callable[[Context], CaseResult | list[CaseResult]]]] = [
     ("shading-normals", case_shading_normals),
     ("dielectric", case_dielectrics),
     ("fireflies", case_fireflies),
+    ("clamp", case_clamp_closed_form),
     ("albedo", case_albedo_extremes),
     ("resolution", case_resolutions),
     ("samples", case_sample_counts),
