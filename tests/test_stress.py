@@ -81,6 +81,10 @@ def test_clamping_trades_bias_for_variance(ctx):
     assert clamped.checks["mean_pixel_variance"] < 0.5 * free.checks["mean_pixel_variance"]
     assert clamped.checks["bias_rel"] < -0.05  # clamping 1 darkens a scene lit by a radiance-4800 lamp
     assert clamped.checks["clamped_contributions"] > 0
+    # against the unclamped render with the same seed: only pixels that got a clamped sample changed, none brighter
+    for case in (got["tiny bright lamp, clamp 10"], clamped):
+        assert case.checks["ok_only_pixels_with_clamped_samples_change"] and case.checks["ok_no_pixel_brighter"]
+        assert 0 < case.checks["changed_pixels"] <= case.checks["clamped_contributions"]
 
 
 def test_the_mean_check_fails_on_a_wrong_reference(ctx):
