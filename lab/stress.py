@@ -723,12 +723,15 @@ def case_albedo_extremes(ctx: Context) -> list[CaseResult]:
     res = max(ctx.cfg.resolution // 2, 8)
     for albedo, bounces in ((1.0, 16), (1.0, 3), (0.0, 16)):
         expected = (bounces + 2) if albedo == 1.0 else 1.0  # Le sum_{k=0}^{B+1} a^k
-        r = ctx.render(scenes.furnace((res, res), albedo=albedo), ctx.settings(max_bounces=bounces))
+        # 8x the samples: light sampling and MIS make the albedo-1 furnace noisy (not zero-variance), and a
+        # 1 % error must lie outside its 5 sigma
+        r = ctx.render(scenes.furnace((res, res), albedo=albedo), ctx.settings(spp=8 * ctx.cfg.spp,
+                                                                               max_bounces=bounces))
         checks = {"max_pixel_variance": float(r.variance.max())}
         out.append(measure(ctx, f"furnace albedo {albedo:g}, {bounces} bounces", "albedo",
                            f"closed sphere, albedo exactly {albedo:g}, Le 1, max bounces {bounces}: "
                            f"Le x (B + 2) = {expected:g}" if albedo else "albedo 0: Le exactly", r, expected,
-                           reference_kind="analytic, zero variance"))
+                           reference_kind="analytic"))
     for albedo in (1.0, 0.0):
         r = ctx.render(scenes.plane_under_world((res, res), albedo=albedo), ctx.settings())
         out.append(measure(ctx, f"sky-lit plane albedo {albedo:g}", "albedo", f"plane of albedo {albedo:g} under "
