@@ -339,7 +339,7 @@ def test_area_light_spread(spread_deg):
     for p in ([0.0, 0.0, 0.0], [0.12, 0.1, 0.0], [0.6, 0.0, 0.0]):
         p = np.asarray(p)
         exp = quad_irradiance(p, UP, pts, wts, np.array([0, 0, -1.0]), P / (math.pi * side * side), spread=spread)
-        est, se = estimate(s, p, count=2_000_000 if spread_deg < 10 else 1_000_000)
+        est, se = estimate(s, p, count={3.0: 2_000_000, 60.0: 1_000_000}.get(spread_deg, 200_000))
         assert_close(est, se, exp, rel_floor=2e-3, detect=0.05 if spread_deg < 10 else DETECT)
 
 
