@@ -102,9 +102,19 @@ def test_exported_cornell_box_renders_like_core(fast_settings):
     settings = fast_settings(spp=16)
     a = render(exported, settings)
     b = render(cornell_box((24, 24)), settings)
-    n = a.color[..., :3].size
-    sigma = math.sqrt(a.variance.sum() + b.variance.sum()) / n
-    assert abs(a.color[..., :3].mean() - b.color[..., :3].mean()) < 5 * sigma
+    # Same seed and sampling: the sigma of the difference of the two means comes from the per-pixel differences
+    # (common random numbers), far below either render's own; a 1 % error must fail (the control).
+    from monte.core import metrics
+    from monte.lab.stress import paired_sigma
+
+    diff = metrics.channel_means(a.color) - metrics.channel_means(b.color)
+    sigma = paired_sigma(a, b)
+    assert np.all(np.abs(diff) < 5 * sigma + 1e-6), (diff, sigma)
+    for wrong in (1.01, 0.99):
+        a.color[..., :3] *= wrong
+        assert np.any(np.abs(metrics.channel_means(a.color) - metrics.channel_means(b.color))
+                      >= 5 * paired_sigma(a, b) + 1e-6), wrong
+        a.color[..., :3] /= wrong
 
 
 # ---------------------------------------------------------------------------------------------- cancel, errors

@@ -84,7 +84,10 @@ def test_cli_renders_a_builtin_scene(tmp_path, capsys):
     channels = exr.read_exr(out)
     sigma = np.array([np.sqrt(channels[f"variance.{c}"].astype(np.float64).sum()) / rgb[..., 0].size for c in "RGB"])
     assert np.all(4 * sigma < 0.01 * 1.5)
-    assert np.all(np.abs(rgb.reshape(-1, 3).mean(axis=0) - 1.5) <= 4 * sigma)
+    mean = rgb.reshape(-1, 3).mean(axis=0)
+    assert np.all(np.abs(mean - 1.5) <= 4 * sigma)
+    for wrong in (1.01, 0.99):  # the control: the closed form 1 % off fails
+        assert np.any(np.abs(mean - wrong * 1.5) > 4 * sigma), (wrong, mean, sigma)
     assert (tmp_path / "c.png").is_file()
     assert "wrote" in capsys.readouterr().out
 

@@ -2,10 +2,16 @@
 
 Every irradiance check compares a Monte Carlo estimate sum(radiance cos / pdf) / N with a closed form (or a
 Gauss-Legendre quadrature of the light's surface where no closed form is at hand), within 4 standard errors of
-the estimate plus a small relative floor for float32 rounding.
+the estimate plus a small relative floor for float32 rounding, and proves its power on its own numbers: the closed
+form 1 % too high and 1 % too low must fail (assert_close's built-in control; where sampling is noisier the
+sample count is raised until it does, and the one exception, a 3-degree spread, states 5 %).
+
+The sampled directions follow each light kind's pdf: Pearson's chi-square over 64 cells of the light, with a
+built-in control (the pdf 5 % too high over half its mass and 5 % too low over the rest must fail).
 
 The Cycles checks render a white diffuse plane (or a mirror) under each light kind with Blender 5.0's Cycles in a
-subprocess (bpy), and compare with Monte's own sampler at the same pixels.
+subprocess (bpy), and compare with Monte's own sampler at the same pixels: a units check that detects 2 % (its
+control: Monte's mean 2 % off fails); the 1 % agreement of every light kind with Cycles is test_crosscheck.py's.
 """
 
 from __future__ import annotations
@@ -58,9 +64,19 @@ def estimate(sampler, p, n=UP, count=200_000, seed=0, use_n=True):
     return f.mean(), f.std() / math.sqrt(count)
 
 
-def assert_close(est, se, expected, rel_floor=2e-4, sigmas=4.0):
+DETECT = 0.01  # the error every closed-form check here detects: its closed form 1 % off must fail
+
+
+def assert_close(est, se, expected, rel_floor=2e-4, sigmas=4.0, detect=DETECT):
+    """est within sigmas x se (+ rel_floor relative) of the closed form, and the built-in control: the closed
+    form `detect` (1 %) too high or too low must fail at this sample count (else the check is too noisy to see
+    a 1 % error: raise its sample count)."""
     tol = sigmas * se + rel_floor * abs(expected) + 1e-12
     assert abs(est - expected) <= tol, f"estimate {est:.6g} +- {se:.3g}, expected {expected:.6g}"
+    if expected != 0 and detect:
+        for wrong in (1 + detect, 1 - detect):
+            assert abs(est - wrong * expected) > tol, (f"the control: {expected * wrong:.6g} ({100 * detect:g} % off) "
+                                                       f"passes too (tolerance {100 * tol / abs(expected):.2f} %)")
 
 
 def gl(n, a, b):
@@ -226,7 +242,7 @@ def test_sphere_point_light_without_soft_falloff():
     L = P / (4 * math.pi ** 2 * r * r)
     est, se = estimate(s, c + [0.1, 0, 0], n)
     assert_close(est, se, math.pi * L)
-    est, se = estimate(s, c + [0.1, 0, 0], n, use_n=False)
+    est, se = estimate(s, c + [0.1, 0, 0], n, use_n=False, count=2_000_000)  # uniform: 2M for the 1 % control
     assert_close(est, se, math.pi * L)
 
 
@@ -311,6 +327,8 @@ def test_area_light_is_one_sided():
 
 @pytest.mark.parametrize("spread_deg", [120.0, 60.0, 3.0])
 def test_area_light_spread(spread_deg):
+    """A narrow spread is a noisy light to sample (the whole square is sampled, a small part of it shines at the
+    point): at 3 deg, 2M samples resolve a 5 % error, not 1 % (the wider spreads: 1 %)."""
     spread = math.radians(spread_deg)
     c = np.array([0.1, 0.05, 1.0])
     m = area_matrix(c, [0, 0, -1])
@@ -321,8 +339,8 @@ def test_area_light_spread(spread_deg):
     for p in ([0.0, 0.0, 0.0], [0.12, 0.1, 0.0], [0.6, 0.0, 0.0]):
         p = np.asarray(p)
         exp = quad_irradiance(p, UP, pts, wts, np.array([0, 0, -1.0]), P / (math.pi * side * side), spread=spread)
-        est, se = estimate(s, p, count=200_000)
-        assert_close(est, se, exp, rel_floor=2e-3)
+        est, se = estimate(s, p, count={3.0: 2_000_000, 60.0: 1_000_000}.get(spread_deg, 200_000))
+        assert_close(est, se, exp, rel_floor=2e-3, detect=0.05 if spread_deg < 10 else DETECT)
 
 
 @pytest.mark.parametrize("angle_deg", [0.0, 0.526, 20.0])
@@ -342,7 +360,7 @@ def test_world_constant_radiance():
     s = make_sampler([], world=(0.5, 0.25, 0.125))
     est, se = estimate(s, np.zeros(3))  # cosine sampling about n: no variance
     assert_close(est, se, math.pi * 0.5, rel_floor=1e-5)
-    est, se = estimate(s, np.zeros(3), use_n=False)  # uniform sphere
+    est, se = estimate(s, np.zeros(3), use_n=False, count=2_000_000)  # uniform sphere: 2M for the 1 % control
     assert_close(est, se, math.pi * 0.5)
     assert s.kinds_present == {"world"}
 
@@ -647,7 +665,9 @@ def test_pdf_triangle_is_the_sample_pdf_at_every_point():
 
 def test_per_point_selection_is_unbiased_where_it_changes_strongly():
     """Two area lights far apart over a floor: next to each, the selection favours it ~10:1. Light sampling,
-    and MIS of light sampling with cosine-sampled BSDF rays, both give the closed-form irradiance at every point."""
+    and MIS of light sampling with cosine-sampled BSDF rays, both give the closed-form irradiance at every point.
+    Power: the smallest error it detects is 1 % (60k samples per point resolve it): assert_close's control, the
+    closed form 1 % high and 1 % low must fail, runs at each point for both estimators."""
     La, Lb = 40.0, 10.0
     ma = area_matrix([-1.5, 0, 0.5], [0, 0, -1])
     ma[:3, 3] = W(ma[:3, 3])
@@ -1057,6 +1077,10 @@ def compare(name, img, spec, tol=0.01):
     c_mean, m_mean = cyc.mean(), mean.mean()
     m_se = math.sqrt((se ** 2).sum()) / se.size
     assert abs(c_mean - m_mean) <= tol * abs(m_mean) + 4 * m_se, f"{name}: Cycles {c_mean:.6g} Monte {m_mean:.6g}"
+    # The control: these unit checks (tolerance `tol` for Cycles' own noise, + 4 sigma of Monte's) detect 2 tol;
+    # Monte's mean off by that must fail. (The 1 % check of every light kind: test_crosscheck.py's test_light.)
+    for wrong in (1 + 2 * tol, 1 - 2 * tol):
+        assert abs(c_mean - wrong * m_mean) > tol * abs(wrong * m_mean) + 4 * m_se, f"{name}: {wrong} x Monte passes"
     # 4 x 4 blocks: the light is where Cycles has it
     r = spec["res"] // 4
     cb = cyc.reshape(4, r, 4, r).mean((1, 3))
@@ -1116,3 +1140,202 @@ def test_near_triangles_are_sampled_by_solid_angle_without_fireflies():
     expected = parallel_rect_irradiance(Le, -half, half, -half, half, 0.01)
     assert_close(f.mean(), f.std() / math.sqrt(N), expected)
 
+
+
+# ------------------------------------------------------------------------------------ chi-square of sampling
+# Each light kind alone, sampled from one shading point: the directions `sample` draws, binned on the light
+# (equal-area cells of its surface, or equal-solid-angle cells of its cone), against the counts its own pdf
+# predicts (the pdf `intersect` weighs MIS with, which `test_intersect_pdf_is_the_sample_pdf_at_every_point`
+# ties to `sample`'s; for emissive triangles `pdf_triangle`), integrated over each cell by Gauss-Legendre
+# quadrature. Pearson's statistic over 64 cells at the 99.9 % quantile: a correct sampler fails 1 run in 1000
+# (the seeds are fixed, so a run either passes or not). Power: with N = 200k samples, a pdf 5 % too high over
+# the cells holding half the mass and 5 % too low over the rest adds N x 0.05^2 = 500 to the statistic (critical
+# value ~106): the built-in control below must fail, in every case.
+CHI2_SAMPLES = 200_000
+CHI2_CELLS = 8  # per axis: 64 cells
+CHI2_QUAD = 4  # Gauss-Legendre points per cell and axis
+
+
+def direction_pdf(s, p, n, d):
+    """Solid-angle pdf (selection included) of `s.sample` at point p (3,) with normal n (3,) for directions d
+    (M, 3), recovered from `intersect`: a BSDF ray of pdf b gets the power-heuristic weight w = b^2 / (b^2 + pl^2),
+    so pl = b sqrt((1 - w) / w); a second pass with b = pl keeps w near 1/2 (float32 precision)."""
+    M = d.shape[0]
+    P0 = np.tile(np.float32(p), (M, 1))
+    Nn = np.tile(np.float32(n), (M, 1))
+    tinf = np.full(M, np.inf, np.float32)
+    d = d.astype(np.float32)
+    le = s.intersect(P0, d, tinf, np.ones(M), np.zeros(M, bool), False, n=Nn)[:, 0].astype(np.float64)
+    b = np.ones(M)
+    seen = le > 0
+    for _ in range(2):
+        w = s.intersect(P0, d, tinf, b, np.zeros(M, bool), True, n=Nn)[:, 0].astype(np.float64)
+        w = np.where(seen, w / np.where(seen, le, 1.0), 0.0)
+        b = np.where(seen & (w > 0), b * np.sqrt(np.maximum(1 - w, 0) / np.maximum(w, 1e-300)), 1.0)
+    return np.where(seen, b, 0.0)
+
+
+def frame(axis):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    a = np.cross(axis, [0.3, 0.5, 0.8])
+    a /= np.linalg.norm(a)
+    return a, np.cross(axis, a), axis
+
+
+def cell_grid(lo0, hi0, lo1, hi1):
+    """Quadrature over CHI2_CELLS^2 equal cells of [lo0, hi0] x [lo1, hi1]: (x0, x1, weight, cell) flat."""
+    x, w = np.polynomial.legendre.leggauss(CHI2_QUAD)
+    e0, e1 = np.linspace(lo0, hi0, CHI2_CELLS + 1), np.linspace(lo1, hi1, CHI2_CELLS + 1)
+    h0, h1 = np.diff(e0)[0] / 2, np.diff(e1)[0] / 2
+    c0 = (e0[:-1, None] + h0 * (1 + x)).reshape(-1)  # (cells * quad,)
+    c1 = (e1[:-1, None] + h1 * (1 + x)).reshape(-1)
+    w0, w1 = np.tile(w * h0, CHI2_CELLS), np.tile(w * h1, CHI2_CELLS)
+    i0, i1 = np.repeat(np.arange(CHI2_CELLS), CHI2_QUAD), np.repeat(np.arange(CHI2_CELLS), CHI2_QUAD)
+    X0, X1 = np.meshgrid(c0, c1, indexing="ij")
+    W0, W1 = np.meshgrid(w0, w1, indexing="ij")
+    I0, I1 = np.meshgrid(i0, i1, indexing="ij")
+    return X0.ravel(), X1.ravel(), (W0 * W1).ravel(), (I0 * CHI2_CELLS + I1).ravel()
+
+
+def cell_of(v0, v1, lo0, hi0, lo1, hi1):
+    i0 = np.clip(((v0 - lo0) / (hi0 - lo0) * CHI2_CELLS).astype(int), 0, CHI2_CELLS - 1)
+    i1 = np.clip(((v1 - lo1) / (hi1 - lo1) * CHI2_CELLS).astype(int), 0, CHI2_CELLS - 1)
+    return i0 * CHI2_CELLS + i1
+
+
+def chi2_case(name):
+    """(sampler, point, normal, cells of the samples' (wi, dist) (N,), expected probability per cell (64,))."""
+    p, n = np.zeros(3), UP
+    if name in ("area rectangle", "area ellipse spread"):
+        c = np.array([0.3, -0.1, 1.0])
+        if name == "area rectangle":
+            m, lx, ly = area_matrix(c, [0.2, 0, -1]), 0.8, 0.5
+            light = AreaLight("a", m.copy(), np.full(3, P), "RECTANGLE", lx, ly)
+        else:
+            m, lx, ly = area_matrix(c, [0, 0.3, -1], scale=(1.0, 0.6, 1.0)), 0.9, 0.7 * 0.6
+            light = AreaLight("a", m.copy(), np.full(3, P), "ELLIPSE", 0.9, 0.7, spread=math.radians(90))
+        light.matrix_world[:3, 3] = W(c)
+        ax, ay = m[:3, 0] / np.linalg.norm(m[:3, 0]), m[:3, 1] / np.linalg.norm(m[:3, 1])
+        nl = -m[:3, 2] / np.linalg.norm(m[:3, 2])
+        if name == "area rectangle":  # cells of the rectangle
+            box = (-lx / 2, lx / 2, -ly / 2, ly / 2)
+            to_point = lambda s, t: c + s[:, None] * ax + t[:, None] * ay  # noqa: E731
+            jac = lambda s, t: np.ones_like(s)  # noqa: E731
+            coords = lambda q: ((q - c) @ ax, (q - c) @ ay)  # noqa: E731
+        else:  # equal-area cells of the ellipse: (r^2, phi)
+            rx, ry = lx / 2, ly / 2
+            box = (0.0, 1.0, -math.pi, math.pi)
+            to_point = lambda u, f: c + np.sqrt(u)[:, None] * (rx * np.cos(f)[:, None] * ax  # noqa: E731
+                                                               + ry * np.sin(f)[:, None] * ay)
+            jac = lambda u, f: np.full_like(u, rx * ry / 2)  # noqa: E731
+            coords = lambda q: ((((q - c) @ ax) / rx) ** 2 + (((q - c) @ ay) / ry) ** 2,  # noqa: E731
+                                np.arctan2(((q - c) @ ay) / ry, ((q - c) @ ax) / rx))
+        s = make_sampler([light])
+        surface = (to_point, jac, coords, nl)
+    elif name == "emissive quad":
+        # a quad whose edges are longer than its height (sampled by solid angle, each triangle its own pdf): cells
+        # (s, t) of each triangle ABC, x = A + s (B - A) + s t (C - B), area element 2 area(ABC) s ds dt; the
+        # first coordinate runs over [0, 2): triangle int(.), s = frac(.)
+        c, half = np.array([0.2, -0.1, 0.3]), 0.4
+        tris = two_triangle_quad(c, half).astype(np.float64)
+        et = lights.EmissiveTriangles.from_mesh_arrays(tris.astype(np.float32), np.zeros(2, int),
+                                                       np.array([[2.0] * 3]))
+        s = make_sampler([], tris=et)
+        box = (0.0, 2.0, 0.0, 1.0)
+        A, B, C = tris[:, 0], tris[:, 1], tris[:, 2]
+        area2 = np.linalg.norm(np.cross(B - A, C - A), axis=1)
+
+        def to_point(u, t):
+            k, sv = np.minimum(u.astype(int), 1), u - np.minimum(u.astype(int), 1)
+            return A[k] + sv[:, None] * (B[k] - A[k]) + (sv * t)[:, None] * (C[k] - B[k])
+
+        def jac(u, t):
+            k = np.minimum(u.astype(int), 1)
+            return area2[k] * (u - k)
+
+        def coords(q):
+            out_u, out_t = np.full(len(q), -1.0), np.zeros(len(q))
+            for k in range(2):  # barycentric weights (1 - s, s (1 - t), s t) of q in triangle k
+                e1, e2, dq = B[k] - A[k], C[k] - A[k], q - A[k]
+                d11, d12, d22 = e1 @ e1, e1 @ e2, e2 @ e2
+                den = d11 * d22 - d12 * d12
+                lb, lc = (d22 * (dq @ e1) - d12 * (dq @ e2)) / den, (d11 * (dq @ e2) - d12 * (dq @ e1)) / den
+                inside = (lb >= -1e-6) & (lc >= -1e-6) & (lb + lc <= 1 + 1e-6)
+                sv = np.clip(lb + lc, 1e-12, 1)
+                out_u = np.where(inside, k + np.minimum(sv, 1 - 1e-9), out_u)
+                out_t = np.where(inside, np.clip(lc / sv, 0, 1), out_t)
+            assert np.all(out_u >= 0)
+            return out_u, out_t
+
+        surface = (to_point, jac, coords, np.array([0, 0, -1.0]))
+    else:  # cone cells (cos theta, phi) about the direction of the light: sphere light, sun, world
+        if name == "sphere light":
+            centre, r = np.array([0.4, 0.2, 1.2]), 0.5
+            light = PointLight("sphere", W(centre), np.full(3, P), radius=r)
+            light.soft_falloff = False
+            axis, cos_max = centre, math.sqrt(1 - r * r / (centre @ centre))
+            s = make_sampler([light])
+        elif name == "sun":
+            sun_d = np.array([0.2, 0.1, -1.0]) / np.linalg.norm([0.2, 0.1, -1.0])
+            s = make_sampler([SunLight("s", sun_d, np.full(3, 3.0), angle=math.radians(30))])
+            axis, cos_max = -sun_d, math.cos(math.radians(15))
+        else:  # the uniform world, cosine-sampled about the normal
+            s = make_sampler([], world=0.7)
+            axis, cos_max = UP, 0.0
+        box = (cos_max, 1.0, -math.pi, math.pi)
+        surface = None
+        a, b, z = frame(axis)
+    rng = np.random.default_rng(21)
+    N = CHI2_SAMPLES
+    ls = s.sample(np.tile(np.float32(p), (N, 1)), np.tile(np.float32(n), (N, 1)), rng.random(N), rng.random((N, 2)))
+    assert np.all(ls.pdf > 0) and not np.any(ls.delta)
+    x0, x1, wq, cell = cell_grid(*box)
+    if surface is None:
+        wi = ls.wi.astype(np.float64)
+        got = cell_of(wi @ z, np.arctan2(wi @ b, wi @ a), *box)
+        st = np.sqrt(np.clip(1 - x0 * x0, 0, None))
+        d = st[:, None] * (np.cos(x1)[:, None] * a + np.sin(x1)[:, None] * b) + x0[:, None] * z
+        dens = direction_pdf(s, p, n, d)  # cells in (cos theta, phi) measure solid angle
+    else:
+        to_point, jac, coords, nl = surface
+        q = ls.wi.astype(np.float64) * ls.dist[:, None]
+        got = cell_of(*coords(q), *box)
+        x = to_point(x0, x1)
+        dist = np.linalg.norm(x - p, axis=1)
+        d = (x - p) / dist[:, None]
+        if name == "emissive quad":
+            k = np.minimum(x0.astype(int), 1)
+            pdf = s.pdf_triangle(et.emitter_of_triangle[k], np.tile(p, (len(k), 1)), dist ** 2, np.abs(d @ nl),
+                                 n=np.tile(n, (len(k), 1))).astype(np.float64)
+        else:
+            pdf = direction_pdf(s, p, n, d)
+        dens = pdf * np.abs(d @ nl) / dist ** 2 * jac(x0, x1)  # solid-angle pdf -> the cells' area measure
+    expected = np.bincount(cell, weights=dens * wq, minlength=CHI2_CELLS ** 2)
+    counts = np.bincount(got, minlength=CHI2_CELLS ** 2)
+    return counts, expected
+
+
+def pearson(counts, expected):
+    """Pearson's statistic of counts against probabilities `expected` (renormalised over the cells), and the
+    99.9 % quantile of its distribution under the null hypothesis."""
+    from scipy import stats
+
+    e = counts.sum() * expected / expected.sum()
+    assert e.min() > 5, e.min()  # every cell expects enough samples for the chi-square approximation
+    return float(((counts - e) ** 2 / e).sum()), float(stats.chi2.isf(1e-3, len(e) - 1))
+
+
+@pytest.mark.parametrize("name", ["area rectangle", "area ellipse spread", "emissive quad", "sphere light", "sun",
+                                  "world"])
+def test_light_sampling_follows_its_pdf_chi_square(name):
+    counts, expected = chi2_case(name)
+    # the pdf integrates to 1 over the light (the quadrature of the pdf is a probability)
+    assert expected.sum() == pytest.approx(1.0, rel=2e-3), expected.sum()
+    stat, limit = pearson(counts, expected)
+    assert stat < limit, f"{name}: chi-square {stat:.1f} >= {limit:.1f}"
+    # built-in control: the same pdf 5 % too high over the cells holding the first half of its mass and 5 % too
+    # low over the rest must fail
+    half = np.cumsum(expected) <= 0.5 * expected.sum()
+    for sign in (1, -1):
+        wrong = expected * np.where(half, 1 + 0.05 * sign, 1 - 0.05 * sign)
+        assert pearson(counts, wrong)[0] > limit, f"{name}: a 5%-wrong pdf passes"

@@ -35,6 +35,17 @@ def test_stress_group(ctx, group):
         assert case.nonfinite_pixels == 0, _describe(case)
         if case.required:
             assert case.passed, _describe(case)
+        if case.required and case.reference_kind.startswith("analytic") and np.any(case.reference):
+            # every case against a closed form detects a 1 % error: the closed form 1 % off falls outside
+            for factor in (1.01, 0.99):
+                shifted = np.abs(np.asarray(case.mean) - factor * np.asarray(case.reference))
+                assert np.any(shifted > np.asarray(case.tolerance)), (factor, _describe(case))
+        if case.required and case.reference_kind == "canonical Cornell":
+            # every case compared with the canonical box detects a 2 % change of its image: its mean 2 % higher
+            # or lower falls outside its tolerance (test_a_2_percent_change_... renders such a change)
+            for factor in (1.02, 0.98):
+                shifted = np.abs(factor * np.asarray(case.mean) - np.asarray(case.reference))
+                assert np.any(shifted > np.asarray(case.tolerance)), (factor, _describe(case))
 
 
 def test_exact_answers_are_exact(ctx):
@@ -46,6 +57,20 @@ def test_exact_answers_are_exact(ctx):
     assert got["furnace albedo 0, 16 bounces"].mean == pytest.approx([1.0] * 3, rel=1e-5)
     assert got["sky-lit plane albedo 1"].mean == pytest.approx([1.0] * 3, rel=1e-5)
     assert got["sky-lit plane albedo 0"].mean == [0.0, 0.0, 0.0]
+
+
+def test_clamping_against_its_closed_form(ctx):
+    """Every sample of these scenes is one known colour v, so a clamp c gives v min(1, c / max(v)) exactly. The
+    controls: the unclamped value, and clamping each channel on its own (min(v, c): the sky-lit plane's
+    (8, 4, 2) at clamp 2 would be (2, 2, 2) instead of (2, 1, 0.5)) must fail."""
+    got = {c.name: c for c in stress.case_clamp_closed_form(ctx)}
+    assert set(got) == {"clamp 2, sky-lit plane", "clamp 0.5, sun-lit plane"}
+    for (name, _scene, value, clamp) in stress.clamp_closed_form_scenes(8):
+        case = got[f"clamp {clamp:g}, {name}"]
+        assert case.passed and case.checks["ok_every_sample_clamped"], _describe(case)
+        assert case.mean == pytest.approx(value * clamp / value.max(), rel=1e-5), name
+        for wrong in (value, np.minimum(value, clamp)):
+            assert np.any(np.abs(np.asarray(case.mean) - wrong) > np.asarray(case.tolerance)), (name, wrong)
 
 
 def test_translation_far_from_the_origin_changes_nothing(ctx):
@@ -61,6 +86,10 @@ def test_clamping_trades_bias_for_variance(ctx):
     assert clamped.checks["mean_pixel_variance"] < 0.5 * free.checks["mean_pixel_variance"]
     assert clamped.checks["bias_rel"] < -0.05  # clamping 1 darkens a scene lit by a radiance-4800 lamp
     assert clamped.checks["clamped_contributions"] > 0
+    # against the unclamped render with the same seed: only pixels that got a clamped sample changed, none brighter
+    for case in (got["tiny bright lamp, clamp 10"], clamped):
+        assert case.checks["ok_only_pixels_with_clamped_samples_change"] and case.checks["ok_no_pixel_brighter"]
+        assert 0 < case.checks["changed_pixels"] <= case.checks["clamped_contributions"]
 
 
 def test_the_mean_check_fails_on_a_wrong_reference(ctx):
