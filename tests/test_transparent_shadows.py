@@ -109,3 +109,10 @@ def test_mis_through_the_sheet_is_unbiased():
     assert means["light"] > 0.05
     assert means["mis"] == pytest.approx(means["light"], rel=0.02), means
     assert means["mis"] == pytest.approx(means["bsdf"], rel=0.03), means
+
+
+@pytest.mark.parametrize("value, message", [(-1, "transparent max bounces must be >= 0, got -1"),
+                                            (2.5, "transparent max bounces must be a whole number, got 2.5")])
+def test_bad_transparent_bounce_limits_are_named(value, message):
+    with pytest.raises(ValueError, match=message.replace(".", r"\.")):
+        SETTINGS.replace(transparent_max_bounces=value).validate()
