@@ -116,3 +116,15 @@ def test_mis_through_the_sheet_is_unbiased():
 def test_bad_transparent_bounce_limits_are_named(value, message):
     with pytest.raises(ValueError, match=message.replace(".", r"\.")):
         SETTINGS.replace(transparent_max_bounces=value).validate()
+
+
+def test_a_sheet_hidden_from_shadow_rays_is_skipped(alone):
+    """An opaque sheet hidden from shadow rays (Ray Visibility > Shadow off) under the transparent one: shadow
+    rays cast against the shadow-visible triangles only (their own structure, scene triangle indices mapped back)
+    still see the transparent sheet's material."""
+    sc = _scene([_clear(np.full(3, 0.5))])
+    sc.materials.append(Material("opaque", [Lobe("diffuse", np.full(3, 0.8))]))
+    sc.meshes.append(_quad("hidden", 8.0, 0.0, 2, visible_camera=False, visible_shadow=False))
+    got = render(sc, SETTINGS)
+    assert got.stats["features"]["ray_visibility"] == ["camera", "shadow"]
+    np.testing.assert_allclose(got.color[..., :3], 0.5 * alone, rtol=1e-5, atol=1e-7)
