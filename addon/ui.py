@@ -150,6 +150,12 @@ class MONTE_RENDER_PT_light_paths(MonteButtonsPanel, Panel):
     bl_label = "Light Paths"
     SCENE_PROPS = ("max_bounces", "rr_depth")
 
+    def draw(self, context):
+        MonteButtonsPanel.draw(self, context)
+        cycles = getattr(context.scene, "cycles", None)  # shared with Cycles' setting, as Monte reads it
+        if cycles is not None and "transparent_max_bounces" in cycles.bl_rna.properties:
+            split_layout(self.layout).prop(cycles, "transparent_max_bounces", text="Transparent Bounces")
+
 
 class MONTE_RENDER_PT_film(MonteButtonsPanel, Panel):
     bl_label = "Film"

@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from . import bsdf as bsdf_mod
-from . import geometry_kernels, path_kernels
+from . import geometry_kernels, path_kernels, transparent_shadow
 from . import light_passes as lp_mod
 from .accel import Accelerator, Hits
 from .data_passes import DataPath
@@ -133,6 +133,8 @@ class PreparedScene:
     uv_layers: np.ndarray | None = None  # (T, K, 3, 2) the named UV maps of Scene.uv_layer_names, or None
     # (T,) bool: the triangle belongs to a shadow catcher (core.scene.Mesh.shadow_catcher); None when none does
     catcher: np.ndarray | None = None
+    # (M,) bool: shadow rays go on through this material (core.transparent_shadow); None when no material does
+    shadow_clear: np.ndarray | None = None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -254,13 +256,16 @@ class PreparedScene:
         catcher = np.concatenate(catchers) if catchers else np.zeros(0, bool)
         catcher = catcher if catcher.any() else None
         features["shadow_catcher"] = catcher is not None
+        shadow_clear = transparent_shadow.clear_materials(materials)
+        features["transparent_shadows"] = shadow_clear is not None
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
                    specular, features, shading, object_of_triangle,
                    alpha, holdout, keeps, visible_to, no_shadow,
                    any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
                        for m in scene.materials for lobe in m.lobes),
-                   terminator_offset=terminator_offset, uv_layers=uv_layers, catcher=catcher)
+                   terminator_offset=terminator_offset, uv_layers=uv_layers, catcher=catcher,
+                   shadow_clear=shadow_clear)
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
@@ -613,6 +618,8 @@ class PathTracer:
             any(k in ps.visible_to for k in ("diffuse", "glossy", "transmission"))
             or ("camera" in ps.visible_to and ps.has_clear)) else None)
         catch = _CatcherState(n, self._needs_background()) if ps.catcher is not None and not copies else None
+        # Shadow rays go through Transparent BSDFs: so does MIS (core.transparent_shadow.MisOrigins)
+        through = transparent_shadow.MisOrigins.start(o) if ps.shadow_clear is not None else None
 
         for depth in range(start_depth, s.max_bounces + 2):
             if len(idx) == 0:
@@ -639,9 +646,12 @@ class PathTracer:
                 transparent[idx[gone]] += throughput[gone].mean(axis=1)
             if ps.lights.has_emission:
                 mis_here = self.mis and depth > 0
-                le = self._light_emission(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf, prev_delta,
-                                          mis_here, prev_normal, depth == 0, prev_transmits,
-                                          clear_here if film_transparent else None)
+                t_hit = np.where(hit, hits.t, np.float32(np.inf))
+                le = self._light_emission(o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal, depth == 0,
+                                          prev_transmits, clear_here if film_transparent else None)
+                if through is not None:
+                    through.light_emission(self, le, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal,
+                                           prev_transmits, clear_here if film_transparent else None)
                 if depth > 0 and not self.use_bsdf_emission:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
@@ -675,7 +685,8 @@ class PathTracer:
                         w = prev_delta[e].astype(np.float32)
                     else:
                         cos_e = np.abs(_dot(d[e], ps.face_normals[prim[e]]))
-                        pdf_l = ps.lights.pdf_triangle(em_idx, o[e], t_e * t_e, cos_e, n=prev_normal[e],
+                        o_e, t_e = (o[e], t_e) if through is None else through.origin_and_distance(e, t_e)
+                        pdf_l = ps.lights.pdf_triangle(em_idx, o_e, t_e * t_e, cos_e, n=prev_normal[e],
                                                        transmits=prev_transmits[e])
                         pb = prev_pdf[e]
                         w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
@@ -761,6 +772,7 @@ class PathTracer:
                 clear[idx] &= np.asarray(bs.transmitted, bool) & ps.keeps_transparent[mat]
             if data_path is not None:
                 data_path.scattered(idx, bs.transmitted, mat)
+            passed = None if through is None else transparent_shadow.clear_passes(lobes, u_lobe, bs.transmitted)
             if bounce_kind is not None:
                 kinds = bounce_kind[idx]
                 bounce_kinds(lobes.arrays(), u_lobe, bs.transmitted, kinds)
@@ -768,6 +780,7 @@ class PathTracer:
             if lp is not None and depth == 0:
                 self._first_bounce_weights(lp, idx, lobes, g, bs, u_lobe)
             m = len(idx)
+            old_pdf, old_delta, old_normal, old_transmits = prev_pdf, prev_delta, prev_normal, prev_transmits
             o, d = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
             next_throughput, prev_pdf, prev_delta = np.empty((m, 3), np.float32), np.empty(m, np.float32), np.empty(m, bool)
             prev_normal, prev_transmits = np.empty((m, 3), np.float32), np.empty(m, bool)
@@ -783,6 +796,10 @@ class PathTracer:
             o, d, throughput, prev_pdf, prev_delta = o[:count], d[:count], next_throughput[:count], \
                 prev_pdf[:count], prev_delta[:count]
             prev_normal, prev_transmits = prev_normal[:count], prev_transmits[:count]
+            if through is not None:
+                through = through.advance(depth, rows, idx, passed, next_idx[:count], o, d,
+                                          (old_pdf, old_delta, old_normal, old_transmits),
+                                          (prev_pdf, prev_delta, prev_normal, prev_transmits))
             idx, pix, smp = next_idx[:count], next_pix[:count], next_smp[:count]
             tm = np.full(count, np.float32(3e38))
             self._lap("scatter", clock)
@@ -931,11 +948,17 @@ class PathTracer:
             return
         clock = time.perf_counter()
         if self._catcher_copies:
-            blocked = ps.visible_subset("catcher")[0].occluded(origin[:count], direction[:count], tmax[:count])
+            occluders = ps.visible_subset("catcher")
         elif "shadow" in ps.visible_to:
-            blocked = ps.visible_subset("shadow")[0].occluded(origin[:count], direction[:count], tmax[:count])
+            occluders = ps.visible_subset("shadow")
         else:
-            blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count])
+            occluders = (self.accel, None)
+        transmit = None  # shadow rays through transparent surfaces: their transmittance (core.transparent_shadow)
+        if ps.shadow_clear is None:
+            blocked = occluders[0].occluded(origin[:count], direction[:count], tmax[:count])
+        else:
+            blocked, transmit = transparent_shadow.trace(self, occluders, origin[:count], direction[:count],
+                                                         tmax[:count], self.settings.transparent_max_bounces)
         self.stats.seconds_occluded += time.perf_counter() - clock
         self.stats.seconds_nee -= time.perf_counter() - clock  # counted once, as shadow rays
         if ps.no_shadow is not None:
@@ -944,11 +967,14 @@ class PathTracer:
             free = np.zeros(len(radiance), bool)
             free[idx[can][ps.no_shadow.matches(gc.p, wi, ls.dist)]] = True
             blocked &= ~free[sample_of[:count]]
+            if transmit is not None:
+                transmit[free[sample_of[:count]]] = 1.0
         vis = np.flatnonzero(~blocked)
+        shadowed = contrib[vis] if transmit is None else contrib[vis] * transmit[vis]
         if lp is None:
-            self._add(radiance, sample_of[vis], contrib[vis])
+            self._add(radiance, sample_of[vis], shadowed)
             return
-        value = self._add_clean(radiance, sample_of[vis], contrib[vis])
+        value = self._add_clean(radiance, sample_of[vis], shadowed)
         if depth > 0:
             lp.add_split(False, sample_of[vis], value)
             return

@@ -23,7 +23,7 @@ PREVIEW_SAMPLES = 16
 _LABELS = {"spp": "samples per pixel (spp)", "max_bounces": "max bounces", "rr_depth": "Russian roulette depth",
            "batch_paths": "batch size (batch_paths)", "tile_size": "tile size", "filter_width": "filter width",
            "time_limit": "time limit", "adaptive_threshold": "adaptive threshold",
-           "adaptive_min_samples": "adaptive min samples"}
+           "adaptive_min_samples": "adaptive min samples", "transparent_max_bounces": "transparent max bounces"}
 
 
 @dataclass
@@ -51,6 +51,8 @@ class RenderSettings:
     1-16, rounded up to even: two pairs per 4-channel layer).
     light_passes: Cycles' light passes to produce, by name (core.light_passes.LIGHT_PASSES: "Diffuse Direct",
     ..., "Emission", "Environment"); empty (the default) costs nothing.
+    transparent_max_bounces: transparent surfaces a shadow ray goes through before it counts as blocked (Cycles'
+    Light Paths > Transparent bounces, default 8; see core.transparent_shadow).
     """
 
     spp: int = 64
@@ -73,11 +75,12 @@ class RenderSettings:
     data_passes: tuple[str, ...] = ()
     cryptomatte_levels: int = 6
     light_passes: tuple[str, ...] = ()
+    transparent_max_bounces: int = 8
 
     def validate(self) -> "RenderSettings":
         """Raise ValueError naming the setting for absurd values (NaN, Inf and non-numbers included)."""
         for name in ("spp", "seed", "max_bounces", "rr_depth", "threads", "batch_paths", "tile_size",
-                     "adaptive_min_samples"):
+                     "adaptive_min_samples", "transparent_max_bounces"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) \
                     or int(value) != value:
@@ -98,6 +101,8 @@ class RenderSettings:
             raise ValueError(f"filter width {self.filter_width} px is absurd (at most 64)")
         if int(self.max_bounces) != self.max_bounces or self.max_bounces < 0:
             raise ValueError(f"max bounces must be a non-negative integer, got {self.max_bounces}")
+        if self.transparent_max_bounces < 0:
+            raise ValueError(f"transparent max bounces must be >= 0, got {self.transparent_max_bounces}")
         if self.rr_depth < 0:
             raise ValueError(f"Russian roulette depth must be >= 0, got {self.rr_depth}")
         if not (math.isfinite(self.clamp) and self.clamp >= 0):
