@@ -23,10 +23,11 @@ from . import geometry_kernels, path_kernels
 from .accel import Accelerator, Hits
 from .light_shadow import NoShadowLights
 from .lights import EmissiveTriangles, LightSampler
-from .ray_visibility import RAY_KIND_NAMES, bounce_kinds
+from .ray_visibility import RAY_KIND_NAMES, bounce_kinds, next_path_state
 from .scene import Scene
 from .settings import RenderSettings
 from .shading import PreparedShading
+from .shading.program import ATTRIBUTE_COLUMNS, PATH_COLUMNS, PATH_FLAGS, PATH_LENGTH, RAY_CAMERA
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
 # camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce.
@@ -129,6 +130,8 @@ class PreparedScene:
     # (T,) float32 Shadow Terminator Geometry Offset of each smooth triangle (0 on flat ones), None when all are 0
     terminator_offset: np.ndarray | None = None
     uv_layers: np.ndarray | None = None  # (T, K, 3, 2) the named UV maps of Scene.uv_layer_names, or None
+    # (T, A, 3, ATTRIBUTE_COLUMNS) the named attributes of Scene.attribute_names per corner, or None
+    attributes: np.ndarray | None = None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -164,6 +167,7 @@ class PreparedScene:
         verts, tris, mats, normals, uvs, smooth, objs, seen_by, terminator, layers = ([], [], [], [], [], [], [], [],
                                                                               [], [])
         layer_names = list(scene.uv_layer_names)
+        attribute_names, attrs = list(scene.attribute_names), []
         offset = 0
         any_smooth = any(m.normals is not None for m in scene.meshes)
         any_uv = any(m.uvs is not None for m in scene.meshes)
@@ -185,6 +189,12 @@ class PreparedScene:
                     if mesh.uv_layers and lname in mesh.uv_layers:
                         per[:, j] = mesh.uv_layers[lname]
                 layers.append(per)
+            if attribute_names:  # the named attributes Attribute nodes read; 0 where a mesh lacks one (Cycles)
+                per = np.zeros((t, len(attribute_names), 3, ATTRIBUTE_COLUMNS), np.float32)
+                for j, aname in enumerate(attribute_names):
+                    if mesh.attributes and aname in mesh.attributes:
+                        per[:, j] = mesh.attributes[aname]
+                attrs.append(per)
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
                 smooth.append(np.full(t, mesh.normals is not None))
@@ -217,6 +227,7 @@ class PreparedScene:
                                         np.concatenate(object_rows).astype(np.float32))
         object_of_triangle = np.concatenate(objs).astype(np.int32) if objs else np.zeros(0, np.int32)
         uv_layers = np.concatenate(layers) if layers else None
+        attributes = np.concatenate(attrs) if attrs else None
         emissive = EmissiveTriangles.from_mesh_arrays(tri_vertices, material_index, materials.emission)
         if len(vertices):
             lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
@@ -250,10 +261,15 @@ class PreparedScene:
                    alpha, holdout, keeps, visible_to, no_shadow,
                    any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
                        for m in scene.materials for lobe in m.lobes),
-                   terminator_offset=terminator_offset, uv_layers=uv_layers)
+                   terminator_offset=terminator_offset, uv_layers=uv_layers, attributes=attributes)
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
+
+
+def _rows_of(state: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
+    """The path-state rows of samples `idx` (None when no state is kept)."""
+    return None if state is None else state[idx]
 
 
 def _visibility(seen_by: list[tuple], column: int) -> np.ndarray | None:
@@ -458,6 +474,12 @@ class PathTracer:
         # from diffuse, glossy or transmission rays.
         bounce_kind = (np.zeros(n, np.int8) if any(k in ps.visible_to for k in ("diffuse", "glossy", "transmission"))
                        or ("camera" in ps.visible_to and ps.has_clear) else None)
+        # Per sample: the Light Path node's state of the ray it casts (core.shading.program PATH_*), kept only
+        # when some node program reads it.
+        path_state = None
+        if ps.shading is not None and ps.shading.uses_light_path:
+            path_state = np.zeros((n, PATH_COLUMNS), np.float32)
+            path_state[:, PATH_FLAGS] = RAY_CAMERA
 
         for depth in range(s.max_bounces + 2):
             if len(idx) == 0:
@@ -471,6 +493,8 @@ class PathTracer:
                 hits = self.accel.intersect(o, d, tm)
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
+            if path_state is not None:  # Ray Length: the distance along this ray to the point shaded
+                path_state[idx, PATH_LENGTH] = np.where(hit, hits.t, np.float32(0))
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
             clear_here = clear[idx] if ps.alpha else None
             if film_transparent:
@@ -528,7 +552,7 @@ class PathTracer:
                     mat_e = ps.material_index[prim[e]]
                     le = np.zeros((len(e), 3), np.float32)
                     self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le,
-                                bary=(hits.u[e], hits.v[e]))
+                                bary=(hits.u[e], hits.v[e]), path=_rows_of(path_state, idx[e]))
                     self._add(radiance, idx[e], throughput[e] * le)
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
@@ -558,7 +582,7 @@ class PathTracer:
                 lobes_first = ps.materials.gather(mat_first, g.uv)
                 if ps.shading is not None:
                     self._shade(g, mat_first, prim[hit_rows], d[hit_rows], lobes_first,
-                                bary=(hits.u[hit_rows], hits.v[hit_rows]))
+                                bary=(hits.u[hit_rows], hits.v[hit_rows]), path=_rows_of(path_state, idx[hit_rows]))
                 first.albedo[idx[hit_rows]] = bsdf_mod.albedo(lobes_first)
                 first.normal[idx[hit_rows]] = g.ns_raw
                 first.depth[idx[hit_rows]] = (t_start[hit_rows] + hits.t[hit_rows]) * depth_scale[hit_rows]
@@ -575,7 +599,8 @@ class PathTracer:
             mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
             if ps.shading is not None:
-                self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]))
+                self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]),
+                            path=_rows_of(path_state, idx))
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
 
@@ -596,6 +621,10 @@ class PathTracer:
                 kinds = bounce_kind[idx]
                 bounce_kinds(lobes.arrays(), u_lobe, bs.transmitted, kinds)
                 bounce_kind[idx] = kinds
+            if path_state is not None:
+                state = path_state[idx]
+                next_path_state(lobes.arrays(), u_lobe, bs.transmitted, state)
+                path_state[idx] = state
             m = len(idx)
             o, d = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
             next_throughput, prev_pdf, prev_delta = np.empty((m, 3), np.float32), np.empty(m, np.float32), np.empty(m, bool)
@@ -681,9 +710,11 @@ class PathTracer:
         return g
 
     def _shade(self, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
-               lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None) -> None:
+               lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None,
+               path: np.ndarray | None = None) -> None:
         """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
-        The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir."""
+        The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir;
+        path: the points' Light Path state (None: camera rays)."""
         sh = self.ps.shading
         rows = np.flatnonzero(sh.needs_program[mat])
         if len(rows) == 0:
@@ -701,8 +732,23 @@ class PathTracer:
             corners = self.ps.uv_layers[prim]  # (N, K, 3, 2)
             uvx = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
                    + corners[:, :, 2] * b2[:, None, None]).astype(np.float32)
+        extra = None
+        if sh.uses_light_path or sh.uses_attributes:
+            attrs = self.ps.attributes if sh.uses_attributes else None
+            n_attr = 0 if attrs is None else attrs.shape[1]
+            extra = np.zeros((len(mat), PATH_COLUMNS + ATTRIBUTE_COLUMNS * n_attr), np.float32)
+            if path is not None:
+                extra[:, :PATH_COLUMNS] = path
+            else:
+                extra[:, PATH_FLAGS] = RAY_CAMERA
+            if n_attr and bary is not None:  # the named attributes at the hit points, as the UV maps
+                b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
+                corners = attrs[prim]  # (N, A, 3, ATTRIBUTE_COLUMNS)
+                vals = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
+                        + corners[:, :, 2] * b2[:, None, None])
+                extra[:, PATH_COLUMNS:] = vals.reshape(len(mat), -1)
         sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
-                    self.ps.materials.select_scale, emission, uvx)
+                    self.ps.materials.select_scale, emission, uvx, extra)
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""

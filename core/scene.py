@@ -216,6 +216,10 @@ class Mesh:
       default); Blender objects default to 0.1 and the add-on exports their value.
     uv_layers: optional {name: (T, 3, 2)} every UV map of the mesh by name (UV Map nodes naming a map read
       these through `Scene.uv_layer_names`; a mesh without the named map reads (0, 0), as Blender does).
+    attributes: optional {name: (T, 3, 5)} the mesh attributes Attribute / Color Attribute nodes read, per
+      triangle corner (point and face attributes spread to the corners), interpolated linearly over the
+      triangle: the Color / Vector output (3 floats), Alpha and Fac (core.shading.program ATTRIBUTE_COLUMNS);
+      read through `Scene.attribute_names`; a mesh without the named attribute reads 0, as Cycles.
     """
 
     name: str
@@ -232,6 +236,7 @@ class Mesh:
     visible_transmission: bool = True
     shadow_terminator_offset: float = 0.0
     uv_layers: dict | None = None
+    attributes: dict | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -309,6 +314,16 @@ class Mesh:
                 raise SceneError(f"{owner}: UV map {lname!r} must have shape (T, 3, 2) = ({n_tri}, 3, 2), got "
                                  f"{luv.shape}")
             layers[lname] = np.nan_to_num(luv, nan=0.0, posinf=0.0, neginf=0.0)
+        attributes = {}
+        for aname, values in (self.attributes or {}).items():
+            values = np.asarray(values, dtype=np.float32)
+            if values.shape != (n_tri, 3, 5):
+                raise SceneError(f"{owner}: attribute {aname!r} must have shape (T, 3, 5) = ({n_tri}, 3, 5), got "
+                                 f"{values.shape}")
+            if not np.all(np.isfinite(values)):
+                warnings.append(f"{owner}: attribute {aname!r}: non-finite values replaced by 0")
+                values = np.nan_to_num(values, nan=0.0, posinf=0.0, neginf=0.0)
+            attributes[aname] = values
         if uvs is not None and not np.all(np.isfinite(uvs)):
             warnings.append(f"{owner}: non-finite UVs replaced by 0")
             uvs = np.nan_to_num(uvs, nan=0.0, posinf=0.0, neginf=0.0)
@@ -324,6 +339,7 @@ class Mesh:
             uvs = None if uvs is None else uvs[keep]
             objs = None if objs is None else objs[keep]
             layers = {lname: luv[keep] for lname, luv in layers.items()}
+            attributes = {aname: values[keep] for aname, values in attributes.items()}
         # Non-finite vertices that no kept triangle uses are harmless; replace them so later arithmetic is clean.
         if not np.all(np.isfinite(v)):
             v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
@@ -331,6 +347,7 @@ class Mesh:
         self.normals, self.uvs = normals, uvs
         self.object_index = None if objs is None else objs.astype(np.int32)
         self.uv_layers = layers or None
+        self.attributes = attributes or None
 
 
 # ------------------------------------------------------------------------------------------------------ lights
@@ -648,6 +665,7 @@ class Scene:
     objects: np.ndarray | None = None  # (O, core.shading.program.OBJECT_COLUMNS) float32 rows, see Mesh.object_index
     film: Film = field(default_factory=Film)
     uv_layer_names: list[str] = field(default_factory=list)  # the UV maps node programs name (uv_layer operand)
+    attribute_names: list[str] = field(default_factory=list)  # the attributes node programs name (attribute op)
 
     @property
     def has_alpha(self) -> bool:

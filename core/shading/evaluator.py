@@ -22,7 +22,9 @@ from . import procedural
 from .regs import get3, set3, setf  # noqa: F401  (re-exported for node modules)
 from .program import (BIND_F0, BIND_IOR, BIND_ROUGHNESS, BIND_TINT_R, BIND_TINT_T, BIND_WEIGHT, N_BIND,
                       OBJECT_BOX_MIN, OBJECT_BOX_SIZE, OBJECT_COLOR, OBJECT_INVERSE, OBJECT_LOCATION,
-                      OBJECT_PASS_INDEX, OBJECT_RANDOM, WIDTH, ShadingProgram, identity_object_row)
+                      OBJECT_PASS_INDEX, OBJECT_RANDOM, WIDTH, ShadingProgram, identity_object_row,
+                      ATTRIBUTE_COLUMNS, PATH_COLUMNS, RAY_CAMERA, RAY_SHADOW, RAY_DIFFUSE, RAY_GLOSSY, RAY_SINGULAR,
+                      RAY_REFLECT, RAY_TRANSMIT)
 
 # Blender's enum identifiers in the order of the evaluator's operation numbers (the compiler maps names to these).
 MATH_OPS = ("ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "POWER", "LOGARITHM", "SQRT", "INVERSE_SQRT",
@@ -43,7 +45,7 @@ _MATH, _VMATH, _MAPRANGE, _CLAMP = R.OP_MATH, R.OP_VECTOR_MATH, R.OP_MAP_RANGE, 
 _SEPXYZ, _COMBXYZ, _MAPPING, _MIX = R.OP_SEPARATE_XYZ, R.OP_COMBINE_XYZ, R.OP_MAPPING, R.OP_MIX
 _FRESNEL, _LAYER = R.OP_FRESNEL, R.OP_LAYER_WEIGHT
 _TEXCO, _GEOM, _OBJINFO, _IMAGE = R.OP_TEXCOORD, R.OP_GEOMETRY, R.OP_OBJECT_INFO, R.OP_IMAGE
-_UVLAYER = R.OP_UV_LAYER
+_UVLAYER, _ATTR, _LIGHTPATH = R.OP_UV_LAYER, R.OP_ATTRIBUTE, R.OP_LIGHT_PATH
 _SPEC, _GLASSF0, _SQRTSAT, _OMS = R.OP_SPECULAR_LAYER, R.OP_GLASS_F0, R.OP_SQRT_SATURATE, R.OP_ONE_MINUS_SATURATE
 _COLOR_BASE, _PROC_BASE = R.COLOR_BASE, R.PROCEDURAL_BASE
 _SINGULAR = np.float32(mf.SINGULAR_ROUGHNESS)
@@ -433,7 +435,7 @@ def image_lookup(tex_pixels, off, h, w, u, v, interp, ext, c):
 # ------------------------------------------------------------------------------------------------- dispatch
 @_jit
 def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-             tex_w, uvx):
+             tex_w, uvx, extra):
     """Execute core opcode `op` with operand slots `a` (a[1..]) for shading point k."""
     if op == _COPY:
         x, y, z = get3(regs, a[2])
@@ -518,6 +520,18 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
             set3(regs, a[1], uvx[k, layer, 0], uvx[k, layer, 1], 0.0)
         else:
             set3(regs, a[1], 0.0, 0.0, 0.0)
+    elif op == _ATTR:
+        col = PATH_COLUMNS + a[4] * ATTRIBUTE_COLUMNS
+        if col + ATTRIBUTE_COLUMNS <= extra.shape[1]:
+            set3(regs, a[1], extra[k, col], extra[k, col + 1], extra[k, col + 2])
+            setf(regs, a[2], extra[k, col + 3])
+            setf(regs, a[3], extra[k, col + 4])
+        else:  # no attribute table (a program run outside a render): as a mesh without the attribute
+            set3(regs, a[1], 0.0, 0.0, 0.0)
+            setf(regs, a[2], 0.0)
+            setf(regs, a[3], 0.0)
+    elif op == _LIGHTPATH:
+        _light_path(a, regs, k, extra)
     elif op == _OBJINFO:
         o = obj[k]
         set3(regs, a[1], objects[o, OBJECT_LOCATION], objects[o, OBJECT_LOCATION + 1], objects[o, OBJECT_LOCATION + 2])
@@ -578,6 +592,32 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
 
 
 @_jit
+def _flag(flags, bit):
+    return 1.0 if flags & bit else 0.0
+
+
+@_jit
+def _light_path(a, regs, k, extra):
+    """Light Path node: the ray kind flags and bounce counts of the path state (Cycles' svm_node_light_path)."""
+    if extra.shape[1] >= PATH_COLUMNS:
+        flags = np.int64(extra[k, 0])
+        vals = (float(extra[k, 1]), float(extra[k, 2]), float(extra[k, 3]), float(extra[k, 4]),
+                float(extra[k, 5]), float(extra[k, 6]))
+    else:  # no path state: a camera ray
+        flags = np.int64(RAY_CAMERA)
+        vals = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    setf(regs, a[1], _flag(flags, RAY_CAMERA))
+    setf(regs, a[2], _flag(flags, RAY_SHADOW))
+    setf(regs, a[3], _flag(flags, RAY_DIFFUSE))
+    setf(regs, a[4], _flag(flags, RAY_GLOSSY))
+    setf(regs, a[5], _flag(flags, RAY_SINGULAR))
+    setf(regs, a[6], _flag(flags, RAY_REFLECT))
+    setf(regs, a[7], _flag(flags, RAY_TRANSMIT))
+    for j in range(6):
+        setf(regs, a[8 + j], vals[j])
+
+
+@_jit
 def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects):
     o = obj[k]
     px, py, pz = float(P[k, 0]), float(P[k, 1]), float(P[k, 2])
@@ -611,11 +651,11 @@ def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects):
 
 @_jit
 def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-             tex_w, uvx):
+             tex_w, uvx, extra):
     """One instruction. A new opcode family hooks in here: `elif op < NEXT_BASE: family.run(op, a, regs, data)`."""
     if op < _COLOR_BASE:
         _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-                 tex_w, uvx)
+                 tex_w, uvx, extra)
     elif op < _PROC_BASE:
         color.run(op, a, regs, data)
     else:
@@ -624,7 +664,8 @@ def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
 
 @_jit
 def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg,
-                 tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, has_uv, back, obj, objects, uvx, scratch,
+                 tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, has_uv, back, obj, objects, uvx, extra,
+                 scratch,
                  kind, weight, rough, ior, f0, tint, select, t_scale, emission):
     """Evaluate the programs of the points `rows` (indices into the per-point arrays); write the bound lobe
     parameters of point k into row k of the LobeBatch arrays (kind .. select), `emission` (N, 3) likewise (rows
@@ -644,7 +685,7 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
         for i in range(code_start[p], code_start[p + 1]):
             a = code[i]
             _execute(a[0], a, scratch, pdata, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels,
-                     tex_offset, tex_h, tex_w, uvx)
+                     tex_offset, tex_h, tex_w, uvx, extra)
         L = bind.shape[1]
         changed = False
         for l in range(L):
@@ -722,6 +763,11 @@ class PreparedShading:
         for i, p in live:
             self.emits[i] = p.emission >= 0
         self.any_emits = bool(self.emits.any())
+        ops = self.code[:, 0] if len(self.code) else np.zeros(0, np.int32)
+        # Which per-point extras the programs read: the integrator tracks the path state and interpolates the
+        # named attributes only then.
+        self.uses_light_path = bool(np.any(ops == _LIGHTPATH))
+        self.uses_attributes = bool(np.any(ops == _ATTR))
         self.objects = np.ascontiguousarray(objects if objects is not None else identity_object_row()[None], np.float32)
         self.texture_pack = pack_textures_rgba(textures)
 
@@ -733,10 +779,12 @@ class PreparedShading:
         return cls(programs, textures, max_lobes, objects)
 
     def evaluate(self, rows: np.ndarray, mat: np.ndarray, P, N, Ng, I, uv, back, obj, lobes, select_scale,
-                 emission: np.ndarray | None = None, uv_layers: np.ndarray | None = None) -> None:
+                 emission: np.ndarray | None = None, uv_layers: np.ndarray | None = None,
+                 extra: np.ndarray | None = None) -> None:
         """Run the programs of points `rows` in place on `lobes` (a LobeBatch with one row per point) and
         `emission` ((N, 3), optional). P, N, Ng, I (N, 3) float32 world space, uv (N, 2) or None, back (N,)
-        bool, obj (N,) int32 object rows, uv_layers (N, K, 2) the named UV maps (Scene.uv_layer_names) or None."""
+        bool, obj (N,) int32 object rows, uv_layers (N, K, 2) the named UV maps (Scene.uv_layer_names) or None,
+        extra (N, PATH_COLUMNS + 5 A) float32 the path state and attributes (core.shading.program) or None."""
         n = len(mat)
         if emission is None:
             emission = np.zeros((n, 3), np.float32)
@@ -744,11 +792,12 @@ class PreparedShading:
         uvs = np.ascontiguousarray(uv, np.float32) if has_uv else np.zeros((0, 2), np.float32)
         scratch = np.empty((self.max_registers, 3), np.float32)
         uvx = np.zeros((n, 0, 2), np.float32) if uv_layers is None else np.ascontiguousarray(uv_layers, np.float32)
+        ext = np.zeros((n, 0), np.float32) if extra is None else np.ascontiguousarray(extra, np.float32)
         run_programs(np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(mat, np.int64), self.prog_of_mat,
                      self.code, self.code_start, self.regs0, self.reg_start, self.data, self.data_start, self.bind,
                      self.emit_reg, *self.texture_pack, _f3(P), _f3(N), _f3(Ng), _f3(I), uvs, has_uv,
                      np.ascontiguousarray(back, np.bool_), np.ascontiguousarray(obj, np.int32), self.objects, uvx,
-                     scratch, lobes.kind, lobes.weight, lobes.roughness, lobes.ior, lobes.f0, lobes.tint,
+                     ext, scratch, lobes.kind, lobes.weight, lobes.roughness, lobes.ior, lobes.f0, lobes.tint,
                      lobes.select, select_scale, emission)
 
 
@@ -777,8 +826,9 @@ def pack_textures_rgba(textures) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
 
 
 def run_single(program: ShadingProgram, textures=(), P=(0, 0, 0), N=(0, 0, 1), Ng=None, I=(0, 0, 1), uv=(0.0, 0.0),
-               back=False, objects: np.ndarray | None = None, uv_layers=()) -> np.ndarray:
-    """The program's final register file at one shading point (tests, and the compiler's constant folding)."""
+               back=False, objects: np.ndarray | None = None, uv_layers=(), extra=()) -> np.ndarray:
+    """The program's final register file at one shading point (tests, and the compiler's constant folding);
+    extra: the point's path state and attributes (core.shading.program PATH_* columns), empty for none."""
     n_regs = max(program.registers.shape[0], 1)
     code = np.ascontiguousarray(program.code, np.int32).reshape(-1, WIDTH)
     P3, N3, I3 = (np.asarray(v, np.float32).reshape(1, 3) for v in (P, N, I))
@@ -788,13 +838,14 @@ def run_single(program: ShadingProgram, textures=(), P=(0, 0, 0), N=(0, 0, 1), N
     objs = np.ascontiguousarray(objects if objects is not None else identity_object_row()[None], np.float32)
     _run_one(code, regs, np.ascontiguousarray(program.data, np.float32), *pack, P3, N3, Ng3, I3,
              np.asarray(uv, np.float32).reshape(1, 2), np.array([bool(back)]), np.zeros(1, np.int32), objs,
-             np.asarray(uv_layers, np.float32).reshape(1, -1, 2))
+             np.asarray(uv_layers, np.float32).reshape(1, -1, 2), np.asarray(extra, np.float32).reshape(1, -1))
     return regs[:n_regs]
 
 
 @_jit
-def _run_one(code, regs, data, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, back, obj, objects, uvx):
+def _run_one(code, regs, data, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, back, obj, objects, uvx,
+             extra):
     for i in range(code.shape[0]):
         a = code[i]
         _execute(a[0], a, regs, data, 0, P, N, Ng, I, uv, True, back, obj, objects, tex_pixels, tex_offset, tex_h,
-                 tex_w, uvx)
+                 tex_w, uvx, extra)

@@ -23,7 +23,8 @@ singular threshold, ior >= 1e-5, f0 and tints to [0, 1] / >= 0), and recomputes 
 
 Per-point inputs (the "shading context", world space, float32): P position, N shading normal and Ng true normal
 both turned to the viewer's side (Cycles flips N and Ng on a back face), I unit direction towards the viewer,
-UV (the mesh's active UV map), backfacing, and the object row (`OBJECT_*` columns of `PreparedShading.objects`).
+UV (the mesh's active UV map), backfacing, the object row (`OBJECT_*` columns of `PreparedShading.objects`), and
+the per-point extras (`PATH_*` and attribute columns below): the path state and the named mesh attributes.
 """
 
 from __future__ import annotations
@@ -50,6 +51,20 @@ OBJECT_RANDOM = 20
 OBJECT_BOX_MIN = 21  # 3
 OBJECT_BOX_SIZE = 24  # 3
 OBJECT_COLUMNS = 27
+
+# Columns of the per-point extras (`PreparedShading.evaluate`'s `extra`, float32 (N, PATH_COLUMNS + 5 A)): the
+# path state the Light Path node reads (Cycles' ray flags and bounce counts of the ray that reached the point,
+# the ray's length in metres), then ATTRIBUTE_COLUMNS per named attribute of Scene.attribute_names.
+PATH_FLAGS, PATH_LENGTH, PATH_DEPTH, PATH_DIFFUSE_DEPTH, PATH_GLOSSY_DEPTH, PATH_TRANSPARENT_DEPTH, \
+    PATH_TRANSMISSION_DEPTH = range(7)
+PATH_COLUMNS = 7
+# Bits of the PATH_FLAGS column (stored as an exact float), Cycles' PATH_RAY_* meaning: the kind of the last
+# non-transparent bounce (a camera ray stays one through transparent surfaces).
+RAY_CAMERA, RAY_SHADOW, RAY_DIFFUSE, RAY_GLOSSY, RAY_SINGULAR, RAY_REFLECT, RAY_TRANSMIT, RAY_TRANSPARENT = (
+    1, 2, 4, 8, 16, 32, 64, 128)
+# Per attribute: the Color / Vector output (3 floats), Alpha, and Fac (Cycles' float output: the value of a
+# float attribute, x of a 2D one, the average of a vector or colour).
+ATTRIBUTE_COLUMNS = 5
 
 
 def identity_object_row() -> np.ndarray:

@@ -146,6 +146,15 @@ OP_OBJECT_INFO = register(OpSpec("object_info", 32, _r("location", "color", "alp
                                                        kind="out?"), "Object Info node outputs")).code
 OP_UV_LAYER = register(OpSpec("uv_layer", 33, _r("out", kind="out") + _r("layer", kind="int"),
                               "UV Map node naming a map: layer = index into Scene.uv_layer_names")).code
+OP_ATTRIBUTE = register(OpSpec("attribute", 34, _r("color", "alpha", "fac", kind="out?") + _r("layer", kind="int"),
+                                "Attribute / Color Attribute node: layer = index into Scene.attribute_names "
+                                "(the per-point extras' attribute columns); a mesh without it reads 0")).code
+OP_LIGHT_PATH = register(OpSpec("light_path", 35, _r("is_camera", "is_shadow", "is_diffuse", "is_glossy",
+                                                     "is_singular", "is_reflection", "is_transmission", "ray_length",
+                                                     "ray_depth", "diffuse_depth", "glossy_depth",
+                                                     "transparent_depth", "transmission_depth", kind="out?"),
+                                 "Light Path node outputs from the per-point path state (core.shading.program "
+                                 "PATH_*); without one: a camera ray of length 0")).code
 # Images.
 OP_IMAGE = register(OpSpec("image", 40, _r("color", "alpha", kind="out?") + _r("vector", kind="in?")
                            + _r("texture", kind="tex") + _r("interpolation", "extension", "flags", kind="int"),

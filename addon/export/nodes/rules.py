@@ -64,6 +64,66 @@ def _uvmap(c, node, ctx):
     return {"UV": _out(c.emit("texture_coordinate", uv=True)["uv"], VECTOR)}
 
 
+def _read_attribute(c, node, name: str, geometry: bool = True) -> dict:
+    """{"color", "alpha", "fac"} registers of the named attribute ("" = the render colour attribute)."""
+    if c.attribute_index is None:  # compiled outside a scene export: as a mesh without the attribute
+        return {"color": c.const(0.0), "alpha": c.const(0.0), "fac": c.const(0.0)}
+    c.attribute_uses.append((name, f"node {node.name!r} ({node.bl_label})"))
+    return c.emit("attribute", layer=c.attribute_index(name), color=True, alpha=True, fac=True)
+
+
+@rule("ShaderNodeAttribute", "Attribute", "input", outputs=("Color", "Vector", "Fac", "Alpha"),
+      notes="Geometry type: float, 2D vector, vector, colour (float and byte), integer and boolean attributes of "
+            "the evaluated mesh by name (UV maps too), on points, faces and face corners, interpolated over each "
+            "triangle as Cycles; a mesh without it reads 0 (warning naming material, node, mesh and attribute). "
+            "Object, Instancer and View Layer types read 0 (warning).")
+def _attribute(c, node, ctx):
+    kind = getattr(node, "attribute_type", "GEOMETRY")
+    if kind != "GEOMETRY":
+        c.warn(node, f"attribute type {kind} is not supported; the outputs read 0")
+        zero = c.const(0.0)
+        return {"Color": _out(zero, RGBA), "Vector": _out(zero, VECTOR), "Fac": _out(zero, FLOAT),
+                "Alpha": _out(zero, FLOAT)}
+    outs = _read_attribute(c, node, node.attribute_name)
+    return {"Color": _out(outs["color"], RGBA), "Vector": _out(outs["color"], VECTOR),
+            "Fac": _out(outs["fac"], FLOAT), "Alpha": _out(outs["alpha"], FLOAT)}
+
+
+@rule("ShaderNodeVertexColor", "Color Attribute", "input", outputs=("Color", "Alpha"),
+      notes="Any colour attribute by name; empty name: the mesh's active render colour attribute. A mesh "
+            "without it reads 0 (warning).")
+def _color_attribute(c, node, ctx):
+    outs = _read_attribute(c, node, getattr(node, "layer_name", ""))
+    return {"Color": _out(outs["color"], RGBA), "Alpha": _out(outs["alpha"], FLOAT)}
+
+
+_LIGHT_PATH_OUTPUTS = {"Is Camera Ray": "is_camera", "Is Shadow Ray": "is_shadow", "Is Diffuse Ray": "is_diffuse",
+                       "Is Glossy Ray": "is_glossy", "Is Singular Ray": "is_singular",
+                       "Is Reflection Ray": "is_reflection", "Is Transmission Ray": "is_transmission",
+                       "Ray Length": "ray_length", "Ray Depth": "ray_depth", "Diffuse Depth": "diffuse_depth",
+                       "Glossy Depth": "glossy_depth", "Transparent Depth": "transparent_depth",
+                       "Transmission Depth": "transmission_depth"}
+
+
+@rule("ShaderNodeLightPath", "Light Path", "input", outputs=tuple(_LIGHT_PATH_OUTPUTS),
+      notes="Cycles' ray flags and bounce counts of the path that reached the point. Is Shadow Ray reads 0: "
+            "Monte's shadow rays do not run materials (every surface blocks them; warning). Is Volume Scatter "
+            "Ray and Portal Depth read 0.")
+def _light_path(c, node, ctx):
+    if c.output_used(node, "Is Shadow Ray", ctx):
+        c.warn(node, "Is Shadow Ray reads 0: shadow rays do not evaluate materials in Monte (every surface casts "
+                     "a shadow)")
+    for n in ("Is Volume Scatter Ray", "Portal Depth"):
+        if c.output_used(node, n, ctx):
+            c.warn(node, f"the {n} output is not supported; it reads 0")
+    outs = c.emit("light_path", **{v: c.output_used(node, k, ctx) for k, v in _LIGHT_PATH_OUTPUTS.items()})
+    res = {k: _out(outs[v], FLOAT) for k, v in _LIGHT_PATH_OUTPUTS.items() if outs[v] >= 0}
+    zero = c.const(0.0)
+    for n in ("Is Volume Scatter Ray", "Portal Depth"):
+        res[n] = _out(zero, FLOAT)
+    return res
+
+
 @rule("ShaderNodeNewGeometry", "Geometry", "input",
       outputs=("Position", "Normal", "True Normal", "Incoming", "Backfacing"),
       notes="Tangent, Parametric, Pointiness and Random Per Island read 0 (warning).")

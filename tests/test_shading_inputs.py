@@ -1,0 +1,200 @@
+"""Attribute, Color Attribute and Light Path nodes: the opcodes at one point (analytic), the path state of each
+bounce kind (Cycles' path_state_next), and per-pixel / lit cross-checks against Cycles."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from monte.core.shading import evaluator as ev
+from monte.core.shading import registry as R
+from monte.core.shading.program import (PATH_COLUMNS, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_REFLECT,
+                                        RAY_SINGULAR, RAY_TRANSMIT, RAY_TRANSPARENT, WIDTH, ShadingProgram)
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+
+def _program(opname: str, n_regs: int, **operands) -> ShadingProgram:
+    spec = R.op(opname)
+    inst = [-1] * WIDTH
+    inst[0] = spec.code
+    for name, value in operands.items():
+        inst[spec.slot(name)] = value
+    return ShadingProgram(np.asarray([inst], np.int32), np.zeros((n_regs, 3), np.float32), np.zeros((0, 6), np.int32))
+
+
+def test_attribute_op_reads_its_columns_and_zero_without_a_table():
+    prog = _program("attribute", 3, color=0, alpha=1, fac=2, layer=1)
+    extra = np.zeros(PATH_COLUMNS + 10, np.float32)
+    extra[PATH_COLUMNS + 5:] = (0.25, 0.5, 0.75, 0.4, 0.5)  # the second attribute
+    regs = ev.run_single(prog, extra=extra)
+    assert np.allclose(regs[0], (0.25, 0.5, 0.75)) and regs[1, 0] == np.float32(0.4) and regs[2, 0] == 0.5
+    regs = ev.run_single(prog)  # no attribute columns: as a mesh without the attribute
+    assert not regs.any()
+
+
+def test_light_path_op_reads_flags_and_depths():
+    names = ("is_camera", "is_shadow", "is_diffuse", "is_glossy", "is_singular", "is_reflection",
+             "is_transmission", "ray_length", "ray_depth", "diffuse_depth", "glossy_depth", "transparent_depth",
+             "transmission_depth")
+    prog = _program("light_path", 13, **{n: i for i, n in enumerate(names)})
+    extra = np.array([RAY_GLOSSY | RAY_SINGULAR | RAY_TRANSMIT, 2.5, 3, 1, 0, 4, 2], np.float32)
+    regs = ev.run_single(prog, extra=extra)[:, 0]
+    assert regs.tolist() == [0, 0, 0, 1, 1, 0, 1, 2.5, 3, 1, 0, 4, 2]
+    regs = ev.run_single(prog)[:, 0]  # no path state: a camera ray
+    assert regs.tolist() == [1] + [0] * 12
+
+
+def test_path_state_follows_cycles_bounce_rules():
+    """One lobe per row: diffuse reflection, rough glossy, sharp glossy, rough refraction, Transparent BSDF."""
+    from monte.core.bsdf_kernels import DIFFUSE, GLOSSY, REFRACTION
+    from monte.core.ray_visibility import next_path_state
+
+    n = 5
+    kind = np.array([[DIFFUSE], [GLOSSY], [GLOSSY], [REFRACTION], [REFRACTION]], np.int8)
+    rough = np.array([[0.0], [0.3], [0.0], [0.2], [0.0]], np.float32)
+    ior = np.array([[1.0], [1.5], [1.5], [1.5], [1.0]], np.float32)
+    select = np.ones((n, 1), np.float32)
+    arrays = (kind, None, rough, ior, None, select)
+    state = np.zeros((n, PATH_COLUMNS), np.float32)
+    state[:, 0] = RAY_CAMERA
+    transmitted = np.array([False, False, False, True, True])
+    next_path_state(arrays, np.full(n, 0.5, np.float32), transmitted, state)
+    flags = state[:, 0].astype(int).tolist()
+    assert flags == [RAY_REFLECT | RAY_DIFFUSE, RAY_REFLECT | RAY_GLOSSY, RAY_REFLECT | RAY_GLOSSY | RAY_SINGULAR,
+                     RAY_TRANSMIT | RAY_GLOSSY, RAY_CAMERA | RAY_TRANSPARENT]
+    # depth, diffuse, glossy, transparent, transmission
+    assert state[:, 2:].tolist() == [[1, 1, 0, 0, 0], [1, 0, 1, 0, 0], [1, 0, 1, 0, 0], [1, 0, 0, 0, 1],
+                                     [0, 0, 0, 1, 0]]
+
+
+# ------------------------------------------------------------------------------------------- against Cycles
+def _bpy():
+    return pytest.importorskip("bpy")
+
+
+def _cross(build, prepare, size=16, name="attr"):
+    import shading_crosscheck as sc
+
+    scene = sc.emission_plane(build, size=size, name=name)
+    prepare(scene.objects["plane"].data)
+    return sc.compare(scene, spp=2)
+
+
+@pytest.mark.blender
+def test_attribute_nodes_match_cycles_per_pixel():
+    """Point float, face vector, corner byte colour (with alpha) and the render colour attribute through an
+    unnamed Color Attribute node, summed into one colour: each pixel as Cycles shows it."""
+    _bpy()
+
+    def build(tree, nodes):
+        a_point = nodes.new("ShaderNodeAttribute")
+        a_point.attribute_name = "height"
+        a_face = nodes.new("ShaderNodeAttribute")
+        a_face.attribute_name = "facevec"
+        a_corner = nodes.new("ShaderNodeAttribute")
+        a_corner.attribute_name = "paint"
+        vcol = nodes.new("ShaderNodeVertexColor")  # empty name: the render colour attribute ("paint2")
+        add1 = nodes.new("ShaderNodeVectorMath")
+        tree.links.new(a_point.outputs["Color"], add1.inputs[0])
+        tree.links.new(a_face.outputs["Vector"], add1.inputs[1])
+        mul = nodes.new("ShaderNodeVectorMath")
+        mul.operation = "SCALE"
+        tree.links.new(a_corner.outputs["Color"], mul.inputs[0])
+        tree.links.new(a_corner.outputs["Alpha"], mul.inputs["Scale"])
+        add2 = nodes.new("ShaderNodeVectorMath")
+        tree.links.new(add1.outputs[0], add2.inputs[0])
+        tree.links.new(mul.outputs[0], add2.inputs[1])
+        add3 = nodes.new("ShaderNodeVectorMath")
+        add3.operation = "MULTIPLY_ADD"
+        tree.links.new(add2.outputs[0], add3.inputs[0])
+        add3.inputs[1].default_value = (1.0, 1.0, 1.0)
+        tree.links.new(vcol.outputs["Color"], add3.inputs[2])
+        fac = nodes.new("ShaderNodeMath")
+        fac.operation = "MULTIPLY_ADD"
+        tree.links.new(a_face.outputs["Fac"], fac.inputs[0])
+        tree.links.new(vcol.outputs["Alpha"], fac.inputs[1])
+        tree.links.new(a_point.outputs["Fac"], fac.inputs[2])
+        nodes["Emission"].inputs["Strength"].default_value = 0.5  # outputs of slope <= 3 per metre, as the harness
+        final = nodes.new("ShaderNodeVectorMath")
+        final.operation = "SCALE"
+        tree.links.new(add3.outputs[0], final.inputs[0])
+        tree.links.new(fac.outputs[0], final.inputs["Scale"])
+        return final.outputs[0]
+
+    def prepare(mesh):
+        a = mesh.attributes.new("height", "FLOAT", "POINT")
+        a.data.foreach_set("value", [0.1, 0.6, 0.9, 0.3])
+        f = mesh.attributes.new("facevec", "FLOAT_VECTOR", "FACE")
+        f.data.foreach_set("vector", [0.2, 0.5, 0.8])
+        c = mesh.color_attributes.new("paint", "BYTE_COLOR", "CORNER")
+        c.data.foreach_set("color", [1.0, 0.2, 0.1, 0.5, 0.3, 0.9, 0.2, 1.0, 0.1, 0.1, 0.8, 0.25, 0.7, 0.7, 0.1, 1.0])
+        c2 = mesh.color_attributes.new("paint2", "FLOAT_COLOR", "POINT")
+        c2.data.foreach_set("color", [0.4, 0.1, 0.0, 0.2, 0.0, 0.3, 0.6, 0.9, 0.1, 0.1, 0.1, 0.6, 0.9, 0.5, 0.2, 0.4])
+        mesh.color_attributes.render_color_index = mesh.color_attributes.find("paint2")
+
+    monte, cycles = _cross(build, prepare)
+    diff = np.abs(monte - cycles).max(axis=2)
+    print(f"\nattributes: max |Monte - Cycles| {diff.max():.2e}, Cycles range {cycles.min():.3f}..{cycles.max():.3f}")
+    assert cycles.std() > 0.05
+    assert np.mean(diff > 2e-3) < 0.02 and diff.max() < 2e-2
+
+
+@pytest.mark.blender
+def test_missing_attribute_reads_zero_with_a_warning_as_cycles():
+    _bpy()
+    from monte.addon.export import export_scene
+    import shading_crosscheck as sc
+
+    def build(tree, nodes):
+        attr = nodes.new("ShaderNodeAttribute")
+        attr.name = "Missing"
+        attr.attribute_name = "nothing_here"
+        add = nodes.new("ShaderNodeVectorMath")
+        tree.links.new(attr.outputs["Color"], add.inputs[0])
+        tree.links.new(attr.outputs["Alpha"], add.inputs[1])
+        fac = nodes.new("ShaderNodeVectorMath")
+        tree.links.new(add.outputs[0], fac.inputs[0])
+        tree.links.new(attr.outputs["Fac"], fac.inputs[1])
+        fac.inputs[1].default_value = (0.0, 0.0, 0.0)
+        shift = nodes.new("ShaderNodeVectorMath")
+        tree.links.new(fac.outputs[0], shift.inputs[0])
+        shift.inputs[1].default_value = (0.2, 0.3, 0.4)
+        return shift.outputs[0]
+
+    scene = sc.emission_plane(build, size=8, name="missing")
+    core, _ = export_scene(_bpy().context.evaluated_depsgraph_get())
+    assert ("material 'missing': node 'Missing' (Attribute): mesh 'plane' has no attribute 'nothing_here' (or one "
+            "of a type or domain Monte cannot read); it reads 0") in core.warnings
+    monte, cycles = sc.compare(scene, spp=2)
+    assert np.abs(monte - cycles).max() < 1e-4
+    assert np.allclose(monte, (0.2, 0.3, 0.4), atol=1e-5)
+
+
+@pytest.mark.blender
+def test_light_path_on_camera_rays_matches_cycles_per_pixel():
+    """Ray Length of a camera ray (2 m to the plane, orthographic), Is Camera Ray, Ray Depth, as Cycles."""
+    _bpy()
+
+    def build(tree, nodes):
+        lp = nodes.new("ShaderNodeLightPath")
+        comb = nodes.new("ShaderNodeCombineXYZ")
+        scale = nodes.new("ShaderNodeMath")
+        scale.operation = "MULTIPLY"
+        scale.inputs[1].default_value = 0.25
+        tree.links.new(lp.outputs["Ray Length"], scale.inputs[0])
+        tree.links.new(scale.outputs[0], comb.inputs[0])
+        tree.links.new(lp.outputs["Is Camera Ray"], comb.inputs[1])
+        add = nodes.new("ShaderNodeMath")
+        tree.links.new(lp.outputs["Ray Depth"], add.inputs[0])
+        tree.links.new(lp.outputs["Is Diffuse Ray"], add.inputs[1])
+        tree.links.new(add.outputs[0], comb.inputs[2])
+        return comb.outputs[0]
+
+    monte, cycles = _cross(build, lambda mesh: None, size=8, name="lightpath")
+    print(f"\nlight path camera: Monte {monte.mean(axis=(0, 1))} Cycles {cycles.mean(axis=(0, 1))}")
+    assert np.abs(monte - cycles).max() < 1e-3
+    assert np.allclose(cycles[..., 1], 1.0) and cycles[..., 0].mean() > 0.1
