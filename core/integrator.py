@@ -22,12 +22,15 @@ from . import bsdf as bsdf_mod
 from . import geometry_kernels, path_kernels
 from .accel import Accelerator, Hits
 from .light_shadow import NoShadowLights
-from .lights import EmissiveTriangles, LightSampler
+from .lights import EmissiveTriangles, LightSample, LightSampler
 from .ray_visibility import RAY_KIND_NAMES, bounce_kinds, next_path_state
 from .scene import Scene
 from .settings import RenderSettings
 from .shading import PreparedShading
+from .shading import registry as shading_ops
+from .textured_emitters import TexturedEmitters
 from .shading.program import ATTRIBUTE_COLUMNS, PATH_COLUMNS, PATH_FLAGS, PATH_LENGTH, RAY_CAMERA
+from .shading.program import WIDTH as PROGRAM_WIDTH
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
 # camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce.
@@ -132,6 +135,8 @@ class PreparedScene:
     uv_layers: np.ndarray | None = None  # (T, K, 3, 2) the named UV maps of Scene.uv_layer_names, or None
     # (T, A, 3, ATTRIBUTE_COLUMNS) the named attributes of Scene.attribute_names per corner, or None
     attributes: np.ndarray | None = None
+    # emitters whose emission a node program drives, light-sampled by their own table (core.textured_emitters)
+    textured: TexturedEmitters | None = None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -255,16 +260,32 @@ class PreparedScene:
         features["ray_visibility"] = sorted(visible_to)
         no_shadow = NoShadowLights.build(scene.lights, shift)
         features["lights_without_shadow"] = no_shadow is not None
-        return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
+        prepared = cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
                    specular, features, shading, object_of_triangle,
                    alpha, holdout, keeps, visible_to, no_shadow,
                    any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
                        for m in scene.materials for lobe in m.lobes),
                    terminator_offset=terminator_offset, uv_layers=uv_layers, attributes=attributes)
+        if shading is not None and shading.any_emits:
+            # Programs that read the Light Path node emit per ray kind: not light-sampled (core.textured_emitters)
+            sampled = shading.emits & ~np.array([_reads_light_path(m) for m in scene.materials], bool)
+            prepared.textured = TexturedEmitters.build(tri_vertices, material_index, sampled,
+                                                       lambda t, b1, b2: emission_at(prepared, t, b1, b2))
+            features["textured_emitters"] = 0 if prepared.textured is None else prepared.textured.count
+        return prepared
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
+
+
+def _reads_light_path(material) -> bool:
+    """Whether the material's node program reads the Light Path node."""
+    prog = getattr(material, "program", None)
+    if prog is None:
+        return False
+    code = np.asarray(prog.code, np.int32).reshape(-1, PROGRAM_WIDTH)
+    return bool(np.any(code[:, 0] == shading_ops.OP_LIGHT_PATH))
 
 
 def _rows_of(state: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
@@ -422,7 +443,8 @@ class PathTracer:
         self.settings = settings
         self.sampler = sampler
         self.stats = PathStats()
-        self.use_nee = settings.light_sampling in ("mis", "light") and prepared.lights.has_lights
+        self.use_nee = settings.light_sampling in ("mis", "light") and (prepared.lights.has_lights
+                                                                       or prepared.textured is not None)
         self.use_bsdf_emission = settings.light_sampling in ("mis", "bsdf")
         self.mis = settings.light_sampling == "mis"
 
@@ -543,16 +565,29 @@ class PathTracer:
                     self._add(radiance, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
-            # Emission that varies per point (a node program drives it): such emitters are not light-sampled, so
-            # what BSDF sampling (or the camera) finds counts in full.
+            # Emission that varies per point (a node program drives it): MIS-weighted against the textured
+            # emitters' light sampling (core.textured_emitters) where they are in its table, else (programs that
+            # read the Light Path node) what BSDF sampling (or the camera) finds counts in full.
             if ps.shading is not None and ps.shading.any_emits:
-                e = np.flatnonzero(hit & ps.shading.emits[ps.material_index[prim]])
+                e = np.flatnonzero(hit & ps.shading.emits[ps.material_index[prim]] & (True if held is None else ~held))
                 if len(e):
                     ge = self._surface(e, prim, hits.u, hits.v, d)
                     mat_e = ps.material_index[prim[e]]
                     le = np.zeros((len(e), 3), np.float32)
                     self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le,
                                 bary=(hits.u[e], hits.v[e]), path=_rows_of(path_state, idx[e]))
+                    if ps.textured is not None and depth > 0 and self.use_nee:
+                        em = ps.textured.emitter_of_triangle[prim[e]]
+                        sampled = em >= 0
+                        if not self.use_bsdf_emission:  # light sampling only: BSDF hits count after delta only
+                            w = np.where(sampled, prev_delta[e], True).astype(np.float32)
+                        else:
+                            t_e = hits.t[e]
+                            cos_e = np.abs(_dot(d[e], ps.face_normals[prim[e]]))
+                            pdf_l = np.where(sampled, ps.textured.pdf(np.maximum(em, 0), t_e * t_e, cos_e), 0)
+                            pb = prev_pdf[e]
+                            w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
+                        le = le * w[:, None].astype(np.float32)
                     self._add(radiance, idx[e], throughput[e] * le)
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
@@ -609,7 +644,10 @@ class PathTracer:
                 bary = None
                 if ps.terminator_offset is not None:  # the shadow terminator lift needs the hits' triangles
                     bary = (prim[rows], hits.u[rows], hits.v[rows])
-                self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary)
+                if ps.lights.has_lights:
+                    self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary)
+                if ps.textured is not None:
+                    self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, textured=True)
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
@@ -700,55 +738,13 @@ class PathTracer:
 
     def _surface(self, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
         """Surface interactions of the hits `rows` (see core.geometry_kernels.surface)."""
-        ps = self.ps
-        m = len(rows)
-        g = SurfaceBatch.empty(m, ps.uvs is not None)
-        geometry_kernels.surface(rows.astype(np.int64), prim, bu, bv, np.ascontiguousarray(d, dtype=np.float32),
-                        ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth,
-                        ps.kernel_uvs, ps.tri_magnitude, ps.material_index, ps.specular, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
-                        g.n_view, g.mag, g.cos_o_geo, g.uv_buffer)
-        return g
+        return surface_batch(self.ps, rows, prim, bu, bv, d)
 
     def _shade(self, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
                lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None,
                path: np.ndarray | None = None) -> None:
-        """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
-        The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir;
-        path: the points' Light Path state (None: camera rays)."""
-        sh = self.ps.shading
-        rows = np.flatnonzero(sh.needs_program[mat])
-        if len(rows) == 0:
-            return
-        back = g.cos_o_geo < 0
-        p_world = (g.p + self.ps.shift.astype(np.float32)).astype(np.float32)
-        # Cycles' sd->N and sd->Ng: the interpolated and the face normal, both negated on a back face (no
-        # specular-validity tilt: that belongs to the closures, not to what nodes read)
-        ng = np.where(back[:, None], -g.ng, g.ng)
-        n = np.where(back[:, None], -g.ns_raw, g.ns_raw)
-        obj = self.ps.object_of_triangle[prim]
-        uvx = None
-        if self.ps.uv_layers is not None and bary is not None:  # the named UV maps at the hit points
-            b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
-            corners = self.ps.uv_layers[prim]  # (N, K, 3, 2)
-            uvx = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
-                   + corners[:, :, 2] * b2[:, None, None]).astype(np.float32)
-        extra = None
-        if sh.uses_light_path or sh.uses_attributes:
-            attrs = self.ps.attributes if sh.uses_attributes else None
-            n_attr = 0 if attrs is None else attrs.shape[1]
-            extra = np.zeros((len(mat), PATH_COLUMNS + ATTRIBUTE_COLUMNS * n_attr), np.float32)
-            if path is not None:
-                extra[:, :PATH_COLUMNS] = path
-            else:
-                extra[:, PATH_FLAGS] = RAY_CAMERA
-            if n_attr and bary is not None:  # the named attributes at the hit points, as the UV maps
-                b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
-                corners = attrs[prim]  # (N, A, 3, ATTRIBUTE_COLUMNS)
-                vals = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
-                        + corners[:, :, 2] * b2[:, None, None])
-                extra[:, PATH_COLUMNS:] = vals.reshape(len(mat), -1)
-        sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
-                    self.ps.materials.select_scale, emission, uvx, extra)
+        """Run the node programs of the points (see `shade_points`)."""
+        shade_points(self.ps, g, mat, prim, dirs, lobes, emission, bary, path)
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""
@@ -757,9 +753,10 @@ class PathTracer:
         return now
 
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
-                    bary=None) -> None:
+                    bary=None, textured: bool = False) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
-        u, v) of each path's hit when some mesh has a shadow terminator offset, else None."""
+        u, v) of each path's hit when some mesh has a shadow terminator offset, else None. textured: sample the
+        textured emitters (core.textured_emitters) instead of the lights, the emission from their programs."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
@@ -768,7 +765,10 @@ class PathTracer:
         u_light = self.sampler.get_3d(pix[can], smp[can], self._dim(depth, _D_LIGHT))
         u_l, u_sel = np.ascontiguousarray(u_light[:, :2]), np.ascontiguousarray(u_light[:, 2])
         transmits = ps.materials.has_transmission[mat[can]]
-        ls = ps.lights.sample(gc.p, gc.n_view, u_sel, u_l, transmits=transmits)
+        if textured:
+            ls = self._sample_textured(gc.p, u_sel, u_l)
+        else:
+            ls = ps.lights.sample(gc.p, gc.n_view, u_sel, u_l, transmits=transmits)
         wi = np.ascontiguousarray(ls.wi, dtype=np.float32)
         m = len(can)
         wi_local = np.empty((m, 3), np.float32)
@@ -791,7 +791,7 @@ class PathTracer:
             blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count])
         self.stats.seconds_occluded += time.perf_counter() - clock
         self.stats.seconds_nee -= time.perf_counter() - clock  # counted once, as shadow rays
-        if ps.no_shadow is not None:
+        if ps.no_shadow is not None and not textured:
             # Samples of lights that cast no shadow are never occluded; one light sample per path, so the
             # sample index names it.
             free = np.zeros(len(radiance), bool)
@@ -799,6 +799,16 @@ class PathTracer:
             blocked &= ~free[sample_of[:count]]
         vis = np.flatnonzero(~blocked)
         self._add(radiance, sample_of[vis], contrib[vis])
+
+    def _sample_textured(self, p: np.ndarray, u_select: np.ndarray, u: np.ndarray) -> LightSample:
+        """One light sample of the textured emitters per point p, its radiance from the emitter's program."""
+        em, b1, b2, wi, dist, pdf = self.ps.textured.sample(p, u_select, u)
+        radiance = np.zeros((len(em), 3), np.float32)
+        live = np.flatnonzero(pdf > 0)
+        if len(live):
+            radiance[live] = emission_at(self.ps, self.ps.textured.triangle_id[em[live]], b1[live], b2[live],
+                                         towards=wi[live])
+        return LightSample(wi=wi, dist=dist, radiance=radiance, pdf=pdf, delta=np.zeros(len(em), bool))
 
     def _terminator_args(self, bary, can, gc: "SurfaceBatch") -> tuple:
         """shadow_rays' shadow terminator inputs for the light samples of paths `can` (empty arrays: off)."""
@@ -819,3 +829,72 @@ class PathTracer:
                            np.float32(self.settings.clamp), counters)
         self.stats.nonfinite += int(counters[0])
         self.stats.clamped += int(counters[1])
+
+
+def surface_batch(ps: PreparedScene, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
+    """Surface interactions of the hits `rows` (see core.geometry_kernels.surface)."""
+    m = len(rows)
+    g = SurfaceBatch.empty(m, ps.uvs is not None)
+    geometry_kernels.surface(rows.astype(np.int64), prim, bu, bv, np.ascontiguousarray(d, dtype=np.float32),
+                    ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth,
+                    ps.kernel_uvs, ps.tri_magnitude, ps.material_index, ps.specular, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
+                    g.n_view, g.mag, g.cos_o_geo, g.uv_buffer)
+    return g
+
+def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
+             lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None,
+             path: np.ndarray | None = None) -> None:
+    """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
+    The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir;
+    path: the points' Light Path state (None: camera rays)."""
+    sh = ps.shading
+    rows = np.flatnonzero(sh.needs_program[mat])
+    if len(rows) == 0:
+        return
+    back = g.cos_o_geo < 0
+    p_world = (g.p + ps.shift.astype(np.float32)).astype(np.float32)
+    # Cycles' sd->N and sd->Ng: the interpolated and the face normal, both negated on a back face (no
+    # specular-validity tilt: that belongs to the closures, not to what nodes read)
+    ng = np.where(back[:, None], -g.ng, g.ng)
+    n = np.where(back[:, None], -g.ns_raw, g.ns_raw)
+    obj = ps.object_of_triangle[prim]
+    uvx = None
+    if ps.uv_layers is not None and bary is not None:  # the named UV maps at the hit points
+        b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
+        corners = ps.uv_layers[prim]  # (N, K, 3, 2)
+        uvx = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
+               + corners[:, :, 2] * b2[:, None, None]).astype(np.float32)
+    extra = None
+    if sh.uses_light_path or sh.uses_attributes:
+        attrs = ps.attributes if sh.uses_attributes else None
+        n_attr = 0 if attrs is None else attrs.shape[1]
+        extra = np.zeros((len(mat), PATH_COLUMNS + ATTRIBUTE_COLUMNS * n_attr), np.float32)
+        if path is not None:
+            extra[:, :PATH_COLUMNS] = path
+        else:
+            extra[:, PATH_FLAGS] = RAY_CAMERA
+        if n_attr and bary is not None:  # the named attributes at the hit points, as the UV maps
+            b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
+            corners = attrs[prim]  # (N, A, 3, ATTRIBUTE_COLUMNS)
+            vals = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
+                    + corners[:, :, 2] * b2[:, None, None])
+            extra[:, PATH_COLUMNS:] = vals.reshape(len(mat), -1)
+    sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
+                ps.materials.select_scale, emission, uvx, extra)
+
+
+def emission_at(ps: PreparedScene, triangles: np.ndarray, b1: np.ndarray, b2: np.ndarray,
+                towards: np.ndarray | None = None, chunk: int = 1 << 16) -> np.ndarray:
+    """(K, 3) float32 emitted radiance of the node programs at points (triangle, barycentrics b1, b2), seen along
+    the unit directions `towards` (K, 3) (the ray arriving there; None: head-on from the front). No path state
+    (the programs light sampling runs do not read it)."""
+    k = len(triangles)
+    out = np.zeros((k, 3), np.float32)
+    for a in range(0, k, chunk):
+        t = np.ascontiguousarray(triangles[a:a + chunk], np.int32)
+        u, v = np.ascontiguousarray(b1[a:a + chunk], np.float32), np.ascontiguousarray(b2[a:a + chunk], np.float32)
+        d = -ps.face_normals[t] if towards is None else np.ascontiguousarray(towards[a:a + chunk], np.float32)
+        g = surface_batch(ps, np.arange(len(t), dtype=np.int64), t, u, v, d)
+        mat = ps.material_index[t]
+        shade_points(ps, g, mat, t, d, ps.materials.gather(mat, g.uv), out[a:a + chunk], bary=(u, v))
+    return out

@@ -198,3 +198,55 @@ def test_light_path_on_camera_rays_matches_cycles_per_pixel():
     print(f"\nlight path camera: Monte {monte.mean(axis=(0, 1))} Cycles {cycles.mean(axis=(0, 1))}")
     assert np.abs(monte - cycles).max() < 1e-3
     assert np.allclose(cycles[..., 1], 1.0) and cycles[..., 0].mean() > 0.1
+
+
+def _textured_emitter_scene():
+    """floor_scene's diffuse floor lit by a 3 x 3 m plane 1.5 m above it (hidden from the camera) whose Emission
+    colour is a Checker Texture of a warm and a cool colour: the only light."""
+    import blender_fixtures as bf
+
+    b = _bpy()
+    scene = bf.floor_scene(size=(32, 32))
+    mat = b.data.materials.new("checker-light")
+    tree = bf.node_tree_of(mat)
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    emission = tree.nodes.new("ShaderNodeEmission")
+    emission.inputs["Strength"].default_value = 2.0
+    checker = tree.nodes.new("ShaderNodeTexChecker")
+    checker.inputs["Scale"].default_value = 3.0
+    checker.inputs["Color1"].default_value = (4.0, 1.5, 0.3, 1.0)
+    checker.inputs["Color2"].default_value = (0.1, 0.4, 1.2, 1.0)
+    tree.links.new(checker.outputs["Color"], emission.inputs["Color"])
+    tree.links.new(emission.outputs[0], out.inputs["Surface"])
+    s = 1.5
+    light = bf.mesh_object("emitter", [(-s, -s, 1.5), (s, -s, 1.5), (s, s, 1.5), (-s, s, 1.5)], [(0, 1, 2, 3)], mat)
+    light.visible_camera = False
+    return scene
+
+
+@pytest.mark.blender
+def test_textured_emitter_is_light_sampled_unbiased_and_less_noisy(tmp_path):
+    """The floor under a checker-textured emitter: Monte with light sampling + MIS agrees with Cycles' mean within
+    1 % (Cycles at 256 spp as the reference, Monte at 64), and its per-pixel error against that reference is
+    well below BSDF sampling's at the same sample count."""
+    from monte.addon import crosscheck as cc
+
+    scene = _textured_emitter_scene()
+    cc.configure_cycles(scene, 256, 2, threads=2, seed=1)
+    cyc = cc.render_cycles(scene, tmp_path)[0]
+    m = scene.monte
+    m.samples, m.max_bounces, m.seed, m.threads = 64, 2, 1, 2
+    errors, means = {}, {}
+    for mode in ("mis", "bsdf"):
+        m.light_sampling = mode
+        mon = cc.render_monte(scene)[0]
+        means[mode] = mon.mean(axis=(0, 1))
+        errors[mode] = float(np.sqrt(np.mean((mon - cyc) ** 2)))
+    ref = cyc.mean(axis=(0, 1))
+    print(f"\ntextured emitter: Cycles {np.round(ref, 4)} Monte MIS {np.round(means['mis'], 4)} "
+          f"(rel {np.round(means['mis'] / ref - 1, 4)}), BSDF only {np.round(means['bsdf'], 4)}; RMS error vs "
+          f"Cycles: MIS {errors['mis']:.4f}, BSDF only {errors['bsdf']:.4f}")
+    assert ref.min() > 0.05
+    assert np.allclose(means["mis"], ref, rtol=0.01)
+    assert errors["mis"] < 0.5 * errors["bsdf"]
