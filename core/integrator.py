@@ -29,7 +29,7 @@ from .settings import RenderSettings
 from .shading import PreparedShading
 from .shading import registry as shading_ops
 from .textured_emitters import TexturedEmitters
-from .shading.program import ATTRIBUTE_COLUMNS, PATH_COLUMNS, PATH_FLAGS, PATH_LENGTH, RAY_CAMERA
+from .shading.program import ATTRIBUTE_COLUMNS, MESH_ATTRIBUTE_COLUMNS, PATH_COLUMNS, PATH_FLAGS, PATH_LENGTH, RAY_CAMERA
 from .shading.program import WIDTH as PROGRAM_WIDTH
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
@@ -198,7 +198,8 @@ class PreparedScene:
                 per = np.zeros((t, len(attribute_names), 3, ATTRIBUTE_COLUMNS), np.float32)
                 for j, aname in enumerate(attribute_names):
                     if mesh.attributes and aname in mesh.attributes:
-                        per[:, j] = mesh.attributes[aname]
+                        per[:, j, :, :MESH_ATTRIBUTE_COLUMNS] = mesh.attributes[aname]
+                        per[:, j, :, MESH_ATTRIBUTE_COLUMNS] = 1.0  # found
                 attrs.append(per)
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))

@@ -218,8 +218,9 @@ class Mesh:
       these through `Scene.uv_layer_names`; a mesh without the named map reads (0, 0), as Blender does).
     attributes: optional {name: (T, 3, 5)} the mesh attributes Attribute / Color Attribute nodes read, per
       triangle corner (point and face attributes spread to the corners), interpolated linearly over the
-      triangle: the Color / Vector output (3 floats), Alpha and Fac (core.shading.program ATTRIBUTE_COLUMNS);
-      read through `Scene.attribute_names`; a mesh without the named attribute reads 0, as Cycles.
+      triangle: the Color / Vector output (3 floats), Alpha and Fac (core.shading.program
+      MESH_ATTRIBUTE_COLUMNS); read through `Scene.attribute_names`; a mesh without the named attribute reads 0
+      (Alpha: 1 for the Attribute node, 0 for Color Attribute), as Cycles.
     """
 
     name: str

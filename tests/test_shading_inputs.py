@@ -27,13 +27,15 @@ def _program(opname: str, n_regs: int, **operands) -> ShadingProgram:
 
 
 def test_attribute_op_reads_its_columns_and_zero_without_a_table():
-    prog = _program("attribute", 3, color=0, alpha=1, fac=2, layer=1)
-    extra = np.zeros(PATH_COLUMNS + 10, np.float32)
-    extra[PATH_COLUMNS + 5:] = (0.25, 0.5, 0.75, 0.4, 0.5)  # the second attribute
+    prog = _program("attribute", 3, color=0, alpha=1, fac=2, layer=1, missing_alpha=1)
+    extra = np.zeros(PATH_COLUMNS + 12, np.float32)
+    extra[PATH_COLUMNS + 6:] = (0.25, 0.5, 0.75, 0.4, 0.5, 1.0)  # the second attribute, found
     regs = ev.run_single(prog, extra=extra)
     assert np.allclose(regs[0], (0.25, 0.5, 0.75)) and regs[1, 0] == np.float32(0.4) and regs[2, 0] == 0.5
-    regs = ev.run_single(prog)  # no attribute columns: as a mesh without the attribute
-    assert not regs.any()
+    extra[-1] = 0.0  # the mesh lacks it: 0, alpha the node's default
+    for e in (extra, ()):  # () : no attribute columns, as a mesh without the attribute
+        regs = ev.run_single(prog, extra=e)
+        assert not regs[[0, 2]].any() and np.all(regs[1] == 1.0)
 
 
 def test_light_path_op_reads_flags_and_depths():
@@ -145,6 +147,8 @@ def test_attribute_nodes_match_cycles_per_pixel():
 
 @pytest.mark.blender
 def test_missing_attribute_reads_zero_with_a_warning_as_cycles():
+    """An Attribute and a Color Attribute node naming attributes the plane lacks: 0 everywhere but the
+    Attribute node's Alpha (1), as Cycles; the export warns naming material, node, mesh and attribute."""
     _bpy()
     from monte.addon.export import export_scene
     import shading_crosscheck as sc
@@ -160,8 +164,16 @@ def test_missing_attribute_reads_zero_with_a_warning_as_cycles():
         tree.links.new(add.outputs[0], fac.inputs[0])
         tree.links.new(attr.outputs["Fac"], fac.inputs[1])
         fac.inputs[1].default_value = (0.0, 0.0, 0.0)
+        vcol = nodes.new("ShaderNodeVertexColor")  # a missing colour attribute: colour and alpha 0
+        vcol.layer_name = "no_colours"
+        both = nodes.new("ShaderNodeVectorMath")
+        tree.links.new(vcol.outputs["Color"], both.inputs[0])
+        tree.links.new(vcol.outputs["Alpha"], both.inputs[1])
+        sum_ = nodes.new("ShaderNodeVectorMath")
+        tree.links.new(fac.outputs[0], sum_.inputs[0])
+        tree.links.new(both.outputs[0], sum_.inputs[1])
         shift = nodes.new("ShaderNodeVectorMath")
-        tree.links.new(fac.outputs[0], shift.inputs[0])
+        tree.links.new(sum_.outputs[0], shift.inputs[0])
         shift.inputs[1].default_value = (0.2, 0.3, 0.4)
         return shift.outputs[0]
 
@@ -171,7 +183,7 @@ def test_missing_attribute_reads_zero_with_a_warning_as_cycles():
             "of a type or domain Monte cannot read); it reads 0") in core.warnings
     monte, cycles = sc.compare(scene, spp=2)
     assert np.abs(monte - cycles).max() < 1e-4
-    assert np.allclose(monte, (0.2, 0.3, 0.4), atol=1e-5)
+    assert np.allclose(monte, (1.2, 1.3, 1.4), atol=1e-5)  # the Attribute node's alpha reads 1, as Cycles
 
 
 @pytest.mark.blender

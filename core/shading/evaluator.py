@@ -522,13 +522,13 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
             set3(regs, a[1], 0.0, 0.0, 0.0)
     elif op == _ATTR:
         col = PATH_COLUMNS + a[4] * ATTRIBUTE_COLUMNS
-        if col + ATTRIBUTE_COLUMNS <= extra.shape[1]:
+        if col + ATTRIBUTE_COLUMNS <= extra.shape[1] and extra[k, col + 5] > 0.5:
             set3(regs, a[1], extra[k, col], extra[k, col + 1], extra[k, col + 2])
             setf(regs, a[2], extra[k, col + 3])
             setf(regs, a[3], extra[k, col + 4])
-        else:  # no attribute table (a program run outside a render): as a mesh without the attribute
+        else:  # a mesh without the attribute (or no attribute table: a program run outside a render)
             set3(regs, a[1], 0.0, 0.0, 0.0)
-            setf(regs, a[2], 0.0)
+            setf(regs, a[2], float(a[5]))
             setf(regs, a[3], 0.0)
     elif op == _LIGHTPATH:
         _light_path(a, regs, k, extra)

@@ -63,8 +63,11 @@ PATH_COLUMNS = 7
 RAY_CAMERA, RAY_SHADOW, RAY_DIFFUSE, RAY_GLOSSY, RAY_SINGULAR, RAY_REFLECT, RAY_TRANSMIT, RAY_TRANSPARENT = (
     1, 2, 4, 8, 16, 32, 64, 128)
 # Per attribute: the Color / Vector output (3 floats), Alpha, and Fac (Cycles' float output: the value of a
-# float attribute, x of a 2D one, the average of a vector or colour).
-ATTRIBUTE_COLUMNS = 5
+# float attribute, x of a 2D one, the average of a vector or colour): core.scene.Mesh.attributes' 5 columns;
+# then 1 where the mesh has the attribute, 0 where it lacks it (all outputs read 0 there, Alpha the node's own
+# default: 1 for the Attribute node, 0 for Color Attribute, as Cycles).
+MESH_ATTRIBUTE_COLUMNS = 5
+ATTRIBUTE_COLUMNS = 6
 
 
 def identity_object_row() -> np.ndarray:

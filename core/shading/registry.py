@@ -146,9 +146,11 @@ OP_OBJECT_INFO = register(OpSpec("object_info", 32, _r("location", "color", "alp
                                                        kind="out?"), "Object Info node outputs")).code
 OP_UV_LAYER = register(OpSpec("uv_layer", 33, _r("out", kind="out") + _r("layer", kind="int"),
                               "UV Map node naming a map: layer = index into Scene.uv_layer_names")).code
-OP_ATTRIBUTE = register(OpSpec("attribute", 34, _r("color", "alpha", "fac", kind="out?") + _r("layer", kind="int"),
+OP_ATTRIBUTE = register(OpSpec("attribute", 34, _r("color", "alpha", "fac", kind="out?")
+                                + _r("layer", "missing_alpha", kind="int"),
                                 "Attribute / Color Attribute node: layer = index into Scene.attribute_names "
-                                "(the per-point extras' attribute columns); a mesh without it reads 0")).code
+                                "(the per-point extras' attribute columns); a mesh without it reads 0, alpha "
+                                "missing_alpha")).code
 OP_LIGHT_PATH = register(OpSpec("light_path", 35, _r("is_camera", "is_shadow", "is_diffuse", "is_glossy",
                                                      "is_singular", "is_reflection", "is_transmission", "ray_length",
                                                      "ray_depth", "diffuse_depth", "glossy_depth",

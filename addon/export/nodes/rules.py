@@ -64,18 +64,21 @@ def _uvmap(c, node, ctx):
     return {"UV": _out(c.emit("texture_coordinate", uv=True)["uv"], VECTOR)}
 
 
-def _read_attribute(c, node, name: str, geometry: bool = True) -> dict:
-    """{"color", "alpha", "fac"} registers of the named attribute ("" = the render colour attribute)."""
+def _read_attribute(c, node, name: str, missing_alpha: float) -> dict:
+    """{"color", "alpha", "fac"} registers of the named attribute ("" = the render colour attribute); a mesh
+    without it reads 0 and alpha `missing_alpha` (Cycles: 1 for Attribute, 0 for Color Attribute)."""
     if c.attribute_index is None:  # compiled outside a scene export: as a mesh without the attribute
-        return {"color": c.const(0.0), "alpha": c.const(0.0), "fac": c.const(0.0)}
+        return {"color": c.const(0.0), "alpha": c.const(missing_alpha), "fac": c.const(0.0)}
     c.attribute_uses.append((name, f"node {node.name!r} ({node.bl_label})"))
-    return c.emit("attribute", layer=c.attribute_index(name), color=True, alpha=True, fac=True)
+    return c.emit("attribute", layer=c.attribute_index(name), missing_alpha=int(missing_alpha), color=True,
+                  alpha=True, fac=True)
 
 
 @rule("ShaderNodeAttribute", "Attribute", "input", outputs=("Color", "Vector", "Fac", "Alpha"),
       notes="Geometry type: float, 2D vector, vector, colour (float and byte), integer and boolean attributes of "
             "the evaluated mesh by name (UV maps too), on points, faces and face corners, interpolated over each "
-            "triangle as Cycles; a mesh without it reads 0 (warning naming material, node, mesh and attribute). "
+            "triangle as Cycles; a mesh without it reads 0, Alpha 1 (warning naming material, node, mesh and "
+            "attribute). "
             "Object, Instancer and View Layer types read 0 (warning).")
 def _attribute(c, node, ctx):
     kind = getattr(node, "attribute_type", "GEOMETRY")
@@ -84,7 +87,7 @@ def _attribute(c, node, ctx):
         zero = c.const(0.0)
         return {"Color": _out(zero, RGBA), "Vector": _out(zero, VECTOR), "Fac": _out(zero, FLOAT),
                 "Alpha": _out(zero, FLOAT)}
-    outs = _read_attribute(c, node, node.attribute_name)
+    outs = _read_attribute(c, node, node.attribute_name, 1.0)
     return {"Color": _out(outs["color"], RGBA), "Vector": _out(outs["color"], VECTOR),
             "Fac": _out(outs["fac"], FLOAT), "Alpha": _out(outs["alpha"], FLOAT)}
 
@@ -93,7 +96,7 @@ def _attribute(c, node, ctx):
       notes="Any colour attribute by name; empty name: the mesh's active render colour attribute. A mesh "
             "without it reads 0 (warning).")
 def _color_attribute(c, node, ctx):
-    outs = _read_attribute(c, node, getattr(node, "layer_name", ""))
+    outs = _read_attribute(c, node, getattr(node, "layer_name", ""), 0.0)
     return {"Color": _out(outs["color"], RGBA), "Alpha": _out(outs["alpha"], FLOAT)}
 
 
