@@ -27,10 +27,9 @@ from .ray_visibility import RAY_KIND_NAMES, bounce_kinds, next_path_state
 from .scene import Scene
 from .settings import RenderSettings
 from .shading import PreparedShading
-from .shading import registry as shading_ops
 from .textured_emitters import TexturedEmitters
-from .shading.program import ATTRIBUTE_COLUMNS, MESH_ATTRIBUTE_COLUMNS, PATH_COLUMNS, PATH_FLAGS, PATH_LENGTH, RAY_CAMERA
-from .shading.program import WIDTH as PROGRAM_WIDTH
+from .shading.program import (ATTRIBUTE_COLUMNS, MESH_ATTRIBUTE_COLUMNS, PATH_COLUMNS, PATH_DEPTH, PATH_FLAGS,
+                              PATH_LENGTH, RAY_CAMERA)
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
 # camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce.
@@ -269,24 +268,18 @@ class PreparedScene:
                        for m in scene.materials for lobe in m.lobes),
                    terminator_offset=terminator_offset, uv_layers=uv_layers, attributes=attributes)
         if shading is not None and shading.any_emits:
-            # Programs that read the Light Path node emit per ray kind: not light-sampled (core.textured_emitters)
-            sampled = shading.emits & ~np.array([_reads_light_path(m) for m in scene.materials], bool)
+            sampled = shading.emits
+            # the estimate sees what light sampling sees: a first bounce's light sample (core.textured_emitters)
+            nee_state = np.zeros((1, PATH_COLUMNS), np.float32)
+            nee_state[0, PATH_DEPTH] = 1.0
             prepared.textured = TexturedEmitters.build(tri_vertices, material_index, sampled,
-                                                       lambda t, b1, b2: emission_at(prepared, t, b1, b2))
+                                                       lambda t, b1, b2: emission_at(
+                prepared, t, b1, b2, path=np.broadcast_to(nee_state, (len(t), PATH_COLUMNS))))
             features["textured_emitters"] = 0 if prepared.textured is None else prepared.textured.count
         return prepared
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
-
-
-def _reads_light_path(material) -> bool:
-    """Whether the material's node program reads the Light Path node."""
-    prog = getattr(material, "program", None)
-    if prog is None:
-        return False
-    code = np.asarray(prog.code, np.int32).reshape(-1, PROGRAM_WIDTH)
-    return bool(np.any(code[:, 0] == shading_ops.OP_LIGHT_PATH))
 
 
 def _rows_of(state: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
@@ -648,7 +641,8 @@ class PathTracer:
                 if ps.lights.has_lights:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary)
                 if ps.textured is not None:
-                    self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, textured=True)
+                    self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, textured=True,
+                                     path=_rows_of(path_state, idx))
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
@@ -754,10 +748,11 @@ class PathTracer:
         return now
 
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
-                    bary=None, textured: bool = False) -> None:
+                    bary=None, textured: bool = False, path: np.ndarray | None = None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
         u, v) of each path's hit when some mesh has a shadow terminator offset, else None. textured: sample the
-        textured emitters (core.textured_emitters) instead of the lights, the emission from their programs."""
+        textured emitters (core.textured_emitters) instead of the lights, the emission from their programs;
+        path: the paths' Light Path state there (None when no program reads it)."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
@@ -767,7 +762,7 @@ class PathTracer:
         u_l, u_sel = np.ascontiguousarray(u_light[:, :2]), np.ascontiguousarray(u_light[:, 2])
         transmits = ps.materials.has_transmission[mat[can]]
         if textured:
-            ls = self._sample_textured(gc.p, u_sel, u_l)
+            ls = self._sample_textured(gc.p, u_sel, u_l, None if path is None else path[can])
         else:
             ls = ps.lights.sample(gc.p, gc.n_view, u_sel, u_l, transmits=transmits)
         wi = np.ascontiguousarray(ls.wi, dtype=np.float32)
@@ -801,14 +796,23 @@ class PathTracer:
         vis = np.flatnonzero(~blocked)
         self._add(radiance, sample_of[vis], contrib[vis])
 
-    def _sample_textured(self, p: np.ndarray, u_select: np.ndarray, u: np.ndarray) -> LightSample:
-        """One light sample of the textured emitters per point p, its radiance from the emitter's program."""
+    def _sample_textured(self, p: np.ndarray, u_select: np.ndarray, u: np.ndarray,
+                         path: np.ndarray | None = None) -> LightSample:
+        """One light sample of the textured emitters per point p, its radiance from the emitter's program.
+        The program sees Cycles' light-sample state: no ray-kind flag set, Ray Depth one more than at p (path: the
+        paths' state at p, None when no program reads it)."""
         em, b1, b2, wi, dist, pdf = self.ps.textured.sample(p, u_select, u)
         radiance = np.zeros((len(em), 3), np.float32)
         live = np.flatnonzero(pdf > 0)
         if len(live):
+            state = None
+            if path is not None:
+                state = path[live].copy()
+                state[:, PATH_FLAGS] = 0.0
+                state[:, PATH_DEPTH] += 1.0
+                state[:, PATH_LENGTH] = dist[live]
             radiance[live] = emission_at(self.ps, self.ps.textured.triangle_id[em[live]], b1[live], b2[live],
-                                         towards=wi[live])
+                                         towards=wi[live], path=state)
         return LightSample(wi=wi, dist=dist, radiance=radiance, pdf=pdf, delta=np.zeros(len(em), bool))
 
     def _terminator_args(self, bary, can, gc: "SurfaceBatch") -> tuple:
@@ -885,10 +889,11 @@ def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np
 
 
 def emission_at(ps: PreparedScene, triangles: np.ndarray, b1: np.ndarray, b2: np.ndarray,
-                towards: np.ndarray | None = None, chunk: int = 1 << 16) -> np.ndarray:
+                towards: np.ndarray | None = None, path: np.ndarray | None = None,
+                chunk: int = 1 << 16) -> np.ndarray:
     """(K, 3) float32 emitted radiance of the node programs at points (triangle, barycentrics b1, b2), seen along
-    the unit directions `towards` (K, 3) (the ray arriving there; None: head-on from the front). No path state
-    (the programs light sampling runs do not read it)."""
+    the unit directions `towards` (K, 3) (the ray arriving there; None: head-on from the front), with the Light
+    Path state `path` (K, PATH_COLUMNS) (None: a camera ray)."""
     k = len(triangles)
     out = np.zeros((k, 3), np.float32)
     for a in range(0, k, chunk):
@@ -897,5 +902,6 @@ def emission_at(ps: PreparedScene, triangles: np.ndarray, b1: np.ndarray, b2: np
         d = -ps.face_normals[t] if towards is None else np.ascontiguousarray(towards[a:a + chunk], np.float32)
         g = surface_batch(ps, np.arange(len(t), dtype=np.int64), t, u, v, d)
         mat = ps.material_index[t]
-        shade_points(ps, g, mat, t, d, ps.materials.gather(mat, g.uv), out[a:a + chunk], bary=(u, v))
+        shade_points(ps, g, mat, t, d, ps.materials.gather(mat, g.uv), out[a:a + chunk], bary=(u, v),
+                     path=None if path is None else np.ascontiguousarray(path[a:a + chunk], np.float32))
     return out

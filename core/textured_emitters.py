@@ -14,8 +14,11 @@ covers its own emitters, so their sum stays unbiased):
   pdf = p_select x dist^2 / (area x |cos_light|); both faces emit (as the constant emitters).
 - the radiance there comes from running the program at the sampled point (the integrator's `emission_at`).
 
-A program that reads the Light Path node stays out of the table (its emission depends on the ray that finds
-it, which a light sample does not have): such emitters are found by BSDF sampling alone, with weight 1.
+A program that reads the Light Path node is light-sampled as Cycles samples it: a light sample runs the program
+with no ray-kind flag set (Is Diffuse Ray, Is Camera Ray, ... read 0) and Ray Depth one more than at the
+shading point, while a BSDF ray that hits the emitter runs it with that ray's flags, MIS-weighted: so an
+emitter that shines only for diffuse rays lights a diffuse surface by the BSDF-sampled share alone, as in
+Cycles.
 """
 
 from __future__ import annotations

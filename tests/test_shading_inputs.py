@@ -262,3 +262,52 @@ def test_textured_emitter_is_light_sampled_unbiased_and_less_noisy(tmp_path):
     assert ref.min() > 0.05
     assert np.allclose(means["mis"], ref, rtol=0.01)
     assert errors["mis"] < 0.5 * errors["bsdf"]
+
+
+@pytest.mark.blender
+def test_light_path_camera_trick_lights_a_floor_as_in_cycles(tmp_path):
+    """The common trick: an emitter the camera sees in one colour (Is Camera Ray) that lights the scene in
+    another, plus Ray Depth in blue. The emitter, seen from above, hides the floor's middle; the floor mixes a
+    Diffuse and a rough Glossy BSDF. The emitter's pixels are exactly the camera colour; the floor's mean within
+    2 % of Cycles per channel (128 spp leave ~0.5 % noise in the mean)."""
+    import blender_fixtures as bf
+    from monte.addon import crosscheck as cc
+
+    b = _bpy()
+    scene = _textured_emitter_scene()
+    b.data.objects["emitter"].visible_camera = True
+    tree = b.data.materials["checker-light"].node_tree
+    nodes = tree.nodes
+    lp = nodes.new("ShaderNodeLightPath")
+    lighting = nodes.new("ShaderNodeCombineXYZ")  # (2, 1, Ray Depth) for the rays that light the floor
+    lighting.inputs[0].default_value, lighting.inputs[1].default_value = 2.0, 1.0
+    tree.links.new(lp.outputs["Ray Depth"], lighting.inputs[2])
+    mix = nodes.new("ShaderNodeMix")
+    mix.data_type = "RGBA"
+    tree.links.new(lp.outputs["Is Camera Ray"], mix.inputs["Factor"])
+    tree.links.new(lighting.outputs[0], mix.inputs[6])
+    mix.inputs[7].default_value = (0.1, 0.2, 0.3, 1.0)  # what the camera sees
+    tree.links.new(mix.outputs[2], nodes["Emission"].inputs["Color"])
+    floor = b.data.objects["floor"]
+    mat = bf.node_material("floor-mix", "ShaderNodeMixShader")
+    mt = mat.node_tree
+    diffuse = mt.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (0.8, 0.8, 0.8, 1.0)
+    glossy = mt.nodes.new("ShaderNodeBsdfGlossy")
+    glossy.inputs["Roughness"].default_value = 0.4
+    mt.links.new(diffuse.outputs[0], mt.nodes["Mix Shader"].inputs[1])
+    mt.links.new(glossy.outputs[0], mt.nodes["Mix Shader"].inputs[2])
+    floor.data.materials.clear()
+    floor.data.materials.append(mat)
+    cc.configure_cycles(scene, 128, 3, threads=2, seed=1)
+    cyc = cc.render_cycles(scene, tmp_path)[0]
+    m = scene.monte
+    m.samples, m.max_bounces, m.seed, m.threads = 128, 3, 1, 2
+    mon = cc.render_monte(scene)[0]
+    seen = np.all(np.abs(cyc - (0.2, 0.4, 0.6)) < 1e-3, axis=2)  # the emitter (strength 2)
+    assert 0.05 < seen.mean() < 0.15
+    assert np.allclose(mon[seen], (0.2, 0.4, 0.6), atol=1e-3)
+    c, mm = cyc[~seen].mean(axis=0), mon[~seen].mean(axis=0)
+    print(f"\nlight path floor: Cycles {np.round(c, 4)} Monte {np.round(mm, 4)} rel {np.round(mm / c - 1, 4)}")
+    assert np.all(c > 0.01)
+    assert np.allclose(mm, c, rtol=0.02)

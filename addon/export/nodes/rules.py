@@ -109,9 +109,12 @@ _LIGHT_PATH_OUTPUTS = {"Is Camera Ray": "is_camera", "Is Shadow Ray": "is_shadow
 
 
 @rule("ShaderNodeLightPath", "Light Path", "input", outputs=tuple(_LIGHT_PATH_OUTPUTS),
-      notes="Cycles' ray flags and bounce counts of the path that reached the point. Is Shadow Ray reads 0: "
-            "Monte's shadow rays do not run materials (every surface blocks them; warning). Is Volume Scatter "
-            "Ray and Portal Depth read 0.")
+      notes="Cycles' ray flags and bounce counts of the path that reached the point; a light sample of a "
+            "textured emitter sees no ray-kind flag and Ray Depth + 1, as Cycles. An emission driven by Is "
+            "Diffuse/Glossy/... Ray splits between light and BSDF sampling by MIS weights that depend on the "
+            "sampling strategy (Monte samples a triangle's area, Cycles its solid angle): such emitters differ "
+            "from Cycles (Is Camera Ray and the depths agree). Is Shadow Ray reads 0: Monte's shadow rays do not "
+            "run materials (every surface blocks them; warning). Is Volume Scatter Ray and Portal Depth read 0.")
 def _light_path(c, node, ctx):
     if c.output_used(node, "Is Shadow Ray", ctx):
         c.warn(node, "Is Shadow Ray reads 0: shadow rays do not evaluate materials in Monte (every surface casts "

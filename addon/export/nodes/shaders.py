@@ -33,8 +33,8 @@ SHADERS = {
     "ShaderNodeBsdfTransparent": ("Transparent BSDF", ("Color",), ""),
     "ShaderNodeEmission": ("Emission", ("Color", "Strength"),
                            "A varying emission is light-sampled by its own table (triangles chosen by area x "
-                           "an emission estimate, the emission evaluated per point) with MIS; one that reads the "
-                           "Light Path node is found by BSDF sampling only."),
+                           "an emission estimate, the emission evaluated per point) with MIS; a light sample runs the "
+                           "program as Cycles does (Light Path: no ray-kind flag, Ray Depth + 1)."),
     "ShaderNodeMixShader": ("Mix Shader", ("Fac", "Shader", "Shader"), "The factor may vary per point."),
     "ShaderNodeAddShader": ("Add Shader", ("Shader", "Shader"), ""),
     "ShaderNodeHoldout": ("Holdout", (), "Camera rays (and rays through transparent surfaces) see zero colour and "
