@@ -432,6 +432,82 @@ def image_lookup(tex_pixels, off, h, w, u, v, interp, ext, c):
     return acc
 
 
+@_jit
+def _image_rgba(tex_pixels, off, h, w, u, v, interp, ext, flags):
+    """An image's filtered (r, g, b, alpha) at (u, v) with the Image Texture op's flags applied (associate,
+    unassociate, then the sRGB decode)."""
+    alpha = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 3)
+    r = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 0)
+    g = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 1)
+    b = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 2)
+    if flags & 1:
+        r, g, b = r * alpha, g * alpha, b * alpha
+    elif flags & 4 and alpha != 0.0 and alpha != 1.0:
+        r, g, b = r / alpha, g / alpha, b / alpha
+    if flags & 2:
+        r, g, b = srgb_to_linear(r), srgb_to_linear(g), srgb_to_linear(b)
+    return r, g, b, alpha
+
+
+@_jit
+def _map_to_sphere(x, y, z):
+    """Cycles' map_to_sphere: (u, v) of a direction about the origin, u from atan2(x, y), v from the pole."""
+    ll = math.sqrt(x * x + y * y + z * z)
+    if ll <= 0.0:
+        return 0.0, 0.0
+    u = 0.0 if (x == 0.0 and y == 0.0) else (1.0 - math.atan2(x, y) / math.pi) / 2.0
+    return u, 1.0 - math.acos(min(max(z / ll, -1.0), 1.0)) / math.pi
+
+
+@_jit
+def _map_to_tube(x, y, z):
+    """Cycles' map_to_tube: u around the z axis, v = (z + 1) / 2."""
+    ll = math.sqrt(x * x + y * y)
+    if ll <= 0.0:
+        return 0.0, 0.0
+    return (1.0 - math.atan2(x / ll, y / ll) / math.pi) * 0.5, (z + 1.0) * 0.5
+
+
+@_jit
+def _box_weights(N, k, obj, objects, blend):
+    """Cycles' box-projection weights of the x, y and z faces from the object-space shading normal (a corner
+    of one face where it dominates, blends between two or three within `blend`), and that normal's signs."""
+    m = objects[obj[k]]
+    nx, ny, nz = float(N[k, 0]), float(N[k, 1]), float(N[k, 2])
+    sx = m[OBJECT_INVERSE + 0] * nx + m[OBJECT_INVERSE + 1] * ny + m[OBJECT_INVERSE + 2] * nz
+    sy = m[OBJECT_INVERSE + 4] * nx + m[OBJECT_INVERSE + 5] * ny + m[OBJECT_INVERSE + 6] * nz
+    sz = m[OBJECT_INVERSE + 8] * nx + m[OBJECT_INVERSE + 9] * ny + m[OBJECT_INVERSE + 10] * nz
+    ax, ay, az = abs(sx), abs(sy), abs(sz)
+    total = ax + ay + az
+    if total > 0.0:
+        ax, ay, az = ax / total, ay / total, az / total
+    wx = wy = wz = 0.0
+    limit = 0.5 * (1.0 + blend)
+    if ax > limit * (ax + ay) and ax > limit * (ax + az):
+        wx = 1.0
+    elif ay > limit * (ax + ay) and ay > limit * (ay + az):
+        wy = 1.0
+    elif az > limit * (ax + az) and az > limit * (ay + az):
+        wz = 1.0
+    elif blend > 0.0:
+        if az < (1.0 - limit) * (ay + ax):
+            wx = min(max((ax / (ax + ay) - 0.5 * (1.0 - blend)) / blend, 0.0), 1.0)
+            wy = 1.0 - wx
+        elif ax < (1.0 - limit) * (ay + az):
+            wy = min(max((ay / (ay + az) - 0.5 * (1.0 - blend)) / blend, 0.0), 1.0)
+            wz = 1.0 - wy
+        elif ay < (1.0 - limit) * (ax + az):
+            wx = min(max((ax / (ax + az) - 0.5 * (1.0 - blend)) / blend, 0.0), 1.0)
+            wz = 1.0 - wx
+        else:
+            wx = ((2.0 - limit) * ax + (limit - 1.0)) / (2.0 * limit - 1.0)
+            wy = ((2.0 - limit) * ay + (limit - 1.0)) / (2.0 * limit - 1.0)
+            wz = ((2.0 - limit) * az + (limit - 1.0)) / (2.0 * limit - 1.0)
+    else:
+        wx = 1.0  # no blend and no dominant face: one side, as Cycles
+    return wx, wy, wz, sx, sy, sz
+
+
 # ------------------------------------------------------------------------------------------------- dispatch
 @_jit
 def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
@@ -541,24 +617,39 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         setf(regs, a[5], objects[o, OBJECT_RANDOM])
     elif op == _IMAGE:
         if a[3] >= 0:
-            u, v = float(regs[a[3], 0]), float(regs[a[3], 1])
+            x, y, z = get3(regs, a[3])
         elif has_uv:
-            u, v = float(uv[k, 0]), float(uv[k, 1])
+            x, y, z = float(uv[k, 0]), float(uv[k, 1]), 0.0
         else:
-            u, v = 0.0, 0.0
+            x, y, z = 0.0, 0.0, 0.0
         t = a[4]
-        off, h, w = tex_offset[t], tex_h[t], tex_w[t]
-        alpha = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 3)
-        r = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 0)
-        g = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 1)
-        b = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 2)
-        flags = a[7]
-        if flags & 1:
-            r, g, b = r * alpha, g * alpha, b * alpha
-        elif flags & 4 and alpha != 0.0 and alpha != 1.0:
-            r, g, b = r / alpha, g / alpha, b / alpha
-        if flags & 2:
-            r, g, b = srgb_to_linear(r), srgb_to_linear(g), srgb_to_linear(b)
+        proj = a[8]
+        if proj == 1:  # box: up to three lookups, unassociated after the sum (Cycles, against fringes)
+            blend = float(regs[a[9], 0]) if a[9] >= 0 else 0.0
+            wx, wy, wz, sx, sy, sz = _box_weights(N, k, obj, objects, blend)
+            r = g = b = alpha = 0.0
+            for face in range(3):
+                wf = wx if face == 0 else (wy if face == 1 else wz)
+                if wf <= 0.0:
+                    continue
+                if face == 0:
+                    u, v = (1.0 - y if sx < 0.0 else y), z
+                elif face == 1:
+                    u, v = (1.0 - x if sy > 0.0 else x), z
+                else:
+                    u, v = (1.0 - y if sz > 0.0 else y), x
+                fr, fg, fb, fa = _image_rgba(tex_pixels, tex_offset[t], tex_h[t], tex_w[t], u, v, a[5], a[6],
+                                             a[7] & 3)
+                r, g, b, alpha = r + wf * fr, g + wf * fg, b + wf * fb, alpha + wf * fa
+            if a[7] & 4 and alpha != 0.0 and alpha != 1.0:
+                r, g, b = r / alpha, g / alpha, b / alpha
+        else:
+            if proj == 2 or proj == 3:  # sphere / tube about the centre of the [0, 1] cube (Cycles' map_to_*)
+                cx, cy, cz = 2.0 * x - 1.0, 2.0 * y - 1.0, 2.0 * z - 1.0
+                u, v = _map_to_sphere(cx, cy, cz) if proj == 2 else _map_to_tube(cx, cy, cz)
+            else:
+                u, v = x, y
+            r, g, b, alpha = _image_rgba(tex_pixels, tex_offset[t], tex_h[t], tex_w[t], u, v, a[5], a[6], a[7])
         set3(regs, a[1], r, g, b)
         setf(regs, a[2], alpha)
     elif op == _SPEC:

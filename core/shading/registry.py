@@ -159,12 +159,14 @@ OP_LIGHT_PATH = register(OpSpec("light_path", 35, _r("is_camera", "is_shadow", "
                                  "PATH_*); without one: a camera ray of length 0")).code
 # Images.
 OP_IMAGE = register(OpSpec("image", 40, _r("color", "alpha", kind="out?") + _r("vector", kind="in?")
-                           + _r("texture", kind="tex") + _r("interpolation", "extension", "flags", kind="int"),
-                           "Image Texture node, flat projection: interpolation 0 linear 1 closest 2 cubic; "
+                           + _r("texture", kind="tex") + _r("interpolation", "extension", "flags", "projection",
+                                                             kind="int") + _r("blend", kind="in?"),
+                           "Image Texture node: interpolation 0 linear 1 closest 2 cubic; "
                            "extension 0 repeat 1 extend 2 clip 3 mirror; flags bit 0: colour times alpha "
-                           "(associate), bit 2: colour divided by alpha where 0 < alpha < 1 (unassociate), "
-                           "bit 1: sRGB-decode the colour after filtering (and association). vector -1: the UV "
-                           "map")).code
+                           "(associate), bit 2: colour divided by alpha where 0 < alpha < 1 (unassociate; after "
+                           "the weighted sum for box), bit 1: sRGB-decode the colour after filtering (and "
+                           "association). vector -1: the UV map. projection 0 flat 1 box (Cycles' weights from "
+                           "the object-space normal, blend: the Blend register, -1 = 0) 2 sphere 3 tube")).code
 # Shader helpers (the Principled BSDF's derived lobe parameters).
 OP_SPECULAR_LAYER = register(OpSpec("specular_layer", 50, _r("f0", "eta", kind="out") + _r("ior", "level", "tint",
                                                                                           kind="in"),

@@ -307,12 +307,13 @@ def _mix_rgb(c, node, ctx):
 # ------------------------------------------------------------------------------------------------- images
 _INTERP = {"Linear": 0, "Closest": 1, "Cubic": 2, "Smart": 2}
 _EXTENSION = {"REPEAT": 0, "EXTEND": 1, "CLIP": 2, "MIRROR": 3}
+_PROJECTION = {"FLAT": 0, "BOX": 1, "SPHERE": 2, "TUBE": 3}
 
 
 @rule("ShaderNodeTexImage", "Image Texture", "texture", inputs=("Vector",), outputs=("Color", "Alpha"),
-      notes="Flat projection (others: warning, flat); Linear, Closest, Cubic (Smart = Cubic, as Cycles on the "
-            "CPU); Repeat, Extend, Clip, Mirror; colour spaces sRGB (decoded after filtering, as Cycles), "
-            "Non-Color / Linear / Raw, others treated as sRGB (warning); alpha modes Straight, Premultiplied, "
+      notes="Flat, Box (Cycles' weights from the object-space normal, with Blend), Sphere and Tube projections; "
+            "Linear, Closest, Cubic (Smart = Cubic, as Cycles on the CPU); Repeat, Extend, Clip, Mirror; colour "
+            "spaces sRGB (decoded after filtering, as Cycles), Non-Color / Linear / Raw, others treated as sRGB (warning); alpha modes Straight, Premultiplied, "
             "Channel Packed, None with Cycles' association (the Color output is premultiplied unless the Alpha "
             "output is used). First frame / tile only. Missing or unreadable image: warning, magenta "
             "(Cycles' missing-texture colour).")
@@ -321,13 +322,16 @@ def _image(c, node, ctx):
     tex, flags = c.image_texture(node, alpha_used)
     if tex is None:  # missing: Cycles' TEX_IMAGE_MISSING colour
         return {"Color": _out(c.const([1.0, 0.0, 1.0]), RGBA), "Alpha": _out(c.const(1.0), FLOAT)}
-    if node.projection != "FLAT":
+    projection = _PROJECTION.get(node.projection)
+    if projection is None:
         c.warn(node, f"{node.projection.lower()} projection is not supported; using flat")
+        projection = 0
     vec = c.input(node, "Vector", VECTOR, ctx) if c.is_linked(node, "Vector", ctx) else -1
     interp = _INTERP.get(node.interpolation, 0)
     ext = _EXTENSION.get(node.extension, 0)
+    blend = c.const(float(node.projection_blend)) if projection == 1 else -1
     outs = c.emit("image", color=True, alpha=True, vector=vec, texture=tex, interpolation=interp, extension=ext,
-                  flags=flags, varying=vec < 0)
+                  flags=flags, projection=projection, blend=blend, varying=vec < 0 or projection == 1)
     return {"Color": _out(outs["color"], RGBA), "Alpha": _out(outs["alpha"], FLOAT)}
 
 
