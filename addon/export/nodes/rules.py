@@ -313,9 +313,9 @@ _PROJECTION = {"FLAT": 0, "BOX": 1, "SPHERE": 2, "TUBE": 3}
 @rule("ShaderNodeTexImage", "Image Texture", "texture", inputs=("Vector",), outputs=("Color", "Alpha"),
       notes="Flat, Box (Cycles' weights from the object-space normal, with Blend), Sphere and Tube projections; "
             "Linear, Closest, Cubic (Smart = Cubic, as Cycles on the CPU); Repeat, Extend, Clip, Mirror; colour "
-            "spaces sRGB (decoded after filtering, as Cycles), Non-Color / Linear / Raw, others treated as sRGB (warning); alpha modes Straight, Premultiplied, "
-            "Channel Packed, None with Cycles' association (the Color output is premultiplied unless the Alpha "
-            "output is used). First frame / tile only. Missing or unreadable image: warning, magenta "
+            "spaces sRGB (decoded after filtering, as Cycles), Non-Color / Linear / Raw, others treated as sRGB "
+            "(warning); alpha modes Straight, Premultiplied, Channel Packed, None with Cycles' association (the "
+            "Color output is premultiplied unless the Alpha output is used). First frame / tile only. Missing or unreadable image: warning, magenta "
             "(Cycles' missing-texture colour).")
 def _image(c, node, ctx):
     alpha_used = c.output_used(node, "Alpha", ctx)
