@@ -225,9 +225,11 @@ class PreparedScene:
         uv_arr = np.concatenate(uvs).astype(np.float32) if any_uv and uvs else None
 
         materials = bsdf_mod.MaterialTable.build(scene.materials, scene.textures)
-        from .shading.program import identity_object_row
+        from .shading.program import camera_row, identity_object_row
 
         object_rows = [identity_object_row()[None]] + ([scene.objects] if scene.objects is not None else [])
+        # the render camera last (Texture Coordinate's Camera and Window outputs)
+        object_rows.append(camera_row(scene.camera.matrix_world, scene.camera.frame(), scene.camera.kind)[None])
         shading = PreparedShading.build(scene.materials, scene.textures, materials.max_lobes,
                                         np.concatenate(object_rows).astype(np.float32))
         object_of_triangle = np.concatenate(objs).astype(np.int32) if objs else np.zeros(0, np.int32)

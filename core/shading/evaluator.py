@@ -24,7 +24,7 @@ from .program import (BIND_F0, BIND_IOR, BIND_ROUGHNESS, BIND_TINT_R, BIND_TINT_
                       OBJECT_BOX_MIN, OBJECT_BOX_SIZE, OBJECT_COLOR, OBJECT_INVERSE, OBJECT_LOCATION,
                       OBJECT_PASS_INDEX, OBJECT_RANDOM, WIDTH, ShadingProgram, identity_object_row,
                       ATTRIBUTE_COLUMNS, PATH_COLUMNS, RAY_CAMERA, RAY_SHADOW, RAY_DIFFUSE, RAY_GLOSSY, RAY_SINGULAR,
-                      RAY_REFLECT, RAY_TRANSMIT)
+                      RAY_REFLECT, RAY_TRANSMIT, CAMERA_FRAME, CAMERA_KIND, CAMERA_ORTHO, CAMERA_PANO)
 
 # Blender's enum identifiers in the order of the evaluator's operation numbers (the compiler maps names to these).
 MATH_OPS = ("ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "POWER", "LOGARITHM", "SQRT", "INVERSE_SQRT",
@@ -734,8 +734,19 @@ def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects):
     else:
         set3(regs, a[3], 0.0, 0.0, 0.0)
     set3(regs, a[4], ox, oy, oz)
-    set3(regs, a[5], 0.0, 0.0, 0.0)  # camera/window: not computed (the compiler warns when they are used)
-    set3(regs, a[6], 0.0, 0.0, 0.0)
+    if a[5] >= 0 or a[6] >= 0:  # Camera and Window: the camera is the object table's last row
+        c = objects[objects.shape[0] - 1]
+        cx = c[OBJECT_INVERSE + 0] * px + c[OBJECT_INVERSE + 1] * py + c[OBJECT_INVERSE + 2] * pz + c[OBJECT_INVERSE + 3]
+        cy = c[OBJECT_INVERSE + 4] * px + c[OBJECT_INVERSE + 5] * py + c[OBJECT_INVERSE + 6] * pz + c[OBJECT_INVERSE + 7]
+        cz = c[OBJECT_INVERSE + 8] * px + c[OBJECT_INVERSE + 9] * py + c[OBJECT_INVERSE + 10] * pz + c[OBJECT_INVERSE + 11]
+        set3(regs, a[5], cx, cy, cz)
+        kind = c[CAMERA_KIND]
+        if kind == CAMERA_PANO:
+            set3(regs, a[6], 0.0, 0.0, 0.0)  # not computed for panoramic cameras (the export warns)
+        else:
+            sx, sy = (cx, cy) if kind == CAMERA_ORTHO else (safe_divide(cx, cz), safe_divide(cy, cz))
+            set3(regs, a[6], safe_divide(sx - c[CAMERA_FRAME], c[CAMERA_FRAME + 1] - c[CAMERA_FRAME]),
+                 safe_divide(sy - c[CAMERA_FRAME + 2], c[CAMERA_FRAME + 3] - c[CAMERA_FRAME + 2]), 0.0)
     d = I[k, 0] * nx + I[k, 1] * ny + I[k, 2] * nz
     set3(regs, a[7], 2.0 * d * nx - I[k, 0], 2.0 * d * ny - I[k, 1], 2.0 * d * nz - I[k, 2])
 

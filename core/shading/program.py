@@ -51,6 +51,13 @@ OBJECT_RANDOM = 20
 OBJECT_BOX_MIN = 21  # 3
 OBJECT_BOX_SIZE = 24  # 3
 OBJECT_COLUMNS = 27
+# The last row of the object table the evaluator gets is the render camera's (Texture Coordinate's Camera and
+# Window outputs; no triangle names it): world -> camera space (x right, y up, z forward: Cycles' camera space)
+# as 3x4 in the OBJECT_INVERSE columns, the image frame (core.scene.Camera.frame: xmin, xmax, ymin, ymax) and the
+# projection (CAMERA_PERSP, CAMERA_ORTHO, CAMERA_PANO).
+CAMERA_FRAME = 12  # 4
+CAMERA_KIND = 16
+CAMERA_PERSP, CAMERA_ORTHO, CAMERA_PANO = 0, 1, 2
 
 # Columns of the per-point extras (`PreparedShading.evaluate`'s `extra`, float32 (N, PATH_COLUMNS + 5 A)): the
 # path state the Light Path node reads (Cycles' ray flags and bounce counts of the ray that reached the point,
@@ -68,6 +75,19 @@ RAY_CAMERA, RAY_SHADOW, RAY_DIFFUSE, RAY_GLOSSY, RAY_SINGULAR, RAY_REFLECT, RAY_
 # default: 1 for the Attribute node, 0 for Color Attribute, as Cycles).
 MESH_ATTRIBUTE_COLUMNS = 5
 ATTRIBUTE_COLUMNS = 6
+
+
+def camera_row(matrix_world, frame, kind: str) -> np.ndarray:
+    """The object-table row of the render camera (see CAMERA_FRAME): matrix_world camera -> world 4x4 (Blender's,
+    looking along -Z), frame (xmin, xmax, ymin, ymax), kind "PERSP", "ORTHO" or "PANO"."""
+    m = np.asarray(matrix_world, np.float64)
+    axes = m[:3, :3] / np.maximum(np.linalg.norm(m[:3, :3], axis=0), 1e-30)
+    rot = np.stack([axes[:, 0], axes[:, 1], -axes[:, 2]])  # rows: right, up, forward
+    row = np.zeros(OBJECT_COLUMNS, np.float32)
+    row[OBJECT_INVERSE:OBJECT_INVERSE + 12] = np.concatenate([rot, (-rot @ m[:3, 3])[:, None]], axis=1).reshape(-1)
+    row[CAMERA_FRAME:CAMERA_FRAME + 4] = frame
+    row[CAMERA_KIND] = {"PERSP": CAMERA_PERSP, "ORTHO": CAMERA_ORTHO}.get(kind, CAMERA_PANO)
+    return row
 
 
 def identity_object_row() -> np.ndarray:

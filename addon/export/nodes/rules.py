@@ -33,8 +33,10 @@ def _rgb(c, node, ctx):
 
 
 @rule("ShaderNodeTexCoord", "Texture Coordinate", "input",
-      outputs=("Generated", "Normal", "UV", "Object", "Reflection"),
-      notes="Camera and Window read 0 (warning); the Object field (another object's space) and From Instancer "
+      outputs=("Generated", "Normal", "UV", "Object", "Camera", "Window", "Reflection"),
+      notes="Camera: camera space of the render camera (x right, y up, z forward, as Cycles); Window: the "
+            "position in the full camera frame in [0, 1] (x from the left, y from the bottom, z 0; a render "
+            "border does not change it), 0 under a panoramic camera. The Object field (another object's space) and From Instancer "
             "are not supported (warning; the hit object's space is used). Generated is the object's texture "
             "space (its bounding box) of the evaluated mesh, not of the undeformed original.")
 def _texcoord(c, node, ctx):
@@ -45,9 +47,6 @@ def _texcoord(c, node, ctx):
         c.warn(node, "From Instancer is not supported; using the instance's own coordinates")
     names = ("Generated", "Normal", "UV", "Object", "Camera", "Window", "Reflection")
     used = {n: c.output_used(node, n, ctx) for n in names}
-    for n in ("Camera", "Window"):
-        if used[n]:
-            c.warn(node, f"the {n} output is not supported; it reads (0, 0, 0)")
     outs = c.emit("texture_coordinate", **{n.lower(): used[n] for n in names})
     return {n: _out(outs[n.lower()], VECTOR) for n in names if outs[n.lower()] >= 0}
 
