@@ -519,11 +519,19 @@ class PathTracer:
                 # Rays that still count as transparent and escape: alpha 0 and no world colour.
                 gone = np.flatnonzero(~hit & clear_here)
                 transparent[idx[gone]] += throughput[gone].mean(axis=1)
-            if ps.lights.has_emission:
+            if ps.lights.has_emission or ps.scene.world.camera_color is not None:
                 mis_here = self.mis and depth > 0
                 le = self._light_emission(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf, prev_delta,
                                           mis_here, prev_normal, depth == 0, prev_transmits,
                                           clear_here if film_transparent else None)
+                backdrop = ps.scene.world.camera_color
+                if depth == 0 and backdrop is not None and not film_transparent:
+                    # camera rays that escape see the world's camera-only backdrop instead of the background
+                    gone = np.flatnonzero(~hit)
+                    if len(gone):
+                        le[gone] = np.asarray(backdrop, np.float32) + self.ps.lights.intersect(
+                            o[gone], d[gone], np.full(len(gone), np.inf, np.float32), prev_pdf[gone],
+                            prev_delta[gone], False, camera=True, world=False)
                 if depth > 0 and not self.use_bsdf_emission:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))

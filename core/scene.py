@@ -426,10 +426,13 @@ Light = PointLight | SpotLight | SunLight | AreaLight
 class World:
     """The background, seen by every ray that escapes: uniform radiance `color` (Blender's Background colour x
     strength), or, when `environment` is set, that image (core.world.EnvironmentMap, its Background strength
-    folded into its `strength`) in place of the colour."""
+    folded into its `strength`) in place of the colour. camera_color: optional (3,) radiance that camera rays see
+    where they escape, instead of the background (Blender's Light Path > Is Camera Ray mixing two Backgrounds: a
+    backdrop that differs from the light); None: the background."""
 
     color: np.ndarray = field(default_factory=lambda: np.zeros(3))
     environment: EnvironmentMap | None = None
+    camera_color: np.ndarray | None = None
 
     @property
     def is_black(self) -> bool:
@@ -699,6 +702,8 @@ class Scene:
         for mesh in self.meshes:
             mesh.validate(len(self.materials), self.warnings, n_objects)
         self.world.color = _as_rgb(self.world.color, "world background")
+        if self.world.camera_color is not None:
+            self.world.camera_color = _as_rgb(self.world.camera_color, "world background seen by the camera")
         if self.world.environment is not None:
             try:
                 self.world.environment.validate(self.warnings)
