@@ -150,6 +150,14 @@ class PreparedScene:
                                                 keep.astype(np.int32))
             return found
 
+    def update_camera(self, camera) -> None:
+        """Make the node programs' Camera and Window coordinates follow `camera` (core.scene.Camera), for a
+        prepared scene reused after the camera moved (the geometry's frame stays that of the first camera)."""
+        if self.shading is not None:
+            from .shading.program import camera_row
+
+            self.shading.objects[-1] = camera_row(camera.matrix_world, camera.frame(), camera.kind)
+
     # The same per-triangle data as the compiled kernels take it: empty arrays instead of None.
     @property
     def kernel_corner_normals(self) -> np.ndarray:

@@ -453,3 +453,23 @@ def test_world_backdrop_seen_only_by_the_camera_matches_cycles(tmp_path):
     c, mm = cyc[~back].mean(axis=0), mon[~back].mean(axis=0)
     print(f"\nworld backdrop: sphere Cycles {np.round(c, 4)} Monte {np.round(mm, 4)} rel {np.round(mm / c - 1, 4)}")
     assert np.allclose(mm, c, rtol=0.01)
+
+
+def test_a_reused_prepared_scene_follows_the_moved_camera():
+    """The viewport reuses a prepared scene when only the camera moves: Camera / Window must follow it."""
+    from monte.core.integrator import PreparedScene
+    from monte.core.scene import Camera, Lobe, Material, Mesh, Scene
+
+    prog = _program("texture_coordinate", 2, camera=0, window=1)
+    prog.lobes = np.full((1, 6), -1, np.int32)
+    prog.lobes[0, 0] = 0
+    mesh = Mesh("quad", np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0]], float), np.array([[0, 1, 2]]))
+    cam = Camera.look_at((0, 0, 5), (0, 0, 0), up=(0, 1, 0), resolution=(8, 8), kind="ORTHO", ortho_scale=4.0)
+    scene = Scene(cam, [mesh], [Material("m", [Lobe("diffuse", np.ones(3))], program=prog)]).validate()
+    ps = PreparedScene.build(scene)
+    row = ps.shading.objects[-1].copy()
+    moved = Camera.look_at((1, 0, 5), (1, 0, 0), up=(0, 1, 0), resolution=(8, 8), kind="ORTHO", ortho_scale=4.0)
+    ps.update_camera(moved)
+    after = ps.shading.objects[-1]
+    # world -> camera translation: x shifts by -1 (right axis +x), z (forward) by 5
+    assert row[3] == 0.0 and after[3] == -1.0 and row[11] == after[11] == 5.0
