@@ -24,11 +24,14 @@ from . import light_passes as lp_mod
 from .accel import Accelerator, Hits
 from .data_passes import DataPath
 from .light_shadow import NoShadowLights
-from .lights import EmissiveTriangles, LightSampler
-from .ray_visibility import DIFFUSE_RAY, GLOSSY_RAY, RAY_KIND_NAMES, bounce_kinds
+from .lights import EmissiveTriangles, LightSample, LightSampler
+from .ray_visibility import DIFFUSE_RAY, GLOSSY_RAY, RAY_KIND_NAMES, bounce_kinds, next_path_state
 from .scene import Scene
 from .settings import RenderSettings
 from .shading import PreparedShading
+from .textured_emitters import TexturedEmitters
+from .shading.program import (ATTRIBUTE_COLUMNS, MESH_ATTRIBUTE_COLUMNS, PATH_COLUMNS, PATH_DEPTH, PATH_FLAGS,
+                              PATH_LENGTH, RAY_CAMERA)
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
 # camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce.
@@ -135,6 +138,10 @@ class PreparedScene:
     catcher: np.ndarray | None = None
     # (M,) bool: shadow rays go on through this material (core.transparent_shadow); None when no material does
     shadow_clear: np.ndarray | None = None
+    # (T, A, 3, ATTRIBUTE_COLUMNS) the named attributes of Scene.attribute_names per corner, or None
+    attributes: np.ndarray | None = None
+    # emitters whose emission a node program drives, light-sampled by their own table (core.textured_emitters)
+    textured: TexturedEmitters | None = None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -149,6 +156,14 @@ class PreparedScene:
                 found = self._subsets[which] = (Accelerator(self.vertices, self.triangles[keep]),
                                                 keep.astype(np.int32))
             return found
+
+    def update_camera(self, camera) -> None:
+        """Make the node programs' Camera and Window coordinates follow `camera` (core.scene.Camera), for a
+        prepared scene reused after the camera moved (the geometry's frame stays that of the first camera)."""
+        if self.shading is not None:
+            from .shading.program import camera_row
+
+            self.shading.objects[-1] = camera_row(camera.matrix_world, camera.frame(), camera.kind)
 
     # The same per-triangle data as the compiled kernels take it: empty arrays instead of None.
     @property
@@ -172,6 +187,7 @@ class PreparedScene:
                                                                               [], [])
         catchers = []
         layer_names = list(scene.uv_layer_names)
+        attribute_names, attrs = list(scene.attribute_names), []
         offset = 0
         any_smooth = any(m.normals is not None for m in scene.meshes)
         any_uv = any(m.uvs is not None for m in scene.meshes)
@@ -194,6 +210,13 @@ class PreparedScene:
                     if mesh.uv_layers and lname in mesh.uv_layers:
                         per[:, j] = mesh.uv_layers[lname]
                 layers.append(per)
+            if attribute_names:  # the named attributes Attribute nodes read; 0 where a mesh lacks one (Cycles)
+                per = np.zeros((t, len(attribute_names), 3, ATTRIBUTE_COLUMNS), np.float32)
+                for j, aname in enumerate(attribute_names):
+                    if mesh.attributes and aname in mesh.attributes:
+                        per[:, j, :, :MESH_ATTRIBUTE_COLUMNS] = mesh.attributes[aname]
+                        per[:, j, :, MESH_ATTRIBUTE_COLUMNS] = 1.0  # found
+                attrs.append(per)
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
                 smooth.append(np.full(t, mesh.normals is not None))
@@ -219,13 +242,16 @@ class PreparedScene:
         uv_arr = np.concatenate(uvs).astype(np.float32) if any_uv and uvs else None
 
         materials = bsdf_mod.MaterialTable.build(scene.materials, scene.textures)
-        from .shading.program import identity_object_row
+        from .shading.program import camera_row, identity_object_row
 
         object_rows = [identity_object_row()[None]] + ([scene.objects] if scene.objects is not None else [])
+        # the render camera last (Texture Coordinate's Camera and Window outputs)
+        object_rows.append(camera_row(scene.camera.matrix_world, scene.camera.frame(), scene.camera.kind)[None])
         shading = PreparedShading.build(scene.materials, scene.textures, materials.max_lobes,
                                         np.concatenate(object_rows).astype(np.float32))
         object_of_triangle = np.concatenate(objs).astype(np.int32) if objs else np.zeros(0, np.int32)
         uv_layers = np.concatenate(layers) if layers else None
+        attributes = np.concatenate(attrs) if attrs else None
         emissive = EmissiveTriangles.from_mesh_arrays(tri_vertices, material_index, materials.emission)
         if len(vertices):
             lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
@@ -258,17 +284,32 @@ class PreparedScene:
         features["shadow_catcher"] = catcher is not None
         shadow_clear = transparent_shadow.clear_materials(materials)
         features["transparent_shadows"] = shadow_clear is not None
-        return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
+        prepared = cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
                    specular, features, shading, object_of_triangle,
                    alpha, holdout, keeps, visible_to, no_shadow,
                    any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
                        for m in scene.materials for lobe in m.lobes),
                    terminator_offset=terminator_offset, uv_layers=uv_layers, catcher=catcher,
-                   shadow_clear=shadow_clear)
+                   shadow_clear=shadow_clear, attributes=attributes)
+        if shading is not None and shading.any_emits:
+            sampled = shading.emits
+            # the estimate sees what light sampling sees: a first bounce's light sample (core.textured_emitters)
+            nee_state = np.zeros((1, PATH_COLUMNS), np.float32)
+            nee_state[0, PATH_DEPTH] = 1.0
+            prepared.textured = TexturedEmitters.build(tri_vertices, material_index, sampled,
+                                                       lambda t, b1, b2: emission_at(
+                prepared, t, b1, b2, path=np.broadcast_to(nee_state, (len(t), PATH_COLUMNS))))
+            features["textured_emitters"] = 0 if prepared.textured is None else prepared.textured.count
+        return prepared
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
+
+
+def _rows_of(state: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
+    """The path-state rows of samples `idx` (None when no state is kept)."""
+    return None if state is None else state[idx]
 
 
 def _visibility(seen_by: list[tuple], column: int) -> np.ndarray | None:
@@ -538,7 +579,8 @@ class PathTracer:
         self.settings = settings
         self.sampler = sampler
         self.stats = PathStats()
-        self.use_nee = settings.light_sampling in ("mis", "light") and prepared.lights.has_lights
+        self.use_nee = settings.light_sampling in ("mis", "light") and (prepared.lights.has_lights
+                                                                       or prepared.textured is not None)
         self.use_bsdf_emission = settings.light_sampling in ("mis", "bsdf")
         self.mis = settings.light_sampling == "mis"
         self._catcher_copies = False  # tracing shadow catcher copies: rays see only catchers (CatcherSamples)
@@ -620,6 +662,12 @@ class PathTracer:
         catch = _CatcherState(n, self._needs_background()) if ps.catcher is not None and not copies else None
         # Shadow rays go through Transparent BSDFs: so does MIS (core.transparent_shadow.MisOrigins)
         through = transparent_shadow.MisOrigins.start(o) if ps.shadow_clear is not None else None
+        # Per sample: the Light Path node's state of the ray it casts (core.shading.program PATH_*), kept only
+        # when some node program reads it.
+        path_state = None
+        if ps.shading is not None and ps.shading.uses_light_path:
+            path_state = np.zeros((n, PATH_COLUMNS), np.float32)
+            path_state[:, PATH_FLAGS] = RAY_CAMERA
 
         for depth in range(start_depth, s.max_bounces + 2):
             if len(idx) == 0:
@@ -635,6 +683,8 @@ class PathTracer:
                 hits = self.accel.intersect(o, d, tm)
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
+            if path_state is not None:  # Ray Length: the distance along this ray to the point shaded
+                path_state[idx, PATH_LENGTH] = np.where(hit, hits.t, np.float32(0))
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
             clear_here = clear[idx] if alpha else None
             if catch is not None:
@@ -644,7 +694,7 @@ class PathTracer:
                 # Rays that still count as transparent and escape: alpha 0 and no world colour.
                 gone = np.flatnonzero(~hit & clear_here)
                 transparent[idx[gone]] += throughput[gone].mean(axis=1)
-            if ps.lights.has_emission:
+            if ps.lights.has_emission or ps.scene.world.camera_color is not None:
                 mis_here = self.mis and depth > 0
                 t_hit = np.where(hit, hits.t, np.float32(np.inf))
                 le = self._light_emission(o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal, depth == 0,
@@ -652,6 +702,14 @@ class PathTracer:
                 if through is not None:
                     through.light_emission(self, le, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal,
                                            prev_transmits, clear_here if film_transparent else None)
+                backdrop = ps.scene.world.camera_color
+                if depth == 0 and backdrop is not None and not film_transparent:
+                    # camera rays that escape see the world's camera-only backdrop instead of the background
+                    gone = np.flatnonzero(~hit)
+                    if len(gone):
+                        le[gone] = np.asarray(backdrop, np.float32) + self.ps.lights.intersect(
+                            o[gone], d[gone], np.full(len(gone), np.inf, np.float32), prev_pdf[gone],
+                            prev_delta[gone], False, camera=True, world=False)
                 if depth > 0 and not self.use_bsdf_emission:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
@@ -693,16 +751,29 @@ class PathTracer:
                     self._add_split(radiance, lp, depth, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
-            # Emission that varies per point (a node program drives it): such emitters are not light-sampled, so
-            # what BSDF sampling (or the camera) finds counts in full.
+            # Emission that varies per point (a node program drives it): MIS-weighted against the textured
+            # emitters' light sampling (core.textured_emitters) where they are in its table, else (programs that
+            # read the Light Path node) what BSDF sampling (or the camera) finds counts in full.
             if ps.shading is not None and ps.shading.any_emits:
-                e = np.flatnonzero(hit & ps.shading.emits[ps.material_index[prim]])
+                e = np.flatnonzero(hit & ps.shading.emits[ps.material_index[prim]] & (True if held is None else ~held))
                 if len(e):
                     ge = self._surface(e, prim, hits.u, hits.v, d)
                     mat_e = ps.material_index[prim[e]]
                     le = np.zeros((len(e), 3), np.float32)
                     self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le,
-                                bary=(hits.u[e], hits.v[e]))
+                                bary=(hits.u[e], hits.v[e]), path=_rows_of(path_state, idx[e]))
+                    if ps.textured is not None and depth > 0 and self.use_nee:
+                        em = ps.textured.emitter_of_triangle[prim[e]]
+                        sampled = em >= 0
+                        if not self.use_bsdf_emission:  # light sampling only: BSDF hits count after delta only
+                            w = np.where(sampled, prev_delta[e], True).astype(np.float32)
+                        else:
+                            t_e = hits.t[e] if through is None else through.origin_and_distance(e, hits.t[e])[1]
+                            cos_e = np.abs(_dot(d[e], ps.face_normals[prim[e]]))
+                            pdf_l = np.where(sampled, ps.textured.pdf(np.maximum(em, 0), t_e * t_e, cos_e), 0)
+                            pb = prev_pdf[e]
+                            w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
+                        le = le * w[:, None].astype(np.float32)
                     self._add_split(radiance, lp, depth, idx[e], throughput[e] * le)
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
@@ -732,7 +803,7 @@ class PathTracer:
                 lobes_first = ps.materials.gather(mat_first, g.uv)
                 if ps.shading is not None:
                     self._shade(g, mat_first, prim[hit_rows], d[hit_rows], lobes_first,
-                                bary=(hits.u[hit_rows], hits.v[hit_rows]))
+                                bary=(hits.u[hit_rows], hits.v[hit_rows]), path=_rows_of(path_state, idx[hit_rows]))
                 first.albedo[idx[hit_rows]] = bsdf_mod.albedo(lobes_first)
                 first.normal[idx[hit_rows]] = g.ns_raw
                 first.depth[idx[hit_rows]] = (t_start[hit_rows] + hits.t[hit_rows]) * depth_scale[hit_rows]
@@ -749,7 +820,8 @@ class PathTracer:
             mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
             if ps.shading is not None:
-                self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]))
+                self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]),
+                            path=_rows_of(path_state, idx))
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
             if data_path is not None:
@@ -762,7 +834,11 @@ class PathTracer:
                 bary = None
                 if ps.terminator_offset is not None:  # the shadow terminator lift needs the hits' triangles
                     bary = (prim[rows], hits.u[rows], hits.v[rows])
-                self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp)
+                if ps.lights.has_lights:
+                    self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp)
+                if ps.textured is not None:
+                    self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp, textured=True,
+                                     path=_rows_of(path_state, idx))
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
@@ -779,6 +855,10 @@ class PathTracer:
                 bounce_kind[idx] = kinds
             if lp is not None and depth == 0:
                 self._first_bounce_weights(lp, idx, lobes, g, bs, u_lobe)
+            if path_state is not None:
+                state = path_state[idx]
+                next_path_state(lobes.arrays(), u_lobe, bs.transmitted, state)
+                path_state[idx] = state
             m = len(idx)
             old_pdf, old_delta, old_normal, old_transmits = prev_pdf, prev_delta, prev_normal, prev_transmits
             o, d = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
@@ -878,38 +958,13 @@ class PathTracer:
 
     def _surface(self, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
         """Surface interactions of the hits `rows` (see core.geometry_kernels.surface)."""
-        ps = self.ps
-        m = len(rows)
-        g = SurfaceBatch.empty(m, ps.uvs is not None)
-        geometry_kernels.surface(rows.astype(np.int64), prim, bu, bv, np.ascontiguousarray(d, dtype=np.float32),
-                        ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth,
-                        ps.kernel_uvs, ps.tri_magnitude, ps.material_index, ps.specular, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
-                        g.n_view, g.mag, g.cos_o_geo, g.uv_buffer)
-        return g
+        return surface_batch(self.ps, rows, prim, bu, bv, d)
 
     def _shade(self, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
-               lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None) -> None:
-        """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
-        The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir."""
-        sh = self.ps.shading
-        rows = np.flatnonzero(sh.needs_program[mat])
-        if len(rows) == 0:
-            return
-        back = g.cos_o_geo < 0
-        p_world = (g.p + self.ps.shift.astype(np.float32)).astype(np.float32)
-        # Cycles' sd->N and sd->Ng: the interpolated and the face normal, both negated on a back face (no
-        # specular-validity tilt: that belongs to the closures, not to what nodes read)
-        ng = np.where(back[:, None], -g.ng, g.ng)
-        n = np.where(back[:, None], -g.ns_raw, g.ns_raw)
-        obj = self.ps.object_of_triangle[prim]
-        uvx = None
-        if self.ps.uv_layers is not None and bary is not None:  # the named UV maps at the hit points
-            b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
-            corners = self.ps.uv_layers[prim]  # (N, K, 3, 2)
-            uvx = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
-                   + corners[:, :, 2] * b2[:, None, None]).astype(np.float32)
-        sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
-                    self.ps.materials.select_scale, emission, uvx)
+               lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None,
+               path: np.ndarray | None = None) -> None:
+        """Run the node programs of the points (see `shade_points`)."""
+        shade_points(self.ps, g, mat, prim, dirs, lobes, emission, bary, path)
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""
@@ -918,10 +973,13 @@ class PathTracer:
         return now
 
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
-                    bary=None, lp: "lp_mod.LightPassSamples | None" = None) -> None:
+                    bary=None, lp: "lp_mod.LightPassSamples | None" = None, textured: bool = False,
+                    path: np.ndarray | None = None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
         u, v) of each path's hit when some mesh has a shadow terminator offset, else None; lp: the light passes
-        to split the contributions into (None: off)."""
+        to split the contributions into (None: off). textured: sample the textured emitters
+        (core.textured_emitters) instead of the lights, the emission from their programs; path: the paths' Light
+        Path state there (None when no program reads it)."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
@@ -930,7 +988,10 @@ class PathTracer:
         u_light = self.sampler.get_3d(pix[can], smp[can], self._dim(depth, _D_LIGHT))
         u_l, u_sel = np.ascontiguousarray(u_light[:, :2]), np.ascontiguousarray(u_light[:, 2])
         transmits = ps.materials.has_transmission[mat[can]]
-        ls = ps.lights.sample(gc.p, gc.n_view, u_sel, u_l, transmits=transmits)
+        if textured:
+            ls = self._sample_textured(gc.p, u_sel, u_l, None if path is None else path[can])
+        else:
+            ls = ps.lights.sample(gc.p, gc.n_view, u_sel, u_l, transmits=transmits)
         wi = np.ascontiguousarray(ls.wi, dtype=np.float32)
         m = len(can)
         wi_local = np.empty((m, 3), np.float32)
@@ -961,7 +1022,7 @@ class PathTracer:
                                                          tmax[:count], self.settings.transparent_max_bounces)
         self.stats.seconds_occluded += time.perf_counter() - clock
         self.stats.seconds_nee -= time.perf_counter() - clock  # counted once, as shadow rays
-        if ps.no_shadow is not None:
+        if ps.no_shadow is not None and not textured:
             # Samples of lights that cast no shadow are never occluded; one light sample per path, so the
             # sample index names it.
             free = np.zeros(len(radiance), bool)
@@ -984,6 +1045,25 @@ class PathTracer:
         row_of[idx[can]] = np.arange(m)
         k = row_of[sample_of[:count][vis]]
         lp.add_split(True, sample_of[vis], value, tuple(share[k] for share in shares))
+
+    def _sample_textured(self, p: np.ndarray, u_select: np.ndarray, u: np.ndarray,
+                         path: np.ndarray | None = None) -> LightSample:
+        """One light sample of the textured emitters per point p, its radiance from the emitter's program.
+        The program sees Cycles' light-sample state: no ray-kind flag set, Ray Depth one more than at p (path: the
+        paths' state at p, None when no program reads it)."""
+        em, b1, b2, wi, dist, pdf = self.ps.textured.sample(p, u_select, u)
+        radiance = np.zeros((len(em), 3), np.float32)
+        live = np.flatnonzero(pdf > 0)
+        if len(live):
+            state = None
+            if path is not None:
+                state = path[live].copy()
+                state[:, PATH_FLAGS] = 0.0
+                state[:, PATH_DEPTH] += 1.0
+                state[:, PATH_LENGTH] = dist[live]
+            radiance[live] = emission_at(self.ps, self.ps.textured.triangle_id[em[live]], b1[live], b2[live],
+                                         towards=wi[live], path=state)
+        return LightSample(wi=wi, dist=dist, radiance=radiance, pdf=pdf, delta=np.zeros(len(em), bool))
 
     def _terminator_args(self, bary, can, gc: "SurfaceBatch") -> tuple:
         """shadow_rays' shadow terminator inputs for the light samples of paths `can` (empty arrays: off)."""
@@ -1058,3 +1138,74 @@ class PathTracer:
                            np.float32(self.settings.clamp), counters)
         self.stats.nonfinite += int(counters[0])
         self.stats.clamped += int(counters[1])
+
+
+def surface_batch(ps: PreparedScene, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
+    """Surface interactions of the hits `rows` (see core.geometry_kernels.surface)."""
+    m = len(rows)
+    g = SurfaceBatch.empty(m, ps.uvs is not None)
+    geometry_kernels.surface(rows.astype(np.int64), prim, bu, bv, np.ascontiguousarray(d, dtype=np.float32),
+                    ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth,
+                    ps.kernel_uvs, ps.tri_magnitude, ps.material_index, ps.specular, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
+                    g.n_view, g.mag, g.cos_o_geo, g.uv_buffer)
+    return g
+
+def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
+             lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None,
+             path: np.ndarray | None = None) -> None:
+    """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
+    The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir;
+    path: the points' Light Path state (None: camera rays)."""
+    sh = ps.shading
+    rows = np.flatnonzero(sh.needs_program[mat])
+    if len(rows) == 0:
+        return
+    back = g.cos_o_geo < 0
+    p_world = (g.p + ps.shift.astype(np.float32)).astype(np.float32)
+    # Cycles' sd->N and sd->Ng: the interpolated and the face normal, both negated on a back face (no
+    # specular-validity tilt: that belongs to the closures, not to what nodes read)
+    ng = np.where(back[:, None], -g.ng, g.ng)
+    n = np.where(back[:, None], -g.ns_raw, g.ns_raw)
+    obj = ps.object_of_triangle[prim]
+    uvx = None
+    if ps.uv_layers is not None and bary is not None:  # the named UV maps at the hit points
+        b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
+        corners = ps.uv_layers[prim]  # (N, K, 3, 2)
+        uvx = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
+               + corners[:, :, 2] * b2[:, None, None]).astype(np.float32)
+    extra = None
+    if sh.uses_light_path or sh.uses_attributes:
+        attrs = ps.attributes if sh.uses_attributes else None
+        n_attr = 0 if attrs is None else attrs.shape[1]
+        extra = np.zeros((len(mat), PATH_COLUMNS + ATTRIBUTE_COLUMNS * n_attr), np.float32)
+        if path is not None:
+            extra[:, :PATH_COLUMNS] = path
+        else:
+            extra[:, PATH_FLAGS] = RAY_CAMERA
+        if n_attr and bary is not None:  # the named attributes at the hit points, as the UV maps
+            b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
+            corners = attrs[prim]  # (N, A, 3, ATTRIBUTE_COLUMNS)
+            vals = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
+                    + corners[:, :, 2] * b2[:, None, None])
+            extra[:, PATH_COLUMNS:] = vals.reshape(len(mat), -1)
+    sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
+                ps.materials.select_scale, emission, uvx, extra)
+
+
+def emission_at(ps: PreparedScene, triangles: np.ndarray, b1: np.ndarray, b2: np.ndarray,
+                towards: np.ndarray | None = None, path: np.ndarray | None = None,
+                chunk: int = 1 << 16) -> np.ndarray:
+    """(K, 3) float32 emitted radiance of the node programs at points (triangle, barycentrics b1, b2), seen along
+    the unit directions `towards` (K, 3) (the ray arriving there; None: head-on from the front), with the Light
+    Path state `path` (K, PATH_COLUMNS) (None: a camera ray)."""
+    k = len(triangles)
+    out = np.zeros((k, 3), np.float32)
+    for a in range(0, k, chunk):
+        t = np.ascontiguousarray(triangles[a:a + chunk], np.int32)
+        u, v = np.ascontiguousarray(b1[a:a + chunk], np.float32), np.ascontiguousarray(b2[a:a + chunk], np.float32)
+        d = -ps.face_normals[t] if towards is None else np.ascontiguousarray(towards[a:a + chunk], np.float32)
+        g = surface_batch(ps, np.arange(len(t), dtype=np.int64), t, u, v, d)
+        mat = ps.material_index[t]
+        shade_points(ps, g, mat, t, d, ps.materials.gather(mat, g.uv), out[a:a + chunk], bary=(u, v),
+                     path=None if path is None else np.ascontiguousarray(path[a:a + chunk], np.float32))
+    return out

@@ -16,6 +16,9 @@ import numpy as np
 
 from .bsdf_kernels import DIFFUSE, REFRACTION, _choose_lobe
 from .jit_cache import jit
+from .shading.program import (PATH_DEPTH, PATH_DIFFUSE_DEPTH, PATH_FLAGS, PATH_GLOSSY_DEPTH, PATH_TRANSMISSION_DEPTH,
+                              PATH_TRANSPARENT_DEPTH, RAY_DIFFUSE, RAY_GLOSSY, RAY_REFLECT, RAY_SINGULAR,
+                              RAY_TRANSMIT, RAY_TRANSPARENT)
 
 CAMERA_RAY, DIFFUSE_RAY, GLOSSY_RAY, TRANSMISSION_RAY = 0, 1, 2, 3
 RAY_KIND_NAMES = {CAMERA_RAY: "camera", DIFFUSE_RAY: "diffuse", GLOSSY_RAY: "glossy", TRANSMISSION_RAY: "transmission"}
@@ -41,3 +44,45 @@ def bounce_kinds(lobe_arrays: tuple, u_lobe: np.ndarray, transmitted: np.ndarray
     given to sample_bsdf and its `transmitted` flags."""
     _bounce_kinds(lobe_arrays[0], lobe_arrays[5], lobe_arrays[2], lobe_arrays[3],
                   np.ascontiguousarray(u_lobe, np.float32), np.ascontiguousarray(transmitted, bool), kinds)
+
+
+@jit
+def _next_path_state(kind, select, rough, ior, u_lobe, transmitted, state):
+    for k in range(u_lobe.shape[0]):
+        c, _, _ = _choose_lobe(kind, select, k, u_lobe[k])
+        if c < 0:
+            continue
+        flags = np.int64(state[k, PATH_FLAGS])
+        singular = rough[k, c] == 0.0
+        if transmitted[k] and kind[k, c] == REFRACTION and ior[k, c] == 1.0 and singular:
+            # a transparent bounce: the ray keeps its kind (and its depth)
+            state[k, PATH_FLAGS] = flags | RAY_TRANSPARENT
+            state[k, PATH_TRANSPARENT_DEPTH] += 1.0
+            continue
+        state[k, PATH_DEPTH] += 1.0
+        if transmitted[k]:
+            flags = RAY_TRANSMIT
+            state[k, PATH_TRANSMISSION_DEPTH] += 1.0
+        else:
+            flags = RAY_REFLECT
+            if kind[k, c] == DIFFUSE:
+                state[k, PATH_DIFFUSE_DEPTH] += 1.0
+            else:
+                state[k, PATH_GLOSSY_DEPTH] += 1.0
+        if kind[k, c] == DIFFUSE:
+            flags |= RAY_DIFFUSE
+        elif singular:
+            flags |= RAY_GLOSSY | RAY_SINGULAR
+        else:
+            flags |= RAY_GLOSSY
+        state[k, PATH_FLAGS] = flags
+
+
+def next_path_state(lobe_arrays: tuple, u_lobe: np.ndarray, transmitted: np.ndarray, state: np.ndarray) -> None:
+    """Update `state` (N, core.shading.program.PATH_COLUMNS) float32, each path's Light Path state, for the ray
+    each BSDF sample starts, as Cycles' path_state_next: a transparent bounce (Transparent BSDF) sets the
+    transparent flag and counts a transparent bounce, keeping the ray's kind; any other bounce counts one (Ray
+    Depth) and sets reflection or transmission, and diffuse, glossy or glossy + singular (a lobe of roughness
+    0), counting a diffuse, glossy (reflections) or transmission bounce. The length column is the caller's."""
+    _next_path_state(lobe_arrays[0], lobe_arrays[5], lobe_arrays[2], lobe_arrays[3],
+                     np.ascontiguousarray(u_lobe, np.float32), np.ascontiguousarray(transmitted, bool), state)

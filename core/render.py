@@ -179,6 +179,7 @@ def render(
         prepared, accel, t_prepare = _prepare(scene, settings, say)
     else:
         (prepared, accel), t_prepare = prepared, 0.0
+        prepared.update_camera(scene.camera)  # a moved camera (the viewport's): what Camera / Window nodes read
     job = _TileRender(scene, settings, prepared, accel, region, tile_order, t_start,
                       on_tile, on_progress, should_cancel)
     job.run()

@@ -221,6 +221,11 @@ class Mesh:
       these through `Scene.uv_layer_names`; a mesh without the named map reads (0, 0), as Blender does).
     shadow_catcher: Cycles' Object > Visibility > Shadow Catcher: the mesh leaves the image (Combined) and only
       the shadows and light other objects add to it remain, as alpha or the Shadow Catcher pass (see `Film`).
+    attributes: optional {name: (T, 3, 5)} the mesh attributes Attribute / Color Attribute nodes read, per
+      triangle corner (point and face attributes spread to the corners), interpolated linearly over the
+      triangle: the Color / Vector output (3 floats), Alpha and Fac (core.shading.program
+      MESH_ATTRIBUTE_COLUMNS); read through `Scene.attribute_names`; a mesh without the named attribute reads 0
+      (Alpha: 1 for the Attribute node, 0 for Color Attribute), as Cycles.
     """
 
     name: str
@@ -238,6 +243,7 @@ class Mesh:
     shadow_terminator_offset: float = 0.0
     uv_layers: dict | None = None
     shadow_catcher: bool = False
+    attributes: dict | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -315,6 +321,16 @@ class Mesh:
                 raise SceneError(f"{owner}: UV map {lname!r} must have shape (T, 3, 2) = ({n_tri}, 3, 2), got "
                                  f"{luv.shape}")
             layers[lname] = np.nan_to_num(luv, nan=0.0, posinf=0.0, neginf=0.0)
+        attributes = {}
+        for aname, values in (self.attributes or {}).items():
+            values = np.asarray(values, dtype=np.float32)
+            if values.shape != (n_tri, 3, 5):
+                raise SceneError(f"{owner}: attribute {aname!r} must have shape (T, 3, 5) = ({n_tri}, 3, 5), got "
+                                 f"{values.shape}")
+            if not np.all(np.isfinite(values)):
+                warnings.append(f"{owner}: attribute {aname!r}: non-finite values replaced by 0")
+                values = np.nan_to_num(values, nan=0.0, posinf=0.0, neginf=0.0)
+            attributes[aname] = values
         if uvs is not None and not np.all(np.isfinite(uvs)):
             warnings.append(f"{owner}: non-finite UVs replaced by 0")
             uvs = np.nan_to_num(uvs, nan=0.0, posinf=0.0, neginf=0.0)
@@ -330,6 +346,7 @@ class Mesh:
             uvs = None if uvs is None else uvs[keep]
             objs = None if objs is None else objs[keep]
             layers = {lname: luv[keep] for lname, luv in layers.items()}
+            attributes = {aname: values[keep] for aname, values in attributes.items()}
         # Non-finite vertices that no kept triangle uses are harmless; replace them so later arithmetic is clean.
         if not np.all(np.isfinite(v)):
             v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
@@ -337,6 +354,7 @@ class Mesh:
         self.normals, self.uvs = normals, uvs
         self.object_index = None if objs is None else objs.astype(np.int32)
         self.uv_layers = layers or None
+        self.attributes = attributes or None
 
 
 # ------------------------------------------------------------------------------------------------------ lights
@@ -414,10 +432,13 @@ Light = PointLight | SpotLight | SunLight | AreaLight
 class World:
     """The background, seen by every ray that escapes: uniform radiance `color` (Blender's Background colour x
     strength), or, when `environment` is set, that image (core.world.EnvironmentMap, its Background strength
-    folded into its `strength`) in place of the colour."""
+    folded into its `strength`) in place of the colour. camera_color: optional (3,) radiance that camera rays see
+    where they escape, instead of the background (Blender's Light Path > Is Camera Ray mixing two Backgrounds: a
+    backdrop that differs from the light); None: the background."""
 
     color: np.ndarray = field(default_factory=lambda: np.zeros(3))
     environment: EnvironmentMap | None = None
+    camera_color: np.ndarray | None = None
 
     @property
     def is_black(self) -> bool:
@@ -689,6 +710,7 @@ class Scene:
     mist: Mist = field(default_factory=lambda: Mist())
     object_names: list[str] = field(default_factory=list)
     asset_names: list[str] = field(default_factory=list)
+    attribute_names: list[str] = field(default_factory=list)  # the attributes node programs name (attribute op)
 
     @property
     def has_alpha(self) -> bool:
@@ -729,6 +751,8 @@ class Scene:
         for mesh in self.meshes:
             mesh.validate(len(self.materials), self.warnings, n_objects)
         self.world.color = _as_rgb(self.world.color, "world background")
+        if self.world.camera_color is not None:
+            self.world.camera_color = _as_rgb(self.world.camera_color, "world background seen by the camera")
         if self.world.environment is not None:
             try:
                 self.world.environment.validate(self.warnings)

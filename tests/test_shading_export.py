@@ -139,13 +139,13 @@ def test_unsupported_shader_in_a_mix_warns_by_name(scene):
 def test_unsupported_node_keeps_the_socket_value_and_names_itself(scene):
     def build(tree, nodes):
         tree.nodes["Diffuse BSDF"].inputs["Color"].default_value = (0.2, 0.6, 0.4, 1.0)
-        attr = nodes.new("ShaderNodeAttribute")
-        attr.name = "Vertex colours"
-        return attr.outputs["Color"]
+        occlusion = nodes.new("ShaderNodeAmbientOcclusion")
+        occlusion.name = "Occlusion"
+        return occlusion.outputs["Color"]
 
     got = diffuse_with(build)
     assert np.allclose(got.materials[0].lobes[0].color, (0.2, 0.6, 0.4), atol=1e-6)
-    assert any("material 'M'" in w and "Vertex colours" in w and "uses its own value" in w for w in got.warnings)
+    assert any("material 'M'" in w and "Occlusion" in w and "uses its own value" in w for w in got.warnings)
 
 
 def test_node_group_muted_node_and_reroute_are_followed(scene):

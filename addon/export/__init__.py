@@ -93,17 +93,26 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     proto = prototypes.get(key)
     if proto is not None:
         return key if proto.local is not None else None
-    local = _read_geometry(obj, warnings)
+    n_slots = max(len(slots), 1)
+    lut = np.zeros(n_slots, dtype=np.int32)
+    material_of = materials.holdout_index if held else materials.index
+    used_materials: list[int] = []
+
+    def attribute_names(tri_slots: np.ndarray) -> list[str]:
+        # Only the slots some triangle uses become materials (geometry nodes often leave empty slots); the mesh
+        # then reads the attributes their Attribute nodes name.
+        for slot in np.unique(np.clip(tri_slots, 0, n_slots - 1)):
+            lut[slot] = material_of(slots[slot] if slot < len(slots) else None)
+            used_materials.append(int(lut[slot]))
+        return materials.attribute_names_of(used_materials)
+
+    local = _read_geometry(obj, warnings, attribute_names)
     if local is None or local.triangle_count == 0:
         prototypes[key] = _Prototype(None, np.zeros(0, np.int32), original.name)
         return None
-    # Only the slots some triangle uses become materials (geometry nodes often leave empty slots).
-    n_slots = max(len(slots), 1)
-    used = np.unique(np.clip(local.slots, 0, n_slots - 1))
-    lut = np.zeros(n_slots, dtype=np.int32)
-    material_of = materials.holdout_index if held else materials.index
-    for slot in used:
-        lut[slot] = material_of(slots[slot] if slot < len(slots) else None)
+    if not used_materials:  # read_mesh asks only for a mesh with triangles
+        attribute_names(local.slots)
+    materials.warn_missing_attributes(used_materials, local.missing_attributes, original.name)
     prototypes[key] = _Prototype(local, lut, original.name, texspace=_texspace(obj, local), visibility=seen,
                                  shadow_terminator_offset=terminator, shadow_catcher=catcher)
     stats.meshes_converted += 1
@@ -180,16 +189,16 @@ def _terminator_offset(obj) -> float:
     return float(getattr(obj, "shadow_terminator_geometry_offset", 0.1))
 
 
-def _read_geometry(obj, warnings: list[str]) -> LocalMesh | None:
+def _read_geometry(obj, warnings: list[str], attribute_names=None) -> LocalMesh | None:
     if obj.type == "MESH":
-        return read_mesh(obj.data, obj.name)
+        return read_mesh(obj.data, obj.name, attribute_names)
     try:
         mesh = obj.to_mesh()
     except RuntimeError as exc:
         warnings.append(f"object {obj.name!r} ({obj.type.lower()}) could not be converted to a mesh: {exc}")
         return None
     try:
-        return None if mesh is None else read_mesh(mesh, obj.name)
+        return None if mesh is None else read_mesh(mesh, obj.name, attribute_names)
     finally:
         obj.to_mesh_clear()
 
@@ -292,7 +301,8 @@ def export_scene(
                 film=export_film(scene, depsgraph.view_layer),
                 objects=np.concatenate(object_rows).astype(np.float32) if object_rows else None,
                 uv_layer_names=list(materials.uv_names), mist=export_mist(scene.world),
-                object_names=object_names, asset_names=asset_names)
+                object_names=object_names, asset_names=asset_names,
+                attribute_names=list(materials.attribute_names))
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "
                          "metaballs); check the objects' render visibility and the view layer's collections")

@@ -159,6 +159,10 @@ class MaterialExporter:
         self.textured: set[int] = set()  # material indices that read UVs (image textures, UV coordinates)
         self.nonfinite_texels = 0
         self.uv_names: list[str] = []  # UV maps UV Map nodes name (core Scene.uv_layer_names)
+        self.attribute_names: list[str] = []  # attributes Attribute nodes name (core Scene.attribute_names)
+        # material index -> [(attribute name, "node 'X' (Label)")] its Attribute / Color Attribute nodes read
+        self.attribute_uses: dict[int, list] = {}
+        self._converted_uses: list = []
         self._by_key: dict[int | tuple, int] = {}
         self._tex_by_key: dict[tuple, int] = {}
         self._default: int | None = None
@@ -176,6 +180,7 @@ class MaterialExporter:
             mat = self.convert(material)
             mat.pass_index = int(getattr(material, "pass_index", 0))  # the Material Index pass
             found = self._add(mat)
+            self.attribute_uses[found] = self._converted_uses
             if mat.program is not None and _reads_uv(mat.program):
                 self.textured.add(found)
             self._by_key[key] = found
@@ -191,6 +196,7 @@ class MaterialExporter:
         mat = self.convert(material)
         mat.pass_index = int(getattr(material, "pass_index", 0))
         self.materials[found] = mat
+        self.attribute_uses[found] = self._converted_uses
         if any(lobe.color_texture >= 0 for lobe in mat.lobes) or len(self.textures) > textures_before:
             self.textured.add(found)
         return True
@@ -218,7 +224,8 @@ class MaterialExporter:
         builder = ProgramBuilder(owner, self.warnings, self.textures,
                                  lambda node, alpha_used: self._image_texture(node, owner, alpha_used),
                                  material_pass_index=int(getattr(material, "pass_index", 0)),
-                                 uv_layer_index=self._uv_layer_index)
+                                 uv_layer_index=self._uv_layer_index, attribute_index=self._attribute_index)
+        self._converted_uses = builder.attribute_uses
         try:
             lobes, bind, emission, holdout = compile_surface(builder, output)
         except (UnsupportedShader, CompileError) as exc:
@@ -245,6 +252,7 @@ class MaterialExporter:
                                                            holdout=1.0))
             if base in self.textured:
                 self.textured.add(found)
+            self.attribute_uses[found] = self.attribute_uses.get(base, [])
         return found
 
     # ----------------------------------------------------------------------------------------- internals
@@ -252,6 +260,26 @@ class MaterialExporter:
         if name not in self.uv_names:
             self.uv_names.append(name)
         return self.uv_names.index(name)
+
+    def _attribute_index(self, name: str) -> int:
+        if name not in self.attribute_names:
+            self.attribute_names.append(name)
+        return self.attribute_names.index(name)
+
+    def attribute_names_of(self, material_indices) -> list[str]:
+        """The attribute names the Attribute / Color Attribute nodes of these materials read."""
+        return sorted({name for m in material_indices for name, _ in self.attribute_uses.get(m, ())})
+
+    def warn_missing_attributes(self, material_indices, missing, mesh_name: str) -> None:
+        """Warn, naming material, node and attribute, for each attribute a mesh lacks (it reads 0, as Blender)."""
+        for m in sorted(set(material_indices)):
+            for name, node in self.attribute_uses.get(m, ()):
+                if name in missing:
+                    what = f"attribute {name!r}" if name else "an active render colour attribute"
+                    msg = (f"material {self.materials[m].name!r}: {node}: mesh {mesh_name!r} has no {what} (or "
+                           "one of a type or domain Monte cannot read); it reads 0")
+                    if msg not in self.warnings:
+                        self.warnings.append(msg)
 
     def _add(self, mat: Material) -> int:
         self.materials.append(mat)

@@ -30,14 +30,17 @@ class LocalMesh:
     normals: np.ndarray | None  # (T, 3, 3) float32 or None (flat)
     uvs: np.ndarray | None  # (T, 3, 2) float32 or None
     uv_layers: dict = None  # every UV map by name: (T, 3, 2) float32 (what UV Map nodes name)
+    attributes: dict = None  # the attributes Attribute nodes name: (T, 3, 5) float32 (core.scene.Mesh.attributes)
+    missing_attributes: tuple = ()  # names asked for that the mesh does not have (they read 0)
 
     @property
     def triangle_count(self) -> int:
         return int(self.triangles.shape[0])
 
 
-def read_mesh(mesh, name: str) -> LocalMesh:
-    """Triangles, positions, shading normals, UVs and material slots of an evaluated Blender mesh."""
+def read_mesh(mesh, name: str, attribute_names=None) -> LocalMesh:
+    """Triangles, positions, shading normals, UVs and material slots of an evaluated Blender mesh, and the named
+    attributes `attribute_names(slots)` asks for (a callable given the (T,) material slots, or None)."""
     mesh.calc_loop_triangles()
     tris = mesh.loop_triangles
     n_tri = len(tris)
@@ -83,7 +86,85 @@ def read_mesh(mesh, name: str) -> LocalMesh:
             layers[layer.name] = uv.reshape(n_loop, 2)[loops()].reshape(n_tri, 3, 2)
         if active is not None:
             uvs = layers[active.name]
-    return LocalMesh(name, vertices, tri_verts, slots, normals, uvs, layers)
+    attributes, missing = {}, []
+    for aname in (attribute_names(slots) if attribute_names is not None and n_tri else ()):
+        values = _read_attribute(mesh, aname, layers, tri_verts, loops, tris)
+        if values is None:
+            missing.append(aname)
+        else:
+            attributes[aname] = values
+    return LocalMesh(name, vertices, tri_verts, slots, normals, uvs, layers, attributes, tuple(missing))
+
+
+# Blender attribute data types Monte reads, by how many components they have (1: a float, 2: a 2D vector, 3: a
+# vector, 4: a colour with alpha); the integer and boolean types read as floats, as Cycles converts them.
+_ATTRIBUTE_TYPES = {"FLOAT": ("value", 1), "INT": ("value", 1), "INT8": ("value", 1), "BOOLEAN": ("value", 1),
+                    "FLOAT2": ("vector", 2), "INT32_2D": ("vector", 2), "FLOAT_VECTOR": ("vector", 3),
+                    "FLOAT_COLOR": ("color", 4), "BYTE_COLOR": ("color", 4)}
+
+
+def render_color_name(mesh) -> str | None:
+    """The mesh's active render colour attribute (what an unnamed Color Attribute node reads), or None."""
+    colors = getattr(mesh, "color_attributes", None)
+    if colors is None or not len(colors):
+        return None
+    i = getattr(colors, "render_color_index", -1)
+    if 0 <= i < len(colors):
+        return colors[i].name
+    return getattr(mesh.attributes, "default_color_name", None) or None
+
+
+def _read_attribute(mesh, aname: str, uv_layers: dict, tri_verts: np.ndarray, loops, tris) -> np.ndarray | None:
+    """(T, 3, 5) float32 per triangle corner of the attribute `aname` ("" = the render colour attribute):
+    colour/vector xyz, alpha, fac as Cycles' Attribute node outputs them; None when the mesh has no such
+    attribute (or one of a domain or type Cycles does not render on a surface)."""
+    n_tri = tri_verts.shape[0]
+    real = render_color_name(mesh) if aname == "" else aname
+    if real is None:
+        return None
+    attr = mesh.attributes.get(real)
+    if attr is None or real.startswith("."):
+        if real in uv_layers:  # a UV map read by name: a 2D vector
+            uv = uv_layers[real]
+            out = np.zeros((n_tri, 3, 5), np.float32)
+            out[..., :2], out[..., 3], out[..., 4] = uv, 1.0, uv[..., 0]
+            return out
+        return None
+    kind = _ATTRIBUTE_TYPES.get(attr.data_type)
+    if kind is None or attr.domain not in ("POINT", "CORNER", "FACE"):
+        return None
+    prop, width = kind
+    n = len(attr.data)
+    flat = np.empty(n * width, np.float32) if prop != "value" else np.empty(n, np.float32)
+    if attr.data_type in ("INT", "INT8", "BOOLEAN", "INT32_2D"):
+        raw = np.empty(flat.size, np.int32 if attr.data_type != "BOOLEAN" else bool)
+        attr.data.foreach_get(prop, raw)
+        flat = raw.astype(np.float32)
+    else:
+        attr.data.foreach_get(prop, flat)
+    values = flat.reshape(n, width)
+    if attr.domain == "POINT":
+        corner = values[tri_verts]
+    elif attr.domain == "CORNER":
+        corner = values[loops()].reshape(n_tri, 3, width)
+    else:
+        faces = np.empty(n_tri, np.int32)
+        tris.foreach_get("polygon_index", faces)
+        corner = np.broadcast_to(values[faces][:, None, :], (n_tri, 3, width))
+    out = np.zeros((n_tri, 3, 5), np.float32)
+    if width == 1:
+        out[..., :3] = corner
+        out[..., 3] = 1.0
+        out[..., 4] = corner[..., 0]
+    elif width == 2:
+        out[..., :2] = corner
+        out[..., 3] = 1.0
+        out[..., 4] = corner[..., 0]
+    else:
+        out[..., :3] = corner[..., :3]
+        out[..., 3] = corner[..., 3] if width == 4 else 1.0
+        out[..., 4] = corner[..., :3].mean(axis=-1)
+    return out
 
 
 def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np.ndarray, name: str,
@@ -109,6 +190,7 @@ def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np
         normals = n.reshape(k, n_tri, 3, 3)
     uvs = None if local.uvs is None else np.broadcast_to(local.uvs, (k, n_tri, 3, 2))
     layers = {name: np.broadcast_to(uv, (k, n_tri, 3, 2)) for name, uv in (local.uv_layers or {}).items()}
+    attrs = {name: np.broadcast_to(a, (k, n_tri, 3, 5)) for name, a in (local.attributes or {}).items()}
 
     if mirrored.any():
         tri = tri.copy()
@@ -122,6 +204,10 @@ def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np
             uv = uv.copy()
             uv[mirrored] = uv[mirrored][:, :, [0, 2, 1]]
             layers[name] = uv
+        for name, a in attrs.items():
+            a = a.copy()
+            a[mirrored] = a[mirrored][:, :, [0, 2, 1]]
+            attrs[name] = a
 
     slots = np.clip(local.slots, 0, len(slot_materials) - 1)
     mat = np.broadcast_to(slot_materials[slots], (k, n_tri)).reshape(-1)
@@ -134,5 +220,7 @@ def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np
         uvs=None if uvs is None else np.ascontiguousarray(uvs.reshape(-1, 3, 2), dtype=np.float32),
         shadow_terminator_offset=float(shadow_terminator_offset),
         uv_layers={name: np.ascontiguousarray(uv.reshape(-1, 3, 2), dtype=np.float32) for name, uv in layers.items()}
+        or None,
+        attributes={name: np.ascontiguousarray(a.reshape(-1, 3, 5), dtype=np.float32) for name, a in attrs.items()}
         or None,
     )

@@ -9,7 +9,8 @@ through bpy (packed or on disk, its colour space applied); Strength multiplies i
 settings (`world.cycles.sampling_method`, `sample_map_resolution`) choose the importance map's resolution.
 Anything else warns and falls back: an Image Texture or other node on the colour -> its average colour or the
 socket's colour; a missing or unreadable image -> the Background's own colour. No node tree: the world's
-viewport colour; no world at all: black.
+viewport colour; no world at all: black. The Light Path trick of a backdrop that differs from the light (a Mix
+Shader of two Backgrounds by Is Camera Ray) gives the world a camera-only colour (core World.camera_color).
 """
 
 from __future__ import annotations
@@ -49,6 +50,36 @@ def export_world(world, warnings: list[str]) -> World:
     node = follow_link(surface)
     if node is None:
         return World(np.zeros(3))
+    backdrop = _camera_backdrop(node, world, name, warnings)
+    if backdrop is not None:
+        return backdrop
+    return _background_world(node, world, name, warnings)
+
+
+def _camera_backdrop(mix, world, name: str, warnings: list[str]) -> World | None:
+    """The Light Path > Is Camera Ray trick: a Mix Shader whose factor is Is Camera Ray, of two Backgrounds (or
+    nothing: black): the first lights the scene, the second is what the camera sees (uniform; an environment
+    map there warns and the camera sees the light's world). None for any other surface."""
+    if mix.bl_idname != "ShaderNodeMixShader" or not mix.inputs[0].is_linked:
+        return None
+    link = mix.inputs[0].links[0]
+    if link.from_node.bl_idname != "ShaderNodeLightPath" or link.from_socket.name != "Is Camera Ray":
+        return None
+    shaders = [follow_link(mix.inputs[i]) for i in (1, 2)]
+    if any(s is not None and s.bl_idname != "ShaderNodeBackground" for s in shaders):
+        return None
+    light, seen = (World(np.zeros(3)) if s is None else _background_world(s, world, name, warnings)
+                   for s in shaders)
+    if seen.environment is not None:
+        warnings.append(f"world {name!r}: an environment map seen only by the camera (Light Path Is Camera Ray) is "
+                        "not supported; the camera sees the world that lights the scene")
+        return light
+    light.camera_color = np.asarray(seen.color, np.float64)
+    return light
+
+
+def _background_world(node, world, name: str, warnings: list[str]) -> World:
+    """The World of one Background node (or the documented fallbacks for another node)."""
     if node.bl_idname != "ShaderNodeBackground":
         warnings.append(f"world {name!r}: node {node.name!r} ({node.bl_label}) is not supported on the world "
                         "surface; using the world's viewport colour as a uniform background")

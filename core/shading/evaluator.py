@@ -22,7 +22,9 @@ from . import procedural
 from .regs import get3, set3, setf  # noqa: F401  (re-exported for node modules)
 from .program import (BIND_F0, BIND_IOR, BIND_ROUGHNESS, BIND_TINT_R, BIND_TINT_T, BIND_WEIGHT, N_BIND,
                       OBJECT_BOX_MIN, OBJECT_BOX_SIZE, OBJECT_COLOR, OBJECT_INVERSE, OBJECT_LOCATION,
-                      OBJECT_PASS_INDEX, OBJECT_RANDOM, WIDTH, ShadingProgram, identity_object_row)
+                      OBJECT_PASS_INDEX, OBJECT_RANDOM, WIDTH, ShadingProgram, identity_object_row,
+                      ATTRIBUTE_COLUMNS, PATH_COLUMNS, RAY_CAMERA, RAY_SHADOW, RAY_DIFFUSE, RAY_GLOSSY, RAY_SINGULAR,
+                      RAY_REFLECT, RAY_TRANSMIT, CAMERA_FRAME, CAMERA_KIND, CAMERA_ORTHO, CAMERA_PANO)
 
 # Blender's enum identifiers in the order of the evaluator's operation numbers (the compiler maps names to these).
 MATH_OPS = ("ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "POWER", "LOGARITHM", "SQRT", "INVERSE_SQRT",
@@ -43,7 +45,7 @@ _MATH, _VMATH, _MAPRANGE, _CLAMP = R.OP_MATH, R.OP_VECTOR_MATH, R.OP_MAP_RANGE, 
 _SEPXYZ, _COMBXYZ, _MAPPING, _MIX = R.OP_SEPARATE_XYZ, R.OP_COMBINE_XYZ, R.OP_MAPPING, R.OP_MIX
 _FRESNEL, _LAYER = R.OP_FRESNEL, R.OP_LAYER_WEIGHT
 _TEXCO, _GEOM, _OBJINFO, _IMAGE = R.OP_TEXCOORD, R.OP_GEOMETRY, R.OP_OBJECT_INFO, R.OP_IMAGE
-_UVLAYER = R.OP_UV_LAYER
+_UVLAYER, _ATTR, _LIGHTPATH = R.OP_UV_LAYER, R.OP_ATTRIBUTE, R.OP_LIGHT_PATH
 _SPEC, _GLASSF0, _SQRTSAT, _OMS = R.OP_SPECULAR_LAYER, R.OP_GLASS_F0, R.OP_SQRT_SATURATE, R.OP_ONE_MINUS_SATURATE
 _COLOR_BASE, _PROC_BASE = R.COLOR_BASE, R.PROCEDURAL_BASE
 _SINGULAR = np.float32(mf.SINGULAR_ROUGHNESS)
@@ -430,10 +432,86 @@ def image_lookup(tex_pixels, off, h, w, u, v, interp, ext, c):
     return acc
 
 
+@_jit
+def _image_rgba(tex_pixels, off, h, w, u, v, interp, ext, flags):
+    """An image's filtered (r, g, b, alpha) at (u, v) with the Image Texture op's flags applied (associate,
+    unassociate, then the sRGB decode)."""
+    alpha = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 3)
+    r = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 0)
+    g = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 1)
+    b = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 2)
+    if flags & 1:
+        r, g, b = r * alpha, g * alpha, b * alpha
+    elif flags & 4 and alpha != 0.0 and alpha != 1.0:
+        r, g, b = r / alpha, g / alpha, b / alpha
+    if flags & 2:
+        r, g, b = srgb_to_linear(r), srgb_to_linear(g), srgb_to_linear(b)
+    return r, g, b, alpha
+
+
+@_jit
+def _map_to_sphere(x, y, z):
+    """Cycles' map_to_sphere: (u, v) of a direction about the origin, u from atan2(x, y), v from the pole."""
+    ll = math.sqrt(x * x + y * y + z * z)
+    if ll <= 0.0:
+        return 0.0, 0.0
+    u = 0.0 if (x == 0.0 and y == 0.0) else (1.0 - math.atan2(x, y) / math.pi) / 2.0
+    return u, 1.0 - math.acos(min(max(z / ll, -1.0), 1.0)) / math.pi
+
+
+@_jit
+def _map_to_tube(x, y, z):
+    """Cycles' map_to_tube: u around the z axis, v = (z + 1) / 2."""
+    ll = math.sqrt(x * x + y * y)
+    if ll <= 0.0:
+        return 0.0, 0.0
+    return (1.0 - math.atan2(x / ll, y / ll) / math.pi) * 0.5, (z + 1.0) * 0.5
+
+
+@_jit
+def _box_weights(N, k, obj, objects, blend):
+    """Cycles' box-projection weights of the x, y and z faces from the object-space shading normal (a corner
+    of one face where it dominates, blends between two or three within `blend`), and that normal's signs."""
+    m = objects[obj[k]]
+    nx, ny, nz = float(N[k, 0]), float(N[k, 1]), float(N[k, 2])
+    sx = m[OBJECT_INVERSE + 0] * nx + m[OBJECT_INVERSE + 1] * ny + m[OBJECT_INVERSE + 2] * nz
+    sy = m[OBJECT_INVERSE + 4] * nx + m[OBJECT_INVERSE + 5] * ny + m[OBJECT_INVERSE + 6] * nz
+    sz = m[OBJECT_INVERSE + 8] * nx + m[OBJECT_INVERSE + 9] * ny + m[OBJECT_INVERSE + 10] * nz
+    ax, ay, az = abs(sx), abs(sy), abs(sz)
+    total = ax + ay + az
+    if total > 0.0:
+        ax, ay, az = ax / total, ay / total, az / total
+    wx = wy = wz = 0.0
+    limit = 0.5 * (1.0 + blend)
+    if ax > limit * (ax + ay) and ax > limit * (ax + az):
+        wx = 1.0
+    elif ay > limit * (ax + ay) and ay > limit * (ay + az):
+        wy = 1.0
+    elif az > limit * (ax + az) and az > limit * (ay + az):
+        wz = 1.0
+    elif blend > 0.0:
+        if az < (1.0 - limit) * (ay + ax):
+            wx = min(max((ax / (ax + ay) - 0.5 * (1.0 - blend)) / blend, 0.0), 1.0)
+            wy = 1.0 - wx
+        elif ax < (1.0 - limit) * (ay + az):
+            wy = min(max((ay / (ay + az) - 0.5 * (1.0 - blend)) / blend, 0.0), 1.0)
+            wz = 1.0 - wy
+        elif ay < (1.0 - limit) * (ax + az):
+            wx = min(max((ax / (ax + az) - 0.5 * (1.0 - blend)) / blend, 0.0), 1.0)
+            wz = 1.0 - wx
+        else:
+            wx = ((2.0 - limit) * ax + (limit - 1.0)) / (2.0 * limit - 1.0)
+            wy = ((2.0 - limit) * ay + (limit - 1.0)) / (2.0 * limit - 1.0)
+            wz = ((2.0 - limit) * az + (limit - 1.0)) / (2.0 * limit - 1.0)
+    else:
+        wx = 1.0  # no blend and no dominant face: one side, as Cycles
+    return wx, wy, wz, sx, sy, sz
+
+
 # ------------------------------------------------------------------------------------------------- dispatch
 @_jit
 def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-             tex_w, uvx):
+             tex_w, uvx, extra):
     """Execute core opcode `op` with operand slots `a` (a[1..]) for shading point k."""
     if op == _COPY:
         x, y, z = get3(regs, a[2])
@@ -518,6 +596,18 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
             set3(regs, a[1], uvx[k, layer, 0], uvx[k, layer, 1], 0.0)
         else:
             set3(regs, a[1], 0.0, 0.0, 0.0)
+    elif op == _ATTR:
+        col = PATH_COLUMNS + a[4] * ATTRIBUTE_COLUMNS
+        if col + ATTRIBUTE_COLUMNS <= extra.shape[1] and extra[k, col + 5] > 0.5:
+            set3(regs, a[1], extra[k, col], extra[k, col + 1], extra[k, col + 2])
+            setf(regs, a[2], extra[k, col + 3])
+            setf(regs, a[3], extra[k, col + 4])
+        else:  # a mesh without the attribute (or no attribute table: a program run outside a render)
+            set3(regs, a[1], 0.0, 0.0, 0.0)
+            setf(regs, a[2], float(a[5]))
+            setf(regs, a[3], 0.0)
+    elif op == _LIGHTPATH:
+        _light_path(a, regs, k, extra)
     elif op == _OBJINFO:
         o = obj[k]
         set3(regs, a[1], objects[o, OBJECT_LOCATION], objects[o, OBJECT_LOCATION + 1], objects[o, OBJECT_LOCATION + 2])
@@ -527,24 +617,39 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         setf(regs, a[5], objects[o, OBJECT_RANDOM])
     elif op == _IMAGE:
         if a[3] >= 0:
-            u, v = float(regs[a[3], 0]), float(regs[a[3], 1])
+            x, y, z = get3(regs, a[3])
         elif has_uv:
-            u, v = float(uv[k, 0]), float(uv[k, 1])
+            x, y, z = float(uv[k, 0]), float(uv[k, 1]), 0.0
         else:
-            u, v = 0.0, 0.0
+            x, y, z = 0.0, 0.0, 0.0
         t = a[4]
-        off, h, w = tex_offset[t], tex_h[t], tex_w[t]
-        alpha = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 3)
-        r = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 0)
-        g = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 1)
-        b = image_lookup(tex_pixels, off, h, w, u, v, a[5], a[6], 2)
-        flags = a[7]
-        if flags & 1:
-            r, g, b = r * alpha, g * alpha, b * alpha
-        elif flags & 4 and alpha != 0.0 and alpha != 1.0:
-            r, g, b = r / alpha, g / alpha, b / alpha
-        if flags & 2:
-            r, g, b = srgb_to_linear(r), srgb_to_linear(g), srgb_to_linear(b)
+        proj = a[8]
+        if proj == 1:  # box: up to three lookups, unassociated after the sum (Cycles, against fringes)
+            blend = float(regs[a[9], 0]) if a[9] >= 0 else 0.0
+            wx, wy, wz, sx, sy, sz = _box_weights(N, k, obj, objects, blend)
+            r = g = b = alpha = 0.0
+            for face in range(3):
+                wf = wx if face == 0 else (wy if face == 1 else wz)
+                if wf <= 0.0:
+                    continue
+                if face == 0:
+                    u, v = (1.0 - y if sx < 0.0 else y), z
+                elif face == 1:
+                    u, v = (1.0 - x if sy > 0.0 else x), z
+                else:
+                    u, v = (1.0 - y if sz > 0.0 else y), x
+                fr, fg, fb, fa = _image_rgba(tex_pixels, tex_offset[t], tex_h[t], tex_w[t], u, v, a[5], a[6],
+                                             a[7] & 3)
+                r, g, b, alpha = r + wf * fr, g + wf * fg, b + wf * fb, alpha + wf * fa
+            if a[7] & 4 and alpha != 0.0 and alpha != 1.0:
+                r, g, b = r / alpha, g / alpha, b / alpha
+        else:
+            if proj == 2 or proj == 3:  # sphere / tube about the centre of the [0, 1] cube (Cycles' map_to_*)
+                cx, cy, cz = 2.0 * x - 1.0, 2.0 * y - 1.0, 2.0 * z - 1.0
+                u, v = _map_to_sphere(cx, cy, cz) if proj == 2 else _map_to_tube(cx, cy, cz)
+            else:
+                u, v = x, y
+            r, g, b, alpha = _image_rgba(tex_pixels, tex_offset[t], tex_h[t], tex_w[t], u, v, a[5], a[6], a[7])
         set3(regs, a[1], r, g, b)
         setf(regs, a[2], alpha)
     elif op == _SPEC:
@@ -578,6 +683,32 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
 
 
 @_jit
+def _flag(flags, bit):
+    return 1.0 if flags & bit else 0.0
+
+
+@_jit
+def _light_path(a, regs, k, extra):
+    """Light Path node: the ray kind flags and bounce counts of the path state (Cycles' svm_node_light_path)."""
+    if extra.shape[1] >= PATH_COLUMNS:
+        flags = np.int64(extra[k, 0])
+        vals = (float(extra[k, 1]), float(extra[k, 2]), float(extra[k, 3]), float(extra[k, 4]),
+                float(extra[k, 5]), float(extra[k, 6]))
+    else:  # no path state: a camera ray
+        flags = np.int64(RAY_CAMERA)
+        vals = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    setf(regs, a[1], _flag(flags, RAY_CAMERA))
+    setf(regs, a[2], _flag(flags, RAY_SHADOW))
+    setf(regs, a[3], _flag(flags, RAY_DIFFUSE))
+    setf(regs, a[4], _flag(flags, RAY_GLOSSY))
+    setf(regs, a[5], _flag(flags, RAY_SINGULAR))
+    setf(regs, a[6], _flag(flags, RAY_REFLECT))
+    setf(regs, a[7], _flag(flags, RAY_TRANSMIT))
+    for j in range(6):
+        setf(regs, a[8 + j], vals[j])
+
+
+@_jit
 def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects):
     o = obj[k]
     px, py, pz = float(P[k, 0]), float(P[k, 1]), float(P[k, 2])
@@ -603,19 +734,30 @@ def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects):
     else:
         set3(regs, a[3], 0.0, 0.0, 0.0)
     set3(regs, a[4], ox, oy, oz)
-    set3(regs, a[5], 0.0, 0.0, 0.0)  # camera/window: not computed (the compiler warns when they are used)
-    set3(regs, a[6], 0.0, 0.0, 0.0)
+    if a[5] >= 0 or a[6] >= 0:  # Camera and Window: the camera is the object table's last row
+        c = objects[objects.shape[0] - 1]
+        cx = c[OBJECT_INVERSE + 0] * px + c[OBJECT_INVERSE + 1] * py + c[OBJECT_INVERSE + 2] * pz + c[OBJECT_INVERSE + 3]
+        cy = c[OBJECT_INVERSE + 4] * px + c[OBJECT_INVERSE + 5] * py + c[OBJECT_INVERSE + 6] * pz + c[OBJECT_INVERSE + 7]
+        cz = c[OBJECT_INVERSE + 8] * px + c[OBJECT_INVERSE + 9] * py + c[OBJECT_INVERSE + 10] * pz + c[OBJECT_INVERSE + 11]
+        set3(regs, a[5], cx, cy, cz)
+        kind = c[CAMERA_KIND]
+        if kind == CAMERA_PANO:
+            set3(regs, a[6], 0.0, 0.0, 0.0)  # not computed for panoramic cameras (the export warns)
+        else:
+            sx, sy = (cx, cy) if kind == CAMERA_ORTHO else (safe_divide(cx, cz), safe_divide(cy, cz))
+            set3(regs, a[6], safe_divide(sx - c[CAMERA_FRAME], c[CAMERA_FRAME + 1] - c[CAMERA_FRAME]),
+                 safe_divide(sy - c[CAMERA_FRAME + 2], c[CAMERA_FRAME + 3] - c[CAMERA_FRAME + 2]), 0.0)
     d = I[k, 0] * nx + I[k, 1] * ny + I[k, 2] * nz
     set3(regs, a[7], 2.0 * d * nx - I[k, 0], 2.0 * d * ny - I[k, 1], 2.0 * d * nz - I[k, 2])
 
 
 @_jit
 def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-             tex_w, uvx):
+             tex_w, uvx, extra):
     """One instruction. A new opcode family hooks in here: `elif op < NEXT_BASE: family.run(op, a, regs, data)`."""
     if op < _COLOR_BASE:
         _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-                 tex_w, uvx)
+                 tex_w, uvx, extra)
     elif op < _PROC_BASE:
         color.run(op, a, regs, data)
     else:
@@ -624,7 +766,8 @@ def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
 
 @_jit
 def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg,
-                 tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, has_uv, back, obj, objects, uvx, scratch,
+                 tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, has_uv, back, obj, objects, uvx, extra,
+                 scratch,
                  kind, weight, rough, ior, f0, tint, select, t_scale, emission):
     """Evaluate the programs of the points `rows` (indices into the per-point arrays); write the bound lobe
     parameters of point k into row k of the LobeBatch arrays (kind .. select), `emission` (N, 3) likewise (rows
@@ -644,7 +787,7 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
         for i in range(code_start[p], code_start[p + 1]):
             a = code[i]
             _execute(a[0], a, scratch, pdata, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels,
-                     tex_offset, tex_h, tex_w, uvx)
+                     tex_offset, tex_h, tex_w, uvx, extra)
         L = bind.shape[1]
         changed = False
         for l in range(L):
@@ -722,6 +865,11 @@ class PreparedShading:
         for i, p in live:
             self.emits[i] = p.emission >= 0
         self.any_emits = bool(self.emits.any())
+        ops = self.code[:, 0] if len(self.code) else np.zeros(0, np.int32)
+        # Which per-point extras the programs read: the integrator tracks the path state and interpolates the
+        # named attributes only then.
+        self.uses_light_path = bool(np.any(ops == _LIGHTPATH))
+        self.uses_attributes = bool(np.any(ops == _ATTR))
         self.objects = np.ascontiguousarray(objects if objects is not None else identity_object_row()[None], np.float32)
         self.texture_pack = pack_textures_rgba(textures)
 
@@ -733,10 +881,12 @@ class PreparedShading:
         return cls(programs, textures, max_lobes, objects)
 
     def evaluate(self, rows: np.ndarray, mat: np.ndarray, P, N, Ng, I, uv, back, obj, lobes, select_scale,
-                 emission: np.ndarray | None = None, uv_layers: np.ndarray | None = None) -> None:
+                 emission: np.ndarray | None = None, uv_layers: np.ndarray | None = None,
+                 extra: np.ndarray | None = None) -> None:
         """Run the programs of points `rows` in place on `lobes` (a LobeBatch with one row per point) and
         `emission` ((N, 3), optional). P, N, Ng, I (N, 3) float32 world space, uv (N, 2) or None, back (N,)
-        bool, obj (N,) int32 object rows, uv_layers (N, K, 2) the named UV maps (Scene.uv_layer_names) or None."""
+        bool, obj (N,) int32 object rows, uv_layers (N, K, 2) the named UV maps (Scene.uv_layer_names) or None,
+        extra (N, PATH_COLUMNS + 5 A) float32 the path state and attributes (core.shading.program) or None."""
         n = len(mat)
         if emission is None:
             emission = np.zeros((n, 3), np.float32)
@@ -744,11 +894,12 @@ class PreparedShading:
         uvs = np.ascontiguousarray(uv, np.float32) if has_uv else np.zeros((0, 2), np.float32)
         scratch = np.empty((self.max_registers, 3), np.float32)
         uvx = np.zeros((n, 0, 2), np.float32) if uv_layers is None else np.ascontiguousarray(uv_layers, np.float32)
+        ext = np.zeros((n, 0), np.float32) if extra is None else np.ascontiguousarray(extra, np.float32)
         run_programs(np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(mat, np.int64), self.prog_of_mat,
                      self.code, self.code_start, self.regs0, self.reg_start, self.data, self.data_start, self.bind,
                      self.emit_reg, *self.texture_pack, _f3(P), _f3(N), _f3(Ng), _f3(I), uvs, has_uv,
                      np.ascontiguousarray(back, np.bool_), np.ascontiguousarray(obj, np.int32), self.objects, uvx,
-                     scratch, lobes.kind, lobes.weight, lobes.roughness, lobes.ior, lobes.f0, lobes.tint,
+                     ext, scratch, lobes.kind, lobes.weight, lobes.roughness, lobes.ior, lobes.f0, lobes.tint,
                      lobes.select, select_scale, emission)
 
 
@@ -777,8 +928,9 @@ def pack_textures_rgba(textures) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
 
 
 def run_single(program: ShadingProgram, textures=(), P=(0, 0, 0), N=(0, 0, 1), Ng=None, I=(0, 0, 1), uv=(0.0, 0.0),
-               back=False, objects: np.ndarray | None = None, uv_layers=()) -> np.ndarray:
-    """The program's final register file at one shading point (tests, and the compiler's constant folding)."""
+               back=False, objects: np.ndarray | None = None, uv_layers=(), extra=()) -> np.ndarray:
+    """The program's final register file at one shading point (tests, and the compiler's constant folding);
+    extra: the point's path state and attributes (core.shading.program PATH_* columns), empty for none."""
     n_regs = max(program.registers.shape[0], 1)
     code = np.ascontiguousarray(program.code, np.int32).reshape(-1, WIDTH)
     P3, N3, I3 = (np.asarray(v, np.float32).reshape(1, 3) for v in (P, N, I))
@@ -788,13 +940,14 @@ def run_single(program: ShadingProgram, textures=(), P=(0, 0, 0), N=(0, 0, 1), N
     objs = np.ascontiguousarray(objects if objects is not None else identity_object_row()[None], np.float32)
     _run_one(code, regs, np.ascontiguousarray(program.data, np.float32), *pack, P3, N3, Ng3, I3,
              np.asarray(uv, np.float32).reshape(1, 2), np.array([bool(back)]), np.zeros(1, np.int32), objs,
-             np.asarray(uv_layers, np.float32).reshape(1, -1, 2))
+             np.asarray(uv_layers, np.float32).reshape(1, -1, 2), np.asarray(extra, np.float32).reshape(1, -1))
     return regs[:n_regs]
 
 
 @_jit
-def _run_one(code, regs, data, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, back, obj, objects, uvx):
+def _run_one(code, regs, data, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, back, obj, objects, uvx,
+             extra):
     for i in range(code.shape[0]):
         a = code[i]
         _execute(a[0], a, regs, data, 0, P, N, Ng, I, uv, True, back, obj, objects, tex_pixels, tex_offset, tex_h,
-                 tex_w, uvx)
+                 tex_w, uvx, extra)

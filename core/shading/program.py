@@ -23,7 +23,8 @@ singular threshold, ior >= 1e-5, f0 and tints to [0, 1] / >= 0), and recomputes 
 
 Per-point inputs (the "shading context", world space, float32): P position, N shading normal and Ng true normal
 both turned to the viewer's side (Cycles flips N and Ng on a back face), I unit direction towards the viewer,
-UV (the mesh's active UV map), backfacing, and the object row (`OBJECT_*` columns of `PreparedShading.objects`).
+UV (the mesh's active UV map), backfacing, the object row (`OBJECT_*` columns of `PreparedShading.objects`), and
+the per-point extras (`PATH_*` and attribute columns below): the path state and the named mesh attributes.
 """
 
 from __future__ import annotations
@@ -50,6 +51,43 @@ OBJECT_RANDOM = 20
 OBJECT_BOX_MIN = 21  # 3
 OBJECT_BOX_SIZE = 24  # 3
 OBJECT_COLUMNS = 27
+# The last row of the object table the evaluator gets is the render camera's (Texture Coordinate's Camera and
+# Window outputs; no triangle names it): world -> camera space (x right, y up, z forward: Cycles' camera space)
+# as 3x4 in the OBJECT_INVERSE columns, the image frame (core.scene.Camera.frame: xmin, xmax, ymin, ymax) and the
+# projection (CAMERA_PERSP, CAMERA_ORTHO, CAMERA_PANO).
+CAMERA_FRAME = 12  # 4
+CAMERA_KIND = 16
+CAMERA_PERSP, CAMERA_ORTHO, CAMERA_PANO = 0, 1, 2
+
+# Columns of the per-point extras (`PreparedShading.evaluate`'s `extra`, float32 (N, PATH_COLUMNS + 5 A)): the
+# path state the Light Path node reads (Cycles' ray flags and bounce counts of the ray that reached the point,
+# the ray's length in metres), then ATTRIBUTE_COLUMNS per named attribute of Scene.attribute_names.
+PATH_FLAGS, PATH_LENGTH, PATH_DEPTH, PATH_DIFFUSE_DEPTH, PATH_GLOSSY_DEPTH, PATH_TRANSPARENT_DEPTH, \
+    PATH_TRANSMISSION_DEPTH = range(7)
+PATH_COLUMNS = 7
+# Bits of the PATH_FLAGS column (stored as an exact float), Cycles' PATH_RAY_* meaning: the kind of the last
+# non-transparent bounce (a camera ray stays one through transparent surfaces).
+RAY_CAMERA, RAY_SHADOW, RAY_DIFFUSE, RAY_GLOSSY, RAY_SINGULAR, RAY_REFLECT, RAY_TRANSMIT, RAY_TRANSPARENT = (
+    1, 2, 4, 8, 16, 32, 64, 128)
+# Per attribute: the Color / Vector output (3 floats), Alpha, and Fac (Cycles' float output: the value of a
+# float attribute, x of a 2D one, the average of a vector or colour): core.scene.Mesh.attributes' 5 columns;
+# then 1 where the mesh has the attribute, 0 where it lacks it (all outputs read 0 there, Alpha the node's own
+# default: 1 for the Attribute node, 0 for Color Attribute, as Cycles).
+MESH_ATTRIBUTE_COLUMNS = 5
+ATTRIBUTE_COLUMNS = 6
+
+
+def camera_row(matrix_world, frame, kind: str) -> np.ndarray:
+    """The object-table row of the render camera (see CAMERA_FRAME): matrix_world camera -> world 4x4 (Blender's,
+    looking along -Z), frame (xmin, xmax, ymin, ymax), kind "PERSP", "ORTHO" or "PANO"."""
+    m = np.asarray(matrix_world, np.float64)
+    axes = m[:3, :3] / np.maximum(np.linalg.norm(m[:3, :3], axis=0), 1e-30)
+    rot = np.stack([axes[:, 0], axes[:, 1], -axes[:, 2]])  # rows: right, up, forward
+    row = np.zeros(OBJECT_COLUMNS, np.float32)
+    row[OBJECT_INVERSE:OBJECT_INVERSE + 12] = np.concatenate([rot, (-rot @ m[:3, 3])[:, None]], axis=1).reshape(-1)
+    row[CAMERA_FRAME:CAMERA_FRAME + 4] = frame
+    row[CAMERA_KIND] = {"PERSP": CAMERA_PERSP, "ORTHO": CAMERA_ORTHO}.get(kind, CAMERA_PANO)
+    return row
 
 
 def identity_object_row() -> np.ndarray:

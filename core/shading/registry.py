@@ -146,14 +146,27 @@ OP_OBJECT_INFO = register(OpSpec("object_info", 32, _r("location", "color", "alp
                                                        kind="out?"), "Object Info node outputs")).code
 OP_UV_LAYER = register(OpSpec("uv_layer", 33, _r("out", kind="out") + _r("layer", kind="int"),
                               "UV Map node naming a map: layer = index into Scene.uv_layer_names")).code
+OP_ATTRIBUTE = register(OpSpec("attribute", 34, _r("color", "alpha", "fac", kind="out?")
+                                + _r("layer", "missing_alpha", kind="int"),
+                                "Attribute / Color Attribute node: layer = index into Scene.attribute_names "
+                                "(the per-point extras' attribute columns); a mesh without it reads 0, alpha "
+                                "missing_alpha")).code
+OP_LIGHT_PATH = register(OpSpec("light_path", 35, _r("is_camera", "is_shadow", "is_diffuse", "is_glossy",
+                                                     "is_singular", "is_reflection", "is_transmission", "ray_length",
+                                                     "ray_depth", "diffuse_depth", "glossy_depth",
+                                                     "transparent_depth", "transmission_depth", kind="out?"),
+                                 "Light Path node outputs from the per-point path state (core.shading.program "
+                                 "PATH_*); without one: a camera ray of length 0")).code
 # Images.
 OP_IMAGE = register(OpSpec("image", 40, _r("color", "alpha", kind="out?") + _r("vector", kind="in?")
-                           + _r("texture", kind="tex") + _r("interpolation", "extension", "flags", kind="int"),
-                           "Image Texture node, flat projection: interpolation 0 linear 1 closest 2 cubic; "
+                           + _r("texture", kind="tex") + _r("interpolation", "extension", "flags", "projection",
+                                                             kind="int") + _r("blend", kind="in?"),
+                           "Image Texture node: interpolation 0 linear 1 closest 2 cubic; "
                            "extension 0 repeat 1 extend 2 clip 3 mirror; flags bit 0: colour times alpha "
-                           "(associate), bit 2: colour divided by alpha where 0 < alpha < 1 (unassociate), "
-                           "bit 1: sRGB-decode the colour after filtering (and association). vector -1: the UV "
-                           "map")).code
+                           "(associate), bit 2: colour divided by alpha where 0 < alpha < 1 (unassociate; after "
+                           "the weighted sum for box), bit 1: sRGB-decode the colour after filtering (and "
+                           "association). vector -1: the UV map. projection 0 flat 1 box (Cycles' weights from "
+                           "the object-space normal, blend: the Blend register, -1 = 0) 2 sphere 3 tube")).code
 # Shader helpers (the Principled BSDF's derived lobe parameters).
 OP_SPECULAR_LAYER = register(OpSpec("specular_layer", 50, _r("f0", "eta", kind="out") + _r("ior", "level", "tint",
                                                                                           kind="in"),

@@ -22,7 +22,7 @@ from ....core.shading.program import N_BIND, WIDTH, ShadingProgram
 MAX_DEPTH = 64
 FLOAT, VECTOR, RGBA = "FLOAT", "VECTOR", "RGBA"
 # Opcodes that read the shading context (or the -1 "context default" of an "in?" operand): never folded.
-CONTEXT_OPS = {"texture_coordinate", "geometry", "object_info", "fresnel", "layer_weight"}
+CONTEXT_OPS = {"texture_coordinate", "geometry", "object_info", "fresnel", "layer_weight", "attribute", "light_path"}
 
 
 def socket_kind(sock) -> str:
@@ -60,6 +60,8 @@ class ProgramBuilder:
     material_pass_index: int = 0
     active_uv_names: tuple = ()
     uv_layer_index: object = None  # callable(name) -> index into Scene.uv_layer_names
+    attribute_index: object = None  # callable(name) -> index into Scene.attribute_names
+    attribute_uses: list = field(default_factory=list)  # (attribute name, "node 'X' (Label)") per read
     registers: list = field(default_factory=list)  # initial values, (3,) float32 each
     varying: list = field(default_factory=list)  # per register: computed per point
     code: list = field(default_factory=list)

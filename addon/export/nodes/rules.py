@@ -33,8 +33,10 @@ def _rgb(c, node, ctx):
 
 
 @rule("ShaderNodeTexCoord", "Texture Coordinate", "input",
-      outputs=("Generated", "Normal", "UV", "Object", "Reflection"),
-      notes="Camera and Window read 0 (warning); the Object field (another object's space) and From Instancer "
+      outputs=("Generated", "Normal", "UV", "Object", "Camera", "Window", "Reflection"),
+      notes="Camera: camera space of the render camera (x right, y up, z forward, as Cycles); Window: the "
+            "position in the full camera frame in [0, 1] (x from the left, y from the bottom, z 0; a render "
+            "border does not change it), 0 under a panoramic camera. The Object field (another object's space) and From Instancer "
             "are not supported (warning; the hit object's space is used). Generated is the object's texture "
             "space (its bounding box) of the evaluated mesh, not of the undeformed original.")
 def _texcoord(c, node, ctx):
@@ -45,9 +47,6 @@ def _texcoord(c, node, ctx):
         c.warn(node, "From Instancer is not supported; using the instance's own coordinates")
     names = ("Generated", "Normal", "UV", "Object", "Camera", "Window", "Reflection")
     used = {n: c.output_used(node, n, ctx) for n in names}
-    for n in ("Camera", "Window"):
-        if used[n]:
-            c.warn(node, f"the {n} output is not supported; it reads (0, 0, 0)")
     outs = c.emit("texture_coordinate", **{n.lower(): used[n] for n in names})
     return {n: _out(outs[n.lower()], VECTOR) for n in names if outs[n.lower()] >= 0}
 
@@ -62,6 +61,72 @@ def _uvmap(c, node, ctx):
     if name and c.uv_layer_index is not None:
         return {"UV": _out(c.emit("uv_layer", layer=c.uv_layer_index(name), varying=True)["out"], VECTOR)}
     return {"UV": _out(c.emit("texture_coordinate", uv=True)["uv"], VECTOR)}
+
+
+def _read_attribute(c, node, name: str, missing_alpha: float) -> dict:
+    """{"color", "alpha", "fac"} registers of the named attribute ("" = the render colour attribute); a mesh
+    without it reads 0 and alpha `missing_alpha` (Cycles: 1 for Attribute, 0 for Color Attribute)."""
+    if c.attribute_index is None:  # compiled outside a scene export: as a mesh without the attribute
+        return {"color": c.const(0.0), "alpha": c.const(missing_alpha), "fac": c.const(0.0)}
+    c.attribute_uses.append((name, f"node {node.name!r} ({node.bl_label})"))
+    return c.emit("attribute", layer=c.attribute_index(name), missing_alpha=int(missing_alpha), color=True,
+                  alpha=True, fac=True)
+
+
+@rule("ShaderNodeAttribute", "Attribute", "input", outputs=("Color", "Vector", "Fac", "Alpha"),
+      notes="Geometry type: float, 2D vector, vector, colour (float and byte), integer and boolean attributes of "
+            "the evaluated mesh by name (UV maps too), on points, faces and face corners, interpolated over each "
+            "triangle as Cycles; a mesh without it reads 0, Alpha 1 (warning naming material, node, mesh and "
+            "attribute). "
+            "Object, Instancer and View Layer types read 0 (warning).")
+def _attribute(c, node, ctx):
+    kind = getattr(node, "attribute_type", "GEOMETRY")
+    if kind != "GEOMETRY":
+        c.warn(node, f"attribute type {kind} is not supported; the outputs read 0")
+        zero = c.const(0.0)
+        return {"Color": _out(zero, RGBA), "Vector": _out(zero, VECTOR), "Fac": _out(zero, FLOAT),
+                "Alpha": _out(zero, FLOAT)}
+    outs = _read_attribute(c, node, node.attribute_name, 1.0)
+    return {"Color": _out(outs["color"], RGBA), "Vector": _out(outs["color"], VECTOR),
+            "Fac": _out(outs["fac"], FLOAT), "Alpha": _out(outs["alpha"], FLOAT)}
+
+
+@rule("ShaderNodeVertexColor", "Color Attribute", "input", outputs=("Color", "Alpha"),
+      notes="Any colour attribute by name; empty name: the mesh's active render colour attribute. A mesh "
+            "without it reads 0 (warning).")
+def _color_attribute(c, node, ctx):
+    outs = _read_attribute(c, node, getattr(node, "layer_name", ""), 0.0)
+    return {"Color": _out(outs["color"], RGBA), "Alpha": _out(outs["alpha"], FLOAT)}
+
+
+_LIGHT_PATH_OUTPUTS = {"Is Camera Ray": "is_camera", "Is Shadow Ray": "is_shadow", "Is Diffuse Ray": "is_diffuse",
+                       "Is Glossy Ray": "is_glossy", "Is Singular Ray": "is_singular",
+                       "Is Reflection Ray": "is_reflection", "Is Transmission Ray": "is_transmission",
+                       "Ray Length": "ray_length", "Ray Depth": "ray_depth", "Diffuse Depth": "diffuse_depth",
+                       "Glossy Depth": "glossy_depth", "Transparent Depth": "transparent_depth",
+                       "Transmission Depth": "transmission_depth"}
+
+
+@rule("ShaderNodeLightPath", "Light Path", "input", outputs=tuple(_LIGHT_PATH_OUTPUTS),
+      notes="Cycles' ray flags and bounce counts of the path that reached the point; a light sample of a "
+            "textured emitter sees no ray-kind flag and Ray Depth + 1, as Cycles. An emission driven by Is "
+            "Diffuse/Glossy/... Ray splits between light and BSDF sampling by MIS weights that depend on the "
+            "sampling strategy (Monte samples a triangle's area, Cycles its solid angle): such emitters differ "
+            "from Cycles (Is Camera Ray and the depths agree). Is Shadow Ray reads 0: Monte's shadow rays do not "
+            "run materials (every surface blocks them; warning). Is Volume Scatter Ray and Portal Depth read 0.")
+def _light_path(c, node, ctx):
+    if c.output_used(node, "Is Shadow Ray", ctx):
+        c.warn(node, "Is Shadow Ray reads 0: shadow rays do not evaluate materials in Monte (every surface casts "
+                     "a shadow)")
+    for n in ("Is Volume Scatter Ray", "Portal Depth"):
+        if c.output_used(node, n, ctx):
+            c.warn(node, f"the {n} output is not supported; it reads 0")
+    outs = c.emit("light_path", **{v: c.output_used(node, k, ctx) for k, v in _LIGHT_PATH_OUTPUTS.items()})
+    res = {k: _out(outs[v], FLOAT) for k, v in _LIGHT_PATH_OUTPUTS.items() if outs[v] >= 0}
+    zero = c.const(0.0)
+    for n in ("Is Volume Scatter Ray", "Portal Depth"):
+        res[n] = _out(zero, FLOAT)
+    return res
 
 
 @rule("ShaderNodeNewGeometry", "Geometry", "input",
@@ -241,27 +306,31 @@ def _mix_rgb(c, node, ctx):
 # ------------------------------------------------------------------------------------------------- images
 _INTERP = {"Linear": 0, "Closest": 1, "Cubic": 2, "Smart": 2}
 _EXTENSION = {"REPEAT": 0, "EXTEND": 1, "CLIP": 2, "MIRROR": 3}
+_PROJECTION = {"FLAT": 0, "BOX": 1, "SPHERE": 2, "TUBE": 3}
 
 
 @rule("ShaderNodeTexImage", "Image Texture", "texture", inputs=("Vector",), outputs=("Color", "Alpha"),
-      notes="Flat projection (others: warning, flat); Linear, Closest, Cubic (Smart = Cubic, as Cycles on the "
-            "CPU); Repeat, Extend, Clip, Mirror; colour spaces sRGB (decoded after filtering, as Cycles), "
-            "Non-Color / Linear / Raw, others treated as sRGB (warning); alpha modes Straight, Premultiplied, "
-            "Channel Packed, None with Cycles' association (the Color output is premultiplied unless the Alpha "
-            "output is used). First frame / tile only. Missing or unreadable image: warning, magenta "
+      notes="Flat, Box (Cycles' weights from the object-space normal, with Blend), Sphere and Tube projections; "
+            "Linear, Closest, Cubic (Smart = Cubic, as Cycles on the CPU); Repeat, Extend, Clip, Mirror; colour "
+            "spaces sRGB (decoded after filtering, as Cycles), Non-Color / Linear / Raw, others treated as sRGB "
+            "(warning); alpha modes Straight, Premultiplied, Channel Packed, None with Cycles' association (the "
+            "Color output is premultiplied unless the Alpha output is used). First frame / tile only. Missing or unreadable image: warning, magenta "
             "(Cycles' missing-texture colour).")
 def _image(c, node, ctx):
     alpha_used = c.output_used(node, "Alpha", ctx)
     tex, flags = c.image_texture(node, alpha_used)
     if tex is None:  # missing: Cycles' TEX_IMAGE_MISSING colour
         return {"Color": _out(c.const([1.0, 0.0, 1.0]), RGBA), "Alpha": _out(c.const(1.0), FLOAT)}
-    if node.projection != "FLAT":
+    projection = _PROJECTION.get(node.projection)
+    if projection is None:
         c.warn(node, f"{node.projection.lower()} projection is not supported; using flat")
+        projection = 0
     vec = c.input(node, "Vector", VECTOR, ctx) if c.is_linked(node, "Vector", ctx) else -1
     interp = _INTERP.get(node.interpolation, 0)
     ext = _EXTENSION.get(node.extension, 0)
+    blend = c.const(float(node.projection_blend)) if projection == 1 else -1
     outs = c.emit("image", color=True, alpha=True, vector=vec, texture=tex, interpolation=interp, extension=ext,
-                  flags=flags, varying=vec < 0)
+                  flags=flags, projection=projection, blend=blend, varying=vec < 0 or projection == 1)
     return {"Color": _out(outs["color"], RGBA), "Alpha": _out(outs["alpha"], FLOAT)}
 
 

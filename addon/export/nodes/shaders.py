@@ -32,8 +32,9 @@ SHADERS = {
     "ShaderNodeBsdfRefraction": ("Refraction BSDF", ("Color", "Roughness", "IOR"), ""),
     "ShaderNodeBsdfTransparent": ("Transparent BSDF", ("Color",), ""),
     "ShaderNodeEmission": ("Emission", ("Color", "Strength"),
-                           "A varying emission is found by BSDF sampling only (not light-sampled): unbiased, "
-                           "noisier than a constant emitter."),
+                           "A varying emission is light-sampled by its own table (triangles chosen by area x "
+                           "an emission estimate, the emission evaluated per point) with MIS; a light sample runs the "
+                           "program as Cycles does (Light Path: no ray-kind flag, Ray Depth + 1)."),
     "ShaderNodeMixShader": ("Mix Shader", ("Fac", "Shader", "Shader"), "The factor may vary per point."),
     "ShaderNodeAddShader": ("Add Shader", ("Shader", "Shader"), ""),
     "ShaderNodeHoldout": ("Holdout", (), "Camera rays (and rays through transparent surfaces) see zero colour and "
