@@ -355,7 +355,8 @@ class SceneSync:
         return Scene(camera=camera, meshes=meshes, materials=list(self.materials.materials), lights=list(self.lights),
                      world=self.world, textures=list(self.materials.textures), name=name,
                      warnings=list(self.warnings), objects=np.concatenate(rows).astype(np.float32),
-                     uv_layer_names=list(self.materials.uv_names), **extra)
+                     uv_layer_names=list(self.materials.uv_names),
+                     tangent_layer_names=list(self.materials.tangent_names), **extra)
 
 
 def scene_camera_view(depsgraph, size: tuple[int, int]) -> Camera:

@@ -27,6 +27,7 @@ from .ray_visibility import RAY_KIND_NAMES, bounce_kinds
 from .scene import Scene
 from .settings import RenderSettings
 from .shading import PreparedShading
+from .shading.vector_context import vector_context
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
 # camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce.
@@ -129,6 +130,7 @@ class PreparedScene:
     # (T,) float32 Shadow Terminator Geometry Offset of each smooth triangle (0 on flat ones), None when all are 0
     terminator_offset: np.ndarray | None = None
     uv_layers: np.ndarray | None = None  # (T, K, 3, 2) the named UV maps of Scene.uv_layer_names, or None
+    tangent_layers: np.ndarray | None = None  # (T, K, 3, 4) Scene.tangent_layer_names' tangents, or None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -164,6 +166,8 @@ class PreparedScene:
         verts, tris, mats, normals, uvs, smooth, objs, seen_by, terminator, layers = ([], [], [], [], [], [], [], [],
                                                                               [], [])
         layer_names = list(scene.uv_layer_names)
+        tangent_names = list(scene.tangent_layer_names)
+        tangent_parts = []
         offset = 0
         any_smooth = any(m.normals is not None for m in scene.meshes)
         any_uv = any(m.uvs is not None for m in scene.meshes)
@@ -185,6 +189,12 @@ class PreparedScene:
                     if mesh.uv_layers and lname in mesh.uv_layers:
                         per[:, j] = mesh.uv_layers[lname]
                 layers.append(per)
+            if tangent_names:  # the tangent layers Normal Map nodes read; zeros (no tangent) where a mesh lacks one
+                per_t = np.zeros((t, len(tangent_names), 3, 4), np.float32)
+                for j, lname in enumerate(tangent_names):
+                    if mesh.tangent_layers and lname in mesh.tangent_layers:
+                        per_t[:, j] = mesh.tangent_layers[lname]
+                tangent_parts.append(per_t)
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
                 smooth.append(np.full(t, mesh.normals is not None))
@@ -217,6 +227,7 @@ class PreparedScene:
                                         np.concatenate(object_rows).astype(np.float32))
         object_of_triangle = np.concatenate(objs).astype(np.int32) if objs else np.zeros(0, np.int32)
         uv_layers = np.concatenate(layers) if layers else None
+        tangent_layers = np.concatenate(tangent_parts) if tangent_parts else None
         emissive = EmissiveTriangles.from_mesh_arrays(tri_vertices, material_index, materials.emission)
         if len(vertices):
             lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
@@ -250,7 +261,7 @@ class PreparedScene:
                    alpha, holdout, keeps, visible_to, no_shadow,
                    any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
                        for m in scene.materials for lobe in m.lobes),
-                   terminator_offset=terminator_offset, uv_layers=uv_layers)
+                   terminator_offset=terminator_offset, uv_layers=uv_layers, tangent_layers=tangent_layers)
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
@@ -424,11 +435,15 @@ class PathTracer:
         t_start: np.ndarray,
         want_aovs: bool,
         want_features: bool = False,
+        ray_dp: np.ndarray | None = None,
+        ray_dd: np.ndarray | None = None,
     ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
         """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs; want_features adds the
         denoising features, FirstHit.features) and their transparency (N,) float32 in [0, 1] (alpha = 1 -
         transparency; None when the scene has no alpha, see core.scene.Film). pixel_id/sample_id (uint32) key the
-        random numbers."""
+        random numbers. ray_dp, ray_dd (N,) float32: the camera rays' compact differentials (Cycles' ray dP and
+        dD: the spread of a pixel's footprint at the origin and its growth per unit distance), which Bump nodes
+        read; None: zero."""
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
@@ -450,6 +465,13 @@ class PathTracer:
         prev_transmits = None  # whether the material at each ray's origin transmits (weighs light selection)
         pix, smp = pixel_id, sample_id
         self.stats.paths += n
+        # Ray differentials as Cycles' CPU path keeps them (compact: one spread per ray): at a hit the footprint is
+        # dP + t dD; a bounce ray starts with the hit's footprint and keeps the camera ray's dD. Kept per sample,
+        # only when some Bump node reads them.
+        sample_dp = sample_dd = None
+        if ps.shading is not None and ps.shading.needs_differentials:
+            sample_dp = np.zeros(n, np.float32) if ray_dp is None else np.asarray(ray_dp, np.float32).copy()
+            sample_dd = np.zeros(n, np.float32) if ray_dd is None else np.asarray(ray_dd, np.float32)
         transparent = np.zeros(n, np.float32) if ps.alpha else None
         # Per sample: the path still counts as transparent (camera ray, or only through transparent surfaces).
         clear = np.ones(n, bool) if ps.alpha else None
@@ -471,6 +493,11 @@ class PathTracer:
                 hits = self.accel.intersect(o, d, tm)
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
+            hit_dp = None  # (live paths,) the footprint at each hit (Cycles' sd->dP)
+            if sample_dp is not None:
+                hit_dp = np.where(hit, sample_dp[idx] + np.where(hit, hits.t, 0) * sample_dd[idx],
+                                  0).astype(np.float32)
+                sample_dp[idx[hit]] = hit_dp[hit]
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
             clear_here = clear[idx] if ps.alpha else None
             if film_transparent:
@@ -528,7 +555,7 @@ class PathTracer:
                     mat_e = ps.material_index[prim[e]]
                     le = np.zeros((len(e), 3), np.float32)
                     self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le,
-                                bary=(hits.u[e], hits.v[e]))
+                                bary=(hits.u[e], hits.v[e]), dp=None if hit_dp is None else hit_dp[e])
                     self._add(radiance, idx[e], throughput[e] * le)
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
@@ -558,7 +585,8 @@ class PathTracer:
                 lobes_first = ps.materials.gather(mat_first, g.uv)
                 if ps.shading is not None:
                     self._shade(g, mat_first, prim[hit_rows], d[hit_rows], lobes_first,
-                                bary=(hits.u[hit_rows], hits.v[hit_rows]))
+                                bary=(hits.u[hit_rows], hits.v[hit_rows]),
+                                dp=None if hit_dp is None else hit_dp[hit_rows])
                 first.albedo[idx[hit_rows]] = bsdf_mod.albedo(lobes_first)
                 first.normal[idx[hit_rows]] = g.ns_raw
                 first.depth[idx[hit_rows]] = (t_start[hit_rows] + hits.t[hit_rows]) * depth_scale[hit_rows]
@@ -575,7 +603,8 @@ class PathTracer:
             mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
             if ps.shading is not None:
-                self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]))
+                self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]),
+                            dp=None if hit_dp is None else hit_dp[rows])
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
 
@@ -681,9 +710,11 @@ class PathTracer:
         return g
 
     def _shade(self, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
-               lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None) -> None:
+               lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None, dp=None) -> None:
         """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
-        The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir."""
+        The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir;
+        dp (N,) the footprint of each hit (Cycles' compact sd->dP) for Bump nodes. A program that sets the shading
+        normal (Normal Map, Bump) gets the point's shading frame rebuilt around it (geometry_kernels.reframe)."""
         sh = self.ps.shading
         rows = np.flatnonzero(sh.needs_program[mat])
         if len(rows) == 0:
@@ -695,14 +726,31 @@ class PathTracer:
         ng = np.where(back[:, None], -g.ng, g.ng)
         n = np.where(back[:, None], -g.ns_raw, g.ns_raw)
         obj = self.ps.object_of_triangle[prim]
+        ps = self.ps
+        vec = vector_context(ps, prim, bary, ng, dp, g.uv is not None)
         uvx = None
-        if self.ps.uv_layers is not None and bary is not None:  # the named UV maps at the hit points
+        if ps.uv_layers is not None and bary is not None:  # the named UV maps at the hit points
             b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
-            corners = self.ps.uv_layers[prim]  # (N, K, 3, 2)
+            corners = ps.uv_layers[prim]  # (N, K, 3, 2)
             uvx = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
                    + corners[:, :, 2] * b2[:, None, None]).astype(np.float32)
-        sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
-                    self.ps.materials.select_scale, emission, uvx)
+            if vec.db is not None:  # and their derivatives along dP.dx, dP.dy
+                e1, e2 = corners[:, :, 1] - corners[:, :, 0], corners[:, :, 2] - corners[:, :, 0]  # (N, K, 2)
+                full = np.empty((len(prim), uvx.shape[1], 3, 2), np.float32)
+                full[:, :, 0] = uvx
+                for j in range(2):
+                    full[:, :, 1 + j] = (e1 * vec.db[:, j, 0, None, None] + e2 * vec.db[:, j, 1, None, None])
+                uvx = full
+        normal_out = np.zeros((len(mat), 3), np.float32) if sh.any_sets_normal else None
+        has_normal = sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
+                                 ps.materials.select_scale, emission, uvx, dP=vec.dP, duv=vec.duv,
+                                 tangents=vec.tangents, mesh_normal=vec.mesh_normal, normal_out=normal_out)
+        if has_normal is not None:
+            moved = np.flatnonzero(has_normal)
+            if len(moved):
+                geometry_kernels.reframe(moved.astype(np.int64), normal_out,
+                                         np.ascontiguousarray(dirs, np.float32), g.ng, g.cos_o_geo,
+                                         ps.specular[mat], g.ns, g.tangent, g.bitangent, g.wo, g.n_view)
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""

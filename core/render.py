@@ -22,6 +22,7 @@ import numpy as np
 
 from .accel import Accelerator
 from .camera import camera_rays
+from .shading.vector_context import camera_differentials
 from .film import TileFilm
 from .filters import PixelFilter
 from .integrator import DIM_FILM, DIM_LENS, DenoisingFeatures, FirstHit, PathStats, PathTracer, PreparedScene
@@ -523,22 +524,28 @@ class _TileRender:
         offsets = self.pixel_filter.sample(self.sampler.get_2d(pixel_id, smp, DIM_FILM))
         camera = self.scene.camera
         lens_u = self.sampler.get_2d(pixel_id, smp, DIM_LENS) if camera.aperture_radius() > 0 else None
-        rays = camera_rays(camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1], lens_u)
+        raster_x, raster_y = px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1]
+        rays = camera_rays(camera, raster_x, raster_y, lens_u)
+        differentials = (None, None)
+        if self.prepared.shading is not None and self.prepared.shading.needs_differentials:  # Bump nodes
+            differentials = camera_differentials(camera, raster_x, raster_y, rays, lens_u)
         if self.camera_offset is not None:  # prepared for another camera position (render(prepared=...))
             rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
         if rays.alive is not None:  # a panoramic camera's dead rays: nothing traced, nothing added
-            return self._trace_alive(tracer, pixel_id, smp, rays)
+            return self._trace_alive(tracer, pixel_id, smp, rays, differentials)
         return tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
-                            rays.t_start, self.settings.aovs, self.settings.denoising_features)
+                            rays.t_start, self.settings.aovs, self.settings.denoising_features, *differentials)
 
-    def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays):
+    def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays, differentials=(None, None)):
         """Trace only the rays that are alive; dead ones get radiance 0, no transparency and no first hit."""
         live = np.flatnonzero(rays.alive)
         n = len(rays.alive)
+        dp, dd = (None if a is None else a[live] for a in differentials)
         radiance_l, first_l, transparent_l = tracer.trace(
             pixel_id[live], smp[live], rays.origins[live], rays.directions[live], rays.tmax[live],
-            rays.depth_scale[live], rays.t_start[live], self.settings.aovs, self.settings.denoising_features)
+            rays.depth_scale[live], rays.t_start[live], self.settings.aovs, self.settings.denoising_features,
+            dp, dd)
         radiance = np.zeros((n, 3), np.float32)
         radiance[live] = radiance_l
         transparent = None

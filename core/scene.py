@@ -216,6 +216,10 @@ class Mesh:
       default); Blender objects default to 0.1 and the add-on exports their value.
     uv_layers: optional {name: (T, 3, 2)} every UV map of the mesh by name (UV Map nodes naming a map read
       these through `Scene.uv_layer_names`; a mesh without the named map reads (0, 0), as Blender does).
+    tangent_layers: optional {name: (T, 3, 4)} per corner the MikkTSpace tangent of a UV map (world space, xyz)
+      and the bitangent sign (w, +-1), for Normal Map nodes in tangent space (`Scene.tangent_layer_names`;
+      the name "" is the active render UV map). A mesh without the named layer renders the unperturbed normal
+      there, as Cycles.
     """
 
     name: str
@@ -232,6 +236,7 @@ class Mesh:
     visible_transmission: bool = True
     shadow_terminator_offset: float = 0.0
     uv_layers: dict | None = None
+    tangent_layers: dict | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -309,6 +314,13 @@ class Mesh:
                 raise SceneError(f"{owner}: UV map {lname!r} must have shape (T, 3, 2) = ({n_tri}, 3, 2), got "
                                  f"{luv.shape}")
             layers[lname] = np.nan_to_num(luv, nan=0.0, posinf=0.0, neginf=0.0)
+        tangents = {}
+        for lname, lt in (self.tangent_layers or {}).items():
+            lt = np.asarray(lt, dtype=np.float32)
+            if lt.shape != (n_tri, 3, 4):
+                raise SceneError(f"{owner}: tangent layer {lname!r} must have shape (T, 3, 4) = ({n_tri}, 3, 4), "
+                                 f"got {lt.shape}")
+            tangents[lname] = np.nan_to_num(lt, nan=0.0, posinf=0.0, neginf=0.0)
         if uvs is not None and not np.all(np.isfinite(uvs)):
             warnings.append(f"{owner}: non-finite UVs replaced by 0")
             uvs = np.nan_to_num(uvs, nan=0.0, posinf=0.0, neginf=0.0)
@@ -324,6 +336,7 @@ class Mesh:
             uvs = None if uvs is None else uvs[keep]
             objs = None if objs is None else objs[keep]
             layers = {lname: luv[keep] for lname, luv in layers.items()}
+            tangents = {lname: lt[keep] for lname, lt in tangents.items()}
         # Non-finite vertices that no kept triangle uses are harmless; replace them so later arithmetic is clean.
         if not np.all(np.isfinite(v)):
             v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
@@ -331,6 +344,7 @@ class Mesh:
         self.normals, self.uvs = normals, uvs
         self.object_index = None if objs is None else objs.astype(np.int32)
         self.uv_layers = layers or None
+        self.tangent_layers = tangents or None
 
 
 # ------------------------------------------------------------------------------------------------------ lights
@@ -648,6 +662,7 @@ class Scene:
     objects: np.ndarray | None = None  # (O, core.shading.program.OBJECT_COLUMNS) float32 rows, see Mesh.object_index
     film: Film = field(default_factory=Film)
     uv_layer_names: list[str] = field(default_factory=list)  # the UV maps node programs name (uv_layer operand)
+    tangent_layer_names: list[str] = field(default_factory=list)  # Mesh.tangent_layers normal_map ops name ("" active)
 
     @property
     def has_alpha(self) -> bool:

@@ -20,6 +20,7 @@ from .film import export_film
 from .light import export_light
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
+from .nodes.vector_rules import tangent_uv_maps
 from .world import export_world
 
 GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "META"}
@@ -89,7 +90,7 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     proto = prototypes.get(key)
     if proto is not None:
         return key if proto.local is not None else None
-    local = _read_geometry(obj, warnings)
+    local = _read_geometry(obj, warnings, tangent_uv_maps(slots))
     if local is None or local.triangle_count == 0:
         prototypes[key] = _Prototype(None, np.zeros(0, np.int32), original.name)
         return None
@@ -178,16 +179,16 @@ def _terminator_offset(obj) -> float:
     return float(getattr(obj, "shadow_terminator_geometry_offset", 0.1))
 
 
-def _read_geometry(obj, warnings: list[str]) -> LocalMesh | None:
+def _read_geometry(obj, warnings: list[str], tangent_maps=()) -> LocalMesh | None:
     if obj.type == "MESH":
-        return read_mesh(obj.data, obj.name)
+        return read_mesh(obj.data, obj.name, tangent_maps, warnings)
     try:
         mesh = obj.to_mesh()
     except RuntimeError as exc:
         warnings.append(f"object {obj.name!r} ({obj.type.lower()}) could not be converted to a mesh: {exc}")
         return None
     try:
-        return None if mesh is None else read_mesh(mesh, obj.name)
+        return None if mesh is None else read_mesh(mesh, obj.name, tangent_maps, warnings)
     finally:
         obj.to_mesh_clear()
 
@@ -282,7 +283,7 @@ def export_scene(
     out = Scene(camera=camera, meshes=meshes, materials=materials.materials, lights=lights, world=world,
                 textures=materials.textures, name=scene.name, warnings=warnings, film=export_film(scene),
                 objects=np.concatenate(object_rows).astype(np.float32) if object_rows else None,
-                uv_layer_names=list(materials.uv_names))
+                uv_layer_names=list(materials.uv_names), tangent_layer_names=list(materials.tangent_names))
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "
                          "metaballs); check the objects' render visibility and the view layer's collections")

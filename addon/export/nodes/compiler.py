@@ -22,7 +22,7 @@ from ....core.shading.program import N_BIND, WIDTH, ShadingProgram
 MAX_DEPTH = 64
 FLOAT, VECTOR, RGBA = "FLOAT", "VECTOR", "RGBA"
 # Opcodes that read the shading context (or the -1 "context default" of an "in?" operand): never folded.
-CONTEXT_OPS = {"texture_coordinate", "geometry", "object_info", "fresnel", "layer_weight"}
+CONTEXT_OPS = {"texture_coordinate", "geometry", "object_info", "fresnel", "layer_weight", "normal_map", "bump"}
 
 
 def socket_kind(sock) -> str:
@@ -60,6 +60,11 @@ class ProgramBuilder:
     material_pass_index: int = 0
     active_uv_names: tuple = ()
     uv_layer_index: object = None  # callable(name) -> index into Scene.uv_layer_names
+    tangent_layer_index: object = None  # callable(UV map name, "" = active) -> index into Scene.tangent_layer_names
+    # Inside a Bump node's Height subgraph copy: 1 / 2 = evaluated at the point shifted by dP.dx / dP.dy times the
+    # filter width (register bump_width); the shading-context ops read it through their bump operands.
+    bump: int = 0
+    bump_width: int = -1
     registers: list = field(default_factory=list)  # initial values, (3,) float32 each
     varying: list = field(default_factory=list)  # per register: computed per point
     code: list = field(default_factory=list)
@@ -103,7 +108,13 @@ class ProgramBuilder:
         inst[0] = spec.code
         outs: dict = {}
         reads_context = varying or opname in CONTEXT_OPS
+        if self.bump and any(name == "bump" for name, _ in spec.operands):
+            ops.setdefault("bump", self.bump)
+            ops.setdefault("bump_width", self.bump_width)
         for i, (name, kind) in enumerate(spec.operands):
+            if name == "bump_width":  # a parameter of the bump copy, not a reason to evaluate per point
+                inst[i + 1] = int(ops.get(name, -1))
+                continue
             if kind in ("out", "out?"):
                 want = kind == "out" or bool(ops.get(name))
                 outs[name] = self._new(np.zeros(3), True) if want else -1
@@ -271,7 +282,7 @@ class ProgramBuilder:
         """(register, kind) of output socket `out` of a real node, compiling the node once per context."""
         from .registry import RULES
 
-        key = (ctx.key(), node.as_pointer())
+        key = (ctx.key(), node.as_pointer(), self.bump, self.bump_width)
         done = self._outputs.get(key)
         if done is None:
             rule = RULES.get(node.bl_idname)
@@ -300,11 +311,13 @@ class ProgramBuilder:
         return self.const(default_value(out)), socket_kind(out)
 
     # ----------------------------------------------------------------------------------------- finishing
-    def finish(self, lobes_bind: np.ndarray, emission: int) -> ShadingProgram:
+    def finish(self, lobes_bind: np.ndarray, emission: int, normal: int = -1) -> ShadingProgram:
         """The program computing the bound registers: dead instructions removed, registers renumbered."""
         needed = {int(r) for r in lobes_bind.reshape(-1) if r >= 0}
         if emission >= 0:
             needed.add(emission)
+        if normal >= 0:
+            needed.add(normal)
         keep = []
         for inst in reversed(self.code):
             spec = R.OPS[inst[0]]
@@ -329,7 +342,24 @@ class ProgramBuilder:
         bind = np.vectorize(lambda r: renum[int(r)] if r >= 0 else -1, otypes=[np.int32])(lobes_bind) \
             if lobes_bind.size else lobes_bind.astype(np.int32)
         return ShadingProgram(np.asarray(code, np.int32).reshape(-1, WIDTH), regs, bind.reshape(-1, N_BIND),
-                              renum[emission] if emission >= 0 else -1, np.asarray(self.data, np.float32))
+                              renum[emission] if emission >= 0 else -1, np.asarray(self.data, np.float32),
+                              renum[normal] if normal >= 0 else -1)
+
+    def bump_copy(self, which: int, width: int):
+        """Context manager: compile inside it as the Bump node's Height copy `which` (1: dP.dx, 2: dP.dy) with
+        filter width register `width`."""
+        from contextlib import contextmanager
+
+        @contextmanager
+        def scope():
+            saved = (self.bump, self.bump_width)
+            self.bump, self.bump_width = which, width
+            try:
+                yield
+            finally:
+                self.bump, self.bump_width = saved
+
+        return scope()
 
 
 def _socket_by_identifier(sockets, identifier: str):
