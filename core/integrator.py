@@ -602,9 +602,10 @@ class PathTracer:
                 throughput /= q[rows][:, None]
             mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
+            bumped = None  # (rows of g whose program set the normal, their smooth normals)
             if ps.shading is not None:
-                self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]),
-                            dp=None if hit_dp is None else hit_dp[rows])
+                bumped = self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]),
+                                     dp=None if hit_dp is None else hit_dp[rows])
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
 
@@ -613,12 +614,14 @@ class PathTracer:
                 bary = None
                 if ps.terminator_offset is not None:  # the shadow terminator lift needs the hits' triangles
                     bary = (prim[rows], hits.u[rows], hits.v[rows])
-                self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary)
+                self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, bumped)
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
             u_dir, u_lobe = np.ascontiguousarray(u_vertex[:, :2]), np.ascontiguousarray(u_vertex[:, 2])
             bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir, back=g.cos_o_geo < 0)
+            if bumped is not None:
+                self._bump_shadowing_sampled(bs, lobes, g, bumped)
             if ps.alpha:  # idx is unique among live paths: the flag of each sample that goes on
                 clear[idx] &= np.asarray(bs.transmitted, bool) & ps.keeps_transparent[mat]
             if bounce_kind is not None:
@@ -751,6 +754,66 @@ class PathTracer:
                 geometry_kernels.reframe(moved.astype(np.int64), normal_out,
                                          np.ascontiguousarray(dirs, np.float32), g.ng, g.cos_o_geo,
                                          ps.specular[mat], g.ns, g.tangent, g.bitangent, g.wo, g.n_view)
+                return moved, n[moved].astype(np.float32)
+        return None
+
+    # Cycles' bump shadowing (closure/bsdf.h, with the material's default Bump Map Correction): where a closure's
+    # normal N differs from the smooth normal Ns, directions on opposite sides of the two are rejected
+    # (cos(Ns, wi) cos(Ns, N) cos(N, wi) < 0: every lobe when evaluated, diffuse lobes when sampled) and diffuse
+    # lobes are softened towards grazing light by a GGX shadowing factor of the normals' deviation.
+    @staticmethod
+    def _bump_terms(n: np.ndarray, ns: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(diffuse softening factor, rejected) per row for bumped normals n, smooth normals ns, directions wi."""
+        cos_si = np.einsum("ij,ij->i", ns, wi).astype(np.float64)
+        cos_sn = np.einsum("ij,ij->i", ns, n).astype(np.float64)
+        cos_ni = np.einsum("ij,ij->i", n, wi).astype(np.float64)
+        reject = cos_si * cos_sn * cos_ni < 0
+        cos_i, cos_d = np.abs(cos_si), np.minimum(np.abs(cos_sn), 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tan2_d = 1.0 / np.maximum(cos_d * cos_d, 1e-30) - 1.0
+            alpha2 = np.clip(0.125 * tan2_d, 0.0, 1.0)
+            tan2_i = 1.0 / np.maximum(cos_i * cos_i, 1e-30) - 1.0
+            g1 = 2.0 / (1.0 + np.sqrt(1.0 + alpha2 * tan2_i))
+        g1 = np.where((cos_d >= 1.0) | (cos_i >= 1.0), 1.0, np.where(cos_i < 1e-6, 0.0, g1))
+        return g1, reject
+
+    @staticmethod
+    def _diffuse_only(lobes: "bsdf_mod.LobeBatch", rows: np.ndarray) -> "bsdf_mod.LobeBatch":
+        part = lobes.take(rows)
+        part.weight = np.where((part.kind == bsdf_mod.KIND_CODE["diffuse"])[..., None], part.weight,
+                               np.float32(0)).astype(np.float32)
+        return part
+
+    def _bump_shadowing_eval(self, f_cos, lobes, can, gc, wi_local, wi, bumped, n_paths) -> np.ndarray:
+        """f cos of next-event light samples with the bump shadowing applied at bumped points."""
+        where = np.full(n_paths, -1, np.int64)
+        where[bumped[0]] = np.arange(len(bumped[0]))
+        sel = np.flatnonzero(where[can] >= 0)
+        if len(sel) == 0:
+            return f_cos
+        ns = bumped[1][where[can[sel]]]
+        g1, reject = self._bump_terms(gc.n_view[sel], ns, wi[sel])
+        f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, can[sel]), gc.wo[sel], wi_local[sel],
+                                    back=gc.cos_o_geo[sel] < 0)
+        adjusted = f_cos[sel] - ((1.0 - g1)[:, None] * f_d).astype(np.float32)
+        adjusted[reject] = 0.0
+        f_cos = f_cos.copy()
+        f_cos[sel] = np.maximum(adjusted, 0.0)
+        return f_cos
+
+    def _bump_shadowing_sampled(self, bs, lobes, g, bumped) -> None:
+        """The BSDF samples' weights (f cos / pdf) at bumped points with the diffuse lobes' bump shadowing."""
+        rows = bumped[0]
+        ok = np.flatnonzero(np.asarray(bs.valid, bool)[rows] & ~np.asarray(bs.delta, bool)[rows])
+        if len(ok) == 0:
+            return
+        r = rows[ok]
+        wl = np.asarray(bs.wi, np.float32)[r]
+        wi = (g.tangent[r] * wl[:, :1] + g.bitangent[r] * wl[:, 1:2] + g.ns[r] * wl[:, 2:3]).astype(np.float32)
+        g1, reject = self._bump_terms(g.n_view[r], bumped[1][ok], wi)
+        f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, r), g.wo[r], wl, back=g.cos_o_geo[r] < 0)
+        loss = np.where(reject, 1.0, 1.0 - g1)[:, None] * f_d / np.maximum(np.asarray(bs.pdf, np.float32)[r], 1e-30)[:, None]
+        bs.weight[r] = np.maximum(bs.weight[r] - loss.astype(np.float32), 0.0)
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""
@@ -759,7 +822,7 @@ class PathTracer:
         return now
 
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
-                    bary=None) -> None:
+                    bary=None, bumped=None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
         u, v) of each path's hit when some mesh has a shadow terminator offset, else None."""
         ps = self.ps
@@ -776,6 +839,8 @@ class PathTracer:
         wi_local = np.empty((m, 3), np.float32)
         geometry_kernels.to_local(wi, gc.tangent, gc.bitangent, gc.ns, wi_local)
         f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes, gc.wo, wi_local, rows=can, back=gc.cos_o_geo < 0)
+        if bumped is not None:
+            f_cos = self._bump_shadowing_eval(f_cos, lobes, can, gc, wi_local, wi, bumped, len(idx))
         contrib, origin, direction = (np.empty((m, 3), np.float32) for _ in range(3))
         tmax, sample_of = np.empty(m, np.float32), np.empty(m, idx.dtype)
         count = path_kernels.shadow_rays(can, np.ascontiguousarray(throughput, np.float32), idx,

@@ -175,9 +175,11 @@ def lit_scene(size=(48, 48)):
     return scene
 
 
-@pytest.mark.slow
 def test_lit_normal_mapped_floor_and_bumped_sphere_match_cycles(tmp_path):
-    """Means of the lit scene (the image, and its floor-only bottom rows) within 1 % of Cycles at 128 spp."""
+    """The lit scene at 128 spp: the image mean within 1 % of Cycles, the band of rows through the bumped sphere
+    within 1.5 % and the side columns (normal-mapped floor) within 1 %. Measured: +0.35 % (image), +0.57 %
+    (sphere band), +0.07 % (floor); without Cycles' bump shadowing (Monte before it) the image was +1.5 %, the
+    sphere band +2.3 %. Monte's image means over seeds spread by ~0.1 %."""
     from monte.addon import crosscheck as cc
 
     scene = lit_scene()
@@ -187,8 +189,11 @@ def test_lit_normal_mapped_floor_and_bumped_sphere_match_cycles(tmp_path):
     m.samples, m.max_bounces, m.seed, m.threads = 128, 8, 1, 2
     mon = cc.render_monte(scene)[0]
     rel = mon.mean(axis=(0, 1)) / cyc.mean(axis=(0, 1)) - 1
-    rel_floor = mon[-8:].mean(axis=(0, 1)) / cyc[-8:].mean(axis=(0, 1)) - 1
-    print(f"\nlit vector nodes: Cycles {np.round(cyc.mean(axis=(0, 1)), 4)} Monte {np.round(mon.mean(axis=(0, 1)), 4)} "
-          f"rel {np.round(rel, 4)}, floor rows rel {np.round(rel_floor, 4)}")
+    band = mon[16:32].mean() / cyc[16:32].mean() - 1
+    sides = np.r_[mon[:, :12].ravel(), mon[:, 36:].ravel()].mean() / \
+        np.r_[cyc[:, :12].ravel(), cyc[:, 36:].ravel()].mean() - 1
+    print(f"\nlit vector nodes: Cycles {np.round(cyc.mean(axis=(0, 1)), 4)} Monte "
+          f"{np.round(mon.mean(axis=(0, 1)), 4)} rel {np.round(rel, 4)}, sphere band {band:+.4f}, floor {sides:+.4f}")
+    assert cyc[16:32, 16:32].mean() > 1.5 * cyc[:, :4].mean()  # the lit sphere stands out
     assert np.all(np.abs(rel) < 0.01)
-    assert np.all(np.abs(rel_floor) < 0.02)
+    assert abs(band) < 0.015 and abs(sides) < 0.01
