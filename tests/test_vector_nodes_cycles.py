@@ -197,3 +197,60 @@ def test_lit_normal_mapped_floor_and_bumped_sphere_match_cycles(tmp_path):
     assert cyc[16:32, 16:32].mean() > 1.5 * cyc[:, :4].mean()  # the lit sphere stands out
     assert np.all(np.abs(rel) < 0.01)
     assert abs(band) < 0.015 and abs(sides) < 0.01
+
+
+def _normal_mapped_plane(scale=(1.0, 1.0, 1.0)):
+    import blender_fixtures as bf
+
+    scene = bf.reset()
+    mat = bf.node_material("nm", "ShaderNodeBsdfDiffuse")
+    tree = mat.node_tree
+    nm = tree.nodes.new("ShaderNodeNormalMap")
+    nm.inputs["Color"].default_value = (0.7, 0.5, 1.0, 1.0)
+    _link(tree, nm.outputs[0], tree.nodes["Diffuse BSDF"], "Normal")
+    ob = bf.mesh_object("plane", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], [(0, 1, 2, 3)], mat)
+    ob.data.uv_layers.new(name="UVMap").data.foreach_set("uv", [0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 1.0])
+    ob.rotation_euler = (0.0, 0.0, 0.5)
+    ob.scale = scale
+    bf.camera_object(scene, (0, 0, 3), (0, 0, 0))
+    return scene
+
+
+@pytest.mark.parametrize("mirrored", [False, True])
+def test_export_carries_world_space_mikktspace_tangents(mirrored):
+    """The plane's UV u runs along its object x: the exported tangent is that axis in world space (rotated by
+    0.5 rad about z), sign +1; a mirroring instance (scale x = -1) flips the tangent with x and negates the sign,
+    so that sign x (n x t) still gives the world direction of v."""
+    from monte.addon.export import export_scene
+
+    scene = _normal_mapped_plane((-1.0, 1.0, 1.0) if mirrored else (1.0, 1.0, 1.0))
+    core, _ = export_scene(bpy.context.evaluated_depsgraph_get())
+    assert core.tangent_layer_names == [""] and core.warnings == []
+    (mesh,) = core.meshes
+    t = mesh.tangent_layers[""].reshape(-1, 4)
+    x_axis = np.array([np.cos(0.5), np.sin(0.5), 0.0])
+    y_axis = np.array([-np.sin(0.5), np.cos(0.5), 0.0])
+    assert np.allclose(t[:, :3], -x_axis if mirrored else x_axis, atol=1e-5)
+    assert np.allclose(t[:, 3], -1.0 if mirrored else 1.0)
+    # the bitangent the normal map builds (sign n x t, n the exported face normal) is the world direction of v
+    v0, v1, v2 = (mesh.vertices[i] for i in mesh.triangles[0])
+    n = np.cross(v1 - v0, v2 - v0)
+    n /= np.linalg.norm(n)
+    assert np.allclose(t[0, 3] * np.cross(n, t[0, :3]), y_axis, atol=1e-5)
+
+
+def test_bsdfs_with_different_normals_warn_and_share_the_first():
+    from monte.addon.export import export_scene
+
+    scene = _normal_mapped_plane()
+    mat = bpy.data.materials["nm"]
+    tree = mat.node_tree
+    glossy = tree.nodes.new("ShaderNodeBsdfGlossy")
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    _link(tree, tree.nodes["Diffuse BSDF"].outputs[0], mix, 1)
+    _link(tree, glossy.outputs[0], mix, 2)
+    tree.links.new(mix.outputs[0], tree.nodes["Material Output"].inputs["Surface"])
+    core, _ = export_scene(bpy.context.evaluated_depsgraph_get())
+    assert core.warnings == ["material 'nm': node 'Glossy BSDF' (Glossy BSDF): its Normal input is unlinked; Monte "
+                             "shades all BSDFs of a material with one normal, that of 'Diffuse BSDF'"]
+    assert core.materials[0].program.normal >= 0
