@@ -213,7 +213,7 @@ def export_scene(
         camera_object = camera_object.evaluated_get(depsgraph)
     camera = export_camera(camera_object, scene, warnings)
 
-    materials = MaterialExporter(warnings)
+    materials = MaterialExporter(warnings, None if camera is None else camera.matrix_world)
     prototypes: dict[tuple, _Prototype] = {}
     # (object pointer, data pointer) -> prototype key or None (skip). Blender reuses one temporary object
     # for many geometry-node instances, so this keeps the per-instance work to a few attribute reads.

@@ -152,8 +152,9 @@ class MaterialExporter:
     parameter and the emission fold to constants the material is plain constant lobes (rendered as before, at no
     per-point cost); otherwise it carries a core.shading ShadingProgram that drives them per shading point."""
 
-    def __init__(self, warnings: list[str]) -> None:
+    def __init__(self, warnings: list[str], camera_matrix=None) -> None:
         self.warnings = warnings
+        self.camera_matrix = camera_matrix  # the render camera's matrix_world (Vector Transform's camera space)
         self.materials: list[Material] = []
         self.textures: list[Texture] = []
         self.textured: set[int] = set()  # material indices that read UVs (image textures, UV coordinates)
@@ -218,7 +219,8 @@ class MaterialExporter:
                                  lambda node, alpha_used: self._image_texture(node, owner, alpha_used),
                                  material_pass_index=int(getattr(material, "pass_index", 0)),
                                  uv_layer_index=self._uv_layer_index,
-                                 tangent_layer_index=self._tangent_layer_index)
+                                 tangent_layer_index=self._tangent_layer_index,
+                                 camera_matrix=self.camera_matrix)
         try:
             lobes, bind, emission, holdout, normal = compile_surface(builder, output)
         except (UnsupportedShader, CompileError) as exc:

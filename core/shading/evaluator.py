@@ -44,7 +44,7 @@ _SEPXYZ, _COMBXYZ, _MAPPING, _MIX = R.OP_SEPARATE_XYZ, R.OP_COMBINE_XYZ, R.OP_MA
 _FRESNEL, _LAYER = R.OP_FRESNEL, R.OP_LAYER_WEIGHT
 _TEXCO, _GEOM, _OBJINFO, _IMAGE = R.OP_TEXCOORD, R.OP_GEOMETRY, R.OP_OBJECT_INFO, R.OP_IMAGE
 _UVLAYER = R.OP_UV_LAYER
-_NORMAL_MAP, _BUMP_OP = R.OP_NORMAL_MAP, R.OP_BUMP
+_NORMAL_MAP, _BUMP_OP, _VTRANSFORM = R.OP_NORMAL_MAP, R.OP_BUMP, R.OP_VECTOR_TRANSFORM
 _SPEC, _GLASSF0, _SQRTSAT, _OMS = R.OP_SPECULAR_LAYER, R.OP_GLASS_F0, R.OP_SQRT_SATURATE, R.OP_ONE_MINUS_SATURATE
 _COLOR_BASE, _PROC_BASE = R.COLOR_BASE, R.PROCEDURAL_BASE
 _SINGULAR = np.float32(mf.SINGULAR_ROUGHNESS)
@@ -544,6 +544,60 @@ def _bump(a, regs, k, N, dP):
     set3(regs, a[1], ox, oy, oz)
 
 
+@_jit
+def _affine(m, off, x, y, z, point):
+    """Rows off..off+11 of m (a 3 x 4 row-major transform) applied to a point (point) or a direction."""
+    w = 1.0 if point else 0.0
+    return (m[off] * x + m[off + 1] * y + m[off + 2] * z + m[off + 3] * w,
+            m[off + 4] * x + m[off + 5] * y + m[off + 6] * z + m[off + 7] * w,
+            m[off + 8] * x + m[off + 9] * y + m[off + 10] * z + m[off + 11] * w)
+
+
+@_jit
+def _object_forward(m, x, y, z, point):
+    """Object -> world for the object row m: the inverse of its world -> object transform (OBJECT_INVERSE)."""
+    a, b, c = m[OBJECT_INVERSE + 0], m[OBJECT_INVERSE + 1], m[OBJECT_INVERSE + 2]
+    d, e, f = m[OBJECT_INVERSE + 4], m[OBJECT_INVERSE + 5], m[OBJECT_INVERSE + 6]
+    g, h, i = m[OBJECT_INVERSE + 8], m[OBJECT_INVERSE + 9], m[OBJECT_INVERSE + 10]
+    if point:
+        x, y, z = x - m[OBJECT_INVERSE + 3], y - m[OBJECT_INVERSE + 7], z - m[OBJECT_INVERSE + 11]
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if det == 0.0:
+        return x, y, z
+    r = 1.0 / det
+    return ((e * i - f * h) * r * x + (c * h - b * i) * r * y + (b * f - c * e) * r * z,
+            (f * g - d * i) * r * x + (a * i - c * g) * r * y + (c * d - a * f) * r * z,
+            (d * h - e * g) * r * x + (b * g - a * h) * r * y + (a * e - b * d) * r * z)
+
+
+@_jit
+def _vector_transform(a, regs, data, k, obj, objects):
+    x, y, z = get3(regs, a[2])
+    kind, src, dst, cam = a[3], a[4], a[5], a[6]
+    point = kind == 0
+    m = objects[obj[k]]
+    if src == 0:
+        if dst == 2:
+            x, y, z = _affine(data, cam, x, y, z, point)
+        elif dst == 1:
+            x, y, z = _affine(m, OBJECT_INVERSE, x, y, z, point)
+    elif src == 2:
+        if dst == 0 or dst == 1:
+            x, y, z = _affine(data, cam + 12, x, y, z, point)
+        if dst == 1:
+            x, y, z = _affine(m, OBJECT_INVERSE, x, y, z, point)
+    else:
+        if dst == 0 or dst == 2:
+            x, y, z = _object_forward(m, x, y, z, point)
+        if dst == 2:
+            x, y, z = _affine(data, cam, x, y, z, point)
+    if kind == 2:
+        ll = math.sqrt(x * x + y * y + z * z)
+        if ll > 0.0:
+            x, y, z = x / ll, y / ll, z / ll
+    set3(regs, a[1], x, y, z)
+
+
 # ------------------------------------------------------------------------------------------------- dispatch
 @_jit
 def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
@@ -698,6 +752,8 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         _normal_map(a, regs, k, N, back, obj, objects, tan, nraw)
     elif op == _BUMP_OP:
         _bump(a, regs, k, N, dP)
+    elif op == _VTRANSFORM:
+        _vector_transform(a, regs, data, k, obj, objects)
 
 
 @_jit

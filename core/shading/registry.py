@@ -184,3 +184,10 @@ OP_BUMP = register(OpSpec("bump", 61, _r("normal", kind="out") + _r("strength", 
                           "Bump node (Cycles' svm_node_set_bump): the heights at the point and shifted by the ray "
                           "differential's dP.dx / dP.dy times filter_width give the surface gradient; normal_in -1: "
                           "N")).code
+OP_VECTOR_TRANSFORM = register(OpSpec("vector_transform", 62, _r("out", kind="out") + _r("vector", kind="in")
+                                      + _r("type", "convert_from", "convert_to", kind="int")
+                                      + _r("camera", kind="data"),
+                                      "Vector Transform node (Cycles' svm_node_vector_transform): type 0 point 1 "
+                                      "vector 2 normal (a direction, normalised); spaces 0 world 1 object 2 camera; "
+                                      "camera: 24 floats in the data pool, world -> camera then camera -> world "
+                                      "(3 x 4 row-major each, Cycles' camera space: +z forward)")).code

@@ -65,6 +65,7 @@ class ProgramBuilder:
     # filter width (register bump_width); the shading-context ops read it through their bump operands.
     bump: int = 0
     bump_width: int = -1
+    camera_matrix: object = None  # the render camera's matrix_world (4 x 4), for Vector Transform's camera space
     registers: list = field(default_factory=list)  # initial values, (3,) float32 each
     varying: list = field(default_factory=list)  # per register: computed per point
     code: list = field(default_factory=list)

@@ -73,6 +73,38 @@ def _normal(c, node, ctx):
     return {"Normal": (direction, VECTOR), "Dot": (dot, FLOAT)}
 
 
+_TRANSFORM_TYPES = {"POINT": 0, "VECTOR": 1, "NORMAL": 2}
+_TRANSFORM_SPACES = {"WORLD": 0, "OBJECT": 1, "CAMERA": 2}
+
+
+def _camera_transforms(c, node) -> list[float]:
+    """World -> camera and camera -> world (3 x 4 row-major each) in Cycles' camera space (x right, y up, z
+    forward: Blender's camera axes with z negated, scale removed); identity with a warning without a camera."""
+    m = None if c.camera_matrix is None else np.asarray(c.camera_matrix, np.float64).reshape(4, 4)
+    if m is None:
+        c.warn(node, "camera space needs the render camera, which this export does not have; using world space")
+        eye = np.eye(3, 4).reshape(-1).tolist()
+        return eye + eye
+    axes = m[:3, :3] / np.maximum(np.linalg.norm(m[:3, :3], axis=0), 1e-30)
+    to_world = np.eye(4)
+    to_world[:3, :3] = axes * np.array([1.0, 1.0, -1.0])
+    to_world[:3, 3] = m[:3, 3]
+    to_camera = np.linalg.inv(to_world)
+    return to_camera[:3].reshape(-1).tolist() + to_world[:3].reshape(-1).tolist()
+
+
+@rule("ShaderNodeVectorTransform", "Vector Transform", "vector", inputs=("Vector",), outputs=("Vector",),
+      notes="Point, Vector, Normal between World, Object and Camera (Cycles' camera space: +z forward); a Normal "
+            "is transformed as a direction and normalised, as Cycles. Camera space in the viewport: world space "
+            "(warning).")
+def _vector_transform(c, node, ctx):
+    cam = c.add_data(_camera_transforms(c, node)) if "CAMERA" in (node.convert_from, node.convert_to) else 0
+    out = c.emit("vector_transform", vector=c.input(node, "Vector", VECTOR, ctx),
+                 type=_TRANSFORM_TYPES.get(node.vector_type, 0), convert_from=_TRANSFORM_SPACES[node.convert_from],
+                 convert_to=_TRANSFORM_SPACES[node.convert_to], camera=cam, varying=node.convert_from != node.convert_to)
+    return {"Vector": (out["out"], VECTOR)}
+
+
 def tangent_uv_maps(materials) -> set[str]:
     """The UV map names ("" = the active render map) whose tangents the tangent-space Normal Map nodes of these
     materials (node groups included) read: what the mesh export computes MikkTSpace tangents for."""
