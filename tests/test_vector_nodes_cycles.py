@@ -198,6 +198,7 @@ def lit_scene(size=(48, 48)):
     return scene
 
 
+@pytest.mark.slow  # ~25 s with compiled kernels: over the default suite's budget for this file
 def test_lit_normal_mapped_floor_and_bumped_sphere_match_cycles(tmp_path):
     """The lit scene at 128 spp: the image mean within 1 % of Cycles, the band of rows through the bumped sphere
     within 1.5 % and the side columns (normal-mapped floor) within 1 %. Measured: +0.35 % (image), +0.57 %
