@@ -1,4 +1,4 @@
-"""Normal Map, Bump and Vector Transform against Cycles: per pixel on the emission plane (tests/shading_crosscheck.py: the node's
+"""Normal Map, Bump, Vector Transform and Tangent against Cycles: per pixel on the emission plane (tests/shading_crosscheck.py: the node's
 output normal, mapped to 0.5 n + 0.5, is the Emission colour), and a lit scene whose BSDFs use the normals.
 
 The emission-plane images are the nodes' values at the pixel centres in both engines (see
@@ -129,6 +129,18 @@ def vector_transform(kind: str, src: str, dst: str):
     return build
 
 
+def tangent(direction: str, axis: str = "Z"):
+    """The Tangent node (radial about an axis, or the UV map's), or the Geometry node's Tangent for "GEOMETRY"."""
+    def build(tree, nodes):
+        if direction == "GEOMETRY":
+            return _as_colour(tree, nodes, nodes["Geometry"].outputs["Tangent"])
+        t = nodes.new("ShaderNodeTangent")
+        t.direction_type = direction
+        t.axis = axis
+        return _as_colour(tree, nodes, t.outputs["Tangent"])
+    return build
+
+
 CASES = {
     "bump-chained": (chained_bumps, 1e-2),
     "normal-map-tangent": (normal_map("TANGENT"), 3e-3),
@@ -139,6 +151,11 @@ CASES = {
     "vector-transform-normal-world-object": (vector_transform("NORMAL", "WORLD", "OBJECT"), 5e-3),
     "vector-transform-vector-camera-world": (vector_transform("VECTOR", "CAMERA", "WORLD"), 5e-3),
     "vector-transform-point-camera-object": (vector_transform("POINT", "CAMERA", "OBJECT"), 5e-3),
+    # radial about Z (about X or Y the flat plane's radial direction is its normal: degenerate in Cycles too); the
+    # tangent turns quickly around the texture space's centre, where a pixel's jitter moves it most
+    "tangent-radial-z": (tangent("RADIAL", "Z"), 1e-2),
+    "tangent-uv-map": (tangent("UV_MAP"), 5e-3),
+    "geometry-tangent": (tangent("GEOMETRY"), 1e-2),
 }
 
 

@@ -44,7 +44,7 @@ _SEPXYZ, _COMBXYZ, _MAPPING, _MIX = R.OP_SEPARATE_XYZ, R.OP_COMBINE_XYZ, R.OP_MA
 _FRESNEL, _LAYER = R.OP_FRESNEL, R.OP_LAYER_WEIGHT
 _TEXCO, _GEOM, _OBJINFO, _IMAGE = R.OP_TEXCOORD, R.OP_GEOMETRY, R.OP_OBJECT_INFO, R.OP_IMAGE
 _UVLAYER = R.OP_UV_LAYER
-_NORMAL_MAP, _BUMP_OP, _VTRANSFORM = R.OP_NORMAL_MAP, R.OP_BUMP, R.OP_VECTOR_TRANSFORM
+_NORMAL_MAP, _BUMP_OP, _VTRANSFORM, _TANGENT = R.OP_NORMAL_MAP, R.OP_BUMP, R.OP_VECTOR_TRANSFORM, R.OP_TANGENT
 _SPEC, _GLASSF0, _SQRTSAT, _OMS = R.OP_SPECULAR_LAYER, R.OP_GLASS_F0, R.OP_SQRT_SATURATE, R.OP_ONE_MINUS_SATURATE
 _COLOR_BASE, _PROC_BASE = R.COLOR_BASE, R.PROCEDURAL_BASE
 _SINGULAR = np.float32(mf.SINGULAR_ROUGHNESS)
@@ -545,6 +545,37 @@ def _bump(a, regs, k, N, dP):
 
 
 @_jit
+def _tangent(a, regs, k, N, obj, objects, tan):
+    """Cycles' tangent: a UV map's tangent or the radial tangent of the generated coordinates (object -> world
+    as a normal, normalised), then cross(N, normalize(cross(t, N)))."""
+    layer = a[4]
+    if layer >= 0:
+        tx = ty = tz = 0.0
+        if layer < tan.shape[1]:
+            tx, ty, tz = float(tan[k, layer, 0]), float(tan[k, layer, 1]), float(tan[k, layer, 2])
+        if tx == 0.0 and ty == 0.0 and tz == 0.0:
+            set3(regs, a[1], 0.0, 0.0, 0.0)
+            return
+    else:
+        gx, gy, gz = get3(regs, a[2])
+        axis = a[3]
+        if axis == 0:
+            dx, dy, dz = 0.0, -(gz - 0.5), gy - 0.5
+        elif axis == 1:
+            dx, dy, dz = -(gz - 0.5), 0.0, gx - 0.5
+        else:
+            dx, dy, dz = -(gy - 0.5), gx - 0.5, 0.0
+        m = objects[obj[k]]
+        tx = m[OBJECT_INVERSE + 0] * dx + m[OBJECT_INVERSE + 4] * dy + m[OBJECT_INVERSE + 8] * dz
+        ty = m[OBJECT_INVERSE + 1] * dx + m[OBJECT_INVERSE + 5] * dy + m[OBJECT_INVERSE + 9] * dz
+        tz = m[OBJECT_INVERSE + 2] * dx + m[OBJECT_INVERSE + 6] * dy + m[OBJECT_INVERSE + 10] * dz
+        tx, ty, tz = _normalize3(tx, ty, tz)
+    nx, ny, nz = float(N[k, 0]), float(N[k, 1]), float(N[k, 2])
+    cx, cy, cz = _normalize3(ty * nz - tz * ny, tz * nx - tx * nz, tx * ny - ty * nx)
+    set3(regs, a[1], ny * cz - nz * cy, nz * cx - nx * cz, nx * cy - ny * cx)
+
+
+@_jit
 def _affine(m, off, x, y, z, point):
     """Rows off..off+11 of m (a 3 x 4 row-major transform) applied to a point (point) or a direction."""
     w = 1.0 if point else 0.0
@@ -754,6 +785,8 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         _bump(a, regs, k, N, dP)
     elif op == _VTRANSFORM:
         _vector_transform(a, regs, data, k, obj, objects)
+    elif op == _TANGENT:
+        _tangent(a, regs, k, N, obj, objects, tan)
 
 
 @_jit

@@ -191,3 +191,9 @@ OP_VECTOR_TRANSFORM = register(OpSpec("vector_transform", 62, _r("out", kind="ou
                                       "vector 2 normal (a direction, normalised); spaces 0 world 1 object 2 camera; "
                                       "camera: 24 floats in the data pool, world -> camera then camera -> world "
                                       "(3 x 4 row-major each, Cycles' camera space: +z forward)")).code
+OP_TANGENT = register(OpSpec("tangent", 63, _r("out", kind="out") + _r("generated", kind="in?")
+                             + _r("axis", "layer", kind="int"),
+                             "Tangent node / Geometry's Tangent (Cycles' svm_node_tangent, primitive_tangent): layer "
+                             ">= 0: the UV map's tangent layer (zero where a mesh lacks it); else radial about axis "
+                             "0 x 1 y 2 z of the generated coordinates, taken to world space as a normal; then made "
+                             "orthogonal to N")).code

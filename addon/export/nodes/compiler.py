@@ -22,7 +22,8 @@ from ....core.shading.program import N_BIND, WIDTH, ShadingProgram
 MAX_DEPTH = 64
 FLOAT, VECTOR, RGBA = "FLOAT", "VECTOR", "RGBA"
 # Opcodes that read the shading context (or the -1 "context default" of an "in?" operand): never folded.
-CONTEXT_OPS = {"texture_coordinate", "geometry", "object_info", "fresnel", "layer_weight", "normal_map", "bump"}
+CONTEXT_OPS = {"texture_coordinate", "geometry", "object_info", "fresnel", "layer_weight", "normal_map", "bump",
+                "tangent"}
 
 
 def socket_kind(sock) -> str:

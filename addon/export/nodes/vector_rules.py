@@ -73,6 +73,21 @@ def _normal(c, node, ctx):
     return {"Normal": (direction, VECTOR), "Dot": (dot, FLOAT)}
 
 
+@rule("ShaderNodeTangent", "Tangent", "input", outputs=("Tangent",),
+      notes="Radial (about X, Y or Z of the generated coordinates) and UV Map (the map's MikkTSpace tangents, as "
+            "Normal Map reads them; zero where a mesh lacks the map), made orthogonal to the normal, as Cycles.")
+def _tangent(c, node, ctx):
+    if node.direction_type == "UV_MAP":
+        if c.tangent_layer_index is None:
+            c.warn(node, "UV map tangents need mesh tangents, which this export does not provide; it reads 0")
+            return {"Tangent": (c.const(0.0), VECTOR)}
+        out = c.emit("tangent", layer=c.tangent_layer_index(getattr(node, "uv_map", "") or ""), axis=0)
+    else:
+        generated = c.emit("texture_coordinate", generated=True)["generated"]
+        out = c.emit("tangent", generated=generated, axis={"X": 0, "Y": 1, "Z": 2}.get(node.axis, 2), layer=-1)
+    return {"Tangent": (out["out"], VECTOR)}
+
+
 _TRANSFORM_TYPES = {"POINT": 0, "VECTOR": 1, "NORMAL": 2}
 _TRANSFORM_SPACES = {"WORLD": 0, "OBJECT": 1, "CAMERA": 2}
 
@@ -117,6 +132,8 @@ def tangent_uv_maps(materials) -> set[str]:
         seen.add(tree.as_pointer())
         for node in tree.nodes:
             if node.bl_idname == "ShaderNodeNormalMap" and node.space == "TANGENT" and not node.mute:
+                names.add(getattr(node, "uv_map", "") or "")
+            elif node.bl_idname == "ShaderNodeTangent" and node.direction_type == "UV_MAP" and not node.mute:
                 names.add(getattr(node, "uv_map", "") or "")
             elif node.bl_idname == "ShaderNodeGroup":
                 walk(node.node_tree)
