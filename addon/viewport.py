@@ -357,7 +357,8 @@ class SceneSync:
                      world=self.world, textures=list(self.materials.textures), name=name,
                      warnings=list(self.warnings), objects=np.concatenate(rows).astype(np.float32),
                      uv_layer_names=list(self.materials.uv_names),
-                     attribute_names=list(self.materials.attribute_names), **extra)
+                     attribute_names=list(self.materials.attribute_names),
+                     tangent_layer_names=list(self.materials.tangent_names), **extra)
 
 
 def scene_camera_view(depsgraph, size: tuple[int, int]) -> Camera:

@@ -137,6 +137,40 @@ def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, s
 
 
 @_jit
+def reframe(rows, normal, d, ng, cos_o_geo, correct, ns, tangent, bitangent, wo, n_view):
+    """Shading frames of the points `rows` rebuilt around a node-set shading normal (a Normal Map or Bump node
+    driving the BSDFs' Normal input): normal (N, 3) world space on the viewer's side (Cycles' closure N), d the
+    incoming ray directions, ng the face normals, cos_o_geo = -d . ng; correct (N,) bool: tilt the normal so
+    that the mirror reflection of the viewer stays above the surface (Cycles' bump-map correction, applied where
+    the material has specular lobes, as `surface` does for smooth normals). Writes ns (the normal on ng's side
+    of the viewer, Monte's "outside" convention of `surface`), the tangent frame, wo and n_view; a zero or
+    non-finite normal keeps the point's frame."""
+    for j in range(rows.shape[0]):
+        k = rows[j]
+        nx, ny, nz = normal[k, 0], normal[k, 1], normal[k, 2]
+        length = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if not (length > 0.0 and math.isfinite(length)):
+            continue
+        nx, ny, nz = nx / length, ny / length, nz / length
+        side = _F1 if cos_o_geo[k] >= _F0 else -_F1
+        ox, oy, oz = -d[k, 0], -d[k, 1], -d[k, 2]
+        if correct[k]:
+            bx, by, bz = _valid_reflection_normal(ng[k, 0] * side, ng[k, 1] * side, ng[k, 2] * side, ox, oy, oz,
+                                                  nx, ny, nz)
+            nx, ny, nz = bx, by, bz
+        vx, vy, vz = np.float32(nx), np.float32(ny), np.float32(nz)
+        n_view[k, 0], n_view[k, 1], n_view[k, 2] = vx, vy, vz
+        sx, sy, sz = vx * side, vy * side, vz * side
+        ns[k, 0], ns[k, 1], ns[k, 2] = sx, sy, sz
+        tx, ty, tz, bx2, by2, bz2 = onb_f32(sx, sy, sz)
+        tangent[k, 0], tangent[k, 1], tangent[k, 2] = tx, ty, tz
+        bitangent[k, 0], bitangent[k, 1], bitangent[k, 2] = bx2, by2, bz2
+        wo[k, 0] = ox * tx + oy * ty + oz * tz
+        wo[k, 1] = ox * bx2 + oy * by2 + oz * bz2
+        wo[k, 2] = ox * sx + oy * sy + oz * sz
+
+
+@_jit
 def to_local(w, tangent, bitangent, normal, out):
     """World directions w (N, 3) in each row's frame: out = (w . t, w . b, w . n)."""
     for k in range(w.shape[0]):

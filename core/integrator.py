@@ -32,6 +32,7 @@ from .shading import PreparedShading
 from .textured_emitters import TexturedEmitters
 from .shading.program import (ATTRIBUTE_COLUMNS, MESH_ATTRIBUTE_COLUMNS, PATH_COLUMNS, PATH_DEPTH, PATH_FLAGS,
                               PATH_LENGTH, RAY_CAMERA)
+from .shading.vector_context import vector_context
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
 # camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce.
@@ -142,6 +143,7 @@ class PreparedScene:
     attributes: np.ndarray | None = None
     # emitters whose emission a node program drives, light-sampled by their own table (core.textured_emitters)
     textured: TexturedEmitters | None = None
+    tangent_layers: np.ndarray | None = None  # (T, K, 3, 4) Scene.tangent_layer_names' tangents, or None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -188,6 +190,8 @@ class PreparedScene:
         catchers = []
         layer_names = list(scene.uv_layer_names)
         attribute_names, attrs = list(scene.attribute_names), []
+        tangent_names = list(scene.tangent_layer_names)
+        tangent_parts = []
         offset = 0
         any_smooth = any(m.normals is not None for m in scene.meshes)
         any_uv = any(m.uvs is not None for m in scene.meshes)
@@ -217,6 +221,12 @@ class PreparedScene:
                         per[:, j, :, :MESH_ATTRIBUTE_COLUMNS] = mesh.attributes[aname]
                         per[:, j, :, MESH_ATTRIBUTE_COLUMNS] = 1.0  # found
                 attrs.append(per)
+            if tangent_names:  # the tangent layers Normal Map nodes read; zeros (no tangent) where a mesh lacks one
+                per_t = np.zeros((t, len(tangent_names), 3, 4), np.float32)
+                for j, lname in enumerate(tangent_names):
+                    if mesh.tangent_layers and lname in mesh.tangent_layers:
+                        per_t[:, j] = mesh.tangent_layers[lname]
+                tangent_parts.append(per_t)
             if any_smooth:
                 normals.append(mesh.normals if mesh.normals is not None else np.zeros((t, 3, 3), np.float32))
                 smooth.append(np.full(t, mesh.normals is not None))
@@ -252,6 +262,7 @@ class PreparedScene:
         object_of_triangle = np.concatenate(objs).astype(np.int32) if objs else np.zeros(0, np.int32)
         uv_layers = np.concatenate(layers) if layers else None
         attributes = np.concatenate(attrs) if attrs else None
+        tangent_layers = np.concatenate(tangent_parts) if tangent_parts else None
         emissive = EmissiveTriangles.from_mesh_arrays(tri_vertices, material_index, materials.emission)
         if len(vertices):
             lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
@@ -291,7 +302,8 @@ class PreparedScene:
                    any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
                        for m in scene.materials for lobe in m.lobes),
                    terminator_offset=terminator_offset, uv_layers=uv_layers, catcher=catcher,
-                   shadow_clear=shadow_clear, attributes=attributes)
+                   shadow_clear=shadow_clear, attributes=attributes,
+                   tangent_layers=tangent_layers)
         if shading is not None and shading.any_emits:
             sampled = shading.emits
             # the estimate sees what light sampling sees: a first bounce's light sample (core.textured_emitters)
@@ -601,12 +613,16 @@ class PathTracer:
         want_aovs: bool,
         want_features: bool = False,
         want_surface: bool = False,
+        ray_dp: np.ndarray | None = None,
+        ray_dd: np.ndarray | None = None,
     ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
         """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs; want_features adds the
         denoising features, FirstHit.features; a scene with a shadow catcher adds FirstHit.catcher) and their
         transparency (N,) float32 in [0, 1] (alpha = 1 - transparency; None when the scene has no alpha, see
         core.scene.Film). pixel_id/sample_id (uint32) key the random numbers. While _trace_copies runs, the
-        paths are the shadow catcher copies of paths that split (the camera ray arguments are theirs)."""
+        paths are the shadow catcher copies of paths that split (the camera ray arguments are theirs). ray_dp, ray_dd (N,) float32: the camera
+        rays' compact differentials (Cycles' ray dP and dD: the spread of a pixel's footprint at the origin and its
+        growth per unit distance), which Bump nodes read; None: zero."""
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
@@ -651,6 +667,13 @@ class PathTracer:
             pix, smp = sp.pix, sp.smp
         alpha = ps.alpha and not copies
         transparent = np.zeros(n, np.float32) if alpha else None
+        # Ray differentials as Cycles' CPU path keeps them (compact: one spread per ray): at a hit the footprint is
+        # dP + t dD; a bounce ray starts with the hit's footprint and keeps the camera ray's dD. Kept per sample,
+        # only when some Bump node reads them.
+        sample_dp = sample_dd = None
+        if ps.shading is not None and ps.shading.needs_differentials:
+            sample_dp = np.zeros(n, np.float32) if ray_dp is None else np.asarray(ray_dp, np.float32).copy()
+            sample_dd = np.zeros(n, np.float32) if ray_dd is None else np.asarray(ray_dd, np.float32)
         # Per sample: the path still counts as transparent (camera ray, or only through transparent surfaces).
         clear = np.ones(n, bool) if alpha else None
         film_transparent = alpha and ps.scene.film.transparent
@@ -685,6 +708,11 @@ class PathTracer:
             hit = hits.prim >= 0
             if path_state is not None:  # Ray Length: the distance along this ray to the point shaded
                 path_state[idx, PATH_LENGTH] = np.where(hit, hits.t, np.float32(0))
+            hit_dp = None  # (live paths,) the footprint at each hit (Cycles' sd->dP)
+            if sample_dp is not None:
+                hit_dp = np.where(hit, sample_dp[idx] + np.where(hit, hits.t, 0) * sample_dd[idx],
+                                  0).astype(np.float32)
+                sample_dp[idx[hit]] = hit_dp[hit]
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
             clear_here = clear[idx] if alpha else None
             if catch is not None:
@@ -761,7 +789,8 @@ class PathTracer:
                     mat_e = ps.material_index[prim[e]]
                     le = np.zeros((len(e), 3), np.float32)
                     self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le,
-                                bary=(hits.u[e], hits.v[e]), path=_rows_of(path_state, idx[e]))
+                                bary=(hits.u[e], hits.v[e]), path=_rows_of(path_state, idx[e]),
+                                dp=None if hit_dp is None else hit_dp[e])
                     if ps.textured is not None and depth > 0 and self.use_nee:
                         em = ps.textured.emitter_of_triangle[prim[e]]
                         sampled = em >= 0
@@ -803,7 +832,8 @@ class PathTracer:
                 lobes_first = ps.materials.gather(mat_first, g.uv)
                 if ps.shading is not None:
                     self._shade(g, mat_first, prim[hit_rows], d[hit_rows], lobes_first,
-                                bary=(hits.u[hit_rows], hits.v[hit_rows]), path=_rows_of(path_state, idx[hit_rows]))
+                                bary=(hits.u[hit_rows], hits.v[hit_rows]), path=_rows_of(path_state, idx[hit_rows]),
+                                dp=None if hit_dp is None else hit_dp[hit_rows])
                 first.albedo[idx[hit_rows]] = bsdf_mod.albedo(lobes_first)
                 first.normal[idx[hit_rows]] = g.ns_raw
                 first.depth[idx[hit_rows]] = (t_start[hit_rows] + hits.t[hit_rows]) * depth_scale[hit_rows]
@@ -819,9 +849,10 @@ class PathTracer:
                 throughput /= q[rows][:, None]
             mat = ps.material_index[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
+            bumped = None  # (rows of g whose program set the normal, their smooth normals)
             if ps.shading is not None:
-                self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]),
-                            path=_rows_of(path_state, idx))
+                bumped = self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]),
+                                     path=_rows_of(path_state, idx), dp=None if hit_dp is None else hit_dp[rows])
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
             if data_path is not None:
@@ -835,15 +866,19 @@ class PathTracer:
                 if ps.terminator_offset is not None:  # the shadow terminator lift needs the hits' triangles
                     bary = (prim[rows], hits.u[rows], hits.v[rows])
                 if ps.lights.has_lights:
-                    self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp)
+                    self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp,
+                                     bumped=bumped)
                 if ps.textured is not None:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp, textured=True,
+                                     bumped=bumped,
                                      path=_rows_of(path_state, idx))
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
             u_dir, u_lobe = np.ascontiguousarray(u_vertex[:, :2]), np.ascontiguousarray(u_vertex[:, 2])
             bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir, back=g.cos_o_geo < 0)
+            if bumped is not None:
+                self._bump_shadowing_sampled(bs, lobes, g, bumped)
             if alpha:  # idx is unique among live paths: the flag of each sample that goes on
                 clear[idx] &= np.asarray(bs.transmitted, bool) & ps.keeps_transparent[mat]
             if data_path is not None:
@@ -962,9 +997,67 @@ class PathTracer:
 
     def _shade(self, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
                lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None,
-               path: np.ndarray | None = None) -> None:
-        """Run the node programs of the points (see `shade_points`)."""
-        shade_points(self.ps, g, mat, prim, dirs, lobes, emission, bary, path)
+               path: np.ndarray | None = None, dp=None):
+        """Run the node programs of the points (see `shade_points`); returns its bumped points or None."""
+        return shade_points(self.ps, g, mat, prim, dirs, lobes, emission, bary, path, dp)
+
+    # Cycles' bump shadowing (closure/bsdf.h, with the material's default Bump Map Correction): where a closure's
+    # normal N differs from the smooth normal Ns, directions on opposite sides of the two are rejected
+    # (cos(Ns, wi) cos(Ns, N) cos(N, wi) < 0: every lobe when evaluated, diffuse lobes when sampled) and diffuse
+    # lobes are softened towards grazing light by a GGX shadowing factor of the normals' deviation.
+    @staticmethod
+    def _bump_terms(n: np.ndarray, ns: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(diffuse softening factor, rejected) per row for bumped normals n, smooth normals ns, directions wi."""
+        cos_si = np.einsum("ij,ij->i", ns, wi).astype(np.float64)
+        cos_sn = np.einsum("ij,ij->i", ns, n).astype(np.float64)
+        cos_ni = np.einsum("ij,ij->i", n, wi).astype(np.float64)
+        reject = cos_si * cos_sn * cos_ni < 0
+        cos_i, cos_d = np.abs(cos_si), np.minimum(np.abs(cos_sn), 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tan2_d = 1.0 / np.maximum(cos_d * cos_d, 1e-30) - 1.0
+            alpha2 = np.clip(0.125 * tan2_d, 0.0, 1.0)
+            tan2_i = 1.0 / np.maximum(cos_i * cos_i, 1e-30) - 1.0
+            g1 = 2.0 / (1.0 + np.sqrt(1.0 + alpha2 * tan2_i))
+        g1 = np.where((cos_d >= 1.0) | (cos_i >= 1.0), 1.0, np.where(cos_i < 1e-6, 0.0, g1))
+        return g1, reject
+
+    @staticmethod
+    def _diffuse_only(lobes: "bsdf_mod.LobeBatch", rows: np.ndarray) -> "bsdf_mod.LobeBatch":
+        part = lobes.take(rows)
+        part.weight = np.where((part.kind == bsdf_mod.KIND_CODE["diffuse"])[..., None], part.weight,
+                               np.float32(0)).astype(np.float32)
+        return part
+
+    def _bump_shadowing_eval(self, f_cos, lobes, can, gc, wi_local, wi, bumped, n_paths) -> np.ndarray:
+        """f cos of next-event light samples with the bump shadowing applied at bumped points."""
+        where = np.full(n_paths, -1, np.int64)
+        where[bumped[0]] = np.arange(len(bumped[0]))
+        sel = np.flatnonzero(where[can] >= 0)
+        if len(sel) == 0:
+            return f_cos
+        ns = bumped[1][where[can[sel]]]
+        g1, reject = self._bump_terms(gc.n_view[sel], ns, wi[sel])
+        f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, can[sel]), gc.wo[sel], wi_local[sel],
+                                    back=gc.cos_o_geo[sel] < 0)
+        adjusted = f_cos[sel] - ((1.0 - g1)[:, None] * f_d).astype(np.float32)
+        adjusted[reject] = 0.0
+        f_cos = f_cos.copy()
+        f_cos[sel] = np.maximum(adjusted, 0.0)
+        return f_cos
+
+    def _bump_shadowing_sampled(self, bs, lobes, g, bumped) -> None:
+        """The BSDF samples' weights (f cos / pdf) at bumped points with the diffuse lobes' bump shadowing."""
+        rows = bumped[0]
+        ok = np.flatnonzero(np.asarray(bs.valid, bool)[rows] & ~np.asarray(bs.delta, bool)[rows])
+        if len(ok) == 0:
+            return
+        r = rows[ok]
+        wl = np.asarray(bs.wi, np.float32)[r]
+        wi = (g.tangent[r] * wl[:, :1] + g.bitangent[r] * wl[:, 1:2] + g.ns[r] * wl[:, 2:3]).astype(np.float32)
+        g1, reject = self._bump_terms(g.n_view[r], bumped[1][ok], wi)
+        f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, r), g.wo[r], wl, back=g.cos_o_geo[r] < 0)
+        loss = np.where(reject, 1.0, 1.0 - g1)[:, None] * f_d / np.maximum(np.asarray(bs.pdf, np.float32)[r], 1e-30)[:, None]
+        bs.weight[r] = np.maximum(bs.weight[r] - loss.astype(np.float32), 0.0)
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""
@@ -974,7 +1067,7 @@ class PathTracer:
 
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
                     bary=None, lp: "lp_mod.LightPassSamples | None" = None, textured: bool = False,
-                    path: np.ndarray | None = None) -> None:
+                    path: np.ndarray | None = None, bumped=None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
         u, v) of each path's hit when some mesh has a shadow terminator offset, else None; lp: the light passes
         to split the contributions into (None: off). textured: sample the textured emitters
@@ -997,6 +1090,8 @@ class PathTracer:
         wi_local = np.empty((m, 3), np.float32)
         geometry_kernels.to_local(wi, gc.tangent, gc.bitangent, gc.ns, wi_local)
         f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes, gc.wo, wi_local, rows=can, back=gc.cos_o_geo < 0)
+        if bumped is not None:
+            f_cos = self._bump_shadowing_eval(f_cos, lobes, can, gc, wi_local, wi, bumped, len(idx))
         contrib, origin, direction = (np.empty((m, 3), np.float32) for _ in range(3))
         tmax, sample_of = np.empty(m, np.float32), np.empty(m, idx.dtype)
         count = path_kernels.shadow_rays(can, np.ascontiguousarray(throughput, np.float32), idx,
@@ -1151,15 +1246,17 @@ def surface_batch(ps: PreparedScene, rows: np.ndarray, prim, bu, bv, d) -> "Surf
     return g
 
 def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
-             lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None,
-             path: np.ndarray | None = None) -> None:
+                 lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None,
+                 path: np.ndarray | None = None, dp: np.ndarray | None = None):
     """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
     The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir;
-    path: the points' Light Path state (None: camera rays)."""
+    path: the points' Light Path state (None: camera rays); dp (N,) the footprint of each hit (Cycles' compact
+    sd->dP) for Bump nodes. A program that sets the shading normal (Normal Map, Bump) gets the point's shading
+    frame rebuilt around it (geometry_kernels.reframe); returns (those rows, their smooth normals) or None."""
     sh = ps.shading
     rows = np.flatnonzero(sh.needs_program[mat])
     if len(rows) == 0:
-        return
+        return None
     back = g.cos_o_geo < 0
     p_world = (g.p + ps.shift.astype(np.float32)).astype(np.float32)
     # Cycles' sd->N and sd->Ng: the interpolated and the face normal, both negated on a back face (no
@@ -1167,12 +1264,20 @@ def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np
     ng = np.where(back[:, None], -g.ng, g.ng)
     n = np.where(back[:, None], -g.ns_raw, g.ns_raw)
     obj = ps.object_of_triangle[prim]
+    vec = vector_context(ps, prim, bary, ng, dp, g.uv is not None)
     uvx = None
     if ps.uv_layers is not None and bary is not None:  # the named UV maps at the hit points
         b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
         corners = ps.uv_layers[prim]  # (N, K, 3, 2)
         uvx = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
                + corners[:, :, 2] * b2[:, None, None]).astype(np.float32)
+        if vec.db is not None:  # and their derivatives along dP.dx, dP.dy
+            e1, e2 = corners[:, :, 1] - corners[:, :, 0], corners[:, :, 2] - corners[:, :, 0]  # (N, K, 2)
+            full = np.empty((len(prim), uvx.shape[1], 3, 2), np.float32)
+            full[:, :, 0] = uvx
+            for j in range(2):
+                full[:, :, 1 + j] = (e1 * vec.db[:, j, 0, None, None] + e2 * vec.db[:, j, 1, None, None])
+            uvx = full
     extra = None
     if sh.uses_light_path or sh.uses_attributes:
         attrs = ps.attributes if sh.uses_attributes else None
@@ -1188,8 +1293,18 @@ def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np
             vals = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
                     + corners[:, :, 2] * b2[:, None, None])
             extra[:, PATH_COLUMNS:] = vals.reshape(len(mat), -1)
-    sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
-                ps.materials.select_scale, emission, uvx, extra)
+    normal_out = np.zeros((len(mat), 3), np.float32) if sh.any_sets_normal else None
+    has_normal = sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
+                             ps.materials.select_scale, emission, uvx, extra, dP=vec.dP, duv=vec.duv,
+                             tangents=vec.tangents, mesh_normal=vec.mesh_normal, normal_out=normal_out)
+    if has_normal is not None:
+        moved = np.flatnonzero(has_normal)
+        if len(moved):
+            geometry_kernels.reframe(moved.astype(np.int64), normal_out, np.ascontiguousarray(dirs, np.float32),
+                                     g.ng, g.cos_o_geo, ps.specular[mat], g.ns, g.tangent, g.bitangent, g.wo,
+                                     g.n_view)
+            return moved, n[moved].astype(np.float32)
+    return None
 
 
 def emission_at(ps: PreparedScene, triangles: np.ndarray, b1: np.ndarray, b2: np.ndarray,

@@ -25,6 +25,7 @@ from .camera import camera_rays
 from .data_passes import DataFilm, DataTables, manifests, take_samples
 from .data_passes import assemble as assemble_data
 from .film import CatcherOutput, TileFilm
+from .shading.vector_context import camera_differentials
 from .filters import PixelFilter
 from .integrator import (DIM_FILM, DIM_LENS, CatcherSamples, DenoisingFeatures, FirstHit, PathStats, PathTracer,
                          PreparedScene)
@@ -586,29 +587,34 @@ class _TileRender:
         offsets = self.pixel_filter.sample(self.sampler.get_2d(pixel_id, smp, DIM_FILM))
         camera = self.scene.camera
         lens_u = self.sampler.get_2d(pixel_id, smp, DIM_LENS) if camera.aperture_radius() > 0 else None
-        rays = camera_rays(camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1], lens_u)
+        raster_x, raster_y = px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1]
+        rays = camera_rays(camera, raster_x, raster_y, lens_u)
+        differentials = (None, None)
+        if self.prepared.shading is not None and self.prepared.shading.needs_differentials:  # Bump nodes
+            differentials = camera_differentials(camera, raster_x, raster_y, rays, lens_u)
         if self.camera_offset is not None:  # prepared for another camera position (render(prepared=...))
             rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
         if rays.alive is not None:  # a panoramic camera's dead rays: nothing traced, nothing added
-            out = self._trace_alive(tracer, pixel_id, smp, rays)
+            out = self._trace_alive(tracer, pixel_id, smp, rays, differentials)
         else:
             out = tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
                                rays.t_start, self.settings.aovs, self.settings.denoising_features,
-                               self.data_tables is not None)
+                               self.data_tables is not None, *differentials)
         if self.data_tables is not None:
             first = out[1]
             first.data = self.data_tables.samples(first.surface)
         return out
 
-    def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays):
+    def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays, differentials=(None, None)):
         """Trace only the rays that are alive; dead ones get radiance 0, no transparency and no first hit."""
         live = np.flatnonzero(rays.alive)
         n = len(rays.alive)
+        dp, dd = (None if a is None else a[live] for a in differentials)
         radiance_l, first_l, transparent_l = tracer.trace(
             pixel_id[live], smp[live], rays.origins[live], rays.directions[live], rays.tmax[live],
             rays.depth_scale[live], rays.t_start[live], self.settings.aovs, self.settings.denoising_features,
-            self.data_tables is not None)
+            self.data_tables is not None, dp, dd)
         radiance = np.zeros((n, 3), np.float32)
         radiance[live] = radiance_l
         transparent = None

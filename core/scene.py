@@ -226,6 +226,10 @@ class Mesh:
       triangle: the Color / Vector output (3 floats), Alpha and Fac (core.shading.program
       MESH_ATTRIBUTE_COLUMNS); read through `Scene.attribute_names`; a mesh without the named attribute reads 0
       (Alpha: 1 for the Attribute node, 0 for Color Attribute), as Cycles.
+    tangent_layers: optional {name: (T, 3, 4)} per corner the MikkTSpace tangent of a UV map (world space, xyz)
+      and the bitangent sign (w, +-1), for Normal Map nodes in tangent space (`Scene.tangent_layer_names`;
+      the name "" is the active render UV map). A mesh without the named layer renders the unperturbed normal
+      there, as Cycles.
     """
 
     name: str
@@ -244,6 +248,7 @@ class Mesh:
     uv_layers: dict | None = None
     shadow_catcher: bool = False
     attributes: dict | None = None
+    tangent_layers: dict | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -331,6 +336,13 @@ class Mesh:
                 warnings.append(f"{owner}: attribute {aname!r}: non-finite values replaced by 0")
                 values = np.nan_to_num(values, nan=0.0, posinf=0.0, neginf=0.0)
             attributes[aname] = values
+        tangents = {}
+        for lname, lt in (self.tangent_layers or {}).items():
+            lt = np.asarray(lt, dtype=np.float32)
+            if lt.shape != (n_tri, 3, 4):
+                raise SceneError(f"{owner}: tangent layer {lname!r} must have shape (T, 3, 4) = ({n_tri}, 3, 4), "
+                                 f"got {lt.shape}")
+            tangents[lname] = np.nan_to_num(lt, nan=0.0, posinf=0.0, neginf=0.0)
         if uvs is not None and not np.all(np.isfinite(uvs)):
             warnings.append(f"{owner}: non-finite UVs replaced by 0")
             uvs = np.nan_to_num(uvs, nan=0.0, posinf=0.0, neginf=0.0)
@@ -347,6 +359,7 @@ class Mesh:
             objs = None if objs is None else objs[keep]
             layers = {lname: luv[keep] for lname, luv in layers.items()}
             attributes = {aname: values[keep] for aname, values in attributes.items()}
+            tangents = {lname: lt[keep] for lname, lt in tangents.items()}
         # Non-finite vertices that no kept triangle uses are harmless; replace them so later arithmetic is clean.
         if not np.all(np.isfinite(v)):
             v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
@@ -355,6 +368,7 @@ class Mesh:
         self.object_index = None if objs is None else objs.astype(np.int32)
         self.uv_layers = layers or None
         self.attributes = attributes or None
+        self.tangent_layers = tangents or None
 
 
 # ------------------------------------------------------------------------------------------------------ lights
@@ -711,6 +725,7 @@ class Scene:
     object_names: list[str] = field(default_factory=list)
     asset_names: list[str] = field(default_factory=list)
     attribute_names: list[str] = field(default_factory=list)  # the attributes node programs name (attribute op)
+    tangent_layer_names: list[str] = field(default_factory=list)  # Mesh.tangent_layers normal_map ops name ("" active)
 
     @property
     def has_alpha(self) -> bool:

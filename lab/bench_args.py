@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 
 SEED_TABLE_COUNTS = (8, 40, 200, 1000)  # samples per stratum in the seed's tables (also 5000, 25000)
-BENCH_SCENES = ("cornell", "interior", "glass", "instances", "hdri")
+BENCH_SCENES = ("cornell", "interior", "glass", "instances", "hdri", "textured")
 
 
 def _int_list(text: str) -> list[int]:

@@ -9,6 +9,8 @@ All render at 256x256 by default with Blackman-Harris 1.5 px, the default of bot
 - `instances`: 4096 small spheres scattered by geometry nodes (Instance on Points) on a ground plane.
 - `hdri`: gold Suzanne, a rough glossy and a diffuse sphere on a diffuse floor lit only by Blender's bundled
   `sunrise.exr` studio HDRI (a small sun holding half of the map's light), rotated through a Mapping node.
+- `textured`: shading-node programs: a UV-mapped crate with image textures on base colour, roughness and a
+  tangent-space normal map, a bump-mapped sphere (Noise heights), on a procedural floor (Noise -> Color Ramp).
 
 `SCENES` maps the names `monte bench --scene` accepts to the builders. `scene_version(name)` is part of the
 reference cache key: bump the scene's entry in `SCENE_VERSIONS` (or `SCENES_VERSION` for all of them) whenever
@@ -389,12 +391,108 @@ def hdri(resolution=(256, 256)):
     return scene
 
 
+def _image(name: str, pixels, colorspace: str):
+    """A packed float image from (H, W, 4) pixels (row 0 at the bottom, as Blender stores them)."""
+    import numpy as np
+
+    h, w = pixels.shape[:2]
+    img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=True)
+    img.colorspace_settings.name = colorspace
+    img.pixels.foreach_set(np.ascontiguousarray(pixels, np.float32).ravel())
+    img.pack()
+    return img
+
+
+def _crate_images(size: int = 64):
+    """(colour, roughness, normal map) images of a crate: planks with a darker frame."""
+    import numpy as np
+
+    u, v = np.meshgrid((np.arange(size) + 0.5) / size, (np.arange(size) + 0.5) / size)
+    frame = (np.minimum(np.minimum(u, 1 - u), np.minimum(v, 1 - v)) < 0.1).astype(np.float32)
+    plank = 0.5 + 0.5 * np.sin(2 * np.pi * 4 * v) ** 2
+    colour = np.ones((size, size, 4), np.float32)
+    colour[..., 0] = 0.55 * plank * (1 - 0.5 * frame) + 0.1
+    colour[..., 1] = 0.35 * plank * (1 - 0.5 * frame) + 0.06
+    colour[..., 2] = 0.15 * plank * (1 - 0.5 * frame) + 0.03
+    rough = np.ones((size, size, 4), np.float32)
+    rough[..., :3] = (0.35 + 0.4 * plank * (1 - frame) + 0.1 * frame)[..., None]
+    n = np.stack([np.zeros_like(u), 0.6 * np.sin(2 * np.pi * 4 * v) * np.cos(2 * np.pi * 4 * v), np.ones_like(u)],
+                 axis=-1)
+    n[..., 0] += 0.4 * frame * np.sign(0.5 - u)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    nmap = np.ones((size, size, 4), np.float32)
+    nmap[..., :3] = 0.5 * n + 0.5
+    return (_image("crate-colour", colour, "sRGB"), _image("crate-roughness", rough, "Non-Color"),
+            _image("crate-normal", nmap, "Non-Color"))
+
+
+def textured(resolution=(256, 256)):
+    """Shading-node programs under an area light and a dim sky: a UV-mapped crate (image textures on Base Color
+    and Roughness, a tangent-space normal map), a sphere bumped by a Noise Texture, a floor whose colour is a
+    Noise Texture through a Color Ramp."""
+    import bmesh
+
+    scene = reset()
+    floor = node_material("floor", "ShaderNodeBsdfPrincipled", Roughness=0.6)
+    tree = floor.node_tree
+    noise = tree.nodes.new("ShaderNodeTexNoise")
+    noise.inputs["Scale"].default_value = 3.0
+    ramp = tree.nodes.new("ShaderNodeValToRGB")
+    ramp.color_ramp.elements[0].color = (0.15, 0.2, 0.12, 1.0)
+    ramp.color_ramp.elements[1].color = (0.6, 0.55, 0.45, 1.0)
+    tree.links.new(noise.outputs["Fac"], ramp.inputs["Fac"])
+    tree.links.new(ramp.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Base Color"])
+    mesh_object("floor", [(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)], [(0, 1, 2, 3)], floor)
+
+    crate = node_material("crate", "ShaderNodeBsdfPrincipled")
+    tree = crate.node_tree
+    principled = tree.nodes["Principled BSDF"]
+    colour_img, rough_img, normal_img = _crate_images()
+    for image, socket in ((colour_img, "Base Color"), (rough_img, "Roughness")):
+        tex = tree.nodes.new("ShaderNodeTexImage")
+        tex.image = image
+        tree.links.new(tex.outputs["Color"], principled.inputs[socket])
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = normal_img
+    nmap = tree.nodes.new("ShaderNodeNormalMap")
+    tree.links.new(tex.outputs["Color"], nmap.inputs["Color"])
+    tree.links.new(nmap.outputs["Normal"], principled.inputs["Normal"])
+    me = bpy.data.meshes.new("crate")
+    bm = bmesh.new()
+    bm.loops.layers.uv.new("UVMap")  # create_cube's calc_uvs fills an existing UV layer
+    bmesh.ops.create_cube(bm, size=1.2, calc_uvs=True)
+    bm.to_mesh(me)
+    bm.free()
+    me.materials.append(crate)
+    ob = bpy.data.objects.new("crate", me)
+    ob.location = (-0.9, 0.3, 0.6)
+    ob.rotation_euler = (0.0, 0.0, math.radians(25))
+    bpy.context.scene.collection.objects.link(ob)
+
+    ball = node_material("ball", "ShaderNodeBsdfPrincipled", Base_Color=(0.7, 0.25, 0.2), Roughness=0.4)
+    tree = ball.node_tree
+    heights = tree.nodes.new("ShaderNodeTexNoise")
+    heights.inputs["Scale"].default_value = 6.0
+    bump = tree.nodes.new("ShaderNodeBump")
+    bump.inputs["Distance"].default_value = 0.05
+    tree.links.new(heights.outputs["Fac"], bump.inputs["Height"])
+    tree.links.new(bump.outputs["Normal"], tree.nodes["Principled BSDF"].inputs["Normal"])
+    icosphere_object("ball", (1.0, 0.0, 0.7), 0.7, ball, subdivisions=4)
+
+    light_object(scene, "AREA", (1.5, -2.0, 4.0), (math.radians(30), math.radians(15), 0), energy=500.0, size=2.0)
+    camera_object(scene, (0.0, -5.5, 2.6), (math.radians(70), 0, 0), lens=35.0)
+    set_world(scene, (0.08, 0.09, 0.1), 1.0)
+    _finish(scene, resolution)
+    return scene
+
+
 SCENES: dict[str, Callable] = {
     "cornell": cornell_box,
     "interior": interior,
     "glass": glass,
     "instances": instances,
     "hdri": hdri,
+    "textured": textured,
 }
 
 

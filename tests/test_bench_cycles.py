@@ -15,7 +15,7 @@ pytestmark = pytest.mark.blender
 
 @pytest.mark.parametrize("name, triangles, instances, lights", [
     ("cornell", 10252, 8, 0), ("interior", 182, 16, 2), ("glass", 11868, 11, 1), ("instances", 327682, 4097, 1),
-    ("hdri", 14114, 4, 0)])
+    ("hdri", 14114, 4, 0), ("textured", 1294, 3, 1)])
 def test_bench_scenes_export(name, triangles, instances, lights):
     from monte.lab import bpy_scenes
     from monte.addon.export import export_scene

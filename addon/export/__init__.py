@@ -20,6 +20,7 @@ from .film import export_film
 from .light import export_light
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
+from .nodes.vector_rules import tangent_uv_maps
 from .world import export_mist, export_world
 
 GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "META"}
@@ -106,7 +107,7 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
             used_materials.append(int(lut[slot]))
         return materials.attribute_names_of(used_materials)
 
-    local = _read_geometry(obj, warnings, attribute_names)
+    local = _read_geometry(obj, warnings, attribute_names, tangent_uv_maps(slots))
     if local is None or local.triangle_count == 0:
         prototypes[key] = _Prototype(None, np.zeros(0, np.int32), original.name)
         return None
@@ -189,16 +190,16 @@ def _terminator_offset(obj) -> float:
     return float(getattr(obj, "shadow_terminator_geometry_offset", 0.1))
 
 
-def _read_geometry(obj, warnings: list[str], attribute_names=None) -> LocalMesh | None:
+def _read_geometry(obj, warnings: list[str], attribute_names=None, tangent_maps=()) -> LocalMesh | None:
     if obj.type == "MESH":
-        return read_mesh(obj.data, obj.name, attribute_names)
+        return read_mesh(obj.data, obj.name, attribute_names, tangent_maps, warnings)
     try:
         mesh = obj.to_mesh()
     except RuntimeError as exc:
         warnings.append(f"object {obj.name!r} ({obj.type.lower()}) could not be converted to a mesh: {exc}")
         return None
     try:
-        return None if mesh is None else read_mesh(mesh, obj.name, attribute_names)
+        return None if mesh is None else read_mesh(mesh, obj.name, attribute_names, tangent_maps, warnings)
     finally:
         obj.to_mesh_clear()
 
@@ -223,7 +224,7 @@ def export_scene(
         camera_object = camera_object.evaluated_get(depsgraph)
     camera = export_camera(camera_object, scene, warnings)
 
-    materials = MaterialExporter(warnings)
+    materials = MaterialExporter(warnings, None if camera is None else camera.matrix_world)
     prototypes: dict[tuple, _Prototype] = {}
     # (object pointer, data pointer) -> prototype key or None (skip). Blender reuses one temporary object
     # for many geometry-node instances, so this keeps the per-instance work to a few attribute reads.
@@ -302,7 +303,8 @@ def export_scene(
                 objects=np.concatenate(object_rows).astype(np.float32) if object_rows else None,
                 uv_layer_names=list(materials.uv_names), mist=export_mist(scene.world),
                 object_names=object_names, asset_names=asset_names,
-                attribute_names=list(materials.attribute_names))
+                attribute_names=list(materials.attribute_names),
+                tangent_layer_names=list(materials.tangent_names))
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "
                          "metaballs); check the objects' render visibility and the view layer's collections")

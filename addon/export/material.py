@@ -152,8 +152,9 @@ class MaterialExporter:
     parameter and the emission fold to constants the material is plain constant lobes (rendered as before, at no
     per-point cost); otherwise it carries a core.shading ShadingProgram that drives them per shading point."""
 
-    def __init__(self, warnings: list[str]) -> None:
+    def __init__(self, warnings: list[str], camera_matrix=None) -> None:
         self.warnings = warnings
+        self.camera_matrix = camera_matrix  # the render camera's matrix_world (Vector Transform's camera space)
         self.materials: list[Material] = []
         self.textures: list[Texture] = []
         self.textured: set[int] = set()  # material indices that read UVs (image textures, UV coordinates)
@@ -163,6 +164,7 @@ class MaterialExporter:
         # material index -> [(attribute name, "node 'X' (Label)")] its Attribute / Color Attribute nodes read
         self.attribute_uses: dict[int, list] = {}
         self._converted_uses: list = []
+        self.tangent_names: list[str] = []  # UV maps Normal Map nodes take tangents of (Scene.tangent_layer_names)
         self._by_key: dict[int | tuple, int] = {}
         self._tex_by_key: dict[tuple, int] = {}
         self._default: int | None = None
@@ -224,19 +226,21 @@ class MaterialExporter:
         builder = ProgramBuilder(owner, self.warnings, self.textures,
                                  lambda node, alpha_used: self._image_texture(node, owner, alpha_used),
                                  material_pass_index=int(getattr(material, "pass_index", 0)),
-                                 uv_layer_index=self._uv_layer_index, attribute_index=self._attribute_index)
+                                 uv_layer_index=self._uv_layer_index, attribute_index=self._attribute_index,
+                                 tangent_layer_index=self._tangent_layer_index,
+                                 camera_matrix=self.camera_matrix)
         self._converted_uses = builder.attribute_uses
         try:
-            lobes, bind, emission, holdout = compile_surface(builder, output)
+            lobes, bind, emission, holdout, normal = compile_surface(builder, output)
         except (UnsupportedShader, CompileError) as exc:
             self.warnings.append(f"{owner}: {exc}; falling back to a diffuse of the material's viewport colour "
                                  f"{np.round(viewport, 4).tolist()}")
             return Material(name, [Lobe("diffuse", viewport)])
         emit_const = builder.is_const(emission)
         constant_emission = np.maximum(builder.value(emission).astype(np.float64), 0.0) if emit_const else np.zeros(3)
-        if not np.any(bind >= 0) and emit_const:
+        if not np.any(bind >= 0) and emit_const and normal < 0:
             return Material(name, lobes, emission=constant_emission, holdout=holdout)
-        program = builder.finish(bind, -1 if emit_const else emission)
+        program = builder.finish(bind, -1 if emit_const else emission, normal)
         return Material(name, lobes, emission=constant_emission, program=program, holdout=holdout)
 
     def holdout_index(self, material) -> int:
@@ -256,6 +260,11 @@ class MaterialExporter:
         return found
 
     # ----------------------------------------------------------------------------------------- internals
+    def _tangent_layer_index(self, name: str) -> int:
+        if name not in self.tangent_names:
+            self.tangent_names.append(name)
+        return self.tangent_names.index(name)
+
     def _uv_layer_index(self, name: str) -> int:
         if name not in self.uv_names:
             self.uv_names.append(name)

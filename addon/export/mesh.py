@@ -32,15 +32,17 @@ class LocalMesh:
     uv_layers: dict = None  # every UV map by name: (T, 3, 2) float32 (what UV Map nodes name)
     attributes: dict = None  # the attributes Attribute nodes name: (T, 3, 5) float32 (core.scene.Mesh.attributes)
     missing_attributes: tuple = ()  # names asked for that the mesh does not have (they read 0)
+    tangent_layers: dict = None  # UV map name ("" = active render) -> (T, 3, 4) MikkTSpace tangent xyz + sign
 
     @property
     def triangle_count(self) -> int:
         return int(self.triangles.shape[0])
 
 
-def read_mesh(mesh, name: str, attribute_names=None) -> LocalMesh:
-    """Triangles, positions, shading normals, UVs and material slots of an evaluated Blender mesh, and the named
-    attributes `attribute_names(slots)` asks for (a callable given the (T,) material slots, or None)."""
+def read_mesh(mesh, name: str, attribute_names=None, tangent_maps=(), warnings: list | None = None) -> LocalMesh:
+    """Triangles, positions, shading normals, UVs and material slots of an evaluated Blender mesh, the named
+    attributes `attribute_names(slots)` asks for (a callable given the (T,) material slots, or None), and
+    tangent_maps: the UV map names ("" = the active render map) whose MikkTSpace tangents Normal Map nodes read."""
     mesh.calc_loop_triangles()
     tris = mesh.loop_triangles
     n_tri = len(tris)
@@ -93,7 +95,9 @@ def read_mesh(mesh, name: str, attribute_names=None) -> LocalMesh:
             missing.append(aname)
         else:
             attributes[aname] = values
-    return LocalMesh(name, vertices, tri_verts, slots, normals, uvs, layers, attributes, tuple(missing))
+    tangents = _tangents(mesh, name, tangent_maps, loops, warnings) if n_tri and tangent_maps else {}
+    return LocalMesh(name, vertices, tri_verts, slots, normals, uvs, layers, attributes, tuple(missing),
+                     tangents)
 
 
 # Blender attribute data types Monte reads, by how many components they have (1: a float, 2: a 2D vector, 3: a
@@ -167,6 +171,35 @@ def _read_attribute(mesh, aname: str, uv_layers: dict, tri_verts: np.ndarray, lo
     return out
 
 
+def _tangents(mesh, name: str, maps, loops, warnings) -> dict:
+    """Blender's MikkTSpace tangents (Mesh.calc_tangents) per triangle corner for each UV map in `maps` the mesh
+    has: (T, 3, 4) float32, xyz the tangent, w the bitangent sign. A mesh without the map gets none (Cycles then
+    leaves the normal unperturbed); a failure is a warning naming the mesh."""
+    out = {}
+    render = next((layer for layer in mesh.uv_layers if getattr(layer, "active_render", False)), None)
+    render = render or mesh.uv_layers.active
+    n_loop = len(mesh.loops)
+    for key in sorted(maps):
+        uv_name = key or (render.name if render is not None else "")
+        if not uv_name or uv_name not in mesh.uv_layers:
+            continue
+        try:
+            mesh.calc_tangents(uvmap=uv_name)
+        except RuntimeError as exc:
+            if warnings is not None:
+                warnings.append(f"mesh {name!r}: tangents of UV map {uv_name!r} could not be computed ({exc}); "
+                                "normal maps there leave the normal unperturbed")
+            continue
+        t = np.empty(n_loop * 3, dtype=np.float32)
+        sign = np.empty(n_loop, dtype=np.float32)
+        mesh.loops.foreach_get("tangent", t)
+        mesh.loops.foreach_get("bitangent_sign", sign)
+        mesh.free_tangents()
+        both = np.concatenate([t.reshape(n_loop, 3), sign[:, None]], axis=1)
+        out[key] = both[loops()].reshape(-1, 3, 4)
+    return out
+
+
 def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np.ndarray, name: str,
                       shadow_terminator_offset: float = 0.0) -> Mesh:
     """Place `local` at each of the (K, 4, 4) world matrices; slot_materials maps slot -> scene material.
@@ -191,6 +224,18 @@ def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np
     uvs = None if local.uvs is None else np.broadcast_to(local.uvs, (k, n_tri, 3, 2))
     layers = {name: np.broadcast_to(uv, (k, n_tri, 3, 2)) for name, uv in (local.uv_layers or {}).items()}
     attrs = {name: np.broadcast_to(a, (k, n_tri, 3, 5)) for name, a in (local.attributes or {}).items()}
+    tangents = {}
+    if local.tangent_layers:
+        # Tangents go to world space as normals do (the normal matrix), keeping their length; a mirroring
+        # instance negates the bitangent sign (the cross product of mirrored vectors turns around).
+        inv = np.linalg.inv(np.where(np.abs(det)[:, None, None] > 1e-300, lin, np.eye(3))).astype(np.float32)
+        for lname, tl in local.tangent_layers.items():
+            t = tl[None, :, :, :3].reshape(1, -1, 3)
+            length = np.linalg.norm(t, axis=-1, keepdims=True)
+            w = np.matmul(t, inv)  # (K, T*3, 3)
+            w *= length / np.maximum(np.linalg.norm(w, axis=-1, keepdims=True), 1e-30)
+            sign = np.broadcast_to(tl[None, :, :, 3], (k, n_tri, 3)) * np.where(mirrored, -1.0, 1.0)[:, None, None]
+            tangents[lname] = np.concatenate([w.reshape(k, n_tri, 3, 3), sign[..., None]], axis=-1).astype(np.float32)
 
     if mirrored.any():
         tri = tri.copy()
@@ -208,6 +253,8 @@ def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np
             a = a.copy()
             a[mirrored] = a[mirrored][:, :, [0, 2, 1]]
             attrs[name] = a
+        for name, tl in tangents.items():
+            tl[mirrored] = tl[mirrored][:, :, [0, 2, 1]]
 
     slots = np.clip(local.slots, 0, len(slot_materials) - 1)
     mat = np.broadcast_to(slot_materials[slots], (k, n_tri)).reshape(-1)
@@ -223,4 +270,5 @@ def instances_to_mesh(local: LocalMesh, matrices: np.ndarray, slot_materials: np
         or None,
         attributes={name: np.ascontiguousarray(a.reshape(-1, 3, 5), dtype=np.float32) for name, a in attrs.items()}
         or None,
+        tangent_layers={name: np.ascontiguousarray(tl.reshape(-1, 3, 4)) for name, tl in tangents.items()} or None,
     )

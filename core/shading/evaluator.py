@@ -46,6 +46,7 @@ _SEPXYZ, _COMBXYZ, _MAPPING, _MIX = R.OP_SEPARATE_XYZ, R.OP_COMBINE_XYZ, R.OP_MA
 _FRESNEL, _LAYER = R.OP_FRESNEL, R.OP_LAYER_WEIGHT
 _TEXCO, _GEOM, _OBJINFO, _IMAGE = R.OP_TEXCOORD, R.OP_GEOMETRY, R.OP_OBJECT_INFO, R.OP_IMAGE
 _UVLAYER, _ATTR, _LIGHTPATH = R.OP_UV_LAYER, R.OP_ATTRIBUTE, R.OP_LIGHT_PATH
+_NORMAL_MAP, _BUMP_OP, _VTRANSFORM, _TANGENT = R.OP_NORMAL_MAP, R.OP_BUMP, R.OP_VECTOR_TRANSFORM, R.OP_TANGENT
 _SPEC, _GLASSF0, _SQRTSAT, _OMS = R.OP_SPECULAR_LAYER, R.OP_GLASS_F0, R.OP_SQRT_SATURATE, R.OP_ONE_MINUS_SATURATE
 _COLOR_BASE, _PROC_BASE = R.COLOR_BASE, R.PROCEDURAL_BASE
 _SINGULAR = np.float32(mf.SINGULAR_ROUGHNESS)
@@ -506,12 +507,208 @@ def _box_weights(N, k, obj, objects, blend):
     else:
         wx = 1.0  # no blend and no dominant face: one side, as Cycles
     return wx, wy, wz, sx, sy, sz
+# ------------------------------------------------------------------------------------------- vector nodes
+@_jit
+def _bump_shift(regs, b, wreg):
+    """(which differential, its scale) of a shading-context op's bump operands: b 0 none, 1 dP.dx, 2 dP.dy;
+    the scale is the Bump node's filter width (register wreg)."""
+    if b <= 0:
+        return 0, 0.0
+    return b - 1, float(regs[wreg, 0]) if wreg >= 0 else 1.0
+
+
+@_jit
+def _point(k, P, dP, b, w):
+    """The shading position, shifted by w dP.dx or w dP.dy when b > 0 (_bump_shift)."""
+    if w == 0.0:
+        return float(P[k, 0]), float(P[k, 1]), float(P[k, 2])
+    return (float(P[k, 0]) + w * dP[k, b, 0], float(P[k, 1]) + w * dP[k, b, 1],
+            float(P[k, 2]) + w * dP[k, b, 2])
+
+
+@_jit
+def _normalize3(x, y, z):
+    ll = math.sqrt(x * x + y * y + z * z)
+    if ll > 0.0 and math.isfinite(ll):
+        return x / ll, y / ll, z / ll
+    return 0.0, 0.0, 0.0
+
+
+@_jit
+def _normal_map(a, regs, k, N, back, obj, objects, tan, nraw):
+    """Cycles' svm_node_normal_map: the colour as 2 c - 1 in tangent, object or world space; world-space result
+    on the viewer's side (negated on a back face). Strength scales the tangent-space offset (x, y times it, z
+    from 1 towards the colour's) in tangent space, and blends from N linearly in the other spaces."""
+    cx, cy, cz = get3(regs, a[2])
+    cx, cy, cz = 2.0 * (cx - 0.5), 2.0 * (cy - 0.5), 2.0 * (cz - 0.5)
+    if a[6] != 0:  # DirectX: green points down
+        cy = -cy
+    space = a[4]
+    strength = float(regs[a[3], 0])
+    layer = a[5]
+    nx, ny, nz = float(N[k, 0]), float(N[k, 1]), float(N[k, 2])
+    ox, oy, oz = nx, ny, nz
+    fallback = False
+    if space == 0:
+        tx = ty = tz = sgn = 0.0
+        if 0 <= layer < tan.shape[1]:
+            tx, ty, tz, sgn = float(tan[k, layer, 0]), float(tan[k, layer, 1]), float(tan[k, layer, 2]), \
+                float(tan[k, layer, 3])
+        if tx == 0.0 and ty == 0.0 and tz == 0.0:
+            fallback = True  # no tangents for this map (the mesh lacks it): the unperturbed normal, as Cycles
+        else:
+            mx, my, mz = float(nraw[k, 0]), float(nraw[k, 1]), float(nraw[k, 2])
+            cx, cy = cx * strength, cy * strength
+            cz = 1.0 + (cz - 1.0) * min(max(strength, 0.0), 1.0)
+            bx, by, bz = sgn * (my * tz - mz * ty), sgn * (mz * tx - mx * tz), sgn * (mx * ty - my * tx)
+            ox, oy, oz = _normalize3(cx * tx + cy * bx + cz * mx, cx * ty + cy * by + cz * my,
+                                     cx * tz + cy * bz + cz * mz)
+    else:
+        if space == 3 or space == 4:
+            cy, cz = -cy, -cz
+        if space == 1 or space == 3:
+            m = objects[obj[k]]  # object -> world for normals: the transpose of the world -> object matrix
+            ox = m[OBJECT_INVERSE + 0] * cx + m[OBJECT_INVERSE + 4] * cy + m[OBJECT_INVERSE + 8] * cz
+            oy = m[OBJECT_INVERSE + 1] * cx + m[OBJECT_INVERSE + 5] * cy + m[OBJECT_INVERSE + 9] * cz
+            oz = m[OBJECT_INVERSE + 2] * cx + m[OBJECT_INVERSE + 6] * cy + m[OBJECT_INVERSE + 10] * cz
+            ox, oy, oz = _normalize3(ox, oy, oz)
+        else:
+            ox, oy, oz = _normalize3(cx, cy, cz)
+    if fallback:
+        set3(regs, a[1], nx, ny, nz)
+        return
+    if back[k]:
+        ox, oy, oz = -ox, -oy, -oz
+    if space != 0 and strength != 1.0:
+        strength = max(strength, 0.0)
+        ox, oy, oz = _normalize3(nx + (ox - nx) * strength, ny + (oy - ny) * strength, nz + (oz - nz) * strength)
+    if ox == 0.0 and oy == 0.0 and oz == 0.0:
+        ox, oy, oz = nx, ny, nz
+    set3(regs, a[1], ox, oy, oz)
+
+
+@_jit
+def _bump(a, regs, k, N, dP):
+    """Cycles' svm_node_set_bump: the heights h_c, h_x, h_y at P, P + w dP.dx, P + w dP.dy (w: filter width)
+    tilt the normal by the surface gradient, strength blends from the input normal."""
+    if a[8] >= 0:
+        nx, ny, nz = get3(regs, a[8])
+    else:
+        nx, ny, nz = float(N[k, 0]), float(N[k, 1]), float(N[k, 2])
+    xx, xy, xz = float(dP[k, 0, 0]), float(dP[k, 0, 1]), float(dP[k, 0, 2])
+    yx, yy, yz = float(dP[k, 1, 0]), float(dP[k, 1, 1]), float(dP[k, 1, 2])
+    rxx, rxy, rxz = yy * nz - yz * ny, yz * nx - yx * nz, yx * ny - yy * nx  # Rx = dPdy x N
+    ryx, ryy, ryz = ny * xz - nz * xy, nz * xx - nx * xz, nx * xy - ny * xx  # Ry = N x dPdx
+    hc, hx, hy = float(regs[a[4], 0]), float(regs[a[5], 0]), float(regs[a[6], 0])
+    det = xx * rxx + xy * rxy + xz * rxz
+    gx = (hx - hc) * rxx + (hy - hc) * ryx
+    gy = (hx - hc) * rxy + (hy - hc) * ryy
+    gz = (hx - hc) * rxz + (hy - hc) * ryz
+    strength = max(float(regs[a[2], 0]), 0.0)
+    scale = float(regs[a[3], 0])
+    if a[9] != 0:
+        scale = -scale
+    width = float(regs[a[7], 0])
+    sd = 1.0 if det > 0.0 else (-1.0 if det < 0.0 else 0.0)
+    ad = abs(det) * width
+    ox, oy, oz = _normalize3(ad * nx - scale * sd * gx, ad * ny - scale * sd * gy, ad * nz - scale * sd * gz)
+    if ox == 0.0 and oy == 0.0 and oz == 0.0:
+        ox, oy, oz = nx, ny, nz
+    else:
+        ox, oy, oz = _normalize3(strength * ox + (1.0 - strength) * nx, strength * oy + (1.0 - strength) * ny,
+                                 strength * oz + (1.0 - strength) * nz)
+    set3(regs, a[1], ox, oy, oz)
+
+
+@_jit
+def _tangent(a, regs, k, N, obj, objects, tan):
+    """Cycles' tangent: a UV map's tangent or the radial tangent of the generated coordinates (object -> world
+    as a normal, normalised), then cross(N, normalize(cross(t, N)))."""
+    layer = a[4]
+    if layer >= 0:
+        tx = ty = tz = 0.0
+        if layer < tan.shape[1]:
+            tx, ty, tz = float(tan[k, layer, 0]), float(tan[k, layer, 1]), float(tan[k, layer, 2])
+        if tx == 0.0 and ty == 0.0 and tz == 0.0:
+            set3(regs, a[1], 0.0, 0.0, 0.0)
+            return
+    else:
+        gx, gy, gz = get3(regs, a[2])
+        axis = a[3]
+        if axis == 0:
+            dx, dy, dz = 0.0, -(gz - 0.5), gy - 0.5
+        elif axis == 1:
+            dx, dy, dz = -(gz - 0.5), 0.0, gx - 0.5
+        else:
+            dx, dy, dz = -(gy - 0.5), gx - 0.5, 0.0
+        m = objects[obj[k]]
+        tx = m[OBJECT_INVERSE + 0] * dx + m[OBJECT_INVERSE + 4] * dy + m[OBJECT_INVERSE + 8] * dz
+        ty = m[OBJECT_INVERSE + 1] * dx + m[OBJECT_INVERSE + 5] * dy + m[OBJECT_INVERSE + 9] * dz
+        tz = m[OBJECT_INVERSE + 2] * dx + m[OBJECT_INVERSE + 6] * dy + m[OBJECT_INVERSE + 10] * dz
+        tx, ty, tz = _normalize3(tx, ty, tz)
+    nx, ny, nz = float(N[k, 0]), float(N[k, 1]), float(N[k, 2])
+    cx, cy, cz = _normalize3(ty * nz - tz * ny, tz * nx - tx * nz, tx * ny - ty * nx)
+    set3(regs, a[1], ny * cz - nz * cy, nz * cx - nx * cz, nx * cy - ny * cx)
+
+
+@_jit
+def _affine(m, off, x, y, z, point):
+    """Rows off..off+11 of m (a 3 x 4 row-major transform) applied to a point (point) or a direction."""
+    w = 1.0 if point else 0.0
+    return (m[off] * x + m[off + 1] * y + m[off + 2] * z + m[off + 3] * w,
+            m[off + 4] * x + m[off + 5] * y + m[off + 6] * z + m[off + 7] * w,
+            m[off + 8] * x + m[off + 9] * y + m[off + 10] * z + m[off + 11] * w)
+
+
+@_jit
+def _object_forward(m, x, y, z, point):
+    """Object -> world for the object row m: the inverse of its world -> object transform (OBJECT_INVERSE)."""
+    a, b, c = m[OBJECT_INVERSE + 0], m[OBJECT_INVERSE + 1], m[OBJECT_INVERSE + 2]
+    d, e, f = m[OBJECT_INVERSE + 4], m[OBJECT_INVERSE + 5], m[OBJECT_INVERSE + 6]
+    g, h, i = m[OBJECT_INVERSE + 8], m[OBJECT_INVERSE + 9], m[OBJECT_INVERSE + 10]
+    if point:
+        x, y, z = x - m[OBJECT_INVERSE + 3], y - m[OBJECT_INVERSE + 7], z - m[OBJECT_INVERSE + 11]
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if det == 0.0:
+        return x, y, z
+    r = 1.0 / det
+    return ((e * i - f * h) * r * x + (c * h - b * i) * r * y + (b * f - c * e) * r * z,
+            (f * g - d * i) * r * x + (a * i - c * g) * r * y + (c * d - a * f) * r * z,
+            (d * h - e * g) * r * x + (b * g - a * h) * r * y + (a * e - b * d) * r * z)
+
+
+@_jit
+def _vector_transform(a, regs, data, k, obj, objects):
+    x, y, z = get3(regs, a[2])
+    kind, src, dst, cam = a[3], a[4], a[5], a[6]
+    point = kind == 0
+    m = objects[obj[k]]
+    if src == 0:
+        if dst == 2:
+            x, y, z = _affine(data, cam, x, y, z, point)
+        elif dst == 1:
+            x, y, z = _affine(m, OBJECT_INVERSE, x, y, z, point)
+    elif src == 2:
+        if dst == 0 or dst == 1:
+            x, y, z = _affine(data, cam + 12, x, y, z, point)
+        if dst == 1:
+            x, y, z = _affine(m, OBJECT_INVERSE, x, y, z, point)
+    else:
+        if dst == 0 or dst == 2:
+            x, y, z = _object_forward(m, x, y, z, point)
+        if dst == 2:
+            x, y, z = _affine(data, cam, x, y, z, point)
+    if kind == 2:
+        ll = math.sqrt(x * x + y * y + z * z)
+        if ll > 0.0:
+            x, y, z = x / ll, y / ll, z / ll
+    set3(regs, a[1], x, y, z)
 
 
 # ------------------------------------------------------------------------------------------------- dispatch
 @_jit
 def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-             tex_w, uvx, extra):
+             tex_w, uvx, extra, dP, duv, tan, nraw):
     """Execute core opcode `op` with operand slots `a` (a[1..]) for shading point k."""
     if op == _COPY:
         x, y, z = get3(regs, a[2])
@@ -582,9 +779,11 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
             f = f ** (2.0 * blend if blend < 0.5 else 0.5 / (1.0 - blend))
         setf(regs, a[2], 1.0 - f)
     elif op == _TEXCO:
-        _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects)
+        _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects, dP, duv)
     elif op == _GEOM:
-        set3(regs, a[1], P[k, 0], P[k, 1], P[k, 2])
+        b, w = _bump_shift(regs, a[7], a[8])
+        px, py, pz = _point(k, P, dP, b, w)
+        set3(regs, a[1], px, py, pz)
         set3(regs, a[2], N[k, 0], N[k, 1], N[k, 2])
         set3(regs, a[3], Ng[k, 0], Ng[k, 1], Ng[k, 2])
         set3(regs, a[4], I[k, 0], I[k, 1], I[k, 2])
@@ -592,8 +791,10 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         set3(regs, a[6], 0.0, 0.0, 0.0)  # parametric: not computed (the compiler warns when it is used)
     elif op == _UVLAYER:
         layer = a[2]
+        b, w = _bump_shift(regs, a[3], a[4])
         if layer < uvx.shape[1]:
-            set3(regs, a[1], uvx[k, layer, 0], uvx[k, layer, 1], 0.0)
+            set3(regs, a[1], uvx[k, layer, 0, 0] + w * uvx[k, layer, 1 + b, 0],
+                 uvx[k, layer, 0, 1] + w * uvx[k, layer, 1 + b, 1], 0.0)
         else:
             set3(regs, a[1], 0.0, 0.0, 0.0)
     elif op == _ATTR:
@@ -619,7 +820,8 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         if a[3] >= 0:
             x, y, z = get3(regs, a[3])
         elif has_uv:
-            x, y, z = float(uv[k, 0]), float(uv[k, 1]), 0.0
+            b, w = _bump_shift(regs, a[10], a[11])
+            x, y, z = float(uv[k, 0]) + w * duv[k, b, 0], float(uv[k, 1]) + w * duv[k, b, 1], 0.0
         else:
             x, y, z = 0.0, 0.0, 0.0
         t = a[4]
@@ -680,6 +882,14 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
     elif op == _OMS:
         x, y, z = get3(regs, a[2])
         set3(regs, a[1], min(max(1.0 - x, 0.0), 1.0), min(max(1.0 - y, 0.0), 1.0), min(max(1.0 - z, 0.0), 1.0))
+    elif op == _NORMAL_MAP:
+        _normal_map(a, regs, k, N, back, obj, objects, tan, nraw)
+    elif op == _BUMP_OP:
+        _bump(a, regs, k, N, dP)
+    elif op == _VTRANSFORM:
+        _vector_transform(a, regs, data, k, obj, objects)
+    elif op == _TANGENT:
+        _tangent(a, regs, k, N, obj, objects, tan)
 
 
 @_jit
@@ -709,9 +919,10 @@ def _light_path(a, regs, k, extra):
 
 
 @_jit
-def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects):
+def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects, dP, duv):
     o = obj[k]
-    px, py, pz = float(P[k, 0]), float(P[k, 1]), float(P[k, 2])
+    b, w = _bump_shift(regs, a[8], a[9])
+    px, py, pz = _point(k, P, dP, b, w)
     m = objects[o]
     ox = m[OBJECT_INVERSE + 0] * px + m[OBJECT_INVERSE + 1] * py + m[OBJECT_INVERSE + 2] * pz + m[OBJECT_INVERSE + 3]
     oy = m[OBJECT_INVERSE + 4] * px + m[OBJECT_INVERSE + 5] * py + m[OBJECT_INVERSE + 6] * pz + m[OBJECT_INVERSE + 7]
@@ -730,7 +941,7 @@ def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects):
         qx, qy, qz = qx / ll, qy / ll, qz / ll
     set3(regs, a[2], qx, qy, qz)
     if has_uv:
-        set3(regs, a[3], uv[k, 0], uv[k, 1], 0.0)
+        set3(regs, a[3], uv[k, 0] + w * duv[k, b, 0], uv[k, 1] + w * duv[k, b, 1], 0.0)
     else:
         set3(regs, a[3], 0.0, 0.0, 0.0)
     set3(regs, a[4], ox, oy, oz)
@@ -753,11 +964,11 @@ def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects):
 
 @_jit
 def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-             tex_w, uvx, extra):
+             tex_w, uvx, extra, dP, duv, tan, nraw):
     """One instruction. A new opcode family hooks in here: `elif op < NEXT_BASE: family.run(op, a, regs, data)`."""
     if op < _COLOR_BASE:
         _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-                 tex_w, uvx, extra)
+                 tex_w, uvx, extra, dP, duv, tan, nraw)
     elif op < _PROC_BASE:
         color.run(op, a, regs, data)
     else:
@@ -766,12 +977,13 @@ def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
 
 @_jit
 def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg,
-                 tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, has_uv, back, obj, objects, uvx, extra,
-                 scratch,
-                 kind, weight, rough, ior, f0, tint, select, t_scale, emission):
+                 normal_reg, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, has_uv, back, obj, objects, uvx,
+                 extra, dP, duv, tan, nraw, scratch, kind, weight, rough, ior, f0, tint, select, t_scale, emission,
+                 normal_out, has_normal):
     """Evaluate the programs of the points `rows` (indices into the per-point arrays); write the bound lobe
     parameters of point k into row k of the LobeBatch arrays (kind .. select), `emission` (N, 3) likewise (rows
-    whose program binds no emission are left as they are). scratch (R_max, 3) float32 is the register file."""
+    whose program binds no emission are left as they are), and the bound shading normal into normal_out[k] with
+    has_normal[k] = True. scratch (R_max, 3) float32 is the register file."""
     for j in range(rows.shape[0]):
         k = rows[j]
         m = mat[k]
@@ -787,7 +999,7 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
         for i in range(code_start[p], code_start[p + 1]):
             a = code[i]
             _execute(a[0], a, scratch, pdata, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels,
-                     tex_offset, tex_h, tex_w, uvx, extra)
+                     tex_offset, tex_h, tex_w, uvx, extra, dP, duv, tan, nraw)
         L = bind.shape[1]
         changed = False
         for l in range(L):
@@ -826,6 +1038,11 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
         if e >= 0:  # not clamped: Cycles renders a negative emission colour as negative radiance
             for c in range(3):
                 emission[k, c] = scratch[e, c]
+        nr = normal_reg[p]
+        if nr >= 0:
+            has_normal[k] = True
+            for c in range(3):
+                normal_out[k, c] = scratch[nr, c]
 
 
 # ----------------------------------------------------------------------------------------------- Python face
@@ -841,7 +1058,7 @@ class PreparedShading:
         m = len(programs)
         self.prog_of_mat = np.full(m, -1, np.int32)
         live = [(i, p) for i, p in enumerate(programs) if p is not None]
-        code, regs, data, binds, emits = [], [], [], [], []
+        code, regs, data, binds, emits, normals = [], [], [], [], [], []
         for n, (i, p) in enumerate(live):
             self.prog_of_mat[i] = n
             code.append(p.code)
@@ -851,6 +1068,7 @@ class PreparedShading:
             b[:p.lobes.shape[0]] = p.lobes
             binds.append(b)
             emits.append(p.emission)
+            normals.append(getattr(p, "normal", -1))
         self.code = np.ascontiguousarray(np.concatenate(code) if code else np.zeros((0, WIDTH), np.int32), np.int32)
         self.code_start = np.concatenate([[0], np.cumsum([len(c) for c in code])]).astype(np.int64)
         self.regs0 = np.ascontiguousarray(np.concatenate(regs) if regs else np.zeros((0, 3), np.float32), np.float32)
@@ -859,6 +1077,13 @@ class PreparedShading:
         self.data_start = np.concatenate([[0], np.cumsum([len(d) for d in data])]).astype(np.int64)
         self.bind = np.ascontiguousarray(np.stack(binds) if binds else np.zeros((0, max_lobes, N_BIND), np.int32))
         self.emit_reg = np.asarray(emits, np.int32).reshape(-1)
+        self.normal_reg = np.asarray(normals, np.int32).reshape(-1)
+        # Programs that set the shading normal, and those whose Bump nodes read ray differentials.
+        self.sets_normal = np.zeros(m, bool)
+        for i, p in live:
+            self.sets_normal[i] = getattr(p, "normal", -1) >= 0
+        self.any_sets_normal = bool(self.sets_normal.any())
+        self.needs_differentials = bool(len(self.code) and np.any(self.code[:, 0] == R.OP_BUMP))
         self.max_registers = max([1] + [len(r) for r in regs])
         self.needs_program = self.prog_of_mat >= 0
         self.emits = np.zeros(m, bool)
@@ -882,25 +1107,49 @@ class PreparedShading:
 
     def evaluate(self, rows: np.ndarray, mat: np.ndarray, P, N, Ng, I, uv, back, obj, lobes, select_scale,
                  emission: np.ndarray | None = None, uv_layers: np.ndarray | None = None,
-                 extra: np.ndarray | None = None) -> None:
+                 extra: np.ndarray | None = None, dP=None, duv=None,
+                 tangents=None, mesh_normal=None, normal_out: np.ndarray | None = None) -> np.ndarray | None:
         """Run the programs of points `rows` in place on `lobes` (a LobeBatch with one row per point) and
         `emission` ((N, 3), optional). P, N, Ng, I (N, 3) float32 world space, uv (N, 2) or None, back (N,)
-        bool, obj (N,) int32 object rows, uv_layers (N, K, 2) the named UV maps (Scene.uv_layer_names) or None,
-        extra (N, PATH_COLUMNS + 5 A) float32 the path state and attributes (core.shading.program) or None."""
+        bool, obj (N,) int32 object rows, uv_layers (N, K, 2) the named UV maps (Scene.uv_layer_names) or
+        (N, K, 3, 2) with their derivatives along dP.dx and dP.dy, or None; extra (N, PATH_COLUMNS + 5 A) float32
+        the path state and attributes (core.shading.program) or None.
+
+        Vector nodes: dP (N, 2, 3) the ray differential's dP.dx and dP.dy (world units), duv (N, 2, 2) the active
+        UV map's derivatives along them, tangents (N, T, 4) the tangent layers (Scene.tangent_layer_names:
+        tangent xyz, bitangent sign; zeros where a mesh lacks the map), mesh_normal (N, 3) the interpolated,
+        unnormalised mesh normal (outside); None reads zeros. Returns has_normal (N,) bool, the points whose
+        program set the shading normal (written into normal_out (N, 3)), or None when no program sets one."""
         n = len(mat)
         if emission is None:
             emission = np.zeros((n, 3), np.float32)
         has_uv = uv is not None
         uvs = np.ascontiguousarray(uv, np.float32) if has_uv else np.zeros((0, 2), np.float32)
         scratch = np.empty((self.max_registers, 3), np.float32)
-        uvx = np.zeros((n, 0, 2), np.float32) if uv_layers is None else np.ascontiguousarray(uv_layers, np.float32)
+        if uv_layers is None:
+            uvx = np.zeros((n, 0, 3, 2), np.float32)
+        else:
+            uvx = np.asarray(uv_layers, np.float32)
+            if uvx.ndim == 3:  # values only: zero derivatives
+                full = np.zeros((n, uvx.shape[1], 3, 2), np.float32)
+                full[:, :, 0] = uvx
+                uvx = full
+            uvx = np.ascontiguousarray(uvx)
         ext = np.zeros((n, 0), np.float32) if extra is None else np.ascontiguousarray(extra, np.float32)
+        dP = np.zeros((n, 2, 3), np.float32) if dP is None else np.ascontiguousarray(dP, np.float32)
+        duv = np.zeros((n, 2, 2), np.float32) if duv is None else np.ascontiguousarray(duv, np.float32)
+        tan = np.zeros((n, 0, 4), np.float32) if tangents is None else np.ascontiguousarray(tangents, np.float32)
+        nraw = _f3(N) if mesh_normal is None else _f3(mesh_normal)
+        has_normal = np.zeros(n, np.bool_)
+        if normal_out is None:
+            normal_out = np.zeros((n, 3), np.float32)
         run_programs(np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(mat, np.int64), self.prog_of_mat,
                      self.code, self.code_start, self.regs0, self.reg_start, self.data, self.data_start, self.bind,
-                     self.emit_reg, *self.texture_pack, _f3(P), _f3(N), _f3(Ng), _f3(I), uvs, has_uv,
-                     np.ascontiguousarray(back, np.bool_), np.ascontiguousarray(obj, np.int32), self.objects, uvx,
-                     ext, scratch, lobes.kind, lobes.weight, lobes.roughness, lobes.ior, lobes.f0, lobes.tint,
-                     lobes.select, select_scale, emission)
+                     self.emit_reg, self.normal_reg, *self.texture_pack, _f3(P), _f3(N), _f3(Ng), _f3(I), uvs,
+                     has_uv, np.ascontiguousarray(back, np.bool_), np.ascontiguousarray(obj, np.int32), self.objects,
+                     uvx, ext, dP, duv, tan, nraw, scratch, lobes.kind, lobes.weight, lobes.roughness, lobes.ior,
+                     lobes.f0, lobes.tint, lobes.select, select_scale, emission, normal_out, has_normal)
+        return has_normal if self.any_sets_normal else None
 
 
 def _f3(a) -> np.ndarray:
@@ -928,9 +1177,12 @@ def pack_textures_rgba(textures) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
 
 
 def run_single(program: ShadingProgram, textures=(), P=(0, 0, 0), N=(0, 0, 1), Ng=None, I=(0, 0, 1), uv=(0.0, 0.0),
-               back=False, objects: np.ndarray | None = None, uv_layers=(), extra=()) -> np.ndarray:
-    """The program's final register file at one shading point (tests, and the compiler's constant folding);
-    extra: the point's path state and attributes (core.shading.program PATH_* columns), empty for none."""
+               back=False, objects: np.ndarray | None = None, uv_layers=(), extra=(), dP=((0, 0, 0), (0, 0, 0)),
+               duv=((0, 0), (0, 0)), tangents=(), mesh_normal=None) -> np.ndarray:
+    """The program's final register file at one shading point (tests, and the compiler's constant folding).
+    uv_layers: K (u, v) pairs, or K x 3 x 2 (value, d/dx, d/dy); dP: dP.dx, dP.dy; tangents: T x 4 (tangent xyz,
+    bitangent sign); mesh_normal: the unnormalised mesh normal (default N); extra: the
+    point's path state and attributes (core.shading.program PATH_* columns), empty for none."""
     n_regs = max(program.registers.shape[0], 1)
     code = np.ascontiguousarray(program.code, np.int32).reshape(-1, WIDTH)
     P3, N3, I3 = (np.asarray(v, np.float32).reshape(1, 3) for v in (P, N, I))
@@ -938,16 +1190,28 @@ def run_single(program: ShadingProgram, textures=(), P=(0, 0, 0), N=(0, 0, 1), N
     regs = np.array(program.registers, np.float32).reshape(-1, 3).copy()
     pack = pack_textures_rgba(textures)
     objs = np.ascontiguousarray(objects if objects is not None else identity_object_row()[None], np.float32)
+    layers = np.asarray(uv_layers, np.float32)
+    uvx = np.zeros((1, 0, 3, 2), np.float32)
+    if layers.size:
+        if layers.size % 6 == 0 and layers.ndim == 3:
+            uvx = np.ascontiguousarray(layers.reshape(1, -1, 3, 2))
+        else:
+            flat = layers.reshape(-1, 2)
+            uvx = np.zeros((1, flat.shape[0], 3, 2), np.float32)
+            uvx[0, :, 0] = flat
+    tan = np.asarray(tangents, np.float32).reshape(1, -1, 4)
+    nraw = N3 if mesh_normal is None else np.asarray(mesh_normal, np.float32).reshape(1, 3)
     _run_one(code, regs, np.ascontiguousarray(program.data, np.float32), *pack, P3, N3, Ng3, I3,
              np.asarray(uv, np.float32).reshape(1, 2), np.array([bool(back)]), np.zeros(1, np.int32), objs,
-             np.asarray(uv_layers, np.float32).reshape(1, -1, 2), np.asarray(extra, np.float32).reshape(1, -1))
+             uvx, np.asarray(extra, np.float32).reshape(1, -1), np.asarray(dP, np.float32).reshape(1, 2, 3), np.asarray(duv, np.float32).reshape(1, 2, 2),
+             np.ascontiguousarray(tan), np.ascontiguousarray(nraw))
     return regs[:n_regs]
 
 
 @_jit
-def _run_one(code, regs, data, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, back, obj, objects, uvx,
-             extra):
+def _run_one(code, regs, data, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, back, obj, objects, uvx, extra,
+             dP, duv, tan, nraw):
     for i in range(code.shape[0]):
         a = code[i]
         _execute(a[0], a, regs, data, 0, P, N, Ng, I, uv, True, back, obj, objects, tex_pixels, tex_offset, tex_h,
-                 tex_w, uvx, extra)
+                 tex_w, uvx, extra, dP, duv, tan, nraw)

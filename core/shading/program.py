@@ -16,6 +16,9 @@ A material whose node tree does not fold to constants carries one `ShadingProgra
   Weights and tints are colours, roughness and ior floats (component 0), f0 a colour.
 - `emission`: the register holding the emitted radiance (colour x strength, W/(sr m^2)), or -1 for the
   material's constant `Material.emission`.
+- `normal`: the register holding the shading normal the BSDFs use (a Normal Map or Bump node's output driving a
+  shader's Normal input; world space, on the viewer's side like N), or -1 for the interpolated normal. The
+  integrator rebuilds the point's shading frame around it (core.geometry_kernels.reframe).
 
 The evaluator writes the bound values over the lobe parameters `MaterialTable.gather` produced (the layout of
 core.bsdf.LobeBatch), clamping as `MaterialTable.build` does (roughness to [0, 1] and to 0 at or below Cycles'
@@ -24,7 +27,10 @@ singular threshold, ior >= 1e-5, f0 and tints to [0, 1] / >= 0), and recomputes 
 Per-point inputs (the "shading context", world space, float32): P position, N shading normal and Ng true normal
 both turned to the viewer's side (Cycles flips N and Ng on a back face), I unit direction towards the viewer,
 UV (the mesh's active UV map), backfacing, the object row (`OBJECT_*` columns of `PreparedShading.objects`), and
-the per-point extras (`PATH_*` and attribute columns below): the path state and the named mesh attributes.
+the per-point extras (`PATH_*` and attribute columns below): the path state and the named mesh attributes; for the
+Vector nodes also the ray differential dP.dx / dP.dy (Cycles' compact differential spread along two orthonormal
+tangents of Ng), the UV maps' derivatives along them, the tangent layers (MikkTSpace tangent + bitangent sign per
+UV map, Scene.tangent_layer_names) and the interpolated, unnormalised mesh normal (outside).
 """
 
 from __future__ import annotations
@@ -112,6 +118,7 @@ class ShadingProgram:
     lobes: np.ndarray
     emission: int = -1
     data: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    normal: int = -1
 
     def validate(self, owner: str, n_lobes: int, n_textures: int) -> None:
         """Normalise dtypes and check every operand the registry declares; raise ProgramError naming `owner`."""
@@ -126,7 +133,7 @@ class ShadingProgram:
             raise ProgramError(f"{owner}: program binds {self.lobes.shape[0]} lobes, the material has {n_lobes}")
         if not np.all(np.isfinite(self.registers)):
             raise ProgramError(f"{owner}: program constants contain NaN/Inf")
-        bound = np.concatenate([self.lobes.reshape(-1), [self.emission]])
+        bound = np.concatenate([self.lobes.reshape(-1), [self.emission, self.normal]])
         if np.any((bound < -1) | (bound >= r)):
             raise ProgramError(f"{owner}: an output binding names a register outside [0, {r})")
         for i, inst in enumerate(self.code):
@@ -140,4 +147,4 @@ class ShadingProgram:
     @property
     def is_constant(self) -> bool:
         """No instruction and no binding: the material is its constant lobes."""
-        return self.code.shape[0] == 0 and not np.any(self.lobes >= 0) and self.emission < 0
+        return self.code.shape[0] == 0 and not np.any(self.lobes >= 0) and self.emission < 0 and self.normal < 0

@@ -137,14 +137,18 @@ OP_FRESNEL = register(OpSpec("fresnel", 18, _r("out", kind="out") + _r("ior", ki
 OP_LAYER_WEIGHT = register(OpSpec("layer_weight", 19, _r("fresnel", "facing", kind="out?") + _r("blend", kind="in")
                                   + _r("normal", kind="in?"), "Layer Weight node")).code
 # Shading-context inputs.
+# bump / bump_width on the shading-context ops: the copy of a Bump node's Height subgraph that reads the point
+# shifted along the surface by the ray differential (bump 1: dP.dx, 2: dP.dy) times the Bump's filter width
+# (register bump_width), as Cycles' *_bump_dx/_bump_dy nodes; bump 0 reads the point itself.
+_BUMP = (("bump", "int"), ("bump_width", "in?"))
 OP_TEXCOORD = register(OpSpec("texture_coordinate", 30, _r("generated", "normal", "uv", "object", "camera", "window",
-                                                          "reflection", kind="out?"),
+                                                          "reflection", kind="out?") + _BUMP,
                               "Texture Coordinate node outputs (object space: the hit object's)")).code
 OP_GEOMETRY = register(OpSpec("geometry", 31, _r("position", "normal", "true_normal", "incoming", "backfacing",
-                                                 "parametric", kind="out?"), "Geometry node outputs")).code
+                                                 "parametric", kind="out?") + _BUMP, "Geometry node outputs")).code
 OP_OBJECT_INFO = register(OpSpec("object_info", 32, _r("location", "color", "alpha", "object_index", "random",
                                                        kind="out?"), "Object Info node outputs")).code
-OP_UV_LAYER = register(OpSpec("uv_layer", 33, _r("out", kind="out") + _r("layer", kind="int"),
+OP_UV_LAYER = register(OpSpec("uv_layer", 33, _r("out", kind="out") + _r("layer", kind="int") + _BUMP,
                               "UV Map node naming a map: layer = index into Scene.uv_layer_names")).code
 OP_ATTRIBUTE = register(OpSpec("attribute", 34, _r("color", "alpha", "fac", kind="out?")
                                 + _r("layer", "missing_alpha", kind="int"),
@@ -160,7 +164,8 @@ OP_LIGHT_PATH = register(OpSpec("light_path", 35, _r("is_camera", "is_shadow", "
 # Images.
 OP_IMAGE = register(OpSpec("image", 40, _r("color", "alpha", kind="out?") + _r("vector", kind="in?")
                            + _r("texture", kind="tex") + _r("interpolation", "extension", "flags", "projection",
-                                                             kind="int") + _r("blend", kind="in?"),
+                                                             kind="int") + _r("blend", kind="in?")
+                           + _BUMP,
                            "Image Texture node: interpolation 0 linear 1 closest 2 cubic; "
                            "extension 0 repeat 1 extend 2 clip 3 mirror; flags bit 0: colour times alpha "
                            "(associate), bit 2: colour divided by alpha where 0 < alpha < 1 (unassociate; after "
@@ -178,3 +183,30 @@ OP_SQRT_SATURATE = register(OpSpec("sqrt_saturate", 52, _r("out", kind="out") + 
                                    "per component sqrt(clamp(a, 0, 1)) (Principled transmission tint)")).code
 OP_ONE_MINUS_SATURATE = register(OpSpec("one_minus_saturate", 53, _r("out", kind="out") + _r("a", kind="in"),
                                         "per component clamp(1 - a, 0, 1) (Principled metal Schlick tint)")).code
+# Vector nodes: the shading normal (world space, on the viewer's side like the context's N).
+OP_NORMAL_MAP = register(OpSpec("normal_map", 60, _r("normal", kind="out") + _r("color", "strength", kind="in")
+                                + _r("space", "layer", "flip_y", kind="int"),
+                                "Normal Map node (Cycles' svm_node_normal_map): colour 2 c - 1; space 0 tangent "
+                                "(layer: index into Scene.tangent_layer_names, -1 or a mesh without it: N), 1 "
+                                "object, 2 world, 3 / 4 Blender object / world (y and z negated); flip_y: DirectX "
+                                "green channel; negated on a back face; strength scales the tangent-space offset "
+                                "(other spaces: blends from N)")).code
+OP_BUMP = register(OpSpec("bump", 61, _r("normal", kind="out") + _r("strength", "distance", "height", "height_dx",
+                                                                     "height_dy", "filter_width", kind="in")
+                          + _r("normal_in", kind="in?") + _r("invert", kind="int"),
+                          "Bump node (Cycles' svm_node_set_bump): the heights at the point and shifted by the ray "
+                          "differential's dP.dx / dP.dy times filter_width give the surface gradient; normal_in -1: "
+                          "N")).code
+OP_VECTOR_TRANSFORM = register(OpSpec("vector_transform", 62, _r("out", kind="out") + _r("vector", kind="in")
+                                      + _r("type", "convert_from", "convert_to", kind="int")
+                                      + _r("camera", kind="data"),
+                                      "Vector Transform node (Cycles' svm_node_vector_transform): type 0 point 1 "
+                                      "vector 2 normal (a direction, normalised); spaces 0 world 1 object 2 camera; "
+                                      "camera: 24 floats in the data pool, world -> camera then camera -> world "
+                                      "(3 x 4 row-major each, Cycles' camera space: +z forward)")).code
+OP_TANGENT = register(OpSpec("tangent", 63, _r("out", kind="out") + _r("generated", kind="in?")
+                             + _r("axis", "layer", kind="int"),
+                             "Tangent node / Geometry's Tangent (Cycles' svm_node_tangent, primitive_tangent): layer "
+                             ">= 0: the UV map's tangent layer (zero where a mesh lacks it); else radial about axis "
+                             "0 x 1 y 2 z of the generated coordinates, taken to world space as a normal; then made "
+                             "orthogonal to N")).code

@@ -22,7 +22,8 @@ from ....core.shading.program import N_BIND, WIDTH, ShadingProgram
 MAX_DEPTH = 64
 FLOAT, VECTOR, RGBA = "FLOAT", "VECTOR", "RGBA"
 # Opcodes that read the shading context (or the -1 "context default" of an "in?" operand): never folded.
-CONTEXT_OPS = {"texture_coordinate", "geometry", "object_info", "fresnel", "layer_weight", "attribute", "light_path"}
+CONTEXT_OPS = {"texture_coordinate", "geometry", "object_info", "fresnel", "layer_weight", "attribute", "light_path",
+               "normal_map", "bump", "tangent"}
 
 
 def socket_kind(sock) -> str:
@@ -62,6 +63,12 @@ class ProgramBuilder:
     uv_layer_index: object = None  # callable(name) -> index into Scene.uv_layer_names
     attribute_index: object = None  # callable(name) -> index into Scene.attribute_names
     attribute_uses: list = field(default_factory=list)  # (attribute name, "node 'X' (Label)") per read
+    tangent_layer_index: object = None  # callable(UV map name, "" = active) -> index into Scene.tangent_layer_names
+    # Inside a Bump node's Height subgraph copy: 1 / 2 = evaluated at the point shifted by dP.dx / dP.dy times the
+    # filter width (register bump_width); the shading-context ops read it through their bump operands.
+    bump: int = 0
+    bump_width: int = -1
+    camera_matrix: object = None  # the render camera's matrix_world (4 x 4), for Vector Transform's camera space
     registers: list = field(default_factory=list)  # initial values, (3,) float32 each
     varying: list = field(default_factory=list)  # per register: computed per point
     code: list = field(default_factory=list)
@@ -105,7 +112,13 @@ class ProgramBuilder:
         inst[0] = spec.code
         outs: dict = {}
         reads_context = varying or opname in CONTEXT_OPS
+        if self.bump and any(name == "bump" for name, _ in spec.operands):
+            ops.setdefault("bump", self.bump)
+            ops.setdefault("bump_width", self.bump_width)
         for i, (name, kind) in enumerate(spec.operands):
+            if name == "bump_width":  # a parameter of the bump copy, not a reason to evaluate per point
+                inst[i + 1] = int(ops.get(name, -1))
+                continue
             if kind in ("out", "out?"):
                 want = kind == "out" or bool(ops.get(name))
                 outs[name] = self._new(np.zeros(3), True) if want else -1
@@ -273,7 +286,7 @@ class ProgramBuilder:
         """(register, kind) of output socket `out` of a real node, compiling the node once per context."""
         from .registry import RULES
 
-        key = (ctx.key(), node.as_pointer())
+        key = (ctx.key(), node.as_pointer(), self.bump, self.bump_width)
         done = self._outputs.get(key)
         if done is None:
             rule = RULES.get(node.bl_idname)
@@ -302,11 +315,13 @@ class ProgramBuilder:
         return self.const(default_value(out)), socket_kind(out)
 
     # ----------------------------------------------------------------------------------------- finishing
-    def finish(self, lobes_bind: np.ndarray, emission: int) -> ShadingProgram:
+    def finish(self, lobes_bind: np.ndarray, emission: int, normal: int = -1) -> ShadingProgram:
         """The program computing the bound registers: dead instructions removed, registers renumbered."""
         needed = {int(r) for r in lobes_bind.reshape(-1) if r >= 0}
         if emission >= 0:
             needed.add(emission)
+        if normal >= 0:
+            needed.add(normal)
         keep = []
         for inst in reversed(self.code):
             spec = R.OPS[inst[0]]
@@ -331,7 +346,24 @@ class ProgramBuilder:
         bind = np.vectorize(lambda r: renum[int(r)] if r >= 0 else -1, otypes=[np.int32])(lobes_bind) \
             if lobes_bind.size else lobes_bind.astype(np.int32)
         return ShadingProgram(np.asarray(code, np.int32).reshape(-1, WIDTH), regs, bind.reshape(-1, N_BIND),
-                              renum[emission] if emission >= 0 else -1, np.asarray(self.data, np.float32))
+                              renum[emission] if emission >= 0 else -1, np.asarray(self.data, np.float32),
+                              renum[normal] if normal >= 0 else -1)
+
+    def bump_copy(self, which: int, width: int):
+        """Context manager: compile inside it as the Bump node's Height copy `which` (1: dP.dx, 2: dP.dy) with
+        filter width register `width`."""
+        from contextlib import contextmanager
+
+        @contextmanager
+        def scope():
+            saved = (self.bump, self.bump_width)
+            self.bump, self.bump_width = which, width
+            try:
+                yield
+            finally:
+                self.bump, self.bump_width = saved
+
+        return scope()
 
 
 def _socket_by_identifier(sockets, identifier: str):

@@ -45,7 +45,7 @@ def document(bl_idname: str, label: str, category: str, inputs=(), outputs=(), n
 
 
 def _load() -> None:
-    from . import color_rules, rules, shaders, textures  # noqa: F401  (registration side effects)
+    from . import color_rules, rules, shaders, textures, vector_rules  # noqa: F401  (registration side effects)
 
 
 _load()

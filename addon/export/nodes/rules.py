@@ -130,16 +130,21 @@ def _light_path(c, node, ctx):
 
 
 @rule("ShaderNodeNewGeometry", "Geometry", "input",
-      outputs=("Position", "Normal", "True Normal", "Incoming", "Backfacing"),
-      notes="Tangent, Parametric, Pointiness and Random Per Island read 0 (warning).")
+      outputs=("Position", "Normal", "Tangent", "True Normal", "Incoming", "Backfacing"),
+      notes="Tangent: Cycles' radial tangent about Z of the generated coordinates. Parametric, Pointiness and "
+            "Random Per Island read 0 (warning).")
 def _geometry(c, node, ctx):
     names = {"Position": "position", "Normal": "normal", "True Normal": "true_normal", "Incoming": "incoming",
              "Backfacing": "backfacing", "Parametric": "parametric"}
-    for n in ("Tangent", "Parametric", "Pointiness", "Random Per Island"):
+    for n in ("Parametric", "Pointiness", "Random Per Island"):
         if c.output_used(node, n, ctx):
             c.warn(node, f"the {n} output is not supported; it reads 0")
     outs = c.emit("geometry", **{v: c.output_used(node, k, ctx) for k, v in names.items()})
-    return {k: _out(outs[v], FLOAT if k == "Backfacing" else VECTOR) for k, v in names.items() if outs[v] >= 0}
+    res = {k: _out(outs[v], FLOAT if k == "Backfacing" else VECTOR) for k, v in names.items() if outs[v] >= 0}
+    if c.output_used(node, "Tangent", ctx):
+        generated = c.emit("texture_coordinate", generated=True)["generated"]
+        res["Tangent"] = _out(c.emit("tangent", generated=generated, axis=2, layer=-1)["out"], VECTOR)
+    return res
 
 
 @rule("ShaderNodeObjectInfo", "Object Info", "input",

@@ -19,17 +19,17 @@ import numpy as np
 from ....core.shading.program import (BIND_F0, BIND_IOR, BIND_ROUGHNESS, BIND_TINT_R, BIND_TINT_T, BIND_WEIGHT,
                                       N_BIND)
 from ....core.scene import Lobe
-from .compiler import FLOAT, RGBA, MAX_DEPTH, CompileError, Ctx
+from .compiler import FLOAT, RGBA, VECTOR, MAX_DEPTH, CompileError, Ctx
 from .registry import document
 
 SHADERS = {
-    "ShaderNodeBsdfDiffuse": ("Diffuse BSDF", ("Color", "Roughness (0 only)"),
+    "ShaderNodeBsdfDiffuse": ("Diffuse BSDF", ("Color", "Roughness (0 only)", "Normal"),
                               "Lambertian: Oren-Nayar roughness > 0 warns and is ignored."),
-    "ShaderNodeBsdfGlossy": ("Glossy BSDF", ("Color", "Roughness"),
+    "ShaderNodeBsdfGlossy": ("Glossy BSDF", ("Color", "Roughness", "Normal"),
                              "Multiscatter GGX for every distribution; anisotropy warns and is ignored."),
-    "ShaderNodeBsdfAnisotropic": ("Anisotropic BSDF", ("Color", "Roughness"), "As Glossy (isotropic)."),
-    "ShaderNodeBsdfGlass": ("Glass BSDF", ("Color", "Roughness", "IOR"), ""),
-    "ShaderNodeBsdfRefraction": ("Refraction BSDF", ("Color", "Roughness", "IOR"), ""),
+    "ShaderNodeBsdfAnisotropic": ("Anisotropic BSDF", ("Color", "Roughness", "Normal"), "As Glossy (isotropic)."),
+    "ShaderNodeBsdfGlass": ("Glass BSDF", ("Color", "Roughness", "IOR", "Normal"), ""),
+    "ShaderNodeBsdfRefraction": ("Refraction BSDF", ("Color", "Roughness", "IOR", "Normal"), ""),
     "ShaderNodeBsdfTransparent": ("Transparent BSDF", ("Color",), ""),
     "ShaderNodeEmission": ("Emission", ("Color", "Strength"),
                            "A varying emission is light-sampled by its own table (triangles chosen by area x "
@@ -41,11 +41,17 @@ SHADERS = {
                           "zero alpha; other rays see nothing. A weight that varies per point warns and is ignored."),
     "ShaderNodeBsdfPrincipled": ("Principled BSDF",
                                  ("Base Color", "Metallic", "Roughness", "IOR", "Alpha", "Transmission Weight",
-                                  "Specular IOR Level", "Specular Tint", "Emission Color", "Emission Strength"),
+                                  "Specular IOR Level", "Specular Tint", "Emission Color", "Emission Strength",
+                                  "Normal"),
                                  "Coat, sheen, anisotropy and thin film are ignored (warning when used); "
                                  "subsurface renders as diffuse (warning)."),
 }
+_NORMAL_NOTE = ("Normal (Normal Map, Bump, ...): one shading normal per material point, the first BSDF's linked "
+                "Normal (a warning names a BSDF whose Normal differs); Cycles' bump-map correction of the "
+                "reflection applies where the material has glossy or glass lobes.")
 for _idname, (_label, _inputs, _notes) in SHADERS.items():
+    if "Normal" in _inputs:
+        _notes = f"{_notes} {_NORMAL_NOTE}".strip()
     document(_idname, _label, "shader", inputs=_inputs, outputs=("BSDF",), notes=_notes)
 document("ShaderNodeOutputMaterial", "Material Output", "output", inputs=("Surface",),
          notes="The active output for Cycles (target Cycles or All). Volume and Displacement warn and are ignored.")
@@ -79,6 +85,7 @@ class ShaderWalk:
         self.lobes: list[LobeSpec] = []
         self.emission = c.const(0.0)
         self.holdout = 0.0  # Holdout shader weight (core.scene.Material.holdout); constant weights only
+        self.normals: list = []  # (BSDF node, its Normal input's register or -1 when unlinked), in walk order
 
     # ---------------------------------------------------------------------------------------------- walk
     def surface(self, sock, ctx: Ctx) -> None:
@@ -152,10 +159,27 @@ class ShaderWalk:
         return self.c.vmath("SCALE", self.c.input(node, colour, RGBA, ctx), scale=w)
 
     def _check_normal(self, node, ctx: Ctx) -> None:
-        if node.inputs.get("Normal") is not None and self.c.is_linked(node, "Normal", ctx):
-            src = self.c.source(node.inputs["Normal"], ctx)[1]
-            self.c.warn(node, f"the Normal input (driven by {src.name!r}, {src.bl_label}): bump and normal maps "
-                              "are not supported and are ignored")
+        """Record the BSDF's Normal input (a Normal Map, Bump, ... output): the material's shading normal."""
+        if node.inputs.get("Normal") is None:
+            return
+        reg = -1
+        if self.c.is_linked(node, "Normal", ctx):
+            reg = self.c.input(node, "Normal", VECTOR, ctx)
+        self.normals.append((node, reg))
+
+    def shading_normal(self) -> int:
+        """The register of the material's shading normal, or -1. Monte shades all BSDFs of a point in one frame:
+        the first linked Normal input drives them all (a warning names a BSDF whose Normal differs)."""
+        linked = [(node, r) for node, r in self.normals if r >= 0]
+        if not linked:
+            return -1
+        first_node, first = linked[0]
+        for node, r in self.normals:
+            if r != first:
+                what = "is unlinked" if r < 0 else "differs"
+                self.c.warn(node, f"its Normal input {what}; Monte shades all BSDFs of a material with one normal, "
+                                  f"that of {first_node.name!r}")
+        return first
 
     def _principled(self, node, ctx: Ctx, w: int) -> None:
         c = self.c
@@ -273,14 +297,15 @@ class ShaderWalk:
         return lobes, bind
 
 
-def compile_surface(c, output_node) -> tuple[list[Lobe], np.ndarray, int, float]:
-    """(template lobes, bindings, emission register, holdout weight in [0, 1]) of a Material Output's Surface
-    input."""
+def compile_surface(c, output_node) -> tuple[list[Lobe], np.ndarray, int, float, int]:
+    """(template lobes, bindings, emission register, holdout weight in [0, 1], shading-normal register or -1) of
+    a Material Output's Surface input."""
     walk = ShaderWalk(c)
     sock = output_node.inputs["Surface"]
     walk.surface(sock, Ctx())
     lobes, bind = walk.lobes_and_bindings()
-    return lobes, bind, walk.emission, min(max(walk.holdout, 0.0), 1.0)
+    normal = walk.shading_normal() if lobes else -1
+    return lobes, bind, walk.emission, min(max(walk.holdout, 0.0), 1.0), normal
 
 
 __all__ = ["compile_surface", "UnsupportedShader", "CompileError"]

@@ -1,0 +1,105 @@
+"""The per-point inputs of the Vector nodes (Normal Map, Bump) that the integrator hands the evaluator: ray
+differentials spread along the surface, the UV maps' derivatives along them, tangent layers and the mesh normal.
+
+Cycles keeps a ray's differential in compact form, one footprint size dP per shading point
+(differential_transfer_compact: the ray's dP plus distance x its dD); where a node needs vectors it spreads that
+size along two orthonormal tangents of the viewer-side true normal Ng (differential_from_compact, with the
+tangents of make_orthonormals). A mesh attribute's derivative follows from the barycentric derivatives that move
+the point by those vectors within its triangle (differential_dudv). Plain NumPy over a batch of points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class VectorContext:
+    """dP (N, 2, 3): dP.dx, dP.dy (world units); db (N, 2, 2): for each, the change of the barycentric weights
+    (b1, b2) of corners 1 and 2; duv (N, 2, 2): the active UV map's change; tangents (N, K, 4): the tangent
+    layers interpolated (xyz, sign); mesh_normal (N, 3): the interpolated mesh normal, unnormalised, outside.
+    Each None when not needed."""
+
+    dP: np.ndarray | None = None
+    db: np.ndarray | None = None
+    duv: np.ndarray | None = None
+    tangents: np.ndarray | None = None
+    mesh_normal: np.ndarray | None = None
+
+
+def orthonormals(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents (a, b) of unit normals n (N, 3) with b = n x a, chosen as Cycles' make_orthonormals:
+    a along (1, 1, 1) x n, or (-1, 1, 1) x n when n is along (1, 1, 1)."""
+    n = np.asarray(n, np.float64)
+    x, y, z = n[:, 0], n[:, 1], n[:, 2]
+    diagonal = (x == y) & (x == z)
+    a = np.stack([z - y, np.where(diagonal, x + z, x - z), np.where(diagonal, -y - x, y - x)], axis=1)
+    a /= np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-300)
+    return a, np.cross(n, a)
+
+
+def vector_context(ps, prim: np.ndarray, bary, ng_view: np.ndarray, dp: np.ndarray | None,
+                   has_uv: bool) -> VectorContext:
+    """The Vector-node inputs of hits on triangles `prim` at barycentrics bary = (b1, b2) (None: none), with
+    viewer-side true normals ng_view and footprints dp (None: no differentials). ps: the PreparedScene
+    (tri_vertices, uvs, tangent_layers, corner_normals, smooth, face_normals)."""
+    out = VectorContext()
+    if bary is None:
+        return out
+    b1 = np.asarray(bary[0], np.float64)
+    b2 = np.asarray(bary[1], np.float64)
+    if dp is not None:
+        ta, tb = orthonormals(ng_view)
+        size = np.asarray(dp, np.float64)[:, None]
+        d = np.stack([ta * size, tb * size], axis=1)  # (N, 2, 3)
+        out.dP = d.astype(np.float32)
+        v = ps.tri_vertices[prim].astype(np.float64)
+        e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+        a11 = np.einsum("ij,ij->i", e1, e1)
+        a12 = np.einsum("ij,ij->i", e1, e2)
+        a22 = np.einsum("ij,ij->i", e2, e2)
+        det = a11 * a22 - a12 * a12
+        inv = np.where(det != 0, 1.0 / np.where(det != 0, det, 1.0), 0.0)
+        db = np.empty((len(prim), 2, 2))
+        for j in range(2):
+            r1 = np.einsum("ij,ij->i", e1, d[:, j])
+            r2 = np.einsum("ij,ij->i", e2, d[:, j])
+            db[:, j, 0] = (a22 * r1 - a12 * r2) * inv
+            db[:, j, 1] = (a11 * r2 - a12 * r1) * inv
+        out.db = db.astype(np.float32)
+        if has_uv and ps.uvs is not None:
+            c = ps.uvs[prim].astype(np.float64)  # (N, 3, 2)
+            u1, u2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+            out.duv = (u1[:, None] * db[:, :, 0, None] + u2[:, None] * db[:, :, 1, None]).astype(np.float32)
+    if ps.tangent_layers is not None:
+        b0 = 1.0 - b1 - b2
+        t = ps.tangent_layers[prim]  # (N, K, 3, 4)
+        out.tangents = (t[:, :, 0] * b0[:, None, None] + t[:, :, 1] * b1[:, None, None]
+                        + t[:, :, 2] * b2[:, None, None]).astype(np.float32)
+        normal = ps.face_normals[prim].astype(np.float64)
+        if ps.corner_normals is not None:
+            cn = ps.corner_normals[prim].astype(np.float64)
+            smooth_n = cn[:, 0] * b0[:, None] + cn[:, 1] * b1[:, None] + cn[:, 2] * b2[:, None]
+            normal = np.where(ps.smooth[prim][:, None], smooth_n, normal)
+        out.mesh_normal = normal.astype(np.float32)
+    return out
+
+
+def camera_differentials(camera, raster_x: np.ndarray, raster_y: np.ndarray, rays,
+                         lens_u: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Cycles' compact differentials of camera rays (dP, dD), (N,) float32 each: the mean length of the change of
+    the ray's origin (dP) and of its unit direction (dD) when the raster position moves by one pixel in x and in
+    y (differential_make_compact). Orthographic: dP = the pixel's size, dD = 0; perspective: the origin sits on
+    the near clipping plane, so dP = its distance x dD, as Cycles' camera rays."""
+    from ..camera import camera_rays
+
+    x = np.asarray(raster_x, np.float64)
+    y = np.asarray(raster_y, np.float64)
+    rx = camera_rays(camera, x + 1.0, y, lens_u)
+    ry = camera_rays(camera, x, y + 1.0, lens_u)
+    o, d = rays.origins.astype(np.float64), rays.directions.astype(np.float64)
+    dp = 0.5 * (np.linalg.norm(rx.origins - o, axis=1) + np.linalg.norm(ry.origins - o, axis=1))
+    dd = 0.5 * (np.linalg.norm(rx.directions - d, axis=1) + np.linalg.norm(ry.directions - d, axis=1))
+    return dp.astype(np.float32), dd.astype(np.float32)

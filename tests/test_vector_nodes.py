@@ -1,0 +1,117 @@
+"""The Vector nodes' device functions (Normal Map, Bump) against their analytic values, and the ray-differential
+helpers they read (core.shading.vector_context). No Blender: programs are run through evaluator.run_single."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from monte.core.scene import Camera
+from monte.core.camera import camera_rays
+from monte.core.shading import evaluator as ev
+from monte.core.shading import registry as R
+from monte.core.shading.program import WIDTH, ShadingProgram
+from monte.core.shading.vector_context import camera_differentials, orthonormals
+
+
+def _inst(name: str, **ops) -> list[int]:
+    spec = R.op(name)
+    row = [-1] * WIDTH
+    row[0] = spec.code
+    for i, (operand, kind) in enumerate(spec.operands):
+        row[i + 1] = ops.get(operand, 0 if kind == "int" else -1)
+    return row
+
+
+def _run(code, registers, **context) -> np.ndarray:
+    prog = ShadingProgram(np.asarray(code, np.int32), np.asarray(registers, np.float32), np.zeros((0, 6), np.int32))
+    return ev.run_single(prog, **context)
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, np.float64)
+    return v / np.linalg.norm(v)
+
+
+def _normal_map(colour, strength=1.0, space=0, flip_y=0, **context) -> np.ndarray:
+    regs = [[0, 0, 0], colour, [strength] * 3]
+    return _run([_inst("normal_map", normal=0, color=1, strength=2, space=space, layer=0, flip_y=flip_y)], regs,
+                **context)[0]
+
+
+def test_normal_map_world_space_is_the_colour_as_a_direction_negated_on_back_faces():
+    n = _unit([0.3, -0.5, 0.8])
+    colour = 0.5 * n + 0.5
+    assert np.allclose(_normal_map(colour, space=2), n, atol=1e-6)
+    assert np.allclose(_normal_map(colour, space=2, back=True), -n, atol=1e-6)
+    # Blender world space: y and z negated
+    assert np.allclose(_normal_map(colour, space=4), n * [1, -1, -1], atol=1e-6)
+    # strength blends linearly from N outside tangent space
+    half = _normal_map(colour, strength=0.5, space=2, N=(0, 0, 1))
+    assert np.allclose(half, _unit(np.array([0, 0, 1]) + 0.5 * (n - [0, 0, 1])), atol=1e-6)
+
+
+def test_normal_map_tangent_space_uses_tangent_sign_and_strength_in_tangent_space():
+    # tangent +x, sign -1: the bitangent is -(z x x) = -y, so a green-up colour points along -y
+    tangents = [[1.0, 0.0, 0.0, -1.0]]
+    assert np.allclose(_normal_map([0.5, 1.0, 0.5], tangents=tangents), [0, -1, 0], atol=1e-6)
+    c = np.array([0.8, 0.35, 0.9])
+    t = 2 * c - 1
+    expect = _unit([0.6 * t[0], -0.6 * t[1], 1 + (t[2] - 1) * 0.6])
+    assert np.allclose(_normal_map(c, strength=0.6, tangents=tangents), expect, atol=1e-6)
+    # DirectX: green points down
+    assert np.allclose(_normal_map([0.5, 1.0, 0.5], flip_y=1, tangents=tangents), [0, 1, 0], atol=1e-6)
+    # a mesh without the map (zero tangent) keeps N
+    assert np.allclose(_normal_map(c, tangents=[[0, 0, 0, 0]], N=(0, 0.6, 0.8)), [0, 0.6, 0.8], atol=1e-6)
+
+
+@pytest.mark.parametrize("invert, strength", [(False, 1.0), (True, 1.0), (False, 0.4)])
+def test_bump_of_a_linear_height_tilts_the_normal_by_its_gradient(invert, strength):
+    """h = a x + b y at the point and at the points shifted by the differential (via Geometry Position in the
+    bump copies): the bumped normal is normalize(N - distance grad h), whatever the differential's size,
+    orientation or the filter width."""
+    a, b, distance, width = 0.7, -0.3, 0.5, 0.1
+    regs = np.zeros((16, 3), np.float32)
+    regs[1], regs[2], regs[6], regs[10] = strength, distance, width, (a, b, 0.0)
+    code = [_inst("geometry", position=3), _inst("geometry", position=4, bump=1, bump_width=6),
+            _inst("geometry", position=5, bump=2, bump_width=6)]
+    for src, dst in ((3, 7), (4, 8), (5, 9)):
+        code.append(_inst("vector_math", value=dst, a=src, b=10, c=11, scale=11, operation=10))  # dot
+    code.append(_inst("bump", normal=0, strength=1, distance=2, height=7, height_dx=8, height_dy=9, filter_width=6,
+                      invert=int(invert)))
+    dp = ((0.004, 0.003, 0.0), (-0.003, 0.004, 0.0))  # rotated, 5 mm footprint
+    out = _run(code, regs, P=(0.3, 0.2, 0.0), dP=dp)[0]
+    sign = -1.0 if invert else 1.0
+    bumped = _unit([-sign * distance * a, -sign * distance * b, 1.0])
+    expect = _unit(strength * bumped + (1 - strength) * np.array([0, 0, 1]))
+    assert np.allclose(out, expect, atol=2e-5)
+
+
+def test_orthonormals_are_cycles_make_orthonormals():
+    rng = np.random.default_rng(3)
+    n = rng.normal(size=(50, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.vstack([n, np.full((1, 3), 1 / math.sqrt(3))])  # the (1, 1, 1) special case
+    a, b = orthonormals(n)
+    assert np.allclose(np.linalg.norm(a, axis=1), 1) and np.allclose(np.linalg.norm(b, axis=1), 1)
+    assert np.allclose(np.einsum("ij,ij->i", a, n), 0, atol=1e-12)
+    assert np.allclose(b, np.cross(n, a))
+    # the first tangent is along (1, 1, 1) x n
+    assert np.allclose(a[0], _unit(np.cross([1, 1, 1], n[0])))
+    assert np.allclose(a[-1], _unit([0, 2 / math.sqrt(3), -2 / math.sqrt(3)]))
+
+
+def test_camera_differentials_are_the_pixel_footprint():
+    ortho = Camera(matrix_world=np.eye(4), kind="ORTHO", ortho_scale=2.0, resolution=(40, 20))
+    x, y = np.array([3.5, 20.0]), np.array([7.5, 10.0])
+    dp, dd = camera_differentials(ortho, x, y, camera_rays(ortho, x, y))
+    assert np.allclose(dp, 2.0 / 40) and np.allclose(dd, 0.0)
+    persp = Camera(matrix_world=np.eye(4), kind="PERSP", resolution=(64, 64))
+    x, y = np.array([32.0]), np.array([32.0])
+    rays = camera_rays(persp, x, y)
+    dp, dd = camera_differentials(persp, x, y, rays)
+    width = persp.frame()[1] - persp.frame()[0]  # of the image plane at distance 1
+    assert np.allclose(dd, width / 64, rtol=1e-3)
+    assert np.allclose(dp, rays.t_start * dd, rtol=1e-3)
