@@ -228,19 +228,23 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     missing = [ti for ti, r in enumerate(reached) if r != settings.spp]
     if missing:
         raise ValueError(f"tiles {missing[:8]} do not hold all {settings.spp} samples")
-    color, variance, albedo, normal, depth, counts = assemble_image(tile_list, films, settings, region)
+    color, variance, albedo, normal, depth, counts, features = assemble_image(tile_list, films, settings, region,
+                                                                              scene)
     stats = {"scene": scene.name, "resolution": [width, height], "region": list(region), "spp": settings.spp,
              "samples": int(counts.sum())}
     result = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings))
-    _assemble_features(result, tile_list, films, scene, region)
+    if features is not None:
+        result.denoising_albedo, result.denoising_normal = features
     return result
 
 
-def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: RenderSettings, region: TileRect
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None,
-                              np.ndarray]:
-    """The region's (color, variance, albedo, normal, depth, sample counts) from its tiles' films (see Tile for
-    the arrays; AOVs None when settings.aovs is off)."""
+def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: RenderSettings, region: TileRect,
+                   scene: Scene) -> tuple:
+    """The region's (color, variance, albedo, normal, depth, sample counts, denoising features) from its tiles'
+    films (see Tile for the arrays; AOVs None when settings.aovs is off; the features (albedo, normal in camera
+    space) None unless the films keep them). Each film is released (TileFilm.release) once its tile is read, so
+    the films and the images are never all held at once: an 8K frame's peak memory is the larger of the two,
+    not their sum."""
     rx, ry, rw, rh = region
     color = np.zeros((rh, rw, 4), np.float32)
     variance = np.zeros((rh, rw, 3), np.float32)
@@ -248,6 +252,10 @@ def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: R
     normal = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
     depth = np.full((rh, rw), 1e10, np.float32) if settings.aovs else None
     counts = np.zeros((rh, rw), np.int32)
+    features = None
+    if films and films[0].features:
+        rot = world_to_camera(scene)
+        features = (np.zeros((rh, rw, 3), np.float32), np.zeros((rh, rw, 3), np.float32))
     for tile, film in zip(tile_list, films):
         tx, ty, tw, th = tile
         sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
@@ -256,7 +264,12 @@ def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: R
         counts[sl] = film.count.reshape(th, tw)
         if settings.aovs:
             albedo[sl], normal[sl], depth[sl] = tr.albedo, tr.normal, tr.depth
-    return color, variance, albedo, normal, depth, counts
+        if features is not None:
+            feature_albedo, feature_normal = film.feature_images()
+            features[0][sl] = feature_albedo
+            features[1][sl] = feature_normal @ rot.T
+        film.release()
+    return color, variance, albedo, normal, depth, counts, features
 
 
 def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
@@ -281,23 +294,6 @@ def world_to_camera(scene: Scene) -> np.ndarray:
     axes = np.asarray(scene.camera.matrix_world, np.float64)[:3, :3].T.copy()
     axes[2] *= -1
     return axes / np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-30)
-
-
-def _assemble_features(result: RenderResult, tile_list: list[TileRect], films: list[TileFilm], scene: Scene,
-                       region: TileRect) -> None:
-    """Fill result.denoising_albedo/normal from the tiles' films when they keep the denoising features."""
-    if not films or not films[0].features:
-        return
-    rx, ry, rw, rh = region
-    rot = world_to_camera(scene)
-    result.denoising_albedo = np.zeros((rh, rw, 3), np.float32)
-    result.denoising_normal = np.zeros((rh, rw, 3), np.float32)
-    for tile, film in zip(tile_list, films):
-        tx, ty, tw, th = tile
-        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
-        albedo, normal = film.feature_images()
-        result.denoising_albedo[sl] = albedo
-        result.denoising_normal[sl] = normal @ rot.T
 
 
 def _silent(_msg: str) -> None:
@@ -642,8 +638,8 @@ class _TileRender:
         """The region's image assembled from the tiles, with the render's statistics."""
         settings, scene, accel = self.settings, self.scene, self.accel
         rx, ry, rw, rh = self.region
-        color, variance, albedo, normal, depth, counts = assemble_image(
-            self.tiles, [self.films[t] for t in self.tiles], settings, self.region)
+        color, variance, albedo, normal, depth, counts, features = assemble_image(
+            self.tiles, [self.films[t] for t in self.tiles], settings, self.region, scene)
         elapsed = time.perf_counter() - self.t_start
         st = PathStats.total([t.stats for t in self.tracers])
         rays_closest, rays_shadow = self._ray_counts()
@@ -678,5 +674,6 @@ class _TileRender:
             say(f"warning: {msg}")
         out = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings),
                            self.cancelled)
-        _assemble_features(out, self.tiles, [self.films[t] for t in self.tiles], scene, self.region)
+        if features is not None:
+            out.denoising_albedo, out.denoising_normal = features
         return out
