@@ -109,8 +109,10 @@ def built_zip(tmp_path_factory):
     if _THIS_PLATFORM is None:
         pytest.skip(f"no Monte extension build for {platform.system()} {platform.machine()}")
     out = tmp_path_factory.mktemp("dist")
+    # (the build compiles every kernel, feature kernels included: ~5 minutes of CPU, far more wall time on a
+    # loaded machine)
     proc = subprocess.run([sys.executable, str(ROOT / "tools" / "build_extension.py"), "--platform", _THIS_PLATFORM,
-                           "--output-dir", str(out)], capture_output=True, text=True, timeout=900)
+                           "--output-dir", str(out)], capture_output=True, text=True, timeout=1800)
     if proc.returncode != 0:  # offline too: a failure that says so, never a skip (the wheels are cached in wheels/)
         hint = ("\nThe bundled wheels could not be downloaded: run `make extension` once online, or put the "
                 "manifest's wheel files into wheels/.") if "pip download failed" in proc.stderr else ""
