@@ -9,7 +9,8 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
 
 - film (core.film, float32 storage): per pixel a float32 RGB shift (12 B), for each of the 4 variance groups a
   float32 RGB deviation sum (4 x 12 B), an int32 sample count (4 B) (64 B); for samplers other than Sobol a
-  float32 RGB sum of squared deviations (FILM_SQUARES_BYTES, 12 B); with
+  float32 RGB sum of squared deviations (FILM_SQUARES_BYTES, 12 B; the independent sampler's film keeps one group
+  and the squares: FILM_INDEPENDENT_BYTES, 40 B); with
   AOVs float32 albedo and normal sums (24 B), a float32 depth sum and int32 count (8 B); with the denoising
   features float32 albedo and normal sums (24 B). Each pass is summed in float64 over the batch's samples
   (counted in the path batch) before it is folded in;
@@ -38,6 +39,7 @@ from .settings import RenderSettings
 
 FILM_BYTES = 64  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
 FILM_SQUARES_BYTES = 12  # the sum of squared deviations: kept for all samplers but Sobol (core.film)
+FILM_INDEPENDENT_BYTES = 40  # independent samples: one group (no variance groups) and the squares
 FILM_AOV_BYTES = 32
 RESULT_BYTES = 32
 RESULT_AOV_BYTES = 28
@@ -82,8 +84,9 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
         pixels = int(w) * int(h)
     aovs = bool(settings.aovs)
     features = bool(settings.denoising_features)
-    film = pixels * (FILM_BYTES + (FILM_SQUARES_BYTES if settings.sampler != "sobol" else 0)
-                     + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0))
+    colour = {"sobol": FILM_BYTES, "stratified": FILM_BYTES + FILM_SQUARES_BYTES}.get(settings.sampler,
+                                                                                     FILM_INDEPENDENT_BYTES)
+    film = pixels * (colour + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0))
     result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0))
     # every worker thread traces one batch at a time (see core.schedule.batch_target)
     total_paths = pixels * max(int(settings.spp), 0)

@@ -11,7 +11,7 @@ import pytest
 from monte.core import sampling
 from monte.core.film import TileFilm
 from monte.core.builtin_scenes import cornell_box
-from monte.core.memory import FILM_AOV_BYTES, FILM_BYTES, FILM_FEATURE_BYTES, FILM_SQUARES_BYTES, estimate_render_memory
+from monte.core.memory import FILM_AOV_BYTES, FILM_BYTES, FILM_FEATURE_BYTES, estimate_render_memory
 from monte.core.settings import SAMPLERS, RenderSettings
 
 SAMPLES = 1_000_000
@@ -31,10 +31,11 @@ def test_film_bytes_per_pixel_match_the_memory_estimate(aovs, features, kind):
     estimate = estimate_render_memory(scene, RenderSettings(spp=16, sampler=kind, aovs=aovs,
                                                             denoising_features=features))
     assert _film_bytes(film) == film.nbytes == estimate.film
-    expected = FILM_BYTES + (FILM_SQUARES_BYTES if kind != "sobol" else 0) + (FILM_AOV_BYTES if aovs else 0) \
-        + (FILM_FEATURE_BYTES if features else 0)
+    colour = {"sobol": 12 + 4 * 12 + 4, "stratified": 12 + 4 * 12 + 4 + 12, "independent": 12 + 12 + 4 + 12}[kind]
+    expected = colour + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0)
     assert film.nbytes == expected * 16 * 8
-    # float64 sums took 200 B per pixel, stored group counts 120; Sobol's film keeps no squared deviations
+    # shift, 4 group sums, the count (float64 sums took 200 B per pixel with the AOVs, stored group counts and
+    # squares 120); Sobol's film keeps no squared deviations
     assert FILM_BYTES + FILM_AOV_BYTES == 96
 
 
