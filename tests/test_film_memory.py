@@ -146,3 +146,12 @@ def test_group_counts_follow_from_the_sample_count_and_samples_out_of_order_are_
     with pytest.raises(ValueError, match="each pixel's samples must arrive in order, sample 0 first"):
         film.add(np.array([1]), np.ones((1, 3)), np.array([4]))  # sample 3 skipped: sample 4 is in another group
     assert film.count.tolist() == [7, 3]
+
+
+def test_a_pixel_outside_the_tile_is_refused_before_the_compiled_sums_touch_memory():
+    film = TileFilm(2, 1, aovs=True, sampler=sampling.make_sampler("sobol", 0, 4, groups=4))
+    with pytest.raises(ValueError, match=r"film: pixel index out of range \[0, 2\) for a 2x1 tile"):
+        film.add(np.array([0, 2]), np.ones((2, 3)), np.array([0, 0]))
+    with pytest.raises(ValueError, match=r"out of range \[0, 2\)"):
+        film.add_aovs(np.array([-1]), np.ones((1, 3)), np.ones((1, 3)), np.ones(1))
+    assert film.count.tolist() == [0, 0] and not film.albedo.any()
