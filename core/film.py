@@ -27,10 +27,24 @@ constant pixel keeps sums of exactly 0: its mean is exact and its variance exact
 noisy pixel the rounding of each fold (2^-24 of a deviation sum) stays orders of magnitude below the noise
 the sums measure (tests/test_film_memory.py: 1e6 samples against float64 references).
 
-Memory per pixel (core.memory): K 12 B, group deviation sums 48 B (G = 4), group counts 16 B, sum of squared
-deviations 12 B = 88 B; the AOVs add 32 B (float32 albedo, normal and depth sums, int32 depth count), the
-denoising features 24 B, alpha (Film > Transparent, holdout) 4 B, a shadow catcher 44 B, the light passes
-(core.light_passes) 132 B. (It was 136 + 64 + 48 B in float64.)
+A pixel's samples arrive in order (sample 0 first, each pass continuing where the last ended: the render's passes,
+adaptive sampling and a split render's merge all do so), so its samples per variance group follow from its
+sample count and the sampler's group rule (periodic in the sample index): the film keeps one int32 count per
+pixel and derives the group counts, checking on every fold that the samples it was given are the ones it derives.
+
+The sum of squared deviations serves only s^2 / n: for independent samples, and for a pixel with fewer than 2
+groups holding samples. Under the Sobol sampler's rule (group i mod G) 2 samples already fill 2 groups, and
+with fewer there is no variance to estimate, so a film for it keeps no squares.
+
+Memory per pixel (core.memory): K 12 B, group deviation sums 48 B (G = 4), the sample count 4 B = 64 B, and
+the sum of squared deviations 12 B more where the estimate reads it (stratified, independent samples); the AOVs
+add 32 B (float32 albedo, normal and depth sums, int32 depth count), the denoising features 24 B, alpha (Film > Transparent, holdout) 4 B, a shadow catcher 44 B, the light passes
+(core.light_passes) 132 B. (It was 136 + 64 + 48 B in float64, and 88 B with stored group counts.)
+
+The sums and the fold of a render's add() calls run compiled (core.film_kernels: the same operations in the
+same order, one pass over the samples and one over the tile, where NumPy's form made some thirty passes over
+the tile per call and cost more per sample than the path itself at 1 sample per pixel and pass); the raw sums
+of a film in capture mode (below) and their fold stay in NumPy.
 
 Shadow catcher (core.scene.Mesh.shadow_catcher; core.integrator.CatcherSamples): the film also sums each
 pixel's matte M (the radiance gathered before paths met a catcher) with its transparency T_m, the catcher
@@ -51,12 +65,42 @@ take_pass(); folded by add_sums() exactly as add() folds them), so merged films 
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
 
+from . import film_kernels
 from .light_passes import LIGHT_PASSES, finish
 from .sampling import Sampler
+
+_OUT_OF_ORDER = ("film: each pixel's samples must arrive in order, sample 0 first and each pass continuing where "
+                 "the pixel's last pass ended")
+_NO_SQUARES = np.zeros((0, 3), np.float32)  # dev_sq of a film that keeps no squares (never read)
+_NO_SUMS = np.zeros((0, 3), np.float64)
+_SCRATCH = threading.local()  # per thread: films may be filled on several threads (a cluster worker's units)
+
+
+class _Scratch:
+    """Zeroed float64 / int64 buffers for the compiled accumulation of a tile of n pixels: kept from call to call
+    (the kernels leave them zeroed), since fresh zeroed pages cost a page fault each on every call."""
+
+    def __init__(self, n: int, groups: int) -> None:
+        self.n, self.groups = n, groups
+        self.group_sum = np.zeros((n, groups, 3))
+        self.group_samples = np.zeros((n, groups), np.int64)
+        self.sums3 = np.zeros((n, 3))
+        self.sums1 = np.zeros(n)
+        self.counts = np.zeros(n, np.int64)
+        self.counts32 = np.zeros(n, np.int32)  # (the alpha sums' counts, not kept)
+
+
+def _scratch(n: int, groups: int) -> _Scratch:
+    """This thread's scratch for a tile of n pixels and `groups` variance groups (the last size asked is kept)."""
+    scratch = getattr(_SCRATCH, "buffers", None)
+    if scratch is None or scratch.n != n or scratch.groups != groups:
+        scratch = _SCRATCH.buffers = _Scratch(n, groups)
+    return scratch
 
 _COLOUR_RAW = ("group_sum", "group_count", "dev_sq")
 _AOV_RAW = ("albedo", "normal", "depth_sum", "depth_count")
@@ -102,8 +146,14 @@ class TileFilm:
         self.groups = self._sampler.groups if self._sampler is not None else 1
         self.shift = np.zeros((n, 3), np.float32)
         self.group_dev = np.zeros((n, self.groups, 3), np.float32)
-        self.group_count = np.zeros((n, self.groups), np.int32)
-        self.dev_sq = np.zeros((n, 3), np.float32)
+        self.sample_count = np.zeros(n, np.int32)
+        # not an array attribute of the film (what the film holds per pixel is counted from those)
+        self._group_prefix = (_group_prefix_counts(self._sampler, self.groups),)
+        # s^2 / n is read only while fewer than 2 groups hold samples: never past 1 sample when 2 fill 2 groups
+        prefix = self._group_prefix[0]
+        self.squares = self.groups == 1 or np.count_nonzero(prefix[min(2, len(prefix) - 1)]) < 2
+        if self.squares:
+            self.dev_sq = np.zeros((n, 3), np.float32)
         self.aovs = aovs
         self.alpha = alpha
         if alpha:
@@ -137,7 +187,16 @@ class TileFilm:
     @property
     def count(self) -> np.ndarray:
         """(n,) samples each pixel has taken."""
-        return self.group_count.sum(axis=1, dtype=np.int64)
+        return self.sample_count.astype(np.int64)
+
+    def group_counts(self, count: np.ndarray | None = None) -> np.ndarray:
+        """(n, G) int64 samples per variance group of pixels holding `count` (n,) samples (default: their
+        own): samples 0 .. count - 1, grouped by the sampler's rule (periodic, see _group_prefix_counts)."""
+        count = self.count if count is None else np.asarray(count, np.int64)
+        prefix = self._group_prefix[0]
+        period = len(prefix) - 1
+        full, rest = np.divmod(count, period)
+        return full[:, None] * prefix[period] + prefix[rest]
 
     def _mean64(self) -> np.ndarray:
         """(n, 3) float64 pixel means (the shift where no sample has landed: 0)."""
@@ -156,36 +215,58 @@ class TileFilm:
         sample indices (needed when the film has variance groups), transparent (N,) their transparency in
         [0, 1] (needed when the film keeps alpha)."""
         n = self.pixels
-        pixel = np.asarray(pixel, np.int64)
+        pixel = self._pixels(pixel)
         slot = pixel
         if self.groups > 1:
             if sample is None:
                 raise ValueError("this film keeps variance groups: pass the samples' indices")
-            slot = pixel * self.groups + self._sampler.variance_group(sample)
+            group = np.asarray(self._sampler.variance_group(sample), np.int64)
+            slot = pixel * self.groups + group
+        if self.alpha and transparent is None:
+            raise ValueError("this film keeps alpha: pass the samples' transparency")
+        r = np.ascontiguousarray(radiance, np.float64)
+        if self._capture is None:  # compiled: the same sums and fold as below, in one pass (core.film_kernels)
+            group = group if self.groups > 1 else np.zeros(len(pixel), np.int64)
+            scratch = _scratch(n, self.groups)
+            bad = film_kernels.add_colour(pixel, np.ascontiguousarray(group), r, self._group_prefix[0],
+                                          self.squares, self.shift, self.group_dev, self.sample_count,
+                                          self.dev_sq if self.squares else _NO_SQUARES, scratch.group_sum,
+                                          scratch.group_samples, scratch.sums3 if self.squares else _NO_SUMS)
+            if bad >= 0:
+                raise ValueError(_OUT_OF_ORDER)
+            if self.alpha:
+                film_kernels.add_sums1(pixel, np.ascontiguousarray(transparent, np.float64), False,
+                                       self.transparent_sum, scratch.counts32, scratch.sums1, scratch.counts)
+            return
         slots = n * self.groups
-        r = np.asarray(radiance, np.float64)
         count = np.bincount(pixel, minlength=n)
         group_sum = np.empty((n, self.groups, 3), np.float64)
         for c in range(3):
             group_sum[:, :, c] = np.bincount(slot, weights=r[:, c], minlength=slots).reshape(n, self.groups)
-        # squared deviations from this pass's own mean: exactly 0 for a constant pixel (no cancellation)
-        pass_mean = group_sum.sum(axis=1) / np.maximum(count, 1)[:, None]
-        dev = r - pass_mean[pixel]
-        dev_sq = np.empty((n, 3), np.float64)
-        for c in range(3):
-            dev_sq[:, c] = np.bincount(pixel, weights=dev[:, c] * dev[:, c], minlength=n)
         raw = {"group_sum": group_sum,
-               "group_count": np.bincount(slot, minlength=slots).reshape(n, self.groups).astype(np.int32),
-               "dev_sq": dev_sq}
+               "group_count": np.bincount(slot, minlength=slots).reshape(n, self.groups).astype(np.int32)}
+        if self.squares:
+            # squared deviations from this pass's own mean: exactly 0 for a constant pixel (no cancellation)
+            pass_mean = group_sum.sum(axis=1) / np.maximum(count, 1)[:, None]
+            dev = r - pass_mean[pixel]
+            dev_sq = raw["dev_sq"] = np.empty((n, 3), np.float64)
+            for c in range(3):
+                dev_sq[:, c] = np.bincount(pixel, weights=dev[:, c] * dev[:, c], minlength=n)
         if self.alpha:
-            if transparent is None:
-                raise ValueError("this film keeps alpha: pass the samples' transparency")
             raw["transparent_sum"] = np.bincount(pixel, weights=np.asarray(transparent, np.float64), minlength=n)
         self._take(raw)
 
     def add_aovs(self, pixel: np.ndarray, albedo: np.ndarray, normal: np.ndarray, depth: np.ndarray) -> None:
         """Accumulate first-hit AOVs (averaged over the pixel's samples); depth only where finite (a hit)."""
         n = self.pixels
+        pixel = self._pixels(pixel)
+        if self._capture is None:  # compiled (core.film_kernels): the sums and fold below
+            scratch = _scratch(n, self.groups)
+            film_kernels.add_sums3(pixel, np.ascontiguousarray(albedo, np.float64), self.albedo, scratch.sums3)
+            film_kernels.add_sums3(pixel, np.ascontiguousarray(normal, np.float64), self.normal, scratch.sums3)
+            film_kernels.add_sums1(pixel, np.ascontiguousarray(depth, np.float64), True, self.depth_sum,
+                                   self.depth_count, scratch.sums1, scratch.counts)
+            return
         hit = np.isfinite(depth)
         raw = {"albedo": _bincount3(pixel, albedo, n), "normal": _bincount3(pixel, normal, n),
                "depth_sum": np.bincount(pixel[hit], weights=depth[hit], minlength=n),
@@ -195,6 +276,14 @@ class TileFilm:
     def add_features(self, pixel: np.ndarray, albedo: np.ndarray, normal: np.ndarray) -> None:
         """Accumulate the denoising features of samples (averaged over the pixel's samples)."""
         n = self.pixels
+        pixel = self._pixels(pixel)
+        if self._capture is None:  # compiled (core.film_kernels): the sums and fold of _take
+            scratch = _scratch(n, self.groups)
+            film_kernels.add_sums3(pixel, np.ascontiguousarray(albedo, np.float64), self.feature_albedo,
+                                   scratch.sums3)
+            film_kernels.add_sums3(pixel, np.ascontiguousarray(normal, np.float64), self.feature_normal,
+                                   scratch.sums3)
+            return
         self._take({"feature_albedo": _bincount3(pixel, albedo, n),
                     "feature_normal": _bincount3(pixel, normal, n)})
 
@@ -210,6 +299,7 @@ class TileFilm:
                "background_sum": (np.zeros((n, 3)) if samples.background is None
                                   else _bincount3(pixel, samples.background, n))}
         self._take(raw)
+
     def add_light_passes(self, pixel: np.ndarray, values: np.ndarray) -> None:
         """Accumulate the light passes of samples: values (N, len(LIGHT_PASSES), 3) (see core.light_passes)."""
         n, k = self.pixels, len(LIGHT_PASSES) * 3
@@ -217,6 +307,15 @@ class TileFilm:
         slot = (pixel[:, None] * k + np.arange(k)[None, :]).ravel()
         sums = np.bincount(slot, weights=np.asarray(values, np.float64).reshape(-1), minlength=n * k)
         self._take({"light_pass_sum": sums.reshape(n, len(LIGHT_PASSES), 3)})
+
+    def _pixels(self, pixel: np.ndarray) -> np.ndarray:
+        """The samples' tile-local pixel indices as contiguous int64, checked to lie in the tile (the compiled
+        accumulation does not check its indices)."""
+        pixel = np.ascontiguousarray(pixel, np.int64).reshape(-1)
+        if len(pixel) and (pixel.min() < 0 or pixel.max() >= self.pixels):
+            raise ValueError(f"film: pixel index out of range [0, {self.pixels}) for a {self.width}x{self.height} "
+                             "tile")
+        return pixel
 
     def _take(self, raw: dict[str, np.ndarray]) -> None:
         if self._capture is not None:
@@ -231,19 +330,24 @@ class TileFilm:
             count = group_count.sum(axis=1, dtype=np.int64)
             took = np.flatnonzero(count > 0)
             if len(took):
+                before = self.sample_count[took].astype(np.int64)
+                after = before + count[took]
+                if not np.array_equal(self.group_counts(after) - self.group_counts(before), group_count[took]):
+                    raise ValueError(_OUT_OF_ORDER)
                 gs, gc, c = group_sum[took], group_count[took].astype(np.float64), count[took].astype(np.float64)
                 pass_mean = gs.sum(axis=1) / c[:, None]
-                first = self.group_count[took].sum(axis=1) == 0
+                first = before == 0
                 if np.any(first):
                     self.shift[took[first]] = pass_mean[first].astype(np.float32)
                 k = self.shift[took].astype(np.float64)
                 # deviations of this pass from K: its sums minus their counts times K (exactly 0 when constant)
                 self.group_dev[took] = (self.group_dev[took].astype(np.float64)
                                         + (gs - gc[:, :, None] * k[:, None, :])).astype(np.float32)
-                d = pass_mean - k  # sum (x - K)^2 = sum (x - pass mean)^2 + c (pass mean - K)^2
-                self.dev_sq[took] = (self.dev_sq[took].astype(np.float64) + raw["dev_sq"][took]
-                                     + c[:, None] * d * d).astype(np.float32)
-                self.group_count[took] += group_count[took]
+                if self.squares:
+                    d = pass_mean - k  # sum (x - K)^2 = sum (x - pass mean)^2 + c (pass mean - K)^2
+                    self.dev_sq[took] = (self.dev_sq[took].astype(np.float64) + raw["dev_sq"][took]
+                                         + c[:, None] * d * d).astype(np.float32)
+                self.sample_count[took] = after
         for name in _AOV_RAW + _FEATURE_RAW + _ALPHA_RAW + _CATCHER_RAW + _LIGHT_RAW:
             if name in raw:
                 arr = getattr(self, name)
@@ -254,7 +358,7 @@ class TileFilm:
 
     # ------------------------------------------------------------------------------- moving films around
     def _raw_names(self) -> list[str]:
-        names = list(_COLOUR_RAW)
+        names = [name for name in _COLOUR_RAW if name != "dev_sq" or self.squares]
         if self.alpha:
             names += _ALPHA_RAW
         if self.aovs:
@@ -270,7 +374,7 @@ class TileFilm:
     def state(self) -> dict[str, np.ndarray]:
         """The film's accumulators by name (the arrays themselves, not copies): set_state() of a film of the
         same tile and settings makes it this film."""
-        names = ["shift", "group_dev", "group_count", "dev_sq"]
+        names = ["shift", "group_dev", "sample_count"] + (["dev_sq"] if self.squares else [])
         if self.alpha:
             names += list(_ALPHA_RAW)
         if self.aovs:
@@ -311,6 +415,9 @@ class TileFilm:
     def _zero_raw(self) -> dict[str, np.ndarray]:
         out = {}
         for name in self._raw_names():
+            if name == "group_count":  # the pass's samples per group (the film itself derives them)
+                out[name] = np.zeros((self.pixels, self.groups), np.int32)
+                continue
             like = getattr(self, "group_dev" if name == "group_sum" else name)
             out[name] = np.zeros(like.shape, np.int32 if like.dtype == np.int32 else np.float64)
         return out
@@ -322,6 +429,14 @@ class TileFilm:
         for name, arr in mine.items():
             if np.shape(given[name]) != arr.shape:
                 raise ValueError(f"film sums {name!r} have shape {np.shape(given[name])}, this film {arr.shape}")
+
+    def release(self) -> None:
+        """Drop the accumulators' memory once the film's images are taken (the frame's assembly): the film is
+        empty afterwards and takes no more samples."""
+        for name in self.state():
+            setattr(self, name, getattr(self, name)[:0].copy())
+        self.width = self.height = 0
+        self._capture = None
 
     def clear(self) -> None:
         """Set every accumulator back to zero."""
@@ -399,12 +514,16 @@ class TileFilm:
         n = self.count.astype(np.float64)[:, None]
         group_dev = self.group_dev.astype(np.float64)
         total = group_dev.sum(axis=1)  # deviations from K: the variance does not see K
-        with np.errstate(invalid="ignore", divide="ignore"):
-            naive = (self.dev_sq.astype(np.float64) - total * total / n) / (n - 1) / n
-        var = np.where(n > 1, naive, 0.0)
+        if self.squares:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                naive = (self.dev_sq.astype(np.float64) - total * total / n) / (n - 1) / n
+            var = np.where(n > 1, naive, 0.0)
+        else:  # (the grouped estimate below covers every pixel with 2 or more samples)
+            var = np.zeros_like(total)
         if self.groups > 1:
-            ng = self.group_count.astype(np.float64)[:, :, None]
-            filled = (self.group_count > 0).sum(axis=1)[:, None].astype(np.float64)
+            group_count = self.group_counts()
+            ng = group_count.astype(np.float64)[:, :, None]
+            filled = (group_count > 0).sum(axis=1)[:, None].astype(np.float64)
             with np.errstate(invalid="ignore", divide="ignore"):
                 dev = group_dev / np.maximum(ng, 1) - (total / np.maximum(n, 1))[:, None, :]
                 dev = np.where(ng > 0, dev, 0.0)
@@ -447,6 +566,23 @@ class TileFilm:
         normal = np.where(length > 0, normal / np.maximum(length, 1e-30), 0.0)
         depth = np.where(self.depth_count > 0, self.depth_sum / np.maximum(self.depth_count, 1), 1e10)
         return self._image(albedo), self._image(normal), self._image(depth)
+
+
+def _group_prefix_counts(sampler: Sampler | None, groups: int) -> np.ndarray:
+    """(P + 1, G) int64: row r holds how many of the samples 0 .. r - 1 fall in each variance group, over one
+    period P of the sampler's group rule (4 G covers every sampler's rule: i mod G, and (i // 4) mod G); a rule
+    that is not periodic there is refused (the film could not derive its group counts)."""
+    if sampler is None:
+        return np.array([[0], [1]], np.int64)  # one group, period 1
+    period = 4 * groups
+    group = np.asarray(sampler.variance_group(np.arange(2 * period)), np.int64)
+    if not np.array_equal(group[:period], group[period:]):
+        raise ValueError(f"{type(sampler).__name__}'s variance groups do not repeat every {period} samples")
+    prefix = np.zeros((period + 1, groups), np.int64)
+    for r in range(period):
+        prefix[r + 1] = prefix[r]
+        prefix[r + 1, group[r]] += 1
+    return prefix
 
 
 def _bincount3(pixel: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:

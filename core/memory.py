@@ -2,13 +2,15 @@
 
 The estimate (bytes), measured on this renderer (see docs/stress.md for the calibration):
 
-    total = pixels x (FILM_BYTES [+ FILM_AOV_BYTES] [+ FILM_FEATURE_BYTES]
+    total = pixels x (FILM_BYTES [+ FILM_SQUARES_BYTES] [+ FILM_AOV_BYTES] [+ FILM_FEATURE_BYTES]
                       + RESULT_BYTES [+ RESULT_AOV_BYTES] [+ RESULT_FEATURE_BYTES])
           + threads x min(batch, pixels x spp) x PATH_BYTES      (batch: core.schedule.batch_target)
           + triangles x TRIANGLE_BYTES + texels x TEXEL_BYTES
 
 - film (core.film, float32 storage): per pixel a float32 RGB shift (12 B), for each of the 4 variance groups a
-  float32 RGB deviation sum and an int32 count (4 x 16 B), a float32 RGB sum of squared deviations (12 B); with
+  float32 RGB deviation sum (4 x 12 B), an int32 sample count (4 B) (64 B); for samplers other than Sobol a
+  float32 RGB sum of squared deviations (FILM_SQUARES_BYTES, 12 B; the independent sampler's film keeps one group
+  and the squares: FILM_INDEPENDENT_BYTES, 40 B); with
   AOVs float32 albedo and normal sums (24 B), a float32 depth sum and int32 count (8 B); with the denoising
   features float32 albedo and normal sums (24 B); with a shadow catcher float32 matte, catcher and world sums
   (36 B), the matte's transparency (4 B) and an int32 count of samples that met the catcher (4 B) (+ 44 B, and
@@ -42,7 +44,9 @@ from .scene import Scene
 from .schedule import batch_target
 from .settings import RenderSettings
 
-FILM_BYTES = 88  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
+FILM_BYTES = 64  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
+FILM_SQUARES_BYTES = 12  # the sum of squared deviations: kept for all samplers but Sobol (core.film)
+FILM_INDEPENDENT_BYTES = 40  # independent samples: one group (no variance groups) and the squares
 FILM_AOV_BYTES = 32
 FILM_LIGHT_PASS_BYTES = 132  # float32 RGB sums of the 11 light passes (core.light_passes)
 RESULT_LIGHT_PASS_BYTES = 12  # per light pass asked for: float32 RGB
@@ -95,8 +99,10 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
         pixels = int(w) * int(h)
     aovs = bool(settings.aovs)
     features = bool(settings.denoising_features)
+    colour = {"sobol": FILM_BYTES, "stratified": FILM_BYTES + FILM_SQUARES_BYTES}.get(settings.sampler,
+                                                                                     FILM_INDEPENDENT_BYTES)
     light = bool(getattr(settings, "light_passes", ()))
-    film = pixels * (FILM_BYTES + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0)
+    film = pixels * (colour + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0)
                      + (FILM_LIGHT_PASS_BYTES if light else 0))
     result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0)
                        + RESULT_LIGHT_PASS_BYTES * len(getattr(settings, "light_passes", ())))

@@ -1,8 +1,12 @@
 """Compile (or load) every render kernel ahead of the first render, so that cache can be built once and shipped.
 
 `precompile_kernels()` renders a few tiny scenes that together reach every kernel a render can call: each
-built-in scene, each sampler, pixel filter and light-sampling strategy, adaptive sampling and clamping, and
-one scene holding every light kind, every lobe kind, a texture, smooth normals and a thin-lens camera. numba
+built-in scene, each sampler, pixel filter and light-sampling strategy, adaptive sampling and clamping, a
+panoramic camera, one scene holding every light kind, every lobe kind, a texture, smooth normals and a
+thin-lens camera, and one holding the features whose kernels compile only when a scene uses them (node
+programs, whose one interpreter holds every node family; an environment-map world; ray visibility); then the
+node compiler's constant folding. What the add-on's renders of real scenes compile beyond these is checked
+by the extension's install test (a node material under an environment map: nothing). numba
 writes each kernel it compiles into the on-disk cache (core/jit_cache.py), so a later process loads them all.
 
 Run by `make setup` (`python -m monte.core.precompile`) for a checkout and by tools/build_extension.py, under
@@ -163,6 +167,88 @@ def every_feature_scene(resolution: tuple[int, int] = (12, 8)):
                  world=World(np.array((0.2, 0.25, 0.3))), textures=[Texture("ramp", texels)], name="every-feature")
 
 
+def _program(instructions: list[tuple[str, dict]], registers: list, lobes: int, binds: dict[tuple[int, int], int],
+             emission: int = -1):
+    """A ShadingProgram written by hand (what the add-on's node compiler writes): instructions (opcode name,
+    {operand: value}), initial registers (floats or RGB), and the register bound to each (lobe, parameter)."""
+    from .shading import registry
+    from .shading.program import N_BIND, WIDTH, ShadingProgram
+
+    code = np.full((len(instructions), WIDTH), -1, np.int32)
+    for i, (name, operands) in enumerate(instructions):
+        spec = registry.op(name)
+        code[i, 0] = spec.code
+        for j, (_, kind) in enumerate(spec.operands):
+            if kind == "int":
+                code[i, j + 1] = 0
+        for key, value in operands.items():
+            code[i, spec.slot(key)] = value
+    regs = np.asarray([np.broadcast_to(np.asarray(r, np.float32), 3) for r in registers], np.float32)
+    bind = np.full((lobes, N_BIND), -1, np.int32)
+    for (lobe, parameter), register in binds.items():
+        bind[lobe, parameter] = register
+    return ShadingProgram(code, regs, bind, emission)
+
+
+def node_feature_scene(resolution: tuple[int, int] = (12, 8)):
+    """A tiny scene using the features whose kernels compile only when a scene has them: node programs (a
+    textured, per-point roughness Principled-like material and a textured emitter: the program interpreter
+    holds every node family), an environment-map world (its importance tables) and ray visibility (a sphere
+    hidden from diffuse, glossy and shadow rays, one hidden from the camera)."""
+    from .builtin_scenes import icosphere, quad
+    from .scene import Camera, Lobe, Material, PointLight, Scene, Texture, World
+    from .shading.program import BIND_ROUGHNESS, BIND_WEIGHT
+    from .world import EnvironmentMap
+
+    grey = np.full(3, 0.6)
+    # registers: 0 uv, 1 image colour, 2 noise value, 3 product, 4 constant 0.5
+    textured = _program([("texture_coordinate", {"uv": 0, "generated": 5}),
+                         ("image", {"color": 1, "vector": 0, "texture": 0}),
+                         ("math", {"out": 3, "a": 4, "b": 1, "c": 4, "operation": 2}),
+                         ("mix", {"out": 2, "factor": 4, "a": 1, "b": 3})],
+                        [0.0, 0.0, 0.0, 0.0, 0.5, 0.0], 2,
+                        {(0, BIND_WEIGHT): 2, (0, BIND_ROUGHNESS): 3, (1, BIND_WEIGHT): 1})
+    glowing = _program([("texture_coordinate", {"uv": 0}), ("image", {"color": 1, "vector": 0, "texture": 0})],
+                       [0.0, 0.0], 1, {}, emission=1)
+    materials = [
+        Material("textured", [Lobe("glossy", np.ones(3), roughness=0.3, fresnel="generalized_schlick",
+                                   f0=np.full(3, 0.04)), Lobe("diffuse", grey, under=0)], program=textured),
+        Material("glowing", [Lobe("diffuse", grey)], emission=np.full(3, 1.0), program=glowing),
+        Material("grey", [Lobe("diffuse", grey)]),
+    ]
+    ground = quad("ground", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], 0)
+    ground.uvs = np.array([[(0, 0), (1, 0), (1, 1)], [(0, 0), (1, 1), (0, 1)]], np.float64)
+    hidden = icosphere("hidden-from-rays", (-0.6, 0.0, 0.4), 0.3, 2)
+    hidden.visible_diffuse = hidden.visible_glossy = hidden.visible_shadow = False
+    unseen = icosphere("hidden-from-camera", (0.6, 0.0, 0.4), 0.3, 1)
+    unseen.visible_camera = False
+    texels = np.linspace(0.2, 0.9, 4 * 4 * 3, dtype=np.float32).reshape(4, 4, 3)
+    sky = np.linspace(0.1, 2.0, 8 * 16 * 3, dtype=np.float32).reshape(8, 16, 3)
+    camera = Camera.look_at((0.0, -4.0, 1.5), (0.0, 0.0, 0.3), horizontal_fov=math.radians(60.0),
+                            resolution=resolution)
+    return Scene(camera=camera, meshes=[ground, hidden, unseen], materials=materials,
+                 lights=[PointLight("point", np.array((0.0, -1.0, 2.0)), np.full(3, 30.0))],
+                 world=World(environment=EnvironmentMap(sky, name="precompile-sky")),
+                 textures=[Texture("ramp", texels)], name="node-features")
+
+
+def _fold_constants_once() -> None:
+    """The add-on's node compiler folds constant subgraphs at export through evaluator.run_single (its own
+    kernel): compile it here too, so that exporting a node material compiles nothing."""
+    from .shading import evaluator
+
+    program = _program([("math", {"out": 0, "a": 1, "b": 2, "c": 2, "operation": 0})], [0.0, 1.0, 2.0], 0, {})
+    program.validate("precompile", 0, 0)
+    evaluator.run_single(program)
+
+
+def _panoramic(scene):
+    """The scene seen through Cycles' equirectangular panoramic camera (its own ray kernel)."""
+    scene.camera.kind = "PANO"
+    scene.camera.panorama_type = "EQUIRECTANGULAR"
+    return scene
+
+
 def _cases() -> list[tuple[str, Callable[[], object], dict]]:
     from .builtin_scenes import BUILTIN_SCENES, builtin_scene
     from .light_passes import LIGHT_PASSES
@@ -173,6 +259,8 @@ def _cases() -> list[tuple[str, Callable[[], object], dict]]:
     cases += [
         ("every-feature", every_feature_scene, {}),
         ("every-feature, no AOVs", every_feature_scene, {"aovs": False}),
+        ("node programs, environment map, ray visibility", node_feature_scene, {}),
+        ("spheres-sky, panoramic camera", lambda: _panoramic(builtin_scene("spheres-sky", small)), {}),
         ("cornell, stratified, tent", lambda: builtin_scene("cornell", small),
          {"sampler": "stratified", "filter_type": "tent", "filter_width": 2.0}),
         ("cornell, independent, gaussian", lambda: builtin_scene("cornell", small),
@@ -202,6 +290,8 @@ def precompile_kernels(log: Callable[[str], None] | None = None) -> dict[str, in
         settings = RenderSettings(**{"spp": 2, "seed": 1, "threads": 2, "tile_size": 8, **overrides})
         render(build(), settings.validate())
         say(f"  {name}")
+    _fold_constants_once()
+    say("  node constant folding")
     counts = kernel_cache_counts()
     counts["seconds"] = time.perf_counter() - t0
     return counts

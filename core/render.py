@@ -251,21 +251,26 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     missing = [ti for ti, r in enumerate(reached) if r != settings.spp]
     if missing:
         raise ValueError(f"tiles {missing[:8]} do not hold all {settings.spp} samples")
-    color, variance, albedo, normal, depth, counts = assemble_image(tile_list, films, settings, region)
+    color, variance, albedo, normal, depth, counts, features, extras = assemble_image(tile_list, films, settings,
+                                                                                      region, scene)
     stats = {"scene": scene.name, "resolution": [width, height], "region": list(region), "spp": settings.spp,
              "samples": int(counts.sum())}
     result = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings))
-    _assemble_features(result, tile_list, films, scene, region)
-    _assemble_catcher(result, tile_list, films, region)
-    _assemble_light_passes(result, tile_list, films, region)
+    if features is not None:
+        result.denoising_albedo, result.denoising_normal = features
+    for name, value in extras.items():
+        setattr(result, name, value)
     return result
 
 
-def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: RenderSettings, region: TileRect
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None,
-                              np.ndarray]:
-    """The region's (color, variance, albedo, normal, depth, sample counts) from its tiles' films (see Tile for
-    the arrays; AOVs None when settings.aovs is off)."""
+def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: RenderSettings, region: TileRect,
+                   scene: Scene) -> tuple:
+    """The region's (color, variance, albedo, normal, depth, sample counts, denoising features) from its tiles'
+    films (see Tile for the arrays; AOVs None when settings.aovs is off; the features (albedo, normal in camera
+    space) None unless the films keep them), and the extras: {RenderResult attribute: image} of the shadow
+    catcher's and the light passes' images (shadow_catcher, shadow_catcher_matte, light_passes) where the films
+    keep them. Each film is released (TileFilm.release) once its tile is read, so the films and the images are
+    never all held at once: an 8K frame's peak memory is the larger of the two, not their sum."""
     rx, ry, rw, rh = region
     color = np.zeros((rh, rw, 4), np.float32)
     variance = np.zeros((rh, rw, 3), np.float32)
@@ -273,6 +278,16 @@ def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: R
     normal = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
     depth = np.full((rh, rw), 1e10, np.float32) if settings.aovs else None
     counts = np.zeros((rh, rw), np.int32)
+    extras: dict = {}
+    if films and films[0].catcher is not None:
+        extras["shadow_catcher"] = np.ones((rh, rw, 3), np.float32)
+        extras["shadow_catcher_matte"] = np.zeros((rh, rw, 4), np.float32)
+    if films and films[0].light_passes:
+        extras["light_passes"] = {name: np.zeros((rh, rw, 3), np.float32) for name in films[0].light_passes}
+    features = None
+    if films and films[0].features:
+        rot = world_to_camera(scene)
+        features = (np.zeros((rh, rw, 3), np.float32), np.zeros((rh, rw, 3), np.float32))
     for tile, film in zip(tile_list, films):
         tx, ty, tw, th = tile
         sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
@@ -281,7 +296,16 @@ def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: R
         counts[sl] = film.count.reshape(th, tw)
         if settings.aovs:
             albedo[sl], normal[sl], depth[sl] = tr.albedo, tr.normal, tr.depth
-    return color, variance, albedo, normal, depth, counts
+        if features is not None:
+            feature_albedo, feature_normal = film.feature_images()
+            features[0][sl] = feature_albedo
+            features[1][sl] = feature_normal @ rot.T
+        if "shadow_catcher" in extras:
+            extras["shadow_catcher"][sl], extras["shadow_catcher_matte"][sl] = film.shadow_catcher_images()[:2]
+        for name, arr in (film.light_pass_images().items() if "light_passes" in extras else ()):
+            extras["light_passes"][name][sl] = arr
+        film.release()
+    return color, variance, albedo, normal, depth, counts, features, extras
 
 
 def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
@@ -310,49 +334,6 @@ def world_to_camera(scene: Scene) -> np.ndarray:
     axes = np.asarray(scene.camera.matrix_world, np.float64)[:3, :3].T.copy()
     axes[2] *= -1
     return axes / np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-30)
-
-
-def _assemble_features(result: RenderResult, tile_list: list[TileRect], films: list[TileFilm], scene: Scene,
-                       region: TileRect) -> None:
-    """Fill result.denoising_albedo/normal from the tiles' films when they keep the denoising features."""
-    if not films or not films[0].features:
-        return
-    rx, ry, rw, rh = region
-    rot = world_to_camera(scene)
-    result.denoising_albedo = np.zeros((rh, rw, 3), np.float32)
-    result.denoising_normal = np.zeros((rh, rw, 3), np.float32)
-    for tile, film in zip(tile_list, films):
-        tx, ty, tw, th = tile
-        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
-        albedo, normal = film.feature_images()
-        result.denoising_albedo[sl] = albedo
-        result.denoising_normal[sl] = normal @ rot.T
-
-
-def _assemble_catcher(result: RenderResult, tile_list: list[TileRect], films: list[TileFilm], region: TileRect
-                      ) -> None:
-    """Fill result.shadow_catcher/shadow_catcher_matte from the tiles' films when the scene has a catcher."""
-    if not films or films[0].catcher is None:
-        return
-    rx, ry, rw, rh = region
-    result.shadow_catcher = np.ones((rh, rw, 3), np.float32)
-    result.shadow_catcher_matte = np.zeros((rh, rw, 4), np.float32)
-    for tile, film in zip(tile_list, films):
-        tx, ty, tw, th = tile
-        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
-        result.shadow_catcher[sl], result.shadow_catcher_matte[sl] = film.shadow_catcher_images()[:2]
-def _assemble_light_passes(result: RenderResult, tile_list: list[TileRect], films: list[TileFilm],
-                           region: TileRect) -> None:
-    """Fill result.light_passes from the tiles' films when they keep the light passes."""
-    if not films or not films[0].light_passes:
-        return
-    rx, ry, rw, rh = region
-    result.light_passes = {name: np.zeros((rh, rw, 3), np.float32) for name in films[0].light_passes}
-    for tile, film in zip(tile_list, films):
-        tx, ty, tw, th = tile
-        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
-        for name, arr in film.light_pass_images().items():
-            result.light_passes[name][sl] = arr
 
 
 def _silent(_msg: str) -> None:
@@ -734,8 +715,8 @@ class _TileRender:
         """The region's image assembled from the tiles, with the render's statistics."""
         settings, scene, accel = self.settings, self.scene, self.accel
         rx, ry, rw, rh = self.region
-        color, variance, albedo, normal, depth, counts = assemble_image(
-            self.tiles, [self.films[t] for t in self.tiles], settings, self.region)
+        color, variance, albedo, normal, depth, counts, features, extras = assemble_image(
+            self.tiles, [self.films[t] for t in self.tiles], settings, self.region, scene)
         elapsed = time.perf_counter() - self.t_start
         st = PathStats.total([t.stats for t in self.tracers])
         rays_closest, rays_shadow = self._ray_counts()
@@ -770,10 +751,11 @@ class _TileRender:
             say(f"warning: {msg}")
         out = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings),
                            self.cancelled)
-        _assemble_features(out, self.tiles, [self.films[t] for t in self.tiles], scene, self.region)
-        _assemble_catcher(out, self.tiles, [self.films[t] for t in self.tiles], self.region)
+        if features is not None:
+            out.denoising_albedo, out.denoising_normal = features
+        for name, value in extras.items():
+            setattr(out, name, value)
         if self.data_tables is not None:
             out.data_passes = assemble_data([(t, self.data_films[t]) for t in self.tiles], self.region)
             out.cryptomatte = manifests(self.data_tables)
-        _assemble_light_passes(out, self.tiles, [self.films[t] for t in self.tiles], self.region)
         return out

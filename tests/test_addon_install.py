@@ -58,7 +58,37 @@ SCRIPT = textwrap.dedent(r"""
     library, why_not = sys.modules["bl_ext.user_default.monte.core.embree"].load()
     # What the render compiled and what it loaded from the kernel cache shipped in the zip.
     import importlib
-    kernels = importlib.import_module("bl_ext.user_default.monte.core.precompile").kernel_cache_counts()
+    precompile = importlib.import_module("bl_ext.user_default.monte.core.precompile")
+    kernels = precompile.kernel_cache_counts()
+
+    # A first textured render: the plane's albedo from a node program (0.5 + 0 x Generated X: never folded to a
+    # constant at export) under an environment map (a constant image of radiance 1): image 0.5 again.
+    tree.nodes.remove(dif)
+    coord, sep = tree.nodes.new("ShaderNodeTexCoord"), tree.nodes.new("ShaderNodeSeparateXYZ")
+    times, plus = tree.nodes.new("ShaderNodeMath"), tree.nodes.new("ShaderNodeMath")
+    times.operation, plus.operation = "MULTIPLY", "ADD"
+    times.inputs[1].default_value, plus.inputs[1].default_value = 0.0, 0.5
+    textured = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    tree.links.new(coord.outputs["Generated"], sep.inputs[0])
+    tree.links.new(sep.outputs["X"], times.inputs[0])
+    tree.links.new(times.outputs[0], plus.inputs[0])
+    tree.links.new(plus.outputs[0], textured.inputs["Color"])
+    tree.links.new(textured.outputs[0], out.inputs["Surface"])
+    env_image = bpy.data.images.new("sky", 16, 8, float_buffer=True)
+    env_image.pixels = [1.0] * (16 * 8 * 4)
+    wtree = world.node_tree
+    env = wtree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = env_image
+    wtree.links.new(env.outputs["Color"], wtree.nodes["Background"].inputs["Color"])
+    scene.render.filepath = os.path.join(out_dir, "textured")
+    textured_render = bpy.ops.render.render(write_still=True)
+    with OpenEXR.File(os.path.join(out_dir, "textured.exr")) as f:
+        textured_px = np.asarray(f.channels()["RGBA"].pixels, dtype=np.float64)
+    textured_kernels = precompile.kernel_cache_counts()
+    # the feature kernels that render ran (each loaded, none compiled)
+    feature_kernels = sorted(f"{d.py_func.__module__.rpartition('.')[2]}.{d.py_func.__name__}"
+                             for d in precompile._dispatchers() if d.signatures
+                             and d.py_func.__name__ in ("run_programs", "importance_grid"))
 
     before = selectable()
     bpy.ops.preferences.addon_disable(module="bl_ext.user_default.monte")
@@ -68,6 +98,8 @@ SCRIPT = textwrap.dedent(r"""
         "render": sorted(rendered), "shape": list(px.shape), "mean_rgb": px[..., :3].mean(),
         "alpha": px[..., 3].mean(), "menu_before_disable": before, "menu_after_disable": after,
         "embree_library": library.path if library else None, "embree_error": why_not, "kernels": kernels,
+        "textured_render": sorted(textured_render), "textured_mean_rgb": textured_px[..., :3].mean(),
+        "textured_kernels": textured_kernels, "feature_kernels": feature_kernels,
     }))
 """).replace("# PLANE_SCENE\n", PLANE_SCENE)  # the plane under a white world (tests/plane_scene.py)
 
@@ -77,8 +109,10 @@ def built_zip(tmp_path_factory):
     if _THIS_PLATFORM is None:
         pytest.skip(f"no Monte extension build for {platform.system()} {platform.machine()}")
     out = tmp_path_factory.mktemp("dist")
+    # (the build compiles every kernel, feature kernels included: ~5 minutes of CPU, far more wall time on a
+    # loaded machine)
     proc = subprocess.run([sys.executable, str(ROOT / "tools" / "build_extension.py"), "--platform", _THIS_PLATFORM,
-                           "--output-dir", str(out)], capture_output=True, text=True, timeout=900)
+                           "--output-dir", str(out)], capture_output=True, text=True, timeout=1800)
     if proc.returncode != 0:  # offline too: a failure that says so, never a skip (the wheels are cached in wheels/)
         hint = ("\nThe bundled wheels could not be downloaded: run `make extension` once online, or put the "
                 "manifest's wheel files into wheels/.") if "pip download failed" in proc.stderr else ""
@@ -98,11 +132,12 @@ def test_zip_holds_only_the_add_on(built_zip):
     # per kernel module (and no Python bytecode anywhere).
     cache = "core/__pycache__/numba-bl_ext.user_default.monte.core/"
     tag = f"py{sys.version_info[0]}{sys.version_info[1]}"
-    from monte.core.jit_cache import FEATURE_KERNEL_MODULES, KERNEL_MODULES
+    from monte.core.jit_cache import KERNEL_MODULES
 
-    # (the kernels of an environment-map world, ray visibility and node programs compile on their first use)
-    for module in (m for m in KERNEL_MODULES if m not in FEATURE_KERNEL_MODULES):
-        assert any(n.startswith(f"{cache}{module}.") and n.endswith(f".{tag}.nbi") for n in names), module
+    # every kernel module's, those of node programs, environment maps and ray visibility included
+    for module in KERNEL_MODULES:
+        name = module.rpartition("/")[2]
+        assert any(n.startswith(f"{cache}{name}.") and n.endswith(f".{tag}.nbi") for n in names), module
     assert any(n.startswith(cache) and n.endswith(".nbc") for n in names)
     assert not any(n.endswith(".pyc") for n in names)
     assert all(n.startswith(cache) for n in names if "__pycache__" in n)
@@ -139,3 +174,10 @@ def test_zip_installs_enables_and_renders(built_zip, tmp_path):
     # The first render after installing loaded every kernel it ran from the zip's cache and compiled none.
     assert result["kernels"]["compiled"] == 0, result["kernels"]
     assert result["kernels"]["loaded"] > 0
+    # So did the first render with a node material and an environment map: their kernels are in the zip too.
+    assert result["textured_render"] == ["FINISHED"]
+    assert result["feature_kernels"] == ["evaluator.run_programs", "world_kernels.importance_grid"]
+    assert result["textured_kernels"]["compiled"] == 0, result["textured_kernels"]
+    assert result["textured_kernels"]["loaded"] > result["kernels"]["loaded"]
+    # albedo 0.5 from the program under a world of radiance 1 (16 spp, MIS with the map's sampling)
+    assert result["textured_mean_rgb"] == pytest.approx(0.5, abs=0.03)

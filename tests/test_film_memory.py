@@ -10,7 +10,9 @@ import pytest
 
 from monte.core import sampling
 from monte.core.film import TileFilm
-from monte.core.memory import FILM_AOV_BYTES, FILM_BYTES, FILM_FEATURE_BYTES
+from monte.core.builtin_scenes import cornell_box
+from monte.core.memory import FILM_AOV_BYTES, FILM_BYTES, FILM_FEATURE_BYTES, estimate_render_memory
+from monte.core.settings import SAMPLERS, RenderSettings
 
 SAMPLES = 1_000_000
 PASS = 4096  # samples per pixel and pass: 244 folds, the order of a long render's passes per tile
@@ -21,13 +23,20 @@ def _film_bytes(film: TileFilm) -> int:
 
 
 @pytest.mark.parametrize("aovs, features", [(False, False), (True, False), (True, True)])
-def test_film_bytes_per_pixel_match_the_memory_estimate(aovs, features):
-    sampler = sampling.make_sampler("sobol", 0, 16, groups=sampling.VARIANCE_GROUPS)
+@pytest.mark.parametrize("kind", SAMPLERS)
+def test_film_bytes_per_pixel_match_the_memory_estimate(aovs, features, kind):
+    sampler = sampling.make_sampler(kind, 0, 16, groups=sampling.VARIANCE_GROUPS)
     film = TileFilm(16, 8, aovs, sampler, features)
-    expected = FILM_BYTES + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0)
-    assert _film_bytes(film) == expected * 16 * 8
+    scene = cornell_box((16, 8))
+    estimate = estimate_render_memory(scene, RenderSettings(spp=16, sampler=kind, aovs=aovs,
+                                                            denoising_features=features))
+    assert _film_bytes(film) == film.nbytes == estimate.film
+    colour = {"sobol": 12 + 4 * 12 + 4, "stratified": 12 + 4 * 12 + 4 + 12, "independent": 12 + 12 + 4 + 12}[kind]
+    expected = colour + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0)
     assert film.nbytes == expected * 16 * 8
-    assert FILM_BYTES + FILM_AOV_BYTES == 120  # float64 sums took 200 B per pixel
+    # shift, 4 group sums, the count (float64 sums took 200 B per pixel with the AOVs, stored group counts and
+    # squares 120); Sobol's film keeps no squared deviations
+    assert FILM_BYTES + FILM_AOV_BYTES == 96
 
 
 def _feed(film: TileFilm, values: np.ndarray, pass_size: int) -> None:
@@ -122,3 +131,27 @@ def test_adding_a_pass_in_chunks_or_whole_gives_the_same_bits():
         merged.add_sums({"group_sum": np.zeros((8, 4, 3))})
     with pytest.raises(ValueError, match="not capturing passes"):
         whole.take_pass()
+
+
+@pytest.mark.parametrize("kind", ["sobol", "stratified"])
+def test_group_counts_follow_from_the_sample_count_and_samples_out_of_order_are_refused(kind):
+    """The film keeps one count per pixel and derives its samples per variance group; a pass that does not
+    continue where the pixel's samples ended would make those wrong, so it is refused."""
+    sampler = sampling.make_sampler(kind, 0, 64, groups=sampling.VARIANCE_GROUPS)
+    film = TileFilm(2, 1, aovs=False, sampler=sampler)
+    film.add(np.repeat([0, 1], [7, 3]), np.ones((10, 3)), np.concatenate([np.arange(7), np.arange(3)]))
+    groups = sampler.variance_group(np.arange(7))
+    assert film.group_counts().tolist() == [np.bincount(groups, minlength=4).tolist(),
+                                            np.bincount(groups[:3], minlength=4).tolist()]
+    with pytest.raises(ValueError, match="each pixel's samples must arrive in order, sample 0 first"):
+        film.add(np.array([1]), np.ones((1, 3)), np.array([4]))  # sample 3 skipped: sample 4 is in another group
+    assert film.count.tolist() == [7, 3]
+
+
+def test_a_pixel_outside_the_tile_is_refused_before_the_compiled_sums_touch_memory():
+    film = TileFilm(2, 1, aovs=True, sampler=sampling.make_sampler("sobol", 0, 4, groups=4))
+    with pytest.raises(ValueError, match=r"film: pixel index out of range \[0, 2\) for a 2x1 tile"):
+        film.add(np.array([0, 2]), np.ones((2, 3)), np.array([0, 0]))
+    with pytest.raises(ValueError, match=r"out of range \[0, 2\)"):
+        film.add_aovs(np.array([-1]), np.ones((1, 3)), np.ones((1, 3)), np.ones(1))
+    assert film.count.tolist() == [0, 0] and not film.albedo.any()

@@ -1,0 +1,129 @@
+"""Compiled film accumulation: one add() call's samples summed per pixel in float64 and folded into the film's
+float32 storage at once (core.film defines the storage and the arithmetic; these kernels do the same
+operations in the same order, so the images are the bits NumPy's form gives).
+
+Why compiled: NumPy's form makes some thirty array passes over the whole tile per call, whatever the number of
+samples in it; at 1 sample per pixel and pass (large frames at low spp) that cost more per sample than the
+path itself. Here each call is one pass over its samples and one over the tile's pixels.
+
+The callers pass zeroed scratch arrays, and get them back zeroed (these kernels never allocate: a caller keeps its
+scratch from call to call, and fresh zeroed memory would cost a page fault per 4 kB touched on every call).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .jit_cache import jit_no_nrt as _jit
+
+
+@_jit
+def add_colour(pixel, group, radiance, prefix, squares, shift, group_dev, sample_count, dev_sq, group_sum,
+               group_samples, pass_sq):
+    """Fold samples (pixel (N,) int64 tile-local, group (N,) int64 variance group, radiance (N, 3) float64) into
+    the film's shift (n, 3), group_dev (n, G, 3), sample_count (n,) and, when `squares`, dev_sq (n, 3) (float32,
+    int32): core.film.TileFilm.add then _fold. Scratch: group_sum (n, G, 3) float64, group_samples (n, G) int64,
+    pass_sq (n, 3) float64 (or (0, 3) without squares), all zero, and zero again on return. Returns -1, or the
+    first pixel whose samples do not continue its earlier ones (then nothing is changed)."""
+    n, G = group_sum.shape[0], group_sum.shape[1]
+    for i in range(pixel.shape[0]):
+        p, g = pixel[i], group[i]
+        for c in range(3):
+            group_sum[p, g, c] += radiance[i, c]
+        group_samples[p, g] += 1
+    for p in range(n):  # every pixel's samples must continue where its earlier ones ended
+        count = 0
+        for g in range(G):
+            count += group_samples[p, g]
+        if count == 0:
+            continue
+        before = np.int64(sample_count[p])
+        period = prefix.shape[0] - 1
+        q0, r0 = before // period, before % period
+        q1, r1 = (before + count) // period, (before + count) % period
+        for g in range(G):
+            if (q1 - q0) * prefix[period, g] + prefix[r1, g] - prefix[r0, g] != group_samples[p, g]:
+                _clear(group_sum, group_samples, pass_sq)
+                return p
+    if squares:  # squared deviations from the pass's own mean (exactly 0 for a constant pixel)
+        for i in range(pixel.shape[0]):
+            p = pixel[i]
+            count = 0
+            for g in range(G):
+                count += group_samples[p, g]
+            for c in range(3):
+                total = group_sum[p, 0, c]
+                for g in range(1, G):
+                    total += group_sum[p, g, c]
+                dev = radiance[i, c] - total / max(count, 1)
+                pass_sq[p, c] += dev * dev
+    for p in range(n):
+        count = 0
+        for g in range(G):
+            count += group_samples[p, g]
+        if count == 0:
+            continue
+        first = sample_count[p] == 0
+        cf = np.float64(count)
+        for c in range(3):
+            total = group_sum[p, 0, c]
+            for g in range(1, G):
+                total += group_sum[p, g, c]
+            pass_mean = total / cf
+            if first:
+                shift[p, c] = np.float32(pass_mean)
+            k = np.float64(shift[p, c])
+            for g in range(G):
+                group_dev[p, g, c] = np.float32(np.float64(group_dev[p, g, c])
+                                                + (group_sum[p, g, c] - np.float64(group_samples[p, g]) * k))
+            if squares:
+                d = pass_mean - k
+                dev_sq[p, c] = np.float32((np.float64(dev_sq[p, c]) + pass_sq[p, c]) + cf * d * d)
+        sample_count[p] += count
+    _clear(group_sum, group_samples, pass_sq)
+    return -1
+
+
+@_jit
+def _clear(group_sum, group_samples, pass_sq):
+    for p in range(group_sum.shape[0]):
+        for g in range(group_sum.shape[1]):
+            group_samples[p, g] = 0
+            for c in range(3):
+                group_sum[p, g, c] = 0.0
+    for p in range(pass_sq.shape[0]):
+        for c in range(3):
+            pass_sq[p, c] = 0.0
+
+
+@_jit
+def add_sums3(pixel, values, out, scratch):
+    """out (n, 3) float32 += per-pixel float64 sums of values (N, 3) float64, rounded once (scratch (n, 3)
+    float64, zero, and zero again on return)."""
+    for i in range(pixel.shape[0]):
+        p = pixel[i]
+        for c in range(3):
+            scratch[p, c] += values[i, c]
+    for p in range(out.shape[0]):
+        for c in range(3):
+            out[p, c] = np.float32(np.float64(out[p, c]) + scratch[p, c])
+            scratch[p, c] = 0.0
+
+
+@_jit
+def add_sums1(pixel, values, finite_only, out, counts, scratch, scratch_counts):
+    """out (n,) float32 += per-pixel float64 sums of values (N,) float64 (only the finite ones when
+    finite_only), rounded once; counts (n,) int32 += how many were summed (scratch (n,) float64 and
+    scratch_counts (n,) int64, zero, and zero again on return)."""
+    for i in range(pixel.shape[0]):
+        v = values[i]
+        if finite_only and not np.isfinite(v):
+            continue
+        p = pixel[i]
+        scratch[p] += v
+        scratch_counts[p] += 1
+    for p in range(out.shape[0]):
+        out[p] = np.float32(np.float64(out[p]) + scratch[p])
+        counts[p] += scratch_counts[p]
+        scratch[p] = 0.0
+        scratch_counts[p] = 0
