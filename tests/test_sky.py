@@ -1,0 +1,190 @@
+"""Sky Texture worlds (core.sky baked into core.world's environment map) against Cycles.
+
+- Per direction: the world alone seen through an equirectangular panoramic camera (the whole sphere, 64 x 32)
+  rendered by Monte and by Cycles: every pixel is the sky's radiance averaged over the pixel filter, so the two
+  images differ only by the baking (bilinear lookup in a 1024 x 512 map) and the filter's jitter; asserted: each
+  channel's mean within 0.5 %, 99 % of pixels within 2 % (measured: see the printed numbers), and the per-pixel
+  z-scores of core.compare.
+- Lit: a diffuse plane under the sky (sun low, so the image is the sky's irradiance, sun-dominated), channel means
+  within 1 % of Cycles (tests/test_crosscheck.py's `check`).
+- Export: the unsupported sky types warn by name and keep the socket's colour.
+Core (no Blender): the baked map against the model evaluated directly, and the zenith's value from the model's
+definition.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from monte.core import sky
+
+SUN = (0.35, 0.8, 0.45)  # the sun about 27 degrees above the horizon, towards +y
+TURBIDITY = 3.0
+SUN_ELEVATION, SUN_ROTATION = 25.0, 30.0  # degrees, the single-scattering sky's sun
+
+
+# ------------------------------------------------------------------------------------------ core (no Blender)
+def test_preetham_zenith_with_the_sun_overhead_is_the_zenith_luminance():
+    """With the sun at the zenith, looking up: the Perez ratio is 1, so Y = the paper's zenith luminance
+    ((4.0453 T - 4.9710) tan(chi) - 0.2155 T + 2.4192) x 0.06, chi = (4/9 - T/120) pi."""
+    T = 2.5
+    rgb = sky.preetham_radiance(np.array([[0.0, 0.0, 1.0]]), (0.0, 0.0, 2.0), T)[0]
+    Y = float(np.linalg.solve(sky.XYZ_TO_LINEAR_RGB, rgb)[1])
+    chi = (4 / 9 - T / 120) * math.pi
+    assert Y == pytest.approx(((4.0453 * T - 4.9710) * math.tan(chi) - 0.2155 * T + 2.4192) * 0.06, rel=1e-9)
+    assert rgb[2] > rgb[1] > rgb[0] > 0  # a blue zenith
+
+
+def test_preetham_is_symmetric_about_the_sun_and_brightest_towards_it():
+    s = np.array([0.0, 0.8, 0.45]) / np.linalg.norm([0.0, 0.8, 0.45])  # in the y-z plane
+    ring = np.array([[math.cos(a), math.sin(a), 0.3] for a in np.linspace(0, 2 * math.pi, 16, endpoint=False)])
+    ring /= np.linalg.norm(ring, axis=1, keepdims=True)
+    mirrored = ring.copy()
+    mirrored[:, 0] *= -1  # the sun lies in the y-z plane: x -> -x keeps the angle to it
+    np.testing.assert_allclose(sky.preetham_radiance(ring, s, TURBIDITY),
+                               sky.preetham_radiance(mirrored, s, TURBIDITY), rtol=1e-9)
+    near, far = sky.preetham_radiance(np.array([s, -s * [1, 1, -1]]), s, TURBIDITY)
+    assert near.sum() > 3 * far.sum()
+
+
+def test_baked_map_matches_the_model_between_texels():
+    """The bilinear lookup of the 1024 x 512 bake against the model at random directions: median error 0.1 %,
+    99th percentile under 1.5 % (the steepest part is the circumsolar peak)."""
+    from monte.core.world import EnvironmentDistribution, EnvironmentMap
+
+    pixels = sky.bake_equirectangular(lambda d: sky.preetham_radiance(d, SUN, TURBIDITY))
+    dist = EnvironmentDistribution(EnvironmentMap(pixels))
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(20000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    want = sky.preetham_radiance(d, SUN, TURBIDITY)
+    rel = np.abs(dist.radiance(d) - want).max(axis=1) / want.max(axis=1)
+    print(f"baking error: median {100 * np.median(rel):.3f} %, 99th pct {100 * np.quantile(rel, 0.99):.3f} %")
+    assert np.median(rel) < 0.001 and np.quantile(rel, 0.99) < 0.015
+
+
+# ------------------------------------------------------------------------------------------ Blender and Cycles
+bpy = pytest.importorskip("bpy")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import blender_fixtures as bf  # noqa: E402
+from test_film_camera_cycles import cycles_rgba, monte_rgba  # noqa: E402
+
+from monte.core import compare as cmp  # noqa: E402
+
+
+def set_sky_world(scene, sky_type: str = "PREETHAM", strength: float = 1.0, sun_disc: bool = True):
+    world = bf.set_world(scene, (0.0, 0.0, 0.0), strength)
+    tree = world.node_tree
+    node = tree.nodes.new("ShaderNodeTexSky")
+    node.sky_type = sky_type
+    if sky_type in ("PREETHAM", "HOSEK_WILKIE"):
+        node.sun_direction = SUN
+        node.turbidity = TURBIDITY
+    else:
+        node.sun_elevation, node.sun_rotation = math.radians(SUN_ELEVATION), math.radians(SUN_ROTATION)
+        node.sun_disc = sun_disc
+        node.air_density, node.aerosol_density, node.ozone_density = 1.2, 2.0, 1.5
+    tree.links.new(node.outputs["Color"], tree.nodes["Background"].inputs["Color"])
+    return node
+
+
+@pytest.mark.blender
+@pytest.mark.parametrize("sky_type", ["PREETHAM", "SINGLE_SCATTERING"])
+def test_sky_per_direction_through_an_equirectangular_camera(sky_type, tmp_path):
+    """The sky alone (the single-scattering one without its sun disc: a light, checked by the lit plane)."""
+    scene = bf.reset()
+    set_sky_world(scene, sky_type, sun_disc=False)
+    bf.camera_object(scene, (0.0, 0.0, 0.0), (math.radians(90), 0, 0), kind="PANO", panorama_type="EQUIRECTANGULAR")
+    scene.render.resolution_x, scene.render.resolution_y = 64, 32
+    scene.render.resolution_percentage = 100
+    mon, mon_var = monte_rgba(scene, 64, 1)
+    cyc, cyc_var = cycles_rgba(scene, tmp_path, 32, 1)
+    mon, cyc, cyc_var = mon[..., :3], cyc[..., :3], cyc_var[..., :3]
+    rel = np.abs(mon - cyc).max(axis=-1) / np.maximum(cyc.max(axis=-1), 1e-6)
+    means = mon.mean((0, 1)) / cyc.mean((0, 1)) - 1
+    print(f"\nper direction: means {np.round(100 * means, 3)} %, median {100 * np.median(rel):.3f} %, "
+          f"99th pct {100 * np.quantile(rel, 0.99):.3f} %, max {100 * rel.max():.3f} %")
+    assert cyc.mean() > 0.1
+    assert np.all(np.abs(means) < 0.005)
+    assert np.quantile(rel, 0.99) < 0.02
+    c = cmp.compare(mon, mon_var, cyc, cyc_var, rel_cap=0.01)
+    assert c.verdict()[0], c.verdict()[1]
+
+
+@pytest.mark.blender
+@pytest.mark.parametrize("sky_type", ["PREETHAM", "SINGLE_SCATTERING"])
+def test_diffuse_plane_under_the_sky(sky_type, tmp_path):
+    """A diffuse plane seen from above under the sky (and, for single scattering, its sun disc as a light)."""
+    from test_crosscheck import check
+
+    scene = bf.reset()
+    bf.mesh_object("plane", [(-3, -3, 0), (3, -3, 0), (3, 3, 0), (-3, 3, 0)], [(0, 1, 2, 3)],
+                   bf.diffuse("plane", (0.7, 0.7, 0.7)))
+    bf.camera_object(scene, (0, -4.0, 3.0), (math.radians(50), 0, 0), lens=35.0)
+    set_sky_world(scene, sky_type)
+    scene.render.resolution_percentage = 100
+    check(scene, tmp_path, "small", max_bounces=2)
+
+
+@pytest.mark.blender
+@pytest.mark.parametrize("sky_type, label", [("HOSEK_WILKIE", "Hosek-Wilkie"),
+                                             ("MULTIPLE_SCATTERING", "Multiple Scattering")])
+def test_unbuilt_sky_types_warn_by_name(sky_type, label):
+    from monte.addon.export.world import export_world
+
+    if sky_type not in {e.identifier for e in bpy.types.ShaderNodeTexSky.bl_rna.properties["sky_type"].enum_items}:
+        pytest.skip(f"this Blender has no {sky_type} sky")
+    scene = bf.reset()
+    node = set_sky_world(scene, sky_type)
+    scene.world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.1, 0.2, 0.3, 1.0)
+    warnings: list[str] = []
+    got = export_world(scene.world, warnings)
+    assert got.environment is None
+    np.testing.assert_allclose(got.color, (0.1, 0.2, 0.3), rtol=1e-6)
+    assert warnings == [f"world 'World': Sky Texture {node.name!r} type {label!r} is not supported; using the "
+                        "socket's own colour as a uniform background"]
+
+
+@pytest.mark.blender
+def test_preetham_export_reads_sun_turbidity_and_strength():
+    from monte.addon.export.world import export_world
+
+    scene = bf.reset()
+    set_sky_world(scene, strength=2.0)
+    warnings: list[str] = []
+    env = export_world(scene.world, warnings).environment
+    assert warnings == [] and env.pixels.shape == (512, 1024, 3)
+    np.testing.assert_allclose(env.strength, 2.0)
+    d = sky.equirectangular_directions(1024).reshape(-1, 3)
+    np.testing.assert_allclose(env.pixels.reshape(-1, 3), sky.preetham_radiance(d, SUN, TURBIDITY), rtol=1e-5,
+                               atol=1e-7)
+
+
+@pytest.mark.blender
+def test_single_scattering_export_makes_the_sun_disc_a_light():
+    from monte.addon.export.world import export_world
+
+    scene = bf.reset()
+    node = set_sky_world(scene, "SINGLE_SCATTERING", strength=2.0)
+    node.sun_intensity = 0.5
+    warnings: list[str] = []
+    got = export_world(scene.world, warnings)
+    assert warnings == [] and len(got.lights) == 1
+    sun = got.lights[0]
+    el, rot = math.radians(SUN_ELEVATION), 2 * math.pi - math.radians(SUN_ROTATION)
+    towards = np.array([-math.cos(el) * math.sin(rot), math.cos(el) * math.cos(rot), math.sin(el)])
+    np.testing.assert_allclose(sun.direction, -towards, atol=1e-6)
+    assert sun.angle == pytest.approx(node.sun_size) and sun.visible_camera
+    # strength = 2 (Background) x 0.5 (Sun Intensity) x 0.8 (limb darkening) x the disc centre's radiance x
+    # pi sin^2(size / 2)
+    bottom, top = sky.single_scattering_sun(el, node.sun_size, node.altitude, 1.2, 2.0)
+    centre = np.maximum(0.5 * (bottom + top) @ sky.XYZ_TO_LINEAR_RGB.T, 0)
+    np.testing.assert_allclose(sun.strength, 2.0 * 0.5 * 0.8 * centre * math.pi * math.sin(node.sun_size / 2) ** 2,
+                               rtol=1e-5)
+    node.sun_disc = False
+    assert export_world(scene.world, []).lights == []
