@@ -1,4 +1,6 @@
-"""Analytic sky models (Blender's Sky Texture) evaluated per direction and baked into an environment map.
+"""Blender's Sky Texture models evaluated per direction and baked into an environment map: Preetham (analytic)
+and Single Scattering (Nishita's atmosphere, Blender 4.x's "Nishita"), with that one's sun disc as a sun light.
+Hosek-Wilkie and Multiple Scattering are not here (the add-on warns by name).
 
 Preetham ("A Practical Analytic Model for Daylight", Preetham, Shirley and Smits 1999), as Cycles evaluates it:
 the Perez distribution F(theta, gamma) = (1 + A exp(B / cos theta)) (1 + C exp(D gamma) + E cos^2 gamma) for each
