@@ -70,6 +70,26 @@ def test_baked_map_matches_the_model_between_texels():
     assert np.median(rel) < 1e-4 and np.quantile(rel, 0.99) < 1e-3
 
 
+def test_sun_position_wraps_as_cycles():
+    """Cycles' wrap: elevation past the zenith turns the sun round (rotation + pi), then rotation -> 2 pi - rotation;
+    the sun then lies towards -x sin(rotation) + y cos(rotation)."""
+    el, rot = sky.wrap_sun_position(math.radians(100.0), math.radians(30.0))
+    assert el == pytest.approx(math.radians(80.0)) and rot == pytest.approx(2 * math.pi - math.radians(210.0))
+    el, rot = sky.wrap_sun_position(math.radians(-20.0), math.radians(-90.0))
+    assert el == pytest.approx(math.radians(-20.0)) and rot == pytest.approx(math.radians(90.0))
+    np.testing.assert_allclose(sky.sun_direction(0.0, math.pi / 2), [-1.0, 0.0, 0.0], atol=1e-12)
+
+
+def test_no_sun_light_below_the_horizon():
+    assert sky.sun_disc_light("sun", math.radians(-5.0), 0.0, 0.01, 1.0, 100.0, 1.0, 1.0) is None
+    high = sky.sun_disc_light("sun", math.radians(30.0), 0.0, 0.01, 1.0, 100.0, 1.0, 1.0)
+    low = sky.sun_disc_light("sun", math.radians(5.0), 0.0, 0.01, 1.0, 100.0, 1.0, 1.0)
+    assert np.all(low.strength > 0) and np.all(low.strength < high.strength)  # a longer path through the air
+    assert low.strength[0] / low.strength[2] > 2 * high.strength[0] / high.strength[2]  # reddened (Rayleigh)
+    np.testing.assert_allclose(high.direction, -sky.sun_direction(math.radians(30.0), 0.0))
+    assert high.angle == 0.01 and high.visible_camera
+
+
 # ------------------------------------------------------------------------------------------ Blender and Cycles
 bpy = pytest.importorskip("bpy")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -203,3 +223,4 @@ def test_single_scattering_export_makes_the_sun_disc_a_light():
                                rtol=1e-5)
     node.sun_disc = False
     assert export_world(scene.world, []).lights == []
+
