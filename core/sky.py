@@ -231,13 +231,15 @@ def single_scattering_xyz(directions: np.ndarray, sun_elevation: float, altitude
 @functools.lru_cache(maxsize=4)
 def single_scattering_lut(sun_elevation: float, altitude: float, air: float, aerosol: float,
                           ozone: float) -> np.ndarray:
-    """The (256, 512, 3) XYZ look-up table, row 0 at the bottom as Cycles reads it: column x is the azimuth
-    2 pi x / 512 - pi from the sun (mirrored about the sun's azimuth), row y > 128 the elevation
-    pi/2 (y / 128 - 1)^2 (more rows near the horizon); rows up to 128 (below the horizon) are black. Seconds of
-    CPU: the last few tables are kept (read-only), so that re-exports (the viewport) reuse them."""
+    """The (256, 512, 3) XYZ look-up table, row 0 at the bottom as Cycles reads it (Blender 5.x's layout): column x
+    is the azimuth 2 pi x / 512 - pi from the sun (mirrored about the sun's azimuth); row y the elevation
+    +-pi/2 (y / 128 - 1)^2 (more rows near the horizon; row 128 the horizon), the sky computed from row 128 up;
+    below it the ground: the horizon's row x (1 - 2.5 sin|elevation|)^3, black from sin|elevation| = 0.4. Seconds
+    of CPU: the last few tables are kept (read-only), so that re-exports (the viewport) reuse them."""
     h, w = SKY_LUT_SIZE
-    rows = np.arange(h // 2 + 1, h)
-    lat = 0.5 * math.pi * (rows / (h // 2) - 1.0) ** 2
+    half = h // 2
+    rows = np.arange(half, h)
+    lat = 0.5 * math.pi * (rows / half - 1.0) ** 2
     lon = 2.0 * math.pi / w * np.arange(w // 2) - math.pi
     cl = np.cos(lat)[:, None]
     d = np.stack([cl * np.cos(lon)[None, :], cl * np.sin(lon)[None, :],
@@ -246,6 +248,10 @@ def single_scattering_lut(sun_elevation: float, altitude: float, air: float, aer
     lut = np.zeros((h, w, 3))
     lut[rows, :w // 2] = xyz.reshape(rows.size, w // 2, 3)
     lut[rows, w // 2:] = lut[rows, :w // 2][:, ::-1]
+    below = np.arange(half)
+    z = np.sin(0.5 * math.pi * (below / half - 1.0) ** 2)
+    fade = np.where(z < 0.4, (1.0 - 2.5 * z) ** 3, 0.0)
+    lut[below] = lut[half][None] * fade[:, None, None]
     lut.flags.writeable = False
     return lut
 
@@ -307,21 +313,14 @@ def sun_direction(elevation: float, rotation: float) -> np.ndarray:
 
 def single_scattering_radiance(directions: np.ndarray, lut: np.ndarray, sun_rotation: float) -> np.ndarray:
     """Linear RGB sky radiance (N, 3), without the sun's disc, in unit directions (N, 3) from the look-up table of
-    `single_scattering_lut` and Cycles' (wrapped) sun rotation: below the horizon the horizon's colour fades to
-    black at z = -0.4 (Cycles' ground for this model)."""
+    `single_scattering_lut` and Cycles' (wrapped) sun rotation (its ground below the horizon included)."""
     d = np.asarray(directions, np.float64).reshape(-1, 3)
     z = np.clip(d[:, 2], -1.0, 1.0)
     phi = np.arctan2(d[:, 1], d[:, 0])
     x = np.mod((-phi - 0.5 * math.pi + sun_rotation) / (2.0 * math.pi), 1.0)
     el = 0.5 * math.pi - np.arccos(z)
     y = np.sqrt(np.abs(el) / (0.5 * math.pi)) * np.sign(el) * 0.5 + 0.5
-    below = z < 0.0
-    y = np.where(below, 0.508, y)
-    xyz = lut_lookup(lut, x, y)
-    fade = np.where(below, np.where(z < -0.4, 0.0, (1.0 + 2.5 * z) ** 3), 1.0)
-    rgb = xyz @ XYZ_TO_LINEAR_RGB.T
-    return np.maximum(rgb, 0.0) * fade[:, None]
-
+    return np.maximum(lut_lookup(lut, x, y) @ XYZ_TO_LINEAR_RGB.T, 0.0)
 
 MIN_SUN_SIZE = 0.0005  # radians: Cycles' clamp of Sun Size (numerical precision)
 _LIMB_DARKENING_MEAN = 0.8  # Cycles' limb darkening 1 - 0.6 (1 - sqrt(1 - r^2)) averaged over the disc
