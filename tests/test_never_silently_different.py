@@ -56,7 +56,10 @@ def _set(owner, **values):
 
 
 def _sky(scene, sky_type: str) -> None:
-    """A Sky Texture of `sky_type` on the world's Background colour."""
+    """A Sky Texture of `sky_type` on the world's Background colour (skipped where this Blender has no such type:
+    4.x has Nishita in place of the two scattering types)."""
+    if sky_type not in {e.identifier for e in bpy.types.ShaderNodeTexSky.bl_rna.properties["sky_type"].enum_items}:
+        pytest.skip(f"this Blender has no {sky_type} sky")
     tree = scene.world.node_tree
     node = tree.nodes.new("ShaderNodeTexSky")
     node.sky_type = sky_type
