@@ -353,7 +353,8 @@ class SceneSync:
             start += k
             meshes.append(mesh)
         extra = {} if self.film is None else {"film": self.film}
-        return Scene(camera=camera, meshes=meshes, materials=list(self.materials.materials), lights=list(self.lights),
+        lights = list(self.lights) + list(self.world.lights)  # a Sky Texture's sun disc
+        return Scene(camera=camera, meshes=meshes, materials=list(self.materials.materials), lights=lights,
                      world=self.world, textures=list(self.materials.textures), name=name,
                      warnings=list(self.warnings), objects=np.concatenate(rows).astype(np.float32),
                      uv_layer_names=list(self.materials.uv_names),

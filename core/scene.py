@@ -453,6 +453,9 @@ class World:
     color: np.ndarray = field(default_factory=lambda: np.zeros(3))
     environment: EnvironmentMap | None = None
     camera_color: np.ndarray | None = None
+    # Lights that belong to the world (a Sky Texture's sun disc, core.sky): the exporters add them to the
+    # scene's lights; the world itself does not render them.
+    lights: list = field(default_factory=list)
 
     @property
     def is_black(self) -> bool:

@@ -55,6 +55,17 @@ def _set(owner, **values):
         setattr(owner, key, value)
 
 
+def _sky(scene, sky_type: str) -> None:
+    """A Sky Texture of `sky_type` on the world's Background colour (skipped where this Blender has no such type:
+    4.x has Nishita in place of the two scattering types)."""
+    if sky_type not in {e.identifier for e in bpy.types.ShaderNodeTexSky.bl_rna.properties["sky_type"].enum_items}:
+        pytest.skip(f"this Blender has no {sky_type} sky")
+    tree = scene.world.node_tree
+    node = tree.nodes.new("ShaderNodeTexSky")
+    node.sky_type = sky_type
+    tree.links.new(node.outputs["Color"], tree.nodes["Background"].inputs["Color"])
+
+
 def _cycles_output(material_or_world):
     tree = material_or_world.node_tree
     return tree, next(n for n in tree.nodes if n.bl_idname in ("ShaderNodeOutputMaterial", "ShaderNodeOutputWorld"))
@@ -208,6 +219,15 @@ AUDIT = {
     "world volume": (lambda s: _volume(s.world), ("warns", ["world volumes"])),
     "world camera visibility": (lambda s: _set(s.world.cycles_visibility, camera=False),
                                 ("warns", ["world", "Camera"])),
+    "sky texture preetham": (lambda s: _sky(s, "PREETHAM"),
+                             ("renders", lambda c: c.world.environment is not None
+                              and c.world.environment.pixels.shape == (512, 1024, 3))),
+    "sky texture hosek-wilkie": (lambda s: _sky(s, "HOSEK_WILKIE"), ("warns", ["Sky Texture", "'Hosek-Wilkie'"])),
+    "sky texture single scattering": (lambda s: _sky(s, "SINGLE_SCATTERING"),
+                                      ("renders", lambda c: c.world.environment is not None
+                                       and [light.name for light in c.lights] == ["lamp", "World/Sky Texture sun"])),
+    "sky texture multiple scattering": (lambda s: _sky(s, "MULTIPLE_SCATTERING"),
+                                        ("warns", ["Sky Texture", "'Multiple Scattering'"])),
 }
 
 

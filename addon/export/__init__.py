@@ -297,6 +297,7 @@ def export_scene(
     if not materials.materials:
         materials.index(None)  # core needs at least one material
     world = export_world(scene.world, warnings)
+    lights = lights + world.lights  # a Sky Texture's sun disc
     out = Scene(camera=camera, meshes=meshes, materials=materials.materials, lights=lights, world=world,
                 textures=materials.textures, name=scene.name, warnings=warnings,
                 film=export_film(scene, depsgraph.view_layer),

@@ -8,15 +8,18 @@ location ignored, as for any direction) fed by Texture Coordinate Generated (or 
 through bpy (packed or on disk, its colour space applied); Strength multiplies it. Cycles' world sampling
 settings (`world.cycles.sampling_method`, `sample_map_resolution`) choose the importance map's resolution.
 Anything else warns and falls back: an Image Texture or other node on the colour -> its average colour or the
-socket's colour; a missing or unreadable image -> the Background's own colour. No node tree: the world's
-viewport colour; no world at all: black. The Light Path trick of a backdrop that differs from the light (a Mix
-Shader of two Backgrounds by Is Camera Ray) gives the world a camera-only colour (core World.camera_color).
+socket's colour; a missing or unreadable image -> the Background's own colour. A Sky Texture of a built type
+(Preetham, core.sky) is baked into an equirectangular environment map; the other types warn by name and render
+the socket's colour. No node tree: the world's viewport colour; no world at all: black. The Light Path trick of a
+backdrop that differs from the light (a Mix Shader of two Backgrounds by Is Camera Ray) gives the world a
+camera-only colour (core World.camera_color).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ...core import sky as sky_model
 from ...core.scene import Mist, World
 from ...core.world import EnvironmentMap
 from .material import follow_link, image_average_color, image_pixels, node_tree, socket_value
@@ -96,8 +99,67 @@ def _background_world(node, world, name: str, warnings: list[str]) -> World:
             env.strength = np.maximum(factor * strength, 0.0)
             return World(np.zeros(3), environment=env)
         return World(np.maximum(np.array(node.inputs["Color"].default_value[:3], np.float64) * strength, 0.0))
+    if src is not None and src.bl_idname == "ShaderNodeTexSky":
+        sky, sun = _sky(world, src, warnings)
+        if sky is not None:
+            sky.strength = np.maximum(factor * strength, 0.0)
+            if sun is not None:  # the sky's strength scales its sun too
+                sun.strength = sun.strength * sky.strength
+            return World(np.zeros(3), environment=sky, lights=[] if sun is None else [sun])
+        return World(np.maximum(np.array(node.inputs["Color"].default_value[:3], np.float64) * strength, 0.0))
     color = _background_color(node.inputs["Color"], name, warnings)
     return World(np.maximum(color * strength, 0.0))
+
+
+# Sky types baked into an environment map (core.sky); the others warn by name and fall back.
+_BAKED_SKY_TYPES = {"PREETHAM": "Preetham", "SINGLE_SCATTERING": "Single Scattering", "NISHITA": "Nishita"}
+
+
+def _sky(world, tex, warnings: list[str]):
+    """(EnvironmentMap, SunLight or None): a Sky Texture of a built type baked into an equirectangular map
+    (strength 1) and, for the scattering models with Sun Disc on, its sun as a light (the disc is far smaller
+    than the map's texels); (None, None) (warned) for the others (the caller falls back to the socket's
+    colour)."""
+    name = world.name
+    kind = tex.sky_type
+    if kind not in _BAKED_SKY_TYPES:
+        label = kind.replace("_", " ").title().replace("Hosek Wilkie", "Hosek-Wilkie")
+        warnings.append(f"world {name!r}: Sky Texture {tex.name!r} type {label!r} is not supported; using the "
+                        "socket's own colour as a uniform background")
+        return None, None
+    matrix = _vector_matrix(tex.inputs["Vector"], name, warnings) if "Vector" in tex.inputs else np.eye(3)
+    mapping = getattr(tex, "texture_mapping", None)
+    if mapping is not None and (tuple(mapping.translation) != (0, 0, 0) or tuple(mapping.rotation) != (0, 0, 0)
+                                or tuple(mapping.scale) != (1, 1, 1)):
+        warnings.append(f"world {name!r}: Sky Texture {tex.name!r} texture mapping (its own Mapping panel) is "
+                        "ignored")
+    sun_light = None
+    if kind == "PREETHAM":
+        sun = np.array(tex.sun_direction[:3], np.float64)
+        if not np.linalg.norm(sun) > 0:
+            warnings.append(f"world {name!r}: Sky Texture {tex.name!r} sun direction is zero; using the zenith")
+            sun = np.array([0.0, 0.0, 1.0])
+        turbidity = float(tex.turbidity)
+        pixels = sky_model.bake_equirectangular(lambda d: sky_model.preetham_radiance(d, sun, turbidity))
+    else:
+        elevation, rotation = sky_model.wrap_sun_position(float(tex.sun_elevation), float(tex.sun_rotation))
+        aerosol = float(getattr(tex, "aerosol_density", getattr(tex, "dust_density", 1.0)))
+        lut = sky_model.single_scattering_lut(elevation, float(tex.altitude), float(tex.air_density), aerosol,
+                                              float(tex.ozone_density))
+        pixels = sky_model.bake_equirectangular(lambda d: sky_model.single_scattering_radiance(d, lut, rotation))
+        if tex.sun_disc:
+            sun_light = sky_model.sun_disc_light(f"{name}/{tex.name} sun", elevation, rotation,
+                                                 float(tex.sun_size), float(tex.sun_intensity),
+                                                 float(tex.altitude), float(tex.air_density), aerosol)
+            if sun_light is not None and elevation - 0.5 * float(tex.sun_size) < 0.0:
+                warnings.append(f"world {name!r}: Sky Texture {tex.name!r} sun disc crosses the horizon; it is "
+                                "rendered whole")
+    method = getattr(getattr(world, "cycles", None), "sampling_method", "AUTOMATIC")
+    resolution = int(getattr(world.cycles, "sample_map_resolution", 1024)) if method == "MANUAL" else 0
+    env = EnvironmentMap(pixels=pixels, projection="EQUIRECTANGULAR", interpolation="LINEAR", matrix=matrix,
+                         map_resolution=resolution, importance_sampling=method != "NONE",
+                         name=f"{name}/{tex.name}")
+    return env, sun_light
 
 
 def _constant_multiply(mix) -> tuple[object | None, np.ndarray]:
@@ -219,10 +281,6 @@ def _background_color(sock, world_name: str, warnings: list[str]) -> np.ndarray:
         warnings.append(f"world {world_name!r}: texture {src.name!r} ({src.image.name}) on the background is "
                         f"not supported; using its average colour {np.round(avg, 4).tolist()}")
         return avg
-    if src.bl_idname == "ShaderNodeTexSky":
-        warnings.append(f"world {world_name!r}: Sky Texture {src.name!r} is not supported; using the socket's own "
-                        "colour as a uniform background")
-        return np.array(sock.default_value[:3], dtype=np.float64)
     warnings.append(f"world {world_name!r}: node {src.name!r} ({src.bl_label}) driving the background colour is "
                     "not supported; using the socket's own colour")
     return np.array(sock.default_value[:3], dtype=np.float64)
