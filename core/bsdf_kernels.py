@@ -178,7 +178,12 @@ def microfacet_eval(alpha, eta, ox, oy, oz, ix, iy, iz, which):
     """Single-scatter GGX terms without Fresnel for wo (oz > 0) and wi: (f |cos wi| / Fresnel, pdf of VNDF
     sampling + reflection/refraction at h, wo.h, wi is a reflection). Reflection when iz > 0
     (h = normalize(wo + wi)), transmission when iz < 0 (h = -normalize(wo + eta wi) oriented to +z);
-    which: _REFLECT / _TRANSMIT (the other configuration gives 0) or _BOTH. See core.microfacet."""
+    which: _REFLECT / _TRANSMIT (the other configuration gives 0) or _BOTH. See core.microfacet.
+    A transmission pair is evaluated as Cycles' bsdf_microfacet_eval does: without checking that it is a physical
+    refraction (wo and wi on the two sides of the microfacet h, which also bounds the angle between wi and the
+    straight-through direction); wo.h and wi.h enter as absolute values. Sampling never produces such pairs, so
+    only next-event estimation sees them (and, as in Cycles, its MIS weight uses the pdf given here); where h
+    makes wo.h total internal reflection the caller zeroes the pair (glass: its Fresnel; refraction: `eval_path`)."""
     reflect = iz > 0.0
     if which == _REFLECT:
         hx, hy, hz = ox + ix, oy + iy, oz + iz
@@ -191,9 +196,11 @@ def microfacet_eval(alpha, eta, ox, oy, oz, ix, iy, iz, which):
     hx, hy, hz = hx / hl, hy / hl, hz / hl
     cos_oh = ox * hx + oy * hy + oz * hz
     cos_ih = ix * hx + iy * hy + iz * hz
-    ok = oz > 0.0 and cos_oh > 0.0
+    transmission = which == _TRANSMIT or (which == _BOTH and not reflect)
+    ok = oz > 0.0 and (cos_oh > 0.0 or (transmission and cos_oh != 0.0))
     if not ok:
         return 0.0, 0.0, cos_oh, reflect
+    cos_oh = abs(cos_oh)  # Cycles' Fresnel takes |wo.h|; equal to wo.h for every physical pair
     alpha2 = alpha * alpha
     t = 1.0 + (alpha2 - 1.0) * (hz * hz)
     d = alpha2 * _INV_PI / (t * t)
@@ -203,8 +210,8 @@ def microfacet_eval(alpha, eta, ox, oy, oz, ix, iy, iz, which):
         ok = reflect and cos_ih > 0.0
         d = d * 0.25 / oz
     else:
-        ok = iz < 0.0 and cos_ih < 0.0
-        den = eta * cos_ih + cos_oh
+        ok = iz < 0.0
+        den = eta * cos_ih + ox * hx + oy * hy + oz * hz  # (eta wi + wo).h = +-|eta wi + wo|
         d = d * (eta * eta) * abs(cos_oh * cos_ih) / (den * den * oz)
     if not (ok and math.isfinite(d)):
         return 0.0, 0.0, cos_oh, reflect
@@ -514,6 +521,8 @@ def eval_path(lobes, row, multiscatter, tabs, ox, oy, oz, back, ix, iy, iz):
                 fr = F if refl else 1.0 - F
                 fc *= fr
                 p *= fr
+            elif fresnel_dielectric(cos_oh, eta) >= 1.0:
+                continue  # refraction: a pair whose microfacet totally reflects wo transmits nothing (Cycles)
             # glass: Fss is the transmission tint (the colour); refraction: transmission only, no Fresnel factor
             # and no compensation (Cycles' Refraction BSDF)
             fss0, fss1, fss2 = c0, c1, c2

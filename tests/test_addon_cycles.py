@@ -103,3 +103,42 @@ def test_principled_bsdf_approximation_against_cycles(name, tmp_path):
     c, m = cyc[mask].mean(axis=0), mon[mask].mean(axis=0)
     print(f"\n{name}: sphere mean Cycles {np.round(c, 4)} Monte {np.round(m, 4)} rel {np.round(m / c - 1, 4)}")
     assert np.allclose(m, c, rtol=tolerance)
+
+
+def rough_pane_scene(shader: str, th_deg: float, size: int = 8):
+    """A 2000 x 2000 rough dielectric plane (roughness 0.8, IOR 1.45; Glass BSDF or Principled with Transmission
+    1) at z = 0 with a 2 x 2 area light of 100 W 1 m above it, seen through the plane by an orthographic camera
+    below at th_deg from the normal (black world): each pixel is the light's radiance transmitted by the rough
+    interface from inside, i.e. next-event estimation (and BSDF-sampled hits) through rough glass."""
+    scene = bf.reset()
+    s = 1000.0
+    inputs = {"Roughness": 0.8, "IOR": 1.45}
+    if shader == "ShaderNodeBsdfPrincipled":
+        inputs["Transmission Weight"] = 1.0
+    mat = bf.node_material("pane", shader)
+    node = next(n for n in mat.node_tree.nodes if n.bl_idname == shader)
+    for key, value in inputs.items():
+        node.inputs[key].default_value = value
+    bf.mesh_object("pane", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)], mat)
+    add_light(scene, "AREA", (0, 0, 1), energy=100.0, size=2.0)
+    th = math.radians(th_deg)
+    bf.camera_object(scene, (0, -3 * math.sin(th), -3 * math.cos(th)), (math.pi - th, 0, 0), kind="ORTHO",
+                     ortho_scale=0.1)
+    bf.set_world(scene, (0.0, 0.0, 0.0), 0.0)
+    scene.render.resolution_x = scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    return scene
+
+
+@pytest.mark.parametrize("shader,th", [("ShaderNodeBsdfGlass", 40.0), ("ShaderNodeBsdfGlass", 0.0),
+                                       ("ShaderNodeBsdfPrincipled", 40.0)])
+def test_light_through_rough_glass_matches_cycles(shader, th, tmp_path):
+    """Light reaching a viewer through a rough dielectric: Cycles' next-event estimation evaluates refraction
+    pairs that are no physical refraction (its eval has no such check), so the light it finds through a rough
+    pane exceeds what BSDF sampling alone finds; ours does the same. Before, ours was 5 % darker at 40 degrees
+    (Glass BSDF: 2.82 vs 2.97), matching Cycles only with the light's emission sampling off."""
+    scene = rough_pane_scene(shader, th)
+    cyc = render(scene, "CYCLES", tmp_path, 2048, 1).mean(axis=(0, 1))
+    mon = render(scene, "MONTE", tmp_path, 2048, 1).mean(axis=(0, 1))
+    print(f"\n{shader} {th} deg: Cycles {np.round(cyc, 4)} Monte {np.round(mon, 4)} rel {np.round(mon / cyc - 1, 4)}")
+    assert np.allclose(mon, cyc, rtol=0.01)

@@ -65,6 +65,25 @@ def sphere_grid(nz, nphi, sub):
     return d.astype(F32), dA
 
 
+def physical_refraction(lb, wo_vec, wi):
+    """Per direction wi (n, 3): False where (wo, wi) lie on the two sides of the surface but are no physical
+    refraction through any microfacet of the batch's glass / refraction lobe (a physical one has wo.h > 0 > wi.h
+    for h = eta wi + wo, eta = n(wi side) / n(wo side), turned to wo's side of the surface); True elsewhere and
+    without such a lobe."""
+    wo = np.asarray(wo_vec, np.float64)
+    wi = np.asarray(wi, np.float64)
+    out = np.ones(len(wi), bool)
+    slots = np.flatnonzero(np.isin(lb.kind[0], (bsdf.GLASS, bsdf.REFRACTION)))
+    if len(slots) == 0:
+        return out
+    ior = float(lb.ior[0, slots[0]])
+    eta = ior if wo[2] > 0 else 1.0 / ior
+    h = eta * wi + wo
+    h *= np.where(h[:, 2] * wo[2] < 0, -1.0, 1.0)[:, None]
+    crossing = (wi[:, 2] > 0) != (wo[2] > 0)
+    return ~crossing | ((h @ wo > 0) & (np.sum(h * wi, axis=1) < 0))
+
+
 def chi2_pvalue(lb_one, wo_vec, n_samples=120_000, seed=1, pdf_fn=None, nz=32, nphi=48, sub=8):
     """Chi-square test of sampled non-delta directions against the pdf (integrated over equal-area bins).
 
@@ -83,6 +102,8 @@ def chi2_pvalue(lb_one, wo_vec, n_samples=120_000, seed=1, pdf_fn=None, nz=32, n
     if pdf_fn is None:
         lbg = lb_one(len(d))
         _, pdf = bsdf.eval_bsdf(lbg, np.tile(np.asarray(wo_vec, F32), (len(d), 1)), d)
+        # eval also answers unphysical refraction pairs (as Cycles' eval does), which sampling never produces
+        pdf = np.where(physical_refraction(lbg, wo_vec, d), pdf, 0.0)
     else:
         pdf = pdf_fn(d)
     expected = pdf.astype(np.float64).reshape(nz, nphi, sub, sub).sum(axis=(2, 3)).ravel() * dA * n_samples
@@ -238,6 +259,57 @@ def test_reciprocity_transmission(kind, rough, ior):
     ok = (np.abs(wo[:, 2]) > 0.02) & (np.abs(wi[:, 2]) > 0.02) & (np.abs(np.sum(h * wo, axis=1)) > 0.02)
     assert np.mean(f1[ok, 0] > 0) > 0.1
     np.testing.assert_allclose(f1[ok], f2[ok], rtol=2e-3, atol=1e-6)
+
+
+def cycles_btdf(alpha, eta, wo, wi):
+    """Cycles' bsdf_microfacet_eval for a transmission pair, written out in NumPy from its formula: wo the view
+    direction (wo.z > 0), wi below, eta = n(wi side) / n(wo side); no check that the pair is a physical refraction.
+    Returns (f |cos wi| of the single-scatter white glass lobe, its pdf) per row."""
+    H = -(eta * wi + wo)
+    inv_len = 1.0 / np.linalg.norm(H, axis=1)
+    H = H * inv_len[:, None]
+    cos_hi = np.sum(H * wo, axis=1)  # Cycles' wi (the view) is our wo
+    cos_ho = np.sum(H * wi, axis=1)
+    c = np.abs(cos_hi)
+    g2 = eta * eta - 1.0 + c * c
+    g = np.sqrt(np.maximum(g2, 0.0))
+    F = np.where(g2 > 0, 0.5 * ((g - c) / (g + c)) ** 2 * (1 + ((c * (g + c) - 1) / (c * (g - c) + 1)) ** 2), 1.0)
+    a2 = alpha * alpha
+    D = a2 / (np.pi * ((1 - H[:, 2] ** 2) + a2 * H[:, 2] ** 2) ** 2)
+
+    def lam(z):
+        return 0.5 * (np.sqrt(1 + a2 * np.maximum(1 / (z * z) - 1, 0)) - 1)
+
+    common = D / wo[:, 2] * (eta * inv_len) ** 2 * np.abs(cos_hi * cos_ho)
+    lo, li = lam(wo[:, 2]), lam(wi[:, 2])
+    return (1 - F) * common / (1 + lo + li), (1 - F) * common / (1 + lo)
+
+
+@pytest.mark.parametrize("rough,ior,inside", [(0.8, 1.45, True), (0.5, 1.45, False), (0.3, 1.5, True)])
+def test_transmission_eval_answers_every_pair_as_cycles(rough, ior, inside):
+    """Cycles evaluates a glass transmission pair with Walter's formula without checking that it is a physical
+    refraction (wo.h and wi.h of opposite signs; light that could not have come through any microfacet), so its
+    next-event estimation through rough glass finds more light than its BSDF sampling (measured, a rough pane in
+    front of an area light: Cycles' image with light sampling 5 % brighter than with BSDF sampling only, ours
+    agreeing with the latter before this). Ours answers those pairs as Cycles' eval does, value and pdf."""
+    rng = np.random.default_rng(5)
+    n = 4000
+    lb = batch([Lobe("glass", roughness=rough, ior=ior)], n, multiscatter=False)
+    wo = random_dirs(rng, n, True)
+    wi = random_dirs(rng, n, False)
+    if inside:  # wo below the surface: the lobes act in the flipped frame with eta = 1 / ior
+        wo, wi = wo * F32([1, 1, -1]), wi * F32([1, 1, -1])
+    f, pdf = bsdf.eval_bsdf(lb, wo, wi)
+    flip = np.array([1.0, 1.0, -1.0 if inside else 1.0])
+    wol, wil = wo.astype(np.float64) * flip, wi.astype(np.float64) * flip
+    eta = 1.0 / ior if inside else ior
+    f_ref, pdf_ref = cycles_btdf(rough * rough, eta, wol, wil)
+    ok = (np.abs(wol[:, 2]) > 0.05) & (np.abs(wil[:, 2]) > 0.05)
+    h = (eta * wil + wol) * np.where(eta * wil[:, 2] + wol[:, 2] < 0, -1.0, 1.0)[:, None]
+    unphysical = (np.sum(h * wol, axis=1) <= 0) | (np.sum(h * wil, axis=1) >= 0)
+    assert (unphysical & ok & (f_ref > 1e-3)).sum() > 200  # the pairs in question are present and carry light
+    np.testing.assert_allclose(f[ok, 0], f_ref[ok], rtol=2e-3, atol=1e-6)
+    np.testing.assert_allclose(pdf[ok], pdf_ref[ok], rtol=2e-3, atol=1e-6)
 
 
 def test_multiscatter_is_a_wo_only_factor():
