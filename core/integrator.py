@@ -20,8 +20,9 @@ import numpy as np
 
 from . import bsdf as bsdf_mod
 from . import geometry_kernels, path_kernels
-from .accel import Accelerator, Hits
+from .accel import Accelerator, Hits, MotionTriangles
 from .light_shadow import NoShadowLights
+from .motion import interpolate_corners, resample_steps
 from .lights import EmissiveTriangles, LightSampler
 from .ray_visibility import RAY_KIND_NAMES, bounce_kinds
 from .scene import Scene
@@ -29,11 +30,14 @@ from .settings import RenderSettings
 from .shading import PreparedShading
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
-# camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce.
+# camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce. The ray's
+# time (motion blur) has a set of its own far past any bounce's, read only when the scene moves, so that a still
+# scene's numbers are unchanged (every set is scrambled independently: its index is only a key).
 DIM_FILM = 0
 DIM_LENS = 1
 DIM_BOUNCE_BASE = 2
 DIM_STRIDE = 8
+DIM_TIME = 0x7FFF0000
 # Two sampler calls per bounce: a 4-D set for the vertex (BSDF direction in the stratified pair, lobe choice third,
 # Russian roulette fourth) and a 3-D set for the light (point in the pair, which light third).
 _D_VERTEX, _D_LIGHT = 1, 4
@@ -129,6 +133,12 @@ class PreparedScene:
     # (T,) float32 Shadow Terminator Geometry Offset of each smooth triangle (0 on flat ones), None when all are 0
     terminator_offset: np.ndarray | None = None
     uv_layers: np.ndarray | None = None  # (T, K, 3, 2) the named UV maps of Scene.uv_layer_names, or None
+    # Motion blur (core.motion): the moving triangles' corners per step (shifted frame), their corner normals per
+    # step ((S, M, 3, 3), None when they keep `corner_normals`) and each triangle's row among them (-1: still);
+    # all None when nothing moves.
+    motion: MotionTriangles | None = None
+    motion_normals: np.ndarray | None = None
+    motion_slot: np.ndarray | None = None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -139,7 +149,8 @@ class PreparedScene:
             found = self._subsets.get(which)
             if found is None:
                 keep = np.flatnonzero(self.visible_to[which])
-                found = self._subsets[which] = (Accelerator(self.vertices, self.triangles[keep]),
+                motion = None if self.motion is None else self.motion.subset(keep)
+                found = self._subsets[which] = (Accelerator(self.vertices, self.triangles[keep], motion=motion),
                                                 keep.astype(np.int32))
             return found
 
@@ -244,13 +255,69 @@ class PreparedScene:
         features["ray_visibility"] = sorted(visible_to)
         no_shadow = NoShadowLights.build(scene.lights, shift)
         features["lights_without_shadow"] = no_shadow is not None
+        motion, motion_normals, motion_slot = _motion_geometry(scene.meshes, shift, corner_normals, t_count)
+        features["moving_triangles"] = 0 if motion is None else len(motion.index)
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
                    specular, features, shading, object_of_triangle,
                    alpha, holdout, keeps, visible_to, no_shadow,
                    any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
                        for m in scene.materials for lobe in m.lobes),
-                   terminator_offset=terminator_offset, uv_layers=uv_layers)
+                   terminator_offset=terminator_offset, uv_layers=uv_layers, motion=motion,
+                   motion_normals=motion_normals, motion_slot=motion_slot)
+
+    def hit_triangles(self, tri: np.ndarray, ray_time: np.ndarray | None) -> tuple:
+        """The triangles `tri` (K,) as the rays that hit them at ray_time (K,) see them: (corners (K, 3, 3), face
+        normals (K, 3), magnitudes (K,), corner normals (K, 3, 3) or an empty array), moving ones rebuilt at
+        their ray's time (core.motion), still ones as prepared."""
+        corners, normals, magnitude = self.tri_vertices[tri], self.face_normals[tri], self.tri_magnitude[tri]
+        corner_normals = self.kernel_corner_normals
+        if len(corner_normals):
+            corner_normals = corner_normals[tri]
+        slot = self.motion_slot[tri] if self.motion_slot is not None else None
+        moving = np.flatnonzero(slot >= 0) if slot is not None and ray_time is not None else np.zeros(0, np.int64)
+        if len(moving):
+            at = interpolate_corners(self.motion.corners, slot[moving], ray_time[moving])
+            frames = (np.empty((len(moving), 3, 3), np.float32), np.empty((len(moving), 3), np.float32),
+                      np.empty(len(moving), np.float32))
+            geometry_kernels.triangle_frames(np.ascontiguousarray(at.reshape(-1, 3)),
+                                             np.arange(3 * len(moving), dtype=np.int64).reshape(-1, 3), *frames)
+            corners[moving], normals[moving], magnitude[moving] = frames
+            if self.motion_normals is not None:
+                corner_normals[moving] = interpolate_corners(self.motion_normals, slot[moving], ray_time[moving])
+        return corners, normals, magnitude, corner_normals
+
+
+def _motion_geometry(meshes, shift: np.ndarray, corner_normals: np.ndarray | None,
+                     t_count: int) -> tuple[MotionTriangles | None, np.ndarray | None, np.ndarray | None]:
+    """PreparedScene's motion, motion_normals and motion_slot from the meshes' motion steps (all None when
+    nothing moves), every mesh's steps resampled onto the largest step count."""
+    parts, first = [], 0
+    for mesh in meshes:
+        if mesh.triangle_count == 0:
+            continue
+        if mesh.motion_vertices is not None:
+            parts.append((first, mesh))
+        first += mesh.triangle_count
+    if not parts:
+        return None, None, None
+    steps = max(mesh.motion_vertices.shape[0] for _, mesh in parts)
+    with_normals = corner_normals is not None and any(mesh.motion_normals is not None for _, mesh in parts)
+    index, corners, normals = [], [], []
+    for first, mesh in parts:
+        t = mesh.triangle_count
+        positions = resample_steps(mesh.motion_vertices, steps)
+        corners.append((positions[:, mesh.triangles] - shift).astype(np.float32))
+        index.append(np.arange(first, first + t))
+        if with_normals:
+            normals.append(resample_steps(mesh.motion_normals, steps).astype(np.float32)
+                           if mesh.motion_normals is not None
+                           else np.broadcast_to(corner_normals[first:first + t], (steps, t, 3, 3)))
+    index = np.concatenate(index)
+    slot = np.full(t_count, -1, np.int32)
+    slot[index] = np.arange(len(index), dtype=np.int32)
+    return (MotionTriangles(index, np.ascontiguousarray(np.concatenate(corners, axis=1))),
+            np.ascontiguousarray(np.concatenate(normals, axis=1)) if with_normals else None, slot)
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
@@ -424,11 +491,13 @@ class PathTracer:
         t_start: np.ndarray,
         want_aovs: bool,
         want_features: bool = False,
+        ray_time: np.ndarray | None = None,
     ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
         """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs; want_features adds the
         denoising features, FirstHit.features) and their transparency (N,) float32 in [0, 1] (alpha = 1 -
         transparency; None when the scene has no alpha, see core.scene.Film). pixel_id/sample_id (uint32) key the
-        random numbers."""
+        random numbers. ray_time: (N,) each path's time in [0, 1] over the shutter (motion blur; its bounces and
+        shadow rays keep it), None for a still scene."""
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
@@ -463,12 +532,13 @@ class PathTracer:
             if len(idx) == 0:
                 break
             clock = time.perf_counter()
+            tr = None if ray_time is None else ray_time[idx]  # the live paths' times
             if bounce_kind is not None:
-                hits = self._intersect_by_kind(bounce_kind[idx], o, d, tm)
+                hits = self._intersect_by_kind(bounce_kind[idx], o, d, tm, tr)
             elif depth == 0 and "camera" in ps.visible_to:
-                hits = self._intersect_subset("camera", o, d, tm)
+                hits = self._intersect_subset("camera", o, d, tm, tr)
             else:
-                hits = self.accel.intersect(o, d, tm)
+                hits = self.accel.intersect(o, d, tm, tr)
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
             # Emission from analytic lights (area, sphere lights, sun disc) and the world along the ray.
@@ -524,7 +594,7 @@ class PathTracer:
             if ps.shading is not None and ps.shading.any_emits:
                 e = np.flatnonzero(hit & ps.shading.emits[ps.material_index[prim]])
                 if len(e):
-                    ge = self._surface(e, prim, hits.u, hits.v, d)
+                    ge = self._surface(e, prim, hits.u, hits.v, d, tr)
                     mat_e = ps.material_index[prim[e]]
                     le = np.zeros((len(e), 3), np.float32)
                     self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le,
@@ -553,7 +623,7 @@ class PathTracer:
             rows = np.flatnonzero(survive)
             if want_aovs and depth == 0:
                 hit_rows = np.flatnonzero(hit)
-                g = self._surface(hit_rows, prim, hits.u, hits.v, d)
+                g = self._surface(hit_rows, prim, hits.u, hits.v, d, tr)
                 mat_first = ps.material_index[prim[hit_rows]]
                 lobes_first = ps.materials.gather(mat_first, g.uv)
                 if ps.shading is not None:
@@ -565,7 +635,7 @@ class PathTracer:
                 if len(rows) < len(hit_rows):
                     g = g.take(np.flatnonzero(survive[hit_rows]))
             elif len(rows):
-                g = self._surface(rows, prim, hits.u, hits.v, d)
+                g = self._surface(rows, prim, hits.u, hits.v, d, tr)
             if len(rows) == 0:
                 break
             idx, pix, smp, u_vertex = idx[rows], pix[rows], smp[rows], u_vertex[rows]
@@ -584,7 +654,11 @@ class PathTracer:
                 bary = None
                 if ps.terminator_offset is not None:  # the shadow terminator lift needs the hits' triangles
                     bary = (prim[rows], hits.u[rows], hits.v[rows])
-                self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary)
+                    if tr is not None and ps.motion_slot is not None:  # the hits' triangles at their times
+                        at = ps.hit_triangles(prim[rows], tr[rows])
+                        bary = (np.arange(len(rows), dtype=np.int32), hits.u[rows], hits.v[rows], at[0], at[3],
+                                ps.terminator_offset[prim[rows]])
+                self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, ray_time)
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
@@ -638,9 +712,9 @@ class PathTracer:
                                          world=world)
         return out
 
-    def _intersect_by_kind(self, kinds: np.ndarray, o, d, tm):
+    def _intersect_by_kind(self, kinds: np.ndarray, o, d, tm, tr=None):
         """Closest hits of rays of several kinds (core.ray_visibility), each against the triangles its kind of ray
-        sees."""
+        sees. tr: the rays' times (motion blur) or None."""
         ps = self.ps
         groups = [(kind, np.flatnonzero(kinds == code)) for code, kind in RAY_KIND_NAMES.items()
                   if kind in ps.visible_to]
@@ -648,32 +722,46 @@ class PathTracer:
         for _, rows in groups:
             hidden[rows] = True
         if not hidden.any():
-            return self.accel.intersect(o, d, tm)
+            return self.accel.intersect(o, d, tm, tr)
         hits = Hits(np.full(len(o), -1, np.int32), np.zeros(len(o), np.float32), np.zeros(len(o), np.float32),
                     np.full(len(o), np.inf, np.float32))
         rest = np.flatnonzero(~hidden)
-        parts = [(rows, self._intersect_subset(kind, o[rows], d[rows], tm[rows])) for kind, rows in groups if len(rows)]
+        parts = [(rows, self._intersect_subset(kind, o[rows], d[rows], tm[rows], None if tr is None else tr[rows]))
+                 for kind, rows in groups if len(rows)]
         if len(rest):
-            parts.append((rest, self.accel.intersect(o[rest], d[rest], tm[rest])))
+            parts.append((rest, self.accel.intersect(o[rest], d[rest], tm[rest], None if tr is None else tr[rest])))
         for rows, part in parts:
             hits.prim[rows], hits.u[rows], hits.v[rows], hits.t[rows] = part.prim, part.u, part.v, part.t
         return hits
 
-    def _intersect_subset(self, which: str, o, d, tm):
+    def _intersect_subset(self, which: str, o, d, tm, tr=None):
         """Closest hits among the triangles `which` rays see, with the scene's triangle indices."""
         accel, keep = self.ps.visible_subset(which)
-        hits = accel.intersect(o, d, tm)
+        hits = accel.intersect(o, d, tm, tr)
         if len(keep) == 0:
             return hits  # all misses
         found = hits.prim >= 0
         hits.prim = np.where(found, keep[np.where(found, hits.prim, 0)], np.int32(-1)).astype(np.int32)
         return hits
 
-    def _surface(self, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
-        """Surface interactions of the hits `rows` (see core.geometry_kernels.surface)."""
+    def _surface(self, rows: np.ndarray, prim, bu, bv, d, tr=None) -> "SurfaceBatch":
+        """Surface interactions of the hits `rows` (see core.geometry_kernels.surface); tr: the rays' times
+        (motion blur: moving triangles are rebuilt at them) or None."""
         ps = self.ps
         m = len(rows)
         g = SurfaceBatch.empty(m, ps.uvs is not None)
+        if tr is not None and ps.motion_slot is not None:
+            tri = prim[rows]
+            corners, normals, magnitude, corner_normals = ps.hit_triangles(tri, tr[rows])
+            local = np.arange(m, dtype=np.int64)
+            smooth, uvs = ps.kernel_smooth, ps.kernel_uvs
+            geometry_kernels.surface(local, local.astype(np.int32), np.ascontiguousarray(bu[rows]),
+                                     np.ascontiguousarray(bv[rows]), np.ascontiguousarray(d[rows], dtype=np.float32),
+                                     corners, normals, corner_normals, smooth[tri] if len(smooth) else smooth,
+                                     uvs[tri] if len(uvs) else uvs, magnitude, ps.material_index[tri], ps.specular,
+                                     g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo, g.n_view, g.mag,
+                                     g.cos_o_geo, g.uv_buffer)
+            return g
         geometry_kernels.surface(rows.astype(np.int64), prim, bu, bv, np.ascontiguousarray(d, dtype=np.float32),
                         ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth,
                         ps.kernel_uvs, ps.tri_magnitude, ps.material_index, ps.specular, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
@@ -711,9 +799,11 @@ class PathTracer:
         return now
 
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
-                    bary=None) -> None:
+                    bary=None, ray_time=None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
-        u, v) of each path's hit when some mesh has a shadow terminator offset, else None."""
+        u, v) of each path's hit when some mesh has a shadow terminator offset, else None (with motion blur:
+        (row, u, v, corners, corner normals, offsets) of the hits' own triangles at their times). ray_time: each
+        sample's time (motion blur: the shadow rays cast at it) or None."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
@@ -739,10 +829,12 @@ class PathTracer:
         if count == 0:
             return
         clock = time.perf_counter()
+        shadow_time = None if ray_time is None else ray_time[sample_of[:count]]
         if "shadow" in ps.visible_to:
-            blocked = ps.visible_subset("shadow")[0].occluded(origin[:count], direction[:count], tmax[:count])
+            blocked = ps.visible_subset("shadow")[0].occluded(origin[:count], direction[:count], tmax[:count],
+                                                              shadow_time)
         else:
-            blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count])
+            blocked = self.accel.occluded(origin[:count], direction[:count], tmax[:count], shadow_time)
         self.stats.seconds_occluded += time.perf_counter() - clock
         self.stats.seconds_nee -= time.perf_counter() - clock  # counted once, as shadow rays
         if ps.no_shadow is not None:
@@ -761,10 +853,12 @@ class PathTracer:
             e3 = np.zeros((0, 3, 3), np.float32)
             return (np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros(0, np.float32),
                     np.zeros((0, 3), np.float32), e3, e3, np.zeros(0, np.float32))
-        prim, bu, bv = bary
+        prim, bu, bv = bary[:3]
+        corners, corner_normals, offsets = bary[3:] if len(bary) > 3 else (ps.tri_vertices, ps.corner_normals,
+                                                                           ps.terminator_offset)
         return (np.ascontiguousarray(prim[can]), np.ascontiguousarray(bu[can], np.float32),
-                np.ascontiguousarray(bv[can], np.float32), np.ascontiguousarray(gc.n_view), ps.tri_vertices,
-                ps.corner_normals, ps.terminator_offset)
+                np.ascontiguousarray(bv[can], np.float32), np.ascontiguousarray(gc.n_view), corners,
+                corner_normals, offsets)
 
     def _add(self, radiance: np.ndarray, idx: np.ndarray, value: np.ndarray) -> None:
         """Add contributions to their samples, catching NaN/Inf (counted, dropped) and clamping if asked."""

@@ -22,9 +22,10 @@ import numpy as np
 
 from .accel import Accelerator
 from .camera import camera_rays
+from .motion import moving_camera_rays
 from .film import TileFilm
 from .filters import PixelFilter
-from .integrator import DIM_FILM, DIM_LENS, DenoisingFeatures, FirstHit, PathStats, PathTracer, PreparedScene
+from .integrator import DIM_FILM, DIM_LENS, DIM_TIME, DenoisingFeatures, FirstHit, PathStats, PathTracer, PreparedScene
 from .jit_cache import compile_cache_is_cold
 from .memory import check_render_memory
 from .sampling import VARIANCE_GROUPS, make_sampler
@@ -331,7 +332,7 @@ def _prepare(scene: Scene, settings: RenderSettings, say) -> tuple[PreparedScene
     t0 = time.perf_counter()
     prepared = PreparedScene.build(scene, sample_world=settings.light_sampling == "light")
     # Parallelism is across batches (see _TileRender), so each Embree call runs on the worker that makes it.
-    accel = Accelerator(prepared.vertices, prepared.triangles)
+    accel = Accelerator(prepared.vertices, prepared.triangles, motion=prepared.motion)
     t_prepare = time.perf_counter() - t0
     for w in scene.warnings:
         say(f"warning: {w}")
@@ -376,6 +377,8 @@ class _TileRender:
         # Rays start relative to the camera; the prepared frame is relative to prepared.shift.
         offset = np.asarray(scene.camera.position, np.float64) - np.asarray(prepared.shift, np.float64)
         self.camera_offset = offset.astype(np.float32) if np.any(offset != 0) else None
+        # Motion blur: rays carry a time only when something moves (a still scene reads no time at all).
+        self.motion = prepared.motion is not None or scene.camera.motion_matrices is not None
         self.on_tile, self.on_progress, self.should_cancel = on_tile, on_progress, should_cancel
         self.sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
         self.pixel_filter = PixelFilter(settings.filter_type, settings.filter_width)
@@ -523,22 +526,27 @@ class _TileRender:
         offsets = self.pixel_filter.sample(self.sampler.get_2d(pixel_id, smp, DIM_FILM))
         camera = self.scene.camera
         lens_u = self.sampler.get_2d(pixel_id, smp, DIM_LENS) if camera.aperture_radius() > 0 else None
-        rays = camera_rays(camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1], lens_u)
+        ray_time = self.sampler.get_1d(pixel_id, smp, DIM_TIME) if self.motion else None
+        if camera.motion_matrices is not None and ray_time is not None:
+            rays = moving_camera_rays(camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1], lens_u, ray_time)
+        else:
+            rays = camera_rays(camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1], lens_u)
         if self.camera_offset is not None:  # prepared for another camera position (render(prepared=...))
             rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
         if rays.alive is not None:  # a panoramic camera's dead rays: nothing traced, nothing added
-            return self._trace_alive(tracer, pixel_id, smp, rays)
+            return self._trace_alive(tracer, pixel_id, smp, rays, ray_time)
         return tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
-                            rays.t_start, self.settings.aovs, self.settings.denoising_features)
+                            rays.t_start, self.settings.aovs, self.settings.denoising_features, ray_time)
 
-    def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays):
+    def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays, ray_time=None):
         """Trace only the rays that are alive; dead ones get radiance 0, no transparency and no first hit."""
         live = np.flatnonzero(rays.alive)
         n = len(rays.alive)
         radiance_l, first_l, transparent_l = tracer.trace(
             pixel_id[live], smp[live], rays.origins[live], rays.directions[live], rays.tmax[live],
-            rays.depth_scale[live], rays.t_start[live], self.settings.aovs, self.settings.denoising_features)
+            rays.depth_scale[live], rays.t_start[live], self.settings.aovs, self.settings.denoising_features,
+            None if ray_time is None else ray_time[live])
         radiance = np.zeros((n, 3), np.float32)
         radiance[live] = radiance_l
         transparent = None

@@ -216,6 +216,11 @@ class Mesh:
       default); Blender objects default to 0.1 and the add-on exports their value.
     uv_layers: optional {name: (T, 3, 2)} every UV map of the mesh by name (UV Map nodes naming a map read
       these through `Scene.uv_layer_names`; a mesh without the named map reads (0, 0), as Blender does).
+    motion_vertices: optional (S, V, 3) world positions of the vertices at S >= 2 times evenly spaced over the
+      camera's shutter (step 0 at shutter open, S - 1 at close; core.motion): motion blur of a moving or
+      deforming mesh. `vertices` stays the frame's pose (light sampling of emitters reads it). None: still.
+    motion_normals: optional (S, T, 3, 3) the corner normals at those steps (a rotating or deforming smooth
+      mesh); None keeps `normals` at every step.
     """
 
     name: str
@@ -232,6 +237,8 @@ class Mesh:
     visible_transmission: bool = True
     shadow_terminator_offset: float = 0.0
     uv_layers: dict | None = None
+    motion_vertices: np.ndarray | None = None
+    motion_normals: np.ndarray | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -281,6 +288,7 @@ class Mesh:
         if uvs is not None and uvs.shape != (n_tri, 3, 2):
             raise SceneError(f"{owner}: uvs must have shape (T, 3, 2) = ({n_tri}, 3, 2), got {uvs.shape}")
 
+        motion, motion_normals = self._checked_motion(owner, v.shape[0], n_tri, warnings)
         # Drop triangles with non-finite or degenerate (zero-area) geometry: counted, never fatal.
         finite = np.empty(n_tri, bool)
         area2 = np.empty(n_tri)
@@ -324,6 +332,7 @@ class Mesh:
             uvs = None if uvs is None else uvs[keep]
             objs = None if objs is None else objs[keep]
             layers = {lname: luv[keep] for lname, luv in layers.items()}
+            motion_normals = None if motion_normals is None else motion_normals[:, keep]
         # Non-finite vertices that no kept triangle uses are harmless; replace them so later arithmetic is clean.
         if not np.all(np.isfinite(v)):
             v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
@@ -331,6 +340,35 @@ class Mesh:
         self.normals, self.uvs = normals, uvs
         self.object_index = None if objs is None else objs.astype(np.int32)
         self.uv_layers = layers or None
+        self.motion_vertices, self.motion_normals = motion, motion_normals
+
+    def _checked_motion(self, owner: str, n_vertices: int, n_tri: int,
+                        warnings: list[str]) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """motion_vertices / motion_normals as float64 / float32 arrays, or None (still, or with a warning when
+        unusable: the mesh then renders without motion blur, at its frame pose)."""
+        if self.motion_vertices is None:
+            return None, None
+        from .motion import MAX_MOTION_STEPS
+
+        steps = np.asarray(self.motion_vertices, np.float64)
+        if steps.ndim != 3 or steps.shape[1:] != (n_vertices, 3) or not 2 <= steps.shape[0] <= MAX_MOTION_STEPS:
+            raise SceneError(f"{owner}: motion_vertices must have shape (S, V, 3) with 2 <= S <= "
+                             f"{MAX_MOTION_STEPS} and V = {n_vertices}, got {steps.shape}")
+        if not np.all(np.isfinite(steps)):
+            warnings.append(f"{owner}: NaN/Inf in its motion-blur positions; rendered without motion blur")
+            return None, None
+        if np.all(steps == steps[:1]):
+            return None, None  # nothing moves
+        normals = None
+        if self.motion_normals is not None:
+            normals = np.asarray(self.motion_normals, np.float32)
+            if normals.shape != (steps.shape[0], n_tri, 3, 3):
+                raise SceneError(f"{owner}: motion_normals must have shape (S, T, 3, 3) = ({steps.shape[0]}, "
+                                 f"{n_tri}, 3, 3), got {normals.shape}")
+            if not np.all(np.isfinite(normals)):
+                warnings.append(f"{owner}: NaN/Inf in its motion-blur normals; its normals do not move")
+                normals = None
+        return steps, normals
 
 
 # ------------------------------------------------------------------------------------------------------ lights
@@ -454,6 +492,9 @@ class Camera:
     longitude_max (right), height from cylinder_height_min (bottom) to cylinder_height_max (top).
     Rays outside the fisheye circle or the ball are dead (black and opaque). Clipping: rays
     start clip_start from the camera and end at clip_end; the depth pass is the distance along the ray.
+
+    motion_matrices: optional (S, 4, 4) camera-to-world matrices at S >= 2 times evenly spaced over the shutter
+    (motion blur of a moving camera, core.motion); matrix_world stays the frame's. None: a still camera.
     """
 
     matrix_world: np.ndarray
@@ -487,6 +528,7 @@ class Camera:
     cylinder_height_min: float = -1.0
     cylinder_height_max: float = 1.0
     cylinder_radius: float = 1.0
+    motion_matrices: np.ndarray | None = None
 
     @classmethod
     def look_at(
@@ -608,6 +650,18 @@ class Camera:
         if not whole or blades < 0:
             raise SceneError(f"camera: depth of field aperture_blades is {blades!r}, it must be a whole number >= 0")
         self.aperture_blades = int(blades)
+        if self.motion_matrices is not None:
+            from .motion import MAX_MOTION_STEPS
+
+            steps = np.asarray(self.motion_matrices, np.float64)
+            if steps.ndim != 3 or steps.shape[1:] != (4, 4) or not 2 <= steps.shape[0] <= MAX_MOTION_STEPS:
+                raise SceneError(f"camera: motion_matrices must have shape (S, 4, 4) with 2 <= S <= "
+                                 f"{MAX_MOTION_STEPS}, got {steps.shape}")
+            if not np.all(np.isfinite(steps)):
+                raise SceneError("camera: NaN/Inf in its motion-blur matrices")
+            if np.any(np.abs(np.linalg.det(steps[:, :3, :3])) < 1e-12):
+                raise SceneError("camera: a motion-blur matrix is singular (zero scale)")
+            self.motion_matrices = None if np.all(steps == steps[:1]) else steps
 
 
 # -------------------------------------------------------------------------------------------------------- film
@@ -659,6 +713,11 @@ class Scene:
     def triangle_count(self) -> int:
         return sum(m.triangle_count for m in self.meshes)
 
+    @property
+    def has_motion(self) -> bool:
+        """Whether anything moves over the shutter (motion blur): rays then carry a time (core.motion)."""
+        return self.camera.motion_matrices is not None or any(m.motion_vertices is not None for m in self.meshes)
+
     def validate(self) -> "Scene":
         """Validate in place; raise SceneError for what cannot be rendered, drop and count what can be."""
         self.camera.validate()
@@ -679,6 +738,11 @@ class Scene:
             n_objects = len(self.objects)
         for mesh in self.meshes:
             mesh.validate(len(self.materials), self.warnings, n_objects)
+            if mesh.motion_vertices is not None and mesh.triangle_count and any(
+                    self.materials[i].is_emissive for i in np.unique(mesh.material_index)):
+                self.warnings.append(f"mesh {mesh.name!r}: a moving emitter is motion-blurred where it is seen, "
+                                     "but light sampling (next-event estimation) lights the scene from its "
+                                     "position at the frame")
         self.world.color = _as_rgb(self.world.color, "world background")
         if self.world.environment is not None:
             try:
