@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-MAX_MOTION_STEPS = 129  # Embree's RTC_MAX_TIME_STEP_COUNT
+from .scene import MAX_MOTION_STEPS  # noqa: F401  (re-exported: the steps' limit, Embree's)
 
 
 def resample_steps(values: np.ndarray, steps: int) -> np.ndarray:

@@ -33,6 +33,9 @@ PANORAMA_TYPES = ("EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID",
                   "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL")
 
 
+MAX_MOTION_STEPS = 129  # motion-blur steps a mesh or camera may have (Embree's RTC_MAX_TIME_STEP_COUNT)
+
+
 class SceneError(ValueError):
     """Invalid scene input that cannot be rendered; the message names the offending element."""
 
@@ -348,8 +351,6 @@ class Mesh:
         unusable: the mesh then renders without motion blur, at its frame pose)."""
         if self.motion_vertices is None:
             return None, None
-        from .motion import MAX_MOTION_STEPS
-
         steps = np.asarray(self.motion_vertices, np.float64)
         if steps.ndim != 3 or steps.shape[1:] != (n_vertices, 3) or not 2 <= steps.shape[0] <= MAX_MOTION_STEPS:
             raise SceneError(f"{owner}: motion_vertices must have shape (S, V, 3) with 2 <= S <= "
@@ -651,8 +652,6 @@ class Camera:
             raise SceneError(f"camera: depth of field aperture_blades is {blades!r}, it must be a whole number >= 0")
         self.aperture_blades = int(blades)
         if self.motion_matrices is not None:
-            from .motion import MAX_MOTION_STEPS
-
             steps = np.asarray(self.motion_matrices, np.float64)
             if steps.ndim != 3 or steps.shape[1:] != (4, 4) or not 2 <= steps.shape[0] <= MAX_MOTION_STEPS:
                 raise SceneError(f"camera: motion_matrices must have shape (S, 4, 4) with 2 <= S <= "
