@@ -152,8 +152,10 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         passes = requested_passes(view_layer, scene)
         self.update_stats("", "Monte | Exporting scene")
 
+        # Motion blur evaluates subframes through the engine's frame_set (its own depsgraph), as Cycles does.
         core_scene, stats = export_scene(depsgraph, self.camera_override,
-                                         should_cancel=self._cancel_requested)
+                                         should_cancel=self._cancel_requested,
+                                         frame_set=lambda frame, subframe: self.frame_set(frame, subframe=subframe))
         for w in core_scene.warnings:
             self.report({"WARNING"}, f"Monte: {w}")
         self.report({"INFO"}, f"Monte: {stats.line()}")
@@ -251,7 +253,8 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         from .viewport import progressive_passes
 
         scene = depsgraph.scene
-        core_scene, _ = export_scene(depsgraph, self.camera_override, should_cancel=self._cancel_requested)
+        core_scene, _ = export_scene(depsgraph, self.camera_override, should_cancel=self._cancel_requested,
+                                     motion_blur=False)  # previews are still, as Cycles'
         samples = int(getattr(scene.monte, "preview_samples", 16))
         settings = render_settings(scene, {"aovs": False, "time_limit": 0.0, "adaptive_threshold": 0.0})
         if settings.threads == 0:
