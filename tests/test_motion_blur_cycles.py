@@ -5,9 +5,7 @@ camera moving (camera motion) and a cube deformed by an animated shape key (defo
 render the same Blender scene, compared by their means and per-pixel z-scores (core.compare; Cycles' variance
 from CYCLES_RUNS seeds), and the blurred edge must really be blurred (its column profile far from the sharp
 render's, on Cycles' side of it). The export tests check the shutter's placement (Position), Shutter 0 and the
-named warnings. Default suite: the export tests and object motion (about 20 s on 2 cores with compiled kernels
-cached); camera motion and deformation are `@pytest.mark.slow`:
-`.venv/bin/python -m pytest -m slow tests/test_motion_blur_cycles.py`.
+named warnings. About 20 s on 2 cores with compiled kernels cached (the images are 48 x 24).
 """
 
 from __future__ import annotations
@@ -119,7 +117,8 @@ def check_blur(name: str, scene, tmp_path) -> None:
     h = mon.shape[0]
     se_mon = np.sqrt(mon_var.mean(axis=2).sum(axis=0) / 3) / h
     se_cyc = np.sqrt(cyc_var.mean(axis=2).sum(axis=0) / 3) / h
-    se = np.sqrt(se_mon ** 2 + se_cyc ** 2) + 1e-4
+    # floored at 0.001: at the ends of a ramp few samples see the cube and the variance estimates fall short
+    se = np.sqrt(se_mon ** 2 + se_cyc ** 2) + 1e-3
     moved = np.abs(profile(mon) - profile(sharp)) / se
     assert moved.max() > 10, f"{name}: the blurred image is not blurred ({moved.max():.1f} standard errors)"
     gap = np.abs(profile(mon) - profile(cyc)) / se
@@ -132,12 +131,10 @@ def test_moving_object_matches_cycles(tmp_path):
     check_blur("object motion", cube_scene("object"), tmp_path)
 
 
-@pytest.mark.slow
 def test_moving_camera_matches_cycles(tmp_path):
     check_blur("camera motion", cube_scene("camera"), tmp_path)
 
 
-@pytest.mark.slow
 def test_deforming_mesh_matches_cycles(tmp_path):
     check_blur("deformation", cube_scene("deform"), tmp_path)
 
