@@ -49,33 +49,53 @@ def interpolate_corners(step_values: np.ndarray, which: np.ndarray, time: np.nda
     return (a + (b - a) * f).astype(np.float32)
 
 
-def _quaternions(rotations: np.ndarray) -> np.ndarray:
-    """(S, 3, 3) rotation matrices -> (S, 4) unit quaternions (w, x, y, z)."""
-    out = np.empty((len(rotations), 4))
-    for i, m in enumerate(rotations):  # a handful of steps: no need to vectorise
-        trace = m[0, 0] + m[1, 1] + m[2, 2]
+def quaternions(rotations: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices -> (N, 4) unit quaternions (w, x, y, z), each with w >= 0 where possible."""
+    m = np.asarray(rotations, np.float64)
+    out = np.empty((len(m), 4))
+    for i, r in enumerate(m):  # a handful of steps per object: no need to vectorise
+        trace = r[0, 0] + r[1, 1] + r[2, 2]
         if trace > 0:
             s = 2.0 * np.sqrt(trace + 1.0)
-            q = (0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s)
-        elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-            q = ((m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s)
-        elif m[1, 1] > m[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-            q = ((m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s)
+            q = (0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s)
+        elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
+            s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+            q = ((r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s)
+        elif r[1, 1] > r[2, 2]:
+            s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
+            q = ((r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s)
         else:
-            s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-            q = ((m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s)
+            s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
+            q = ((r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s)
         out[i] = q
-    out /= np.linalg.norm(out, axis=1, keepdims=True)
-    # Consecutive steps on the same hemisphere: slerp takes the short way round.
-    for i in range(1, len(out)):
-        if np.dot(out[i - 1], out[i]) < 0:
-            out[i] = -out[i]
-    return out
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
-def _rotation_matrices(q: np.ndarray) -> np.ndarray:
+def same_hemisphere(q: np.ndarray) -> np.ndarray:
+    """(S, ..., 4) quaternions of consecutive steps, each flipped onto its predecessor's side (slerp between
+    neighbours then takes the short way round)."""
+    q = np.array(q, np.float64)
+    for i in range(1, len(q)):
+        flip = np.sum(q[i - 1] * q[i], axis=-1) < 0
+        q[i][flip] = -q[i][flip]
+    return q
+
+
+def slerp(a: np.ndarray, b: np.ndarray, frac: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions a, b and (N,) fractions -> (N, 4) spherical interpolation (linear, normalised,
+    where a and b nearly agree)."""
+    cos = np.clip(np.sum(a * b, axis=1), -1.0, 1.0)
+    angle = np.arccos(cos)
+    sin = np.sin(angle)
+    near = sin < 1e-6
+    safe = np.where(near, 1.0, sin)
+    wa = np.where(near, 1.0 - frac, np.sin((1.0 - frac) * angle) / safe)
+    wb = np.where(near, frac, np.sin(frac * angle) / safe)
+    q = a * wa[:, None] + b * wb[:, None]
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def rotation_matrices(q: np.ndarray) -> np.ndarray:
     """(N, 4) unit quaternions (w, x, y, z) -> (N, 3, 3)."""
     w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
     return np.stack([
@@ -91,20 +111,51 @@ def camera_transforms(matrices: np.ndarray, time: np.ndarray) -> tuple[np.ndarra
     matrices at the shutter's steps (rotation slerped, position linear)."""
     m = np.asarray(matrices, np.float64)
     basis = m[:, :3, :3] / np.linalg.norm(m[:, :3, :3], axis=1, keepdims=True)
-    q = _quaternions(basis)
+    q = same_hemisphere(quaternions(basis))
     lo, frac = _bracket(time, len(m))
-    a, b = q[lo], q[lo + 1]
-    cos = np.clip(np.sum(a * b, axis=1), -1.0, 1.0)
-    angle = np.arccos(cos)
-    sin = np.sin(angle)
-    near = sin < 1e-6  # nearly the same rotation: linear, then normalised
-    safe = np.where(near, 1.0, sin)
-    wa = np.where(near, 1.0 - frac, np.sin((1.0 - frac) * angle) / safe)
-    wb = np.where(near, frac, np.sin(frac * angle) / safe)
-    q_t = a * wa[:, None] + b * wb[:, None]
-    q_t /= np.linalg.norm(q_t, axis=1, keepdims=True)
     position = m[lo, :3, 3] * (1.0 - frac)[:, None] + m[lo + 1, :3, 3] * frac[:, None]
-    return _rotation_matrices(q_t), position
+    return rotation_matrices(slerp(q[lo], q[lo + 1], frac)), position
+
+
+# Baked steps of a rotating object lie at most this angle (radians) apart: a point moving linearly between two of
+# them strays from its arc by at most 1 - cos(angle / 2) of its radius, 1.1e-4 here.
+MAX_STEP_ANGLE = 0.03
+
+
+def densify_transforms(matrices: np.ndarray, max_steps: int = MAX_MOTION_STEPS) -> np.ndarray:
+    """(S, K, 4, 4) object-to-world matrices of K instances at S steps over the shutter -> (D, K, 4, 4) at
+    D = (S - 1) k + 1 steps, k the fewest subdivisions of each step that keep the rotation between baked steps
+    within MAX_STEP_ANGLE (D <= max_steps). Each matrix is split into translation, rotation and stretch (polar
+    decomposition); in between, translation and stretch are linear and rotation slerped, as Cycles interpolates
+    decomposed motion transforms. Vertices baked at the dense steps then follow the arcs of rotating objects."""
+    m = np.asarray(matrices, np.float64)
+    steps, k = m.shape[:2]
+    lin = m[..., :3, :3]
+    u, _, vt = np.linalg.svd(lin)
+    rot = u @ vt
+    flip = np.linalg.det(rot) < 0  # mirrored: the rotation keeps det +1, the stretch takes the sign
+    u[flip, :, 2] *= -1
+    rot = u @ vt
+    stretch = np.swapaxes(rot, -1, -2) @ lin
+    q = same_hemisphere(quaternions(rot.reshape(-1, 3, 3)).reshape(steps, k, 4))
+    angle = 2.0 * np.arccos(np.clip(np.abs(np.sum(q[1:] * q[:-1], axis=-1)), 0.0, 1.0))
+    sub = max(1, int(np.ceil(angle.max() / MAX_STEP_ANGLE)))
+    sub = min(sub, max(1, (max_steps - 1) // (steps - 1)))
+    if sub == 1:
+        return m
+    dense = (steps - 1) * sub + 1
+    where = np.arange(dense) / sub
+    lo = np.minimum(np.floor(where).astype(np.int64), steps - 2)
+    frac = where - lo
+    out = np.zeros((dense, k, 4, 4))
+    out[..., 3, 3] = 1.0
+    for j in range(dense):
+        f = frac[j]
+        r = rotation_matrices(slerp(q[lo[j]], q[lo[j] + 1], np.full(k, f)))
+        s = stretch[lo[j]] * (1.0 - f) + stretch[lo[j] + 1] * f
+        out[j, :, :3, :3] = r @ s
+        out[j, :, :3, 3] = m[lo[j], :, :3, 3] * (1.0 - f) + m[lo[j] + 1, :, :3, 3] * f
+    return out
 
 
 def moving_camera_rays(camera, raster_x: np.ndarray, raster_y: np.ndarray, lens_u: np.ndarray | None,

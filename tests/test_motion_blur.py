@@ -164,3 +164,29 @@ def test_bad_motion_data_gets_named_errors_and_warnings():
     scene.camera.motion_matrices = np.stack([np.eye(4), np.zeros((4, 4))])
     with pytest.raises(SceneError, match="camera: a motion-blur matrix is singular"):
         scene.validate()
+
+
+def test_rotation_is_baked_into_enough_steps_to_follow_the_arc():
+    """A quarter turn about z over 3 steps, at scale 2: the dense steps keep the original ones, keep the scale,
+    and a vertex at radius 2 stays on its circle between baked steps (within 1 - cos(MAX_STEP_ANGLE / 2))."""
+    from monte.core.motion import MAX_STEP_ANGLE, densify_transforms
+
+    def turn(angle):
+        m = np.eye(4)
+        c, s = math.cos(angle), math.sin(angle)
+        m[:3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) * 2.0
+        m[:3, 3] = (angle, 0, 0)
+        return m
+
+    coarse = np.stack([turn(0.0), turn(math.pi / 4), turn(math.pi / 2)])[:, None]
+    dense = densify_transforms(coarse)
+    sub = (len(dense) - 1) // 2
+    assert len(dense) == 2 * sub + 1 and sub >= math.ceil((math.pi / 4) / MAX_STEP_ANGLE)
+    np.testing.assert_allclose(dense[::sub], coarse, atol=1e-12)
+    point = dense[:, 0, :3, :3] @ np.array([1.0, 0, 0])  # radius 2 at every baked step
+    np.testing.assert_allclose(np.linalg.norm(point, axis=1), 2.0, rtol=1e-12)
+    halfway = (point[1:] + point[:-1]) / 2  # what linear interpolation between baked steps gives
+    assert np.linalg.norm(halfway, axis=1).min() > 2.0 * math.cos(MAX_STEP_ANGLE / 2) - 1e-12
+    np.testing.assert_allclose(dense[:, 0, 0, 3], np.linspace(0, math.pi / 2, len(dense)), atol=1e-12)
+    still = np.stack([turn(0.3)] * 3)[:, None]
+    assert densify_transforms(still).shape == still.shape

@@ -1,7 +1,7 @@
 """Motion blur from Blender against real Cycles (bpy ships it), and the export of Render > Motion Blur.
 
-A dark cube moving sideways in front of a bright uniform world (object motion), the same cube still with the
-camera moving (camera motion) and a cube deformed by an animated shape key (deformation blur): both engines
+A dark cube moving sideways in front of a bright uniform world (object motion), the cube turning about its
+vertical axis (rotation), the same cube still with the camera moving (camera motion) and a cube deformed by an animated shape key (deformation blur): both engines
 render the same Blender scene, compared by their means and per-pixel z-scores (core.compare; Cycles' variance
 from CYCLES_RUNS seeds), and the blurred edge must really be blurred (its column profile far from the sharp
 render's, on Cycles' side of it). The export tests check the shutter's placement (Position), Shutter 0 and the
@@ -56,7 +56,8 @@ def _linear_keys(obj, path: str, frames_values) -> None:
 
 def cube_scene(move: str, shutter: float = 1.0):
     """A dark diffuse cube (0.1) under a white world seen from -y, at frame 2 with a shutter of `shutter`
-    frames centred on it. move: "object" (the cube goes 1 m/frame along +x), "camera" (the camera goes 0.6
+    frames centred on it. move: "object" (the cube goes 1 m/frame along +x), "rotate" (it turns a quarter turn
+    per frame about z), "camera" (the camera goes 0.6
     m/frame along +x), "deform" (a shape key stretches the cube's +x side 1.2 m/frame) or "none"."""
     scene = bf.reset()
     cube = bf.mesh_object("cube", CUBE, FACES, bf.diffuse("dark", (0.1, 0.1, 0.1)))
@@ -66,6 +67,8 @@ def cube_scene(move: str, shutter: float = 1.0):
     scene.render.resolution_percentage = 100
     if move == "object":
         _linear_keys(cube, "location", [(1, (-1.0, 0, 0)), (3, (1.0, 0, 0))])
+    elif move == "rotate":
+        _linear_keys(cube, "rotation_euler", [(1, (0, 0, 0.0)), (3, (0, 0, math.pi))])
     elif move == "camera":
         _linear_keys(cam, "location", [(1, (-0.6, -6, 0)), (3, (0.6, -6, 0))])
     elif move == "deform":
@@ -129,6 +132,13 @@ def check_blur(name: str, scene, tmp_path) -> None:
 
 def test_moving_object_matches_cycles(tmp_path):
     check_blur("object motion", cube_scene("object"), tmp_path)
+
+
+def test_rotating_object_matches_cycles(tmp_path):
+    """A quarter turn over the shutter in Cycles' 3 steps: the vertices are baked at more steps (their arcs)."""
+    scene = cube_scene("rotate")
+    assert _export(scene).meshes[0].motion_vertices.shape[0] > 3
+    check_blur("rotation", scene, tmp_path)
 
 
 def test_moving_camera_matches_cycles(tmp_path):

@@ -14,6 +14,7 @@ from typing import Callable
 
 import numpy as np
 
+from ...core.motion import densify_transforms, resample_steps
 from ...core.scene import Scene, SceneError
 from .camera import export_camera, render_region, render_resolution  # noqa: F401  (re-exported)
 from .film import export_film
@@ -379,6 +380,12 @@ def _attach_motion(mesh, proto: _Prototype, matrices: np.ndarray, motion, warnin
                             "without deformation blur")
     if not deformed and np.all(step_matrices == matrices[None]):
         return  # still
+    # Rotation: more baked steps, so that vertices (linear between steps) follow their arcs.
+    step_matrices = densify_transforms(step_matrices)
+    if len(step_matrices) != steps:
+        local_steps = list(resample_steps(np.stack(local_steps), len(step_matrices)))
+        if normal_steps is not None:
+            normal_steps = list(resample_steps(np.stack(normal_steps), len(step_matrices)))
     mirrored = np.linalg.det(matrices[:, :3, :3]) < 0
     mesh.motion_vertices, mesh.motion_normals = placed_motion(local_steps, normal_steps, step_matrices, mirrored)
 
