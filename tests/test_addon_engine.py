@@ -285,7 +285,8 @@ def test_panels_draw_real_properties_and_blender_panels_are_opted_in():
         cls.draw(panel, ctx)
     assert {"samples", "seed", "sampler", "clamp", "time_limit", "max_bounces", "rr_depth", "filter_type",
             "filter_width", "threads", "batch_paths", "use_pass_z", "use_pass_albedo", "energy", "film_transparent",
-            "film_transparent_glass", "panorama_type", "visible_diffuse", "is_holdout"} <= set(drawn)
+            "film_transparent_glass", "panorama_type", "visible_diffuse", "is_holdout", "motion_blur_shutter",
+            "motion_blur_position", "motion_steps"} <= set(drawn)
     for kind in ("FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL", "EQUIRECTANGULAR"):
         cam.panorama_type = kind
         ui.MONTE_CAMERA_PT_panorama.draw(types.SimpleNamespace(layout=_Recorder(drawn)), ctx)
