@@ -202,6 +202,14 @@ def test_deformation_is_sampled_and_can_be_turned_off():
     assert _export(scene).meshes[0].motion_vertices is None
 
 
+def test_zoom_during_the_shutter_is_named():
+    scene = cube_scene("camera")
+    _linear_keys(bpy.data.objects["Camera"].data, "lens", [(1, 40.0), (3, 60.0)])
+    scene.frame_set(2)
+    warnings = _export(scene).warnings
+    assert any("camera 'Camera'" in w and "focal length (zoom) changes" in w for w in warnings), warnings
+
+
 def test_unsupported_shutter_settings_are_named():
     scene = cube_scene("object")
     scene.cycles.rolling_shutter_type = "TOP"

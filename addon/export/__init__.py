@@ -350,6 +350,9 @@ def _sample_motion(depsgraph, frame_set, shutter, prototypes, camera_object, cam
                             camera_object.original.name if camera_steps else None, steps, read)
     if samples.camera is not None:
         camera.motion_matrices = take_steps(samples.camera, camera_steps)
+    if samples.camera_lens_changes:
+        warnings.append(f"camera {camera_object.original.name!r}: its focal length (zoom) changes during the "
+                        "shutter; not motion-blurred, rendered with the frame's")
     return samples
 
 

@@ -125,6 +125,7 @@ class MotionSamples:
     matrices: dict
     deformed: dict
     camera: np.ndarray | None
+    camera_lens_changes: bool = False  # the camera's focal length (or ortho scale) changes during the shutter
 
 
 def sample_motion(depsgraph, frame_set: Callable[[int, float], None], shutter_: Shutter, keys: set,
@@ -136,6 +137,7 @@ def sample_motion(depsgraph, frame_set: Callable[[int, float], None], shutter_: 
     seen = {key: np.zeros(steps, bool) for key in keys}
     deformed = {name: [None] * steps for name in deforming}
     camera = np.zeros((steps, 4, 4)) if camera_name is not None else None
+    lenses = set()
     try:
         for s, (frame, subframe) in enumerate(shutter_.step_times(steps)):
             frame_set(frame, subframe)
@@ -143,6 +145,9 @@ def sample_motion(depsgraph, frame_set: Callable[[int, float], None], shutter_: 
                 obj = inst.object
                 if camera is not None and not inst.is_instance and obj.original.name == camera_name:
                     camera[s] = np.array(obj.matrix_world, np.float64).reshape(4, 4)
+                    data = obj.data
+                    lenses.add((round(float(getattr(data, "lens", 0.0)), 6),
+                                round(float(getattr(data, "ortho_scale", 0.0)), 6)))
                 if not inst.show_self:
                     continue
                 key = instance_key(inst)
@@ -155,7 +160,7 @@ def sample_motion(depsgraph, frame_set: Callable[[int, float], None], shutter_: 
         frame_set(shutter_.frame, shutter_.subframe)
     # An instance missing at some step (it appears or vanishes during the shutter): no motion for it.
     matrices = {key: m for key, m in matrices.items() if seen[key].all()}
-    return MotionSamples(steps, matrices, deformed, camera)
+    return MotionSamples(steps, matrices, deformed, camera, len(lenses) > 1)
 
 
 def take_steps(values: np.ndarray, steps: int) -> np.ndarray:
