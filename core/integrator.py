@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import copy
 import threading
 import time
 
@@ -783,6 +784,8 @@ class PathTracer:
         ng = np.where(back[:, None], -g.ng, g.ng)
         n = np.where(back[:, None], -g.ns_raw, g.ns_raw)
         obj = self.ps.object_of_triangle[prim]
+        if self.ps.motion_slot is not None and bary is not None:
+            sh, obj = self._objects_at_hit_time(sh, obj, prim, bary, g.p)
         uvx = None
         if self.ps.uv_layers is not None and bary is not None:  # the named UV maps at the hit points
             b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
@@ -791,6 +794,34 @@ class PathTracer:
                    + corners[:, :, 2] * b2[:, None, None]).astype(np.float32)
         sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
                     self.ps.materials.select_scale, emission, uvx)
+
+    def _objects_at_hit_time(self, sh: PreparedShading, obj: np.ndarray, prim: np.ndarray, bary, p: np.ndarray):
+        """Motion blur: for hits on moving triangles, object rows (appended to a per-call copy of the shading's
+        object table) whose world -> object transform takes the hit, where its triangle is at the ray's time, to
+        the object-space point it has at the frame: object and generated texture coordinates move with the
+        object, as Cycles' motion-interpolated object transforms do (exact for rigid motion). Object Info's
+        Location moves with the hit likewise. Returns (shading, object rows per point)."""
+        from .shading.program import OBJECT_INVERSE, OBJECT_LOCATION
+
+        ps = self.ps
+        moving = np.flatnonzero(ps.motion_slot[prim] >= 0)
+        if len(moving) == 0:
+            return sh, obj
+        b1 = np.asarray(bary[0], np.float64)[moving][:, None]
+        b2 = np.asarray(bary[1], np.float64)[moving][:, None]
+        corners = ps.tri_vertices[prim[moving]].astype(np.float64)
+        at_frame = corners[:, 0] * (1.0 - b1 - b2) + corners[:, 1] * b1 + corners[:, 2] * b2
+        delta = at_frame - np.asarray(p, np.float64)[moving]
+        rows = sh.objects[obj[moving]].astype(np.float64)
+        inverse = rows[:, OBJECT_INVERSE:OBJECT_INVERSE + 12].reshape(-1, 3, 4)
+        inverse[:, :, 3] += np.einsum("kij,kj->ki", inverse[:, :, :3], delta)
+        rows[:, OBJECT_INVERSE:OBJECT_INVERSE + 12] = inverse.reshape(-1, 12)
+        rows[:, OBJECT_LOCATION:OBJECT_LOCATION + 3] -= delta
+        moved = copy.copy(sh)  # the table is shared by the render's threads: extend a copy
+        moved.objects = np.ascontiguousarray(np.concatenate([sh.objects, rows.astype(np.float32)]))
+        obj = obj.copy()
+        obj[moving] = len(sh.objects) + np.arange(len(moving), dtype=obj.dtype)
+        return moved, obj
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""

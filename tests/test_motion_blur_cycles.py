@@ -134,6 +134,21 @@ def test_moving_object_matches_cycles(tmp_path):
     check_blur("object motion", cube_scene("object"), tmp_path)
 
 
+def test_moving_textured_object_matches_cycles(tmp_path):
+    """A checker texture in Generated coordinates moves with the cube (its coordinates follow the object over
+    the shutter), where texture coordinates taken at the frame would hold the pattern still."""
+    scene = cube_scene("object")
+    mat = bpy.data.materials["dark"]
+    tree = mat.node_tree
+    bsdf = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfDiffuse")
+    checker = tree.nodes.new("ShaderNodeTexChecker")
+    checker.inputs["Scale"].default_value = 3.0
+    checker.inputs["Color1"].default_value = (0.9, 0.9, 0.9, 1.0)
+    checker.inputs["Color2"].default_value = (0.02, 0.02, 0.02, 1.0)
+    tree.links.new(checker.outputs["Color"], bsdf.inputs["Color"])
+    check_blur("textured object motion", scene, tmp_path)
+
+
 def test_rotating_object_matches_cycles(tmp_path):
     """A quarter turn over the shutter in Cycles' 3 steps: the vertices are baked at more steps (their arcs)."""
     scene = cube_scene("rotate")
