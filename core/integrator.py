@@ -140,6 +140,7 @@ class PreparedScene:
     motion: MotionTriangles | None = None
     motion_normals: np.ndarray | None = None
     motion_slot: np.ndarray | None = None
+    moving_emitters: np.ndarray | None = None  # (T,) bool: emissive triangles that move (not light-sampled), or None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -230,6 +231,18 @@ class PreparedScene:
         object_of_triangle = np.concatenate(objs).astype(np.int32) if objs else np.zeros(0, np.int32)
         uv_layers = np.concatenate(layers) if layers else None
         emissive = EmissiveTriangles.from_mesh_arrays(tri_vertices, material_index, materials.emission)
+        motion, motion_normals, motion_slot = _motion_geometry(scene.meshes, shift, corner_normals, t_count)
+        moving_emitters = None
+        if motion is not None and emissive is not None:
+            # Moving emitters are not light-sampled (the light table holds still triangles): what BSDF sampling
+            # and the camera find counts in full, where the emitter is at the ray's time.
+            moving_emitters = (emissive.emitter_of_triangle >= 0) & (motion_slot >= 0)
+            if moving_emitters.any():
+                still = tri_vertices.copy()
+                still[moving_emitters] = 0.0  # zero area: not an emitter of the table
+                emissive = EmissiveTriangles.from_mesh_arrays(still, material_index, materials.emission)
+            else:
+                moving_emitters = None
         if len(vertices):
             lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
             radius = float(np.linalg.norm(hi - lo) / 2) or 1.0
@@ -256,7 +269,6 @@ class PreparedScene:
         features["ray_visibility"] = sorted(visible_to)
         no_shadow = NoShadowLights.build(scene.lights, shift)
         features["lights_without_shadow"] = no_shadow is not None
-        motion, motion_normals, motion_slot = _motion_geometry(scene.meshes, shift, corner_normals, t_count)
         features["moving_triangles"] = 0 if motion is None else len(motion.index)
         return cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
@@ -265,7 +277,7 @@ class PreparedScene:
                    any(lobe.kind == "refraction" and lobe.ior == 1.0 and lobe.roughness == 0.0
                        for m in scene.materials for lobe in m.lobes),
                    terminator_offset=terminator_offset, uv_layers=uv_layers, motion=motion,
-                   motion_normals=motion_normals, motion_slot=motion_slot)
+                   motion_normals=motion_normals, motion_slot=motion_slot, moving_emitters=moving_emitters)
 
     def hit_triangles(self, tri: np.ndarray, ray_time: np.ndarray | None) -> tuple:
         """The triangles `tri` (K,) as the rays that hit them at ray_time (K,) see them: (corners (K, 3, 3), face
@@ -590,6 +602,14 @@ class PathTracer:
                     self._add(radiance, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
+            # Moving emitters are not light-sampled: what BSDF sampling (or the camera) finds counts in full.
+            if ps.moving_emitters is not None:
+                e = np.flatnonzero(hit & ps.moving_emitters[np.maximum(prim, 0)] & (True if held is None else ~held))
+                if len(e):
+                    le = ps.materials.emission[ps.material_index[prim[e]]]
+                    self._add(radiance, idx[e], throughput[e] * le)
+                    if features is not None:
+                        features.add_emission(idx[e], throughput[e] * le)
             # Emission that varies per point (a node program drives it): such emitters are not light-sampled, so
             # what BSDF sampling (or the camera) finds counts in full.
             if ps.shading is not None and ps.shading.any_emits:

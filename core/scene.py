@@ -737,11 +737,6 @@ class Scene:
             n_objects = len(self.objects)
         for mesh in self.meshes:
             mesh.validate(len(self.materials), self.warnings, n_objects)
-            if mesh.motion_vertices is not None and mesh.triangle_count and any(
-                    self.materials[i].is_emissive for i in np.unique(mesh.material_index)):
-                self.warnings.append(f"mesh {mesh.name!r}: a moving emitter is motion-blurred where it is seen, "
-                                     "but light sampling (next-event estimation) lights the scene from its "
-                                     "position at the frame")
         self.world.color = _as_rgb(self.world.color, "world background")
         if self.world.environment is not None:
             try:
