@@ -268,7 +268,7 @@ def export_scene(
                 steps = object_steps(obj.original, parent)
                 proto.instance_keys.append(instance_key(inst))
                 proto.steps = max(proto.steps, steps)
-                if steps and not inst.is_instance and deforms(obj.original):
+                if steps and not inst.is_instance and deforms(obj.original, scene):
                     proto.deform_name = obj.original.name
 
     for kind, count in unsupported.items():

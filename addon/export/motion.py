@@ -3,15 +3,16 @@ samples them (core.motion says how the renderer uses the steps).
 
 The shutter spans `motion_blur_shutter` frames placed by Position (Start on Frame: [frame, frame + shutter];
 Center: [frame - shutter / 2, frame + shutter / 2]; End: [frame - shutter, frame]). The scene is evaluated at
-evenly spaced subframes over it (frame_set with a subframe, as Cycles does): an object with Motion Blur on takes
-Cycles' (2 << (Steps - 1)) + 1 steps (3 for Steps 1) of its transforms (every instance's world matrix), and, with Deformation on and a mesh its modifiers, shape keys or armature deform, its evaluated vertex
-positions (and normals) at each step. The camera object's steps give the camera's motion. A shutter of 0 or Motion
-Blur off: no blur, nothing sampled (Cycles' behaviour).
+evenly spaced subframes over it (frame_set with a subframe, as Cycles does). An object with Motion Blur on takes
+Cycles' (2 << (Steps - 1)) + 1 steps (3 for Steps 1): its transforms (every instance's world matrix) and, with
+Deformation on and a mesh that deforming modifiers or shape keys change (Blender's is_deform_modified, Cycles'
+test), its evaluated vertex positions and normals. The camera object's steps give the camera's motion. A shutter
+of 0 or Motion Blur off: no blur, nothing sampled (Cycles' behaviour).
 
-Differences from Cycles, each warned by name when set: Rolling Shutter (rendered as a global shutter) and a
-Shutter Curve that is not flat (rendered flat). Transform motion is sampled into the vertices (linear between
-steps) where Cycles interpolates decomposed transforms; the two agree for translation and converge with more
-steps for rotation.
+Differences from Cycles, each warned by name: Rolling Shutter (rendered as a global shutter), a Shutter Curve
+that is not flat (rendered flat), a camera zoom during the shutter (the frame's). Transform motion is baked into
+vertex steps (linear between steps); rotation is decomposed and slerped as Cycles interpolates it, and baked at
+enough steps (core.motion.densify_transforms) that the vertices follow their arcs.
 """
 
 from __future__ import annotations
@@ -93,16 +94,19 @@ def object_steps(obj, parent=None) -> int:
     return min((2 << (steps - 1)) + 1, MAX_MOTION_STEPS)
 
 
-def deforms(obj) -> bool:
-    """Whether an (original) mesh object's vertices may change over the shutter and it asks for deformation blur
-    (Object > Motion Blur > Deformation): modifiers, shape keys or an armature deform it."""
+def deforms(obj, scene) -> bool:
+    """Whether an (original) mesh object asks for deformation blur (Object > Motion Blur > Deformation) and
+    deforming modifiers or shape keys may change its vertices (Blender's is_deform_modified, the test Cycles
+    makes): only those meshes are read again at each step."""
     settings = getattr(obj, "cycles", None)
     if settings is not None and not settings.use_deform_motion:
         return False
     if obj.type != "MESH":
         return False
-    data = obj.data
-    return bool(obj.modifiers) or getattr(data, "shape_keys", None) is not None
+    try:
+        return bool(obj.is_deform_modified(scene, "RENDER"))
+    except (AttributeError, TypeError, RuntimeError):
+        return bool(obj.modifiers) or getattr(obj.data, "shape_keys", None) is not None
 
 
 def instance_key(inst) -> tuple:
