@@ -545,7 +545,9 @@ class PathTracer:
             if len(idx) == 0:
                 break
             clock = time.perf_counter()
-            tr = None if ray_time is None else ray_time[idx]  # the live paths' times
+            # the live paths' times; none where the ray-casting structure has no motion (embreex's fallback renders
+            # the frame's pose, and so must the surfaces)
+            tr = None if ray_time is None or self.accel.motion is None else ray_time[idx]
             if bounce_kind is not None:
                 hits = self._intersect_by_kind(bounce_kind[idx], o, d, tm, tr)
             elif depth == 0 and "camera" in ps.visible_to:
