@@ -232,8 +232,8 @@ class MONTE_OBJECT_PT_visibility(MonteButtonsPanel, Panel):
 
 
 class MONTE_RENDER_PT_motion_blur(MonteButtonsPanel, Panel):
-    """Render > Motion Blur: the settings Cycles reads, which Monte renders (Rolling Shutter and a bent Shutter
-    Curve are shown, as Cycles shows them, and warned about at render time)."""
+    """Render > Motion Blur: the settings Cycles reads, which Monte renders (Rolling Shutter is shown, as Cycles
+    shows it, and warned about at render time), with the Shutter Curve."""
 
     bl_label = "Motion Blur"
     bl_options = {"DEFAULT_CLOSED"}
@@ -254,6 +254,7 @@ class MONTE_RENDER_PT_motion_blur(MonteButtonsPanel, Panel):
             sub = col.column()
             sub.active = cycles.rolling_shutter_type != "NONE"
             sub.prop(cycles, "rolling_shutter_duration")
+        self.layout.template_curve_mapping(r, "motion_blur_shutter_curve")
 
 
 class MONTE_OBJECT_PT_motion_blur(MonteButtonsPanel, Panel):

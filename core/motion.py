@@ -158,6 +158,25 @@ def densify_transforms(matrices: np.ndarray, max_steps: int = MAX_MOTION_STEPS) 
     return out
 
 
+def shutter_times(u: np.ndarray, curve: np.ndarray) -> np.ndarray:
+    """Uniform numbers u in [0, 1) -> ray times in [0, 1] distributed as the shutter curve says ((K,) openness
+    at K evenly spaced times, linear in between): the inverse of the curve's cumulative integral (within a
+    segment the integral is quadratic, solved exactly), as Cycles' shutter table maps them. float32."""
+    curve = np.asarray(curve, np.float64)
+    width = 1.0 / (len(curve) - 1)
+    areas = (curve[1:] + curve[:-1]) * 0.5 * width
+    cdf = np.concatenate([[0.0], np.cumsum(areas)])
+    target = np.asarray(u, np.float64) * cdf[-1]
+    seg = np.clip(np.searchsorted(cdf, target, side="right") - 1, 0, len(curve) - 2)
+    a = curve[seg]
+    slope = (curve[seg + 1] - a) / width
+    area = target - cdf[seg]
+    # a s + slope s^2 / 2 = area, the stable root
+    denom = a + np.sqrt(np.maximum(a * a + 2.0 * slope * area, 0.0))
+    s = np.where(denom > 0, 2.0 * area / np.where(denom > 0, denom, 1.0), 0.0)
+    return np.clip((seg + np.clip(s / width, 0.0, 1.0)) * width, 0.0, 1.0).astype(np.float32)
+
+
 def moving_camera_rays(camera, raster_x: np.ndarray, raster_y: np.ndarray, lens_u: np.ndarray | None,
                        ray_time: np.ndarray):
     """core.camera.camera_rays for a camera with motion_matrices: each ray leaves the camera where it is at the

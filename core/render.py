@@ -22,7 +22,7 @@ import numpy as np
 
 from .accel import Accelerator
 from .camera import camera_rays
-from .motion import moving_camera_rays
+from .motion import moving_camera_rays, shutter_times
 from .film import TileFilm
 from .filters import PixelFilter
 from .integrator import DIM_FILM, DIM_LENS, DIM_TIME, DenoisingFeatures, FirstHit, PathStats, PathTracer, PreparedScene
@@ -527,6 +527,8 @@ class _TileRender:
         camera = self.scene.camera
         lens_u = self.sampler.get_2d(pixel_id, smp, DIM_LENS) if camera.aperture_radius() > 0 else None
         ray_time = self.sampler.get_1d(pixel_id, smp, DIM_TIME) if self.motion else None
+        if ray_time is not None and camera.shutter_curve is not None:
+            ray_time = shutter_times(ray_time, camera.shutter_curve)
         if camera.motion_matrices is not None and ray_time is not None:
             rays = moving_camera_rays(camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1], lens_u, ray_time)
         else:

@@ -496,6 +496,9 @@ class Camera:
 
     motion_matrices: optional (S, 4, 4) camera-to-world matrices at S >= 2 times evenly spaced over the shutter
     (motion blur of a moving camera, core.motion); matrix_world stays the frame's. None: a still camera.
+    shutter_curve: optional (K >= 2,) how open the shutter is at K times evenly spaced from open to close
+    (Blender's Shutter Curve, >= 0, linear in between): ray times follow it (core.motion.shutter_times). None:
+    fully open throughout (a flat curve).
     """
 
     matrix_world: np.ndarray
@@ -530,6 +533,7 @@ class Camera:
     cylinder_height_max: float = 1.0
     cylinder_radius: float = 1.0
     motion_matrices: np.ndarray | None = None
+    shutter_curve: np.ndarray | None = None
 
     @classmethod
     def look_at(
@@ -661,6 +665,13 @@ class Camera:
             if np.any(np.abs(np.linalg.det(steps[:, :3, :3])) < 1e-12):
                 raise SceneError("camera: a motion-blur matrix is singular (zero scale)")
             self.motion_matrices = None if np.all(steps == steps[:1]) else steps
+        if self.shutter_curve is not None:
+            curve = np.asarray(self.shutter_curve, np.float64)
+            if curve.ndim != 1 or len(curve) < 2 or not np.all(np.isfinite(curve)) or np.any(curve < 0) \
+                    or not curve.sum() > 0:
+                raise SceneError("camera: shutter_curve must be 2 or more finite values >= 0, not all 0 (how open "
+                                 f"the shutter is over its time), got {np.array2string(curve, threshold=8)}")
+            self.shutter_curve = None if np.all(curve == curve[0]) else curve
 
 
 # -------------------------------------------------------------------------------------------------------- film

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from monte.core.accel import Accelerator, MotionTriangles
-from monte.core.motion import camera_transforms, interpolate_corners, resample_steps
+from monte.core.motion import camera_transforms, interpolate_corners, resample_steps, shutter_times
 from monte.core.render import render
 from monte.core.scene import Camera, Material, Mesh, Scene, SceneError, World
 from monte.core.settings import RenderSettings
@@ -94,14 +94,16 @@ def _settings(**kw) -> RenderSettings:
     return RenderSettings(**{**options, **kw})
 
 
-def expected_profile() -> np.ndarray:
+def expected_profile(weight=lambda u: np.ones_like(u)) -> np.ndarray:
     """Each column's mean coverage by the bar over the shutter: the pixel's box [x0, x1] against the bar's
-    [-0.5 + SHIFT u, 0.5 + SHIFT u], u uniform in [0, 1] (integrated on a fine grid)."""
+    [-0.5 + SHIFT u, 0.5 + SHIFT u], u in [0, 1] with density proportional to weight(u) (integrated on a fine
+    grid)."""
     u = (np.arange(20000) + 0.5) / 20000
+    w = weight(u) / weight(u).mean()
     edges = -SCALE / 2 + SCALE * np.arange(WIDTH + 1) / WIDTH
     lo, hi = -0.5 + SHIFT * u, 0.5 + SHIFT * u
     cover = np.clip(np.minimum(hi[:, None], edges[None, 1:]) - np.maximum(lo[:, None], edges[None, :-1]), 0, None)
-    return (cover / (SCALE / WIDTH)).mean(axis=0)
+    return (cover / (SCALE / WIDTH) * w[:, None]).mean(axis=0)
 
 
 @pytest.mark.parametrize("what", ["object", "camera"])
@@ -118,6 +120,28 @@ def test_moving_bar_blurs_into_its_box_convolved_profile(what):
     ramp = np.flatnonzero((columns > 0.02) & (columns < 0.98))
     assert len(ramp) >= 20  # two ramps of about 12 pixels each; a still bar has no partly covered column
     assert abs(columns.sum() * SCALE / WIDTH - 1.0) < 0.01  # the bar's area is kept: blur only moves light
+
+
+def test_shutter_curve_maps_uniform_numbers_to_its_distribution():
+    u = np.linspace(0, 1, 101)
+    np.testing.assert_allclose(shutter_times(u, np.array([2.0, 2.0])), u, atol=1e-6)
+    np.testing.assert_allclose(shutter_times(u, np.array([0.0, 1.0])), np.sqrt(u), atol=1e-6)  # density 2t
+    np.testing.assert_allclose(shutter_times(u, np.array([1.0, 0.0])), 1 - np.sqrt(1 - u), atol=1e-6)
+    # a triangle over 3 points: density 4t then 4(1 - t)
+    tri = shutter_times(u, np.array([0.0, 1.0, 0.0]))
+    np.testing.assert_allclose(tri, np.where(u < 0.5, np.sqrt(u / 2), 1 - np.sqrt((1 - u) / 2)), atol=1e-6)
+
+
+def test_shutter_curve_weights_the_blur():
+    """A shutter opening linearly (curve 0 -> 1): the bar's later positions weigh more (density 2u)."""
+    scene = _scene(moving_bar=True, moving_camera=False)
+    scene.camera.shutter_curve = np.array([0.0, 1.0])
+    columns = render(scene, _settings()).color[..., 0].astype(np.float64).mean(axis=0)
+    expected = expected_profile(lambda u: 2 * u)
+    sigma = np.sqrt(np.maximum(expected * (1 - expected), 1 / SPP) / (SPP * HEIGHT))
+    assert np.all(np.abs(columns - expected) < 5 * sigma + 1e-6), np.c_[columns, expected]
+    flat = expected_profile()
+    assert np.abs(columns - flat).max() > 0.1  # not the flat shutter's profile
 
 
 def test_camera_motion_matches_the_object_moving_the_other_way():
@@ -190,6 +214,11 @@ def test_bad_motion_data_gets_named_errors_and_warnings():
     scene = _scene(False, False)
     scene.camera.motion_matrices = np.stack([np.eye(4), np.zeros((4, 4))])
     with pytest.raises(SceneError, match="camera: a motion-blur matrix is singular"):
+        scene.validate()
+    scene = _scene(False, False)
+    scene.camera.shutter_curve = np.array([1.0, -0.5])
+    with pytest.raises(SceneError, match=r"camera: shutter_curve must be 2 or more finite values >= 0, not all 0 "
+                                         r"\(how open the shutter is over its time\), got \[ 1.  -0.5\]"):
         scene.validate()
 
 

@@ -225,12 +225,30 @@ def test_zoom_during_the_shutter_is_named():
     assert any("camera 'Camera'" in w and "focal length (zoom) changes" in w for w in warnings), warnings
 
 
-def test_unsupported_shutter_settings_are_named():
+def test_rolling_shutter_is_named():
     scene = cube_scene("object")
     scene.cycles.rolling_shutter_type = "TOP"
-    curve = scene.render.motion_blur_shutter_curve
-    curve.curves[0].points[1].location = (0.5, 0.3)
-    curve.update()
     warnings = _export(scene).warnings
-    assert any("Rolling Shutter is not supported" in w for w in warnings)
-    assert any("Shutter Curve is not flat" in w for w in warnings)
+    assert any("Rolling Shutter is not supported" in w for w in warnings), warnings
+
+
+def _bend_shutter_curve(scene) -> None:
+    curve = scene.render.motion_blur_shutter_curve
+    curve.curves[0].points[1].location = (0.5, 0.2)
+    curve.update()
+
+
+def test_shutter_curve_is_exported():
+    scene = cube_scene("object")
+    assert _export(scene).camera.shutter_curve is None  # flat: nothing to do
+    _bend_shutter_curve(scene)
+    curve = _export(scene).camera.shutter_curve
+    assert curve.shape == (256,)
+    np.testing.assert_allclose(curve[[0, 128, -1]], [1.0, 0.2, 1.0], atol=0.01)
+
+
+def test_shutter_curve_matches_cycles(tmp_path):
+    """A shutter mostly open at its ends (Shutter Curve 1, 0.2, 1): the blurred cube weighs its end positions."""
+    scene = cube_scene("object")
+    _bend_shutter_curve(scene)
+    check_blur("shutter curve", scene, tmp_path)

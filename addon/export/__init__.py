@@ -277,6 +277,7 @@ def export_scene(
     motion = None
     if shutter is not None:
         motion = _sample_motion(depsgraph, frame_set, shutter, prototypes, camera_object, camera, warnings)
+        camera.shutter_curve = shutter.curve
 
     meshes = []
     object_rows = []

@@ -9,8 +9,9 @@ Deformation on and a mesh that deforming modifiers or shape keys change (Blender
 test), its evaluated vertex positions and normals. The camera object's steps give the camera's motion. A shutter
 of 0 or Motion Blur off: no blur, nothing sampled (Cycles' behaviour).
 
-Differences from Cycles, each warned by name: Rolling Shutter (rendered as a global shutter), a Shutter Curve
-that is not flat (rendered flat), a camera zoom during the shutter (the frame's). Transform motion is baked into
+The Shutter Curve (how open the shutter is over its time) is read at CURVE_POINTS times; ray times follow it.
+Differences from Cycles, each warned by name: Rolling Shutter (rendered as a global shutter), a camera zoom
+during the shutter (the frame's). Transform motion is baked into
 vertex steps (linear between steps); rotation is decomposed and slerped as Cycles interpolates it, and baked at
 enough steps (core.motion.densify_transforms) that the vertices follow their arcs.
 """
@@ -34,6 +35,7 @@ class Shutter:
     subframe: float
     start: float
     length: float
+    curve: np.ndarray | None = None  # the Shutter Curve at CURVE_POINTS times over the shutter; None: flat
 
     def step_times(self, steps: int) -> list[tuple[int, float]]:
         """(frame, subframe) of `steps` evenly spaced times from shutter open to close."""
@@ -60,10 +62,29 @@ def shutter(scene, warnings: list[str]) -> Shutter | None:
     if getattr(cycles, "rolling_shutter_type", "NONE") != "NONE":
         warnings.append("render: Motion Blur > Rolling Shutter is not supported; rendered with a global shutter "
                         "(every row exposed over the same time)")
-    if not _flat_curve(getattr(r, "motion_blur_shutter_curve", None)):
-        warnings.append("render: Motion Blur > Shutter Curve is not flat; not supported, rendered with the shutter "
-                        "fully open for its whole time (a flat curve)")
-    return Shutter(int(scene.frame_current), float(scene.frame_subframe), start, length)
+    mapping = getattr(r, "motion_blur_shutter_curve", None)
+    curve = None if _flat_curve(mapping) else _curve_values(mapping, warnings)
+    return Shutter(int(scene.frame_current), float(scene.frame_subframe), start, length, curve)
+
+
+CURVE_POINTS = 256  # where the Shutter Curve is read (Cycles tabulates it likewise)
+
+
+def _curve_values(mapping, warnings: list[str]) -> np.ndarray | None:
+    """The Shutter Curve read at CURVE_POINTS evenly spaced times, clamped to >= 0; None (flat, warned) when
+    unreadable or zero everywhere."""
+    try:
+        mapping.initialize()
+        values = np.array([mapping.evaluate(mapping.curves[0], x) for x in np.linspace(0.0, 1.0, CURVE_POINTS)])
+    except (AttributeError, RuntimeError, TypeError, IndexError):
+        values = None
+    if values is not None:
+        values = np.clip(np.nan_to_num(values, nan=0.0), 0.0, None)
+    if values is None or not values.sum() > 0:
+        warnings.append("render: Motion Blur > Shutter Curve is unreadable or zero everywhere; rendered with the "
+                        "shutter fully open (a flat curve)")
+        return None
+    return values
 
 
 def _flat_curve(mapping) -> bool:
