@@ -232,8 +232,8 @@ class MONTE_OBJECT_PT_visibility(MonteButtonsPanel, Panel):
 
 
 class MONTE_RENDER_PT_motion_blur(MonteButtonsPanel, Panel):
-    """Render > Motion Blur: the settings Cycles reads, which Monte renders (Rolling Shutter is shown, as Cycles
-    shows it, and warned about at render time), with the Shutter Curve."""
+    """Render > Motion Blur: the settings Cycles reads, which Monte renders (position, shutter, rolling shutter,
+    shutter curve)."""
 
     bl_label = "Motion Blur"
     bl_options = {"DEFAULT_CLOSED"}

@@ -177,6 +177,15 @@ def shutter_times(u: np.ndarray, curve: np.ndarray) -> np.ndarray:
     return np.clip((seg + np.clip(s / width, 0.0, 1.0)) * width, 0.0, 1.0).astype(np.float32)
 
 
+def rolling_shutter_times(time: np.ndarray, row: np.ndarray, height: int, duration: float) -> np.ndarray:
+    """Cycles' rolling shutter (Top): rows (0 at the top of the image) are exposed in turn, each over `duration`
+    of the shutter; ray times (N,) in [0, 1] -> (time - 1/2) d + (r - 1/2)(1 - d) + 1/2, r = (row + 1) / height.
+    float32."""
+    r = (np.asarray(row, np.float64) + 1.0) / float(height)
+    t = (np.asarray(time, np.float64) - 0.5) * duration + (r - 0.5) * (1.0 - duration) + 0.5
+    return np.clip(t, 0.0, 1.0).astype(np.float32)
+
+
 def moving_camera_rays(camera, raster_x: np.ndarray, raster_y: np.ndarray, lens_u: np.ndarray | None,
                        ray_time: np.ndarray):
     """core.camera.camera_rays for a camera with motion_matrices: each ray leaves the camera where it is at the

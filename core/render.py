@@ -22,7 +22,7 @@ import numpy as np
 
 from .accel import Accelerator
 from .camera import camera_rays
-from .motion import moving_camera_rays, shutter_times
+from .motion import moving_camera_rays, rolling_shutter_times, shutter_times
 from .film import TileFilm
 from .filters import PixelFilter
 from .integrator import DIM_FILM, DIM_LENS, DIM_TIME, DenoisingFeatures, FirstHit, PathStats, PathTracer, PreparedScene
@@ -529,6 +529,8 @@ class _TileRender:
         ray_time = self.sampler.get_1d(pixel_id, smp, DIM_TIME) if self.motion else None
         if ray_time is not None and camera.shutter_curve is not None:
             ray_time = shutter_times(ray_time, camera.shutter_curve)
+        if ray_time is not None and camera.rolling_shutter is not None:
+            ray_time = rolling_shutter_times(ray_time, py, camera.resolution[1], camera.rolling_shutter)
         if camera.motion_matrices is not None and ray_time is not None:
             rays = moving_camera_rays(camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1], lens_u, ray_time)
         else:

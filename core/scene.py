@@ -499,6 +499,9 @@ class Camera:
     shutter_curve: optional (K >= 2,) how open the shutter is at K times evenly spaced from open to close
     (Blender's Shutter Curve, >= 0, linear in between): ray times follow it (core.motion.shutter_times). None:
     fully open throughout (a flat curve).
+    rolling_shutter: optional duration in [0, 1] of Cycles' rolling shutter (Top): image rows are exposed one
+    after the other, the top first; each ray's time is (u - 1/2) d + (r - 1/2)(1 - d) + 1/2 with u its shutter
+    time, d the duration and r = (row + 1) / height (rows from the top), as Cycles times its rows. None: off.
     """
 
     matrix_world: np.ndarray
@@ -534,6 +537,7 @@ class Camera:
     cylinder_radius: float = 1.0
     motion_matrices: np.ndarray | None = None
     shutter_curve: np.ndarray | None = None
+    rolling_shutter: float | None = None
 
     @classmethod
     def look_at(
@@ -672,6 +676,11 @@ class Camera:
                 raise SceneError("camera: shutter_curve must be 2 or more finite values >= 0, not all 0 (how open "
                                  f"the shutter is over its time), got {np.array2string(curve, threshold=8)}")
             self.shutter_curve = None if np.all(curve == curve[0]) else curve
+        if self.rolling_shutter is not None:
+            duration = float(self.rolling_shutter)
+            if not 0.0 <= duration <= 1.0:
+                raise SceneError(f"camera: rolling_shutter duration {self.rolling_shutter} must be in [0, 1]")
+            self.rolling_shutter = duration
 
 
 # -------------------------------------------------------------------------------------------------------- film

@@ -144,6 +144,23 @@ def test_shutter_curve_weights_the_blur():
     assert np.abs(columns - flat).max() > 0.1  # not the flat shutter's profile
 
 
+def test_rolling_shutter_times_each_row():
+    """Rolling shutter of duration 0: row r (from the top) sees the bar at time (r + 1) / HEIGHT only, so each
+    row shows a sharp bar whose centre moves SHIFT (r + 1) / HEIGHT; duration 1 is the global shutter."""
+    scene = _scene(moving_bar=True, moving_camera=False)
+    scene.camera.rolling_shutter = 0.0
+    image = render(scene, _settings(spp=16)).color[..., 0].astype(np.float64)
+    x = -SCALE / 2 + SCALE * (np.arange(WIDTH) + 0.5) / WIDTH
+    centre = (image * x).sum(axis=1) / image.sum(axis=1)
+    np.testing.assert_allclose(centre, SHIFT * (np.arange(HEIGHT) + 1) / HEIGHT, atol=0.01)
+    np.testing.assert_allclose(image.sum(axis=1) * SCALE / WIDTH, 1.0, atol=0.02)  # each row: the whole bar
+    times = np.linspace(0, 1, 5)
+    from monte.core.motion import rolling_shutter_times
+
+    np.testing.assert_allclose(rolling_shutter_times(times, np.full(5, 3), 8, 1.0), times, atol=1e-7)
+    np.testing.assert_allclose(rolling_shutter_times(times, np.full(5, 3), 8, 0.5), 0.5 * times + 0.25, atol=1e-7)
+
+
 def test_camera_motion_matches_the_object_moving_the_other_way():
     """The same rays (film position and time) see the bar at the same place relative to the camera."""
     obj = render(_scene(True, False), _settings()).color
@@ -214,6 +231,10 @@ def test_bad_motion_data_gets_named_errors_and_warnings():
     scene = _scene(False, False)
     scene.camera.motion_matrices = np.stack([np.eye(4), np.zeros((4, 4))])
     with pytest.raises(SceneError, match="camera: a motion-blur matrix is singular"):
+        scene.validate()
+    scene = _scene(False, False)
+    scene.camera.rolling_shutter = 1.5
+    with pytest.raises(SceneError, match=r"camera: rolling_shutter duration 1.5 must be in \[0, 1\]"):
         scene.validate()
     scene = _scene(False, False)
     scene.camera.shutter_curve = np.array([1.0, -0.5])

@@ -225,11 +225,20 @@ def test_zoom_during_the_shutter_is_named():
     assert any("camera 'Camera'" in w and "focal length (zoom) changes" in w for w in warnings), warnings
 
 
-def test_rolling_shutter_is_named():
+def test_rolling_shutter_is_exported():
+    scene = cube_scene("object")
+    assert _export(scene).camera.rolling_shutter is None
+    scene.cycles.rolling_shutter_type = "TOP"
+    scene.cycles.rolling_shutter_duration = 0.25
+    assert _export(scene).camera.rolling_shutter == pytest.approx(0.25)
+
+
+def test_rolling_shutter_matches_cycles(tmp_path):
+    """Rolling Shutter (Top, duration 0.2): rows exposed in turn, the cube sheared as well as blurred."""
     scene = cube_scene("object")
     scene.cycles.rolling_shutter_type = "TOP"
-    warnings = _export(scene).warnings
-    assert any("Rolling Shutter is not supported" in w for w in warnings), warnings
+    scene.cycles.rolling_shutter_duration = 0.2
+    check_blur("rolling shutter", scene, tmp_path)
 
 
 def _bend_shutter_curve(scene) -> None:

@@ -172,7 +172,7 @@ AUDIT = {
                               ("renders", lambda c: c.camera.resolution == (16, 12))),
     "motion blur": (_moving_cube, ("renders", lambda c: any(m.motion_vertices is not None for m in c.meshes))),
     "rolling shutter": (lambda s: (_moving_cube(s), _set(s.cycles, rolling_shutter_type="TOP")),
-                        ("warns", ["Rolling Shutter"])),
+                        ("renders", lambda c: c.camera.rolling_shutter is not None)),
     "shutter curve": (lambda s: (_moving_cube(s), _bent_shutter_curve(s)),
                       ("renders", lambda c: c.camera.shutter_curve is not None)),
     "pixel aspect": (lambda s: _set(s.render, pixel_aspect_x=2.0), ("warns", ["pixel aspect"])),

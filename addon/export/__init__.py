@@ -278,6 +278,7 @@ def export_scene(
     if shutter is not None:
         motion = _sample_motion(depsgraph, frame_set, shutter, prototypes, camera_object, camera, warnings)
         camera.shutter_curve = shutter.curve
+        camera.rolling_shutter = shutter.rolling
 
     meshes = []
     object_rows = []

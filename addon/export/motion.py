@@ -10,8 +10,8 @@ test), its evaluated vertex positions and normals. The camera object's steps giv
 of 0 or Motion Blur off: no blur, nothing sampled (Cycles' behaviour).
 
 The Shutter Curve (how open the shutter is over its time) is read at CURVE_POINTS times; ray times follow it.
-Differences from Cycles, each warned by name: Rolling Shutter (rendered as a global shutter), a camera zoom
-during the shutter (the frame's). Transform motion is baked into
+Rolling Shutter (Top, with its duration) times each image row as Cycles does. Not rendered, warned by name: a
+camera zoom during the shutter (the frame's focal length). Transform motion is baked into
 vertex steps (linear between steps); rotation is decomposed and slerped as Cycles interpolates it, and baked at
 enough steps (core.motion.densify_transforms) that the vertices follow their arcs.
 """
@@ -36,6 +36,7 @@ class Shutter:
     start: float
     length: float
     curve: np.ndarray | None = None  # the Shutter Curve at CURVE_POINTS times over the shutter; None: flat
+    rolling: float | None = None  # Rolling Shutter (Top) duration, None: off
 
     def step_times(self, steps: int) -> list[tuple[int, float]]:
         """(frame, subframe) of `steps` evenly spaced times from shutter open to close."""
@@ -59,12 +60,15 @@ def shutter(scene, warnings: list[str]) -> Shutter | None:
     position = getattr(r, "motion_blur_position", "CENTER")
     start = {"START": 0.0, "CENTER": -0.5 * length, "END": -length}.get(position, -0.5 * length)
     cycles = getattr(scene, "cycles", None)
-    if getattr(cycles, "rolling_shutter_type", "NONE") != "NONE":
-        warnings.append("render: Motion Blur > Rolling Shutter is not supported; rendered with a global shutter "
-                        "(every row exposed over the same time)")
+    rolling = None
+    if getattr(cycles, "rolling_shutter_type", "NONE") == "TOP":
+        rolling = min(max(float(cycles.rolling_shutter_duration), 0.0), 1.0)
+    elif getattr(cycles, "rolling_shutter_type", "NONE") != "NONE":
+        warnings.append(f"render: Motion Blur > Rolling Shutter {cycles.rolling_shutter_type!r} is not supported; "
+                        "rendered with a global shutter (every row exposed over the same time)")
     mapping = getattr(r, "motion_blur_shutter_curve", None)
     curve = None if _flat_curve(mapping) else _curve_values(mapping, warnings)
-    return Shutter(int(scene.frame_current), float(scene.frame_subframe), start, length, curve)
+    return Shutter(int(scene.frame_current), float(scene.frame_subframe), start, length, curve, rolling)
 
 
 CURVE_POINTS = 256  # where the Shutter Curve is read (Cycles tabulates it likewise)
