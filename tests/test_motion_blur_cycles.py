@@ -172,17 +172,24 @@ def _export(scene):
 @pytest.mark.parametrize("position, first_x, last_x", [("START", 0.0, 0.5), ("CENTER", -0.25, 0.25),
                                                         ("END", -0.5, 0.0)])
 def test_shutter_position_places_the_steps(position, first_x, last_x):
-    """The cube's centre at shutter open and close (1 m/frame, shutter 0.5 frames, frame 2 at x = 0); the frame
-    is set back after the export."""
+    """The cube's centre at shutter open and close (1 m/frame, shutter 0.5 frames, frame 2 at x = 0); what does
+    not blur is exported at the shutter's centre (Cycles syncs there); the frame is set back after the export."""
     scene = cube_scene("object", shutter=0.5)
     scene.render.motion_blur_position = position
     core = _export(scene)
     steps = core.meshes[0].motion_vertices
     assert steps.shape == (3, 8, 3)  # Steps 1: Cycles' 3 steps
     np.testing.assert_allclose(steps[[0, -1]].mean(axis=1)[:, 0], [first_x, last_x], atol=1e-5)
-    np.testing.assert_allclose(core.meshes[0].vertices.mean(axis=0)[0], 0.0, atol=1e-6)  # the frame's pose
+    np.testing.assert_allclose(core.meshes[0].vertices.mean(axis=0)[0], (first_x + last_x) / 2, atol=1e-5)
     assert scene.frame_current == 2 and scene.frame_subframe == 0.0
     assert bpy.data.objects["cube"].location.x == pytest.approx(0.0, abs=1e-6)
+
+
+def test_start_on_frame_matches_cycles(tmp_path):
+    """Position Start on Frame: the blur runs from the frame's pose onwards."""
+    scene = cube_scene("object")
+    scene.render.motion_blur_position = "START"
+    check_blur("start on frame", scene, tmp_path)
 
 
 def test_object_motion_steps_and_camera_motion_are_exported():

@@ -213,17 +213,40 @@ def export_scene(
     (addon/export/motion.py) through frame_set(frame, subframe): the render engine's own (RenderEngine.frame_set,
     for its depsgraph), by default the scene's frame_set (the view layer's depsgraph); the frame is set back.
 
+    With the shutter starting or ending on the frame (Position Start or End), objects, lights and the camera are
+    exported at the shutter's centre, as Cycles syncs them there; the world at the frame, as Cycles' is.
+
     Raises SceneError with a clear message for a scene without camera or without anything to render."""
     t0 = time.perf_counter()
     scene = depsgraph.scene
     warnings: list[str] = []
+    shutter = motion_shutter(scene, warnings) if motion_blur else None
+    if shutter is not None and frame_set is None:
+        def frame_set(frame: int, subframe: float) -> None:
+            scene.frame_set(frame, subframe=subframe)
+    moved = shutter is not None and shutter.reference != (shutter.frame, shutter.subframe)
+    if moved:
+        frame_set(*shutter.reference)
+    try:
+        out = _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutter, warnings, t0)
+    finally:
+        if moved:
+            frame_set(shutter.frame, shutter.subframe)
+    if moved:
+        out[0].world = export_world(scene.world, [])  # at the frame (its warnings are the centre's, already given)
+    return out
+
+
+def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutter, warnings: list[str],
+                  t0: float) -> tuple[Scene, ExportStats]:
+    """export_scene's work, with the scene at the shutter's reference time (see export_scene)."""
+    scene = depsgraph.scene
     stats = ExportStats()
     if camera_object is None:
         camera_object = scene.camera
     if camera_object is not None:
         camera_object = camera_object.evaluated_get(depsgraph)
     camera = export_camera(camera_object, scene, warnings)
-    shutter = motion_shutter(scene, warnings) if motion_blur else None
 
     materials = MaterialExporter(warnings)
     prototypes: dict[tuple, _Prototype] = {}
@@ -333,12 +356,6 @@ def _sample_motion(depsgraph, frame_set, shutter, prototypes, camera_object, cam
     steps = max([p.steps for p in moving] + [camera_steps])
     if steps < 2:
         return None
-    if frame_set is None:
-        scene = depsgraph.scene
-
-        def frame_set(frame: int, subframe: float) -> None:
-            scene.frame_set(frame, subframe=subframe)
-
     def read(obj):
         try:
             local = _read_geometry(obj, [])

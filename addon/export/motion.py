@@ -38,6 +38,15 @@ class Shutter:
     curve: np.ndarray | None = None  # the Shutter Curve at CURVE_POINTS times over the shutter; None: flat
     rolling: float | None = None  # Rolling Shutter (Top) duration, None: off
 
+    @property
+    def reference(self) -> tuple[int, float]:
+        """(frame, subframe) of the shutter's centre, where what does not blur is exported (as Cycles syncs it)."""
+        t = self.frame + self.subframe + self.start + 0.5 * self.length
+        if self.start == -0.5 * self.length:
+            return self.frame, self.subframe
+        whole = math.floor(t)
+        return int(whole), float(t - whole)
+
     def step_times(self, steps: int) -> list[tuple[int, float]]:
         """(frame, subframe) of `steps` evenly spaced times from shutter open to close."""
         out = []
@@ -160,8 +169,8 @@ class MotionSamples:
 def sample_motion(depsgraph, frame_set: Callable[[int, float], None], shutter_: Shutter, keys: set,
                   deforming: set, camera_name: str | None, steps: int, read: Callable) -> MotionSamples:
     """Evaluate the scene at `steps` subframes over the shutter; keep the matrices of instances `keys`, the
-    meshes of objects `deforming` (read(obj) -> (vertices, normals) or None) and the camera's matrix; the frame is
-    set back afterwards."""
+    meshes of objects `deforming` (read(obj) -> (vertices, normals) or None) and the camera's matrix; the scene is
+    set back to the shutter's reference time afterwards."""
     matrices = {key: np.zeros((steps, 4, 4)) for key in keys}
     seen = {key: np.zeros(steps, bool) for key in keys}
     deformed = {name: [None] * steps for name in deforming}
@@ -186,7 +195,7 @@ def sample_motion(depsgraph, frame_set: Callable[[int, float], None], shutter_: 
                     if not inst.is_instance and obj.original.name in deformed:
                         deformed[obj.original.name][s] = read(obj)
     finally:
-        frame_set(shutter_.frame, shutter_.subframe)
+        frame_set(*shutter_.reference)
     # An instance missing at some step (it appears or vanishes during the shutter): no motion for it.
     matrices = {key: m for key, m in matrices.items() if seen[key].all()}
     return MotionSamples(steps, matrices, deformed, camera, len(lenses) > 1)
