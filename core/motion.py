@@ -188,17 +188,50 @@ def rolling_shutter_times(time: np.ndarray, row: np.ndarray, height: int, durati
 
 def moving_camera_rays(camera, raster_x: np.ndarray, raster_y: np.ndarray, lens_u: np.ndarray | None,
                        ray_time: np.ndarray):
-    """core.camera.camera_rays for a camera with motion_matrices: each ray leaves the camera where it is at the
-    ray's time. Origins stay relative to camera.position (the frame's), as camera_rays' are."""
+    """core.camera.camera_rays for a camera with motion_matrices and/or motion_lens: each ray leaves the camera
+    where it is at the ray's time, and a zooming perspective camera's image-plane point moves from the shutter-
+    open lens to the frame's to the shutter-close lens (Cycles' perspective motion, without depth of field).
+    Origins stay relative to camera.position (the frame's), as camera_rays' are."""
     from dataclasses import replace
 
     from .camera import camera_rays
 
-    rays = camera_rays(replace(camera, matrix_world=np.eye(4), motion_matrices=None), raster_x, raster_y, lens_u)
-    rotation, position = camera_transforms(camera.motion_matrices, ray_time)
+    local = replace(camera, matrix_world=np.eye(4), motion_matrices=None)
+    rays = camera_rays(local, raster_x, raster_y, lens_u)
+    if camera.motion_lens is not None and camera.kind == "PERSP" and camera.aperture_radius() == 0:
+        _zoom(rays, [camera_rays(replace(local, lens=lens), raster_x, raster_y, lens_u)
+                     for lens in camera.motion_lens], ray_time, float(camera.clip_start), float(camera.clip_end))
+    steps = camera.motion_matrices
+    if steps is None:  # zoom only: the frame's matrix throughout
+        steps = np.stack([np.asarray(camera.matrix_world, np.float64)] * 2)
+    rotation, position = camera_transforms(steps, ray_time)
     offset = position - np.asarray(camera.position, np.float64)
     origins = np.einsum("nij,nj->ni", rotation, rays.origins.astype(np.float64)) + offset
     directions = np.einsum("nij,nj->ni", rotation, rays.directions.astype(np.float64))
     rays.origins = origins.astype(np.float32)
     rays.directions = directions.astype(np.float32)
     return rays
+
+
+def _zoom(rays, ends, ray_time: np.ndarray, clip_start: float, clip_end: float) -> None:
+    """Perspective motion in place on camera-local pinhole rays: each ray's point on the plane z = -1 moves
+    linearly from the shutter-open rays' (ends[0]) to its own (the frame's lens) at time 1/2 to the close
+    rays' (ends[1]); direction, clipping and depth scale follow it (as core.camera's kernel sets them)."""
+    def on_plane(r):
+        d = r.directions.astype(np.float64)
+        return d / -d[:, 2:3]
+
+    centre = on_plane(rays)
+    t = np.asarray(ray_time, np.float64)[:, None]
+    early = t < 0.5
+    point = np.where(early, on_plane(ends[0]) + (centre - on_plane(ends[0])) * (2 * t),
+                     centre + (on_plane(ends[1]) - centre) * (2 * t - 1))
+    length = np.linalg.norm(point, axis=1)
+    direction = point / length[:, None]
+    scale = 1.0 / length
+    t0 = clip_start / scale
+    rays.directions = direction.astype(np.float32)
+    rays.origins = (direction * t0[:, None]).astype(np.float32)
+    rays.depth_scale = scale.astype(np.float32)
+    rays.t_start = t0.astype(np.float32)
+    rays.tmax = np.minimum(clip_end / scale - t0, 3e38).astype(np.float32)

@@ -378,7 +378,8 @@ class _TileRender:
         offset = np.asarray(scene.camera.position, np.float64) - np.asarray(prepared.shift, np.float64)
         self.camera_offset = offset.astype(np.float32) if np.any(offset != 0) else None
         # Motion blur: rays carry a time only when something moves (a still scene reads no time at all).
-        self.motion = prepared.motion is not None or scene.camera.motion_matrices is not None
+        self.motion = (prepared.motion is not None or scene.camera.motion_matrices is not None
+                       or scene.camera.motion_lens is not None)
         self.on_tile, self.on_progress, self.should_cancel = on_tile, on_progress, should_cancel
         self.sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
         self.pixel_filter = PixelFilter(settings.filter_type, settings.filter_width)
@@ -531,7 +532,7 @@ class _TileRender:
             ray_time = shutter_times(ray_time, camera.shutter_curve)
         if ray_time is not None and camera.rolling_shutter is not None:
             ray_time = rolling_shutter_times(ray_time, py, camera.resolution[1], camera.rolling_shutter)
-        if camera.motion_matrices is not None and ray_time is not None:
+        if (camera.motion_matrices is not None or camera.motion_lens is not None) and ray_time is not None:
             rays = moving_camera_rays(camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1], lens_u, ray_time)
         else:
             rays = camera_rays(camera, px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1], lens_u)

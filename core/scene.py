@@ -499,6 +499,9 @@ class Camera:
     shutter_curve: optional (K >= 2,) how open the shutter is at K times evenly spaced from open to close
     (Blender's Shutter Curve, >= 0, linear in between): ray times follow it (core.motion.shutter_times). None:
     fully open throughout (a flat curve).
+    motion_lens: optional (lens at shutter open, lens at close) in mm: a perspective camera zooming during the
+    shutter (Cycles' perspective motion: the image-plane point of each ray moves linearly from open to the frame's
+    lens to close, by the ray's time); ignored by other camera types, as Cycles does. None: no zoom.
     rolling_shutter: optional duration in [0, 1] of Cycles' rolling shutter (Top): image rows are exposed one
     after the other, the top first; each ray's time is (u - 1/2) d + (r - 1/2)(1 - d) + 1/2 with u its shutter
     time, d the duration and r = (row + 1) / height (rows from the top), as Cycles times its rows. None: off.
@@ -538,6 +541,7 @@ class Camera:
     motion_matrices: np.ndarray | None = None
     shutter_curve: np.ndarray | None = None
     rolling_shutter: float | None = None
+    motion_lens: tuple[float, float] | None = None
 
     @classmethod
     def look_at(
@@ -676,6 +680,12 @@ class Camera:
                 raise SceneError("camera: shutter_curve must be 2 or more finite values >= 0, not all 0 (how open "
                                  f"the shutter is over its time), got {np.array2string(curve, threshold=8)}")
             self.shutter_curve = None if np.all(curve == curve[0]) else curve
+        if self.motion_lens is not None:
+            lenses = tuple(float(x) for x in self.motion_lens)
+            if len(lenses) != 2 or not all(math.isfinite(x) and x > 0 for x in lenses):
+                raise SceneError(f"camera: motion_lens must be two focal lengths > 0 (shutter open, close), got "
+                                 f"{self.motion_lens!r}")
+            self.motion_lens = None if lenses == (self.lens, self.lens) else lenses
         if self.rolling_shutter is not None:
             duration = float(self.rolling_shutter)
             if not 0.0 <= duration <= 1.0:
@@ -735,7 +745,8 @@ class Scene:
     @property
     def has_motion(self) -> bool:
         """Whether anything moves over the shutter (motion blur): rays then carry a time (core.motion)."""
-        return self.camera.motion_matrices is not None or any(m.motion_vertices is not None for m in self.meshes)
+        return (self.camera.motion_matrices is not None or self.camera.motion_lens is not None
+                or any(m.motion_vertices is not None for m in self.meshes))
 
     def validate(self) -> "Scene":
         """Validate in place; raise SceneError for what cannot be rendered, drop and count what can be."""

@@ -233,6 +233,11 @@ def test_bad_motion_data_gets_named_errors_and_warnings():
     with pytest.raises(SceneError, match="camera: a motion-blur matrix is singular"):
         scene.validate()
     scene = _scene(False, False)
+    scene.camera.motion_lens = (35.0, 0.0)
+    with pytest.raises(SceneError, match=r"camera: motion_lens must be two focal lengths > 0 \(shutter open, "
+                                         r"close\), got \(35.0, 0.0\)"):
+        scene.validate()
+    scene = _scene(False, False)
     scene.camera.rolling_shutter = 1.5
     with pytest.raises(SceneError, match=r"camera: rolling_shutter duration 1.5 must be in \[0, 1\]"):
         scene.validate()

@@ -224,12 +224,19 @@ def test_deformation_is_sampled_and_can_be_turned_off():
     assert _export(scene).meshes[0].motion_vertices is None
 
 
-def test_zoom_during_the_shutter_is_named():
-    scene = cube_scene("camera")
-    _linear_keys(bpy.data.objects["Camera"].data, "lens", [(1, 40.0), (3, 60.0)])
+def test_zoom_matches_cycles(tmp_path):
+    """A still cube, the camera zooming 20 -> 80 mm over frames 1-3 (35 -> 65 over the shutter): a radial blur."""
+    scene = cube_scene("none")
+    _linear_keys(bpy.data.objects["Camera"].data, "lens", [(1, 20.0), (3, 80.0)])
     scene.frame_set(2)
+    scene.render.use_motion_blur = True
+    core = _export(scene)
+    assert core.camera.motion_lens == pytest.approx((35.0, 65.0)) and core.camera.lens == pytest.approx(50.0)
+    check_blur("zoom", scene, tmp_path)
+    scene.render.use_motion_blur = True
+    bpy.data.objects["Camera"].data.dof.use_dof = True
     warnings = _export(scene).warnings
-    assert any("camera 'Camera'" in w and "focal length (zoom) changes" in w for w in warnings), warnings
+    assert any("camera 'Camera'" in w and "zoom" in w and "depth of field" in w for w in warnings), warnings
 
 
 def test_rolling_shutter_is_exported():

@@ -369,9 +369,13 @@ def _sample_motion(depsgraph, frame_set, shutter, prototypes, camera_object, cam
                             camera_object.original.name if camera_steps else None, steps, read)
     if samples.camera is not None:
         camera.motion_matrices = take_steps(samples.camera, camera_steps)
-    if samples.camera_lens_changes:
-        warnings.append(f"camera {camera_object.original.name!r}: its focal length (zoom) changes during the "
-                        "shutter; not motion-blurred, rendered with the frame's")
+    lenses = samples.camera_lenses
+    if lenses and camera.kind == "PERSP" and (lenses[0] != camera.lens or lenses[1] != camera.lens):
+        if camera.use_dof and camera.aperture_fstop > 0:
+            warnings.append(f"camera {camera_object.original.name!r}: a focal length (zoom) changing during the "
+                            "shutter together with depth of field is not motion-blurred; rendered with the frame's")
+        else:
+            camera.motion_lens = lenses
     return samples
 
 

@@ -10,8 +10,9 @@ test), its evaluated vertex positions and normals. The camera object's steps giv
 of 0 or Motion Blur off: no blur, nothing sampled (Cycles' behaviour).
 
 The Shutter Curve (how open the shutter is over its time) is read at CURVE_POINTS times; ray times follow it.
-Rolling Shutter (Top, with its duration) times each image row as Cycles does. Not rendered, warned by name: a
-camera zoom during the shutter (the frame's focal length). Transform motion is baked into
+Rolling Shutter (Top, with its duration) times each image row as Cycles does; a perspective camera zooming
+during the shutter blurs as Cycles' perspective motion does. Not rendered, warned by name: a zoom together with
+depth of field (the frame's focal length). Transform motion is baked into
 vertex steps (linear between steps); rotation is decomposed and slerped as Cycles interpolates it, and baked at
 enough steps (core.motion.densify_transforms) that the vertices follow their arcs.
 """
@@ -163,7 +164,7 @@ class MotionSamples:
     matrices: dict
     deformed: dict
     camera: np.ndarray | None
-    camera_lens_changes: bool = False  # the camera's focal length (or ortho scale) changes during the shutter
+    camera_lenses: tuple = ()  # the camera's focal length (mm) at shutter open and close
 
 
 def sample_motion(depsgraph, frame_set: Callable[[int, float], None], shutter_: Shutter, keys: set,
@@ -175,7 +176,7 @@ def sample_motion(depsgraph, frame_set: Callable[[int, float], None], shutter_: 
     seen = {key: np.zeros(steps, bool) for key in keys}
     deformed = {name: [None] * steps for name in deforming}
     camera = np.zeros((steps, 4, 4)) if camera_name is not None else None
-    lenses = set()
+    lenses = [0.0] * steps
     try:
         for s, (frame, subframe) in enumerate(shutter_.step_times(steps)):
             frame_set(frame, subframe)
@@ -183,9 +184,7 @@ def sample_motion(depsgraph, frame_set: Callable[[int, float], None], shutter_: 
                 obj = inst.object
                 if camera is not None and not inst.is_instance and obj.original.name == camera_name:
                     camera[s] = np.array(obj.matrix_world, np.float64).reshape(4, 4)
-                    data = obj.data
-                    lenses.add((round(float(getattr(data, "lens", 0.0)), 6),
-                                round(float(getattr(data, "ortho_scale", 0.0)), 6)))
+                    lenses[s] = float(getattr(obj.data, "lens", 0.0))
                 if not inst.show_self:
                     continue
                 key = instance_key(inst)
@@ -198,7 +197,7 @@ def sample_motion(depsgraph, frame_set: Callable[[int, float], None], shutter_: 
         frame_set(*shutter_.reference)
     # An instance missing at some step (it appears or vanishes during the shutter): no motion for it.
     matrices = {key: m for key, m in matrices.items() if seen[key].all()}
-    return MotionSamples(steps, matrices, deformed, camera, len(lenses) > 1)
+    return MotionSamples(steps, matrices, deformed, camera, (lenses[0], lenses[-1]) if camera is not None else ())
 
 
 def take_steps(values: np.ndarray, steps: int) -> np.ndarray:
