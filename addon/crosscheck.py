@@ -230,9 +230,6 @@ class _Session:
             o.set(r, "resolution_y", int(self.options.resolution[1]))
             o.set(r, "resolution_percentage", 100)
         o.set(r, "use_border", False)
-        if r.use_motion_blur:
-            self.notes.append("motion blur turned off for both (Monte has none)")
-        o.set(r, "use_motion_blur", False)
         layer = _render_layer(scene)
         for vl in scene.view_layers:  # one view layer is compared; the others need not render
             if vl != layer:

@@ -63,7 +63,7 @@ DATA_PASS_FLAGS = {
 }
 # Passes Blender offers that Monte cannot produce: flag -> the warning's reason (never registered: no black pass).
 UNAVAILABLE_PASSES = {
-    "use_pass_vector": "the Vector pass needs motion blur, which Monte does not render; the pass is not produced",
+    "use_pass_vector": "Monte does not write motion vectors: the Vector pass is not produced",
 }
 
 
@@ -275,8 +275,10 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         passes = requested_passes(view_layer, scene)
         self.update_stats("", "Monte | Exporting scene")
 
+        # Motion blur evaluates subframes through the engine's frame_set (its own depsgraph), as Cycles does.
         core_scene, stats = export_scene(depsgraph, self.camera_override,
-                                         should_cancel=self._cancel_requested)
+                                         should_cancel=self._cancel_requested,
+                                         frame_set=lambda frame, subframe: self.frame_set(frame, subframe=subframe))
         for w in core_scene.warnings + unavailable_pass_warnings(view_layer, scene):
             self.report({"WARNING"}, f"Monte: {w}")
         self.report({"INFO"}, f"Monte: {stats.line()}")
@@ -383,7 +385,8 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         from .viewport import progressive_passes
 
         scene = depsgraph.scene
-        core_scene, _ = export_scene(depsgraph, self.camera_override, should_cancel=self._cancel_requested)
+        core_scene, _ = export_scene(depsgraph, self.camera_override, should_cancel=self._cancel_requested,
+                                     motion_blur=False)  # previews are still, as Cycles'
         samples = int(getattr(scene.monte, "preview_samples", 16))
         settings = render_settings(scene, {"aovs": False, "time_limit": 0.0, "adaptive_threshold": 0.0})
         if settings.threads == 0:

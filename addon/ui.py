@@ -3,9 +3,9 @@
 Render properties: Sampling (samples, sampler, seed, clamp, time limit, light sampling), Viewport and Previews,
 Denoise (on/off, quality, whether Open Image Denoise is installed), Light Paths (max bounces, Russian roulette
 depth), Film (pixel filter and width, Transparent, Transparent Glass), Performance (threads, batch size, tiles),
-Cluster (render on a Dask cluster, test the connection).
+Cluster (render on a Dask cluster, test the connection), Motion Blur (on/off, position, shutter, rolling shutter).
 Camera properties: Panorama (a panoramic camera's type and settings). Object properties: Visibility (ray
-visibility, holdout, shadow catcher).
+visibility, holdout, shadow catcher), Motion Blur (on/off, Deformation, Steps).
 View layer properties: Passes (Depth, Normal, Albedo, Variance; Data: Mist, Position, UV, Vector (warns), Object and
 Material Index; Cryptomatte). World properties: Mist Pass. Material, world and light properties: the
 node inputs Monte reads (the active output for Cycles/All) and the light settings Monte uses.
@@ -238,6 +238,57 @@ class MONTE_OBJECT_PT_visibility(MonteButtonsPanel, Panel):
         col.prop(ob, "is_holdout")
 
 
+class MONTE_RENDER_PT_motion_blur(MonteButtonsPanel, Panel):
+    """Render > Motion Blur: the settings Cycles reads, which Monte renders (position, shutter, rolling shutter,
+    shutter curve)."""
+
+    bl_label = "Motion Blur"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.render, "use_motion_blur", text="")
+
+    def draw(self, context):
+        scene = context.scene
+        r = scene.render
+        col = split_layout(self.layout).column()
+        col.active = r.use_motion_blur
+        col.prop(r, "motion_blur_position", text="Position")
+        col.prop(r, "motion_blur_shutter")
+        cycles = getattr(scene, "cycles", None)
+        if cycles is not None and "rolling_shutter_type" in cycles.bl_rna.properties:
+            col.prop(cycles, "rolling_shutter_type", text="Rolling Shutter")
+            sub = col.column()
+            sub.active = cycles.rolling_shutter_type != "NONE"
+            sub.prop(cycles, "rolling_shutter_duration")
+        self.layout.template_curve_mapping(r, "motion_blur_shutter_curve")
+
+
+class MONTE_OBJECT_PT_motion_blur(MonteButtonsPanel, Panel):
+    """Object > Motion Blur: Cycles' per-object settings (Motion Blur on/off, Deformation, Steps)."""
+
+    bl_label = "Motion Blur"
+    bl_context = "object"
+    bl_options = {"DEFAULT_CLOSED"}
+    CONTEXT_MEMBER = "object"
+
+    @classmethod
+    def poll(cls, context):  # every object: an instancer's settings apply to its instances too
+        return super().poll(context) and getattr(context.object, "cycles", None) is not None
+
+    def draw_header(self, context):
+        self.layout.active = context.scene.render.use_motion_blur
+        self.layout.prop(context.object.cycles, "use_motion_blur", text="")
+
+    def draw(self, context):
+        settings = context.object.cycles
+        col = split_layout(self.layout).column()
+        col.active = context.scene.render.use_motion_blur and settings.use_motion_blur
+        if context.object.type not in ("CAMERA", "EMPTY"):
+            col.prop(settings, "use_deform_motion", text="Deformation")
+        col.prop(settings, "motion_steps", text="Steps")
+
+
 class MONTE_RENDER_PT_performance(MonteButtonsPanel, Panel):
     bl_label = "Performance"
     bl_options = {"DEFAULT_CLOSED"}
@@ -311,7 +362,7 @@ class MONTE_VIEWLAYER_PT_passes_data(MonteButtonsPanel, Panel):
         row = col.row()
         row.prop(view_layer, "use_pass_vector")
         if view_layer.use_pass_vector:
-            layout.label(text="Vector needs motion blur: not produced", icon="ERROR")
+            layout.label(text="Vector (motion vectors): not produced", icon="ERROR")
         col = layout.column(heading="Indexes", align=True)
         col.prop(view_layer, "use_pass_object_index")
         col.prop(view_layer, "use_pass_material_index")
@@ -458,6 +509,8 @@ classes = (
     MONTE_RENDER_PT_film,
     MONTE_CAMERA_PT_panorama,
     MONTE_OBJECT_PT_visibility,
+    MONTE_RENDER_PT_motion_blur,
+    MONTE_OBJECT_PT_motion_blur,
     MONTE_RENDER_PT_performance,
     MONTE_RENDER_PT_crosscheck,
     MONTE_RENDER_PT_cluster,

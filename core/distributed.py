@@ -112,7 +112,7 @@ def _prepared_for(frame_key: str, scene: Scene, settings: RenderSettings):
             return _PREPARED[frame_key]
         scene.validate()  # also puts its arrays in the forms PreparedScene expects
         prepared = PreparedScene.build(scene, sample_world=settings.light_sampling == "light")
-        entry = (prepared, Accelerator(prepared.vertices, prepared.triangles))
+        entry = (prepared, Accelerator(prepared.vertices, prepared.triangles, motion=prepared.motion))
         _PREPARED[frame_key] = entry
         while len(_PREPARED) > _PREPARED_KEEP:
             _PREPARED.popitem(last=False)

@@ -14,7 +14,9 @@ on macOS), so nothing new is installed. `load()` returns None with the reason wh
 build of embreex against a system Embree elsewhere, say); core.accel then falls back to embreex's wrapper.
 
 Conventions: float32 coordinates, unit directions, tnear 0 (callers offset ray origins themselves), triangles as
-(T, 3) vertex indices, one geometry (geomID 0) per scene. Embree's RTCRayHit is laid out as 4-byte words:
+(T, 3) vertex indices, one geometry (geomID 0) per scene. Motion blur (`new_motion_scene`): a static geometry and
+a time-stepped one (Embree's motion-blur triangles, S vertex buffers at times evenly spaced over [0, 1], linear in
+between), traced by the *_timed loops, which set each ray's time; a scene without motion never reaches them. Embree's RTCRayHit is laid out as 4-byte words:
 org 0-2, tnear 3, dir 4-6, time 7, tfar 8, mask 9, id 10, flags 11, Ng 12-14, u 15, v 16, primID 17,
 geomID 18, instID 19.. (rtcore_ray.h, Embree 4).
 """
@@ -46,6 +48,7 @@ _BUFFER_TYPE_VERTEX = 1
 _FORMAT_UINT3 = 0x5003
 _FORMAT_FLOAT3 = 0x9003
 _SCENE_FLAG_ROBUST = 1 << 2
+_MAX_TIME_STEPS = 129  # RTC_MAX_TIME_STEP_COUNT
 
 
 @intrinsic
@@ -125,6 +128,42 @@ def trace_occluded(occluded1, scene, origins, directions, tmax, blocked):
         blocked[k] = words[8] < 0.0
 
 
+@_jit
+def trace_closest_timed(intersect1, scene, origins, directions, tmax, time, order, first, prim, u, v, t):
+    """trace_closest for a motion-blur scene: ray k at time[k] in [0, 1] (shutter open to close); the hit's
+    triangle is order[first[geomID] + primID] (the scene's triangle index; geometries keep their own numbering)."""
+    words, ids, address = _ray_buffer()
+    bounded = len(tmax) > 0
+    for k in range(origins.shape[0]):
+        _load_ray(words, ids, origins, directions, k, tmax[k] if bounded else _FAR)
+        words[7] = time[k]
+        ids[17] = _INVALID_ID
+        ids[18] = _INVALID_ID
+        ids[19] = _INVALID_ID
+        _call_embree(intersect1, scene, address, 0)
+        if ids[18] == _INVALID_ID:
+            prim[k] = -1
+            u[k] = 0.0
+            v[k] = 0.0
+            t[k] = np.inf
+        else:
+            prim[k] = order[first[ids[18]] + ids[17]]
+            u[k] = words[15]
+            v[k] = words[16]
+            t[k] = words[8]
+
+
+@_jit
+def trace_occluded_timed(occluded1, scene, origins, directions, tmax, time, blocked):
+    """trace_occluded for a motion-blur scene: ray k at time[k] in [0, 1]."""
+    words, ids, address = _ray_buffer()
+    for k in range(origins.shape[0]):
+        _load_ray(words, ids, origins, directions, k, tmax[k])
+        words[7] = time[k]
+        _call_embree(occluded1, scene, address, 0)
+        blocked[k] = words[8] < 0.0
+
+
 def _library_candidates() -> Iterator[str]:
     """Where the embreex wheels put Embree 4 (auditwheel, delvewheel, delocate), then the system's (looked up
     only when none of the wheel's loads: find_library runs ldconfig or a compiler, ~30 ms a first render paid)."""
@@ -162,6 +201,7 @@ class EmbreeLibrary:
             ("rtcSetSharedGeometryBuffer", None,
              [p, ctypes.c_int, ctypes.c_uint, ctypes.c_int, p, ctypes.c_size_t, ctypes.c_size_t, ctypes.c_size_t]),
             ("rtcCommitGeometry", None, [p]),
+            ("rtcSetGeometryTimeStepCount", None, [p, ctypes.c_uint]),
             ("rtcAttachGeometry", ctypes.c_uint, [p, p]),
             ("rtcReleaseGeometry", None, [p]),
         ):
@@ -205,6 +245,43 @@ class EmbreeLibrary:
             lib.rtcReleaseScene(scene)
             raise
         return scene
+
+    def new_motion_scene(self, vertices: np.ndarray, triangles: np.ndarray, step_vertices: list[np.ndarray],
+                         moving_triangles: np.ndarray) -> tuple[int, list[int]]:
+        """Build (commit) a scene of a static triangle mesh (vertices, triangles as new_triangle_scene; skipped
+        when it has no triangles) and a moving one: moving_triangles ((M, 3) uint32) over S = len(step_vertices)
+        vertex buffers ((V' + 1, 3) float32 each, the last row padding), the positions at times s / (S - 1) of the
+        shutter; Embree interpolates linearly between steps. Returns the scene and the geomID of each mesh built
+        (static first). The caller keeps every buffer alive and unchanged until release_scene."""
+        steps = len(step_vertices)
+        if not 2 <= steps <= _MAX_TIME_STEPS:
+            raise ValueError(f"motion blur needs 2 to {_MAX_TIME_STEPS} time steps, got {steps}")
+        lib = self._lib
+        scene = lib.rtcNewScene(self.device)
+        lib.rtcSetSceneFlags(scene, _SCENE_FLAG_ROBUST)
+        ids = []
+        for buffers, tris in (([vertices], triangles), (step_vertices, moving_triangles)):
+            if not len(tris):
+                continue
+            geometry = lib.rtcNewGeometry(self.device, _GEOMETRY_TYPE_TRIANGLE)
+            if len(buffers) > 1:
+                lib.rtcSetGeometryTimeStepCount(geometry, len(buffers))
+            for slot, verts in enumerate(buffers):
+                lib.rtcSetSharedGeometryBuffer(geometry, _BUFFER_TYPE_VERTEX, slot, _FORMAT_FLOAT3, verts.ctypes.data,
+                                               0, 12, len(verts) - 1)
+            lib.rtcSetSharedGeometryBuffer(geometry, _BUFFER_TYPE_INDEX, 0, _FORMAT_UINT3, tris.ctypes.data, 0, 12,
+                                           len(tris))
+            lib.rtcCommitGeometry(geometry)
+            ids.append(int(lib.rtcAttachGeometry(scene, geometry)))
+            lib.rtcReleaseGeometry(geometry)
+        lib.rtcCommitScene(scene)
+        try:
+            self.check(f"building the motion-blur scene ({len(triangles)} static, {len(moving_triangles)} moving "
+                       f"triangles, {steps} time steps)")
+        except RuntimeError:
+            lib.rtcReleaseScene(scene)
+            raise
+        return scene, ids
 
     def release_scene(self, scene: int) -> None:
         self._lib.rtcReleaseScene(scene)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import copy
 import threading
 import time
 
@@ -21,10 +22,11 @@ import numpy as np
 from . import bsdf as bsdf_mod
 from . import geometry_kernels, path_kernels, transparent_shadow
 from . import light_passes as lp_mod
-from .accel import Accelerator, Hits
+from .accel import Accelerator, Hits, MotionTriangles
 from .data_passes import DataPath
 from .light_shadow import NoShadowLights
 from .lights import EmissiveTriangles, LightSample, LightSampler
+from .motion import interpolate_corners, resample_steps
 from .ray_visibility import DIFFUSE_RAY, GLOSSY_RAY, RAY_KIND_NAMES, bounce_kinds, next_path_state
 from .scene import Scene
 from .settings import RenderSettings
@@ -35,11 +37,14 @@ from .shading.program import (ATTRIBUTE_COLUMNS, MESH_ATTRIBUTE_COLUMNS, PATH_CO
 from .shading.vector_context import vector_context
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
-# camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce.
+# camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce. The ray's
+# time (motion blur) has a set of its own far past any bounce's, read only when the scene moves, so that a still
+# scene's numbers are unchanged (every set is scrambled independently: its index is only a key).
 DIM_FILM = 0
 DIM_LENS = 1
 DIM_BOUNCE_BASE = 2
 DIM_STRIDE = 8
+DIM_TIME = 0x7FFF0000
 # Two sampler calls per bounce: a 4-D set for the vertex (BSDF direction in the stratified pair, lobe choice third,
 # Russian roulette fourth) and a 3-D set for the light (point in the pair, which light third).
 _D_VERTEX, _D_LIGHT = 1, 4
@@ -144,6 +149,13 @@ class PreparedScene:
     # emitters whose emission a node program drives, light-sampled by their own table (core.textured_emitters)
     textured: TexturedEmitters | None = None
     tangent_layers: np.ndarray | None = None  # (T, K, 3, 4) Scene.tangent_layer_names' tangents, or None
+    # Motion blur (core.motion): the moving triangles' corners per step (shifted frame), their corner normals per
+    # step ((S, M, 3, 3), None when they keep `corner_normals`) and each triangle's row among them (-1: still);
+    # all None when nothing moves.
+    motion: MotionTriangles | None = None
+    motion_normals: np.ndarray | None = None
+    motion_slot: np.ndarray | None = None
+    moving_emitters: np.ndarray | None = None  # (T,) bool: emissive triangles that move (not light-sampled), or None
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -155,7 +167,8 @@ class PreparedScene:
             found = self._subsets.get(which)
             if found is None:
                 keep = np.flatnonzero(self.catcher if which == "catcher" else self.visible_to[which])
-                found = self._subsets[which] = (Accelerator(self.vertices, self.triangles[keep]),
+                motion = None if self.motion is None else self.motion.subset(keep)
+                found = self._subsets[which] = (Accelerator(self.vertices, self.triangles[keep], motion=motion),
                                                 keep.astype(np.int32))
             return found
 
@@ -264,6 +277,18 @@ class PreparedScene:
         attributes = np.concatenate(attrs) if attrs else None
         tangent_layers = np.concatenate(tangent_parts) if tangent_parts else None
         emissive = EmissiveTriangles.from_mesh_arrays(tri_vertices, material_index, materials.emission)
+        motion, motion_normals, motion_slot = _motion_geometry(scene.meshes, shift, corner_normals, t_count)
+        moving_emitters = None
+        if motion is not None and emissive is not None:
+            # Moving emitters are not light-sampled (the light table holds still triangles): what BSDF sampling
+            # and the camera find counts in full, where the emitter is at the ray's time.
+            moving_emitters = (emissive.emitter_of_triangle >= 0) & (motion_slot >= 0)
+            if moving_emitters.any():
+                still = tri_vertices.copy()
+                still[moving_emitters] = 0.0  # zero area: not an emitter of the table
+                emissive = EmissiveTriangles.from_mesh_arrays(still, material_index, materials.emission)
+            else:
+                moving_emitters = None
         if len(vertices):
             lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
             radius = float(np.linalg.norm(hi - lo) / 2) or 1.0
@@ -295,6 +320,7 @@ class PreparedScene:
         features["shadow_catcher"] = catcher is not None
         shadow_clear = transparent_shadow.clear_materials(materials)
         features["transparent_shadows"] = shadow_clear is not None
+        features["moving_triangles"] = 0 if motion is None else len(motion.index)
         prepared = cls(scene, shift, vertices, triangles, tri_vertices, face_normals, tri_magnitude, corner_normals,
                    smooth_mask, uv_arr, material_index, materials, lights, emissive, has_nondelta, radius,
                    specular, features, shading, object_of_triangle,
@@ -303,7 +329,8 @@ class PreparedScene:
                        for m in scene.materials for lobe in m.lobes),
                    terminator_offset=terminator_offset, uv_layers=uv_layers, catcher=catcher,
                    shadow_clear=shadow_clear, attributes=attributes,
-                   tangent_layers=tangent_layers)
+                   tangent_layers=tangent_layers, motion=motion,
+                   motion_normals=motion_normals, motion_slot=motion_slot, moving_emitters=moving_emitters)
         if shading is not None and shading.any_emits:
             sampled = shading.emits
             # the estimate sees what light sampling sees: a first bounce's light sample (core.textured_emitters)
@@ -314,6 +341,59 @@ class PreparedScene:
                 prepared, t, b1, b2, path=np.broadcast_to(nee_state, (len(t), PATH_COLUMNS))))
             features["textured_emitters"] = 0 if prepared.textured is None else prepared.textured.count
         return prepared
+
+    def hit_triangles(self, tri: np.ndarray, ray_time: np.ndarray | None) -> tuple:
+        """The triangles `tri` (K,) as the rays that hit them at ray_time (K,) see them: (corners (K, 3, 3), face
+        normals (K, 3), magnitudes (K,), corner normals (K, 3, 3) or an empty array), moving ones rebuilt at
+        their ray's time (core.motion), still ones as prepared."""
+        corners, normals, magnitude = self.tri_vertices[tri], self.face_normals[tri], self.tri_magnitude[tri]
+        corner_normals = self.kernel_corner_normals
+        if len(corner_normals):
+            corner_normals = corner_normals[tri]
+        slot = self.motion_slot[tri] if self.motion_slot is not None else None
+        moving = np.flatnonzero(slot >= 0) if slot is not None and ray_time is not None else np.zeros(0, np.int64)
+        if len(moving):
+            at = interpolate_corners(self.motion.corners, slot[moving], ray_time[moving])
+            frames = (np.empty((len(moving), 3, 3), np.float32), np.empty((len(moving), 3), np.float32),
+                      np.empty(len(moving), np.float32))
+            geometry_kernels.triangle_frames(np.ascontiguousarray(at.reshape(-1, 3)),
+                                             np.arange(3 * len(moving), dtype=np.int64).reshape(-1, 3), *frames)
+            corners[moving], normals[moving], magnitude[moving] = frames
+            if self.motion_normals is not None:
+                corner_normals[moving] = interpolate_corners(self.motion_normals, slot[moving], ray_time[moving])
+        return corners, normals, magnitude, corner_normals
+
+
+def _motion_geometry(meshes, shift: np.ndarray, corner_normals: np.ndarray | None,
+                     t_count: int) -> tuple[MotionTriangles | None, np.ndarray | None, np.ndarray | None]:
+    """PreparedScene's motion, motion_normals and motion_slot from the meshes' motion steps (all None when
+    nothing moves), every mesh's steps resampled onto the largest step count."""
+    parts, first = [], 0
+    for mesh in meshes:
+        if mesh.triangle_count == 0:
+            continue
+        if mesh.motion_vertices is not None:
+            parts.append((first, mesh))
+        first += mesh.triangle_count
+    if not parts:
+        return None, None, None
+    steps = max(mesh.motion_vertices.shape[0] for _, mesh in parts)
+    with_normals = corner_normals is not None and any(mesh.motion_normals is not None for _, mesh in parts)
+    index, corners, normals = [], [], []
+    for first, mesh in parts:
+        t = mesh.triangle_count
+        positions = resample_steps(mesh.motion_vertices, steps)
+        corners.append((positions[:, mesh.triangles] - shift).astype(np.float32))
+        index.append(np.arange(first, first + t))
+        if with_normals:
+            normals.append(resample_steps(mesh.motion_normals, steps).astype(np.float32)
+                           if mesh.motion_normals is not None
+                           else np.broadcast_to(corner_normals[first:first + t], (steps, t, 3, 3)))
+    index = np.concatenate(index)
+    slot = np.full(t_count, -1, np.int32)
+    slot[index] = np.arange(len(index), dtype=np.int32)
+    return (MotionTriangles(index, np.ascontiguousarray(np.concatenate(corners, axis=1))),
+            np.ascontiguousarray(np.concatenate(normals, axis=1)) if with_normals else None, slot)
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
@@ -615,6 +695,7 @@ class PathTracer:
         want_surface: bool = False,
         ray_dp: np.ndarray | None = None,
         ray_dd: np.ndarray | None = None,
+        ray_time: np.ndarray | None = None,
     ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
         """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs; want_features adds the
         denoising features, FirstHit.features; a scene with a shadow catcher adds FirstHit.catcher) and their
@@ -622,7 +703,8 @@ class PathTracer:
         core.scene.Film). pixel_id/sample_id (uint32) key the random numbers. While _trace_copies runs, the
         paths are the shadow catcher copies of paths that split (the camera ray arguments are theirs). ray_dp, ray_dd (N,) float32: the camera
         rays' compact differentials (Cycles' ray dP and dD: the spread of a pixel's footprint at the origin and its
-        growth per unit distance), which Bump nodes read; None: zero."""
+        growth per unit distance), which Bump nodes read; None: zero. ray_time: (N,) each path's time in [0, 1]
+        over the shutter (motion blur; its bounces and shadow rays keep it), None for a still scene."""
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
@@ -696,14 +778,17 @@ class PathTracer:
             if len(idx) == 0:
                 break
             clock = time.perf_counter()
+            # the live paths' times; none where the ray-casting structure has no motion (embreex's fallback renders
+            # the frame's pose, and so must the surfaces)
+            tr = None if ray_time is None or self.accel.motion is None else ray_time[idx]
             if copies:
-                hits = self._intersect_subset("catcher", o, d, tm)
+                hits = self._intersect_subset("catcher", o, d, tm, tr)
             elif bounce_kind is not None:
-                hits = self._intersect_by_kind(bounce_kind[idx], o, d, tm)
+                hits = self._intersect_by_kind(bounce_kind[idx], o, d, tm, tr)
             elif depth == 0 and "camera" in ps.visible_to:
-                hits = self._intersect_subset("camera", o, d, tm)
+                hits = self._intersect_subset("camera", o, d, tm, tr)
             else:
-                hits = self.accel.intersect(o, d, tm)
+                hits = self.accel.intersect(o, d, tm, tr)
             clock = self._lap("intersect", clock)
             hit = hits.prim >= 0
             if path_state is not None:  # Ray Length: the distance along this ray to the point shaded
@@ -779,13 +864,21 @@ class PathTracer:
                     self._add_split(radiance, lp, depth, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
+            # Moving emitters are not light-sampled: what BSDF sampling (or the camera) finds counts in full.
+            if ps.moving_emitters is not None:
+                e = np.flatnonzero(hit & ps.moving_emitters[np.maximum(prim, 0)] & (True if held is None else ~held))
+                if len(e):
+                    le = ps.materials.emission[ps.material_index[prim[e]]]
+                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le)
+                    if features is not None:
+                        features.add_emission(idx[e], throughput[e] * le)
             # Emission that varies per point (a node program drives it): MIS-weighted against the textured
             # emitters' light sampling (core.textured_emitters) where they are in its table, else (programs that
             # read the Light Path node) what BSDF sampling (or the camera) finds counts in full.
             if ps.shading is not None and ps.shading.any_emits:
                 e = np.flatnonzero(hit & ps.shading.emits[ps.material_index[prim]] & (True if held is None else ~held))
                 if len(e):
-                    ge = self._surface(e, prim, hits.u, hits.v, d)
+                    ge = self._surface(e, prim, hits.u, hits.v, d, tr)
                     mat_e = ps.material_index[prim[e]]
                     le = np.zeros((len(e), 3), np.float32)
                     self._shade(ge, mat_e, prim[e], d[e], ps.materials.gather(mat_e, ge.uv), le,
@@ -827,7 +920,7 @@ class PathTracer:
             rows = np.flatnonzero(survive)
             if want_aovs and depth == 0:
                 hit_rows = np.flatnonzero(hit)
-                g = self._surface(hit_rows, prim, hits.u, hits.v, d)
+                g = self._surface(hit_rows, prim, hits.u, hits.v, d, tr)
                 mat_first = ps.material_index[prim[hit_rows]]
                 lobes_first = ps.materials.gather(mat_first, g.uv)
                 if ps.shading is not None:
@@ -840,7 +933,7 @@ class PathTracer:
                 if len(rows) < len(hit_rows):
                     g = g.take(np.flatnonzero(survive[hit_rows]))
             elif len(rows):
-                g = self._surface(rows, prim, hits.u, hits.v, d)
+                g = self._surface(rows, prim, hits.u, hits.v, d, tr)
             if len(rows) == 0:
                 break
             idx, pix, smp, u_vertex = idx[rows], pix[rows], smp[rows], u_vertex[rows]
@@ -865,12 +958,16 @@ class PathTracer:
                 bary = None
                 if ps.terminator_offset is not None:  # the shadow terminator lift needs the hits' triangles
                     bary = (prim[rows], hits.u[rows], hits.v[rows])
+                    if tr is not None and ps.motion_slot is not None:  # the hits' triangles at their times
+                        at = ps.hit_triangles(prim[rows], tr[rows])
+                        bary = (np.arange(len(rows), dtype=np.int32), hits.u[rows], hits.v[rows], at[0], at[3],
+                                ps.terminator_offset[prim[rows]])
                 if ps.lights.has_lights:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp,
-                                     bumped=bumped)
+                                     bumped=bumped, ray_time=ray_time)
                 if ps.textured is not None:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp, textured=True,
-                                     bumped=bumped,
+                                     bumped=bumped, ray_time=ray_time,
                                      path=_rows_of(path_state, idx))
                 clock = self._lap("nee", clock)
 
@@ -960,9 +1057,9 @@ class PathTracer:
                                          world=world)
         return out
 
-    def _intersect_by_kind(self, kinds: np.ndarray, o, d, tm):
+    def _intersect_by_kind(self, kinds: np.ndarray, o, d, tm, tr=None):
         """Closest hits of rays of several kinds (core.ray_visibility), each against the triangles its kind of ray
-        sees."""
+        sees. tr: the rays' times (motion blur) or None."""
         ps = self.ps
         groups = [(kind, np.flatnonzero(kinds == code)) for code, kind in RAY_KIND_NAMES.items()
                   if kind in ps.visible_to]
@@ -970,30 +1067,47 @@ class PathTracer:
         for _, rows in groups:
             hidden[rows] = True
         if not hidden.any():
-            return self.accel.intersect(o, d, tm)
+            return self.accel.intersect(o, d, tm, tr)
         hits = Hits(np.full(len(o), -1, np.int32), np.zeros(len(o), np.float32), np.zeros(len(o), np.float32),
                     np.full(len(o), np.inf, np.float32))
         rest = np.flatnonzero(~hidden)
-        parts = [(rows, self._intersect_subset(kind, o[rows], d[rows], tm[rows])) for kind, rows in groups if len(rows)]
+        parts = [(rows, self._intersect_subset(kind, o[rows], d[rows], tm[rows], None if tr is None else tr[rows]))
+                 for kind, rows in groups if len(rows)]
         if len(rest):
-            parts.append((rest, self.accel.intersect(o[rest], d[rest], tm[rest])))
+            parts.append((rest, self.accel.intersect(o[rest], d[rest], tm[rest], None if tr is None else tr[rest])))
         for rows, part in parts:
             hits.prim[rows], hits.u[rows], hits.v[rows], hits.t[rows] = part.prim, part.u, part.v, part.t
         return hits
 
-    def _intersect_subset(self, which: str, o, d, tm):
+    def _intersect_subset(self, which: str, o, d, tm, tr=None):
         """Closest hits among the triangles `which` rays see, with the scene's triangle indices."""
         accel, keep = self.ps.visible_subset(which)
-        hits = accel.intersect(o, d, tm)
+        hits = accel.intersect(o, d, tm, tr)
         if len(keep) == 0:
             return hits  # all misses
         found = hits.prim >= 0
         hits.prim = np.where(found, keep[np.where(found, hits.prim, 0)], np.int32(-1)).astype(np.int32)
         return hits
 
-    def _surface(self, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
-        """Surface interactions of the hits `rows` (see core.geometry_kernels.surface)."""
-        return surface_batch(self.ps, rows, prim, bu, bv, d)
+    def _surface(self, rows: np.ndarray, prim, bu, bv, d, tr=None) -> "SurfaceBatch":
+        """Surface interactions of the hits `rows` (see core.geometry_kernels.surface); tr: the rays' times
+        (motion blur: moving triangles are rebuilt at them) or None."""
+        ps = self.ps
+        if tr is not None and ps.motion_slot is not None:
+            m = len(rows)
+            g = SurfaceBatch.empty(m, ps.uvs is not None)
+            tri = prim[rows]
+            corners, normals, magnitude, corner_normals = ps.hit_triangles(tri, tr[rows])
+            local = np.arange(m, dtype=np.int64)
+            smooth, uvs = ps.kernel_smooth, ps.kernel_uvs
+            geometry_kernels.surface(local, local.astype(np.int32), np.ascontiguousarray(bu[rows]),
+                                     np.ascontiguousarray(bv[rows]), np.ascontiguousarray(d[rows], dtype=np.float32),
+                                     corners, normals, corner_normals, smooth[tri] if len(smooth) else smooth,
+                                     uvs[tri] if len(uvs) else uvs, magnitude, ps.material_index[tri], ps.specular,
+                                     g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo, g.n_view, g.mag,
+                                     g.cos_o_geo, g.uv_buffer)
+            return g
+        return surface_batch(ps, rows, prim, bu, bv, d)
 
     def _shade(self, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
                lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None,
@@ -1067,9 +1181,11 @@ class PathTracer:
 
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
                     bary=None, lp: "lp_mod.LightPassSamples | None" = None, textured: bool = False,
-                    path: np.ndarray | None = None, bumped=None) -> None:
+                    path: np.ndarray | None = None, bumped=None, ray_time=None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
-        u, v) of each path's hit when some mesh has a shadow terminator offset, else None; lp: the light passes
+        u, v) of each path's hit when some mesh has a shadow terminator offset, else None (with motion blur:
+        (row, u, v, corners, corner normals, offsets) of the hits' own triangles at their times); ray_time: each
+        sample's time (motion blur: the shadow rays cast at it) or None; lp: the light passes
         to split the contributions into (None: off). textured: sample the textured emitters
         (core.textured_emitters) instead of the lights, the emission from their programs; path: the paths' Light
         Path state there (None when no program reads it)."""
@@ -1103,6 +1219,7 @@ class PathTracer:
         if count == 0:
             return
         clock = time.perf_counter()
+        shadow_time = None if ray_time is None else ray_time[sample_of[:count]]
         if self._catcher_copies:
             occluders = ps.visible_subset("catcher")
         elif "shadow" in ps.visible_to:
@@ -1111,7 +1228,7 @@ class PathTracer:
             occluders = (self.accel, None)
         transmit = None  # shadow rays through transparent surfaces: their transmittance (core.transparent_shadow)
         if ps.shadow_clear is None:
-            blocked = occluders[0].occluded(origin[:count], direction[:count], tmax[:count])
+            blocked = occluders[0].occluded(origin[:count], direction[:count], tmax[:count], shadow_time)
         else:
             blocked, transmit = transparent_shadow.trace(self, occluders, origin[:count], direction[:count],
                                                          tmax[:count], self.settings.transparent_max_bounces)
@@ -1167,10 +1284,12 @@ class PathTracer:
             e3 = np.zeros((0, 3, 3), np.float32)
             return (np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros(0, np.float32),
                     np.zeros((0, 3), np.float32), e3, e3, np.zeros(0, np.float32))
-        prim, bu, bv = bary
+        prim, bu, bv = bary[:3]
+        corners, corner_normals, offsets = bary[3:] if len(bary) > 3 else (ps.tri_vertices, ps.corner_normals,
+                                                                           ps.terminator_offset)
         return (np.ascontiguousarray(prim[can]), np.ascontiguousarray(bu[can], np.float32),
-                np.ascontiguousarray(bv[can], np.float32), np.ascontiguousarray(gc.n_view), ps.tri_vertices,
-                ps.corner_normals, ps.terminator_offset)
+                np.ascontiguousarray(bv[can], np.float32), np.ascontiguousarray(gc.n_view), corners,
+                corner_normals, offsets)
 
     def _add_clean(self, radiance: np.ndarray, idx: np.ndarray, value: np.ndarray) -> np.ndarray:
         """_add's work done in two steps, returning the contributions as they were added (non-finite rows 0,
@@ -1264,6 +1383,8 @@ def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np
     ng = np.where(back[:, None], -g.ng, g.ng)
     n = np.where(back[:, None], -g.ns_raw, g.ns_raw)
     obj = ps.object_of_triangle[prim]
+    if ps.motion_slot is not None and bary is not None:
+        sh, obj = _objects_at_hit_time(ps, sh, obj, prim, bary, g.p)
     vec = vector_context(ps, prim, bary, ng, dp, g.uv is not None)
     uvx = None
     if ps.uv_layers is not None and bary is not None:  # the named UV maps at the hit points
@@ -1324,3 +1445,32 @@ def emission_at(ps: PreparedScene, triangles: np.ndarray, b1: np.ndarray, b2: np
         shade_points(ps, g, mat, t, d, ps.materials.gather(mat, g.uv), out[a:a + chunk], bary=(u, v),
                      path=None if path is None else np.ascontiguousarray(path[a:a + chunk], np.float32))
     return out
+
+
+def _objects_at_hit_time(ps: PreparedScene, sh: PreparedShading, obj: np.ndarray, prim: np.ndarray, bary,
+                         p: np.ndarray):
+    """Motion blur: for hits on moving triangles, object rows (appended to a per-call copy of the shading's
+    object table) whose world -> object transform takes the hit, where its triangle is at the ray's time, to
+    the object-space point it has at the frame: object and generated texture coordinates move with the
+    object, as Cycles' motion-interpolated object transforms do (exact for rigid motion). Object Info's
+    Location moves with the hit likewise. Returns (shading, object rows per point)."""
+    from .shading.program import OBJECT_INVERSE, OBJECT_LOCATION
+
+    moving = np.flatnonzero(ps.motion_slot[prim] >= 0)
+    if len(moving) == 0:
+        return sh, obj
+    b1 = np.asarray(bary[0], np.float64)[moving][:, None]
+    b2 = np.asarray(bary[1], np.float64)[moving][:, None]
+    corners = ps.tri_vertices[prim[moving]].astype(np.float64)
+    at_frame = corners[:, 0] * (1.0 - b1 - b2) + corners[:, 1] * b1 + corners[:, 2] * b2
+    delta = at_frame - np.asarray(p, np.float64)[moving]
+    rows = sh.objects[obj[moving]].astype(np.float64)
+    inverse = rows[:, OBJECT_INVERSE:OBJECT_INVERSE + 12].reshape(-1, 3, 4)
+    inverse[:, :, 3] += np.einsum("kij,kj->ki", inverse[:, :, :3], delta)
+    rows[:, OBJECT_INVERSE:OBJECT_INVERSE + 12] = inverse.reshape(-1, 12)
+    rows[:, OBJECT_LOCATION:OBJECT_LOCATION + 3] -= delta
+    moved = copy.copy(sh)  # the table is shared by the render's threads: extend a copy
+    moved.objects = np.ascontiguousarray(np.concatenate([sh.objects, rows.astype(np.float32)]))
+    obj = obj.copy()
+    obj[moving] = len(sh.objects) + np.arange(len(moving), dtype=obj.dtype)
+    return moved, obj

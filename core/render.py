@@ -25,10 +25,11 @@ from .camera import camera_rays
 from .data_passes import DataFilm, DataTables, manifests, take_samples
 from .data_passes import assemble as assemble_data
 from .film import CatcherOutput, TileFilm
-from .shading.vector_context import camera_differentials
 from .filters import PixelFilter
-from .integrator import (DIM_FILM, DIM_LENS, CatcherSamples, DenoisingFeatures, FirstHit, PathStats, PathTracer,
-                         PreparedScene)
+from .integrator import (DIM_FILM, DIM_LENS, DIM_TIME, CatcherSamples, DenoisingFeatures, FirstHit, PathStats,
+                         PathTracer, PreparedScene)
+from .motion import moving_camera_rays, rolling_shutter_times, shutter_times
+from .shading.vector_context import camera_differentials
 from .jit_cache import compile_cache_is_cold
 from .light_passes import LightPassSamples
 from .memory import check_render_memory
@@ -367,7 +368,7 @@ def _prepare(scene: Scene, settings: RenderSettings, say) -> tuple[PreparedScene
     t0 = time.perf_counter()
     prepared = PreparedScene.build(scene, sample_world=settings.light_sampling == "light")
     # Parallelism is across batches (see _TileRender), so each Embree call runs on the worker that makes it.
-    accel = Accelerator(prepared.vertices, prepared.triangles)
+    accel = Accelerator(prepared.vertices, prepared.triangles, motion=prepared.motion)
     t_prepare = time.perf_counter() - t0
     for w in scene.warnings:
         say(f"warning: {w}")
@@ -412,6 +413,9 @@ class _TileRender:
         # Rays start relative to the camera; the prepared frame is relative to prepared.shift.
         offset = np.asarray(scene.camera.position, np.float64) - np.asarray(prepared.shift, np.float64)
         self.camera_offset = offset.astype(np.float32) if np.any(offset != 0) else None
+        # Motion blur: rays carry a time only when something moves (a still scene reads no time at all).
+        self.motion = (prepared.motion is not None or scene.camera.motion_matrices is not None
+                       or scene.camera.motion_lens is not None)
         self.on_tile, self.on_progress, self.should_cancel = on_tile, on_progress, should_cancel
         self.sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
         self.pixel_filter = PixelFilter(settings.filter_type, settings.filter_width)
@@ -569,7 +573,15 @@ class _TileRender:
         camera = self.scene.camera
         lens_u = self.sampler.get_2d(pixel_id, smp, DIM_LENS) if camera.aperture_radius() > 0 else None
         raster_x, raster_y = px + 0.5 + offsets[:, 0], py + 0.5 + offsets[:, 1]
-        rays = camera_rays(camera, raster_x, raster_y, lens_u)
+        ray_time = self.sampler.get_1d(pixel_id, smp, DIM_TIME) if self.motion else None
+        if ray_time is not None and camera.shutter_curve is not None:
+            ray_time = shutter_times(ray_time, camera.shutter_curve)
+        if ray_time is not None and camera.rolling_shutter is not None:
+            ray_time = rolling_shutter_times(ray_time, py, camera.resolution[1], camera.rolling_shutter)
+        if (camera.motion_matrices is not None or camera.motion_lens is not None) and ray_time is not None:
+            rays = moving_camera_rays(camera, raster_x, raster_y, lens_u, ray_time)
+        else:
+            rays = camera_rays(camera, raster_x, raster_y, lens_u)
         differentials = (None, None)
         if self.prepared.shading is not None and self.prepared.shading.needs_differentials:  # Bump nodes
             differentials = camera_differentials(camera, raster_x, raster_y, rays, lens_u)
@@ -577,17 +589,17 @@ class _TileRender:
             rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
         if rays.alive is not None:  # a panoramic camera's dead rays: nothing traced, nothing added
-            out = self._trace_alive(tracer, pixel_id, smp, rays, differentials)
+            out = self._trace_alive(tracer, pixel_id, smp, rays, differentials, ray_time)
         else:
             out = tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
                                rays.t_start, self.settings.aovs, self.settings.denoising_features,
-                               self.data_tables is not None, *differentials)
+                               self.data_tables is not None, *differentials, ray_time)
         if self.data_tables is not None:
             first = out[1]
             first.data = self.data_tables.samples(first.surface)
         return out
 
-    def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays, differentials=(None, None)):
+    def _trace_alive(self, tracer: PathTracer, pixel_id, smp, rays, differentials=(None, None), ray_time=None):
         """Trace only the rays that are alive; dead ones get radiance 0, no transparency and no first hit."""
         live = np.flatnonzero(rays.alive)
         n = len(rays.alive)
@@ -595,7 +607,7 @@ class _TileRender:
         radiance_l, first_l, transparent_l = tracer.trace(
             pixel_id[live], smp[live], rays.origins[live], rays.directions[live], rays.tmax[live],
             rays.depth_scale[live], rays.t_start[live], self.settings.aovs, self.settings.denoising_features,
-            self.data_tables is not None, dp, dd)
+            self.data_tables is not None, dp, dd, None if ray_time is None else ray_time[live])
         radiance = np.zeros((n, 3), np.float32)
         radiance[live] = radiance_l
         transparent = None

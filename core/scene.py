@@ -33,6 +33,9 @@ PANORAMA_TYPES = ("EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID",
                   "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL")
 
 
+MAX_MOTION_STEPS = 129  # motion-blur steps a mesh or camera may have (Embree's RTC_MAX_TIME_STEP_COUNT)
+
+
 class SceneError(ValueError):
     """Invalid scene input that cannot be rendered; the message names the offending element."""
 
@@ -230,6 +233,11 @@ class Mesh:
       and the bitangent sign (w, +-1), for Normal Map nodes in tangent space (`Scene.tangent_layer_names`;
       the name "" is the active render UV map). A mesh without the named layer renders the unperturbed normal
       there, as Cycles.
+    motion_vertices: optional (S, V, 3) world positions of the vertices at S >= 2 times evenly spaced over the
+      camera's shutter (step 0 at shutter open, S - 1 at close; core.motion): motion blur of a moving or
+      deforming mesh. `vertices` stays the frame's pose (light sampling of emitters reads it). None: still.
+    motion_normals: optional (S, T, 3, 3) the corner normals at those steps (a rotating or deforming smooth
+      mesh); None keeps `normals` at every step.
     """
 
     name: str
@@ -249,6 +257,8 @@ class Mesh:
     shadow_catcher: bool = False
     attributes: dict | None = None
     tangent_layers: dict | None = None
+    motion_vertices: np.ndarray | None = None
+    motion_normals: np.ndarray | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -298,6 +308,7 @@ class Mesh:
         if uvs is not None and uvs.shape != (n_tri, 3, 2):
             raise SceneError(f"{owner}: uvs must have shape (T, 3, 2) = ({n_tri}, 3, 2), got {uvs.shape}")
 
+        motion, motion_normals = self._checked_motion(owner, v.shape[0], n_tri, warnings)
         # Drop triangles with non-finite or degenerate (zero-area) geometry: counted, never fatal.
         finite = np.empty(n_tri, bool)
         area2 = np.empty(n_tri)
@@ -360,6 +371,7 @@ class Mesh:
             layers = {lname: luv[keep] for lname, luv in layers.items()}
             attributes = {aname: values[keep] for aname, values in attributes.items()}
             tangents = {lname: lt[keep] for lname, lt in tangents.items()}
+            motion_normals = None if motion_normals is None else motion_normals[:, keep]
         # Non-finite vertices that no kept triangle uses are harmless; replace them so later arithmetic is clean.
         if not np.all(np.isfinite(v)):
             v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
@@ -369,6 +381,33 @@ class Mesh:
         self.uv_layers = layers or None
         self.attributes = attributes or None
         self.tangent_layers = tangents or None
+        self.motion_vertices, self.motion_normals = motion, motion_normals
+
+    def _checked_motion(self, owner: str, n_vertices: int, n_tri: int,
+                        warnings: list[str]) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """motion_vertices / motion_normals as float64 / float32 arrays, or None (still, or with a warning when
+        unusable: the mesh then renders without motion blur, at its frame pose)."""
+        if self.motion_vertices is None:
+            return None, None
+        steps = np.asarray(self.motion_vertices, np.float64)
+        if steps.ndim != 3 or steps.shape[1:] != (n_vertices, 3) or not 2 <= steps.shape[0] <= MAX_MOTION_STEPS:
+            raise SceneError(f"{owner}: motion_vertices must have shape (S, V, 3) with 2 <= S <= "
+                             f"{MAX_MOTION_STEPS} and V = {n_vertices}, got {steps.shape}")
+        if not np.all(np.isfinite(steps)):
+            warnings.append(f"{owner}: NaN/Inf in its motion-blur positions; rendered without motion blur")
+            return None, None
+        if np.all(steps == steps[:1]):
+            return None, None  # nothing moves
+        normals = None
+        if self.motion_normals is not None:
+            normals = np.asarray(self.motion_normals, np.float32)
+            if normals.shape != (steps.shape[0], n_tri, 3, 3):
+                raise SceneError(f"{owner}: motion_normals must have shape (S, T, 3, 3) = ({steps.shape[0]}, "
+                                 f"{n_tri}, 3, 3), got {normals.shape}")
+            if not np.all(np.isfinite(normals)):
+                warnings.append(f"{owner}: NaN/Inf in its motion-blur normals; its normals do not move")
+                normals = None
+        return steps, normals
 
 
 # ------------------------------------------------------------------------------------------------------ lights
@@ -498,6 +537,18 @@ class Camera:
     longitude_max (right), height from cylinder_height_min (bottom) to cylinder_height_max (top).
     Rays outside the fisheye circle or the ball are dead (black and opaque). Clipping: rays
     start clip_start from the camera and end at clip_end; the depth pass is the distance along the ray.
+
+    motion_matrices: optional (S, 4, 4) camera-to-world matrices at S >= 2 times evenly spaced over the shutter
+    (motion blur of a moving camera, core.motion); matrix_world stays the frame's. None: a still camera.
+    shutter_curve: optional (K >= 2,) how open the shutter is at K times evenly spaced from open to close
+    (Blender's Shutter Curve, >= 0, linear in between): ray times follow it (core.motion.shutter_times). None:
+    fully open throughout (a flat curve).
+    motion_lens: optional (lens at shutter open, lens at close) in mm: a perspective camera zooming during the
+    shutter (Cycles' perspective motion: the image-plane point of each ray moves linearly from open to the frame's
+    lens to close, by the ray's time); ignored by other camera types, as Cycles does. None: no zoom.
+    rolling_shutter: optional duration in [0, 1] of Cycles' rolling shutter (Top): image rows are exposed one
+    after the other, the top first; each ray's time is (u - 1/2) d + (r - 1/2)(1 - d) + 1/2 with u its shutter
+    time, d the duration and r = (row + 1) / height (rows from the top), as Cycles times its rows. None: off.
     """
 
     matrix_world: np.ndarray
@@ -531,6 +582,10 @@ class Camera:
     cylinder_height_min: float = -1.0
     cylinder_height_max: float = 1.0
     cylinder_radius: float = 1.0
+    motion_matrices: np.ndarray | None = None
+    shutter_curve: np.ndarray | None = None
+    rolling_shutter: float | None = None
+    motion_lens: tuple[float, float] | None = None
 
     @classmethod
     def look_at(
@@ -652,6 +707,34 @@ class Camera:
         if not whole or blades < 0:
             raise SceneError(f"camera: depth of field aperture_blades is {blades!r}, it must be a whole number >= 0")
         self.aperture_blades = int(blades)
+        if self.motion_matrices is not None:
+            steps = np.asarray(self.motion_matrices, np.float64)
+            if steps.ndim != 3 or steps.shape[1:] != (4, 4) or not 2 <= steps.shape[0] <= MAX_MOTION_STEPS:
+                raise SceneError(f"camera: motion_matrices must have shape (S, 4, 4) with 2 <= S <= "
+                                 f"{MAX_MOTION_STEPS}, got {steps.shape}")
+            if not np.all(np.isfinite(steps)):
+                raise SceneError("camera: NaN/Inf in its motion-blur matrices")
+            if np.any(np.abs(np.linalg.det(steps[:, :3, :3])) < 1e-12):
+                raise SceneError("camera: a motion-blur matrix is singular (zero scale)")
+            self.motion_matrices = None if np.all(steps == steps[:1]) else steps
+        if self.shutter_curve is not None:
+            curve = np.asarray(self.shutter_curve, np.float64)
+            if curve.ndim != 1 or len(curve) < 2 or not np.all(np.isfinite(curve)) or np.any(curve < 0) \
+                    or not curve.sum() > 0:
+                raise SceneError("camera: shutter_curve must be 2 or more finite values >= 0, not all 0 (how open "
+                                 f"the shutter is over its time), got {np.array2string(curve, threshold=8)}")
+            self.shutter_curve = None if np.all(curve == curve[0]) else curve
+        if self.motion_lens is not None:
+            lenses = tuple(float(x) for x in self.motion_lens)
+            if len(lenses) != 2 or not all(math.isfinite(x) and x > 0 for x in lenses):
+                raise SceneError(f"camera: motion_lens must be two focal lengths > 0 (shutter open, close), got "
+                                 f"{self.motion_lens!r}")
+            self.motion_lens = None if lenses == (self.lens, self.lens) else lenses
+        if self.rolling_shutter is not None:
+            duration = float(self.rolling_shutter)
+            if not 0.0 <= duration <= 1.0:
+                raise SceneError(f"camera: rolling_shutter duration {self.rolling_shutter} must be in [0, 1]")
+            self.rolling_shutter = duration
 
 
 # -------------------------------------------------------------------------------------------------------- film
@@ -746,6 +829,12 @@ class Scene:
     @property
     def triangle_count(self) -> int:
         return sum(m.triangle_count for m in self.meshes)
+
+    @property
+    def has_motion(self) -> bool:
+        """Whether anything moves over the shutter (motion blur): rays then carry a time (core.motion)."""
+        return (self.camera.motion_matrices is not None or self.camera.motion_lens is not None
+                or any(m.motion_vertices is not None for m in self.meshes))
 
     def validate(self) -> "Scene":
         """Validate in place; raise SceneError for what cannot be rendered, drop and count what can be."""

@@ -298,7 +298,8 @@ def test_panels_draw_real_properties_and_blender_panels_are_opted_in():
             "filter_width", "threads", "batch_paths", "use_pass_z", "use_pass_albedo", "energy", "film_transparent",
             "film_transparent_glass", "panorama_type", "visible_diffuse", "is_holdout", "use_pass_mist",
             "use_pass_object_index", "use_pass_cryptomatte_asset", "pass_cryptomatte_depth", "falloff",
-            "transparent_max_bounces"} <= set(drawn)
+            "transparent_max_bounces", "motion_blur_shutter",
+            "motion_blur_position", "motion_steps"} <= set(drawn)
     for kind in ("FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL", "EQUIRECTANGULAR"):
         cam.panorama_type = kind
         ui.MONTE_CAMERA_PT_panorama.draw(types.SimpleNamespace(layout=_Recorder(drawn)), ctx)

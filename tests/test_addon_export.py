@@ -595,7 +595,6 @@ UNSUPPORTED_CAMERA_FILM = {
     "panoramic-cubemap-face": (_set_pano("EQUIANGULAR_CUBEMAP_FACE"),
                                ["panoramic", "Equiangular Cubemap Face", "perspective"]),
     "panoramic-depth-of-field": (_set_pano("EQUIRECTANGULAR", dof=True), ["depth of field", "panoramic"]),
-    "motion-blur": (lambda scene, cam: setattr(scene.render, "use_motion_blur", True), ["motion blur"]),
     "f-stop-0": (lambda scene, cam: (setattr(cam.data.dof, "use_dof", True),
                                      setattr(cam.data.dof, "aperture_fstop", 0.0)), ["F-Stop 0", "pinhole"]),
     "focus-distance-0": (lambda scene, cam: (setattr(cam.data.dof, "use_dof", True),

@@ -232,8 +232,7 @@ def test_pass_registration_and_unavailable_pass_warning():
     names = requested_passes(layer, scene)
     assert "Vector" not in names
     assert unavailable_pass_warnings(layer, scene) == [
-        f"view layer {layer.name!r}: the Vector pass needs motion blur, which Monte does not render; the pass is "
-        "not produced"]
+        f"view layer {layer.name!r}: Monte does not write motion vectors: the Vector pass is not produced"]
     layer.use_pass_vector = False
     scene.monte.use_cluster = True  # a cluster render does not carry them: none registered, all named
     assert data_pass_names(layer, scene) == []

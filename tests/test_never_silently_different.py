@@ -84,6 +84,22 @@ def _displacement(mat):
     tree.links.new(disp.outputs[0], out.inputs["Displacement"])
 
 
+def _moving_cube(scene):
+    """Render > Motion Blur on, with the cube moving over the shutter (a keyframe either side of the frame)."""
+    cube = obj("cube")
+    for frame, x in ((0, -0.5), (2, 0.5)):
+        cube.location.x = x
+        cube.keyframe_insert("location", frame=frame)
+    scene.frame_set(1)
+    scene.render.use_motion_blur = True
+
+
+def _bent_shutter_curve(scene):
+    curve = scene.render.motion_blur_shutter_curve
+    curve.curves[0].points[1].location = (0.5, 0.3)
+    curve.update()
+
+
 def _holdout_shader(mat):
     tree, out = _cycles_output(mat)
     hold = tree.nodes.new("ShaderNodeHoldout")
@@ -165,7 +181,11 @@ AUDIT = {
     # render and film
     "resolution percentage": (lambda s: _set(s.render, resolution_percentage=50),
                               ("renders", lambda c: c.camera.resolution == (16, 12))),
-    "motion blur": (lambda s: _set(s.render, use_motion_blur=True), ("warns", ["motion blur"])),
+    "motion blur": (_moving_cube, ("renders", lambda c: any(m.motion_vertices is not None for m in c.meshes))),
+    "rolling shutter": (lambda s: (_moving_cube(s), _set(s.cycles, rolling_shutter_type="TOP")),
+                        ("renders", lambda c: c.camera.rolling_shutter is not None)),
+    "shutter curve": (lambda s: (_moving_cube(s), _bent_shutter_curve(s)),
+                      ("renders", lambda c: c.camera.shutter_curve is not None)),
     "pixel aspect": (lambda s: _set(s.render, pixel_aspect_x=2.0), ("warns", ["pixel aspect"])),
     "film transparent": (lambda s: _set(s.render, film_transparent=True),
                          ("renders", lambda c: c.film.transparent)),

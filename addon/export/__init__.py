@@ -14,12 +14,15 @@ from typing import Callable
 
 import numpy as np
 
+from ...core.motion import densify_transforms, resample_steps
 from ...core.scene import Scene, SceneError
 from .camera import export_camera, render_region, render_resolution  # noqa: F401  (re-exported)
 from .film import export_film
 from .light import export_light
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
+from .motion import (deforms, instance_key, object_steps, placed_motion, sample_motion, shutter as motion_shutter,
+                     take_steps)
 from .nodes.vector_rules import tangent_uv_maps
 from .world import export_mist, export_world
 
@@ -55,6 +58,9 @@ class _Prototype:
     visibility: tuple = (True,) * 5  # Mesh.visible_<kind> for each of MESH_RAY_VISIBILITY
     shadow_terminator_offset: float = 0.0
     shadow_catcher: bool = False  # Object > Visibility > Shadow Catcher (core.scene.Mesh.shadow_catcher)
+    instance_keys: list = field(default_factory=list)  # per instance: its key across subframes (motion blur)
+    steps: int = 0  # motion steps (the most of its instances'); 0: no motion blur
+    deform_name: str | None = None  # the object whose deforming mesh this is (deformation blur), or None
 
 
 # Object > Visibility > Ray Visibility flags Monte renders on meshes (core.scene.Mesh.visible_<kind>).
@@ -210,13 +216,43 @@ def export_scene(
     *,
     log: Callable[[str], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
+    frame_set: Callable[[int, float], None] | None = None,
+    motion_blur: bool = True,
 ) -> tuple[Scene, ExportStats]:
     """Build a core Scene from an evaluated depsgraph (the frame's). camera_object defaults to the scene's.
+
+    With Render > Motion Blur on (and motion_blur), the scene is also evaluated at subframes over the shutter
+    (addon/export/motion.py) through frame_set(frame, subframe): the render engine's own (RenderEngine.frame_set,
+    for its depsgraph), by default the scene's frame_set (the view layer's depsgraph); the frame is set back.
+
+    With the shutter starting or ending on the frame (Position Start or End), objects, lights and the camera are
+    exported at the shutter's centre, as Cycles syncs them there; the world at the frame, as Cycles' is.
 
     Raises SceneError with a clear message for a scene without camera or without anything to render."""
     t0 = time.perf_counter()
     scene = depsgraph.scene
     warnings: list[str] = []
+    shutter = motion_shutter(scene, warnings) if motion_blur else None
+    if shutter is not None and frame_set is None:
+        def frame_set(frame: int, subframe: float) -> None:
+            scene.frame_set(frame, subframe=subframe)
+    moved = shutter is not None and shutter.reference != (shutter.frame, shutter.subframe)
+    if moved:
+        frame_set(*shutter.reference)
+    try:
+        out = _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutter, warnings, t0)
+    finally:
+        if moved:
+            frame_set(shutter.frame, shutter.subframe)
+    if moved:
+        out[0].world = export_world(scene.world, [])  # at the frame (its warnings are the centre's, already given)
+    return out
+
+
+def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutter, warnings: list[str],
+                  t0: float) -> tuple[Scene, ExportStats]:
+    """export_scene's work, with the scene at the shutter's reference time (see export_scene)."""
+    scene = depsgraph.scene
     stats = ExportStats()
     if camera_object is None:
         camera_object = scene.camera
@@ -263,9 +299,22 @@ def export_scene(
             proto.matrices.append(inst.matrix_world.copy())
             proto.instance_info.append((*obj.color, obj.pass_index, inst.random_id))
             proto.instance_names.append((obj.name, _asset_name(inst, obj)))
+            if shutter is not None:
+                parent = inst.parent.original if inst.is_instance and inst.parent is not None else None
+                steps = object_steps(obj.original, parent)
+                proto.instance_keys.append(instance_key(inst))
+                proto.steps = max(proto.steps, steps)
+                if steps and not inst.is_instance and deforms(obj.original, scene):
+                    proto.deform_name = obj.original.name
 
     for kind, count in unsupported.items():
         warnings.append(f"{count} {kind.lower()} object(s) are not supported by Monte and are skipped")
+
+    motion = None
+    if shutter is not None:
+        motion = _sample_motion(depsgraph, frame_set, shutter, prototypes, camera_object, camera, warnings)
+        camera.shutter_curve = shutter.curve
+        camera.rolling_shutter = shutter.rolling
 
     meshes = []
     object_rows = []
@@ -292,6 +341,8 @@ def export_scene(
         for kind, seen in zip(MESH_RAY_VISIBILITY, proto.visibility):
             setattr(mesh, f"visible_{kind}", seen)
         mesh.shadow_catcher = proto.shadow_catcher
+        if motion is not None and proto.steps:
+            _attach_motion(mesh, proto, matrices, motion, warnings)
         meshes.append(mesh)
 
     if not materials.materials:
@@ -328,6 +379,74 @@ def _asset_name(inst, obj) -> str:
     while top.parent is not None and seen < 1000:  # Blender forbids parent loops; the bound is a guard
         top, seen = top.parent, seen + 1
     return top.name
+
+
+def _sample_motion(depsgraph, frame_set, shutter, prototypes, camera_object, camera, warnings):
+    """Evaluate the subframes motion blur needs (none when nothing asks for steps); the camera's motion goes
+    straight onto `camera`. Returns the samples (addon/export/motion.MotionSamples) or None."""
+    moving = [p for p in prototypes.values() if p.local is not None and p.matrices and p.steps]
+    camera_steps = object_steps(camera_object.original) if camera_object is not None else 0
+    steps = max([p.steps for p in moving] + [camera_steps])
+    if steps < 2:
+        return None
+    def read(obj):
+        try:
+            local = _read_geometry(obj, [])
+        except (RuntimeError, ValueError):
+            return None
+        return None if local is None else (local.vertices, local.normals, local.triangle_count)
+
+    keys = {key for p in moving for key in p.instance_keys}
+    deforming = {p.deform_name for p in moving if p.deform_name is not None and len(p.matrices) == 1}
+    samples = sample_motion(depsgraph, frame_set, shutter, keys, deforming,
+                            camera_object.original.name if camera_steps else None, steps, read)
+    if samples.camera is not None:
+        camera.motion_matrices = take_steps(samples.camera, camera_steps)
+    lenses = samples.camera_lenses
+    if lenses and camera.kind == "PERSP" and (lenses[0] != camera.lens or lenses[1] != camera.lens):
+        if camera.use_dof and camera.aperture_fstop > 0:
+            warnings.append(f"camera {camera_object.original.name!r}: a focal length (zoom) changing during the "
+                            "shutter together with depth of field is not motion-blurred; rendered with the frame's")
+        else:
+            camera.motion_lens = lenses
+    return samples
+
+
+def _attach_motion(mesh, proto: _Prototype, matrices: np.ndarray, motion, warnings: list[str]) -> None:
+    """Set mesh.motion_vertices (and motion_normals) from the subframes' samples, when the mesh moves."""
+    steps = proto.steps
+    per_step = []
+    for key, frame_matrix in zip(proto.instance_keys, matrices):
+        found = motion.matrices.get(key)
+        per_step.append(take_steps(found, steps) if found is not None else np.broadcast_to(frame_matrix,
+                                                                                            (steps, 4, 4)))
+    step_matrices = np.stack(per_step, axis=1)  # (S, K, 4, 4)
+    local = proto.local
+    local_steps = [local.vertices] * steps
+    normal_steps = None if local.normals is None else [local.normals] * steps
+    deformed = False
+    if proto.deform_name is not None and proto.deform_name in motion.deformed:
+        read = motion.deformed[proto.deform_name]
+        read = read[::(len(read) - 1) // (steps - 1)][:steps]  # this object's steps among the common ones
+        if all(r is not None and r[0].shape == local.vertices.shape and r[2] == local.triangle_count
+               for r in read):
+            local_steps = [r[0] for r in read]
+            if normal_steps is not None:
+                normal_steps = [r[1] if r[1] is not None else local.normals for r in read]
+            deformed = any(not np.array_equal(v, local.vertices) for v in local_steps)
+        else:
+            warnings.append(f"object {proto.deform_name!r}: its mesh changes topology during the shutter; rendered "
+                            "without deformation blur")
+    if not deformed and np.all(step_matrices == matrices[None]):
+        return  # still
+    # Rotation: more baked steps, so that vertices (linear between steps) follow their arcs.
+    step_matrices = densify_transforms(step_matrices)
+    if len(step_matrices) != steps:
+        local_steps = list(resample_steps(np.stack(local_steps), len(step_matrices)))
+        if normal_steps is not None:
+            normal_steps = list(resample_steps(np.stack(normal_steps), len(step_matrices)))
+    mirrored = np.linalg.det(matrices[:, :3, :3]) < 0
+    mesh.motion_vertices, mesh.motion_normals = placed_motion(local_steps, normal_steps, step_matrices, mirrored)
 
 
 def _texspace(obj, local: LocalMesh) -> tuple[np.ndarray, np.ndarray]:

@@ -85,8 +85,6 @@ def export_camera(camera_object, scene, warnings: list[str]) -> Camera:
     if abs(r.pixel_aspect_x - r.pixel_aspect_y) > 1e-6:
         warnings.append(f"render: non-square pixel aspect {r.pixel_aspect_x:g}:{r.pixel_aspect_y:g} is not "
                         "supported; rendering square pixels")
-    if r.use_motion_blur:
-        warnings.append("render: motion blur is not supported; rendering the frame's instant")
     dof = cam.dof
     if kind == "PANO" and dof.use_dof and dof.aperture_fstop > 0:
         warnings.append(f"camera {name!r}: depth of field on a panoramic camera is not supported; rendered in "
