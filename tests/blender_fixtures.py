@@ -73,19 +73,30 @@ def read_exr_layers(path) -> dict[str, np.ndarray]:
                 for name, ch in part.channels.items()}
 
 
+def use_float_exr(scene, multilayer: bool = True) -> None:
+    """Set the scene's output to a 32-bit EXR, multilayer (every pass) or single-layer (Blender 5.x names the
+    multilayer choice by media type too)."""
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "MULTI_LAYER_IMAGE" if multilayer else "IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER" if multilayer else "OPEN_EXR"
+    settings.color_depth = "32"
+
+
+def render_still_exr(scene, path) -> None:
+    """F12 with the scene's engine, written (write_still) as a 32-bit multilayer EXR at `path` (a still's name
+    gets no frame number; give it the .exr extension)."""
+    bpy = bpy_module()
+    use_float_exr(scene)
+    scene.render.filepath = str(path)
+    scene.render.use_file_extension = False
+    assert bpy.ops.render.render(write_still=True, scene=scene.name) == {"FINISHED"}
+
+
 def save_render_exr(scene, path, multilayer: bool = True) -> dict[str, np.ndarray]:
     """Save Blender's Render Result as a 32-bit EXR and read it back."""
     bpy = bpy_module()
-    settings = scene.render.image_settings
-    if multilayer:
-        if hasattr(settings, "media_type"):
-            settings.media_type = "MULTI_LAYER_IMAGE"
-        settings.file_format = "OPEN_EXR_MULTILAYER"
-    else:
-        if hasattr(settings, "media_type"):
-            settings.media_type = "IMAGE"
-        settings.file_format = "OPEN_EXR"
-    settings.color_depth = "32"
+    use_float_exr(scene, multilayer)
     bpy.data.images["Render Result"].save_render(str(path), scene=scene)
     return read_exr_layers(path)
 

@@ -25,15 +25,8 @@ Engine = engine_mod.MonteRenderEngine
 
 def render_still(scene, tmp_path, name="out"):
     """bpy.ops.render.render(write_still=True) into a multilayer EXR; returns its channels."""
-    settings = scene.render.image_settings
-    if hasattr(settings, "media_type"):
-        settings.media_type = "MULTI_LAYER_IMAGE"
-    settings.file_format = "OPEN_EXR_MULTILAYER"
-    settings.color_depth = "32"
-    scene.render.filepath = str(tmp_path / name)
-    scene.render.use_file_extension = True
-    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
     path = tmp_path / f"{name}.exr"  # a still has no frame number
+    bf.render_still_exr(scene, path)
     assert path.is_file()
     return bf.read_exr_layers(path)
 

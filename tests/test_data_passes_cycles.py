@@ -64,14 +64,8 @@ def data_scene():
 
 def render_exr(scene, path: Path) -> tuple[dict, dict]:
     """F12 with the scene's engine, saved as Blender's multilayer EXR: (channels, header)."""
-    settings = scene.render.image_settings
-    if hasattr(settings, "media_type"):
-        settings.media_type = "MULTI_LAYER_IMAGE"
-    settings.file_format = "OPEN_EXR_MULTILAYER"
-    settings.color_depth = "32"
-    scene.render.filepath = str(path)
     scene.render.use_compositing = False
-    bpy.ops.render.render(write_still=True, scene=scene.name)
+    bf.render_still_exr(scene, path)
     return exr.read_exr(path), exr.read_header(path)
 
 

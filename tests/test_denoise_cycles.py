@@ -44,14 +44,8 @@ def cycles_features(scene, spp: int, tmp_path) -> tuple[np.ndarray, np.ndarray]:
     layer = scene.view_layers[0]
     cc.configure_cycles(scene, spp, 16, threads=2, seed=1)
     layer.cycles.denoising_store_passes = True
-    settings = scene.render.image_settings
-    if hasattr(settings, "media_type"):
-        settings.media_type = "MULTI_LAYER_IMAGE"
-    settings.file_format = "OPEN_EXR_MULTILAYER"
-    settings.color_depth = "32"
     path = tmp_path / "cycles.exr"
-    scene.render.filepath = str(path)
-    bpy.ops.render.render(write_still=True, scene=scene.name)
+    bf.render_still_exr(scene, path)
     ch = exr.read_exr(path)
     albedo = np.stack([ch[f"{layer.name}.Denoising Albedo.{c}"] for c in "RGB"], axis=-1)
     normal = np.stack([ch[f"{layer.name}.Denoising Normal.{c}"] for c in "XYZ"], axis=-1)
@@ -94,13 +88,7 @@ def test_addon_denoise_writes_cycles_passes(tmp_path):
     scene = bf.plane_under_world(albedo=0.5, world=1.0, resolution=(16, 12))
     scene.monte.samples, scene.monte.threads, scene.monte.use_denoising = 4, 2, True
     scene.monte.denoising_quality = "fast"
-    settings = scene.render.image_settings
-    if hasattr(settings, "media_type"):
-        settings.media_type = "MULTI_LAYER_IMAGE"
-    settings.file_format = "OPEN_EXR_MULTILAYER"
-    settings.color_depth = "32"
-    scene.render.filepath = str(tmp_path / "still")
-    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+    bf.render_still_exr(scene, tmp_path / "still.exr")
     ch = exr.read_exr(tmp_path / "still.exr")
 
     def layer(name, comps="RGB"):

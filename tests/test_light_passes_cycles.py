@@ -61,14 +61,8 @@ def cycles_passes(scene, spp: int, tmp_path) -> dict[str, np.ndarray]:
     """Cycles' light passes (name -> (H, W, 3)) from the multilayer EXR of a still render."""
     layer = scene.view_layers[0]
     cc.configure_cycles(scene, spp, 8, threads=2, seed=1)
-    settings = scene.render.image_settings
-    if hasattr(settings, "media_type"):
-        settings.media_type = "MULTI_LAYER_IMAGE"
-    settings.file_format = "OPEN_EXR_MULTILAYER"
-    settings.color_depth = "32"
     path = tmp_path / "cycles.exr"
-    scene.render.filepath = str(path)
-    bpy.ops.render.render(write_still=True, scene=scene.name)
+    bf.render_still_exr(scene, path)
     ch = exr.read_exr(path)
     return {name: np.stack([ch[f"{layer.name}.{name}.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
             for name in LIGHT_PASS_PROPERTIES}
