@@ -185,11 +185,7 @@ class EmissiveTriangles:
         cand = np.nonzero(emissive_mat[mat])[0]
         if cand.size == 0:
             return None
-        v = tri[cand].astype(np.float64)
-        cr = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-        area2 = np.linalg.norm(cr, axis=1)
-        ok = np.isfinite(area2) & (area2 > 0)
-        cand, cr, area2 = cand[ok], cr[ok], area2[ok]
+        cand, cr, area2 = nondegenerate_triangles(tri, cand)
         if cand.size == 0:
             return None
         emitter_of_triangle = np.full(T, -1, np.int32)
@@ -208,6 +204,16 @@ class EmissiveTriangles:
 # Each kind's lights as arrays, one row per light, in the shifted frame; `kernel_table` writes the flat table
 # core.light_kernels reads. `sel` (the probability of a light once its unit is chosen) and `unit` (its
 # selection unit, -1: never selected) are filled in when the units are built.
+def nondegenerate_triangles(tri_vertices: np.ndarray, candidates: np.ndarray) -> tuple:
+    """The candidate triangles (indices into tri_vertices (T, 3, 3)) whose area is finite and nonzero: (their
+    indices, the cross products of their edges (K, 3) float64, twice their areas (K,) float64)."""
+    v = tri_vertices[candidates].astype(np.float64)
+    cross = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    area2 = np.linalg.norm(cross, axis=1)
+    ok = np.isfinite(area2) & (area2 > 0)
+    return candidates[ok], cross[ok], area2[ok]
+
+
 def _f32(a) -> np.ndarray:
     """Values as the float32 code held them, in float64."""
     return np.asarray(a, _F32).astype(np.float64)

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .lights import nondegenerate_triangles
+
 SAMPLES_PER_TRIANGLE = 16  # stratified points per triangle for the emission estimate (4 x 4 over the square)
 FLOOR = 0.05  # share of the mean estimate every triangle's selection weight gets (unbiasedness, see above)
 MAX_ESTIMATE_POINTS = 1 << 21  # beyond this many emitting triangles x points, fewer points per triangle
@@ -61,11 +63,7 @@ class TexturedEmitters:
         tris = np.flatnonzero(sampled_materials[material_index]) if len(material_index) else np.zeros(0, np.int64)
         if tris.size == 0:
             return None
-        v = tri_vertices[tris].astype(np.float64)
-        cross = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-        area2 = np.linalg.norm(cross, axis=1)
-        ok = np.isfinite(area2) & (area2 > 0)
-        tris, cross, area2 = tris[ok], cross[ok], area2[ok]
+        tris, cross, area2 = nondegenerate_triangles(tri_vertices, tris)
         if tris.size == 0:
             return None
         e = tris.size
