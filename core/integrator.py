@@ -24,7 +24,9 @@ from . import geometry_kernels, path_kernels, transparent_shadow
 from . import light_passes as lp_mod
 from .accel import Accelerator, Hits, MotionTriangles
 from .data_passes import DataPath
+from .light_linking import LightLinks, ShadowLinks
 from .light_shadow import NoShadowLights
+from .light_visibility import LightVisibility
 from .lights import EmissiveTriangles, LightSample, LightSampler
 from .motion import interpolate_corners, resample_steps
 from .ray_visibility import DIFFUSE_RAY, GLOSSY_RAY, RAY_KIND_NAMES, bounce_kinds, next_path_state
@@ -156,6 +158,10 @@ class PreparedScene:
     motion_normals: np.ndarray | None = None
     motion_slot: np.ndarray | None = None
     moving_emitters: np.ndarray | None = None  # (T,) bool: emissive triangles that move (not light-sampled), or None
+    # Light linking and shadow linking (core.light_linking); None when the scene uses none
+    links: "LightLinks | None" = None
+    shadow_links: "ShadowLinks | None" = None
+    light_visibility: "LightVisibility | None" = None  # lights hidden from some bounce rays (core.light_visibility)
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -166,7 +172,15 @@ class PreparedScene:
         with self._subsets_lock:
             found = self._subsets.get(which)
             if found is None:
-                keep = np.flatnonzero(self.catcher if which == "catcher" else self.visible_to[which])
+                if which == "catcher":
+                    mask = self.catcher
+                elif which.startswith("blocker "):  # shadow linking: the blockers of set j (core.light_linking)
+                    mask = self.shadow_links.blockers[int(which.split()[1])]
+                    if "shadow" in self.visible_to:
+                        mask = mask & self.visible_to["shadow"]
+                else:
+                    mask = self.visible_to[which]
+                keep = np.flatnonzero(mask)
                 motion = None if self.motion is None else self.motion.subset(keep)
                 found = self._subsets[which] = (Accelerator(self.vertices, self.triangles[keep], motion=motion),
                                                 keep.astype(np.int32))
@@ -201,6 +215,7 @@ class PreparedScene:
         verts, tris, mats, normals, uvs, smooth, objs, seen_by, terminator, layers = ([], [], [], [], [], [], [], [],
                                                                               [], [])
         catchers = []
+        link_rows, shadow_rows = [], []  # per mesh: (triangles, light_sets, receiver_set), (triangles, shadow_sets)
         layer_names = list(scene.uv_layer_names)
         attribute_names, attrs = list(scene.attribute_names), []
         tangent_names = list(scene.tangent_layer_names)
@@ -221,6 +236,8 @@ class PreparedScene:
                         else np.broadcast_to(np.asarray(mesh.object_index, np.int32) + 1, (t,)))
             seen_by.append((t, *(bool(getattr(mesh, f"visible_{kind}")) for kind in RAY_KINDS)))
             catchers.append(np.full(t, bool(mesh.shadow_catcher)))
+            link_rows.append((t, int(mesh.light_sets), int(mesh.receiver_set)))
+            shadow_rows.append((t, int(mesh.shadow_sets)))
             if layer_names:  # the named UV maps node programs read; (0, 0) where a mesh lacks one
                 per = np.zeros((t, len(layer_names), 3, 2), np.float32)
                 for j, lname in enumerate(layer_names):
@@ -315,6 +332,12 @@ class PreparedScene:
         features["ray_visibility"] = sorted(visible_to)
         no_shadow = NoShadowLights.build(scene.lights, shift)
         features["lights_without_shadow"] = no_shadow is not None
+        links = LightLinks.build(scene, shift, emissive, radius, sample_world, link_rows)
+        shadow_links = ShadowLinks.build(scene.lights, shift, shadow_rows)
+        features["light_linking"] = 0 if links is None else len(links.samplers)
+        features["shadow_linking"] = 0 if shadow_links is None else len(shadow_links.sets)
+        light_visibility = LightVisibility.build(scene.lights, shift)
+        features["light_ray_visibility"] = light_visibility is not None
         catcher = np.concatenate(catchers) if catchers else np.zeros(0, bool)
         catcher = catcher if catcher.any() else None
         features["shadow_catcher"] = catcher is not None
@@ -330,7 +353,8 @@ class PreparedScene:
                    terminator_offset=terminator_offset, uv_layers=uv_layers, catcher=catcher,
                    shadow_clear=shadow_clear, attributes=attributes,
                    tangent_layers=tangent_layers, motion=motion,
-                   motion_normals=motion_normals, motion_slot=motion_slot, moving_emitters=moving_emitters)
+                   motion_normals=motion_normals, motion_slot=motion_slot, moving_emitters=moving_emitters,
+                   links=links, shadow_links=shadow_links, light_visibility=light_visibility)
         if shading is not None and shading.any_emits:
             sampled = shading.emits
             # the estimate sees what light sampling sees: a first bounce's light sample (core.textured_emitters)
@@ -340,6 +364,8 @@ class PreparedScene:
                                                        lambda t, b1, b2: emission_at(
                 prepared, t, b1, b2, path=np.broadcast_to(nee_state, (len(t), PATH_COLUMNS))))
             features["textured_emitters"] = 0 if prepared.textured is None else prepared.textured.count
+        if links is not None and (prepared.textured is not None or moving_emitters is not None):
+            _warn_unlinked_emitters(scene, link_rows, prepared.textured, moving_emitters)
         return prepared
 
     def hit_triangles(self, tri: np.ndarray, ray_time: np.ndarray | None) -> tuple:
@@ -397,6 +423,19 @@ def _motion_geometry(meshes, shift: np.ndarray, corner_normals: np.ndarray | Non
 
 
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
+
+
+def _warn_unlinked_emitters(scene: Scene, link_rows: list, textured, moving: np.ndarray | None) -> None:
+    """Light linking is not applied to emitters whose emission a node program drives (core.textured_emitters)
+    nor to moving ones: name the case in the scene's warnings when such an emitter has a receiver set."""
+    receiver = np.concatenate([np.full(t, r, np.int64) for t, _, r in link_rows])
+    tris = np.concatenate([np.zeros(0, np.int64) if textured is None else np.asarray(textured.triangle_id),
+                           np.zeros(0, np.int64) if moving is None else np.flatnonzero(moving)]).astype(np.int64)
+    if (receiver[tris] > 0).any():
+        msg = ("light linking: an emissive mesh whose emission a node program drives, or that moves, lights every "
+               "object (its receiver collection is not applied)")
+        if msg not in scene.warnings:
+            scene.warnings.append(msg)
 
 
 def _rows_of(state: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
@@ -760,15 +799,17 @@ class PathTracer:
         clear = np.ones(n, bool) if alpha else None
         film_transparent = alpha and ps.scene.film.transparent
         # Per sample: the kind of ray its path casts next (core.ray_visibility), kept only when some mesh hides
-        # from diffuse, glossy or transmission rays.
+        # from diffuse, glossy or transmission rays, or some light does (core.light_visibility).
         bounce_kind = (np.zeros(n, np.int8) if not copies and (
             any(k in ps.visible_to for k in ("diffuse", "glossy", "transmission"))
-            or ("camera" in ps.visible_to and ps.has_clear)) else None)
+            or ("camera" in ps.visible_to and ps.has_clear) or ps.light_visibility is not None) else None)
         catch = _CatcherState(n, self._needs_background()) if ps.catcher is not None and not copies else None
         # Shadow rays go through Transparent BSDFs: so does MIS (core.transparent_shadow.MisOrigins)
         through = transparent_shadow.MisOrigins.start(o) if ps.shadow_clear is not None else None
         # Per sample: the Light Path node's state of the ray it casts (core.shading.program PATH_*), kept only
         # when some node program reads it.
+        # Per sample: the receiver class (core.light_linking) of the object its ray leaves, when linking is used
+        origin_class = np.zeros(n, np.int32) if ps.links is not None else None
         path_state = None
         if ps.shading is not None and ps.shading.uses_light_path:
             path_state = np.zeros((n, PATH_COLUMNS), np.float32)
@@ -810,11 +851,15 @@ class PathTracer:
             if ps.lights.has_emission or ps.scene.world.camera_color is not None:
                 mis_here = self.mis and depth > 0
                 t_hit = np.where(hit, hits.t, np.float32(np.inf))
+                classes = None if origin_class is None or depth == 0 else origin_class[idx]
+                kinds = (None if ps.light_visibility is None or bounce_kind is None or depth == 0
+                         else bounce_kind[idx])
                 le = self._light_emission(o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal, depth == 0,
-                                          prev_transmits, clear_here if film_transparent else None)
+                                          prev_transmits, clear_here if film_transparent else None, classes, kinds)
                 if through is not None:
                     through.light_emission(self, le, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal,
-                                           prev_transmits, clear_here if film_transparent else None)
+                                           prev_transmits, clear_here if film_transparent else None, classes,
+                                           kinds)
                 backdrop = ps.scene.world.camera_color
                 if depth == 0 and backdrop is not None and not film_transparent:
                     # camera rays that escape see the world's camera-only backdrop instead of the background
@@ -857,10 +902,17 @@ class PathTracer:
                     else:
                         cos_e = np.abs(_dot(d[e], ps.face_normals[prim[e]]))
                         o_e, t_e = (o[e], t_e) if through is None else through.origin_and_distance(e, t_e)
-                        pdf_l = ps.lights.pdf_triangle(em_idx, o_e, t_e * t_e, cos_e, n=prev_normal[e],
-                                                       transmits=prev_transmits[e])
+                        if origin_class is None:
+                            pdf_l = ps.lights.pdf_triangle(em_idx, o_e, t_e * t_e, cos_e, n=prev_normal[e],
+                                                           transmits=prev_transmits[e])
+                        else:  # light linking: the selection of the ray's origin's class
+                            _, pdf_l = ps.links.triangle_weights(origin_class[idx[e]], em_idx, o_e, t_e * t_e,
+                                                                 cos_e, prev_normal[e], prev_transmits[e])
                         pb = prev_pdf[e]
                         w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
+                    if origin_class is not None and depth > 0:  # an emitter not linked to the ray's origin
+                        cls_e = origin_class[idx[e]]
+                        w = w * ps.links.emitter_linked[cls_e, em_idx]
                     self._add_split(radiance, lp, depth, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
@@ -941,6 +993,8 @@ class PathTracer:
             if depth >= s.rr_depth:
                 throughput /= q[rows][:, None]
             mat = ps.material_index[prim[rows]]
+            if origin_class is not None:
+                origin_class[idx] = ps.links.class_of_triangle[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
             bumped = None  # (rows of g whose program set the normal, their smooth normals)
             if ps.shading is not None:
@@ -964,7 +1018,8 @@ class PathTracer:
                                 ps.terminator_offset[prim[rows]])
                 if ps.lights.has_lights:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp,
-                                     bumped=bumped, ray_time=ray_time)
+                                     bumped=bumped, ray_time=ray_time,
+                                     classes=None if origin_class is None else origin_class[idx])
                 if ps.textured is not None:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp, textured=True,
                                      bumped=bumped, ray_time=ray_time,
@@ -1039,22 +1094,53 @@ class PathTracer:
         return radiance
 
     def _light_emission(self, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,
-                        clear) -> np.ndarray:
+                        clear, classes=None, kinds=None) -> np.ndarray:
         """Emission of lights and the world along the rays (core.lights.LightSampler.intersect); rays where
-        `clear` (None: none) count as transparent and see no world."""
-        lights = self.ps.lights
+        `clear` (None: none) count as transparent and see no world. classes: the receiver class of each ray's
+        origin (light linking, core.light_linking; None: camera rays or no linking): each class sees its linked
+        emitters; with shadow linking, rays after a non-delta bounce do not see shadow-linked lights (light
+        sampling alone counts them). kinds: each ray's kind (core.ray_visibility) where some light hides from
+        some kind (core.light_visibility), else None."""
+        ps = self.ps
+        hide = ps.shadow_links is not None and not camera and mis_here and self.use_nee
+        if classes is None and not hide and kinds is None:
+            return self._emission_of(ps.lights, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera,
+                                     prev_transmits, clear, frozenset())
+        # one group per (receiver class, ray kind, shadow-linked lights hidden)
+        key = np.zeros(len(o), np.int64) if classes is None else np.asarray(classes, np.int64) * 16
+        if kinds is not None:
+            key = key + np.asarray(kinds, np.int64) * 2
+        if hide:
+            key = key + ~np.asarray(prev_delta, bool)
+        out = np.empty((len(o), 3), np.float32)
+        for k in np.unique(key):
+            rows = np.flatnonzero(key == k)
+            lights = ps.lights if classes is None else ps.links.samplers[int(k) // 16]
+            hidden = ps.shadow_links.hidden if hide and k % 2 else frozenset()
+            if kinds is not None:
+                hidden = hidden | ps.light_visibility.hidden((int(k) % 16) // 2)
+            out[rows] = self._emission_of(lights, o[rows], d[rows], tmax[rows], prev_pdf[rows], prev_delta[rows],
+                                          mis_here, None if prev_normal is None else prev_normal[rows], camera,
+                                          None if prev_transmits is None else prev_transmits[rows],
+                                          None if clear is None else clear[rows], hidden)
+        return out
+
+    @staticmethod
+    def _emission_of(lights, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,
+                     clear, hidden) -> np.ndarray:
+        """_light_emission of one light sampler, `hidden` lights unseen."""
         if clear is None or not clear.any():
             return lights.intersect(o, d, tmax, prev_pdf, prev_delta, mis_here, n=prev_normal, camera=camera,
-                                    transmits=prev_transmits)
+                                    transmits=prev_transmits, hidden=hidden)
         if clear.all():
             return lights.intersect(o, d, tmax, prev_pdf, prev_delta, mis_here, n=prev_normal, camera=camera,
-                                    transmits=prev_transmits, world=False)
+                                    transmits=prev_transmits, world=False, hidden=hidden)
         out = np.empty((len(o), 3), np.float32)
         for rows, world in ((np.flatnonzero(~clear), True), (np.flatnonzero(clear), False)):
             out[rows] = lights.intersect(o[rows], d[rows], tmax[rows], prev_pdf[rows], prev_delta[rows], mis_here,
                                          n=None if prev_normal is None else prev_normal[rows], camera=camera,
                                          transmits=None if prev_transmits is None else prev_transmits[rows],
-                                         world=world)
+                                         world=world, hidden=hidden)
         return out
 
     def _intersect_by_kind(self, kinds: np.ndarray, o, d, tm, tr=None):
@@ -1181,14 +1267,15 @@ class PathTracer:
 
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
                     bary=None, lp: "lp_mod.LightPassSamples | None" = None, textured: bool = False,
-                    path: np.ndarray | None = None, bumped=None, ray_time=None) -> None:
+                    path: np.ndarray | None = None, bumped=None, ray_time=None, classes=None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
         u, v) of each path's hit when some mesh has a shadow terminator offset, else None (with motion blur:
         (row, u, v, corners, corner normals, offsets) of the hits' own triangles at their times); ray_time: each
         sample's time (motion blur: the shadow rays cast at it) or None; lp: the light passes
         to split the contributions into (None: off). textured: sample the textured emitters
         (core.textured_emitters) instead of the lights, the emission from their programs; path: the paths' Light
-        Path state there (None when no program reads it)."""
+        Path state there (None when no program reads it); classes: the paths' receiver classes (light linking,
+        core.light_linking) or None."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
@@ -1199,15 +1286,25 @@ class PathTracer:
         transmits = ps.materials.has_transmission[mat[can]]
         if textured:
             ls = self._sample_textured(gc.p, u_sel, u_l, None if path is None else path[can])
+        elif classes is not None:
+            ls = ps.links.sample(classes[can], gc.p, gc.n_view, u_sel, u_l, transmits)
         else:
             ls = ps.lights.sample(gc.p, gc.n_view, u_sel, u_l, transmits=transmits)
         wi = np.ascontiguousarray(ls.wi, dtype=np.float32)
+        linked_set = None  # shadow linking: which blocker set's light each sample lies on (0: none)
+        if ps.shadow_links is not None and not textured:
+            linked_set = ps.shadow_links.set_of_samples(gc.p, wi, ls.dist)
         m = len(can)
         wi_local = np.empty((m, 3), np.float32)
         geometry_kernels.to_local(wi, gc.tangent, gc.bitangent, gc.ns, wi_local)
         f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes, gc.wo, wi_local, rows=can, back=gc.cos_o_geo < 0)
+        if ps.light_visibility is not None and not textured:
+            self._visible_lobes_only(f_cos, lobes, can, gc, wi, wi_local, ls.dist)
         if bumped is not None:
             f_cos = self._bump_shadowing_eval(f_cos, lobes, can, gc, wi_local, wi, bumped, len(idx))
+        if linked_set is not None and self.mis:
+            # shadow-linked lights count from light sampling alone (core.light_linking): MIS weight 1
+            pdf_b = np.where(linked_set > 0, np.float32(0), np.asarray(pdf_b, np.float32))
         contrib, origin, direction = (np.empty((m, 3), np.float32) for _ in range(3))
         tmax, sample_of = np.empty(m, np.float32), np.empty(m, idx.dtype)
         count = path_kernels.shadow_rays(can, np.ascontiguousarray(throughput, np.float32), idx,
@@ -1232,6 +1329,9 @@ class PathTracer:
         else:
             blocked, transmit = transparent_shadow.trace(self, occluders, origin[:count], direction[:count],
                                                          tmax[:count], self.settings.transparent_max_bounces)
+        if linked_set is not None and not self._catcher_copies:
+            self._shadow_linked(linked_set, idx, can, sample_of[:count], origin[:count], direction[:count],
+                                tmax[:count], shadow_time, blocked, transmit)
         self.stats.seconds_occluded += time.perf_counter() - clock
         self.stats.seconds_nee -= time.perf_counter() - clock  # counted once, as shadow rays
         if ps.no_shadow is not None and not textured:
@@ -1257,6 +1357,43 @@ class PathTracer:
         row_of[idx[can]] = np.arange(m)
         k = row_of[sample_of[:count][vis]]
         lp.add_split(True, sample_of[vis], value, tuple(share[k] for share in shares))
+
+    def _visible_lobes_only(self, f_cos, lobes, can, gc, wi, wi_local, dist) -> None:
+        """Re-evaluate (in place in f_cos) the BSDF of light samples of lights hidden from some ray kinds with
+        only the lobes of the kinds that see them (core.light_visibility)."""
+        group = self.ps.light_visibility.group_of_samples(gc.p, wi, dist)
+        for j in np.unique(group[group > 0]):
+            r = np.flatnonzero(group == j)
+            part = lobes.take(can[r])
+            left_out = np.isin(part.kind, self.ps.light_visibility.groups[int(j) - 1][0])
+            part.weight = np.where(left_out[..., None], np.float32(0), part.weight).astype(np.float32)
+            f_cos[r] = bsdf_mod.eval_bsdf(part, gc.wo[r], wi_local[r], back=gc.cos_o_geo[r] < 0)[0]
+
+    def _shadow_linked(self, linked_set, idx, can, sample_of, origin, direction, tmax, shadow_time, blocked,
+                       transmit) -> None:
+        """Recast (in place in `blocked` and `transmit`) the shadow rays of samples on shadow-linked lights
+        against their light's blockers alone (core.light_linking)."""
+        ps = self.ps
+        row_of = np.zeros(int(idx.max()) + 1 if len(idx) else 0, np.int64)
+        row_of[idx[can]] = np.arange(len(can))
+        set_of_ray = linked_set[row_of[sample_of]]
+        for j in np.unique(set_of_ray[set_of_ray > 0]):
+            r = np.flatnonzero(set_of_ray == j)
+            mask = ps.shadow_links.blockers[int(j) - 1]
+            if "shadow" in ps.visible_to:
+                mask = mask & ps.visible_to["shadow"]
+            if not mask.any():  # nothing blocks this light
+                blocked[r] = False
+                if transmit is not None:
+                    transmit[r] = 1.0
+                continue
+            occluders = ps.visible_subset(f"blocker {int(j) - 1}")
+            t = None if shadow_time is None else shadow_time[r]
+            if transmit is None:
+                blocked[r] = occluders[0].occluded(origin[r], direction[r], tmax[r], t)
+            else:
+                blocked[r], transmit[r] = transparent_shadow.trace(self, occluders, origin[r], direction[r], tmax[r],
+                                                                   self.settings.transparent_max_bounces)
 
     def _sample_textured(self, p: np.ndarray, u_select: np.ndarray, u: np.ndarray,
                          path: np.ndarray | None = None) -> LightSample:

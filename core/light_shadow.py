@@ -29,7 +29,12 @@ class NoShadowLights:
 
     @classmethod
     def build(cls, lights: list, shift: np.ndarray) -> "NoShadowLights | None":
-        chosen = [lt for lt in lights if not getattr(lt, "cast_shadow", True)]
+        return cls.of([lt for lt in lights if not getattr(lt, "cast_shadow", True)], shift)
+
+    @classmethod
+    def of(cls, chosen: list, shift: np.ndarray) -> "NoShadowLights | None":
+        """The geometric matcher of the lights `chosen` (None when empty); core.light_linking uses it to tell
+        which light samples came from shadow-linked lights."""
         if not chosen:
             return None
         shift = np.asarray(shift, np.float64)

@@ -543,6 +543,11 @@ class LightSampler:
             [lt for lt in scene.lights if isinstance(lt, (PointLight, SpotLight))], shift)
         self._areas = _AreaLights.from_lights([lt for lt in scene.lights if isinstance(lt, AreaLight)], shift)
         self._suns = _SunLights.from_lights([lt for lt in scene.lights if isinstance(lt, SunLight)], R)
+        # the scene lights behind each kind's table rows (`intersect`'s hidden= names lights by identity)
+        self._row_lights = ([lt for lt in scene.lights if isinstance(lt, (PointLight, SpotLight))],
+                            [lt for lt in scene.lights if isinstance(lt, AreaLight)],
+                            [lt for lt in scene.lights if isinstance(lt, SunLight)])
+        self._hiding: dict = {}
         env = scene.world.environment
         self.environment = EnvironmentDistribution(env if env is not None and not scene.world.is_black else None)
         self.has_environment = self.environment.mean_luminance > 0
@@ -705,6 +710,23 @@ class LightSampler:
             cached = self._no_world = (*self._tables[:8], world, *self._tables[9:])
         return cached
 
+    def _tables_hiding(self, world: bool, hidden: frozenset) -> tuple:
+        """The kernel tables with the lights in `hidden` (ids of scene lights) unlit for `intersect` (their
+        selection, and so every MIS weight, unchanged); cached per (world, hidden)."""
+        key = (world, hidden)
+        cached = self._hiding.get(key)
+        if cached is None:
+            base = self._tables if world else self._tables_without_world()
+            punctual, areas, suns = base[5].copy(), base[6].copy(), base[7].copy()
+            for table, rows, lit in ((punctual, self._row_lights[0], [lk.PT_LIT]),
+                                     (areas, self._row_lights[1], [lk.AR_LIT]),
+                                     (suns, self._row_lights[2], [lk.SU_R, lk.SU_G, lk.SU_B])):
+                for i, lt in enumerate(rows):
+                    if id(lt) in hidden:
+                        table[i, lit] = 0.0
+            cached = self._hiding[key] = (*base[:5], punctual, areas, suns, *base[8:])
+        return cached
+
     def _scratch(self) -> np.ndarray:
         """Per-call scratch for the kernels' per-point selection probabilities (K,) (calls may run in threads)."""
         return np.empty(max(self._units.kind.size, 1))
@@ -817,7 +839,8 @@ class LightSampler:
 
     def intersect(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, bsdf_pdf: np.ndarray,
                   bsdf_delta: np.ndarray, mis: bool, n: np.ndarray | None = None,
-                  camera: bool = False, transmits: np.ndarray | None = None, world: bool = True) -> np.ndarray:
+                  camera: bool = False, transmits: np.ndarray | None = None, world: bool = True,
+                  hidden: frozenset = frozenset()) -> np.ndarray:
         """Emission (N, 3) of every analytic light surface the rays o + t d (unit d, (N, 3)) pass for
         0 < t < tmax, summed (lights are transparent), each MIS-weighted by the power heuristic against
         bsdf_pdf (N,) (solid angle), weight 1 where bsdf_delta (N,) or when mis is False.
@@ -828,7 +851,8 @@ class LightSampler:
         transmits: the flags given to `sample` there (None likewise).
         camera=True: camera rays, which see the world but no light unless the light has
         `visible_camera = True` (Blender's default is False); no MIS weighting.
-        world=False: the world is not seen (rays that count as transparent under Film > Transparent)."""
+        world=False: the world is not seen (rays that count as transparent under Film > Transparent).
+        hidden: ids of scene lights these rays do not see (light linking, a light's ray visibility)."""
         o = _rows(o)
         N = o.shape[0]
         if N == 0:
@@ -845,7 +869,10 @@ class LightSampler:
             nr = _rows(n, N) if n is not None and self._n_matters else None
         tc = self._transmits(transmits, N, nr)
         out = np.empty((N, 3), _F32)
-        tables = self._tables if world else self._tables_without_world()
+        if hidden:
+            tables = self._tables_hiding(world, hidden)
+        else:
+            tables = self._tables if world else self._tables_without_world()
         lk.emission_batch(o, dr, tmax, bsdf_pdf, no_mis, use_mis, *self._n_t_args(nr, tc), bool(camera),
                           self._per_point, tables, self._scratch(), out)
         return out

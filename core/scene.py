@@ -233,6 +233,9 @@ class Mesh:
       and the bitangent sign (w, +-1), for Normal Map nodes in tangent space (`Scene.tangent_layer_names`;
       the name "" is the active render UV map). A mesh without the named layer renders the unperturbed normal
       there, as Cycles.
+    light_sets / shadow_sets: bitmasks of the light sets (core.light_linking, bit k: set k, 0..63) the object
+      receives light from / blocks the light of; -1 (every bit, the default): every set. receiver_set: as an
+      emitter (an emissive mesh), the light set it lights; 0: every object.
     motion_vertices: optional (S, V, 3) world positions of the vertices at S >= 2 times evenly spaced over the
       camera's shutter (step 0 at shutter open, S - 1 at close; core.motion): motion blur of a moving or
       deforming mesh. `vertices` stays the frame's pose (light sampling of emitters reads it). None: still.
@@ -259,6 +262,9 @@ class Mesh:
     tangent_layers: dict | None = None
     motion_vertices: np.ndarray | None = None
     motion_normals: np.ndarray | None = None
+    light_sets: int = -1
+    shadow_sets: int = -1
+    receiver_set: int = 0
 
     @property
     def triangle_count(self) -> int:
@@ -423,6 +429,11 @@ class PointLight:
     radius: float = 0.0
     visible_camera: bool = False
     cast_shadow: bool = True
+    visible_diffuse: bool = True
+    visible_glossy: bool = True
+    visible_transmission: bool = True
+    receiver_set: int = 0
+    blocker_set: int = 0
 
 
 @dataclass
@@ -440,6 +451,11 @@ class SpotLight:
     spot_blend: float = 0.15
     visible_camera: bool = False
     cast_shadow: bool = True
+    visible_diffuse: bool = True
+    visible_glossy: bool = True
+    visible_transmission: bool = True
+    receiver_set: int = 0
+    blocker_set: int = 0
 
 
 @dataclass
@@ -454,6 +470,11 @@ class SunLight:
     angle: float = math.radians(0.526)
     visible_camera: bool = False
     cast_shadow: bool = True
+    visible_diffuse: bool = True
+    visible_glossy: bool = True
+    visible_transmission: bool = True
+    receiver_set: int = 0
+    blocker_set: int = 0
 
 
 @dataclass
@@ -473,12 +494,21 @@ class AreaLight:
     spread: float = math.pi
     visible_camera: bool = False
     cast_shadow: bool = True
+    visible_diffuse: bool = True
+    visible_glossy: bool = True
+    visible_transmission: bool = True
+    receiver_set: int = 0
+    blocker_set: int = 0
 
 
 Light = PointLight | SpotLight | SunLight | AreaLight
 # Every light has visible_camera: camera rays see its surface (a sphere light's, an area light's, the sun's disc;
 # Blender's Object > Visibility > Ray Visibility > Camera on the light, off by default), and cast_shadow: False
 # (Blender's Cast Shadow off) lets its light samples through every object (core.light_shadow).
+# visible_diffuse / visible_glossy / visible_transmission: False hides it from bounce rays of that kind and from
+# those lobes in next-event estimation (core.light_visibility).
+# receiver_set / blocker_set (Light Linking / Shadow Linking, core.light_linking): the light set (1..63) whose
+# members the light lights / whose members alone block it; 0: every object (no linking).
 
 
 @dataclass
@@ -857,6 +887,7 @@ class Scene:
             n_objects = len(self.objects)
         for mesh in self.meshes:
             mesh.validate(len(self.materials), self.warnings, n_objects)
+            _validate_light_sets(mesh, f"mesh {mesh.name!r}")
         self.world.color = _as_rgb(self.world.color, "world background")
         if self.world.camera_color is not None:
             self.world.camera_color = _as_rgb(self.world.camera_color, "world background seen by the camera")
@@ -867,10 +898,28 @@ class Scene:
                 raise SceneError(str(exc)) from None
         kept: list[Light] = []
         for light in self.lights:
+            _validate_light_sets(light, f"{type(light).__name__} {light.name!r}")
             if _validate_light(light, self.warnings):
                 kept.append(light)
         self.lights = kept
         return self
+
+
+MAX_LIGHT_SETS = 64  # light sets 0..63, as Cycles' 64-bit membership masks
+
+
+def _validate_light_sets(item, owner: str) -> None:
+    """Light and shadow linking fields (see Mesh and Light): sets in [0, 63], masks of 64 bits."""
+    for name in ("receiver_set", "blocker_set"):
+        if not hasattr(item, name):
+            continue
+        value = getattr(item, name)
+        if not isinstance(value, (int, np.integer)) or not 0 <= int(value) < MAX_LIGHT_SETS:
+            raise SceneError(f"{owner}: {name} {value!r} must be an integer light set in [0, {MAX_LIGHT_SETS - 1}]")
+    for name in ("light_sets", "shadow_sets"):
+        value = getattr(item, name, -1)
+        if not isinstance(value, (int, np.integer)) or not -(2 ** 63) <= int(value) < 2 ** MAX_LIGHT_SETS:
+            raise SceneError(f"{owner}: {name} {value!r} must be an integer bitmask of light sets (-1: all)")
 
 
 def _validate_light(light: Light, warnings: list[str]) -> bool:

@@ -121,7 +121,7 @@ class MisOrigins:
         return cls(np.asarray(origins, np.float32), np.zeros(len(origins), np.float32))
 
     def light_emission(self, tracer, le: np.ndarray, d, t_hit, prev_pdf, prev_delta, mis, prev_normal,
-                       prev_transmits, clear) -> None:
+                       prev_transmits, clear, classes=None, kinds=None) -> None:
         """Replace in `le` the light emission (PathTracer._light_emission) of the rays that went on through
         transparent surfaces: what lies beyond their origin on the line from the MIS origin, weighted from
         there."""
@@ -133,7 +133,9 @@ class MisOrigins:
             return tracer._light_emission(self.o[r], d[r], tmax, prev_pdf[r], prev_delta[r], mis,
                                           None if prev_normal is None else prev_normal[r], False,
                                           None if prev_transmits is None else prev_transmits[r],
-                                          None if clear is None else clear[r])
+                                          None if clear is None else clear[r],
+                                          None if classes is None else classes[r],
+                                          None if kinds is None else kinds[r])
 
         le[r] = seen(self.t[r] + t_hit[r]) - seen(self.t[r])
 

@@ -131,6 +131,12 @@ def _light_linking(scene):
     obj("lamp").light_linking.receiver_collection = coll
 
 
+def _shadow_linking(scene):
+    coll = bpy.data.collections.new("blockers")
+    coll.objects.link(obj("floor"))
+    obj("lamp").light_linking.blocker_collection = coll
+
+
 def _pano(kind, **extra):
     def apply(scene):
         cam = scene.camera.data
@@ -201,9 +207,16 @@ AUDIT = {
     "light camera visibility": (lambda s: _set(obj("lamp"), visible_camera=True),
                                 ("renders", lambda c: c.lights[0].visible_camera)),
     "light diffuse visibility": (lambda s: _set(obj("lamp"), visible_diffuse=False),
-                                 ("warns", ["light 'lamp'", "Diffuse"])),
-    "light glossy visibility": (lambda s: _set(obj("lamp"), visible_glossy=False), ("warns", ["light", "Glossy"])),
-    "light linking": (_light_linking, ("warns", ["Light Linking"])),
+                                 ("renders", lambda c: not c.lights[0].visible_diffuse)),
+    "light glossy visibility": (lambda s: _set(obj("lamp"), visible_glossy=False),
+                                ("renders", lambda c: not c.lights[0].visible_glossy)),
+    "light transmission visibility": (lambda s: _set(obj("lamp"), visible_transmission=False),
+                                      ("renders", lambda c: not c.lights[0].visible_transmission)),
+    "light linking": (_light_linking, ("renders", lambda c: c.lights[0].receiver_set == 1
+                                       and _mesh(c, "cube").light_sets & 2 and not _mesh(c, "floor").light_sets & 2)),
+    "shadow linking": (_shadow_linking, ("renders", lambda c: c.lights[0].blocker_set == 1
+                                         and _mesh(c, "floor").shadow_sets & 2
+                                         and not _mesh(c, "cube").shadow_sets & 2)),
     # objects
     "object camera visibility": (lambda s: _set(obj("cube"), visible_camera=False),
                                  ("renders", lambda c: not _mesh(c, "cube").visible_camera)),

@@ -19,6 +19,7 @@ from ...core.scene import Scene, SceneError
 from .camera import export_camera, render_region, render_resolution  # noqa: F401  (re-exported)
 from .film import export_film
 from .light import export_light
+from .light_linking import LightLinking
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
 from .motion import (deforms, instance_key, object_steps, placed_motion, sample_motion, shutter as motion_shutter,
@@ -58,6 +59,7 @@ class _Prototype:
     visibility: tuple = (True,) * 5  # Mesh.visible_<kind> for each of MESH_RAY_VISIBILITY
     shadow_terminator_offset: float = 0.0
     shadow_catcher: bool = False  # Object > Visibility > Shadow Catcher (core.scene.Mesh.shadow_catcher)
+    links: tuple = (-1, -1, 0)  # light linking: Mesh.light_sets, shadow_sets, receiver_set (export/light_linking.py)
     instance_keys: list = field(default_factory=list)  # per instance: its key across subframes (motion blur)
     steps: int = 0  # motion steps (the most of its instances'); 0: no motion blur
     deform_name: str | None = None  # the object whose deforming mesh this is (deformation blur), or None
@@ -67,8 +69,9 @@ class _Prototype:
 MESH_RAY_VISIBILITY = ("camera", "shadow", "diffuse", "glossy", "transmission")
 # Ray Visibility flags Monte does not render (property -> the name Blender's panel shows): on meshes, and on lights.
 UNSUPPORTED_RAY_VISIBILITY = {"visible_volume_scatter": "Volume Scatter"}
-UNSUPPORTED_LIGHT_VISIBILITY = {"visible_diffuse": "Diffuse", "visible_glossy": "Glossy",
-                                "visible_transmission": "Transmission", "visible_volume_scatter": "Volume Scatter"}
+UNSUPPORTED_LIGHT_VISIBILITY = {"visible_volume_scatter": "Volume Scatter"}
+# Ray Visibility flags Monte renders on lights (core.scene lights' visible_<kind>, core.light_visibility).
+LIGHT_RAY_VISIBILITY = ("diffuse", "glossy", "transmission")
 
 
 def _matrix(m) -> np.ndarray:
@@ -79,11 +82,14 @@ class ExportCancelled(Exception):
     """should_cancel returned True during the export."""
 
 
-def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer=None):
+def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer=None, linking=None):
     """The prototype key for an (object, data) pair seen for the first time, converting its mesh if new;
-    None when it has nothing to render."""
+    None when it has nothing to render. linking: the export's LightLinking (None: none)."""
     original = obj.original
     _warn_object_settings(obj, original, view_layer, warnings)
+    links = (-1, -1, 0)
+    if linking is not None and linking.active:
+        links = (*linking.membership(obj), linking.emitter(obj)[0])
     held = is_holdout(original, view_layer)
     seen = tuple(bool(getattr(obj, f"visible_{kind}", True)) for kind in MESH_RAY_VISIBILITY)
     if is_indirect_only(original, view_layer):
@@ -91,7 +97,7 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     slots = tuple(slot.material for slot in obj.material_slots)
     catcher = bool(getattr(obj, "is_shadow_catcher", False))
     slot_key = (tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ()) + seen
-                + (("shadow catcher",) if catcher else ()))
+                + (("shadow catcher",) if catcher else ()) + (() if links == (-1, -1, 0) else (("links",) + links)))
     terminator = _terminator_offset(original)
     if kind == "MESH" and obj.data is not None:
         key = ("mesh", obj.data.as_pointer(), slot_key, terminator)
@@ -121,7 +127,7 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
         attribute_names(local.slots)
     materials.warn_missing_attributes(used_materials, local.missing_attributes, original.name)
     prototypes[key] = _Prototype(local, lut, original.name, texspace=_texspace(obj, local), visibility=seen,
-                                 shadow_terminator_offset=terminator, shadow_catcher=catcher)
+                                 shadow_terminator_offset=terminator, shadow_catcher=catcher, links=links)
     stats.meshes_converted += 1
     return key
 
@@ -131,21 +137,17 @@ def _warn_once(warnings: list[str], msg: str) -> None:
         warnings.append(msg)
 
 
-def _warn_light_linking(obj, what: str, warnings: list[str]) -> None:
-    linking = getattr(obj, "light_linking", None)
-    if linking is None:
-        return
-    for attr, label in (("receiver_collection", "Light Linking"), ("blocker_collection", "Shadow Linking")):
-        coll = getattr(linking, attr, None)
-        if coll is not None:
-            _warn_once(warnings, f"{what} {obj.original.name!r}: {label} (collection {coll.name!r}) is not "
-                                 "supported; it lights (shadows) every object")
+def _warn_mesh_shadow_linking(obj, warnings: list[str]) -> None:
+    """Shadow Linking of an emissive mesh is not rendered (its light and receivers' links are)."""
+    coll = getattr(getattr(obj, "light_linking", None), "blocker_collection", None)
+    if coll is not None:
+        _warn_once(warnings, f"object {obj.original.name!r}: Shadow Linking (collection {coll.name!r}) of an "
+                             "emissive mesh is not supported; every object blocks its light")
 
 
 def _warn_light_settings(obj, warnings: list[str]) -> None:
     """Name each light setting that changes Cycles' image and that Monte does not render."""
     name = obj.original.name
-    _warn_light_linking(obj, "light", warnings)
     off = [label for prop, label in UNSUPPORTED_LIGHT_VISIBILITY.items() if not getattr(obj, prop, True)]
     if off:
         _warn_once(warnings, f"light {name!r}: Ray Visibility {', '.join(off)} off is not supported; the light "
@@ -155,7 +157,7 @@ def _warn_light_settings(obj, warnings: list[str]) -> None:
 def _warn_object_settings(obj, original, view_layer, warnings: list[str]) -> None:
     """Name each object setting that changes Cycles' image and that Monte does not render."""
     name = original.name
-    _warn_light_linking(obj, "object", warnings)
+    _warn_mesh_shadow_linking(obj, warnings)
     off = [label for prop, label in UNSUPPORTED_RAY_VISIBILITY.items() if not getattr(obj, prop, True)]
     if off:
         _warn_once(warnings, f"object {name!r}: Ray Visibility {', '.join(off)} off is not supported; rendered "
@@ -267,6 +269,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
     resolved: dict[tuple[int, int], tuple | None] = {}
     lights = []
     unsupported: dict[str, int] = {}
+    linking = LightLinking(depsgraph.objects, warnings)
     for i, inst in enumerate(depsgraph.object_instances):
         if should_cancel is not None and i % 1024 == 1023 and should_cancel():
             raise ExportCancelled()
@@ -278,6 +281,9 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
                 if light is not None:
                     light.visible_camera = bool(getattr(obj, "visible_camera", False))
                     light.cast_shadow = bool(getattr(obj.data, "use_shadow", True))
+                    light.receiver_set, light.blocker_set = linking.emitter(obj)
+                    for ray in LIGHT_RAY_VISIBILITY:
+                        setattr(light, f"visible_{ray}", bool(getattr(obj, f"visible_{ray}", True)))
                     _warn_light_settings(obj, warnings)
                     lights.append(light)
             continue
@@ -293,7 +299,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
             key = resolved[rkey]
         else:
             key = resolved[rkey] = _prototype_for(obj, kind, prototypes, materials, warnings, stats,
-                                                  depsgraph.view_layer)
+                                                  depsgraph.view_layer, linking)
         if key is not None:
             proto = prototypes[key]
             proto.matrices.append(inst.matrix_world.copy())
@@ -341,6 +347,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
         for kind, seen in zip(MESH_RAY_VISIBILITY, proto.visibility):
             setattr(mesh, f"visible_{kind}", seen)
         mesh.shadow_catcher = proto.shadow_catcher
+        mesh.light_sets, mesh.shadow_sets, mesh.receiver_set = proto.links
         if motion is not None and proto.steps:
             _attach_motion(mesh, proto, matrices, motion, warnings)
         meshes.append(mesh)
