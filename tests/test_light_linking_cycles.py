@@ -5,6 +5,8 @@ Scenes (diffuse quads on the ground seen from above by an orthographic camera):
   collection {left: Include}; a sphere point light over the middle lights {middle: Exclude} (every object but
   the middle one); an emissive quad over the right lights {right: Include}. Each object is lit by some emitters
   only, through light sampling and BSDF hits (MIS with the class's light selection).
+- visibility (32x32): diffuse, mixed and glossy quads under an area light and a sphere light, both with one
+  Ray Visibility flag turned: Diffuse off, Glossy off, Camera on (the sphere light seen; `-m slow`).
 - blockers: a floor and a square hovering over it under an area light whose blocker collection holds only a
   small cube off to the side: the square casts no shadow from that light (Cycles' shadow linking); the square
   itself is lit.
@@ -82,10 +84,35 @@ def blockers_scene(linked: bool = True):
     scene = _base()
     _quad("floor", -3.5, 3.5, -3.5, 3.5, 0, bf.diffuse("floor", (0.8, 0.8, 0.8)))
     _quad("square", -1.0, 1.0, -1.0, 1.0, 0.8, bf.diffuse("square", (0.2, 0.5, 0.8)))
-    bf.box_object("cube", (2.4, 2.4, 0.0), (3.0, 3.0, 0.6), bf.diffuse("cube", (0.8, 0.3, 0.2)))
+    _quad("cube", 2.4, 3.0, 2.4, 3.0, 0.4, bf.diffuse("cube", (0.8, 0.3, 0.2)))
     area = bf.add_light(scene, "AREA", (0.0, 0.0, 2.5), name="area", energy=150.0, size=1.5)
     if linked:
         area.light_linking.blocker_collection = _linking_collection("area blockers", {"cube": "INCLUDE"})
+    return scene
+
+
+def visibility_scene(flag: str | None):
+    """Diffuse, half diffuse / half glossy (a Mix Shader) and glossy quads under a square area light and a sphere
+    light, both with Ray Visibility `flag` turned (None: defaults)."""
+    scene = _base(size=(32, 32))
+    _quad("diffuse", -3.4, -1.2, -3, 3, 0, bf.diffuse("grey", (0.8, 0.8, 0.8)))
+    mix = bf.diffuse("mix", (0.8, 0.8, 0.8))
+    tree = mix.node_tree
+    glossy = tree.nodes.new("ShaderNodeBsdfGlossy")
+    glossy.inputs["Roughness"].default_value = 0.3
+    shader = tree.nodes.new("ShaderNodeMixShader")
+    out = tree.nodes["Material Output"]
+    diffuse = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfDiffuse")
+    tree.links.new(diffuse.outputs[0], shader.inputs[1])
+    tree.links.new(glossy.outputs[0], shader.inputs[2])
+    tree.links.new(shader.outputs[0], out.inputs["Surface"])
+    _quad("mix", -1.0, 1.0, -3, 3, 0, mix)
+    _quad("glossy", 1.2, 3.4, -3, 3, 0, bf.node_material("glossy", "ShaderNodeBsdfGlossy", Roughness=0.3))
+    lights = [bf.add_light(scene, "AREA", (-0.8, -1.0, 2.0), name="area", energy=120.0, size=1.5),
+              bf.add_light(scene, "POINT", (1.0, 1.2, 1.5), name="sphere", energy=80.0, shadow_soft_size=0.3)]
+    if flag is not None:
+        for light in lights:
+            setattr(light, flag, flag == "visible_camera")  # the camera's default is off, the others' on
     return scene
 
 
@@ -107,7 +134,7 @@ def comparison(mon, mon_var, cyc, cyc_var) -> cmp.Comparison:
     return cmp.compare(mon, mon_var, cyc, cyc_var, rel_cap=0.01)
 
 
-def check(name: str, build, tmp_path) -> None:
+def check(name: str, build, tmp_path, control=False) -> None:
     scene = build(True)
     mon, mon_var = monte(scene)
     cyc, cyc_var = cycles(scene, tmp_path)
@@ -116,7 +143,7 @@ def check(name: str, build, tmp_path) -> None:
     print(f"\n{name}: Monte {np.round(c.mean_a, 4)} Cycles {np.round(c.mean_b, 4)} "
           f"rel {np.round(100 * c.relative_difference, 2)} % z {c.z_stats()}")
     assert ok, f"{name}: {reasons}"
-    plain, plain_var = monte(build(False))  # control: linking ignored
+    plain, plain_var = monte(build(control))  # control: linking (the flag) ignored
     c = comparison(plain, plain_var, cyc, cyc_var)
     print(f"{name} unlinked (control): rel {np.round(100 * c.relative_difference, 2)} %")
     assert not c.verdict()[0], f"{name}: the unlinked scene passes the same check (a control that cannot fail)"
@@ -128,3 +155,9 @@ def test_receiver_collections_match_cycles(tmp_path):
 
 def test_blocker_collection_matches_cycles(tmp_path):
     check("shadow linking", blockers_scene, tmp_path)
+
+
+@pytest.mark.parametrize("flag", ["visible_diffuse", "visible_glossy",
+                                  pytest.param("visible_camera", marks=pytest.mark.slow)])
+def test_light_ray_visibility_matches_cycles(flag, tmp_path):
+    check(f"light {flag}", lambda on: visibility_scene(flag if on else None), tmp_path, control=False)
