@@ -238,6 +238,31 @@ class MONTE_OBJECT_PT_visibility(MonteButtonsPanel, Panel):
         col.prop(ob, "is_holdout")
 
 
+class MONTE_OBJECT_PT_light_linking(MonteButtonsPanel, Panel):
+    """Light Linking and Shadow Linking (Blender 4.0+; on a light or an emissive mesh): the receiver and blocker
+    collections Monte renders, edited with Blender's own operators and list, as Cycles' panel does."""
+
+    bl_label = "Light Linking"
+    bl_context = "object"
+    bl_options = {"DEFAULT_CLOSED"}
+    CONTEXT_MEMBER = "object"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and hasattr(context.object, "light_linking")
+
+    def draw(self, context):
+        linking = context.object.light_linking
+        for attr, kind, label in (("receiver_collection", "receiver", "Light Linking"),
+                                  ("blocker_collection", "blocker", "Shadow Linking")):
+            col = self.layout.column()
+            col.label(text=label)
+            row = col.row()
+            row.template_ID(linking, attr, new=f"object.light_linking_{kind}_collection_new")
+            if getattr(linking, attr) is not None:
+                col.template_light_linking_collection(row, linking, attr)
+
+
 class MONTE_RENDER_PT_motion_blur(MonteButtonsPanel, Panel):
     """Render > Motion Blur: the settings Cycles reads, which Monte renders (position, shutter, rolling shutter,
     shutter curve)."""
@@ -509,6 +534,7 @@ classes = (
     MONTE_RENDER_PT_film,
     MONTE_CAMERA_PT_panorama,
     MONTE_OBJECT_PT_visibility,
+    MONTE_OBJECT_PT_light_linking,
     MONTE_RENDER_PT_motion_blur,
     MONTE_OBJECT_PT_motion_blur,
     MONTE_RENDER_PT_performance,

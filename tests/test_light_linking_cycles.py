@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import blender_fixtures as bf  # noqa: E402
 
 from monte.addon import crosscheck as cc  # noqa: E402
+from monte.addon.export import export_scene  # noqa: E402
 from monte.core import compare as cmp  # noqa: E402
 
 pytestmark = [pytest.mark.blender]
@@ -161,3 +162,36 @@ def test_blocker_collection_matches_cycles(tmp_path):
                                   pytest.param("visible_camera", marks=pytest.mark.slow)])
 def test_light_ray_visibility_matches_cycles(flag, tmp_path):
     check(f"light {flag}", lambda on: visibility_scene(flag if on else None), tmp_path, control=False)
+
+
+def test_collections_become_light_sets_as_blenders_manual_states():
+    """Include and Exclude: included minus excluded (a child collection's state applies to all inside it), only
+    excluded: everything else; emitters sharing a collection share its set; instances keep their object's
+    sets; an emissive mesh's Blocker Collection is named in a warning."""
+    scene = _base()
+    grey = bf.diffuse("grey", (0.8, 0.8, 0.8))
+    for i, name in enumerate("abcd"):
+        _quad(name, i, i + 0.5, 0, 1, 0, grey)
+    child = bpy.data.collections.new("child")
+    child.objects.link(bpy.data.objects["b"])
+    child.objects.link(bpy.data.objects["c"])
+    mixed = _linking_collection("mixed", {"a": "INCLUDE", "c": "EXCLUDE"})
+    mixed.children.link(child)
+    only_excluded = _linking_collection("only excluded", {"d": "EXCLUDE"})
+    lights = [bf.add_light(scene, "POINT", (0, 0, 2), name=f"lamp{i}", energy=10.0) for i in range(3)]
+    lights[0].light_linking.receiver_collection = mixed
+    lights[1].light_linking.receiver_collection = mixed
+    lights[2].light_linking.receiver_collection = only_excluded
+    lights[2].light_linking.blocker_collection = mixed
+    bpy.data.objects["d"].light_linking.blocker_collection = only_excluded
+    core = export_scene(bpy.context.evaluated_depsgraph_get())[0]
+    sets = {lt.name: (lt.receiver_set, lt.blocker_set) for lt in core.lights}
+    assert sets["lamp0"] == sets["lamp1"] != sets["lamp2"] and sets["lamp0"][1] == 0 and sets["lamp2"][1] > 0
+    mixed_set, excluded_set, blocker_set = sets["lamp0"][0], sets["lamp2"][0], sets["lamp2"][1]
+    masks = {m.name: m for m in core.meshes}
+    receives = {name: (bool(masks[name].light_sets >> mixed_set & 1), bool(masks[name].light_sets >> excluded_set & 1))
+                for name in "abcd"}
+    assert receives == {"a": (True, True), "b": (True, True), "c": (False, True), "d": (False, False)}
+    assert [bool(masks[name].shadow_sets >> blocker_set & 1) for name in "abcd"] == [True, True, False, False]
+    assert any("object 'd': Shadow Linking (collection 'only excluded') of an emissive mesh is not supported" in w
+               for w in core.warnings)
