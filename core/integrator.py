@@ -1298,8 +1298,9 @@ class PathTracer:
         wi_local = np.empty((m, 3), np.float32)
         geometry_kernels.to_local(wi, gc.tangent, gc.bitangent, gc.ns, wi_local)
         f_cos, pdf_b = bsdf_mod.eval_bsdf(lobes, gc.wo, wi_local, rows=can, back=gc.cos_o_geo < 0)
+        restricted = []  # (rows of can, their lobes) of samples of lights some ray kinds do not see
         if ps.light_visibility is not None and not textured:
-            self._visible_lobes_only(f_cos, lobes, can, gc, wi, wi_local, ls.dist)
+            restricted = self._visible_lobes_only(f_cos, lobes, can, gc, wi, wi_local, ls.dist)
         if bumped is not None:
             f_cos = self._bump_shadowing_eval(f_cos, lobes, can, gc, wi_local, wi, bumped, len(idx))
         if linked_set is not None and self.mis:
@@ -1353,21 +1354,27 @@ class PathTracer:
             return
         # At the first surface every path has one light sample: its sample index finds its row in `can`.
         shares = lp_mod.split_ratios(lobes, gc.wo, wi_local, gc.cos_o_geo < 0, rows=can)
+        for r, part in restricted:  # lights hidden from some kinds: the shares of the lobes that see them
+            for share, sub in zip(shares, lp_mod.split_ratios(part, gc.wo[r], wi_local[r], gc.cos_o_geo[r] < 0)):
+                share[r] = sub
         row_of = np.zeros(len(radiance), np.int64)
         row_of[idx[can]] = np.arange(m)
         k = row_of[sample_of[:count][vis]]
         lp.add_split(True, sample_of[vis], value, tuple(share[k] for share in shares))
 
-    def _visible_lobes_only(self, f_cos, lobes, can, gc, wi, wi_local, dist) -> None:
+    def _visible_lobes_only(self, f_cos, lobes, can, gc, wi, wi_local, dist) -> list:
         """Re-evaluate (in place in f_cos) the BSDF of light samples of lights hidden from some ray kinds with
-        only the lobes of the kinds that see them (core.light_visibility)."""
+        only the lobes of the kinds that see them (core.light_visibility); returns [(rows of can, those lobes)]."""
         group = self.ps.light_visibility.group_of_samples(gc.p, wi, dist)
+        restricted = []
         for j in np.unique(group[group > 0]):
             r = np.flatnonzero(group == j)
             part = lobes.take(can[r])
             left_out = np.isin(part.kind, self.ps.light_visibility.groups[int(j) - 1][0])
             part.weight = np.where(left_out[..., None], np.float32(0), part.weight).astype(np.float32)
             f_cos[r] = bsdf_mod.eval_bsdf(part, gc.wo[r], wi_local[r], back=gc.cos_o_geo[r] < 0)[0]
+            restricted.append((r, part))
+        return restricted
 
     def _shadow_linked(self, linked_set, idx, can, sample_of, origin, direction, tmax, shadow_time, blocked,
                        transmit) -> None:

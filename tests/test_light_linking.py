@@ -157,3 +157,24 @@ def test_a_bad_membership_mask_is_named():
     scene.meshes[0].light_sets = 2.5
     with pytest.raises(SceneError, match=r"mesh 'floor': light_sets 2.5 must be an integer bitmask of light sets \(-1: all\)"):
         render(scene, SETTINGS)
+
+
+def test_light_passes_keep_a_hidden_lights_direct_light_out_of_its_kind():
+    """A diffuse + glossy floor under a light with Glossy off, light sampling alone: Glossy Direct is black,
+    Diffuse Direct holds the direct light (control: with Glossy on, Glossy Direct is lit). (With MIS, a BSDF ray
+    that the diffuse lobe sent still carries the glossy lobe's share of its value into Glossy Direct, as in
+    Cycles.)"""
+    mixed = Material("mix", [Lobe("diffuse", np.full(3, 0.4)), Lobe("glossy", np.full(3, 0.4), roughness=0.3)])
+    names = ("Diffuse Direct", "Glossy Direct")
+    settings = RenderSettings(spp=8, max_bounces=0, seed=2, threads=1, light_passes=names, light_sampling="light")
+
+    def floor(**flags) -> Scene:
+        scene = _lit_floor(0, **flags)
+        scene.materials = [mixed]
+        return scene
+
+    hidden = render_rgba(floor(visible_glossy=False), settings).light_passes
+    shown = render_rgba(floor(), settings).light_passes
+    assert shown["Glossy Direct"].max() > 0.01
+    assert hidden["Glossy Direct"].max() == 0.0
+    assert hidden["Diffuse Direct"].max() > 0.01
