@@ -58,20 +58,25 @@ def _halves(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return img[:, : W // 2 - 1], img[:, W // 2 + 1:]
 
 
-def test_each_floor_is_lit_by_its_linked_light_alone():
+@pytest.mark.parametrize("estimator", ["mis", "bsdf", "light"])
+def test_each_floor_is_lit_by_its_linked_light_alone(estimator):
     """Light a lights set 1 (the left floor), light b set 2 (the right floor): each half equals the scene with its
-    light alone; the unlinked scene (control) differs on both halves."""
+    light alone, with MIS, BSDF sampling alone and light sampling alone; the unlinked scene (control) differs on
+    both halves."""
+    settings = RenderSettings(spp=8, max_bounces=0, seed=2, threads=1, light_sampling=estimator)
     linked = render(_two_floors(dict(light_sets=0b011), dict(light_sets=0b101),
-                                [_area("a", -1.25, receiver_set=1), _area("b", 1.25, receiver_set=2)]), SETTINGS)
-    only_a = render(_two_floors({}, {}, [_area("a", -1.25)]), SETTINGS).color
-    only_b = render(_two_floors({}, {}, [_area("b", 1.25)]), SETTINGS).color
-    both = render(_two_floors({}, {}, [_area("a", -1.25), _area("b", 1.25)]), SETTINGS).color
+                                [_area("a", -1.25, receiver_set=1), _area("b", 1.25, receiver_set=2)]), settings)
+    only_a = render(_two_floors({}, {}, [_area("a", -1.25)]), settings).color
+    only_b = render(_two_floors({}, {}, [_area("b", 1.25)]), settings).color
+    both = render(_two_floors({}, {}, [_area("a", -1.25), _area("b", 1.25)]), settings).color
     assert linked.stats["features"]["light_linking"] == 2
     left, right = _halves(linked.color)
     np.testing.assert_array_equal(left, _halves(only_a)[0])
     np.testing.assert_array_equal(right, _halves(only_b)[1])
-    assert not np.array_equal(_halves(both)[0], left) and not np.array_equal(_halves(both)[1], right)
-    assert _halves(both)[0].mean() > 1.02 * left.mean()  # b's light on the left floor, gone when linked
+    assert not np.array_equal(_halves(both)[0], left)
+    if estimator != "bsdf":  # (BSDF rays from the right floor find light a too rarely at 8 spp)
+        assert not np.array_equal(_halves(both)[1], right)
+        assert _halves(both)[0].mean() > 1.02 * left.mean()  # b's light on the left floor, gone when linked
 
 
 def test_an_emissive_mesh_lights_only_its_receivers():
