@@ -550,6 +550,7 @@ class _SplitPaths:
     prev_delta: np.ndarray
     prev_normal: np.ndarray | None
     prev_transmits: np.ndarray | None
+    origin_class: np.ndarray | None = None  # light linking: the receiver class of each ray's origin
 
 
 @dataclass
@@ -659,9 +660,10 @@ class _CatcherState:
         self.groups: list[_SplitPaths] = []
 
     def visit(self, tracer: "PathTracer", depth, hit, prim, clear_here, idx, pix, smp, o, d, tm, throughput,
-              prev_pdf, prev_delta, prev_normal, prev_transmits, radiance, transparent) -> None:
+              prev_pdf, prev_delta, prev_normal, prev_transmits, radiance, transparent, origin_class=None) -> None:
         """The live paths' rays at `depth` have been intersected: paths that still count as transparent and meet
-        a catcher for the first time split here (before anything at this vertex is added)."""
+        a catcher for the first time split here (before anything at this vertex is added). origin_class: the
+        receiver class of each sample's ray origin (light linking) or None."""
         ps = tracer.ps
         if self.background is not None:  # the world along camera rays that escape (Cycles' Background pass)
             gone = np.flatnonzero(~hit & clear_here)
@@ -679,7 +681,8 @@ class _CatcherState:
         self.groups.append(_SplitPaths(depth, rows, pix[on], smp[on], o[on], d[on], tm[on], throughput[on],
                                        prev_pdf[on], prev_delta[on],
                                        None if prev_normal is None else prev_normal[on],
-                                       None if prev_transmits is None else prev_transmits[on]))
+                                       None if prev_transmits is None else prev_transmits[on],
+                                       None if origin_class is None else origin_class[rows]))
 
     @staticmethod
     def _world(tracer: "PathTracer", o: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -810,6 +813,8 @@ class PathTracer:
         # when some node program reads it.
         # Per sample: the receiver class (core.light_linking) of the object its ray leaves, when linking is used
         origin_class = np.zeros(n, np.int32) if ps.links is not None else None
+        if origin_class is not None and copies and self._resume.origin_class is not None:
+            origin_class[:] = self._resume.origin_class
         path_state = None
         if ps.shading is not None and ps.shading.uses_light_path:
             path_state = np.zeros((n, PATH_COLUMNS), np.float32)
@@ -843,7 +848,7 @@ class PathTracer:
             clear_here = clear[idx] if alpha else None
             if catch is not None:
                 catch.visit(self, depth, hit, hits.prim, clear_here, idx, pix, smp, o, d, tm, throughput, prev_pdf,
-                            prev_delta, prev_normal, prev_transmits, radiance, transparent)
+                            prev_delta, prev_normal, prev_transmits, radiance, transparent, origin_class)
             if film_transparent:
                 # Rays that still count as transparent and escape: alpha 0 and no world colour.
                 gone = np.flatnonzero(~hit & clear_here)
