@@ -4,8 +4,8 @@ light object; core.scene lights' visible_diffuse / visible_glossy / visible_tran
 - BSDF rays of a kind the light hides from (core.ray_visibility's kinds: the lobe that sent them) pass through
   it (it is unlit for them in core.lights.LightSampler.intersect; the MIS weights of the others unchanged);
 - next-event estimation still selects it, but evaluates only the lobes of the kinds it is visible to (Cycles
-  excludes the closures: diffuse lobes for Diffuse, glossy lobes for Glossy, glass and refraction lobes for
-  Transmission). The BSDF pdf used for MIS stays the whole BSDF's, the pdf with which BSDF sampling reaches the
+  excludes the closures: diffuse lobes for Diffuse, glossy lobes for Glossy, refraction lobes for
+  Transmission, and glass lobes, both glossy and transmitting, only with Glossy and Transmission both off). The BSDF pdf used for MIS stays the whole BSDF's, the pdf with which BSDF sampling reaches the
   light through the lobes that still see it, so the two strategies' weights sum to one.
 
 The sampler does not say which light a sample came from: samples are matched to the lights geometrically
@@ -25,7 +25,9 @@ from .ray_visibility import DIFFUSE_RAY, GLOSSY_RAY, TRANSMISSION_RAY
 
 # flag -> (the ray kind it hides the light from, the lobe kinds next-event estimation leaves out)
 FLAGS = {"visible_diffuse": (DIFFUSE_RAY, (DIFFUSE,)), "visible_glossy": (GLOSSY_RAY, (GLOSSY,)),
-         "visible_transmission": (TRANSMISSION_RAY, (GLASS, REFRACTION))}
+         "visible_transmission": (TRANSMISSION_RAY, (REFRACTION,))}
+# glass lobes reflect and transmit: left out only when both of these are off (as Cycles' closure exclusion)
+_GLASS_FLAGS = ("visible_glossy", "visible_transmission")
 
 
 @dataclass
@@ -48,7 +50,8 @@ class LightVisibility:
                     hidden_from.setdefault(FLAGS[flag][0], set()).add(id(lt))
         if not by_flags:
             return None
-        groups = [(tuple(k for flag in off for k in FLAGS[flag][1]), NoShadowLights.of(chosen, shift))
+        groups = [(tuple(k for flag in off for k in FLAGS[flag][1])
+                   + ((GLASS,) if all(flag in off for flag in _GLASS_FLAGS) else ()), NoShadowLights.of(chosen, shift))
                   for off, chosen in by_flags.items()]
         return cls({kind: frozenset(ids) for kind, ids in hidden_from.items()}, groups)
 

@@ -6,7 +6,8 @@ Scenes (diffuse quads on the ground seen from above by an orthographic camera):
   the middle one); an emissive quad over the right lights {right: Include}. Each object is lit by some emitters
   only, through light sampling and BSDF hits (MIS with the class's light selection).
 - visibility (32x32): diffuse, mixed and glossy quads under an area light and a sphere light, both with one
-  Ray Visibility flag turned: Diffuse off, Glossy off, Camera on (the sphere light seen; `-m slow`).
+  Ray Visibility flag turned: Diffuse off, Glossy off, Camera on (the sphere light seen; `-m slow`); and a
+  rough glass sheet over a floor under an area light with Transmission off.
 - blockers: a floor and a square hovering over it under an area light whose blocker collection holds only a
   small cube off to the side: the square casts no shadow from that light (Cycles' shadow linking); the square
   itself is lit.
@@ -14,7 +15,7 @@ Scenes (diffuse quads on the ground seen from above by an orthographic camera):
 Each is compared by its mean (within max(4 sigma, 1 %) capped at 1 %) and per-pixel z-scores (core.compare:
 at most 1 % of pixels beyond 5 sigma), Cycles' per-pixel variance from 4 seeds at half Monte's samples, Monte's
 from its film. Control: the same scene with its linking removed, rendered by Monte, must fail the same check
-against Cycles' linked image (it differs by 17-120 %). About 25 s on 2 cores with compiled kernels cached.
+against Cycles' linked image (it differs by 17-120 %). About 35 s on 2 cores with compiled kernels cached.
 """
 
 from __future__ import annotations
@@ -117,6 +118,17 @@ def visibility_scene(flag: str | None):
     return scene
 
 
+def transmission_scene(flag_off: bool):
+    """A rough glass sheet over half of a diffuse floor under an area light (Transmission off: no light through
+    the sheet, none refracted by it in next-event estimation)."""
+    scene = _base(size=(32, 32))
+    _quad("floor", -3.5, 3.5, -3.5, 3.5, 0, bf.diffuse("floor", (0.8, 0.8, 0.8)))
+    _quad("sheet", -3.5, 0.0, -3.5, 3.5, 0.6, bf.node_material("glass", "ShaderNodeBsdfGlass", Roughness=0.2))
+    light = bf.add_light(scene, "AREA", (-0.5, 0.0, 2.0), name="area", energy=150.0, size=2.0)
+    light.visible_transmission = not flag_off
+    return scene
+
+
 def monte(scene):
     m = scene.monte
     m.samples, m.max_bounces, m.seed, m.threads = SPP, BOUNCES, 1, 2
@@ -195,3 +207,7 @@ def test_collections_become_light_sets_as_blenders_manual_states():
     assert [bool(masks[name].shadow_sets >> blocker_set & 1) for name in "abcd"] == [True, True, False, False]
     assert any("object 'd': Shadow Linking (collection 'only excluded') of an emissive mesh is not supported" in w
                for w in core.warnings)
+
+
+def test_light_transmission_visibility_matches_cycles(tmp_path):
+    check("light visible_transmission", transmission_scene, tmp_path, control=False)
