@@ -212,6 +212,8 @@ AUDIT = {
                                 ("renders", lambda c: not c.lights[0].visible_glossy)),
     "light transmission visibility": (lambda s: _set(obj("lamp"), visible_transmission=False),
                                       ("renders", lambda c: not c.lights[0].visible_transmission)),
+    "light volume scatter visibility": (lambda s: _set(obj("lamp"), visible_volume_scatter=False),
+                                        ("warns", ["light 'lamp'", "Volume Scatter"])),
     "light linking": (_light_linking, ("renders", lambda c: c.lights[0].receiver_set == 1
                                        and _mesh(c, "cube").light_sets & 2 and not _mesh(c, "floor").light_sets & 2)),
     "shadow linking": (_shadow_linking, ("renders", lambda c: c.lights[0].blocker_set == 1
