@@ -36,7 +36,7 @@ from .shading import PreparedShading
 from .textured_emitters import TexturedEmitters
 from .shading.program import (ATTRIBUTE_COLUMNS, MESH_ATTRIBUTE_COLUMNS, PATH_COLUMNS, PATH_DEPTH, PATH_FLAGS,
                               PATH_LENGTH, RAY_CAMERA)
-from .shading.vector_context import vector_context
+from .shading.vector_context import VectorNeeds, vector_context
 
 # Sampler dimension layout: film position first, the lens point (depth of field; its set is read only when the
 # camera has an aperture, so a pinhole camera's numbers are unchanged), then a fixed block per bounce. The ray's
@@ -151,6 +151,8 @@ class PreparedScene:
     # emitters whose emission a node program drives, light-sampled by their own table (core.textured_emitters)
     textured: TexturedEmitters | None = None
     tangent_layers: np.ndarray | None = None  # (T, K, 3, 4) Scene.tangent_layer_names' tangents, or None
+    # per material, which Vector-node inputs its program reads (computed for those points only), None without programs
+    vector_needs: VectorNeeds | None = None
     # Motion blur (core.motion): the moving triangles' corners per step (shifted frame), their corner normals per
     # step ((S, M, 3, 3), None when they keep `corner_normals`) and each triangle's row among them (-1: still);
     # all None when nothing moves.
@@ -354,7 +356,8 @@ class PreparedScene:
                    shadow_clear=shadow_clear, attributes=attributes,
                    tangent_layers=tangent_layers, motion=motion,
                    motion_normals=motion_normals, motion_slot=motion_slot, moving_emitters=moving_emitters,
-                   links=links, shadow_links=shadow_links, light_visibility=light_visibility)
+                   links=links, shadow_links=shadow_links, light_visibility=light_visibility,
+                   vector_needs=None if shading is None else VectorNeeds.of(shading))
         if shading is not None and shading.any_emits:
             sampled = shading.emits
             # the estimate sees what light sampling sees: a first bounce's light sample (core.textured_emitters)
@@ -1534,20 +1537,34 @@ def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np
     obj = ps.object_of_triangle[prim]
     if ps.motion_slot is not None and bary is not None:
         sh, obj = _objects_at_hit_time(ps, sh, obj, prim, bary, g.p)
-    vec = vector_context(ps, prim, bary, ng, dp, g.uv is not None)
+    # Differentials, tangents and named UV maps only for the points whose program reads them (each costs more
+    # NumPy work per point than a short program's evaluation; the others read zeros they never use)
+    needs = ps.vector_needs
+    vec = vector_context(ps, prim, bary, ng, dp, g.uv is not None,
+                         wants_differentials=None if needs is None else needs.differentials[mat],
+                         wants_tangents=None if needs is None else needs.tangents[mat])
     uvx = None
     if ps.uv_layers is not None and bary is not None:  # the named UV maps at the hit points
+        want = np.ones(len(prim), bool) if needs is None else needs.uv_layers[mat]
+        sel = None if want.all() else np.flatnonzero(want)
         b1, b2 = np.asarray(bary[0], np.float32), np.asarray(bary[1], np.float32)
-        corners = ps.uv_layers[prim]  # (N, K, 3, 2)
+        corners = ps.uv_layers[prim if sel is None else prim[sel]]  # (N, K, 3, 2)
+        if sel is not None:
+            b1, b2 = b1[sel], b2[sel]
         uvx = (corners[:, :, 0] * (1 - b1 - b2)[:, None, None] + corners[:, :, 1] * b1[:, None, None]
                + corners[:, :, 2] * b2[:, None, None]).astype(np.float32)
         if vec.db is not None:  # and their derivatives along dP.dx, dP.dy
+            db = vec.db if sel is None else vec.db[sel]
             e1, e2 = corners[:, :, 1] - corners[:, :, 0], corners[:, :, 2] - corners[:, :, 0]  # (N, K, 2)
-            full = np.empty((len(prim), uvx.shape[1], 3, 2), np.float32)
+            full = np.empty((len(b1), uvx.shape[1], 3, 2), np.float32)
             full[:, :, 0] = uvx
             for j in range(2):
-                full[:, :, 1 + j] = (e1 * vec.db[:, j, 0, None, None] + e2 * vec.db[:, j, 1, None, None])
+                full[:, :, 1 + j] = (e1 * db[:, j, 0, None, None] + e2 * db[:, j, 1, None, None])
             uvx = full
+        if sel is not None:
+            all_rows = np.zeros((len(prim), *uvx.shape[1:]), np.float32)
+            all_rows[sel] = uvx
+            uvx = all_rows
     extra = None
     if sh.uses_light_path or sh.uses_attributes:
         attrs = ps.attributes if sh.uses_attributes else None

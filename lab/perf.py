@@ -10,6 +10,8 @@ Sections (each a short run; all in one process, interleaved where two variants a
   cost nothing: the times should agree within noise).
 - adaptive: the Cornell box and the spheres-under-sky scene at a fixed spp with adaptive sampling off and on,
   RMSE against a long render of the same scene, the time saved, and the time at equal error (efficiency ratio).
+- nodes: ns per node per shading point of the main shading nodes (Image Texture, Noise, Voronoi, Mix, Math,
+  Color Ramp, Bump, Normal Map, Principled), compiled from real Blender materials (lab/perf_nodes.py; needs bpy).
 Nothing here asserts a time: machines are shared and noisy; compare ratios within one run.
 """
 
@@ -28,7 +30,7 @@ from ..core.builtin_scenes import cornell_box, cornell_diffuse, spheres_under_sk
 from ..core.settings import RenderSettings
 from .bench_math import efficiency
 
-SECTIONS = ("stages", "threads", "memory", "skip", "adaptive")
+SECTIONS = ("stages", "threads", "memory", "skip", "adaptive", "nodes")
 
 
 def render(scene, settings: RenderSettings):
@@ -155,6 +157,11 @@ def run_perf(args: argparse.Namespace) -> dict:
                   f"{r['on']['seconds']:.2f} s, RMSE {r['on']['rmse']:.4f}, efficiency {r['on']['efficiency']:.1f}, "
                   f"{r['on']['samples'] / r['off']['samples']:.0%} of the samples; time saved {r['time_saved']:.0%}, "
                   f"time at equal error x{1 / r['efficiency_gain']:.2f}")
+    if "nodes" in sections:
+        from .perf_nodes import node_costs, print_node_costs
+
+        r = report["nodes"] = node_costs(points=args.node_points, repeat=max(args.repeat, 3))
+        print_node_costs(r)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(report, fh, indent=2)
@@ -170,4 +177,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--adaptive-threshold", type=float, default=0.1,
                    help="adaptive threshold to measure (default 0.1: Cornell box pixels reach it near 256 spp)")
     p.add_argument("--adaptive-spp", type=int, default=256, help="spp of the adaptive comparison (128x128 image)")
+    p.add_argument("--node-points", type=int, default=1 << 16,
+                   help="shading points per program run in the nodes section (default 65536)")
     p.add_argument("--json", help="also write the numbers to this JSON file")

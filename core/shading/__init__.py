@@ -33,7 +33,8 @@ How a new node is added (five steps, each in its own place)
    0) and writing outputs with `set3(regs, a[i], x, y, z)` / `setf(regs, a[i], x)` (both skip a -1 operand);
    `data[a[i] + j]` reads the program's float pool. The family module imports core.shading.regs and
    core.shading.registry only (evaluator imports the family module, never the reverse).
-   Then add the family's branch to `evaluator._execute` (its comments show the line), import the module in
+   Then add the family's branch to `evaluator._execute` and to the loop of `evaluator.run_programs` (their
+   comments show the line), import the module in
    evaluator.py, and add "shading/<module>" to core.jit_cache.KERNEL_MODULES.
 3. Compiler rule: in addon/export/nodes/ (rules.py, or a module of the family imported by nodes/registry.py's
    `_load`), a function decorated

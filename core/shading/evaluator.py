@@ -365,27 +365,6 @@ def _mapping(a, regs):
 
 # --------------------------------------------------------------------------------------------------- images
 @_jit
-def _texel(tex_pixels, off, h, w, ix, iy, ext, c):
-    """Channel c of texel (ix, iy) (iy counted from the BOTTOM row, Blender's v) with the extension mode;
-    0 outside the image for clip."""
-    if ext == 0:
-        ix = ix % w
-        iy = iy % h
-    elif ext == 1:
-        ix = min(max(ix, 0), w - 1)
-        iy = min(max(iy, 0), h - 1)
-    elif ext == 2:
-        if ix < 0 or iy < 0 or ix >= w or iy >= h:
-            return 0.0
-    else:
-        mx = abs(ix + (1 if ix < 0 else 0)) % (2 * w)
-        ix = 2 * w - mx - 1 if mx >= w else mx
-        my = abs(iy + (1 if iy < 0 else 0)) % (2 * h)
-        iy = 2 * h - my - 1 if my >= h else my
-    return float(tex_pixels[off + ((h - 1 - iy) * w + ix) * 4 + c])
-
-
-@_jit
 def _bspline(t):
     """Cubic B-spline weights of the 4 texels around a fractional position t (Cycles' bicubic)."""
     t2 = t * t
@@ -398,49 +377,87 @@ def _bspline(t):
 
 
 @_jit
-def image_lookup(tex_pixels, off, h, w, u, v, interp, ext, c):
-    """Channel c of an RGBA image (stored flat from `off`, row 0 at the top) at (u, v), Cycles' image
-    interpolation: linear = bilinear between texel centres, closest = the texel containing (u, v), cubic =
-    cubic B-spline; extension as in `_texel`. Non-finite coordinates read as 0."""
+def _texel_at(h, w, ix, iy, ext):
+    """Index of texel (ix, iy) (iy counted from the BOTTOM row, Blender's v) in an image stored row 0 at the
+    top, with the extension mode ext: 0 repeat, 1 extend, 2 clip (-1 outside the image: the texel reads 0),
+    3 mirror."""
+    if ext == 0:
+        ix = ix % w
+        iy = iy % h
+    elif ext == 1:
+        ix = min(max(ix, 0), w - 1)
+        iy = min(max(iy, 0), h - 1)
+    elif ext == 2:
+        if ix < 0 or iy < 0 or ix >= w or iy >= h:
+            return -1
+    else:
+        mx = abs(ix + (1 if ix < 0 else 0)) % (2 * w)
+        ix = 2 * w - mx - 1 if mx >= w else mx
+        my = abs(iy + (1 if iy < 0 else 0)) % (2 * h)
+        iy = 2 * h - my - 1 if my >= h else my
+    return (h - 1 - iy) * w + ix
+
+
+@_jit
+def _rgba_at(tex_pixels, off, i):
+    """The four channels of texel index i (from `_texel_at`) as float64; zeros for -1."""
+    if i < 0:
+        return 0.0, 0.0, 0.0, 0.0
+    j = off + i * 4
+    return float(tex_pixels[j]), float(tex_pixels[j + 1]), float(tex_pixels[j + 2]), float(tex_pixels[j + 3])
+
+
+@_jit
+def _image_rgba(tex_pixels, off, h, w, u, v, interp, ext, flags):
+    """An RGBA image (stored flat from `off`, row 0 at the top) filtered at (u, v) as Cycles interpolates images:
+    linear = bilinear between texel centres, closest = the texel containing (u, v), cubic = cubic B-spline;
+    extension as in `_texel_at`; non-finite coordinates read as 0. Returns (r, g, b, alpha) with the Image
+    Texture op's flags applied (associate, unassociate, then the sRGB decode). The four channels share each
+    texel's address (found once, not once per channel: ~3x fewer integer divisions per lookup), each channel's
+    arithmetic in the order of the former per-channel lookup, so the values are the same bits."""
     if not math.isfinite(u):
         u = 0.0
     if not math.isfinite(v):
         v = 0.0
     if interp == 1:
-        return _texel(tex_pixels, off, h, w, np.int64(math.floor(u * w)), np.int64(math.floor(v * h)), ext, c)
-    x = u * w - 0.5
-    y = v * h - 0.5
-    fx0 = math.floor(x)
-    fy0 = math.floor(y)
-    ix = np.int64(fx0)
-    iy = np.int64(fy0)
-    tx = x - fx0
-    ty = y - fy0
-    if interp == 0:
-        t00 = _texel(tex_pixels, off, h, w, ix, iy, ext, c)
-        t10 = _texel(tex_pixels, off, h, w, ix + 1, iy, ext, c)
-        t01 = _texel(tex_pixels, off, h, w, ix, iy + 1, ext, c)
-        t11 = _texel(tex_pixels, off, h, w, ix + 1, iy + 1, ext, c)
-        return (1.0 - ty) * ((1.0 - tx) * t00 + tx * t10) + ty * ((1.0 - tx) * t01 + tx * t11)
-    wx = _bspline(tx)
-    wy = _bspline(ty)
-    acc = 0.0
-    for j in range(4):
-        row = 0.0
-        for i in range(4):
-            row += wx[i] * _texel(tex_pixels, off, h, w, ix - 1 + i, iy - 1 + j, ext, c)
-        acc += wy[j] * row
-    return acc
-
-
-@_jit
-def _image_rgba(tex_pixels, off, h, w, u, v, interp, ext, flags):
-    """An image's filtered (r, g, b, alpha) at (u, v) with the Image Texture op's flags applied (associate,
-    unassociate, then the sRGB decode)."""
-    alpha = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 3)
-    r = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 0)
-    g = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 1)
-    b = image_lookup(tex_pixels, off, h, w, u, v, interp, ext, 2)
+        r, g, b, alpha = _rgba_at(tex_pixels, off, _texel_at(h, w, np.int64(math.floor(u * w)),
+                                                             np.int64(math.floor(v * h)), ext))
+    else:
+        x = u * w - 0.5
+        y = v * h - 0.5
+        fx0 = math.floor(x)
+        fy0 = math.floor(y)
+        ix = np.int64(fx0)
+        iy = np.int64(fy0)
+        tx = x - fx0
+        ty = y - fy0
+        if interp == 0:
+            r00, g00, b00, a00 = _rgba_at(tex_pixels, off, _texel_at(h, w, ix, iy, ext))
+            r10, g10, b10, a10 = _rgba_at(tex_pixels, off, _texel_at(h, w, ix + 1, iy, ext))
+            r01, g01, b01, a01 = _rgba_at(tex_pixels, off, _texel_at(h, w, ix, iy + 1, ext))
+            r11, g11, b11, a11 = _rgba_at(tex_pixels, off, _texel_at(h, w, ix + 1, iy + 1, ext))
+            sx = 1.0 - tx
+            sy = 1.0 - ty
+            alpha = sy * (sx * a00 + tx * a10) + ty * (sx * a01 + tx * a11)
+            r = sy * (sx * r00 + tx * r10) + ty * (sx * r01 + tx * r11)
+            g = sy * (sx * g00 + tx * g10) + ty * (sx * g01 + tx * g11)
+            b = sy * (sx * b00 + tx * b10) + ty * (sx * b01 + tx * b11)
+        else:
+            wx = _bspline(tx)
+            wy = _bspline(ty)
+            r = g = b = alpha = 0.0
+            for j in range(4):
+                rr = rg = rb = ra = 0.0
+                for i in range(4):
+                    cr, cg, cb, ca = _rgba_at(tex_pixels, off, _texel_at(h, w, ix - 1 + i, iy - 1 + j, ext))
+                    rr += wx[i] * cr
+                    rg += wx[i] * cg
+                    rb += wx[i] * cb
+                    ra += wx[i] * ca
+                r += wy[j] * rr
+                g += wy[j] * rg
+                b += wy[j] * rb
+                alpha += wy[j] * ra
     if flags & 1:
         r, g, b = r * alpha, g * alpha, b * alpha
     elif flags & 4 and alpha != 0.0 and alpha != 1.0:
@@ -707,9 +724,10 @@ def _vector_transform(a, regs, data, k, obj, objects):
 
 # ------------------------------------------------------------------------------------------------- dispatch
 @_jit
-def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
-             tex_w, uvx, extra, dP, duv, tan, nraw):
-    """Execute core opcode `op` with operand slots `a` (a[1..]) for shading point k."""
+def _register_op(op, a, regs):
+    """Execute core opcode `op` when it reads and writes registers only (no shading context): returns False for
+    the others (`_core_op`). The interpreter calls this with 3 arguments instead of the context's two dozen
+    arrays, which made an instruction's call cost more than its arithmetic."""
     if op == _COPY:
         x, y, z = get3(regs, a[2])
         set3(regs, a[1], x, y, z)
@@ -761,7 +779,46 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         ax, ay, az = get3(regs, a[3])
         bx, by, bz = get3(regs, a[4])
         set3(regs, a[1], ax + fx * (bx - ax), ay + fy * (by - ay), az + fz * (bz - az))
-    elif op == _FRESNEL:
+    elif op == _SPEC:
+        ior = float(regs[a[3], 0])
+        level = float(regs[a[4], 0])
+        rr = (ior - 1.0) / (ior + 1.0)
+        f0 = rr * rr
+        eta = ior
+        if level != 0.5:
+            f0 *= 2.0 * level
+            c = math.sqrt(min(max(f0, 0.0), 0.99))
+            eta = (1.0 + c) / (1.0 - c)
+            if ior < 1.0:
+                eta = 1.0 / eta
+        tx, ty, tz = get3(regs, a[5])
+        set3(regs, a[1], min(max(f0 * tx, 0.0), 1.0), min(max(f0 * ty, 0.0), 1.0), min(max(f0 * tz, 0.0), 1.0))
+        setf(regs, a[2], eta)
+    elif op == _GLASSF0:
+        ior = float(regs[a[2], 0])
+        rr = (ior - 1.0) / (ior + 1.0)
+        f0 = rr * rr
+        tx, ty, tz = get3(regs, a[3])
+        set3(regs, a[1], min(max(f0 * tx, 0.0), 1.0), min(max(f0 * ty, 0.0), 1.0), min(max(f0 * tz, 0.0), 1.0))
+    elif op == _SQRTSAT:
+        x, y, z = get3(regs, a[2])
+        set3(regs, a[1], math.sqrt(min(max(x, 0.0), 1.0)), math.sqrt(min(max(y, 0.0), 1.0)),
+             math.sqrt(min(max(z, 0.0), 1.0)))
+    elif op == _OMS:
+        x, y, z = get3(regs, a[2])
+        set3(regs, a[1], min(max(1.0 - x, 0.0), 1.0), min(max(1.0 - y, 0.0), 1.0), min(max(1.0 - z, 0.0), 1.0))
+    else:
+        return False
+    return True
+
+
+@_jit
+def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
+             tex_w, uvx, extra, dP, duv, tan, nraw):
+    """Execute core opcode `op` with operand slots `a` (a[1..]) for shading point k."""
+    if _register_op(op, a, regs):
+        return
+    if op == _FRESNEL:
         n0, n1, n2 = (float(N[k, 0]), float(N[k, 1]), float(N[k, 2])) if a[3] < 0 else get3(regs, a[3])
         eta = max(float(regs[a[2], 0]), 1e-5)
         if back[k]:
@@ -854,34 +911,6 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
             r, g, b, alpha = _image_rgba(tex_pixels, tex_offset[t], tex_h[t], tex_w[t], u, v, a[5], a[6], a[7])
         set3(regs, a[1], r, g, b)
         setf(regs, a[2], alpha)
-    elif op == _SPEC:
-        ior = float(regs[a[3], 0])
-        level = float(regs[a[4], 0])
-        rr = (ior - 1.0) / (ior + 1.0)
-        f0 = rr * rr
-        eta = ior
-        if level != 0.5:
-            f0 *= 2.0 * level
-            c = math.sqrt(min(max(f0, 0.0), 0.99))
-            eta = (1.0 + c) / (1.0 - c)
-            if ior < 1.0:
-                eta = 1.0 / eta
-        tx, ty, tz = get3(regs, a[5])
-        set3(regs, a[1], min(max(f0 * tx, 0.0), 1.0), min(max(f0 * ty, 0.0), 1.0), min(max(f0 * tz, 0.0), 1.0))
-        setf(regs, a[2], eta)
-    elif op == _GLASSF0:
-        ior = float(regs[a[2], 0])
-        rr = (ior - 1.0) / (ior + 1.0)
-        f0 = rr * rr
-        tx, ty, tz = get3(regs, a[3])
-        set3(regs, a[1], min(max(f0 * tx, 0.0), 1.0), min(max(f0 * ty, 0.0), 1.0), min(max(f0 * tz, 0.0), 1.0))
-    elif op == _SQRTSAT:
-        x, y, z = get3(regs, a[2])
-        set3(regs, a[1], math.sqrt(min(max(x, 0.0), 1.0)), math.sqrt(min(max(y, 0.0), 1.0)),
-             math.sqrt(min(max(z, 0.0), 1.0)))
-    elif op == _OMS:
-        x, y, z = get3(regs, a[2])
-        set3(regs, a[1], min(max(1.0 - x, 0.0), 1.0), min(max(1.0 - y, 0.0), 1.0), min(max(1.0 - z, 0.0), 1.0))
     elif op == _NORMAL_MAP:
         _normal_map(a, regs, k, N, back, obj, objects, tan, nraw)
     elif op == _BUMP_OP:
@@ -965,7 +994,8 @@ def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects, dP, duv):
 @_jit
 def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
              tex_w, uvx, extra, dP, duv, tan, nraw):
-    """One instruction. A new opcode family hooks in here: `elif op < NEXT_BASE: family.run(op, a, regs, data)`."""
+    """One instruction (`run_single`'s path; `run_programs` dispatches the same way inline). A new opcode family
+    hooks in here and in run_programs: `elif op < NEXT_BASE: family.run(op, a, regs, data)`."""
     if op < _COLOR_BASE:
         _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
                  tex_w, uvx, extra, dP, duv, tan, nraw)
@@ -998,8 +1028,17 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
         pdata = data[data_start[p]:data_start[p + 1]]
         for i in range(code_start[p], code_start[p + 1]):
             a = code[i]
-            _execute(a[0], a, scratch, pdata, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels,
-                     tex_offset, tex_h, tex_w, uvx, extra, dP, duv, tan, nraw)
+            op = a[0]
+            # the families straight from here (not through _execute): register-only ops take 3-4 arguments,
+            # only the ops that read the shading context get its arrays
+            if op < _COLOR_BASE:
+                if not _register_op(op, a, scratch):
+                    _core_op(op, a, scratch, pdata, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels,
+                             tex_offset, tex_h, tex_w, uvx, extra, dP, duv, tan, nraw)
+            elif op < _PROC_BASE:
+                color.run(op, a, scratch, pdata)
+            else:
+                procedural.run(op, a, scratch, pdata)
         L = bind.shape[1]
         changed = False
         for l in range(L):

@@ -40,51 +40,127 @@ def orthonormals(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return a, np.cross(n, a)
 
 
+@dataclass
+class VectorNeeds:
+    """Per material (M,) bool: what its node program reads beyond the basic shading context. differentials: ray
+    differentials (dP, the UV maps' derivatives; a Bump node), tangents: tangent layers and the mesh normal
+    (Normal Map, Tangent), uv_layers: the named UV maps (UV Map node). A point whose material reads none of them
+    gets zeros there: the evaluator's reads of them are multiplied by 0 (an unbumped point's zero offset)."""
+
+    differentials: np.ndarray
+    tangents: np.ndarray
+    uv_layers: np.ndarray
+
+    @classmethod
+    def of(cls, shading) -> "VectorNeeds":
+        """From a core.shading.PreparedShading's packed programs."""
+        from . import registry as R
+
+        m = len(shading.prog_of_mat)
+        out = cls(np.zeros(m, bool), np.zeros(m, bool), np.zeros(m, bool))
+        for mat, p in enumerate(shading.prog_of_mat):
+            if p < 0:
+                continue
+            ops = shading.code[shading.code_start[p]:shading.code_start[p + 1], 0]
+            out.differentials[mat] = bool(np.any(ops == R.OP_BUMP))
+            out.tangents[mat] = bool(np.any((ops == R.OP_NORMAL_MAP) | (ops == R.OP_TANGENT)))
+            out.uv_layers[mat] = bool(np.any(ops == R.OP_UV_LAYER))
+        return out
+
+
+def _subset(want: np.ndarray | None, n: int) -> np.ndarray | None:
+    """Row indices where `want` (N,) bool holds, or None for all rows (also when want is None)."""
+    if want is None or want.all():
+        return None
+    return np.flatnonzero(want)
+
+
+def _scatter(values: np.ndarray, rows: np.ndarray | None, n: int) -> np.ndarray:
+    """values computed for `rows` (None: all n rows) as an (n, ...) array, zeros elsewhere."""
+    if rows is None:
+        return values
+    full = np.zeros((n, *values.shape[1:]), values.dtype)
+    full[rows] = values
+    return full
+
+
 def vector_context(ps, prim: np.ndarray, bary, ng_view: np.ndarray, dp: np.ndarray | None,
-                   has_uv: bool) -> VectorContext:
+                   has_uv: bool, wants_differentials: np.ndarray | None = None,
+                   wants_tangents: np.ndarray | None = None) -> VectorContext:
     """The Vector-node inputs of hits on triangles `prim` at barycentrics bary = (b1, b2) (None: none), with
     viewer-side true normals ng_view and footprints dp (None: no differentials). ps: the PreparedScene
-    (tri_vertices, uvs, tangent_layers, corner_normals, smooth, face_normals)."""
+    (tri_vertices, uvs, tangent_layers, corner_normals, smooth, face_normals). wants_differentials /
+    wants_tangents (N,) bool: the points whose program reads them (VectorNeeds); the others get zeros (None:
+    every point). Each point's values do not depend on the others'."""
     out = VectorContext()
     if bary is None:
         return out
+    n = len(prim)
+    if dp is not None:
+        rows = _subset(wants_differentials, n)
+        if rows is None or len(rows):
+            d, db, duv = _differentials(ps, prim if rows is None else prim[rows],
+                                        bary if rows is None else (np.asarray(bary[0])[rows], np.asarray(bary[1])[rows]),
+                                        ng_view if rows is None else ng_view[rows],
+                                        dp if rows is None else np.asarray(dp)[rows], has_uv)
+            out.dP, out.db = _scatter(d, rows, n), _scatter(db, rows, n)
+            out.duv = None if duv is None else _scatter(duv, rows, n)
+        else:
+            out.dP, out.db = np.zeros((n, 2, 3), np.float32), np.zeros((n, 2, 2), np.float32)
+            out.duv = np.zeros((n, 2, 2), np.float32) if has_uv and ps.uvs is not None else None
+    if ps.tangent_layers is not None:
+        rows = _subset(wants_tangents, n)
+        if rows is None or len(rows):
+            t, normal = _tangents(ps, prim if rows is None else prim[rows],
+                                  bary if rows is None else (np.asarray(bary[0])[rows], np.asarray(bary[1])[rows]))
+            out.tangents, out.mesh_normal = _scatter(t, rows, n), _scatter(normal, rows, n)
+        else:
+            out.tangents = np.zeros((n, ps.tangent_layers.shape[1], 4), np.float32)
+            out.mesh_normal = np.zeros((n, 3), np.float32)
+    return out
+
+
+def _differentials(ps, prim, bary, ng_view, dp, has_uv):
+    """(dP (N, 2, 3), db (N, 2, 2), duv (N, 2, 2) or None) float32 of VectorContext for these points."""
+    b1 = np.asarray(bary[0], np.float64)
+    ta, tb = orthonormals(ng_view)
+    size = np.asarray(dp, np.float64)[:, None]
+    d = np.stack([ta * size, tb * size], axis=1)  # (N, 2, 3)
+    v = ps.tri_vertices[prim].astype(np.float64)
+    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+    a11 = np.einsum("ij,ij->i", e1, e1)
+    a12 = np.einsum("ij,ij->i", e1, e2)
+    a22 = np.einsum("ij,ij->i", e2, e2)
+    det = a11 * a22 - a12 * a12
+    inv = np.where(det != 0, 1.0 / np.where(det != 0, det, 1.0), 0.0)
+    db = np.empty((len(b1), 2, 2))
+    for j in range(2):
+        r1 = np.einsum("ij,ij->i", e1, d[:, j])
+        r2 = np.einsum("ij,ij->i", e2, d[:, j])
+        db[:, j, 0] = (a22 * r1 - a12 * r2) * inv
+        db[:, j, 1] = (a11 * r2 - a12 * r1) * inv
+    duv = None
+    if has_uv and ps.uvs is not None:
+        c = ps.uvs[prim].astype(np.float64)  # (N, 3, 2)
+        u1, u2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+        duv = (u1[:, None] * db[:, :, 0, None] + u2[:, None] * db[:, :, 1, None]).astype(np.float32)
+    return d.astype(np.float32), db.astype(np.float32), duv
+
+
+def _tangents(ps, prim, bary):
+    """(tangents (N, K, 4), mesh normal (N, 3)) float32 of VectorContext for these points."""
     b1 = np.asarray(bary[0], np.float64)
     b2 = np.asarray(bary[1], np.float64)
-    if dp is not None:
-        ta, tb = orthonormals(ng_view)
-        size = np.asarray(dp, np.float64)[:, None]
-        d = np.stack([ta * size, tb * size], axis=1)  # (N, 2, 3)
-        out.dP = d.astype(np.float32)
-        v = ps.tri_vertices[prim].astype(np.float64)
-        e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
-        a11 = np.einsum("ij,ij->i", e1, e1)
-        a12 = np.einsum("ij,ij->i", e1, e2)
-        a22 = np.einsum("ij,ij->i", e2, e2)
-        det = a11 * a22 - a12 * a12
-        inv = np.where(det != 0, 1.0 / np.where(det != 0, det, 1.0), 0.0)
-        db = np.empty((len(prim), 2, 2))
-        for j in range(2):
-            r1 = np.einsum("ij,ij->i", e1, d[:, j])
-            r2 = np.einsum("ij,ij->i", e2, d[:, j])
-            db[:, j, 0] = (a22 * r1 - a12 * r2) * inv
-            db[:, j, 1] = (a11 * r2 - a12 * r1) * inv
-        out.db = db.astype(np.float32)
-        if has_uv and ps.uvs is not None:
-            c = ps.uvs[prim].astype(np.float64)  # (N, 3, 2)
-            u1, u2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
-            out.duv = (u1[:, None] * db[:, :, 0, None] + u2[:, None] * db[:, :, 1, None]).astype(np.float32)
-    if ps.tangent_layers is not None:
-        b0 = 1.0 - b1 - b2
-        t = ps.tangent_layers[prim]  # (N, K, 3, 4)
-        out.tangents = (t[:, :, 0] * b0[:, None, None] + t[:, :, 1] * b1[:, None, None]
-                        + t[:, :, 2] * b2[:, None, None]).astype(np.float32)
-        normal = ps.face_normals[prim].astype(np.float64)
-        if ps.corner_normals is not None:
-            cn = ps.corner_normals[prim].astype(np.float64)
-            smooth_n = cn[:, 0] * b0[:, None] + cn[:, 1] * b1[:, None] + cn[:, 2] * b2[:, None]
-            normal = np.where(ps.smooth[prim][:, None], smooth_n, normal)
-        out.mesh_normal = normal.astype(np.float32)
-    return out
+    b0 = 1.0 - b1 - b2
+    t = ps.tangent_layers[prim]  # (N, K, 3, 4)
+    tangents = (t[:, :, 0] * b0[:, None, None] + t[:, :, 1] * b1[:, None, None]
+                + t[:, :, 2] * b2[:, None, None]).astype(np.float32)
+    normal = ps.face_normals[prim].astype(np.float64)
+    if ps.corner_normals is not None:
+        cn = ps.corner_normals[prim].astype(np.float64)
+        smooth_n = cn[:, 0] * b0[:, None] + cn[:, 1] * b1[:, None] + cn[:, 2] * b2[:, None]
+        normal = np.where(ps.smooth[prim][:, None], smooth_n, normal)
+    return tangents, normal.astype(np.float32)
 
 
 def camera_differentials(camera, raster_x: np.ndarray, raster_y: np.ndarray, rays,

@@ -20,7 +20,8 @@ HEADER = """# Shading nodes Monte supports
 Generated from the node registry (`addon/export/nodes/`) by
 `.venv/bin/python -m monte.addon.export.nodes.coverage --write`; a test fails when this file and the registry
 disagree. A material's node tree is compiled at export into a program evaluated per shading point; constant
-parts fold at export, and a material that folds to constants costs nothing per point.
+parts fold at export, and a material that folds to constants costs nothing per point. What each main node costs
+per shading point: `monte perf --sections nodes` (measurements in docs/performance.md).
 
 Anything not listed is unsupported and never silent: the export warns, naming the material and the node, and
 uses the documented fallback:
