@@ -158,10 +158,16 @@ def run_perf(args: argparse.Namespace) -> dict:
                   f"{r['on']['samples'] / r['off']['samples']:.0%} of the samples; time saved {r['time_saved']:.0%}, "
                   f"time at equal error x{1 / r['efficiency_gain']:.2f}")
     if "nodes" in sections:
-        from .perf_nodes import node_costs, print_node_costs
+        import importlib.util
 
-        r = report["nodes"] = node_costs(points=args.node_points, repeat=max(args.repeat, 3))
-        print_node_costs(r)
+        if importlib.util.find_spec("bpy") is None:
+            # the node programs are compiled from real Blender materials; a core-only install has no bpy
+            print("Node costs skipped: the nodes section needs Blender's bpy module (pip install bpy)")
+        else:
+            from .perf_nodes import node_costs, print_node_costs
+
+            r = report["nodes"] = node_costs(points=args.node_points, repeat=max(args.repeat, 3))
+            print_node_costs(r)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(report, fh, indent=2)
