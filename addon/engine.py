@@ -127,8 +127,7 @@ LIGHT_PASS_PROPERTIES = {
     "Environment": "use_pass_environment",
 }
 PASSES.update({name: (3, "RGB", "COLOR") for name in LIGHT_PASS_PROPERTIES})
-# Light passes Cycles has and Monte cannot produce (no ambient occlusion pass, no volumes; shader AOVs are listed
-# by unsupported_passes too): when one is ticked the render says so by name and the pass is not registered (never a black pass that looks real). (owner, property,
+# Light passes Cycles has and Monte cannot produce (no ambient occlusion pass, no volumes): when one is ticked the render says so by name and the pass is not registered (never a black pass that looks real). (owner, property,
 # pass name); owner "cycles" is view_layer.cycles (present while the Cycles add-on is enabled).
 UNSUPPORTED_PASSES = (
     ("view_layer", "use_pass_ambient_occlusion", "Ambient Occlusion"),
@@ -146,9 +145,19 @@ def unsupported_passes(view_layer) -> list[str]:
         holder = view_layer if owner == "view_layer" else getattr(view_layer, owner, None)
         if holder is not None and bool(getattr(holder, prop, False)):
             names.append(name)
-    # Shader AOVs (AOV Output nodes, View Layer Properties > Shader AOV): not rendered by Monte yet
-    names += [f"Shader AOV {aov.name!r}" for aov in getattr(view_layer, "aovs", ())]
+    # Light groups (View Layer Properties > Light Groups: Cycles' "Combined_<name>" passes): not rendered by Monte
+    names += [f"Combined_{group.name} (light group)" for group in getattr(view_layer, "lightgroups", ())]
     return names
+
+
+def shader_aov_passes(view_layer) -> dict[str, tuple[int, str, str]]:
+    """The view layer's valid shader AOVs as passes, Cycles' layouts: name -> (4, "RGBA", "COLOR") for a COLOR
+    AOV (alpha: the share of samples that wrote it), (1, "X", "VALUE") for a VALUE one (core.shader_aovs)."""
+    out = {}
+    for aov in getattr(view_layer, "aovs", ()) if view_layer is not None else ():
+        if getattr(aov, "is_valid", True):
+            out[aov.name] = (1, "X", "VALUE") if aov.type == "VALUE" else (4, "RGBA", "COLOR")
+    return out
 
 
 def requested_passes(view_layer, scene=None) -> list[str]:
@@ -172,7 +181,7 @@ def requested_passes(view_layer, scene=None) -> list[str]:
     if uses_shadow_catcher_pass(view_layer):
         names.append("Shadow Catcher")
     names += [name for name, prop in LIGHT_PASS_PROPERTIES.items() if getattr(view_layer, prop, False)]
-    return names + data_pass_names(view_layer, scene)
+    return names + data_pass_names(view_layer, scene) + list(shader_aov_passes(view_layer))
 
 
 def requested_light_passes(passes: list[str]) -> tuple[str, ...]:
@@ -221,8 +230,9 @@ class MonteRenderEngine(bpy.types.RenderEngine):
 
     # ------------------------------------------------------------------------------------------ passes
     def update_render_passes(self, scene=None, renderlayer=None):
+        aovs = shader_aov_passes(renderlayer)
         for name in requested_passes(renderlayer, scene):
-            channels, chanid, kind = PASSES.get(name, CRYPTO_LAYER)
+            channels, chanid, kind = PASSES.get(name) or aovs.get(name) or CRYPTO_LAYER
             self.register_pass(scene, renderlayer, name, channels, chanid, kind)
 
     # ------------------------------------------------------------------------------------------ render
@@ -579,6 +589,8 @@ def _pass_pixels(name: str, src, h: int, w: int, channels: int) -> np.ndarray:
         arr = getattr(src, "shadow_catcher", None)
     elif name in LIGHT_PASS_PROPERTIES:
         arr = (getattr(src, "light_passes", None) or {}).get(name)
+    elif name in (getattr(src, "shader_aovs", None) or {}):
+        arr = src.shader_aovs[name]
     else:
         data = getattr(src, "data_passes", {})
         arr = data.get(name)

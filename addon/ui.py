@@ -403,6 +403,27 @@ class MONTE_VIEWLAYER_PT_passes_light(MonteButtonsPanel, Panel):
         col.prop(view_layer, "use_pass_environment")
 
 
+class MONTE_VIEWLAYER_PT_passes_aov(MonteButtonsPanel, Panel):
+    """Cycles' Shader AOV list (Blender's own view layer AOVs and operators; core.shader_aovs)."""
+
+    bl_label = "Shader AOV"
+    bl_context = "view_layer"
+    bl_parent_id = "MONTE_VIEWLAYER_PT_passes"
+
+    def draw(self, context):
+        layout = split_layout(self.layout)
+        view_layer = context.view_layer
+        row = layout.row()
+        row.column().template_list("VIEWLAYER_UL_aov", "aovs", view_layer, "aovs", view_layer, "active_aov_index",
+                                   rows=3)
+        sub = row.column().column(align=True)
+        sub.operator("scene.view_layer_add_aov", icon="ADD", text="")
+        sub.operator("scene.view_layer_remove_aov", icon="REMOVE", text="")
+        aov = view_layer.active_aov
+        if aov is not None and not aov.is_valid:
+            layout.label(text="Conflicts with another render pass with the same name", icon="ERROR")
+
+
 def _draw_node_input(layout, tree, input_name: str) -> None:
     output = tree.get_output_node("CYCLES") if tree is not None else None
     if output is None:
@@ -518,6 +539,7 @@ classes = (
     MONTE_VIEWLAYER_PT_passes_data,
     MONTE_VIEWLAYER_PT_passes_cryptomatte,
     MONTE_VIEWLAYER_PT_passes_light,
+    MONTE_VIEWLAYER_PT_passes_aov,
     MONTE_MATERIAL_PT_surface,
     MONTE_WORLD_PT_surface,
     MONTE_WORLD_PT_mist,

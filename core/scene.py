@@ -812,6 +812,9 @@ class Scene:
     asset_names: list[str] = field(default_factory=list)
     attribute_names: list[str] = field(default_factory=list)  # the attributes node programs name (attribute op)
     tangent_layer_names: list[str] = field(default_factory=list)  # Mesh.tangent_layers normal_map ops name ("" active)
+    # Cycles' shader AOVs (core.shader_aovs): (name, "COLOR" | "VALUE") in the view layer's order; the node
+    # programs' aov_output instructions index this list. Empty: no AOV pass, nothing kept.
+    shader_aovs: list[tuple[str, str]] = field(default_factory=list)
 
     @property
     def has_alpha(self) -> bool:
@@ -847,6 +850,7 @@ class Scene:
             raise SceneError("scene has no materials: add at least one (meshes index into the material list)")
         for mat in self.materials:
             mat.validate(len(self.textures))
+        self._validate_shader_aovs()
         n_objects = 0
         if self.objects is not None:
             from .shading.program import OBJECT_COLUMNS
@@ -871,6 +875,26 @@ class Scene:
                 kept.append(light)
         self.lights = kept
         return self
+
+
+    def _validate_shader_aovs(self) -> None:
+        """Normalise Scene.shader_aovs; SceneError for a bad entry or an AOV Output instruction naming none."""
+        from .shader_aovs import check_aovs
+        from .shading.registry import OP_AOV_OUTPUT
+
+        try:
+            self.shader_aovs = check_aovs(self.shader_aovs)
+        except ValueError as exc:
+            raise SceneError(str(exc)) from None
+        for mat in self.materials:
+            program = getattr(mat, "program", None)
+            if program is None:
+                continue
+            code = program.code  # (I, WIDTH) int32 once Material.validate has run
+            slots = code[code[:, 0] == OP_AOV_OUTPUT, 2]
+            if len(slots) and (slots.min() < 0 or slots.max() >= len(self.shader_aovs)):
+                raise SceneError(f"material {mat.name!r}: an AOV Output instruction names AOV {int(slots.max())}, "
+                                 f"the scene lists {len(self.shader_aovs)} shader AOV(s)")
 
 
 def _validate_light(light: Light, warnings: list[str]) -> bool:

@@ -260,7 +260,8 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
         camera_object = camera_object.evaluated_get(depsgraph)
     camera = export_camera(camera_object, scene, warnings)
 
-    materials = MaterialExporter(warnings, None if camera is None else camera.matrix_world)
+    shader_aovs = view_layer_aovs(depsgraph.view_layer, scene.world, warnings)
+    materials = MaterialExporter(warnings, None if camera is None else camera.matrix_world, shader_aovs)
     prototypes: dict[tuple, _Prototype] = {}
     # (object pointer, data pointer) -> prototype key or None (skip). Blender reuses one temporary object
     # for many geometry-node instances, so this keeps the per-instance work to a few attribute reads.
@@ -356,7 +357,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
                 uv_layer_names=list(materials.uv_names), mist=export_mist(scene.world),
                 object_names=object_names, asset_names=asset_names,
                 attribute_names=list(materials.attribute_names),
-                tangent_layer_names=list(materials.tangent_names))
+                tangent_layer_names=list(materials.tangent_names), shader_aovs=shader_aovs)
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "
                          "metaballs); check the objects' render visibility and the view layer's collections")
@@ -369,6 +370,25 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
     if log is not None:
         log(stats.line())
     return out, stats
+
+
+def view_layer_aovs(view_layer, world, warnings: list[str]) -> list[tuple[str, str]]:
+    """The view layer's shader AOVs (View Layer Properties > Shader AOV) as core.scene.Scene.shader_aovs: (name,
+    "COLOR" | "VALUE") in their order, the invalid ones (a repeated name, or one of a built-in pass: Blender
+    marks them) left out as Cycles does, with a warning; a warning too for AOV Output nodes in the world, which
+    Monte does not evaluate."""
+    out: list[tuple[str, str]] = []
+    for aov in getattr(view_layer, "aovs", ()):
+        if not getattr(aov, "is_valid", True):
+            warnings.append(f"view layer {view_layer.name!r}: shader AOV {aov.name!r} is invalid (a repeated name or "
+                            "the name of a built-in pass) and is not written")
+            continue
+        out.append((str(aov.name), "VALUE" if aov.type == "VALUE" else "COLOR"))
+    tree = getattr(world, "node_tree", None) if out and world is not None and getattr(world, "use_nodes", True) else None
+    if tree is not None and any(n.bl_idname == "ShaderNodeOutputAOV" for n in tree.nodes):
+        warnings.append(f"world {world.name!r}: AOV Output nodes in the world are not evaluated by Monte; the "
+                        "AOVs stay 0 where the camera sees the world")
+    return out
 
 
 def _asset_name(inst, obj) -> str:

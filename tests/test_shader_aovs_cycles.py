@@ -1,0 +1,156 @@
+"""Shader AOVs in Blender (the real bpy module) against Cycles: View Layer Properties > Shader AOV lists a COLOR
+and a VALUE AOV written by AOV Output nodes (a texture's colour and value, no lights needed), seen directly,
+through a Transparent BSDF sheet (the writes add up) and behind clear glass (nothing written); both engines'
+multilayer EXRs compared per pixel, with a control that a one-pixel shift fails the same comparison; the passes
+are registered with Cycles' names and layouts and reach the compositor's Render Layers node."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import blender_fixtures as bf  # noqa: E402
+
+from monte.addon import crosscheck as cc  # noqa: E402
+from monte.addon.engine import requested_passes, shader_aov_passes, unsupported_passes  # noqa: E402
+from monte.core import exr  # noqa: E402
+
+pytestmark = [pytest.mark.blender]
+
+SIZE = (40, 40)
+SPP = 32
+HALF = 2.0  # the orthographic view spans 4 m
+
+
+def _aov_node(tree, name: str, socket: str, source) -> None:
+    node = tree.nodes.new("ShaderNodeOutputAOV")
+    node.aov_name = name
+    tree.links.new(source, node.inputs[socket])
+
+
+def aov_scene():
+    """Seen from above (orthographic): a floor whose AOV Output nodes write the Object texture coordinate
+    ("coords", COLOR) and a Noise Texture's Fac ("noise", VALUE); a Transparent BSDF sheet over x < -1 writing
+    (1, 0, 0) to "coords"; a clear glass sheet over x > 1 writing nothing; no lamps, a grey world."""
+    scene = bf.reset()
+    floor_mat = bf.diffuse("Floor", (0.5, 0.5, 0.5))
+    tree = floor_mat.node_tree
+    coords = tree.nodes.new("ShaderNodeTexCoord")
+    noise = tree.nodes.new("ShaderNodeTexNoise")
+    noise.inputs["Scale"].default_value = 1.5
+    noise.inputs["Detail"].default_value = 0.0
+    tree.links.new(coords.outputs["Object"], noise.inputs["Vector"])
+    _aov_node(tree, "coords", "Color", coords.outputs["Object"])
+    _aov_node(tree, "noise", "Value", noise.outputs["Fac"])
+    veil_mat = bpy.data.materials.new("Veil")
+    tree = bf.node_tree_of(veil_mat)
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    transparent = tree.nodes.new("ShaderNodeBsdfTransparent")
+    tree.links.new(transparent.outputs[0], out.inputs["Surface"])
+    aov = tree.nodes.new("ShaderNodeOutputAOV")
+    aov.aov_name = "coords"
+    aov.inputs["Color"].default_value = (1.0, 0.0, 0.0, 1.0)
+    glass = bf.node_material("Glass", "ShaderNodeBsdfGlass", IOR=1.5, Roughness=0.0)
+    s = 3.0
+    bf.mesh_object("Floor", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], [(0, 1, 2, 3)], floor_mat)
+    bf.mesh_object("Veil", [(-s, -s, 0.5), (-1, -s, 0.5), (-1, s, 0.5), (-s, s, 0.5)], [(0, 1, 2, 3)], veil_mat)
+    bf.mesh_object("Pane", [(1, -s, 0.5), (s, -s, 0.5), (s, s, 0.5), (1, s, 0.5)], [(0, 1, 2, 3)], glass)
+    bf.camera_object(scene, (0.0, 0.0, 5.0), (0.0, 0.0, 0.0), kind="ORTHO", ortho_scale=2 * HALF)
+    bf.set_world(scene, (0.5, 0.5, 0.5), 1.0)
+    scene.render.resolution_x, scene.render.resolution_y = SIZE
+    scene.render.resolution_percentage = 100
+    layer = scene.view_layers[0]
+    for name, kind in (("coords", "COLOR"), ("noise", "VALUE")):
+        bpy.ops.scene.view_layer_add_aov()
+        layer.active_aov.name, layer.active_aov.type = name, kind
+    return scene
+
+
+def passes_of(channels: dict, layer: str) -> dict[str, np.ndarray]:
+    return {"coords": np.stack([channels[f"{layer}.coords.{c}"] for c in "RGBA"], axis=-1),
+            "noise": channels[f"{layer}.noise.X"][..., None]}
+
+
+@pytest.fixture(scope="module")
+def renders(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("shader_aovs")
+    scene = aov_scene()
+    layer = scene.view_layers[0].name
+    scene.render.use_compositing = False
+    cc.configure_cycles(scene, SPP, 4, threads=2, seed=1, filter_type="blackman-harris", filter_width=1.5)
+    bf.render_still_exr(scene, tmp / "cycles.exr")
+    cycles = passes_of(exr.read_exr(tmp / "cycles.exr"), layer)
+    scene.render.engine = "MONTE"
+    m = scene.monte
+    m.samples, m.max_bounces, m.seed, m.threads = SPP, 4, 1, 2
+    m.filter_type, m.filter_width = "blackman-harris", 1.5
+    bf.render_still_exr(scene, tmp / "monte.exr")
+    monte = passes_of(exr.read_exr(tmp / "monte.exr"), layer)
+    return scene, cycles, monte
+
+
+def _columns() -> np.ndarray:
+    """(W,) x of each pixel column's centre (EXR rows from the top; x grows to the right)."""
+    return -HALF + (np.arange(SIZE[0]) + 0.5) * (2 * HALF / SIZE[0])
+
+
+def _within(a: np.ndarray, b: np.ndarray, tol: np.ndarray) -> np.ndarray:
+    return np.abs(a - b) <= tol
+
+
+def test_aovs_match_cycles_per_pixel(renders):
+    _, cyc, mon = renders
+    x = _columns()
+    pixel = 2 * HALF / SIZE[0]
+    away = (np.abs(np.abs(x) - 1) > 2 * pixel)  # columns not straddling a sheet's edge
+    # coords: linear in x and y (slope 1 per metre): each pixel's mean of SPP filter-jittered samples differs
+    # from the next by about one pixel (0.1 m) and spreads sigma ~ 0.5 pixel / sqrt(SPP) about its centre; two
+    # renders differ by sqrt(2) of that: 6 sigma ~ 0.075 pixel
+    tol_xy = 0.08 * pixel
+    for c in (0, 1):
+        diff = np.abs(mon["coords"][..., c] - cyc["coords"][..., c])[:, away]
+        print(f"\ncoords[{c}]: max |Monte - Cycles| {diff.max():.4f} (tolerance {tol_xy:.4f})")
+        assert np.all(diff <= tol_xy)
+    # z, and the alpha (the share of samples writing, two writes through the veil): exact in both
+    for c in (2, 3):
+        assert np.allclose(mon["coords"][..., c][:, away], cyc["coords"][..., c][:, away], atol=1e-5), c
+    assert np.allclose(cyc["coords"][:, x < -1 - 2 * pixel, 3], 2.0) and np.all(cyc["coords"][:, x > 1 + 2 * pixel] == 0)
+    # noise: smooth, its change across a pixel bounds its jitter the same way
+    grad = np.abs(np.diff(cyc["noise"][..., 0], axis=1)).max()
+    diff = np.abs(mon["noise"] - cyc["noise"])[:, away]
+    tol_noise = 0.08 * grad + 2e-3
+    print(f"noise: max |Monte - Cycles| {diff.max():.4f} (tolerance {tol_noise:.4f})")
+    assert np.all(diff <= tol_noise)
+    assert np.all(mon["noise"][:, x > 1 + 2 * pixel] == 0) and np.all(cyc["noise"][:, x > 1 + 2 * pixel] == 0)
+
+
+def test_control_a_one_pixel_shift_fails_the_comparison(renders):
+    """The comparison above detects an AOV one pixel off (the smallest error that matters for a pass)."""
+    _, cyc, mon = renders
+    pixel = 2 * HALF / SIZE[0]
+    shifted = np.roll(mon["coords"][..., 0], 1, axis=1)
+    x = _columns()
+    away = (np.abs(np.abs(x) - 1) > 2 * pixel)
+    assert not np.all(np.abs(shifted - cyc["coords"][..., 0])[:, away][:, 1:] <= 0.08 * pixel)
+
+
+def test_aov_passes_are_registered_with_cycles_layouts(renders):
+    scene, _, _ = renders
+    layer = scene.view_layers[0]
+    assert shader_aov_passes(layer) == {"coords": (4, "RGBA", "COLOR"), "noise": (1, "X", "VALUE")}
+    assert requested_passes(layer, scene)[-2:] == ["coords", "noise"]
+    assert unsupported_passes(layer) == []
+    scene.render.use_compositing = True
+    scene.use_nodes = True if hasattr(scene, "use_nodes") else None
+    tree = bf.compositor_tree(scene) if hasattr(bf, "compositor_tree") else None
+    if tree is None:
+        pytest.skip("no compositor helper")
+    node = tree.nodes.new("CompositorNodeRLayers")
+    names = {s.name for s in node.outputs if s.enabled}
+    assert {"coords", "noise"} <= names
