@@ -36,6 +36,9 @@ PANORAMA_TYPES = ("EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID",
 MAX_MOTION_STEPS = 129  # motion-blur steps a mesh or camera may have (Embree's RTC_MAX_TIME_STEP_COUNT)
 
 
+SHADER_AOV_KINDS = ("COLOR", "VALUE")  # Scene.shader_aovs' types (core.shader_aovs)
+
+
 class SceneError(ValueError):
     """Invalid scene input that cannot be rendered; the message names the offending element."""
 
@@ -878,14 +881,26 @@ class Scene:
 
 
     def _validate_shader_aovs(self) -> None:
-        """Normalise Scene.shader_aovs; SceneError for a bad entry or an AOV Output instruction naming none."""
-        from .shader_aovs import check_aovs
+        """Normalise Scene.shader_aovs to [(name, kind)]; SceneError for a bad entry (an empty or repeated name, an
+        unknown type) or an AOV Output instruction naming no listed AOV."""
         from .shading.registry import OP_AOV_OUTPUT
 
-        try:
-            self.shader_aovs = check_aovs(self.shader_aovs)
-        except ValueError as exc:
-            raise SceneError(str(exc)) from None
+        if isinstance(self.shader_aovs, str):
+            raise SceneError(f"shader AOVs must be a list of (name, kind) pairs, got the string {self.shader_aovs!r}")
+        checked: list[tuple[str, str]] = []
+        for entry in self.shader_aovs:
+            try:
+                name, kind = entry
+            except (TypeError, ValueError):
+                raise SceneError(f"shader AOV {entry!r}: expected a (name, kind) pair") from None
+            if not isinstance(name, str) or not name:
+                raise SceneError(f"shader AOV {tuple(entry)!r}: the name must be a non-empty string")
+            if kind not in SHADER_AOV_KINDS:
+                raise SceneError(f"shader AOV {name!r}: unknown type {kind!r}; choose COLOR or VALUE")
+            if any(name == n for n, _ in checked):
+                raise SceneError(f"shader AOV {name!r} is listed twice")
+            checked.append((name, kind))
+        self.shader_aovs = checked
         for mat in self.materials:
             program = getattr(mat, "program", None)
             if program is None:

@@ -28,30 +28,8 @@ from __future__ import annotations
 import numpy as np
 
 from .data_passes import PASS_ALPHA_THRESHOLD, _clear_only
-
-AOV_KINDS = ("COLOR", "VALUE")
+from .scene import SHADER_AOV_KINDS as AOV_KINDS  # noqa: F401  (the list itself is checked by Scene.validate)
 CHANNELS = 4  # per AOV and sample: the summed value (RGB; a VALUE AOV uses the first) and the count of writes
-
-
-def check_aovs(aovs) -> list[tuple[str, str]]:
-    """The scene's AOV list as [(name, kind)]; SceneError-style ValueError for a bad entry (empty or repeated
-    name, unknown kind)."""
-    out: list[tuple[str, str]] = []
-    if isinstance(aovs, str):
-        raise ValueError(f"shader AOVs must be a list of (name, kind) pairs, got the string {aovs!r}")
-    for entry in aovs:
-        try:
-            name, kind = entry
-        except (TypeError, ValueError):
-            raise ValueError(f"shader AOV {entry!r}: expected a (name, kind) pair") from None
-        if not isinstance(name, str) or not name:
-            raise ValueError(f"shader AOV {entry!r}: the name must be a non-empty string")
-        if kind not in AOV_KINDS:
-            raise ValueError(f"shader AOV {name!r}: unknown type {kind!r}; choose COLOR or VALUE")
-        if any(name == n for n, _ in out):
-            raise ValueError(f"shader AOV {name!r} is listed twice")
-        out.append((name, kind))
-    return out
 
 
 class AovPath:

@@ -104,53 +104,80 @@ def _within(a: np.ndarray, b: np.ndarray, tol: np.ndarray) -> np.ndarray:
     return np.abs(a - b) <= tol
 
 
+def footprint(image: np.ndarray) -> np.ndarray:
+    """(H, W) how much a pass changes across one pixel: the largest difference to a 4-neighbour."""
+    pad = np.pad(image, 1, mode="edge")
+    h, w = image.shape
+    return np.max([np.abs(pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - image)
+                   for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1))], axis=0)
+
+
 def test_aovs_match_cycles_per_pixel(renders):
+    """A pixel's value is the mean of its samples' values, each taken at a filter-jittered point: Monte and Cycles
+    differ by that jitter's mean, a small share of the value's change across one pixel (measured at 32 spp: rms
+    0.018 of it, largest 0.08); the bound is 0.15 of the change across the pixel, so a one-pixel error fails
+    (the control below), and the mean difference must be below 0.005 of a pixel's change (a bias)."""
     _, cyc, mon = renders
     x = _columns()
     pixel = 2 * HALF / SIZE[0]
-    away = (np.abs(np.abs(x) - 1) > 2 * pixel)  # columns not straddling a sheet's edge
-    # coords: linear in x and y (slope 1 per metre): each pixel's mean of SPP filter-jittered samples differs
-    # from the next by about one pixel (0.1 m) and spreads sigma ~ 0.5 pixel / sqrt(SPP) about its centre; two
-    # renders differ by sqrt(2) of that: 6 sigma ~ 0.075 pixel
-    tol_xy = 0.08 * pixel
-    for c in (0, 1):
-        diff = np.abs(mon["coords"][..., c] - cyc["coords"][..., c])[:, away]
-        print(f"\ncoords[{c}]: max |Monte - Cycles| {diff.max():.4f} (tolerance {tol_xy:.4f})")
-        assert np.all(diff <= tol_xy)
-    # z, and the alpha (the share of samples writing, two writes through the veil): exact in both
+    away = np.abs(np.abs(x) - 1) > 2 * pixel  # columns not straddling a sheet's edge
+    for name, c in (("coords", 0), ("coords", 1), ("noise", 0)):
+        ref, got = cyc[name][..., c], mon[name][..., c]
+        reach = footprint(ref)[:, away]
+        signed = (got - ref)[:, away]
+        live = reach > 0
+        print(f"\n{name}[{c}]: |Monte - Cycles| / change across a pixel: largest "
+              f"{(np.abs(signed[live]) / reach[live]).max():.3f}, rms {np.sqrt((signed ** 2).mean()):.5f}, "
+              f"mean {signed.mean():+.6f}")
+        assert np.all(np.abs(signed) <= 0.15 * reach + 1e-6), (name, c)
+        assert abs(signed.mean()) <= 0.005 * np.median(reach[live]), (name, c)
+    # z, and the alpha (the share of samples writing, two writes through the veil): equal in both
     for c in (2, 3):
         assert np.allclose(mon["coords"][..., c][:, away], cyc["coords"][..., c][:, away], atol=1e-5), c
-    assert np.allclose(cyc["coords"][:, x < -1 - 2 * pixel, 3], 2.0) and np.all(cyc["coords"][:, x > 1 + 2 * pixel] == 0)
-    # noise: smooth, its change across a pixel bounds its jitter the same way
-    grad = np.abs(np.diff(cyc["noise"][..., 0], axis=1)).max()
-    diff = np.abs(mon["noise"] - cyc["noise"])[:, away]
-    tol_noise = 0.08 * grad + 2e-3
-    print(f"noise: max |Monte - Cycles| {diff.max():.4f} (tolerance {tol_noise:.4f})")
-    assert np.all(diff <= tol_noise)
-    assert np.all(mon["noise"][:, x > 1 + 2 * pixel] == 0) and np.all(cyc["noise"][:, x > 1 + 2 * pixel] == 0)
+    assert np.allclose(cyc["coords"][:, x < -1 - 2 * pixel, 3], 2.0)
+    # behind the glass nothing writes, in both
+    for img in (cyc, mon):
+        assert np.all(img["coords"][:, x > 1 + 2 * pixel] == 0) and np.all(img["noise"][:, x > 1 + 2 * pixel] == 0)
 
 
 def test_control_a_one_pixel_shift_fails_the_comparison(renders):
-    """The comparison above detects an AOV one pixel off (the smallest error that matters for a pass)."""
+    """The comparison above detects an AOV one pixel off."""
     _, cyc, mon = renders
-    pixel = 2 * HALF / SIZE[0]
-    shifted = np.roll(mon["coords"][..., 0], 1, axis=1)
     x = _columns()
-    away = (np.abs(np.abs(x) - 1) > 2 * pixel)
-    assert not np.all(np.abs(shifted - cyc["coords"][..., 0])[:, away][:, 1:] <= 0.08 * pixel)
+    pixel = 2 * HALF / SIZE[0]
+    away = np.abs(np.abs(x) - 1) > 2 * pixel
+    ref = cyc["coords"][..., 0]
+    shifted = np.roll(mon["coords"][..., 0], 1, axis=1)
+    assert not np.all(np.abs(shifted - ref)[:, away] <= 0.15 * footprint(ref)[:, away] + 1e-6)
 
 
-def test_aov_passes_are_registered_with_cycles_layouts(renders):
-    scene, _, _ = renders
+def test_aov_passes_are_registered_and_reach_the_compositor(renders, tmp_path):
+    """The passes have Cycles' names and layouts, and the compositor's Render Layers node gives Monte's AOV."""
+    scene, _, mon = renders
     layer = scene.view_layers[0]
     assert shader_aov_passes(layer) == {"coords": (4, "RGBA", "COLOR"), "noise": (1, "X", "VALUE")}
     assert requested_passes(layer, scene)[-2:] == ["coords", "noise"]
     assert unsupported_passes(layer) == []
-    scene.render.use_compositing = True
-    scene.use_nodes = True if hasattr(scene, "use_nodes") else None
-    tree = bf.compositor_tree(scene) if hasattr(bf, "compositor_tree") else None
-    if tree is None:
-        pytest.skip("no compositor helper")
+    scene.render.engine = "MONTE"
+    tree = bpy.data.node_groups.new("aov comp", "CompositorNodeTree")
+    tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
     node = tree.nodes.new("CompositorNodeRLayers")
-    names = {s.name for s in node.outputs if s.enabled}
-    assert {"coords", "noise"} <= names
+    node.scene = scene
+    out = tree.nodes.new("NodeGroupOutput")
+    tree.links.new(node.outputs["coords"], out.inputs[0])
+    scene.compositing_node_group = tree
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "IMAGE"
+    settings.file_format = "OPEN_EXR"
+    settings.color_depth = "32"
+    scene.render.use_compositing = True
+    path = tmp_path / "composited.exr"
+    scene.render.filepath = str(path)
+    try:
+        bpy.ops.render.render(write_still=True, scene=scene.name)
+    finally:
+        scene.render.use_compositing = False
+    image = exr.read_exr(path)
+    got = np.stack([image[c] for c in "RGB"], axis=-1)
+    assert np.allclose(got, mon["coords"][..., :3], atol=1e-4)  # a new render, the same seed: equal

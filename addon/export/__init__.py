@@ -384,7 +384,7 @@ def view_layer_aovs(view_layer, world, warnings: list[str]) -> list[tuple[str, s
                             "the name of a built-in pass) and is not written")
             continue
         out.append((str(aov.name), "VALUE" if aov.type == "VALUE" else "COLOR"))
-    tree = getattr(world, "node_tree", None) if out and world is not None and getattr(world, "use_nodes", True) else None
+    tree = getattr(world, "node_tree", None) if out and world is not None else None
     if tree is not None and any(n.bl_idname == "ShaderNodeOutputAOV" for n in tree.nodes):
         warnings.append(f"world {world.name!r}: AOV Output nodes in the world are not evaluated by Monte; the "
                         "AOVs stay 0 where the camera sees the world")
