@@ -181,3 +181,44 @@ def test_aov_passes_are_registered_and_reach_the_compositor(renders, tmp_path):
     image = exr.read_exr(path)
     got = np.stack([image[c] for c in "RGB"], axis=-1)
     assert np.allclose(got, mon["coords"][..., :3], atol=1e-4)  # a new render, the same seed: equal
+
+
+def test_export_keeps_listed_aovs_and_warns_for_what_it_skips(tmp_path):
+    """An AOV Output node of an AOV the view layer does not list compiles to nothing (as Cycles ignores it); an
+    AOV named like a built-in pass is invalid (Blender marks it) and left out with a warning; AOV Output nodes in a node group
+    or the world are named in warnings; `monte render scene.blend` writes the AOVs into its EXR."""
+    from monte.addon.export import export_scene
+    from monte.addon.headless import render_blend_file
+    from monte.core.shading import registry as R
+
+    scene = aov_scene()
+    layer = scene.view_layers[0]
+    floor = bpy.data.materials["Floor"].node_tree
+    _aov_node(floor, "unlisted", "Value", floor.nodes["Noise Texture"].outputs["Fac"])
+    group = bpy.data.node_groups.new("Hidden AOV", "ShaderNodeTree")
+    group.nodes.new("ShaderNodeOutputAOV").aov_name = "coords"
+    floor.nodes.new("ShaderNodeGroup").node_tree = group
+    world_aov = scene.world.node_tree.nodes.new("ShaderNodeOutputAOV")
+    world_aov.aov_name = "coords"
+    bpy.ops.scene.view_layer_add_aov()
+    layer.active_aov.name = "Combined"  # a built-in pass's name: invalid
+    core_scene, _ = export_scene(bpy.context.evaluated_depsgraph_get())
+    assert core_scene.shader_aovs == [("coords", "COLOR"), ("noise", "VALUE")]
+    floor_program = next(m for m in core_scene.materials if m.name == "Floor").program
+    writes = floor_program.code[floor_program.code[:, 0] == R.OP_AOV_OUTPUT]
+    assert sorted(writes[:, 2].tolist()) == [0, 1]  # coords and noise; "unlisted" left out
+    warnings = "\n".join(core_scene.warnings)
+    assert "shader AOV 'Combined' is invalid (a repeated name or the name of a built-in pass) and is not written" in \
+        warnings
+    assert "AOV Output nodes inside node groups are not evaluated by Monte" in warnings
+    assert "world 'World': AOV Output nodes in the world are not evaluated by Monte" in warnings
+    layer.aovs.remove(layer.aovs[-1])
+    scene.monte.samples, scene.monte.threads = 4, 2
+    blend = tmp_path / "aovs.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp_path / "aovs.exr"
+    render_blend_file(blend, out)
+    channels = exr.read_exr(out)
+    assert {"coords.R", "coords.G", "coords.B", "coords.A", "noise.X"} <= set(channels)
+    x = _columns()
+    assert np.allclose(channels["coords.A"][:, np.abs(x) < 0.8], 1.0)
