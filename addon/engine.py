@@ -43,6 +43,7 @@ PASSES = {
     "UV": (3, "UVA", "VECTOR"),
     "Object Index": (1, "X", "VALUE"),
     "Material Index": (1, "X", "VALUE"),
+    "Vector": (4, "XYZW", "VECTOR"),
 }
 # Blender before 5.0 names the index passes as Cycles did then.
 LEGACY_PASS_NAMES = {"Object Index": "IndexOB", "Material Index": "IndexMA"}
@@ -60,11 +61,23 @@ DATA_PASS_FLAGS = {
     "use_pass_cryptomatte_object": "crypto_object",
     "use_pass_cryptomatte_material": "crypto_material",
     "use_pass_cryptomatte_asset": "crypto_asset",
+    "use_pass_vector": "vector",
 }
 # Passes Blender offers that Monte cannot produce: flag -> the warning's reason (never registered: no black pass).
-UNAVAILABLE_PASSES = {
-    "use_pass_vector": "Monte does not write motion vectors: the Vector pass is not produced",
-}
+UNAVAILABLE_PASSES: dict[str, str] = {}
+
+
+def vector_unavailable(view_layer, scene) -> str:
+    """Why the Vector pass is not produced for this render ('' when it is): as Cycles, not with motion blur on;
+    not for a panoramic camera."""
+    if scene is None or not getattr(view_layer, "use_pass_vector", False):
+        return ""
+    if scene.render.use_motion_blur and scene.render.motion_blur_shutter > 0:
+        return "the Vector pass is not available with motion blur on (as in Cycles); it is not produced"
+    camera = scene.camera
+    if camera is not None and camera.type == "CAMERA" and camera.data.type == "PANO":
+        return "Monte does not write motion vectors for a panoramic camera: the Vector pass is not produced"
+    return ""
 
 
 def data_passes(view_layer, scene=None) -> tuple[str, ...]:
@@ -75,7 +88,9 @@ def data_passes(view_layer, scene=None) -> tuple[str, ...]:
     monte_scene = getattr(scene, "monte", None)
     if monte_scene is not None and monte_scene.use_cluster:
         return ()
-    return tuple(key for flag, key in DATA_PASS_FLAGS.items() if getattr(view_layer, flag, False))
+    skip_vector = bool(vector_unavailable(view_layer, scene))
+    return tuple(key for flag, key in DATA_PASS_FLAGS.items() if getattr(view_layer, flag, False)
+                 and not (key == "vector" and skip_vector))
 
 
 def cryptomatte_layers(view_layer) -> int:
@@ -103,6 +118,9 @@ def unavailable_pass_warnings(view_layer, scene=None) -> list[str]:
         return []
     out = [f"view layer {view_layer.name!r}: {reason}" for flag, reason in UNAVAILABLE_PASSES.items()
            if getattr(view_layer, flag, False)]
+    vector = vector_unavailable(view_layer, scene)
+    if vector:
+        out.append(f"view layer {view_layer.name!r}: {vector}")
     monte_scene = getattr(scene, "monte", None)
     if monte_scene is not None and monte_scene.use_cluster:
         chosen = [flag for flag in DATA_PASS_FLAGS if getattr(view_layer, flag, False)]
@@ -288,6 +306,7 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         # Motion blur evaluates subframes through the engine's frame_set (its own depsgraph), as Cycles does.
         core_scene, stats = export_scene(depsgraph, self.camera_override,
                                          should_cancel=self._cancel_requested,
+                                         vector_pass="vector" in data_passes(view_layer, scene),
                                          frame_set=lambda frame, subframe: self.frame_set(frame, subframe=subframe))
         for w in core_scene.warnings + unavailable_pass_warnings(view_layer, scene):
             self.report({"WARNING"}, f"Monte: {w}")

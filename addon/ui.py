@@ -362,7 +362,11 @@ class MONTE_VIEWLAYER_PT_passes_data(MonteButtonsPanel, Panel):
         row = col.row()
         row.prop(view_layer, "use_pass_vector")
         if view_layer.use_pass_vector:
-            layout.label(text="Vector (motion vectors): not produced", icon="ERROR")
+            from .engine import vector_unavailable
+
+            why = vector_unavailable(view_layer, context.scene)
+            if why:
+                layout.label(text=why[0].upper() + why[1:], icon="ERROR")
         col = layout.column(heading="Indexes", align=True)
         col.prop(view_layer, "use_pass_object_index")
         col.prop(view_layer, "use_pass_material_index")

@@ -64,7 +64,7 @@ TEXEL_BYTES = 24
 # Data passes: key -> (film bytes, result bytes) per pixel; Cryptomatte kinds add levels x 8 B of result layers.
 DATA_PASS_BYTES = {"mist": (8, 4), "uv": (24, 12), "position": (12, 12), "object_index": (4, 4),
                    "material_index": (4, 4), "crypto_object": (32, 0), "crypto_material": (32, 0),
-                   "crypto_asset": (32, 0)}
+                   "crypto_asset": (32, 0), "vector": (40, 16)}
 # Refuse when the estimate exceeds this share of the available memory (the rest: fragmentation, the EXR writer).
 SAFETY_SHARE = 0.9
 

@@ -262,6 +262,9 @@ class Mesh:
     tangent_layers: dict | None = None
     motion_vertices: np.ndarray | None = None
     motion_normals: np.ndarray | None = None
+    # The Vector pass (core.data_passes): (2, V, 3) world positions of the vertices at the previous and the next
+    # frame; None: where it is now at both.
+    vector_vertices: np.ndarray | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -312,6 +315,12 @@ class Mesh:
             raise SceneError(f"{owner}: uvs must have shape (T, 3, 2) = ({n_tri}, 3, 2), got {uvs.shape}")
 
         motion, motion_normals = self._checked_motion(owner, v.shape[0], n_tri, warnings)
+        if self.vector_vertices is not None:
+            vv = np.asarray(self.vector_vertices, np.float64)
+            if vv.shape != (2, v.shape[0], 3):
+                raise SceneError(f"{owner}: vector_vertices must have shape (2, V, 3) with V = {v.shape[0]}, got "
+                                 f"{vv.shape}")
+            self.vector_vertices = np.nan_to_num(vv, nan=0.0, posinf=0.0, neginf=0.0)
         # Drop triangles with non-finite or degenerate (zero-area) geometry: counted, never fatal.
         finite = np.empty(n_tri, bool)
         area2 = np.empty(n_tri)
@@ -589,6 +598,7 @@ class Camera:
     shutter_curve: np.ndarray | None = None
     rolling_shutter: float | None = None
     motion_lens: tuple[float, float] | None = None
+    vector_matrices: np.ndarray | None = None  # (2, 4, 4) camera-to-world at the previous and next frame (Vector)
 
     @classmethod
     def look_at(
@@ -720,6 +730,11 @@ class Camera:
             if np.any(np.abs(np.linalg.det(steps[:, :3, :3])) < 1e-12):
                 raise SceneError("camera: a motion-blur matrix is singular (zero scale)")
             self.motion_matrices = None if np.all(steps == steps[:1]) else steps
+        if self.vector_matrices is not None:
+            vm = np.asarray(self.vector_matrices, np.float64)
+            if vm.shape != (2, 4, 4) or not np.all(np.isfinite(vm)):
+                raise SceneError(f"camera: vector_matrices must be two finite 4x4 matrices, got shape {vm.shape}")
+            self.vector_matrices = vm
         if self.shutter_curve is not None:
             curve = np.asarray(self.shutter_curve, np.float64)
             if curve.ndim != 1 or len(curve) < 2 or not np.all(np.isfinite(curve)) or np.any(curve < 0) \

@@ -21,8 +21,8 @@ from .film import export_film
 from .light import export_light
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
-from .motion import (deforms, instance_key, object_steps, placed_motion, sample_motion, shutter as motion_shutter,
-                     take_steps)
+from .motion import (Shutter, deforms, instance_key, object_steps, placed_motion, sample_motion,
+                     shutter as motion_shutter, take_steps)
 from .nodes.vector_rules import tangent_uv_maps
 from .world import export_mist, export_world
 
@@ -218,8 +218,12 @@ def export_scene(
     should_cancel: Callable[[], bool] | None = None,
     frame_set: Callable[[int, float], None] | None = None,
     motion_blur: bool = True,
+    vector_pass: bool = False,
 ) -> tuple[Scene, ExportStats]:
     """Build a core Scene from an evaluated depsgraph (the frame's). camera_object defaults to the scene's.
+
+    vector_pass (without motion blur): the objects and the camera are also evaluated at the previous and the next
+    frame, for the Vector pass (core.scene.Mesh.vector_vertices, Camera.vector_matrices).
 
     With Render > Motion Blur on (and motion_blur), the scene is also evaluated at subframes over the shutter
     (addon/export/motion.py) through frame_set(frame, subframe): the render engine's own (RenderEngine.frame_set,
@@ -233,6 +237,11 @@ def export_scene(
     scene = depsgraph.scene
     warnings: list[str] = []
     shutter = motion_shutter(scene, warnings) if motion_blur else None
+    # The Vector pass without motion blur (Cycles renders it only then): the motion from the previous to the next
+    # frame, sampled as a shutter of two frames centred on this one and kept apart from the rays (no blur)
+    vector_only = shutter is None and vector_pass
+    if vector_only:
+        shutter = Shutter(int(scene.frame_current), float(scene.frame_subframe), -1.0, 2.0)
     if shutter is not None and frame_set is None:
         def frame_set(frame: int, subframe: float) -> None:
             scene.frame_set(frame, subframe=subframe)
@@ -246,7 +255,24 @@ def export_scene(
             frame_set(shutter.frame, shutter.subframe)
     if moved:
         out[0].world = export_world(scene.world, [])  # at the frame (its warnings are the centre's, already given)
+    if vector_only:
+        _motion_to_vectors(out[0])
     return out
+
+
+def _motion_to_vectors(core_scene: Scene) -> None:
+    """Move the sampled motion (previous frame, ..., next frame) from motion blur's fields to the Vector pass's:
+    Mesh.vector_vertices and Camera.vector_matrices; the render itself stays still."""
+    for mesh in core_scene.meshes:
+        if mesh.motion_vertices is not None:
+            steps = np.asarray(mesh.motion_vertices, np.float64)
+            mesh.vector_vertices = np.stack([steps[0], steps[-1]])
+            mesh.motion_vertices = mesh.motion_normals = None
+    cam = core_scene.camera
+    if cam.motion_matrices is not None:
+        steps = np.asarray(cam.motion_matrices, np.float64)
+        cam.vector_matrices = np.stack([steps[0], steps[-1]])
+    cam.motion_matrices = cam.motion_lens = cam.shutter_curve = cam.rolling_shutter = None
 
 
 def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutter, warnings: list[str],
