@@ -200,6 +200,9 @@ def test_export_keeps_listed_aovs_and_warns_for_what_it_skips(tmp_path):
     floor.nodes.new("ShaderNodeGroup").node_tree = group
     world_aov = scene.world.node_tree.nodes.new("ShaderNodeOutputAOV")
     world_aov.aov_name = "coords"
+    veil = bpy.data.materials["Veil"].node_tree  # a shader into Value: an invalid link, the default is written
+    _aov_node(veil, "noise", "Value", veil.nodes["Transparent BSDF"].outputs[0])
+    veil.nodes["AOV Output.001"].inputs["Value"].default_value = 0.25
     bpy.ops.scene.view_layer_add_aov()
     layer.active_aov.name = "Combined"  # a built-in pass's name: invalid
     core_scene, _ = export_scene(bpy.context.evaluated_depsgraph_get())
@@ -207,6 +210,12 @@ def test_export_keeps_listed_aovs_and_warns_for_what_it_skips(tmp_path):
     floor_program = next(m for m in core_scene.materials if m.name == "Floor").program
     writes = floor_program.code[floor_program.code[:, 0] == R.OP_AOV_OUTPUT]
     assert sorted(writes[:, 2].tolist()) == [0, 1]  # coords and noise; "unlisted" left out
+    veil_material = next(m for m in core_scene.materials if m.name == "Veil")
+    assert [lobe.kind for lobe in veil_material.lobes] == ["refraction"]
+    program = veil_material.program
+    veil_writes = program.code[program.code[:, 0] == R.OP_AOV_OUTPUT]
+    assert veil_writes[:, 2].tolist() == [0, 1]
+    assert program.registers[veil_writes[1, 1], 0] == 0.25  # the Value input's own value, as Blender and Cycles
     warnings = "\n".join(core_scene.warnings)
     assert "shader AOV 'Combined' is invalid (a repeated name or the name of a built-in pass) and is not written" in \
         warnings

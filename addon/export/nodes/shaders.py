@@ -327,7 +327,11 @@ def compile_aov_outputs(c, tree, aovs: dict) -> int:
         if found is None:
             continue
         index, kind = found
-        value = (c.input(node, "Color", RGBA, Ctx()) if kind == "COLOR" else c.input(node, "Value", FLOAT, Ctx()))
+        try:
+            value = c.input(node, "Color", RGBA, Ctx()) if kind == "COLOR" else c.input(node, "Value", FLOAT, Ctx())
+        except (CompileError, UnsupportedShader) as exc:  # the node's AOV only; the material renders as it is
+            c.warn(node, f"{exc}; its AOV {node.aov_name!r} is not written")
+            continue
         c.emit("aov_output", value=value, aov=index, varying=True)
         count += 1
     return count
