@@ -145,7 +145,8 @@ LIGHT_PASS_PROPERTIES = {
     "Environment": "use_pass_environment",
 }
 PASSES.update({name: (3, "RGB", "COLOR") for name in LIGHT_PASS_PROPERTIES})
-# Light passes Cycles has and Monte cannot produce (no ambient occlusion pass, no volumes): when one is ticked the render says so by name and the pass is not registered (never a black pass that looks real). (owner, property,
+# Light passes Cycles has and Monte cannot produce (no ambient occlusion pass, no volumes): when one is ticked the
+# render says so by name and the pass is not registered (never a black pass that looks real). (owner, property,
 # pass name); owner "cycles" is view_layer.cycles (present while the Cycles add-on is enabled).
 UNSUPPORTED_PASSES = (
     ("view_layer", "use_pass_ambient_occlusion", "Ambient Occlusion"),

@@ -39,7 +39,8 @@ with fewer there is no variance to estimate, so a film for it keeps no squares.
 Memory per pixel (core.memory): K 12 B, group deviation sums 48 B (G = 4), the sample count 4 B = 64 B, and
 the sum of squared deviations 12 B more where the estimate reads it (stratified, independent samples); the AOVs
 add 32 B (float32 albedo, normal and depth sums, int32 depth count), the denoising features 24 B, alpha (Film > Transparent, holdout) 4 B, a shadow catcher 44 B, the light passes
-(core.light_passes) 132 B, the shader AOVs (core.shader_aovs) 16 B each. (It was 136 + 64 + 48 B in float64, and 88 B with stored group counts.)
+(core.light_passes) 132 B, the shader AOVs (core.shader_aovs) 16 B each. (It was 136 + 64 + 48 B in float64,
+and 88 B with stored group counts.)
 
 The sums and the fold of a render's add() calls run compiled (core.film_kernels: the same operations in the
 same order, one pass over the samples and one over the tile, where NumPy's form made some thirty passes over

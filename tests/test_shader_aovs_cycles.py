@@ -185,8 +185,8 @@ def test_aov_passes_are_registered_and_reach_the_compositor(renders, tmp_path):
 
 def test_export_keeps_listed_aovs_and_warns_for_what_it_skips(tmp_path):
     """An AOV Output node of an AOV the view layer does not list compiles to nothing (as Cycles ignores it); an
-    AOV named like a built-in pass is invalid (Blender marks it) and left out with a warning; AOV Output nodes in a node group
-    or the world are named in warnings; `monte render scene.blend` writes the AOVs into its EXR."""
+    AOV named like a built-in pass is invalid (Blender marks it) and left out with a warning; AOV Output nodes in a
+    node group or the world are named in warnings; `monte render scene.blend` writes the AOVs into its EXR."""
     from monte.addon.export import export_scene
     from monte.addon.headless import render_blend_file
     from monte.core.shading import registry as R

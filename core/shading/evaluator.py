@@ -1130,8 +1130,9 @@ class PreparedShading:
         UV map's derivatives along them, tangents (N, T, 4) the tangent layers (Scene.tangent_layer_names:
         tangent xyz, bitangent sign; zeros where a mesh lacks the map), mesh_normal (N, 3) the interpolated,
         unnormalised mesh normal (outside); None reads zeros. aov_out (N, K, 4) float32: where the AOV Output
-        nodes add their values (core.shader_aovs), None: they write nothing. Returns has_normal (N,) bool, the points whose
-        program set the shading normal (written into normal_out (N, 3)), or None when no program sets one."""
+        nodes add their values (core.shader_aovs), None: they write nothing. Returns has_normal (N,) bool, the
+        points whose program set the shading normal (written into normal_out (N, 3)), or None when no program
+        sets one."""
         n = len(mat)
         if emission is None:
             emission = np.zeros((n, 3), np.float32)
