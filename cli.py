@@ -339,7 +339,7 @@ def _write_outputs(result, output: Path, no_png: bool) -> list[str]:
                                   light_passes=result.light_passes)
     data = getattr(result, "data_passes", {})
     channels.update(exr.data_pass_channels(data, {"Mist": "Z", "Position": "XYZ", "UV": "UVA", "Object Index": "X",
-                                                  "Material Index": "X"}))
+                                                  "Material Index": "X", "Vector": "XYZW"}))
     metadata = {k: v for base, names in getattr(result, "cryptomatte", {}).items()
                 for k, v in cryptomatte_metadata(base, names).items()}
     exr.write_exr(output, channels, metadata)

@@ -43,6 +43,7 @@ PASSES = {
     "UV": (3, "UVA", "VECTOR"),
     "Object Index": (1, "X", "VALUE"),
     "Material Index": (1, "X", "VALUE"),
+    "Vector": (4, "XYZW", "VECTOR"),
 }
 # Blender before 5.0 names the index passes as Cycles did then.
 LEGACY_PASS_NAMES = {"Object Index": "IndexOB", "Material Index": "IndexMA"}
@@ -60,11 +61,23 @@ DATA_PASS_FLAGS = {
     "use_pass_cryptomatte_object": "crypto_object",
     "use_pass_cryptomatte_material": "crypto_material",
     "use_pass_cryptomatte_asset": "crypto_asset",
+    "use_pass_vector": "vector",
 }
 # Passes Blender offers that Monte cannot produce: flag -> the warning's reason (never registered: no black pass).
-UNAVAILABLE_PASSES = {
-    "use_pass_vector": "Monte does not write motion vectors: the Vector pass is not produced",
-}
+UNAVAILABLE_PASSES: dict[str, str] = {}
+
+
+def vector_unavailable(view_layer, scene) -> str:
+    """Why the Vector pass is not produced for this render ('' when it is): as Cycles, not with motion blur on;
+    not for a panoramic camera."""
+    if scene is None or not getattr(view_layer, "use_pass_vector", False):
+        return ""
+    if scene.render.use_motion_blur and scene.render.motion_blur_shutter > 0:
+        return "the Vector pass is not available with motion blur on (as in Cycles); it is not produced"
+    camera = scene.camera
+    if camera is not None and camera.type == "CAMERA" and camera.data.type == "PANO":
+        return "Monte does not write motion vectors for a panoramic camera: the Vector pass is not produced"
+    return ""
 
 
 def data_passes(view_layer, scene=None) -> tuple[str, ...]:
@@ -75,7 +88,9 @@ def data_passes(view_layer, scene=None) -> tuple[str, ...]:
     monte_scene = getattr(scene, "monte", None)
     if monte_scene is not None and monte_scene.use_cluster:
         return ()
-    return tuple(key for flag, key in DATA_PASS_FLAGS.items() if getattr(view_layer, flag, False))
+    skip_vector = bool(vector_unavailable(view_layer, scene))
+    return tuple(key for flag, key in DATA_PASS_FLAGS.items() if getattr(view_layer, flag, False)
+                 and not (key == "vector" and skip_vector))
 
 
 def cryptomatte_layers(view_layer) -> int:
@@ -103,6 +118,9 @@ def unavailable_pass_warnings(view_layer, scene=None) -> list[str]:
         return []
     out = [f"view layer {view_layer.name!r}: {reason}" for flag, reason in UNAVAILABLE_PASSES.items()
            if getattr(view_layer, flag, False)]
+    vector = vector_unavailable(view_layer, scene)
+    if vector:
+        out.append(f"view layer {view_layer.name!r}: {vector}")
     monte_scene = getattr(scene, "monte", None)
     if monte_scene is not None and monte_scene.use_cluster:
         chosen = [flag for flag in DATA_PASS_FLAGS if getattr(view_layer, flag, False)]
@@ -127,8 +145,8 @@ LIGHT_PASS_PROPERTIES = {
     "Environment": "use_pass_environment",
 }
 PASSES.update({name: (3, "RGB", "COLOR") for name in LIGHT_PASS_PROPERTIES})
-# Light passes Cycles has and Monte cannot produce (no ambient occlusion pass, no volumes; shader AOVs are listed
-# by unsupported_passes too): when one is ticked the render says so by name and the pass is not registered (never a black pass that looks real). (owner, property,
+# Light passes Cycles has and Monte cannot produce (no ambient occlusion pass, no volumes): when one is ticked the
+# render says so by name and the pass is not registered (never a black pass that looks real). (owner, property,
 # pass name); owner "cycles" is view_layer.cycles (present while the Cycles add-on is enabled).
 UNSUPPORTED_PASSES = (
     ("view_layer", "use_pass_ambient_occlusion", "Ambient Occlusion"),
@@ -146,9 +164,19 @@ def unsupported_passes(view_layer) -> list[str]:
         holder = view_layer if owner == "view_layer" else getattr(view_layer, owner, None)
         if holder is not None and bool(getattr(holder, prop, False)):
             names.append(name)
-    # Shader AOVs (AOV Output nodes, View Layer Properties > Shader AOV): not rendered by Monte yet
-    names += [f"Shader AOV {aov.name!r}" for aov in getattr(view_layer, "aovs", ())]
+    # Light groups (View Layer Properties > Light Groups: Cycles' "Combined_<name>" passes): not rendered by Monte
+    names += [f"Combined_{group.name} (light group)" for group in getattr(view_layer, "lightgroups", ())]
     return names
+
+
+def shader_aov_passes(view_layer) -> dict[str, tuple[int, str, str]]:
+    """The view layer's valid shader AOVs as passes, Cycles' layouts: name -> (4, "RGBA", "COLOR") for a COLOR
+    AOV (alpha: the share of samples that wrote it), (1, "X", "VALUE") for a VALUE one (core.shader_aovs)."""
+    out = {}
+    for aov in getattr(view_layer, "aovs", ()) if view_layer is not None else ():
+        if getattr(aov, "is_valid", True):
+            out[aov.name] = (1, "X", "VALUE") if aov.type == "VALUE" else (4, "RGBA", "COLOR")
+    return out
 
 
 def requested_passes(view_layer, scene=None) -> list[str]:
@@ -172,7 +200,7 @@ def requested_passes(view_layer, scene=None) -> list[str]:
     if uses_shadow_catcher_pass(view_layer):
         names.append("Shadow Catcher")
     names += [name for name, prop in LIGHT_PASS_PROPERTIES.items() if getattr(view_layer, prop, False)]
-    return names + data_pass_names(view_layer, scene)
+    return names + data_pass_names(view_layer, scene) + list(shader_aov_passes(view_layer))
 
 
 def requested_light_passes(passes: list[str]) -> tuple[str, ...]:
@@ -221,8 +249,9 @@ class MonteRenderEngine(bpy.types.RenderEngine):
 
     # ------------------------------------------------------------------------------------------ passes
     def update_render_passes(self, scene=None, renderlayer=None):
+        aovs = shader_aov_passes(renderlayer)
         for name in requested_passes(renderlayer, scene):
-            channels, chanid, kind = PASSES.get(name, CRYPTO_LAYER)
+            channels, chanid, kind = PASSES.get(name) or aovs.get(name) or CRYPTO_LAYER
             self.register_pass(scene, renderlayer, name, channels, chanid, kind)
 
     # ------------------------------------------------------------------------------------------ render
@@ -278,6 +307,7 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         # Motion blur evaluates subframes through the engine's frame_set (its own depsgraph), as Cycles does.
         core_scene, stats = export_scene(depsgraph, self.camera_override,
                                          should_cancel=self._cancel_requested,
+                                         vector_pass="vector" in data_passes(view_layer, scene),
                                          frame_set=lambda frame, subframe: self.frame_set(frame, subframe=subframe))
         for w in core_scene.warnings + unavailable_pass_warnings(view_layer, scene):
             self.report({"WARNING"}, f"Monte: {w}")
@@ -579,6 +609,8 @@ def _pass_pixels(name: str, src, h: int, w: int, channels: int) -> np.ndarray:
         arr = getattr(src, "shadow_catcher", None)
     elif name in LIGHT_PASS_PROPERTIES:
         arr = (getattr(src, "light_passes", None) or {}).get(name)
+    elif name in (getattr(src, "shader_aovs", None) or {}):
+        arr = src.shader_aovs[name]
     else:
         data = getattr(src, "data_passes", {})
         arr = data.get(name)

@@ -204,6 +204,16 @@ def _monte_channels(result, region, size) -> dict:
 
     letters = {name: spec[1] for name, spec in PASSES.items()} | {"Object Index": "X", "Material Index": "X"}
     channels.update(data_pass_channels(data, letters))
+    # shader AOVs (core.shader_aovs): "<name>.R/G/B/A" for a COLOR AOV, "<name>.X" for a VALUE one, as Blender
+    aovs = dict(getattr(result, "shader_aovs", None) or {})
+    if region is not None:
+        x0, y0, w, h = region
+        for name, arr in aovs.items():
+            full = np.zeros((size[1], size[0], arr.shape[2]), np.float32)
+            full[y0:y0 + h, x0:x0 + w] = arr
+            aovs[name] = full
+    channels.update(data_pass_channels(aovs, {name: "RGBA" if arr.shape[2] == 4 else "X"
+                                              for name, arr in aovs.items()}))
     return channels
 
 

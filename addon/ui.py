@@ -387,7 +387,11 @@ class MONTE_VIEWLAYER_PT_passes_data(MonteButtonsPanel, Panel):
         row = col.row()
         row.prop(view_layer, "use_pass_vector")
         if view_layer.use_pass_vector:
-            layout.label(text="Vector (motion vectors): not produced", icon="ERROR")
+            from .engine import vector_unavailable
+
+            why = vector_unavailable(view_layer, context.scene)
+            if why:
+                layout.label(text=why[0].upper() + why[1:], icon="ERROR")
         col = layout.column(heading="Indexes", align=True)
         col.prop(view_layer, "use_pass_object_index")
         col.prop(view_layer, "use_pass_material_index")
@@ -426,6 +430,27 @@ class MONTE_VIEWLAYER_PT_passes_light(MonteButtonsPanel, Panel):
         col = layout.column(heading="Other", align=True)
         col.prop(view_layer, "use_pass_emit", text="Emission")
         col.prop(view_layer, "use_pass_environment")
+
+
+class MONTE_VIEWLAYER_PT_passes_aov(MonteButtonsPanel, Panel):
+    """Cycles' Shader AOV list (Blender's own view layer AOVs and operators; core.shader_aovs)."""
+
+    bl_label = "Shader AOV"
+    bl_context = "view_layer"
+    bl_parent_id = "MONTE_VIEWLAYER_PT_passes"
+
+    def draw(self, context):
+        layout = split_layout(self.layout)
+        view_layer = context.view_layer
+        row = layout.row()
+        row.column().template_list("VIEWLAYER_UL_aov", "aovs", view_layer, "aovs", view_layer, "active_aov_index",
+                                   rows=3)
+        sub = row.column().column(align=True)
+        sub.operator("scene.view_layer_add_aov", icon="ADD", text="")
+        sub.operator("scene.view_layer_remove_aov", icon="REMOVE", text="")
+        aov = view_layer.active_aov
+        if aov is not None and not aov.is_valid:
+            layout.label(text="Conflicts with another render pass with the same name", icon="ERROR")
 
 
 def _draw_node_input(layout, tree, input_name: str) -> None:
@@ -544,6 +569,7 @@ classes = (
     MONTE_VIEWLAYER_PT_passes_data,
     MONTE_VIEWLAYER_PT_passes_cryptomatte,
     MONTE_VIEWLAYER_PT_passes_light,
+    MONTE_VIEWLAYER_PT_passes_aov,
     MONTE_MATERIAL_PT_surface,
     MONTE_WORLD_PT_surface,
     MONTE_WORLD_PT_mist,

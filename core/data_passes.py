@@ -45,6 +45,7 @@ PASS_NAMES = {
     "uv": "UV",
     "object_index": "Object Index",
     "material_index": "Material Index",
+    "vector": "Vector",
 }
 CRYPTO_NAMES = {
     "crypto_object": "CryptoObject",
@@ -124,6 +125,7 @@ class DataTables:
     mist: Mist
     camera_position: np.ndarray  # (3,) float64 world
     camera_forward: np.ndarray | None  # (3,) unit view axis for an orthographic camera, else None
+    vector: "VectorTables | None" = None  # the Vector pass's triangles and cameras (its key in passes)
 
     @classmethod
     def build(cls, scene, prepared, passes: tuple[str, ...], levels: int) -> "DataTables":
@@ -154,8 +156,9 @@ class DataTables:
         forward = None
         if cam.kind == "ORTHO":
             forward = -matrix[:3, 2] / max(np.linalg.norm(matrix[:3, 2]), 1e-30)
+        vector = VectorTables.build(scene, prepared) if "vector" in passes else None
         return cls(tuple(passes), int(levels), object_table[rows], material_pass, name_of_triangle, names, ids,
-                   getattr(scene, "mist", None) or Mist(), matrix[:3, 3].copy(), forward)
+                   getattr(scene, "mist", None) or Mist(), matrix[:3, 3].copy(), forward, vector)
 
     def samples(self, path: "DataPath") -> dict:
         """What each camera sample of a batch adds to the passes (see the module docstring), from the surfaces
@@ -177,6 +180,8 @@ class DataTables:
             v = np.zeros(n, np.float32)
             v[done] = self.material_pass[path.material[done]]
             out["material_index"] = v
+        if self.vector is not None:
+            out["vector"], out["vector_weight"] = self.vector.motion(path)
         rows, prim, position, mist_weight, matte_weight = path.surfaces()
         if "mist" in self.passes:
             rel = position - self.camera_position
@@ -276,7 +281,91 @@ class DataPath:
                                                                                 self.position, self.uv)
         rows, prim, position, mist_w, matte_w = self.surfaces()
         out._surfaces = [(np.asarray(live)[rows], prim, position, mist_w, matte_w)]
+        out.done = np.zeros(n, bool)
+        out.done[live] = self.done
         return out
+
+
+class VectorTables:
+    """The Vector pass (Cycles' motion vectors, rendered without motion blur): per triangle of the prepared scene
+    its corners' world positions at the previous and the next frame (core.scene.Mesh.vector_vertices), and the
+    camera there (Camera.vector_matrices; its lens and frame are the frame's).
+
+    A sample's vector is read at the surface the single-sample passes read, where it is at least half opaque (a
+    sample that meets none adds nothing, as a miss): the point keeps its barycentric coordinates, is placed at the
+    previous and the next frame, and each position is projected to the raster (pixels, x from the left, y from
+    the bottom: Cycles' raster) by the camera of its frame: (previous - center, center - next), Blender's Vector
+    X, Y and Z, W as Cycles writes them (both pairs point back in time: an object moving right reads negative X
+    and Z). The pixel holds the mean over its samples that wrote one."""
+
+    def __init__(self, corners: np.ndarray, camera, matrices: np.ndarray, shift: np.ndarray, now: np.ndarray) -> None:
+        self.corners = corners  # (2, T, 3, 3) float64 world
+        self.camera = camera
+        self.matrices = matrices  # (3, 4, 4) camera-to-world: previous, now, next
+        self.shift = shift
+        self.now = now  # (T, 3, 3) float64 corners in the prepared frame
+
+    @classmethod
+    def build(cls, scene, prepared) -> "VectorTables":
+        parts = []
+        for mesh in scene.meshes:
+            if not mesh.triangle_count:
+                continue
+            tri = np.asarray(mesh.triangles, np.int64)
+            vv = mesh.vector_vertices
+            if vv is None:
+                vv = np.broadcast_to(np.asarray(mesh.vertices, np.float64), (2,) + np.shape(mesh.vertices))
+            parts.append(np.asarray(vv, np.float64)[:, tri])
+        corners = np.concatenate(parts, axis=1) if parts else np.zeros((2, 0, 3, 3))
+        if corners.shape[1] != len(prepared.tri_vertices):
+            raise ValueError(f"the Vector pass: {corners.shape[1]} triangles in the meshes, "
+                             f"{len(prepared.tri_vertices)} prepared")
+        cam = scene.camera
+        now = np.asarray(cam.matrix_world, np.float64)
+        vm = cam.vector_matrices if cam.vector_matrices is not None else np.stack([now, now])
+        return cls(corners, cam, np.stack([vm[0], now, vm[1]]), np.asarray(prepared.shift, np.float64),
+                   np.asarray(prepared.tri_vertices, np.float64))
+
+    def raster(self, points: np.ndarray, which: int) -> np.ndarray:
+        """(N, 2) raster positions (pixels, y from the bottom) of world points seen by camera `which` (0 the
+        previous frame's, 1 this frame's, 2 the next's)."""
+        m = self.matrices[which]
+        axes = m[:3, :3] / np.maximum(np.linalg.norm(m[:3, :3], axis=0), 1e-30)
+        local = (points - m[:3, 3]) @ axes  # right, up, back
+        if self.camera.kind == "ORTHO":
+            x, y = local[:, 0], local[:, 1]
+        else:
+            depth = np.where(local[:, 2] < 0, -local[:, 2], 1e-30)
+            x, y = local[:, 0] / depth, local[:, 1] / depth
+        xmin, xmax, ymin, ymax = self.camera.frame()
+        w, h = self.camera.resolution
+        return np.stack([(x - xmin) / (xmax - xmin) * w, (y - ymin) / (ymax - ymin) * h], axis=1)
+
+    def motion(self, path: "DataPath") -> tuple[np.ndarray, np.ndarray]:
+        """((N, 4) motion vectors, (N,) weights 1 where the sample wrote one) of a batch's samples."""
+        n = len(path.prim)
+        out = np.zeros((n, 4), np.float64)
+        rows = np.flatnonzero(path.done & (path.prim >= 0))
+        if len(rows) == 0:
+            return out, np.zeros(n)
+        tri = path.prim[rows]
+        a, b, c = (self.now[tri, k] for k in range(3))
+        d = path.position[rows] - self.shift - a
+        e1, e2 = b - a, c - a
+        d00, d01, d11 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+        d20, d21 = (d * e1).sum(1), (d * e2).sum(1)
+        denom = np.where(np.abs(d00 * d11 - d01 * d01) > 0, d00 * d11 - d01 * d01, 1.0)
+        b1 = (d11 * d20 - d01 * d21) / denom
+        b2 = (d00 * d21 - d01 * d20) / denom
+        bary = np.stack([1.0 - b1 - b2, b1, b2], axis=1)[:, :, None]
+        prev = (self.corners[0, tri] * bary).sum(1)
+        nxt = (self.corners[1, tri] * bary).sum(1)
+        center = self.raster(path.position[rows], 1)
+        out[rows, :2] = self.raster(prev, 0) - center
+        out[rows, 2:] = center - self.raster(nxt, 2)
+        weight = np.zeros(n)
+        weight[rows] = 1.0
+        return out, weight
 
 
 def _clear_only(prepared) -> np.ndarray:
@@ -324,6 +413,9 @@ class DataFilm:
             self.object_index = np.zeros(n, np.float32)
         if "material_index" in passes:
             self.material_index = np.zeros(n, np.float32)
+        if "vector" in passes:
+            self.vector = np.zeros((n, 4), np.float64)
+            self.vector_weight = np.zeros(n, np.float64)
         # Cryptomatte: sparse sums of coverage, keyed pixel * K + name index, kept sorted
         self.crypto = {kind: (np.zeros(0, np.int64), np.zeros(0, np.float64)) for kind in tables.name_of_triangle}
 
@@ -337,6 +429,10 @@ class DataFilm:
         if "uv" in values:
             for c in range(3):
                 self.uv[:, c] += np.bincount(pixel, weights=values["uv"][:, c], minlength=n)
+        if "vector" in values:
+            for c in range(4):
+                self.vector[:, c] += np.bincount(pixel, weights=values["vector"][:, c], minlength=n)
+            self.vector_weight += np.bincount(pixel, weights=values["vector_weight"], minlength=n)
         first = np.flatnonzero(np.asarray(sample) == 0)  # the overwritten passes: the pixel's sample 0
         for name in ("position", "object_index", "material_index"):
             if name in values and len(first):
@@ -361,6 +457,8 @@ class DataFilm:
             out["Position"] = self.position.reshape(h, w, 3)
         if hasattr(self, "uv"):
             out["UV"] = (self.uv / denom[:, None]).reshape(h, w, 3)
+        if hasattr(self, "vector"):
+            out["Vector"] = (self.vector / np.maximum(self.vector_weight, 1.0)[:, None]).reshape(h, w, 4)
         if hasattr(self, "object_index"):
             out["Object Index"] = self.object_index.reshape(h, w, 1)
         if hasattr(self, "material_index"):

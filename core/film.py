@@ -39,7 +39,8 @@ with fewer there is no variance to estimate, so a film for it keeps no squares.
 Memory per pixel (core.memory): K 12 B, group deviation sums 48 B (G = 4), the sample count 4 B = 64 B, and
 the sum of squared deviations 12 B more where the estimate reads it (stratified, independent samples); the AOVs
 add 32 B (float32 albedo, normal and depth sums, int32 depth count), the denoising features 24 B, alpha (Film > Transparent, holdout) 4 B, a shadow catcher 44 B, the light passes
-(core.light_passes) 132 B. (It was 136 + 64 + 48 B in float64, and 88 B with stored group counts.)
+(core.light_passes) 132 B, the shader AOVs (core.shader_aovs) 16 B each. (It was 136 + 64 + 48 B in float64,
+and 88 B with stored group counts.)
 
 The sums and the fold of a render's add() calls run compiled (core.film_kernels: the same operations in the
 same order, one pass over the samples and one over the tile, where NumPy's form made some thirty passes over
@@ -72,6 +73,8 @@ import numpy as np
 
 from . import film_kernels
 from .light_passes import LIGHT_PASSES, finish
+from .shader_aovs import CHANNELS as AOV_CHANNELS
+from .shader_aovs import images as aov_images
 from .sampling import Sampler
 
 _OUT_OF_ORDER = ("film: each pixel's samples must arrive in order, sample 0 first and each pass continuing where "
@@ -107,6 +110,7 @@ _AOV_RAW = ("albedo", "normal", "depth_sum", "depth_count")
 _FEATURE_RAW = ("feature_albedo", "feature_normal")
 _ALPHA_RAW = ("transparent_sum",)
 _LIGHT_RAW = ("light_pass_sum",)
+_SHADER_AOV_RAW = ("shader_aov_sum",)
 _CATCHER_RAW = ("matte_sum", "matte_transparent_sum", "catcher_sum", "catcher_count", "background_sum")
 
 
@@ -133,12 +137,13 @@ class TileFilm:
 
     def __init__(self, width: int, height: int, aovs: bool, sampler: Sampler | None = None,
                  features: bool = False, alpha: bool = False, catcher: CatcherOutput | None = None,
-                 light_passes: tuple[str, ...] = ()) -> None:
+                 light_passes: tuple[str, ...] = (), shader_aovs=()) -> None:
         """features: keep the denoising features' sums; alpha: keep each pixel's summed transparency
         (core.scene.Film); without it alpha is 1; catcher: keep the shadow catcher's sums and form Combined
         from them (see the module docstring), None without a shadow catcher; light_passes: the light passes asked
         for (the film keeps the sums of all of core.light_passes.LIGHT_PASSES when any is asked for: Direct and
-        Indirect need their Color)."""
+        Indirect need their Color); shader_aovs: core.scene.Scene.shader_aovs, (name, kind) pairs, whose sums
+        (core.shader_aovs.AovPath.values, 16 B per AOV and pixel) the film keeps."""
         self.width, self.height = width, height
         n = width * height
         # Independent samples need no groups: s^2 / n is exact for them and has the most degrees of freedom.
@@ -177,6 +182,9 @@ class TileFilm:
         self.light_passes = tuple(light_passes)
         if self.light_passes:
             self.light_pass_sum = np.zeros((n, len(LIGHT_PASSES), 3), np.float32)
+        self.shader_aovs = tuple(tuple(a) for a in shader_aovs)
+        if self.shader_aovs:
+            self.shader_aov_sum = np.zeros((n, len(self.shader_aovs), AOV_CHANNELS), np.float32)
         self._capture: dict[str, np.ndarray] | None = None
 
     # ------------------------------------------------------------------------------------------ totals
@@ -308,6 +316,14 @@ class TileFilm:
         sums = np.bincount(slot, weights=np.asarray(values, np.float64).reshape(-1), minlength=n * k)
         self._take({"light_pass_sum": sums.reshape(n, len(LIGHT_PASSES), 3)})
 
+    def add_shader_aovs(self, pixel: np.ndarray, values: np.ndarray) -> None:
+        """Accumulate the shader AOVs of samples: values (N, K, 4) (core.shader_aovs.AovPath.values)."""
+        n, k = self.pixels, len(self.shader_aovs) * AOV_CHANNELS
+        pixel = np.asarray(pixel, np.int64)
+        slot = (pixel[:, None] * k + np.arange(k)[None, :]).ravel()
+        sums = np.bincount(slot, weights=np.asarray(values, np.float64).reshape(-1), minlength=n * k)
+        self._take({"shader_aov_sum": sums.reshape(n, len(self.shader_aovs), AOV_CHANNELS)})
+
     def _pixels(self, pixel: np.ndarray) -> np.ndarray:
         """The samples' tile-local pixel indices as contiguous int64, checked to lie in the tile (the compiled
         accumulation does not check its indices)."""
@@ -348,7 +364,7 @@ class TileFilm:
                     self.dev_sq[took] = (self.dev_sq[took].astype(np.float64) + raw["dev_sq"][took]
                                          + c[:, None] * d * d).astype(np.float32)
                 self.sample_count[took] = after
-        for name in _AOV_RAW + _FEATURE_RAW + _ALPHA_RAW + _CATCHER_RAW + _LIGHT_RAW:
+        for name in _AOV_RAW + _FEATURE_RAW + _ALPHA_RAW + _CATCHER_RAW + _LIGHT_RAW + _SHADER_AOV_RAW:
             if name in raw:
                 arr = getattr(self, name)
                 if arr.dtype == np.float32:
@@ -369,6 +385,8 @@ class TileFilm:
             names += _CATCHER_RAW
         if self.light_passes:
             names += _LIGHT_RAW
+        if self.shader_aovs:
+            names += _SHADER_AOV_RAW
         return names
 
     def state(self) -> dict[str, np.ndarray]:
@@ -385,6 +403,8 @@ class TileFilm:
             names += list(_CATCHER_RAW)
         if self.light_passes:
             names += list(_LIGHT_RAW)
+        if self.shader_aovs:
+            names += list(_SHADER_AOV_RAW)
         return {name: getattr(self, name) for name in names}
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
@@ -456,6 +476,13 @@ class TileFilm:
         n = np.maximum(self.count, 1).astype(np.float64)[:, None, None]
         passes = finish(self.light_pass_sum.astype(np.float64) / n)
         return {name: self._image(passes[name]) for name in self.light_passes}
+
+    def shader_aov_images(self) -> dict[str, np.ndarray]:
+        """The shader AOVs: name -> (h, w, 4) RGBA (COLOR) or (h, w, 1) (VALUE), means over the pixel's samples
+        (core.shader_aovs.images)."""
+        n = np.maximum(self.count, 1).astype(np.float64)[:, None, None]
+        return {name: self._image(arr) for name, arr in
+                aov_images(self.shader_aov_sum.astype(np.float64) / n, self.shader_aovs).items()}
 
     def _image(self, arr: np.ndarray) -> np.ndarray:
         return arr.reshape(self.height, self.width, *arr.shape[1:]).astype(np.float32)

@@ -25,6 +25,7 @@ from . import light_passes as lp_mod
 from .accel import Accelerator, Hits, MotionTriangles
 from .data_passes import DataPath
 from .light_linking import LightLinks, ShadowLinks
+from .shader_aovs import AovPath
 from .light_shadow import NoShadowLights
 from .light_visibility import LightVisibility
 from .lights import EmissiveTriangles, LightSample, LightSampler
@@ -572,6 +573,7 @@ class FirstHit:
     surface: "DataPath | None" = None
     data: dict | None = None  # what each sample adds to the data passes (core.data_passes.DataTables.samples)
     light_passes: "lp_mod.LightPassSamples | None" = None  # Cycles' light passes (settings.light_passes)
+    shader_aovs: "AovPath | None" = None  # what AOV Output nodes wrote (core.shader_aovs; Scene.shader_aovs)
 
 
 def _smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
@@ -773,6 +775,12 @@ class PathTracer:
             if first is None:
                 first = FirstHit(None, None, None)
             first.light_passes = lp
+        aov_path = None  # the shader AOVs (core.shader_aovs), only when some material writes one
+        if ps.scene.shader_aovs and ps.shading is not None and ps.shading.writes_aovs and not self._catcher_copies:
+            aov_path = AovPath(n, len(ps.scene.shader_aovs), ps)
+            if first is None:
+                first = FirstHit(None, None, None)
+            first.shader_aovs = aov_path
         idx = np.arange(n)  # which sample each live path belongs to
         o, d, tm = origins, directions, tmax
         throughput = np.ones((n, 3), np.float32)
@@ -1005,9 +1013,17 @@ class PathTracer:
                 origin_class[idx] = ps.links.class_of_triangle[prim[rows]]
             lobes = ps.materials.gather(mat, g.uv)
             bumped = None  # (rows of g whose program set the normal, their smooth normals)
+            aov_rows = aov_out = None
+            if aov_path is not None:  # AOV Output nodes write while some path is primary (core.shader_aovs)
+                aov_rows = aov_path.writing(idx)
+                if aov_rows.any():
+                    aov_out = np.zeros((len(idx), aov_path.values.shape[1], 4), np.float32)
             if ps.shading is not None:
                 bumped = self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]),
-                                     path=_rows_of(path_state, idx), dp=None if hit_dp is None else hit_dp[rows])
+                                     path=_rows_of(path_state, idx), dp=None if hit_dp is None else hit_dp[rows],
+                                     aov_out=aov_out)
+            if aov_out is not None:
+                aov_path.record(idx, aov_rows, aov_out, lobes)
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
             if data_path is not None:
@@ -1043,6 +1059,8 @@ class PathTracer:
                 clear[idx] &= np.asarray(bs.transmitted, bool) & ps.keeps_transparent[mat]
             if data_path is not None:
                 data_path.scattered(idx, bs.transmitted, mat)
+            if aov_path is not None:
+                aov_path.scattered(idx, bs.transmitted, mat)
             passed = None if through is None else transparent_shadow.clear_passes(lobes, u_lobe, bs.transmitted)
             if bounce_kind is not None:
                 kinds = bounce_kind[idx]
@@ -1205,9 +1223,9 @@ class PathTracer:
 
     def _shade(self, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
                lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None,
-               path: np.ndarray | None = None, dp=None):
+               path: np.ndarray | None = None, dp=None, aov_out: np.ndarray | None = None):
         """Run the node programs of the points (see `shade_points`); returns its bumped points or None."""
-        return shade_points(self.ps, g, mat, prim, dirs, lobes, emission, bary, path, dp)
+        return shade_points(self.ps, g, mat, prim, dirs, lobes, emission, bary, path, dp, aov_out)
 
     # Cycles' bump shadowing (closure/bsdf.h, with the material's default Bump Map Correction): where a closure's
     # normal N differs from the smooth normal Ns, directions on opposite sides of the two are rejected
@@ -1518,8 +1536,9 @@ def surface_batch(ps: PreparedScene, rows: np.ndarray, prim, bu, bv, d) -> "Surf
 
 def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
                  lobes: "bsdf_mod.LobeBatch", emission: np.ndarray | None = None, bary=None,
-                 path: np.ndarray | None = None, dp: np.ndarray | None = None):
-    """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`).
+                 path: np.ndarray | None = None, dp: np.ndarray | None = None, aov_out: np.ndarray | None = None):
+    """Run the node programs of the points whose material has one, in place on `lobes` (and `emission`; and
+    aov_out (N, K, 4): the AOV Output nodes' writes, core.shader_aovs).
     The shading context as Cycles builds it: world position, N and Ng turned to the viewer's side, I = -dir;
     path: the points' Light Path state (None: camera rays); dp (N,) the footprint of each hit (Cycles' compact
     sd->dP) for Bump nodes. A program that sets the shading normal (Normal Map, Bump) gets the point's shading
@@ -1583,7 +1602,8 @@ def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np
     normal_out = np.zeros((len(mat), 3), np.float32) if sh.any_sets_normal else None
     has_normal = sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
                              ps.materials.select_scale, emission, uvx, extra, dP=vec.dP, duv=vec.duv,
-                             tangents=vec.tangents, mesh_normal=vec.mesh_normal, normal_out=normal_out)
+                             tangents=vec.tangents, mesh_normal=vec.mesh_normal, normal_out=normal_out,
+                             aov_out=aov_out)
     if has_normal is not None:
         moved = np.flatnonzero(has_normal)
         if len(moved):

@@ -15,7 +15,8 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
   features float32 albedo and normal sums (24 B); with a shadow catcher float32 matte, catcher and world sums
   (36 B), the matte's transparency (4 B) and an int32 count of samples that met the catcher (4 B) (+ 44 B, and
   28 B more in the result: the Shadow Catcher pass and its matte); with light passes float32 RGB sums of all 11
-  (132 B). Each pass is summed in float64 over the batch's samples
+  (132 B); with shader AOVs (Scene.shader_aovs) a float32 RGB sum and write count per AOV (16 B; the result
+  16 B per colour AOV, 4 B per value AOV). Each pass is summed in float64 over the batch's samples
   (counted in the path batch) before it is folded in;
 - result: the assembled float32 colour RGBA (16 B), variance (12 B), int32 sample count (4 B); with AOVs
   albedo, normal (24 B) and depth (4 B); with the denoising features their albedo and normal (24 B); 12 B per
@@ -50,6 +51,7 @@ FILM_INDEPENDENT_BYTES = 40  # independent samples: one group (no variance group
 FILM_AOV_BYTES = 32
 FILM_LIGHT_PASS_BYTES = 132  # float32 RGB sums of the 11 light passes (core.light_passes)
 RESULT_LIGHT_PASS_BYTES = 12  # per light pass asked for: float32 RGB
+FILM_SHADER_AOV_BYTES = 16  # per shader AOV: float32 RGB sum and write count (core.shader_aovs)
 RESULT_BYTES = 32
 RESULT_AOV_BYTES = 28
 FILM_FEATURE_BYTES = 24
@@ -62,7 +64,7 @@ TEXEL_BYTES = 24
 # Data passes: key -> (film bytes, result bytes) per pixel; Cryptomatte kinds add levels x 8 B of result layers.
 DATA_PASS_BYTES = {"mist": (8, 4), "uv": (24, 12), "position": (12, 12), "object_index": (4, 4),
                    "material_index": (4, 4), "crypto_object": (32, 0), "crypto_material": (32, 0),
-                   "crypto_asset": (32, 0)}
+                   "crypto_asset": (32, 0), "vector": (40, 16)}
 # Refuse when the estimate exceeds this share of the available memory (the rest: fragmentation, the EXR writer).
 SAFETY_SHARE = 0.9
 
@@ -106,6 +108,9 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
                      + (FILM_LIGHT_PASS_BYTES if light else 0))
     result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0)
                        + RESULT_LIGHT_PASS_BYTES * len(getattr(settings, "light_passes", ())))
+    aov_list = list(getattr(scene, "shader_aovs", ()))
+    film += pixels * FILM_SHADER_AOV_BYTES * len(aov_list)
+    result += pixels * sum(16 if kind == "COLOR" else 4 for _, kind in aov_list)
     if scene.has_shadow_catcher:
         film += pixels * FILM_CATCHER_BYTES
         result += pixels * RESULT_CATCHER_BYTES

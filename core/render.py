@@ -80,6 +80,8 @@ class Tile:
     shadow_catcher_matte: np.ndarray | None = None
     data_passes: dict = field(default_factory=dict)
     light_passes: dict[str, np.ndarray] | None = None  # Cycles' light passes asked for (core.light_passes)
+    # Scene.shader_aovs: name -> (h, w, 4) RGBA (COLOR) or (h, w, 1) (VALUE) (core.shader_aovs)
+    shader_aovs: dict[str, np.ndarray] | None = None
 
     @property
     def width(self) -> int:
@@ -135,6 +137,7 @@ class RenderResult:
     cryptomatte: dict = field(default_factory=dict)
     # settings.light_passes: name -> (h, w, 3) float32 (core.light_passes: Direct/Indirect divided by Color)
     light_passes: dict[str, np.ndarray] | None = None
+    shader_aovs: dict[str, np.ndarray] | None = None  # see Tile.shader_aovs
 
 
 ProgressCallback = Callable[[Progress], None]
@@ -233,7 +236,8 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     tile_list = tiles(0, 0, width, height, settings.tile_size)
     sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
     films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
-                      catcher=CatcherOutput.of(scene), light_passes=settings.light_passes) for t in tile_list]
+                      catcher=CatcherOutput.of(scene), light_passes=settings.light_passes,
+                      shader_aovs=scene.shader_aovs) for t in tile_list]
     reached = [0] * len(tile_list)
     for part in sorted(parts, key=lambda p: (p.tile_index, p.sample_start)):
         ti = part.tile_index
@@ -285,6 +289,9 @@ def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: R
         extras["shadow_catcher_matte"] = np.zeros((rh, rw, 4), np.float32)
     if films and films[0].light_passes:
         extras["light_passes"] = {name: np.zeros((rh, rw, 3), np.float32) for name in films[0].light_passes}
+    if films and films[0].shader_aovs:
+        extras["shader_aovs"] = {name: np.zeros((rh, rw, 4 if kind == "COLOR" else 1), np.float32)
+                                 for name, kind in films[0].shader_aovs}
     features = None
     if films and films[0].features:
         rot = world_to_camera(scene)
@@ -305,6 +312,8 @@ def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: R
             extras["shadow_catcher"][sl], extras["shadow_catcher_matte"][sl] = film.shadow_catcher_images()[:2]
         for name, arr in (film.light_pass_images().items() if "light_passes" in extras else ()):
             extras["light_passes"][name][sl] = arr
+        for name, arr in (film.shader_aov_images().items() if "shader_aovs" in extras else ()):
+            extras["shader_aovs"][name][sl] = arr
         film.release()
     return color, variance, albedo, normal, depth, counts, features, extras
 
@@ -322,6 +331,8 @@ def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
         out.shadow_catcher, out.shadow_catcher_matte = film.shadow_catcher_images()[:2]
     if film.light_passes:
         out.light_passes = film.light_pass_images()
+    if film.shader_aovs:
+        out.shader_aovs = film.shader_aov_images()
     if film.features and world_to_camera is not None:
         out.denoising_albedo, world_normal = film.feature_images()
         out.denoising_normal = (world_normal @ world_to_camera.T).astype(np.float32)
@@ -428,7 +439,8 @@ class _TileRender:
         alpha = scene.has_alpha
         catcher = CatcherOutput.of(scene)
         self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features, alpha=alpha,
-                                  catcher=catcher, light_passes=settings.light_passes)
+                                  catcher=catcher, light_passes=settings.light_passes,
+                                  shader_aovs=scene.shader_aovs)
                       for t in self.tiles}
         # Cycles' data passes (core.data_passes), local renders only (render_samples' merge does not carry them)
         self.data_tables = None
@@ -633,6 +645,8 @@ class _TileRender:
             if first_l.light_passes is not None:
                 first.light_passes = LightPassSamples(n)
                 first.light_passes.values[live] = first_l.light_passes.values
+            if first_l.shader_aovs is not None:  # dead rays wrote nothing
+                first.shader_aovs = first_l.shader_aovs.spread(live, n)
         return radiance, first, transparent
 
     def _finish_one(self, quiet: bool = False) -> None:
@@ -656,6 +670,8 @@ class _TileRender:
                 self.data_films[seg.tile].add(seg.loc, seg.smp, take_samples(first.data, rows.start, rows.stop))
             if first is not None and first.light_passes is not None:
                 film.add_light_passes(seg.loc, first.light_passes.values[rows])
+            if first is not None and first.shader_aovs is not None:
+                film.add_shader_aovs(seg.loc, first.shader_aovs.values[rows])
             self.film_seconds += time.perf_counter() - t0
             self.done_paths += len(seg.loc)
             if not quiet:

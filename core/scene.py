@@ -36,6 +36,9 @@ PANORAMA_TYPES = ("EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID",
 MAX_MOTION_STEPS = 129  # motion-blur steps a mesh or camera may have (Embree's RTC_MAX_TIME_STEP_COUNT)
 
 
+SHADER_AOV_KINDS = ("COLOR", "VALUE")  # Scene.shader_aovs' types (core.shader_aovs)
+
+
 class SceneError(ValueError):
     """Invalid scene input that cannot be rendered; the message names the offending element."""
 
@@ -265,6 +268,9 @@ class Mesh:
     light_sets: int = -1
     shadow_sets: int = -1
     receiver_set: int = 0
+    # The Vector pass (core.data_passes): (2, V, 3) world positions of the vertices at the previous and the next
+    # frame; None: where it is now at both.
+    vector_vertices: np.ndarray | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -315,6 +321,12 @@ class Mesh:
             raise SceneError(f"{owner}: uvs must have shape (T, 3, 2) = ({n_tri}, 3, 2), got {uvs.shape}")
 
         motion, motion_normals = self._checked_motion(owner, v.shape[0], n_tri, warnings)
+        if self.vector_vertices is not None:
+            vv = np.asarray(self.vector_vertices, np.float64)
+            if vv.shape != (2, v.shape[0], 3):
+                raise SceneError(f"{owner}: vector_vertices must have shape (2, V, 3) with V = {v.shape[0]}, got "
+                                 f"{vv.shape}")
+            self.vector_vertices = np.nan_to_num(vv, nan=0.0, posinf=0.0, neginf=0.0)
         # Drop triangles with non-finite or degenerate (zero-area) geometry: counted, never fatal.
         finite = np.empty(n_tri, bool)
         area2 = np.empty(n_tri)
@@ -616,6 +628,7 @@ class Camera:
     shutter_curve: np.ndarray | None = None
     rolling_shutter: float | None = None
     motion_lens: tuple[float, float] | None = None
+    vector_matrices: np.ndarray | None = None  # (2, 4, 4) camera-to-world at the previous and next frame (Vector)
 
     @classmethod
     def look_at(
@@ -747,6 +760,11 @@ class Camera:
             if np.any(np.abs(np.linalg.det(steps[:, :3, :3])) < 1e-12):
                 raise SceneError("camera: a motion-blur matrix is singular (zero scale)")
             self.motion_matrices = None if np.all(steps == steps[:1]) else steps
+        if self.vector_matrices is not None:
+            vm = np.asarray(self.vector_matrices, np.float64)
+            if vm.shape != (2, 4, 4) or not np.all(np.isfinite(vm)):
+                raise SceneError(f"camera: vector_matrices must be two finite 4x4 matrices, got shape {vm.shape}")
+            self.vector_matrices = vm
         if self.shutter_curve is not None:
             curve = np.asarray(self.shutter_curve, np.float64)
             if curve.ndim != 1 or len(curve) < 2 or not np.all(np.isfinite(curve)) or np.any(curve < 0) \
@@ -842,6 +860,9 @@ class Scene:
     asset_names: list[str] = field(default_factory=list)
     attribute_names: list[str] = field(default_factory=list)  # the attributes node programs name (attribute op)
     tangent_layer_names: list[str] = field(default_factory=list)  # Mesh.tangent_layers normal_map ops name ("" active)
+    # Cycles' shader AOVs (core.shader_aovs): (name, "COLOR" | "VALUE") in the view layer's order; the node
+    # programs' aov_output instructions index this list. Empty: no AOV pass, nothing kept.
+    shader_aovs: list[tuple[str, str]] = field(default_factory=list)
 
     @property
     def has_alpha(self) -> bool:
@@ -877,6 +898,7 @@ class Scene:
             raise SceneError("scene has no materials: add at least one (meshes index into the material list)")
         for mat in self.materials:
             mat.validate(len(self.textures))
+        self._validate_shader_aovs()
         n_objects = 0
         if self.objects is not None:
             from .shading.program import OBJECT_COLUMNS
@@ -903,6 +925,38 @@ class Scene:
                 kept.append(light)
         self.lights = kept
         return self
+
+
+    def _validate_shader_aovs(self) -> None:
+        """Normalise Scene.shader_aovs to [(name, kind)]; SceneError for a bad entry (an empty or repeated name, an
+        unknown type) or an AOV Output instruction naming no listed AOV."""
+        from .shading.registry import OP_AOV_OUTPUT
+
+        if isinstance(self.shader_aovs, str):
+            raise SceneError(f"shader AOVs must be a list of (name, kind) pairs, got the string {self.shader_aovs!r}")
+        checked: list[tuple[str, str]] = []
+        for entry in self.shader_aovs:
+            try:
+                name, kind = entry
+            except (TypeError, ValueError):
+                raise SceneError(f"shader AOV {entry!r}: expected a (name, kind) pair") from None
+            if not isinstance(name, str) or not name:
+                raise SceneError(f"shader AOV {tuple(entry)!r}: the name must be a non-empty string")
+            if kind not in SHADER_AOV_KINDS:
+                raise SceneError(f"shader AOV {name!r}: unknown type {kind!r}; choose COLOR or VALUE")
+            if any(name == n for n, _ in checked):
+                raise SceneError(f"shader AOV {name!r} is listed twice")
+            checked.append((name, kind))
+        self.shader_aovs = checked
+        for mat in self.materials:
+            program = getattr(mat, "program", None)
+            if program is None:
+                continue
+            code = program.code  # (I, WIDTH) int32 once Material.validate has run
+            slots = code[code[:, 0] == OP_AOV_OUTPUT, 2]
+            if len(slots) and (slots.min() < 0 or slots.max() >= len(self.shader_aovs)):
+                raise SceneError(f"material {mat.name!r}: an AOV Output instruction names AOV {int(slots.max())}, "
+                                 f"the scene lists {len(self.shader_aovs)} shader AOV(s)")
 
 
 MAX_LIGHT_SETS = 64  # light sets 0..63, as Cycles' 64-bit membership masks

@@ -123,8 +123,8 @@ def test_data_passes_change_nothing_else_and_cost_nothing_off():
 
 
 def test_bad_data_pass_input_is_named():
-    with pytest.raises(ValueError, match="unknown data pass 'vector'"):
-        RenderSettings(data_passes=("mist", "vector")).validate()
+    with pytest.raises(ValueError, match="unknown data pass 'shadow'"):
+        RenderSettings(data_passes=("mist", "shadow")).validate()
     with pytest.raises(ValueError, match=r"cryptomatte levels must be a whole number in \[1, 16\], got 0"):
         RenderSettings(cryptomatte_levels=0).validate()
     with pytest.raises(SceneError, match="world mist falloff 'CUBIC' is not one of"):
@@ -201,8 +201,8 @@ def test_the_command_line_writes_the_passes_and_manifests(tmp_path, capsys):
     assert header[f"{key}/name"] == "CryptoMaterial"
     assert set(json.loads(header[f"{key}/manifest"])) <= {"white", "red", "blue", "mirror", "glass", "lamp"}
     with pytest.raises(SystemExit):
-        main(["render", "cornell", "--passes", "mist,vector"])
-    assert "unknown data pass 'vector'" in capsys.readouterr().err
+        main(["render", "cornell", "--passes", "mist,shadow"])
+    assert "unknown data pass 'shadow'" in capsys.readouterr().err
 
 
 def test_memory_estimate_counts_the_data_passes():

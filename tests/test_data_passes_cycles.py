@@ -1,7 +1,7 @@
 """The data passes in Blender (the real bpy module) against Cycles: the same scene rendered by both, each pass
 compared; Cryptomatte mattes pulled by Blender's own compositor Cryptomatte node equal the object masks; the
-passes reach the render result and its multilayer EXR with Cycles' names and manifests; a selected pass Monte
-cannot produce (Vector) is named in a warning and not registered.
+passes reach the render result and its multilayer EXR with Cycles' names and manifests; the Vector pass, which
+Cycles renders only without motion blur, is named in a warning and not registered with motion blur on.
 """
 
 from __future__ import annotations
@@ -222,11 +222,14 @@ def test_pass_registration_and_unavailable_pass_warning():
     assert data_pass_names(layer, scene) == ["Mist", "Position", "UV", "Object Index", "Material Index", "CryptoObject00",
                                              "CryptoObject01", "CryptoMaterial00", "CryptoMaterial01",
                                              "CryptoAsset00", "CryptoAsset01"]
-    layer.use_pass_vector = True
-    names = requested_passes(layer, scene)
-    assert "Vector" not in names
+    layer.use_pass_vector = True  # produced without motion blur (tests/test_vector_pass_cycles.py)
+    assert "Vector" in requested_passes(layer, scene) and unavailable_pass_warnings(layer, scene) == []
+    scene.render.use_motion_blur = True  # as in Cycles, not with motion blur: named, not registered
+    assert "Vector" not in requested_passes(layer, scene)
     assert unavailable_pass_warnings(layer, scene) == [
-        f"view layer {layer.name!r}: Monte does not write motion vectors: the Vector pass is not produced"]
+        f"view layer {layer.name!r}: the Vector pass is not available with motion blur on (as in Cycles); it is "
+        "not produced"]
+    scene.render.use_motion_blur = False
     layer.use_pass_vector = False
     scene.monte.use_cluster = True  # a cluster render does not carry them: none registered, all named
     assert data_pass_names(layer, scene) == []

@@ -113,7 +113,7 @@ def test_light_passes_match_cycles(tmp_path):
 
 
 def test_unsupported_pass_is_named_and_left_out(tmp_path, capfd):
-    """Ambient Occlusion ticked and a shader AOV declared: the render warns by name and the result has no such
+    """Ambient Occlusion ticked and a light group declared: the render warns by name and the result has no such
     pass (never a black pass that looks real)."""
     scene = bf.plane_under_world(resolution=(8, 8))
     scene.render.engine = "MONTE"
@@ -123,8 +123,8 @@ def test_unsupported_pass_is_named_and_left_out(tmp_path, capfd):
     from monte.addon.engine import unsupported_passes, requested_passes
 
     assert unsupported_passes(layer) == ["Ambient Occlusion"]
-    layer.aovs.add().name = "dirt"
-    assert unsupported_passes(layer) == ["Ambient Occlusion", "Shader AOV 'dirt'"]
+    bpy.ops.scene.view_layer_add_lightgroup(name="dirt")
+    assert unsupported_passes(layer) == ["Ambient Occlusion", "Combined_dirt (light group)"]
     assert "Ambient Occlusion" not in requested_passes(layer, scene)
     assert "Emission" in requested_passes(layer, scene)
     render_with_operator(scene)

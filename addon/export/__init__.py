@@ -22,8 +22,8 @@ from .light import export_light
 from .light_linking import LightLinking
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
-from .motion import (deforms, instance_key, object_steps, placed_motion, sample_motion, shutter as motion_shutter,
-                     take_steps)
+from .motion import (Shutter, deforms, instance_key, object_steps, placed_motion, sample_motion,
+                     shutter as motion_shutter, take_steps)
 from .nodes.vector_rules import tangent_uv_maps
 from .world import export_mist, export_world
 
@@ -220,8 +220,12 @@ def export_scene(
     should_cancel: Callable[[], bool] | None = None,
     frame_set: Callable[[int, float], None] | None = None,
     motion_blur: bool = True,
+    vector_pass: bool = False,
 ) -> tuple[Scene, ExportStats]:
     """Build a core Scene from an evaluated depsgraph (the frame's). camera_object defaults to the scene's.
+
+    vector_pass (without motion blur): the objects and the camera are also evaluated at the previous and the next
+    frame, for the Vector pass (core.scene.Mesh.vector_vertices, Camera.vector_matrices).
 
     With Render > Motion Blur on (and motion_blur), the scene is also evaluated at subframes over the shutter
     (addon/export/motion.py) through frame_set(frame, subframe): the render engine's own (RenderEngine.frame_set,
@@ -235,6 +239,11 @@ def export_scene(
     scene = depsgraph.scene
     warnings: list[str] = []
     shutter = motion_shutter(scene, warnings) if motion_blur else None
+    # The Vector pass without motion blur (Cycles renders it only then): the motion from the previous to the next
+    # frame, sampled as a shutter of two frames centred on this one and kept apart from the rays (no blur)
+    vector_only = shutter is None and vector_pass
+    if vector_only:
+        shutter = Shutter(int(scene.frame_current), float(scene.frame_subframe), -1.0, 2.0)
     if shutter is not None and frame_set is None:
         def frame_set(frame: int, subframe: float) -> None:
             scene.frame_set(frame, subframe=subframe)
@@ -248,7 +257,24 @@ def export_scene(
             frame_set(shutter.frame, shutter.subframe)
     if moved:
         out[0].world = export_world(scene.world, [])  # at the frame (its warnings are the centre's, already given)
+    if vector_only:
+        _motion_to_vectors(out[0])
     return out
+
+
+def _motion_to_vectors(core_scene: Scene) -> None:
+    """Move the sampled motion (previous frame, ..., next frame) from motion blur's fields to the Vector pass's:
+    Mesh.vector_vertices and Camera.vector_matrices; the render itself stays still."""
+    for mesh in core_scene.meshes:
+        if mesh.motion_vertices is not None:
+            steps = np.asarray(mesh.motion_vertices, np.float64)
+            mesh.vector_vertices = np.stack([steps[0], steps[-1]])
+            mesh.motion_vertices = mesh.motion_normals = None
+    cam = core_scene.camera
+    if cam.motion_matrices is not None:
+        steps = np.asarray(cam.motion_matrices, np.float64)
+        cam.vector_matrices = np.stack([steps[0], steps[-1]])
+    cam.motion_matrices = cam.motion_lens = cam.shutter_curve = cam.rolling_shutter = None
 
 
 def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutter, warnings: list[str],
@@ -262,7 +288,8 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
         camera_object = camera_object.evaluated_get(depsgraph)
     camera = export_camera(camera_object, scene, warnings)
 
-    materials = MaterialExporter(warnings, None if camera is None else camera.matrix_world)
+    shader_aovs = view_layer_aovs(depsgraph.view_layer, scene.world, warnings)
+    materials = MaterialExporter(warnings, None if camera is None else camera.matrix_world, shader_aovs)
     prototypes: dict[tuple, _Prototype] = {}
     # (object pointer, data pointer) -> prototype key or None (skip). Blender reuses one temporary object
     # for many geometry-node instances, so this keeps the per-instance work to a few attribute reads.
@@ -363,7 +390,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
                 uv_layer_names=list(materials.uv_names), mist=export_mist(scene.world),
                 object_names=object_names, asset_names=asset_names,
                 attribute_names=list(materials.attribute_names),
-                tangent_layer_names=list(materials.tangent_names))
+                tangent_layer_names=list(materials.tangent_names), shader_aovs=shader_aovs)
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "
                          "metaballs); check the objects' render visibility and the view layer's collections")
@@ -376,6 +403,25 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
     if log is not None:
         log(stats.line())
     return out, stats
+
+
+def view_layer_aovs(view_layer, world, warnings: list[str]) -> list[tuple[str, str]]:
+    """The view layer's shader AOVs (View Layer Properties > Shader AOV) as core.scene.Scene.shader_aovs: (name,
+    "COLOR" | "VALUE") in their order, the invalid ones (a repeated name, or one of a built-in pass: Blender
+    marks them) left out as Cycles does, with a warning; a warning too for AOV Output nodes in the world, which
+    Monte does not evaluate."""
+    out: list[tuple[str, str]] = []
+    for aov in getattr(view_layer, "aovs", ()):
+        if not getattr(aov, "is_valid", True):
+            warnings.append(f"view layer {view_layer.name!r}: shader AOV {aov.name!r} is invalid (a repeated name or "
+                            "the name of a built-in pass) and is not written")
+            continue
+        out.append((str(aov.name), "VALUE" if aov.type == "VALUE" else "COLOR"))
+    tree = getattr(world, "node_tree", None) if out and world is not None else None
+    if tree is not None and any(n.bl_idname == "ShaderNodeOutputAOV" for n in tree.nodes):
+        warnings.append(f"world {world.name!r}: AOV Output nodes in the world are not evaluated by Monte; the "
+                        "AOVs stay 0 where the camera sees the world")
+    return out
 
 
 def _asset_name(inst, obj) -> str:

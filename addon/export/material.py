@@ -152,8 +152,10 @@ class MaterialExporter:
     parameter and the emission fold to constants the material is plain constant lobes (rendered as before, at no
     per-point cost); otherwise it carries a core.shading ShadingProgram that drives them per shading point."""
 
-    def __init__(self, warnings: list[str], camera_matrix=None) -> None:
+    def __init__(self, warnings: list[str], camera_matrix=None, shader_aovs=()) -> None:
         self.warnings = warnings
+        # the view layer's shader AOVs (core.scene.Scene.shader_aovs): name -> (index, kind) for AOV Output nodes
+        self.shader_aovs = {name: (i, kind) for i, (name, kind) in enumerate(shader_aovs)}
         self.camera_matrix = camera_matrix  # the render camera's matrix_world (Vector Transform's camera space)
         self.materials: list[Material] = []
         self.textures: list[Texture] = []
@@ -205,7 +207,7 @@ class MaterialExporter:
 
     def convert(self, material) -> Material:
         from .nodes.compiler import CompileError, ProgramBuilder
-        from .nodes.shaders import UnsupportedShader, compile_surface
+        from .nodes.shaders import UnsupportedShader, compile_aov_outputs, compile_surface
 
         name = material.name
         owner = f"material {name!r}"
@@ -232,13 +234,15 @@ class MaterialExporter:
         self._converted_uses = builder.attribute_uses
         try:
             lobes, bind, emission, holdout, normal = compile_surface(builder, output)
+            if self.shader_aovs:
+                compile_aov_outputs(builder, tree, self.shader_aovs)
         except (UnsupportedShader, CompileError) as exc:
             self.warnings.append(f"{owner}: {exc}; falling back to a diffuse of the material's viewport colour "
                                  f"{np.round(viewport, 4).tolist()}")
             return Material(name, [Lobe("diffuse", viewport)])
         emit_const = builder.is_const(emission)
         constant_emission = np.maximum(builder.value(emission).astype(np.float64), 0.0) if emit_const else np.zeros(3)
-        if not np.any(bind >= 0) and emit_const and normal < 0:
+        if not np.any(bind >= 0) and emit_const and normal < 0 and not builder.writes_aovs:
             return Material(name, lobes, emission=constant_emission, holdout=holdout)
         program = builder.finish(bind, -1 if emit_const else emission, normal)
         return Material(name, lobes, emission=constant_emission, program=program, holdout=holdout)

@@ -48,6 +48,7 @@ _TEXCO, _GEOM, _OBJINFO, _IMAGE = R.OP_TEXCOORD, R.OP_GEOMETRY, R.OP_OBJECT_INFO
 _UVLAYER, _ATTR, _LIGHTPATH = R.OP_UV_LAYER, R.OP_ATTRIBUTE, R.OP_LIGHT_PATH
 _NORMAL_MAP, _BUMP_OP, _VTRANSFORM, _TANGENT = R.OP_NORMAL_MAP, R.OP_BUMP, R.OP_VECTOR_TRANSFORM, R.OP_TANGENT
 _SPEC, _GLASSF0, _SQRTSAT, _OMS = R.OP_SPECULAR_LAYER, R.OP_GLASS_F0, R.OP_SQRT_SATURATE, R.OP_ONE_MINUS_SATURATE
+_AOV_OUT = R.OP_AOV_OUTPUT  # run by run_programs itself (it writes a pass, not a register); a no-op elsewhere
 _COLOR_BASE, _PROC_BASE = R.COLOR_BASE, R.PROCEDURAL_BASE
 _SINGULAR = np.float32(mf.SINGULAR_ROUGHNESS)
 _F32_0 = np.float32(0.0)
@@ -1009,11 +1010,13 @@ def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
 def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg,
                  normal_reg, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, has_uv, back, obj, objects, uvx,
                  extra, dP, duv, tan, nraw, scratch, kind, weight, rough, ior, f0, tint, select, t_scale, emission,
-                 normal_out, has_normal):
+                 normal_out, has_normal, aov_out):
     """Evaluate the programs of the points `rows` (indices into the per-point arrays); write the bound lobe
     parameters of point k into row k of the LobeBatch arrays (kind .. select), `emission` (N, 3) likewise (rows
     whose program binds no emission are left as they are), and the bound shading normal into normal_out[k] with
-    has_normal[k] = True. scratch (R_max, 3) float32 is the register file."""
+    has_normal[k] = True. aov_out (N, K, 4): each aov_output instruction adds its value and a count of 1 to
+    aov_out[k, aov]; with no rows (0, K, 4) the instructions write nothing. scratch (R_max, 3) float32 is the
+    register file."""
     for j in range(rows.shape[0]):
         k = rows[j]
         m = mat[k]
@@ -1028,6 +1031,12 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
         pdata = data[data_start[p]:data_start[p + 1]]
         for i in range(code_start[p], code_start[p + 1]):
             a = code[i]
+            if a[0] == _AOV_OUT:
+                if aov_out.shape[0] > 0:
+                    for c in range(3):
+                        aov_out[k, a[2], c] += scratch[a[1], c]
+                    aov_out[k, a[2], 3] += _F32_1
+                continue
             op = a[0]
             # the families straight from here (not through _execute): register-only ops take 3-4 arguments,
             # only the ops that read the shading context get its arrays
@@ -1134,6 +1143,7 @@ class PreparedShading:
         # named attributes only then.
         self.uses_light_path = bool(np.any(ops == _LIGHTPATH))
         self.uses_attributes = bool(np.any(ops == _ATTR))
+        self.writes_aovs = bool(np.any(ops == _AOV_OUT))  # some AOV Output node (core.shader_aovs)
         self.objects = np.ascontiguousarray(objects if objects is not None else identity_object_row()[None], np.float32)
         self.texture_pack = pack_textures_rgba(textures)
 
@@ -1147,7 +1157,8 @@ class PreparedShading:
     def evaluate(self, rows: np.ndarray, mat: np.ndarray, P, N, Ng, I, uv, back, obj, lobes, select_scale,
                  emission: np.ndarray | None = None, uv_layers: np.ndarray | None = None,
                  extra: np.ndarray | None = None, dP=None, duv=None,
-                 tangents=None, mesh_normal=None, normal_out: np.ndarray | None = None) -> np.ndarray | None:
+                 tangents=None, mesh_normal=None, normal_out: np.ndarray | None = None,
+                 aov_out: np.ndarray | None = None) -> np.ndarray | None:
         """Run the programs of points `rows` in place on `lobes` (a LobeBatch with one row per point) and
         `emission` ((N, 3), optional). P, N, Ng, I (N, 3) float32 world space, uv (N, 2) or None, back (N,)
         bool, obj (N,) int32 object rows, uv_layers (N, K, 2) the named UV maps (Scene.uv_layer_names) or
@@ -1157,8 +1168,10 @@ class PreparedShading:
         Vector nodes: dP (N, 2, 3) the ray differential's dP.dx and dP.dy (world units), duv (N, 2, 2) the active
         UV map's derivatives along them, tangents (N, T, 4) the tangent layers (Scene.tangent_layer_names:
         tangent xyz, bitangent sign; zeros where a mesh lacks the map), mesh_normal (N, 3) the interpolated,
-        unnormalised mesh normal (outside); None reads zeros. Returns has_normal (N,) bool, the points whose
-        program set the shading normal (written into normal_out (N, 3)), or None when no program sets one."""
+        unnormalised mesh normal (outside); None reads zeros. aov_out (N, K, 4) float32: where the AOV Output
+        nodes add their values (core.shader_aovs), None: they write nothing. Returns has_normal (N,) bool, the
+        points whose program set the shading normal (written into normal_out (N, 3)), or None when no program
+        sets one."""
         n = len(mat)
         if emission is None:
             emission = np.zeros((n, 3), np.float32)
@@ -1182,13 +1195,18 @@ class PreparedShading:
         has_normal = np.zeros(n, np.bool_)
         if normal_out is None:
             normal_out = np.zeros((n, 3), np.float32)
+        if aov_out is None:
+            aov_out = _NO_AOVS
         run_programs(np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(mat, np.int64), self.prog_of_mat,
                      self.code, self.code_start, self.regs0, self.reg_start, self.data, self.data_start, self.bind,
                      self.emit_reg, self.normal_reg, *self.texture_pack, _f3(P), _f3(N), _f3(Ng), _f3(I), uvs,
                      has_uv, np.ascontiguousarray(back, np.bool_), np.ascontiguousarray(obj, np.int32), self.objects,
                      uvx, ext, dP, duv, tan, nraw, scratch, lobes.kind, lobes.weight, lobes.roughness, lobes.ior,
-                     lobes.f0, lobes.tint, lobes.select, select_scale, emission, normal_out, has_normal)
+                     lobes.f0, lobes.tint, lobes.select, select_scale, emission, normal_out, has_normal, aov_out)
         return has_normal if self.any_sets_normal else None
+
+
+_NO_AOVS = np.zeros((0, 1, 4), np.float32)
 
 
 def _f3(a) -> np.ndarray:

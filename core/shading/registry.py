@@ -210,3 +210,8 @@ OP_TANGENT = register(OpSpec("tangent", 63, _r("out", kind="out") + _r("generate
                              ">= 0: the UV map's tangent layer (zero where a mesh lacks it); else radial about axis "
                              "0 x 1 y 2 z of the generated coordinates, taken to world space as a normal; then made "
                              "orthogonal to N")).code
+# Output to a pass (core.shader_aovs): no register written, so the compiler keeps it as a sink and never folds it.
+OP_AOV_OUTPUT = register(OpSpec("aov_output", 70, _r("value", kind="in") + _r("aov", kind="int"),
+                                "AOV Output node (Cycles' svm_node_aov_color / _value): adds the value (a colour, or "
+                                "a float in component 0) and a count of 1 to the point's AOV `aov` (an index into "
+                                "Scene.shader_aovs) where the integrator asks for AOVs; nothing elsewhere")).code

@@ -95,6 +95,11 @@ class ProgramBuilder:
         self.varying.append(varying)
         return len(self.registers) - 1
 
+    @property
+    def writes_aovs(self) -> bool:
+        """Whether an AOV Output node was compiled (the material then needs a program, core.shader_aovs)."""
+        return any(inst[0] == R.OP_AOV_OUTPUT for inst in self.code)
+
     def is_const(self, r: int) -> bool:
         return not self.varying[r]
 
@@ -326,7 +331,7 @@ class ProgramBuilder:
         for inst in reversed(self.code):
             spec = R.OPS[inst[0]]
             outs = [inst[i + 1] for i, (_, k) in enumerate(spec.operands) if k in ("out", "out?") and inst[i + 1] >= 0]
-            if any(o in needed for o in outs):
+            if any(o in needed for o in outs) or inst[0] == R.OP_AOV_OUTPUT:  # an AOV write is a sink: kept
                 keep.append(inst)
                 needed.update(inst[i + 1] for i, (_, k) in enumerate(spec.operands)
                               if k in ("in", "in?") and inst[i + 1] >= 0)

@@ -55,6 +55,10 @@ for _idname, (_label, _inputs, _notes) in SHADERS.items():
     document(_idname, _label, "shader", inputs=_inputs, outputs=("BSDF",), notes=_notes)
 document("ShaderNodeOutputMaterial", "Material Output", "output", inputs=("Surface",),
          notes="The active output for Cycles (target Cycles or All). Volume and Displacement warn and are ignored.")
+document("ShaderNodeOutputAOV", "AOV Output", "output", inputs=("Color", "Value"),
+         notes="Writes the view layer's shader AOV of its name (Color for a COLOR AOV, Value for a VALUE one) where "
+               "camera paths are primary (core.shader_aovs); nodes in node groups and in the world are not "
+               "evaluated (warning); an AOV the view layer does not list is not written, as in Cycles.")
 
 
 class UnsupportedShader(Exception):
@@ -308,4 +312,37 @@ def compile_surface(c, output_node) -> tuple[list[Lobe], np.ndarray, int, float,
     return lobes, bind, walk.emission, min(max(walk.holdout, 0.0), 1.0), normal
 
 
-__all__ = ["compile_surface", "UnsupportedShader", "CompileError"]
+def compile_aov_outputs(c, tree, aovs: dict) -> int:
+    """Emit an aov_output instruction for each AOV Output node of the material's tree (its top level, target
+    Cycles or All, not muted) whose name the view layer lists: aovs {name: (index into Scene.shader_aovs,
+    "COLOR" | "VALUE")}; the node's Color or Value input by the AOV's type, as Cycles. Returns how many."""
+    count = 0
+    for node in tree.nodes:
+        if node.bl_idname == "ShaderNodeGroup" and _group_has_aov_output(node.node_tree):
+            c.warn(node, "AOV Output nodes inside node groups are not evaluated by Monte; their AOVs are not "
+                         "written")
+        if node.bl_idname != "ShaderNodeOutputAOV" or node.mute or getattr(node, "target", "ALL") == "EEVEE":
+            continue
+        found = aovs.get(node.aov_name)
+        if found is None:
+            continue
+        index, kind = found
+        try:
+            value = c.input(node, "Color", RGBA, Ctx()) if kind == "COLOR" else c.input(node, "Value", FLOAT, Ctx())
+        except (CompileError, UnsupportedShader) as exc:  # the node's AOV only; the material renders as it is
+            c.warn(node, f"{exc}; its AOV {node.aov_name!r} is not written")
+            continue
+        c.emit("aov_output", value=value, aov=index, varying=True)
+        count += 1
+    return count
+
+
+def _group_has_aov_output(tree, depth: int = 0) -> bool:
+    if tree is None or depth > 16:
+        return False
+    return any(n.bl_idname == "ShaderNodeOutputAOV" or (n.bl_idname == "ShaderNodeGroup"
+                                                       and _group_has_aov_output(n.node_tree, depth + 1))
+               for n in tree.nodes)
+
+
+__all__ = ["compile_surface", "compile_aov_outputs", "UnsupportedShader", "CompileError"]
