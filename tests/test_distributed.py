@@ -152,6 +152,19 @@ def test_frames_in_flight_each_equal_their_own_render(cluster):
         render_frames_on_cluster(client, iter(frames), lambda *_: None, frames_in_flight=0)
 
 
+def test_frames_with_a_time_limit_go_one_at_a_time(cluster, reference):
+    """Frames with a time limit are not queued beside each other (each limit is spent on its own frame): the
+    progress never counts more than one frame's 10 units; a limit that does not pass changes no bit."""
+    _, client = cluster
+    frames = [(seed, _scene(), _settings(seed=seed, time_limit=3600.0)) for seed in (7, 8)]
+    delivered, seen = {}, []
+    n = render_frames_on_cluster(client, iter(frames), lambda key, result: delivered.__setitem__(key, result),
+                                 frames_in_flight=2, on_progress=seen.append)
+    assert n == 2 and {p.units_total for p in seen} == {10}
+    _assert_same_images(delivered[7], reference)
+    _assert_same_images(delivered[8], render(_scene(), _settings(seed=8)))
+
+
 def test_adaptive_render_on_the_cluster_equals_one_render(cluster):
     _, client = cluster
     scene, settings = _scene(), _settings(spp=24, adaptive_threshold=0.2, adaptive_min_samples=8)
