@@ -1,4 +1,5 @@
-"""Rendering from Blender on a Dask cluster: the "Test connection" operator and the engine's cluster render.
+"""Rendering from Blender on a Dask cluster: the "Test connection" operator, the engine's cluster render and the
+render job's connection (one for all the frames of an animation, closed when the job ends).
 
 The engine exports the frame as for a local render, then hands the core scene to core.distributed: the frame is
 cut into work units, rendered on the cluster's workers and merged bit for bit into the image one machine makes.
@@ -8,7 +9,8 @@ reached is an error (the render fails with core.distributed's message); it never
 
 from __future__ import annotations
 
-from typing import Callable
+from contextlib import ExitStack, contextmanager
+from typing import Callable, Iterator
 
 import bpy
 
@@ -82,6 +84,74 @@ def probe_cluster(address: str, timeout: float = DEFAULT_CONNECT_TIMEOUT,
         return f"Connected to {address}: {describe_workers(client)}"
 
 
+class _RenderJobConnection:
+    """The connection of a render job (Blender's render_init .. render_complete / render_cancel: one still, or
+    every frame of an animation): opened by its first cluster frame and kept for the next ones, so that an
+    animation connects (and a local:N cluster starts its workers) once, not once per frame."""
+
+    def __init__(self) -> None:
+        self.in_job = False
+        self.key: tuple[str, float] | None = None
+        self.client = None
+        self.stack: ExitStack | None = None
+        self.connects = 0  # connections opened since the add-on was loaded (reported by tests)
+
+    def close(self) -> None:
+        stack, self.stack, self.client, self.key = self.stack, None, None, None
+        if stack is not None:
+            stack.close()
+
+
+_job = _RenderJobConnection()
+
+
+@contextmanager
+def cluster_client(address: str, timeout: float, log: Callable[[str], None] | None = None) -> Iterator:
+    """A distributed.Client for a frame's cluster render (core.distributed.connect's checks and errors). Inside
+    a render job the client stays open for the job's next frames (the same address and timeout, still
+    running); a frame that fails closes it. Outside a job (no render_init seen) the connection is the frame's."""
+    say = log or (lambda _m: None)
+    if not _job.in_job:
+        _job.connects += 1
+        with connect(address, timeout, log) as client:
+            yield client
+        return
+    client = _job.client
+    if client is not None and (_job.key != (address, timeout) or client.status != "running"):
+        _job.close()
+        client = None
+    if client is None:
+        stack = ExitStack()
+        client = stack.enter_context(connect(address, timeout, log))
+        _job.connects += 1
+        _job.stack, _job.client, _job.key = stack, client, (address, timeout)
+    else:
+        say(f"using the render job's connection to {address}")
+    try:
+        yield client
+    except KeyboardInterrupt:  # a cancelled frame: its units are cancelled, the connection is still good
+        raise
+    except BaseException:
+        _job.close()
+        raise
+
+
+@bpy.app.handlers.persistent
+def _on_render_init(*_args) -> None:
+    _job.close()
+    _job.in_job = True
+
+
+@bpy.app.handlers.persistent
+def _on_render_end(*_args) -> None:
+    _job.in_job = False
+    _job.close()
+
+
+_HANDLERS = (("render_init", _on_render_init), ("render_complete", _on_render_end),
+             ("render_cancel", _on_render_end))
+
+
 class MONTE_OT_cluster_test(bpy.types.Operator):
     """Connect to the Dask scheduler in the Cluster panel and report the workers found, or why it failed"""
 
@@ -112,8 +182,18 @@ classes = (MONTE_OT_cluster_test,)
 def register() -> None:
     for cls in classes:
         bpy.utils.register_class(cls)
+    for name, handler in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if handler not in handlers:
+            handlers.append(handler)
 
 
 def unregister() -> None:
+    for name, handler in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if handler in handlers:
+            handlers.remove(handler)
+    _job.in_job = False
+    _job.close()
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

@@ -364,16 +364,14 @@ class MonteRenderEngine(bpy.types.RenderEngine):
             self.report({"WARNING"}, f"Monte: render stopped early ({summary}); the image holds the samples taken")
 
     def _render_on_cluster(self, depsgraph, core_scene, settings, region, on_tile):
-        """The exported frame rendered on the Dask cluster of Render Properties > Cluster (addon/cluster.py):
-        tiles written as their units come back; the result equals a local render bit for bit. Returns None
+        """The exported frame (its render region only, when one is set) rendered on the Dask cluster of Render
+        Properties > Cluster (addon/cluster.py; one connection for all the frames of an animation): tiles
+        written as their units come back; the result equals a local render bit for bit. Returns None
         when Esc cancelled it (its units cancelled on the cluster). ClusterError when the scheduler cannot be
         reached, has no worker or runs another Monte: the render fails, nothing is rendered here instead."""
-        from ..core.distributed import connect, render_on_cluster
-        from .cluster import cluster_address, expose_core_to_workers
+        from ..core.distributed import render_on_cluster
+        from .cluster import cluster_address, cluster_client, expose_core_to_workers
 
-        if region is not None:
-            raise ClusterError("a cluster render covers the whole frame: turn off Render Region (Output "
-                               "Properties > Format) or Render on a Dask Cluster (Render Properties > Cluster)")
         address, timeout = cluster_address(depsgraph.scene)
         expose_core_to_workers()
         cancelled = []
@@ -393,9 +391,10 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         self.update_stats("", f"Monte | Connecting to the Dask scheduler at {address}")
         self._log(f"connecting to the Dask scheduler at {address}")
         try:
-            with connect(address, timeout, self._log) as client:
+            with cluster_client(address, timeout, self._log) as client:
                 return render_on_cluster(core_scene, settings, client, on_progress=self._progress,
-                                         should_cancel=should_cancel, log=self._log, on_tile=on_cluster_tile)
+                                         should_cancel=should_cancel, log=self._log, on_tile=on_cluster_tile,
+                                         region=region)
         except KeyboardInterrupt:
             if not cancelled:
                 raise

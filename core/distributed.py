@@ -31,7 +31,7 @@ from .render import (CancelCallback, RenderResult, SampleRanges, TileCallback, T
                      render_samples, tile_result, world_to_camera)
 from .sampling import VARIANCE_GROUPS, make_sampler
 from .scene import Scene
-from .schedule import pass_bounds, tiles
+from .schedule import TileRect, pass_bounds, tiles
 from .settings import RenderSettings
 
 DEFAULT_CONNECT_TIMEOUT = 10.0  # seconds to reach a scheduler and see a worker before giving up
@@ -62,20 +62,25 @@ class ClusterProgress:
 
 
 # ----------------------------------------------------------------------------------------------- work units
-def plan_units(scene: Scene, settings: RenderSettings, workers: int, *, ranges_per_tile: int | None = None,
-               units_per_worker: int = UNITS_PER_WORKER) -> list[SampleRanges]:
-    """Cut a frame into work units (each a dict tile index -> samples [start, end), whole sample passes) for a
-    cluster of `workers` worker threads (a unit runs on one thread).
+def plan_units(scene: Scene, settings: RenderSettings, workers: int, *, region: TileRect | None = None,
+               ranges_per_tile: int | None = None, units_per_worker: int = UNITS_PER_WORKER) -> list[SampleRanges]:
+    """Cut a frame (or its region: only the region's tiles, indexed as render_samples indexes them) into work
+    units (each a dict tile index -> samples [start, end), whole sample passes) for a cluster of `workers`
+    worker threads (a unit runs on one thread).
 
     With at least units_per_worker x workers tiles, units are groups of whole tiles (the film comes back once
     per tile); with fewer, each tile's passes are split into ranges_per_tile ranges (default: enough for that
-    many units), since a unit that starts past sample 0 sends one film per pass back. Adaptive sampling keeps
-    tiles whole (a pass depends on the ones before).
+    many units), since a unit that starts past sample 0 sends one film per pass back. With a time limit each
+    unit is one sample pass of one tile, listed pass by pass over the tiles (all tiles' first pass, then their
+    second, ...), so that a render stopped by the limit has refined the whole image evenly, as a local one.
+    Adaptive sampling keeps tiles whole (a pass depends on the ones before).
     """
-    width, height = scene.camera.resolution
-    tile_list = tiles(0, 0, width, height, settings.tile_size)
+    tile_list = _tile_list(scene, settings, region)
     bounds = pass_bounds(tile_list, int(settings.spp), settings)
     target = max(1, workers * units_per_worker)
+    progressive = settings.time_limit > 0 and ranges_per_tile is None and settings.adaptive_threshold <= 0
+    if progressive:
+        ranges_per_tile = max(len(b) - 1 for b in bounds)
     if ranges_per_tile is None:
         ranges_per_tile = 1 if len(tile_list) >= target else -(-target // len(tile_list))
     if settings.adaptive_threshold > 0:
@@ -92,7 +97,16 @@ def plan_units(scene: Scene, settings: RenderSettings, workers: int, *, ranges_p
         k = max(1, min(ranges_per_tile, passes))
         cuts = [b[round(i * passes / k)] for i in range(k + 1)]
         units += [{ti: (cuts[i], cuts[i + 1])} for i in range(k)]
+    if progressive:
+        units.sort(key=lambda u: next(iter(u.values()))[0])  # stable: tile order within each pass
     return units
+
+
+def _tile_list(scene: Scene, settings: RenderSettings, region: TileRect | None) -> list[TileRect]:
+    """The tiles render() cuts the region (the whole frame when None) into."""
+    width, height = scene.camera.resolution
+    rx, ry, rw, rh = (0, 0, width, height) if region is None else (int(v) for v in region)
+    return tiles(rx, ry, rw, rh, settings.tile_size)
 
 
 # ---------------------------------------------------------------------------------------- on the workers
@@ -119,11 +133,14 @@ def _prepared_for(frame_key: str, scene: Scene, settings: RenderSettings):
         return entry
 
 
-def render_unit(scene: Scene, settings: RenderSettings, unit: SampleRanges, frame_key: str) -> list[TileSamples]:
-    """A worker's task: the unit's film sums. One thread per task (a worker runs as many tasks as it has
-    threads); the image does not depend on it."""
+def render_unit(scene: Scene, settings: RenderSettings, unit: SampleRanges, frame_key: str,
+                region: TileRect | None = None) -> list[TileSamples]:
+    """A worker's task: the unit's film sums (tile indices of the region's tiles, the frame's when None). One
+    thread per task (a worker runs as many tasks as it has threads); the image does not depend on it. A unit
+    always runs to its end: the client applies a time limit by handing out no more units."""
     prepared = _prepared_for(frame_key, scene, settings)
-    return render_samples(scene, settings.replace(threads=1), unit, prepared=prepared)
+    return render_samples(scene, settings.replace(threads=1, time_limit=0.0), unit, region=region,
+                          prepared=prepared)
 
 
 def worker_versions() -> dict[str, str]:
@@ -221,19 +238,28 @@ def render_on_cluster(scene: Scene, settings: RenderSettings, client, *,
                       should_cancel: CancelCallback | None = None,
                       log: Callable[[str], None] | None = None,
                       submit_seed: int | None = None,
-                      on_tile: TileCallback | None = None) -> RenderResult:
-    """Render the whole frame on the cluster behind `client`; the images equal render()'s bit for bit.
+                      on_tile: TileCallback | None = None,
+                      region: TileRect | None = None) -> RenderResult:
+    """Render the frame (or its region) on the cluster behind `client`; the images equal render()'s bit for bit.
 
     units: the work split (plan_units for the cluster's worker threads when None). submit_seed: submit the units
     in a shuffled order (for showing that the image does not depend on it). should_cancel is polled while units
     run: when it returns True every unit is cancelled and KeyboardInterrupt is raised (a cluster render keeps
-    no partial image: a frame is all or nothing). A time limit does not apply (refused).
+    no partial image: a frame is all or nothing).
+    region: (x0, y0, width, height) of the frame, y0 from the top, as render()'s: only the region's tiles are
+    rendered and the result covers the region, equal to render(region=...) bit for bit.
+    settings.time_limit > 0: the units (one sample pass of one tile each, pass by pass over the tiles) are
+    handed out a few per worker thread at a time, and none after the limit has passed (counted from this
+    call); the units already out finish and count. The image then holds, per tile, the samples of its passes
+    from 0 up to where its units stopped (the result is marked cancelled, as a local render stopped by its
+    time limit): each tile is exactly what one machine makes of those samples, which passes got done
+    depends on the cluster's speed.
     on_tile: called on this thread with each tile (core.render.Tile, all its samples) as soon as the units
     holding its samples are back, so a viewer can show the frame filling in; its images equal the final ones.
     stats: seconds, samples/s, units, workers, threads, scene_bytes (the pickled scene sent once per worker),
     film_bytes (all film sums sent back) and film_bytes_per_unit.
     """
-    job = _FrameJob(client, scene, settings, units, submit_seed, log, on_tile=on_tile)
+    job = _FrameJob(client, scene, settings, units, submit_seed, log, on_tile=on_tile, region=region)
     _run_jobs([job], on_progress, should_cancel)
     return job.result()
 
@@ -248,6 +274,8 @@ def render_frames_on_cluster(client, frames: Iterable[tuple[object, Scene, Rende
     takes the next frame from `frames` (an export) and merges the last. on_frame(key, result) is called on this
     thread as each frame completes (in completion order), with images bit-identical to render()'s of that
     frame. Cancel as render_on_cluster (the frames already passed to on_frame stay done). Returns frames done.
+    A frame with a time limit is rendered alone (no other frame's units queued beside it), so that its limit
+    is spent on it.
     """
     if frames_in_flight < 1:
         raise ValueError(f"frames in flight must be at least 1, got {frames_in_flight}")
@@ -257,7 +285,8 @@ def render_frames_on_cluster(client, frames: Iterable[tuple[object, Scene, Rende
 
     def refill() -> None:
         nonlocal source
-        while source is not None and sum(not j.done for j in jobs) < frames_in_flight:
+        while (source is not None and sum(not j.done for j in jobs) < frames_in_flight
+               and not any(j.settings.time_limit > 0 and not j.done for j in jobs)):
             try:
                 key, scene, settings = next(source)
             except StopIteration:
@@ -285,45 +314,70 @@ class _FrameJob:
 
     def __init__(self, client, scene: Scene, settings: RenderSettings, units: list[SampleRanges] | None,
                  submit_seed: int | None, log: Callable[[str], None] | None, key: object = None,
-                 on_tile: TileCallback | None = None) -> None:
+                 on_tile: TileCallback | None = None, region: TileRect | None = None) -> None:
         say = log or (lambda _m: None)
         settings.validate()
-        if settings.time_limit > 0:
-            raise ValueError("a time limit does not apply to a cluster render (its units are not stopped halfway)")
         scene.validate()
+        width, height = scene.camera.resolution
+        if region is not None:
+            region = tuple(int(v) for v in region)
+            rx, ry, rw, rh = region
+            if rw < 1 or rh < 1 or rx < 0 or ry < 0 or rx + rw > width or ry + rh > height:
+                raise ValueError(f"render region {region} is not inside the {width}x{height} frame")
+        self.region = region
         self.key, self.scene, self.settings = key, scene, settings
         self.t_start = time.perf_counter()
         worker_info = client.scheduler_info(n_workers=-1)["workers"]
         self.workers = max(1, len(worker_info))
         self.threads = max(1, sum(int(w.get("nthreads", 1)) for w in worker_info.values()))
         if units is None:  # a unit runs on one thread: a worker with 8 threads runs 8 at once
-            units = plan_units(scene, settings, self.threads)
+            units = plan_units(scene, settings, self.threads, region=region)
         self.units = units
         order = list(range(len(units)))
         if submit_seed is not None:
             random.Random(submit_seed).shuffle(order)
-        frame_key = uuid.uuid4().hex
+        self.frame_key = frame_key = uuid.uuid4().hex
         self.scene_bytes = len(pickle.dumps(scene, protocol=pickle.HIGHEST_PROTOCOL))
         say(f"{len(units)} units on {self.workers} workers; scene {self.scene_bytes / 1e3:.0f} kB to each worker")
+        self.client = client
         self.shared = [client.scatter(scene, broadcast=True, hash=False),
                        client.scatter(settings, broadcast=True, hash=False)]
-        self.futures = [client.submit(render_unit, *self.shared, units[i], frame_key, pure=False,
-                                      key=f"monte-unit-{frame_key}-{i}") for i in order]
-        width, height = scene.camera.resolution
-        tile_list = tiles(0, 0, width, height, settings.tile_size)
+        tile_list = _tile_list(scene, settings, region)
         self.tile_list, self.on_tile = tile_list, on_tile
         self.tile_parts: dict[int, list[TileSamples]] = {}
-        self.unit_paths = {f.key: _unit_paths(tile_list, units[i]) for f, i in zip(self.futures, order)}
+        self.unit_paths = {self._unit_key(i): _unit_paths(tile_list, units[i]) for i in order}
         self.total_paths = sum(self.unit_paths.values())
-        self.pending = set(self.futures)
+        # With a time limit units go out a few per thread at a time (none once it has passed); else all at once.
+        self.to_submit = order
+        self.window = 2 * self.threads if settings.time_limit > 0 else len(units)
+        self.stopped = False  # the time limit passed with units not handed out
+        self.futures: list = []
+        self.pending: set = set()
         self.parts: list[TileSamples] = []
         self.done_paths = 0
         self.film_bytes = 0
-        self.client = client
+        self._hand_out()
+
+    def _unit_key(self, i: int) -> str:
+        return f"monte-unit-{self.frame_key}-{i}"
+
+    def _hand_out(self) -> None:
+        """Submit units while fewer than `window` are out; none after the time limit (the rest is dropped)."""
+        limit = self.settings.time_limit
+        while self.to_submit and len(self.pending) < self.window:
+            if limit > 0 and self.futures and time.perf_counter() - self.t_start > limit:
+                self.stopped = True
+                self.to_submit = []
+                break
+            i = self.to_submit.pop(0)
+            future = self.client.submit(render_unit, *self.shared, self.units[i], self.frame_key, self.region,
+                                        pure=False, key=self._unit_key(i))
+            self.futures.append(future)
+            self.pending.add(future)
 
     @property
     def done(self) -> bool:
-        return not self.pending
+        return not self.pending and not self.to_submit
 
     def poll(self) -> int:
         """Collect the units finished since the last call; returns how many. ClusterError for a failed unit."""
@@ -343,6 +397,8 @@ class _FrameJob:
                 self._show_finished_tiles(result)
             self.film_bytes += sum(a.nbytes for part in result for sums in part.films for a in sums.values())
             self.done_paths += self.unit_paths[f.key]
+        if finished or self.settings.time_limit > 0:
+            self._hand_out()
         if self.done:
             self.release()
         return len(finished)
@@ -373,6 +429,7 @@ class _FrameJob:
             self.on_tile(tile_result(tile, film, spp, self.settings.aovs, rot))
 
     def cancel(self) -> None:
+        self.to_submit = []
         self.client.cancel(self.futures, force=True)
         self.release()
 
@@ -385,7 +442,7 @@ class _FrameJob:
     def result(self) -> RenderResult:
         """The merged frame (after every unit is done)."""
         t_merge = time.perf_counter()
-        result = merge_tile_samples(self.scene, self.settings, self.parts)
+        result = merge_tile_samples(self.scene, self.settings, self.parts, region=self.region, partial=self.stopped)
         elapsed = time.perf_counter() - self.t_start
         result.stats.update({
             "seconds": elapsed,
@@ -396,7 +453,9 @@ class _FrameJob:
             "threads": self.threads,
             "scene_bytes": self.scene_bytes,
             "film_bytes": self.film_bytes,
-            "film_bytes_per_unit": self.film_bytes / max(len(self.units), 1),
+            "film_bytes_per_unit": self.film_bytes / max(len(self.futures), 1),
+            "units_done": len(self.futures),
+            "stopped_by_time_limit": self.stopped,
         })
         return result
 
@@ -420,7 +479,7 @@ def _run_jobs(jobs: list[_FrameJob], on_progress: Callable[[ClusterProgress], No
                 elapsed = time.perf_counter() - t_start
                 frac = done_paths / total if total else 1.0
                 on_progress(ClusterProgress(frac, sum(len(j.futures) - len(j.pending) for j in jobs),
-                                            sum(len(j.futures) for j in jobs), jobs[0].workers, done_paths,
+                                            sum(len(j.units) for j in jobs), jobs[0].workers, done_paths,
                                             elapsed, done_paths / max(elapsed, 1e-9),
                                             elapsed * (1 - frac) / frac if frac > 0 else math.inf))
             if until_one_done and any(j.done for j in jobs):

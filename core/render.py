@@ -209,17 +209,21 @@ class TileSamples:
 
 
 def render_samples(scene: Scene, settings: RenderSettings, work: SampleRanges, *,
+                   region: tuple[int, int, int, int] | None = None,
                    prepared: tuple[PreparedScene, Accelerator] | None = None) -> list[TileSamples]:
-    """Take samples [start, end) of some tiles of the whole frame (work: tile index -> (start, end); tiles as
-    core.schedule.tiles cuts the frame with settings.tile_size) and return their raw film sums, for a render
-    split across processes or machines (core.distributed) and merged with merge_tile_samples.
+    """Take samples [start, end) of some tiles of the frame (work: tile index -> (start, end); tiles as
+    core.schedule.tiles cuts the region, the whole frame when None, with settings.tile_size, as render() with
+    that region cuts it) and return their raw film sums, for a render split across processes or machines
+    (core.distributed) and merged with merge_tile_samples.
 
     Each range must start and end on one of the tile's sample-pass boundaries (core.schedule.pass_bounds); with
     adaptive sampling only whole tiles (0, spp), since which pixels a pass samples depends on the passes before.
     prepared: the scene's (PreparedScene, Accelerator) when the caller keeps them between calls (built here
     otherwise). No time limit, progress or cancel: a range is the unit of work a scheduler cancels.
     """
-    region = _check_inputs(scene, settings, None, _silent)
+    region = _check_inputs(scene, settings, region, _silent)
+    if settings.time_limit > 0:  # a range always runs to its end (a time limit is the caller's to apply)
+        settings = settings.replace(time_limit=0.0)
     if prepared is None:
         prepared = _prepare(scene, settings, _silent)[:2]
     job = _TileRender(scene, settings, prepared[0], prepared[1], region, None, time.perf_counter(),
@@ -228,12 +232,19 @@ def render_samples(scene: Scene, settings: RenderSettings, work: SampleRanges, *
     return job.tile_samples()
 
 
-def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileSamples]) -> RenderResult:
-    """The whole frame from the film sums of render_samples() calls that together cover every sample of every
-    tile: the result's images equal render()'s bit for bit (stats hold only what the merge knows)."""
+def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileSamples], *,
+                       region: tuple[int, int, int, int] | None = None, partial: bool = False) -> RenderResult:
+    """The frame (or the region, as render_samples() was given it) from the film sums of render_samples() calls
+    that together cover every sample of every tile: the result's images equal render()'s bit for bit (stats
+    hold only what the merge knows).
+
+    partial: the parts may stop short of settings.spp (a time limit stopped handing out ranges): each tile holds
+    the samples of its parts from 0 up to the first missing range (later parts are left out), a tile without any
+    stays black with count 0, and the result is marked cancelled, as a local render stopped by its time limit.
+    Each tile's pixels are then what render() makes of exactly those samples."""
     width, height = scene.camera.resolution
-    region = (0, 0, width, height)
-    tile_list = tiles(0, 0, width, height, settings.tile_size)
+    region = (0, 0, width, height) if region is None else tuple(int(v) for v in region)
+    tile_list = tiles(*region, settings.tile_size)
     sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
     films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
                       catcher=CatcherOutput.of(scene), light_passes=settings.light_passes,
@@ -244,6 +255,8 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
         if not 0 <= ti < len(tile_list):
             raise ValueError(f"tile index {ti} is not one of the frame's {len(tile_list)} tiles")
         if part.sample_start != reached[ti]:
+            if partial and part.sample_start > reached[ti]:
+                continue  # past a missing range: its samples cannot be added without those before them
             raise ValueError(f"tile {ti}: samples from {part.sample_start} follow samples up to {reached[ti]}")
         if part.sample_start == 0:
             if len(part.films) != 1:
@@ -254,13 +267,14 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
                 films[ti].add_sums(sums)
         reached[ti] = part.sample_end
     missing = [ti for ti, r in enumerate(reached) if r != settings.spp]
-    if missing:
+    if missing and not partial:
         raise ValueError(f"tiles {missing[:8]} do not hold all {settings.spp} samples")
     color, variance, albedo, normal, depth, counts, features, extras = assemble_image(tile_list, films, settings,
                                                                                       region, scene)
     stats = {"scene": scene.name, "resolution": [width, height], "region": list(region), "spp": settings.spp,
              "samples": int(counts.sum())}
-    result = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings))
+    result = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings),
+                          bool(missing))
     if features is not None:
         result.denoising_albedo, result.denoising_normal = features
     for name, value in extras.items():

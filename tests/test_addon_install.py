@@ -33,6 +33,16 @@ SCRIPT = textwrap.dedent(r"""
     res = bpy.ops.extensions.package_install_files(repo="user_default", filepath=zip_path, enable_on_install=True)
     engines = sorted(str(getattr(c, "bl_idname", None)) for c in bpy.types.RenderEngine.__subclasses__())
     module = sys.modules.get("bl_ext.user_default.monte")
+    # The cluster render's packages came with the zip: distributed (and everything it imports) imports from the
+    # extension's site-packages alone (-S: none of this interpreter's own site-packages).
+    import subprocess
+    ext_sites = [os.path.join(r, d) for r, dirs, _ in os.walk(os.environ["BLENDER_USER_RESOURCES"]) for d in dirs
+                 if d == "site-packages"]
+    probe = subprocess.run([sys.executable, "-S", "-c", "import sys; sys.path[:0] = sys.argv[1:]; "
+                            "import distributed; from distributed import Client, LocalCluster; "
+                            "print(distributed.__version__, distributed.__file__)", *ext_sites],
+                           capture_output=True, text=True)
+    distributed_import = (probe.stdout.strip() or probe.stderr.strip()[-1000:]).split(" ", 1)
 
     with_camera = True
     # PLANE_SCENE
@@ -100,6 +110,7 @@ SCRIPT = textwrap.dedent(r"""
         "embree_library": library.path if library else None, "embree_error": why_not, "kernels": kernels,
         "textured_render": sorted(textured_render), "textured_mean_rgb": textured_px[..., :3].mean(),
         "textured_kernels": textured_kernels, "feature_kernels": feature_kernels,
+        "distributed_import": distributed_import,
     }))
 """).replace("# PLANE_SCENE\n", PLANE_SCENE)  # the plane under a white world (tests/plane_scene.py)
 
@@ -142,9 +153,16 @@ def test_zip_holds_only_the_add_on(built_zip):
     assert not any(n.endswith(".pyc") for n in names)
     assert all(n.startswith(cache) for n in names if "__pycache__" in n)
     wheels = sorted(Path(n).name for n in names if n.endswith(".whl"))
-    # Each dependency for both Pythons Blender bundles: cp311 (Blender 4.2 - 5.0) and cp313 (Blender 5.3).
-    assert sorted((w.split("-")[0], w.split("-")[2]) for w in wheels) == [
-        (name, py) for name in ("embreex", "llvmlite", "numba", "openexr") for py in ("cp311", "cp313")]
+    # Each compiled dependency for both Pythons Blender bundles: cp311 (Blender 4.2 - 5.0) and cp313 (Blender
+    # 5.3); the cluster render's stable-ABI wheels once (cp311 and newer) and its pure-Python ones once.
+    tags = sorted((w.split("-")[0], w.split("-")[2]) for w in wheels if w.split("-")[3] != "abi3" and
+                  not w.endswith("-none-any.whl"))
+    assert tags == [(name, py) for name in ("embreex", "llvmlite", "markupsafe", "msgpack", "numba", "openexr",
+                                            "pyyaml") for py in ("cp311", "cp313")]
+    assert sorted(w.split("-")[0] for w in wheels if w.split("-")[3] == "abi3") == ["psutil", "tornado"]
+    assert sorted(w.split("-")[0] for w in wheels if w.endswith("-none-any.whl")) == [
+        "click", "cloudpickle", "dask", "distributed", "fsspec", "jinja2", "locket", "packaging", "partd",
+        "sortedcontainers", "tblib", "toolz", "zict"]
     assert not any(n.startswith(("tests/", "tools/", ".venv", "dist/")) for n in names)
 
 
@@ -181,3 +199,8 @@ def test_zip_installs_enables_and_renders(built_zip, tmp_path):
     assert result["textured_kernels"]["loaded"] > result["kernels"]["loaded"]
     # albedo 0.5 from the program under a world of radiance 1 (16 spp, MIS with the map's sampling)
     assert result["textured_mean_rgb"] == pytest.approx(0.5, abs=0.03)
+    # Render Properties > Cluster works offline: distributed came with the zip, pinned as requirements/common.txt.
+    version, where = result["distributed_import"]
+    common = (ROOT / "requirements" / "common.txt").read_text().splitlines()
+    pinned = next(line.split("==")[1].strip() for line in common if line.startswith("distributed=="))
+    assert version == pinned and where.startswith(str(user)), result["distributed_import"]

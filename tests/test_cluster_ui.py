@@ -161,10 +161,6 @@ def test_unreachable_scheduler_fails_the_render_and_renders_nothing_here(monkeyp
                       "empty (tcp://host:8786, or local:N for N worker processes on this machine)"),
     ("no scheme", "Monte: cluster render failed: a Dask scheduler address looks like tcp://host:8786, "
                   "got 'localhost:8786'"),
-    ("render region", "Monte: cluster render failed: a cluster render covers the whole frame: turn off Render "
-                      "Region (Output Properties > Format) or Render on a Dask Cluster (Render Properties > "
-                      "Cluster)"),
-    ("time limit", "Monte: a time limit does not apply to a cluster render (its units are not stopped halfway)"),
 ])
 def test_bad_cluster_settings_are_exact_errors(setting, message, scheduler):
     scene = small_cornell()
@@ -174,14 +170,62 @@ def test_bad_cluster_settings_are_exact_errors(setting, message, scheduler):
         scene.monte.cluster_address = "  "
     elif setting == "no scheme":
         scene.monte.cluster_address = "localhost:8786"
-    elif setting == "render region":
-        scene.render.use_border = True
-        scene.render.border_min_x, scene.render.border_max_x = 0.25, 0.75
-    elif setting == "time limit":
-        scene.monte.time_limit = 5.0
     with pytest.raises(RuntimeError) as err:
         render_with_operator(scene)
     assert str(err.value) == message
+
+
+def test_a_render_region_goes_to_the_cluster_alone_and_equals_the_local_region(scheduler):
+    """Render Region x 0.25-0.75 of 24x16: pixels 6-18, 4 of the frame's 6 tiles of 8x8 (8+4 wide, 2 rows), one
+    unit each; the region's image is the local region render's bit for bit."""
+    scene = small_cornell()
+    scene.render.use_border = True
+    scene.render.border_min_x, scene.render.border_max_x = 0.25, 0.75
+    (_, local, local_region, _), = render_with_operator(scene)
+    scene.monte.use_cluster = True
+    scene.monte.cluster_address = scheduler[0]
+    (_, remote, region, _), = render_with_operator(scene)
+    assert region == local_region == (6, 0, 12, 16) and remote.color.shape == (16, 12, 4)
+    assert remote.stats["units"] == 4 and remote.stats["region"] == [6, 0, 12, 16]
+    for name in ("color", "variance", "sample_count"):
+        assert np.array_equal(getattr(remote, name), getattr(local, name)), name
+    assert local.color[..., :3].max() > 0
+
+
+def test_an_animation_keeps_one_connection_for_all_its_frames(scheduler, tmp_path):
+    """An animation rendered from Blender (render_init .. render_complete) connects once; every frame equals the
+    local render of that frame bit for bit; the connection is closed when the animation ends."""
+    from monte.addon import cluster as cluster_mod
+
+    scene = small_cornell()
+    scene.frame_start, scene.frame_end = 1, 3
+    scene.monte.use_animated_seed = True  # frames differ: a frame cannot pass for another
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    frames = {}
+
+    def capture(name, result, region, size):
+        frames.setdefault(name, []).append(result)
+
+    engine_mod.result_listeners.append(capture)
+    try:
+        scene.render.filepath = str(tmp_path / "local_")
+        bpy.ops.render.render(animation=True, scene=scene.name)
+        local = frames.pop("ViewLayer")
+        scene.monte.use_cluster = True
+        scene.monte.cluster_address = scheduler[0]
+        scene.render.filepath = str(tmp_path / "cluster_")
+        before = cluster_mod._job.connects
+        bpy.ops.render.render(animation=True, scene=scene.name)
+        remote = frames.pop("ViewLayer")
+    finally:
+        engine_mod.result_listeners.remove(capture)
+    assert cluster_mod._job.connects - before == 1
+    assert cluster_mod._job.client is None and not cluster_mod._job.in_job
+    assert len(local) == len(remote) == 3
+    for a, b in zip(local, remote):
+        assert np.array_equal(a.color, b.color) and b.stats["units"] == 6
+    assert not np.array_equal(local[0].color, local[1].color)
+    assert sorted(p.name for p in tmp_path.glob("cluster_*.exr")) == [f"cluster_{f:04d}.exr" for f in (1, 2, 3)]
 
 
 def test_test_connection_reports_the_workers_or_the_exact_error(scheduler):

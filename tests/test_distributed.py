@@ -152,6 +152,19 @@ def test_frames_in_flight_each_equal_their_own_render(cluster):
         render_frames_on_cluster(client, iter(frames), lambda *_: None, frames_in_flight=0)
 
 
+def test_frames_with_a_time_limit_go_one_at_a_time(cluster, reference):
+    """Frames with a time limit are not queued beside each other (each limit is spent on its own frame): the
+    progress never counts more than one frame's 10 units; a limit that does not pass changes no bit."""
+    _, client = cluster
+    frames = [(seed, _scene(), _settings(seed=seed, time_limit=3600.0)) for seed in (7, 8)]
+    delivered, seen = {}, []
+    n = render_frames_on_cluster(client, iter(frames), lambda key, result: delivered.__setitem__(key, result),
+                                 frames_in_flight=2, on_progress=seen.append)
+    assert n == 2 and {p.units_total for p in seen} == {10}
+    _assert_same_images(delivered[7], reference)
+    _assert_same_images(delivered[8], render(_scene(), _settings(seed=8)))
+
+
 def test_adaptive_render_on_the_cluster_equals_one_render(cluster):
     _, client = cluster
     scene, settings = _scene(), _settings(spp=24, adaptive_threshold=0.2, adaptive_min_samples=8)
@@ -236,9 +249,74 @@ def test_monte_worker_joins_a_scheduler_and_renders_the_same_image(reference, tm
     assert "loading the render kernels" in (tmp_path / "worker.log").read_text()
 
 
-def test_time_limit_is_refused_on_a_cluster(cluster):
-    with pytest.raises(ValueError, match="a time limit does not apply to a cluster render"):
-        render_on_cluster(_scene(), _settings(time_limit=5), cluster[1])
+REGION = (8, 4, 20, 17)  # x0, y0 from the top, width, height: tiles 16x16, 4x16, 16x1, 4x1 of the region
+
+
+def test_a_region_sends_out_only_its_tiles():
+    """plan_units cuts the region as render(region=...) does: only its 4 tiles go out (each in up to 2 ranges
+    of whole passes, for 2 worker threads' 8 units), and the ranges cover each region pixel's 12 samples."""
+    scene, settings = _scene(), _settings()
+    region_tiles = tiles(*REGION, 16)
+    units = plan_units(scene, settings, 2, region=REGION)
+    assert {ti for u in units for ti in u} == set(range(len(region_tiles))) == {0, 1, 2, 3}
+    covered = sum((e - s) * region_tiles[ti][2] * region_tiles[ti][3] for u in units for ti, (s, e) in u.items())
+    assert covered == 20 * 17 * 12
+
+
+def test_region_on_the_cluster_equals_the_local_region_render(cluster):
+    scene, settings = _scene(), _settings()
+    local = render(scene, settings, region=REGION)
+    remote = render_on_cluster(scene, settings, cluster[1], region=REGION, submit_seed=3)
+    assert remote.color.shape == (17, 20, 4) and remote.stats["region"] == list(REGION)
+    _assert_same_images(remote, local)
+    assert int(remote.sample_count.sum()) == 20 * 17 * 12
+    with pytest.raises(ValueError, match=r"render region \(30, 0, 8, 8\) is not inside the 32x24 frame"):
+        render_on_cluster(scene, settings, cluster[1], region=(30, 0, 8, 8))
+
+
+def test_a_time_limit_that_never_passes_hands_units_out_progressively_and_changes_nothing(cluster, reference):
+    """With a time limit the units are single passes handed out a few at a time (the 16x16 tiles' 3 passes and
+    the 16x8 tiles' 2: 10 units, 4 out at once for 2 threads); a limit that does not pass gives the full image,
+    bit for bit."""
+    units = plan_units(_scene(), _settings(time_limit=3600.0), 2)
+    assert [sorted(u.items()) for u in units] == [[(0, (0, 4))], [(1, (0, 4))], [(2, (0, 8))], [(3, (0, 8))],
+                                                  [(0, (4, 8))], [(1, (4, 8))], [(0, (8, 12))], [(1, (8, 12))],
+                                                  [(2, (8, 12))], [(3, (8, 12))]]
+    remote = render_on_cluster(_scene(), _settings(time_limit=3600.0), cluster[1])
+    assert remote.stats["units"] == 10 and not remote.stats["stopped_by_time_limit"] and not remote.cancelled
+    _assert_same_images(remote, reference)
+
+
+def test_a_passed_time_limit_stops_handing_out_units_and_keeps_the_ones_done(cluster, reference):
+    """A limit of 1 us has passed once the first unit (tile 0's first pass) is out: nothing more goes out, that
+    unit finishes and counts. The image holds its 4 samples per pixel of tile 0 and nothing else, bit for bit
+    what one process makes of those samples, and is marked cancelled as a local render stopped by its limit."""
+    scene, settings = _scene(), _settings(time_limit=1e-6)
+    remote = render_on_cluster(scene, settings, cluster[1])
+    assert remote.cancelled and remote.stats["stopped_by_time_limit"] and remote.stats["units_done"] == 1
+    counts = remote.sample_count
+    assert (counts[:16, :16] == 4).all() and counts.sum() == 16 * 16 * 4
+    assert not remote.color[:, 16:, :3].any() and not remote.color[16:, :, :3].any()  # black (alpha 1: opaque film)
+    here = merge_tile_samples(scene, settings, render_samples(scene, settings, {0: (0, 4)}), partial=True)
+    _assert_same_images(remote, here)
+    assert not np.array_equal(remote.color[:16, :16], reference.color[:16, :16])  # 4 of 12 samples: not the full
+    with pytest.raises(ValueError, match=r"tiles \[0, 1, 2, 3\] do not hold all 12 samples"):
+        merge_tile_samples(scene, settings, render_samples(scene, settings, {0: (0, 4)}))
+
+
+def test_light_passes_on_the_cluster_equal_one_render(cluster):
+    """The light passes' sums travel in the film sums like the colour's: bit-identical to one render."""
+    from monte.core.light_passes import LIGHT_PASSES
+
+    scene, settings = _scene(), _settings(light_passes=tuple(LIGHT_PASSES))
+    local = render(scene, settings)
+    remote = render_on_cluster(scene, settings, cluster[1], units=plan_units(scene, settings, 2,
+                                                                             ranges_per_tile=3))
+    _assert_same_images(remote, local)
+    assert set(remote.light_passes) == set(LIGHT_PASSES)
+    for name in LIGHT_PASSES:
+        assert np.array_equal(remote.light_passes[name], local.light_passes[name]), name
+    assert local.light_passes["Diffuse Direct"].max() > 0
 
 
 def test_a_unit_runs_without_a_cluster_too(reference):

@@ -7,7 +7,9 @@
 
 Wheels listed in blender_manifest.toml are downloaded into wheels/ with `pip download --only-binary=:all:`
 (exact versions, Python and platform taken from the file names: cp311 wheels for Blender 4.2 - 5.0, cp313 for
-Blender 5.3; files already there are reused). The zips are made by Blender's
+Blender 5.3; stable-ABI (abi3) wheels fetched for Python 3.11 and used by both; pure-Python wheels (py3-none-any,
+e.g. dask and distributed for the cluster render) go into every platform's zip; files already there are
+reused). The zips are made by Blender's
 own extension builder, shipped inside the `bpy` wheel (bpy/<ver>/scripts/addons_core/bl_pkg/cli/
 blender_ext.py), with plain Python: no Blender binary needed. Each zip is then checked to hold only the
 add-on (the package __init__.py, core/, addon/, the manifest, LICENSE and its wheels).
@@ -66,18 +68,41 @@ def load_manifest() -> dict:
         return tomllib.load(fh)
 
 
+# The Python that stable-ABI (abi3) and pure-Python wheels are fetched for: the oldest Blender Python bundled.
+BASE_PYTHON = "3.11"
+
+
 def wheel_tags(wheel: str) -> tuple[str, str, str, str]:
-    """(name, version, python, platform) of a wheel file name: ('numba', '0.68.1', '3.13', 'linux-x64')."""
+    """(name, version, python, platform) of a wheel file name: ('numba', '0.68.1', '3.13', 'linux-x64'); python
+    is "abi3" for a stable-ABI wheel (any CPython from its tag on) and "any" for a pure-Python wheel, whose
+    platform is "any" too; a universal2 macOS wheel's platform is "macos-arm64" (it serves both Macs)."""
     parts = Path(wheel).stem.split("-")
-    name, version, python_tag = parts[0], parts[1], parts[-3]
+    name, version, python_tag, abi_tag = parts[0], parts[1], parts[-3], parts[-2]
+    if parts[-1] == "any":
+        if not re.fullmatch(r"(py2\.)?py3", python_tag) or abi_tag != "none":
+            raise BuildError(f"{wheel}: a platform-independent wheel must be pure Python (py3-none-any)")
+        return name, version, "any", "any"
     if not re.fullmatch(r"cp3\d+", python_tag):
         raise BuildError(f"{wheel}: expected a CPython wheel (cp3XX tag), found {python_tag!r}")
-    return name, version, f"3.{python_tag[3:]}", wheel_platform(wheel)
+    python = "abi3" if abi_tag == "abi3" else f"3.{python_tag[3:]}"
+    return name, version, python, wheel_platform(wheel)
+
+
+def wheel_platforms(wheel: str) -> list[str]:
+    """The Blender platforms whose zip carries the wheel (all of them for a pure-Python wheel, both Macs for a
+    universal2 one)."""
+    tag = Path(wheel).stem.split("-")[-1]
+    if tag == "any":
+        return list(PIP_PLATFORMS)
+    if tag.startswith("macosx") and tag.endswith("universal2"):
+        return ["macos-x64", "macos-arm64"]
+    return [wheel_platform(wheel)]
 
 
 def wheel_requirements(wheels: list[str]) -> dict[tuple[str, str], dict[str, str]]:
-    """{(platform, python): {name: version}} from the manifest's wheel file names. A package may differ in
-    version between platforms (Intel Macs keep an older numba) but not twice for one platform and Python."""
+    """{(platform, python): {name: version}} from the manifest's wheel file names (python "abi3" and platform /
+    python "any" as wheel_tags gives them). A package may differ in version between platforms (Intel Macs keep
+    an older numba) but not twice for one platform and Python."""
     pins: dict[tuple[str, str], dict[str, str]] = {}
     for w in wheels:
         name, version, python, platform = wheel_tags(w)
@@ -98,7 +123,7 @@ def wheel_platform(wheel: str) -> str:
         return "windows-x64"
     if tag.startswith("macosx") and tag.endswith("x86_64"):
         return "macos-x64"
-    if tag.startswith("macosx") and tag.endswith("arm64"):
+    if tag.startswith("macosx") and tag.endswith(("arm64", "universal2")):
         return "macos-arm64"
     raise BuildError(f"unknown wheel platform tag {tag!r} in {wheel}")
 
@@ -109,16 +134,17 @@ def download_wheels(manifest: dict, platforms: list[str], refresh: bool) -> None
     dest = ROOT / "wheels"
     dest.mkdir(exist_ok=True)
     for (platform, python), pins in sorted(wheel_requirements(wheels).items()):
-        if platform not in platforms:
-            continue
         wanted = [w for w in wheels if wheel_tags(w)[2:] == (python, platform)]
+        if not any(p in platforms for w in wanted for p in wheel_platforms(w)):
+            continue
         missing = [w for w in wanted if not (ROOT / w).is_file()]
         if not missing and not refresh:
             log(f"{platform}, Python {python}: wheels present ({', '.join(Path(w).name for w in wanted)})")
             continue
+        pip_python = BASE_PYTHON if python in ("abi3", "any") else python
         cmd = [sys.executable, "-m", "pip", "download", "--only-binary=:all:", "--no-deps",
-               "--python-version", python, "--implementation", "cp", "-d", str(dest)]
-        for tag in PIP_PLATFORMS[platform]:
+               "--python-version", pip_python, "--implementation", "cp", "-d", str(dest)]
+        for tag in PIP_PLATFORMS.get(platform, []):  # none for pure-Python wheels
             cmd += ["--platform", tag]
         cmd += [f"{name}=={version}" for name, version in sorted(pins.items())]
         log(f"{platform}, Python {python}: " + " ".join(cmd[3:]))
@@ -179,7 +205,7 @@ def stage_subset(manifest: dict, platforms: list[str], stage: Path) -> Path:
     src = stage / "bl_ext" / "user_default" / "monte"
     shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(
         ".git", ".venv", ".venv-*", "dist", "build", "wheels", "__pycache__", ".pytest_cache", "*.egg-info", "out"))
-    wheels = [w for w in manifest.get("wheels", []) if wheel_platform(w) in platforms]
+    wheels = [w for w in manifest.get("wheels", []) if any(p in platforms for p in wheel_platforms(w))]
     (src / "wheels").mkdir()
     for w in wheels:
         shutil.copy2(ROOT / w, src / w)
