@@ -515,14 +515,15 @@ class Camera:
     the frame in units of the fitted side. clip_start/clip_end bound the visible depth along the ray.
 
     Depth of field (a thin lens, Cycles' conventions), on when use_dof: the aperture's radius is
-    lens x 1e-3 / (2 aperture_fstop) metres for "PERSP" (the focal length in mm read as metres, whatever the
+    lens x 1e-3 / (2 aperture_fstop) metres for "PERSP" and "PANO" (the focal length in mm read as metres, whatever the
     scene's unit scale, as Cycles does) and 1 / (2 aperture_fstop) for "ORTHO"; focus_distance (m) is the
     distance of the plane in focus along the view axis. aperture_blades >= 3 makes the aperture a regular
     polygon of that many sides inscribed in the aperture's circle, turned by aperture_rotation (radians);
     0 (or 1, 2) keeps it round. aperture_ratio squeezes the aperture horizontally by 1 / ratio (anamorphic
     bokeh). An f-stop or focus distance of 0 renders as a pinhole (see `aperture_radius`).
 
-    kind "PANO" (Cycles' panoramic camera; no depth of field): rays leave the camera position in the directions
+    kind "PANO" (Cycles' panoramic camera; depth of field as Cycles: the focus is a sphere of radius
+    focus_distance around the camera, see core.camera._panorama_rays): rays leave the camera position in the directions
     panorama_type maps the image to, u = x / width + shift_x and v = y / height + shift_y (from the bottom),
     each in [0, 1] across the image. "EQUIRECTANGULAR": longitude from longitude_min at the left edge to
     longitude_max at the right (0 straight ahead, positive to the left), latitude from latitude_min at the
@@ -618,7 +619,7 @@ class Camera:
     def aperture_radius(self) -> float:
         """The lens aperture's radius in metres; 0 renders a pinhole camera (depth of field off, an f-stop of
         0 or a focus distance of 0: Blender lets both be typed in, and a pinhole is what they mean)."""
-        if not self.use_dof or self.aperture_fstop == 0 or self.focus_distance == 0 or self.kind == "PANO":
+        if not self.use_dof or self.aperture_fstop == 0 or self.focus_distance == 0:
             return 0.0
         numerator = 1.0 if self.kind == "ORTHO" else self.lens * 1e-3
         return numerator / (2.0 * self.aperture_fstop)
