@@ -487,11 +487,16 @@ class World:
     strength), or, when `environment` is set, that image (core.world.EnvironmentMap, its Background strength
     folded into its `strength`) in place of the colour. camera_color: optional (3,) radiance that camera rays see
     where they escape, instead of the background (Blender's Light Path > Is Camera Ray mixing two Backgrounds: a
-    backdrop that differs from the light); None: the background."""
+    backdrop that differs from the light); None: the background.
+    portals: (P, 4, 3) float64 light portals (Cycles' area lights marked Portal), each a parallelogram: its
+    centre, its two full edge vectors (world units) and the unit normal pointing to the side it lets the world
+    in (the area light's emission direction); None: none. They emit nothing and no ray sees them: shading
+    points on their inner side sample the world through them as well as by its map (core.world.portal_table)."""
 
     color: np.ndarray = field(default_factory=lambda: np.zeros(3))
     environment: EnvironmentMap | None = None
     camera_color: np.ndarray | None = None
+    portals: np.ndarray | None = None
     # Lights that belong to the world (a Sky Texture's sun disc, core.sky): the exporters add them to the
     # scene's lights; the world itself does not render them.
     lights: list = field(default_factory=list)
@@ -866,6 +871,14 @@ class Scene:
                 self.world.environment.validate(self.warnings)
             except EnvironmentMapError as exc:
                 raise SceneError(str(exc)) from None
+        if self.world.portals is not None:
+            portals = np.asarray(self.world.portals, dtype=np.float64)
+            if portals.ndim != 3 or portals.shape[1:] != (4, 3) or not np.isfinite(portals).all():
+                raise SceneError(f"world portals must be a finite (P, 4, 3) array, got shape {portals.shape}")
+            flat = np.linalg.norm(np.cross(portals[:, 1], portals[:, 2]), axis=1) <= 0
+            if flat.any():
+                self.warnings.append(f"{int(flat.sum())} light portal(s) of zero area are ignored")
+            self.world.portals = portals[~flat] if len(portals[~flat]) else None
         kept: list[Light] = []
         for light in self.lights:
             if _validate_light(light, self.warnings):

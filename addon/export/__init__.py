@@ -18,7 +18,7 @@ from ...core.motion import densify_transforms, resample_steps
 from ...core.scene import Scene, SceneError
 from .camera import export_camera, render_region, render_resolution  # noqa: F401  (re-exported)
 from .film import export_film
-from .light import export_light
+from .light import export_light, is_portal, portal_geometry
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
 from .motion import (deforms, instance_key, object_steps, placed_motion, sample_motion, shutter as motion_shutter,
@@ -245,7 +245,9 @@ def export_scene(
         if moved:
             frame_set(shutter.frame, shutter.subframe)
     if moved:
+        portals = out[0].world.portals
         out[0].world = export_world(scene.world, [])  # at the frame (its warnings are the centre's, already given)
+        out[0].world.portals = portals
     return out
 
 
@@ -266,6 +268,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
     # for many geometry-node instances, so this keeps the per-instance work to a few attribute reads.
     resolved: dict[tuple[int, int], tuple | None] = {}
     lights = []
+    portals = []  # light portals (core.scene.World.portals)
     unsupported: dict[str, int] = {}
     for i, inst in enumerate(depsgraph.object_instances):
         if should_cancel is not None and i % 1024 == 1023 and should_cancel():
@@ -273,7 +276,9 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
         obj = inst.object
         kind = obj.type
         if kind == "LIGHT":
-            if inst.show_self:
+            if inst.show_self and is_portal(obj.data):
+                portals.append(portal_geometry(obj.data, _matrix(inst.matrix_world)))
+            elif inst.show_self:
                 light = export_light(obj.name, obj.data, _matrix(inst.matrix_world), warnings)
                 if light is not None:
                     light.visible_camera = bool(getattr(obj, "visible_camera", False))
@@ -348,6 +353,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
     if not materials.materials:
         materials.index(None)  # core needs at least one material
     world = export_world(scene.world, warnings)
+    world.portals = np.stack(portals) if portals else None
     lights = lights + world.lights  # a Sky Texture's sun disc
     out = Scene(camera=camera, meshes=meshes, materials=materials.materials, lights=lights, world=world,
                 textures=materials.textures, name=scene.name, warnings=warnings,
