@@ -167,6 +167,25 @@ def _warn_object_settings(obj, original, view_layer, warnings: list[str]) -> Non
                                  "supported and is skipped")
 
 
+def _warn_simplify(scene, warnings: list[str]) -> None:
+    """Render > Simplify: Max Subdivision and Child Particles reach Monte through the render's evaluated depsgraph
+    (Blender applies them); the Cycles settings below it that Cycles applies itself, Monte does not."""
+    cycles = getattr(scene, "cycles", None)
+    if not scene.render.use_simplify or cycles is None:
+        return
+    limit = getattr(cycles, "texture_limit_render", "OFF")
+    if limit != "OFF":
+        warnings.append(f"render: Simplify > Texture Limit {limit} is not supported; image textures are read at "
+                        "their full size")
+    resolution = float(getattr(cycles, "texture_resolution_render", 1.0))
+    if resolution != 1.0:
+        warnings.append(f"render: Simplify > Texture Resolution {resolution:g} is not supported; image textures are "
+                        "read at their full size")
+    ao_bounces = int(getattr(cycles, "ao_bounces_render", 0))
+    if ao_bounces > 0:
+        warnings.append(f"render: Simplify > AO Bounces {ao_bounces} is not supported; every bounce is path traced")
+
+
 def is_indirect_only(obj, view_layer) -> bool:
     """Whether an (original) object is in a collection set to Indirect Only in the view layer."""
     if view_layer is None:
@@ -261,6 +280,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
     if camera_object is not None:
         camera_object = camera_object.evaluated_get(depsgraph)
     camera = export_camera(camera_object, scene, warnings)
+    _warn_simplify(scene, warnings)
 
     materials = MaterialExporter(warnings, None if camera is None else camera.matrix_world)
     prototypes: dict[tuple, _Prototype] = {}
