@@ -549,6 +549,10 @@ class MONTE_LIGHT_PT_light(MonteButtonsPanel, Panel):
             col.prop(light, "spread")
             if "normalize" in light.bl_rna.properties:  # Blender 4.5+
                 col.prop(light, "normalize")
+            # Cycles' light portal (on light.cycles in Blender 4.x-5.x): guides the world's sampling
+            owner = light if "is_portal" in light.bl_rna.properties else getattr(light, "cycles", None)
+            if owner is not None and "is_portal" in owner.bl_rna.properties:
+                col.prop(owner, "is_portal", text="Portal")
 
 
 classes = (

@@ -137,6 +137,7 @@ _PANO_KIND = {"EQUIRECTANGULAR": 0, "FISHEYE_EQUIDISTANT": 1, "FISHEYE_EQUISOLID
 
 @jit
 def _panorama_rays(raster_x, raster_y, width, height, kind, params, right, up, back, clip_start, clip_end,
+                   lens_u, aperture, focus, blades, rotation, inv_ratio,
                    origins, directions, tmax, depth_scale, t_start, alive):
     """Panoramic camera rays (Cycles' panorama projections; see core.scene.Camera for each kind).
 
@@ -145,7 +146,11 @@ def _panorama_rays(raster_x, raster_y, width, height, kind, params, right, up, b
     sensor height, k0..k4; central cylindrical: lon_min, lon_max, height_min / radius, height_max / radius.
     Directions are first found in
     Cycles' panorama space (x ahead, y left, z up; for the mirror ball x right, y ahead, z up), then turned to
-    the camera's axes."""
+    the camera's axes. Depth of field (aperture > 0, the lens radius; lens_u (N, 2) as for _lens_camera_rays,
+    unread when aperture is 0) as Cycles does it on panoramas, in that panorama space: the point in focus lies
+    at distance `focus` along the pinhole direction D (a sphere of focus, not a plane); the lens point is
+    offset from the camera centre in the plane perpendicular to D, along U (the panorama x axis made
+    perpendicular to D) and D x U; the ray runs from the lens point to the point in focus."""
     for k in range(raster_x.shape[0]):
         u = raster_x[k] / width + params[0]
         v = 1.0 - raster_y[k] / height + params[1]
@@ -187,10 +192,26 @@ def _panorama_rays(raster_x, raster_y, width, height, kind, params, right, up, b
             # The view direction (0, -1, 0) reflected about the ball's normal (bx, by, bz).
             twice = -2.0 * by
             px, py, pz = twice * bx, twice * by + 1.0, twice * bz
+        length = math.sqrt(px * px + py * py + pz * pz)
+        ox, oy, oz = 0.0, 0.0, 0.0  # the lens point, in panorama space
+        if ok and length > 0.0 and aperture > 0.0:
+            fx, fy, fz = px / length, py / length, pz / length
+            ax, ay = aperture_point(np.float64(lens_u[k, 0]), np.float64(lens_u[k, 1]), blades, rotation, inv_ratio)
+            ux, uy, uz = 1.0 - fx * fx, -fx * fy, -fx * fz
+            ul = math.sqrt(ux * ux + uy * uy + uz * uz)
+            if ul < 1e-12:  # looking straight along x: any perpendicular will do (Cycles' U is undefined there)
+                ux, uy, uz, ul = 0.0, 1.0, 0.0, 1.0
+            ux, uy, uz = ux / ul, uy / ul, uz / ul
+            vx, vy, vz = fy * uz - fz * uy, fz * ux - fx * uz, fx * uy - fy * ux
+            ox, oy, oz = ux * ax * aperture + vx * ay * aperture, uy * ax * aperture + vy * ay * aperture, \
+                uz * ax * aperture + vz * ay * aperture
+            px, py, pz = fx * focus - ox, fy * focus - oy, fz * focus - oz
         if kind == 3:
             cx, cy, cz = px, pz, py  # mirror ball space -> camera local (x right, y up, z back)
+            lx, ly, lz = ox, oz, oy
         else:
             cx, cy, cz = -py, pz, -px
+            lx, ly, lz = -oy, oz, -ox
         length = math.sqrt(cx * cx + cy * cy + cz * cz)
         if not ok or length == 0.0:
             alive[k] = False
@@ -203,7 +224,10 @@ def _panorama_rays(raster_x, raster_y, width, height, kind, params, right, up, b
         dy = cx * right[1] + cy * up[1] + cz * back[1]
         dz = cx * right[2] + cy * up[2] + cz * back[2]
         alive[k] = True
-        origins[k, 0], origins[k, 1], origins[k, 2] = dx * clip_start, dy * clip_start, dz * clip_start
+        wx = lx * right[0] + ly * up[0] + lz * back[0]
+        wy = lx * right[1] + ly * up[1] + lz * back[1]
+        wz = lx * right[2] + ly * up[2] + lz * back[2]
+        origins[k, 0], origins[k, 1], origins[k, 2] = wx + dx * clip_start, wy + dy * clip_start, wz + dz * clip_start
         directions[k, 0], directions[k, 1], directions[k, 2] = dx, dy, dz
         tmax[k] = min(clip_end - clip_start, 3e38)
         depth_scale[k] = 1.0  # the depth pass of a panorama is the distance along the ray
@@ -269,7 +293,10 @@ def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray,
     if camera.kind == "PANO":
         rays.alive = np.empty(n, bool)
         _panorama_rays(rx, ry, float(w), float(h), _PANO_KIND[camera.panorama_type], panorama_params(camera),
-                       right, up, back, float(camera.clip_start), float(camera.clip_end), rays.origins,
+                       right, up, back, float(camera.clip_start), float(camera.clip_end),
+                       lens if aperture > 0 else np.zeros((1, 2), np.float32), aperture,
+                       float(camera.focus_distance), int(camera.aperture_blades), float(camera.aperture_rotation),
+                       1.0 / float(camera.aperture_ratio), rays.origins,
                        rays.directions, rays.tmax, rays.depth_scale, rays.t_start, rays.alive)
         if rays.alive.all():
             rays.alive = None

@@ -830,8 +830,18 @@ class PathTracer:
         if ps.shading is not None and ps.shading.uses_light_path:
             path_state = np.zeros((n, PATH_COLUMNS), np.float32)
             path_state[:, PATH_FLAGS] = RAY_CAMERA
+        # Per sample: its bounces so far and, apart, its passes straight through Transparent BSDFs, which Cycles
+        # counts as transparent bounces up to Transparent Max Bounces and not as bounces (a transparent card does
+        # not use up max_bounces). Kept only when some material has a Transparent BSDF lobe (the catcher copies
+        # resume at their split and count every surface as a bounce, as before).
+        bounces = transparent_bounces = None
+        transparent_limit = max(int(s.transparent_max_bounces), 1)  # Cycles: the next surface after the limit ends it
+        last_vertex = s.max_bounces + 1
+        if through is not None and not copies:
+            bounces, transparent_bounces = np.zeros(n, np.int32), np.zeros(n, np.int32)
+            last_vertex += transparent_limit
 
-        for depth in range(start_depth, s.max_bounces + 2):
+        for depth in range(start_depth, last_vertex + 1):
             if len(idx) == 0:
                 break
             clock = time.perf_counter()
@@ -968,9 +978,16 @@ class PathTracer:
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
 
-            if depth == s.max_bounces + 1:
-                self._lap("emission", clock)
-                break  # this vertex only contributes emission (Cycles' bounce counting)
+            ending = None  # the paths whose vertex here only contributes emission (Cycles' bounce counting)
+            if bounces is None:
+                if depth == s.max_bounces + 1:
+                    self._lap("emission", clock)
+                    break
+            else:
+                ending = (bounces[idx] > s.max_bounces) | (transparent_bounces[idx] >= transparent_limit)
+                if ending.all():
+                    self._lap("emission", clock)
+                    break
 
             # Russian roulette as Cycles does it (from the third vertex on with the default rr_depth 2; starting
             # at the second cost 4-22 % more MSE at equal samples on the bench scenes and saved only 3-4 % time),
@@ -982,6 +999,8 @@ class PathTracer:
             # depend only on pixel, sample and dimension).
             u_vertex = self.sampler.get_4d(pix, smp, self._dim(depth, _D_VERTEX))
             survive = hit if held is None else hit & ~held
+            if ending is not None:
+                survive = survive & ~ending
             if depth >= s.rr_depth:
                 q = np.minimum(np.sqrt(_max3(throughput)), np.float32(1.0))
                 survive = survive & (u_vertex[:, 3] < q)
@@ -1043,11 +1062,12 @@ class PathTracer:
                 if ps.lights.has_lights:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp,
                                      bumped=bumped, ray_time=ray_time,
-                                     classes=None if origin_class is None else origin_class[idx])
+                                     classes=None if origin_class is None else origin_class[idx],
+                                     transparent_bounces=transparent_bounces)
                 if ps.textured is not None:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp, textured=True,
                                      bumped=bumped, ray_time=ray_time,
-                                     path=_rows_of(path_state, idx))
+                                     path=_rows_of(path_state, idx), transparent_bounces=transparent_bounces)
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
@@ -1062,6 +1082,9 @@ class PathTracer:
             if aov_path is not None:
                 aov_path.scattered(idx, bs.transmitted, mat)
             passed = None if through is None else transparent_shadow.clear_passes(lobes, u_lobe, bs.transmitted)
+            if bounces is not None:  # idx is unique among live paths
+                transparent_bounces[idx[passed]] += 1
+                bounces[idx[~passed]] += 1
             if bounce_kind is not None:
                 kinds = bounce_kind[idx]
                 bounce_kinds(lobes.arrays(), u_lobe, bs.transmitted, kinds)
@@ -1293,12 +1316,14 @@ class PathTracer:
 
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
                     bary=None, lp: "lp_mod.LightPassSamples | None" = None, textured: bool = False,
-                    path: np.ndarray | None = None, bumped=None, ray_time=None, classes=None) -> None:
+                    path: np.ndarray | None = None, bumped=None, ray_time=None, classes=None,
+                    transparent_bounces: np.ndarray | None = None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
         u, v) of each path's hit when some mesh has a shadow terminator offset, else None (with motion blur:
         (row, u, v, corners, corner normals, offsets) of the hits' own triangles at their times); ray_time: each
         sample's time (motion blur: the shadow rays cast at it) or None; lp: the light passes
-        to split the contributions into (None: off). textured: sample the textured emitters
+        to split the contributions into (None: off). transparent_bounces: per sample, the Transparent BSDFs its
+        path went through (its shadow rays may pass that many fewer; None: none counted). textured: sample the textured emitters
         (core.textured_emitters) instead of the lights, the emission from their programs; path: the paths' Light
         Path state there (None when no program reads it); classes: the paths' receiver classes (light linking,
         core.light_linking) or None."""
@@ -1354,8 +1379,11 @@ class PathTracer:
         if ps.shadow_clear is None:
             blocked = occluders[0].occluded(origin[:count], direction[:count], tmax[:count], shadow_time)
         else:
+            max_hits = self.settings.transparent_max_bounces
+            if transparent_bounces is not None:  # Cycles: the limit less the transparent bounces already made
+                max_hits = np.maximum(max_hits - transparent_bounces[sample_of[:count]], 0)
             blocked, transmit = transparent_shadow.trace(self, occluders, origin[:count], direction[:count],
-                                                         tmax[:count], self.settings.transparent_max_bounces)
+                                                         tmax[:count], max_hits)
         if linked_set is not None and not self._catcher_copies:
             self._shadow_linked(linked_set, idx, can, sample_of[:count], origin[:count], direction[:count],
                                 tmax[:count], shadow_time, blocked, transmit)

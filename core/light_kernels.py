@@ -18,7 +18,8 @@ import numpy as np
 # No NRT reference counting (these kernels never allocate), device functions taking arrays inlined: core.jit_cache.
 from .jit_cache import jit_inline as _inline
 from .jit_cache import jit_no_nrt as _jit
-from .world_kernels import env_pdf, env_radiance, env_sample
+from .world_kernels import (PORTAL_SHARE, env_pdf, env_radiance, env_sample, portal_direction, portal_pdf,
+                            portals_facing)
 from .warps import (cone_pdf, cos_hemisphere_pdf, onb, one_minus_cos_from_sin2, sample_cone, sample_cos_hemisphere,
                     sample_disk, sample_sphere, sample_triangle, sphere_pdf)
 
@@ -219,9 +220,11 @@ W_FIELDS = 7
 #    pt (P, PT_FIELDS), ar (A, AR_FIELDS), su (S, SU_FIELDS), world (W_FIELDS,),
 #    t_v0, t_e1, t_e2, t_n, t_L (3, E) float32, t_pdf_area (E,) float32, t_sel (E,), t_edge2 (E,) float64,
 #    g_order (E,) int64, g_cdf (E,) float64, g_start (G + 1,) int64, t_unit (E,) int64,
-#    env_pix (H, W, 3) float32, env_par (E_FIELDS,), env_func (Hr, Wr), env_marg (Hr + 1,), env_cond (Hr, Wr + 1))
+#    env_pix (H, W, 3) float32, env_par (E_FIELDS,), env_func (Hr, Wr), env_marg (Hr + 1,), env_cond (Hr, Wr + 1),
+#    portals (P, P_FIELDS))
 #    -- indices 9-20: the emissive triangles (component-major), their spatial groups and units; 21-25: the world's
-#    environment map and its distribution (core.world_kernels; placeholders when the world is uniform)
+#    environment map and its distribution (core.world_kernels; placeholders when the world is uniform); 26: the
+#    light portals (core.world.portal_table; no rows when none)
 
 _TWO_PI = 2.0 * math.pi
 _INV_PI = 1.0 / math.pi
@@ -626,6 +629,9 @@ def sample_light_path(px, py, pz, nx, ny, nz, has_n, transmits, u_sel, u0, u1, p
         else:
             wx, wy, wz, _ = sample_cone(wx, wy, wz, _f32(omc), u0, u1)
             pdf = su[local, SU_SEL] / (_TWO_PI * omc)
+    elif lt[26].shape[0] > 0 and portals_facing(lt[26], px, py, pz) > 0:
+        dist = math.inf
+        wx, wy, wz, rr, rg, rb, pdf = _world_through_portals(px, py, pz, nx, ny, nz, has_n, u0, u1, lt)
     elif lt[8][W_MAP] != 0.0:
         dist = math.inf
         wx, wy, wz, pdf = env_sample(lt[22], lt[23], lt[24], lt[25], u0, u1)
@@ -651,6 +657,46 @@ def sample_light_path(px, py, pz, nx, ny, nz, has_n, transmits, u_sel, u0, u1, p
         pdf32 = np.float32(0.0)
         r32 = g32 = b32 = x32 = y32 = z32 = np.float32(0.0)
     return x32, y32, z32, np.float32(dist), r32, g32, b32, pdf32, delta
+
+
+@_inline
+def _world_pdf(px, py, pz, nx, ny, nz, has_n, dx, dy, dz, lt):
+    """The world's light-sample solid-angle pdf (before selection) at p, inside some light portal, in direction d:
+    PORTAL_SHARE through the portals facing p, the rest by the map (or the cosine about n, or the sphere)."""
+    w = lt[8]
+    if w[W_MAP] != 0.0:
+        base = env_pdf(lt[23], dx, dy, dz)
+    elif has_n:
+        base = max(dx * nx + dy * ny + dz * nz, 0.0) * _INV_PI
+    else:
+        base = _INV_4PI
+    count = portals_facing(lt[26], px, py, pz)
+    return (1.0 - PORTAL_SHARE) * base + PORTAL_SHARE * portal_pdf(lt[26], count, px, py, pz, dx, dy, dz)
+
+
+@_inline
+def _world_through_portals(px, py, pz, nx, ny, nz, has_n, u0, u1, lt):
+    """A world light sample at p inside some light portal (Cycles' portals): with probability PORTAL_SHARE a
+    direction through a portal, else as without portals; the pdf (times the world's selection) is the mixture's
+    (_world_pdf), so either kind of sample is weighted against both. Returns (wx, wy, wz, r, g, b, pdf)."""
+    w = lt[8]
+    if u0 < PORTAL_SHARE:
+        count = portals_facing(lt[26], px, py, pz)
+        wx, wy, wz = portal_direction(lt[26], count, px, py, pz, u0 / PORTAL_SHARE, u1)
+    else:
+        v0 = min((u0 - PORTAL_SHARE) / (1.0 - PORTAL_SHARE), 0.9999999403953552)
+        if w[W_MAP] != 0.0:
+            wx, wy, wz, _ = env_sample(lt[22], lt[23], lt[24], lt[25], v0, u1)
+        elif has_n:
+            wx, wy, wz, _ = sample_cos_hemisphere(nx, ny, nz, v0, u1)
+        else:
+            wx, wy, wz = sample_sphere(v0, u1)
+    if w[W_MAP] != 0.0:
+        rr, rg, rb = env_radiance(lt[21], lt[22], wx, wy, wz)
+    else:
+        rr, rg, rb = w[W_R], w[W_G], w[W_B]
+    pdf = w[W_SEL] * _world_pdf(px, py, pz, nx, ny, nz, has_n, wx, wy, wz, lt)
+    return wx, wy, wz, rr, rg, rb, pdf
 
 
 @_jit
@@ -802,7 +848,9 @@ def light_emission_path(ox, oy, oz, dx, dy, dz, tmax, bsdf_pdf, bsdf_delta, use_
             wr, wg, wb = w[W_R], w[W_G], w[W_B]
         wgt = 1.0
         if use_mis and not bsdf_delta:
-            if has_map:
+            if lt[26].shape[0] > 0 and portals_facing(lt[26], ox, oy, oz) > 0:
+                pl = _f32(w[W_SEL] * _world_pdf(ox, oy, oz, nx, ny, nz, has_n, dx, dy, dz, lt))
+            elif has_map:
                 pl = _f32(w[W_SEL] * env_pdf(lt[23], dx, dy, dz))
             elif has_n:
                 pl = _f32(_f32(w[W_SEL] * _INV_PI) * _f32(max(dx * nx + dy * ny + dz * nz, 0.0)))

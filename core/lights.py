@@ -38,7 +38,7 @@ import numpy as np
 
 from . import light_kernels as lk
 from .scene import AreaLight, PointLight, Scene, SpotLight, SunLight
-from .world import EnvironmentDistribution
+from .world import EnvironmentDistribution, portal_table
 
 __all__ = ["EmissiveTriangles", "LightSample", "LightSampler", "luminance"]
 
@@ -549,6 +549,9 @@ class LightSampler:
                             [lt for lt in scene.lights if isinstance(lt, SunLight)])
         self._hiding: dict = {}
         env = scene.world.environment
+        self._portals = portal_table(scene.world.portals, shift)  # world sampling through them (core.world)
+        if len(self._portals):
+            sample_world = True  # Cycles samples a world with portals whatever its variation
         self.environment = EnvironmentDistribution(env if env is not None and not scene.world.is_black else None)
         self.has_environment = self.environment.mean_luminance > 0
         if env is not None:
@@ -699,7 +702,7 @@ class LightSampler:
         return (u.table, u.kind, u.local, u.fallback, float(SELECTION_POWER_FLOOR),
                 self._punctual.kernel_table(), self._areas.kernel_table(), self._suns.kernel_table(), world,
                 *self._tri_table.kernel_tables(), np.ascontiguousarray(self._tri_table.unit, np.int64),
-                *self.environment.tables)
+                *self.environment.tables, self._portals)
 
     def _tables_without_world(self) -> tuple:
         """The kernel tables with the world row unlit (for `intersect(world=False)`); sampling never uses them."""

@@ -529,11 +529,16 @@ class World:
     strength), or, when `environment` is set, that image (core.world.EnvironmentMap, its Background strength
     folded into its `strength`) in place of the colour. camera_color: optional (3,) radiance that camera rays see
     where they escape, instead of the background (Blender's Light Path > Is Camera Ray mixing two Backgrounds: a
-    backdrop that differs from the light); None: the background."""
+    backdrop that differs from the light); None: the background.
+    portals: (P, 4, 3) float64 light portals (Cycles' area lights marked Portal), each a parallelogram: its
+    centre, its two full edge vectors (world units) and the unit normal pointing to the side it lets the world
+    in (the area light's emission direction); None: none. They emit nothing and no ray sees them: shading
+    points on their inner side sample the world through them as well as by its map (core.world.portal_table)."""
 
     color: np.ndarray = field(default_factory=lambda: np.zeros(3))
     environment: EnvironmentMap | None = None
     camera_color: np.ndarray | None = None
+    portals: np.ndarray | None = None
     # Lights that belong to the world (a Sky Texture's sun disc, core.sky): the exporters add them to the
     # scene's lights; the world itself does not render them.
     lights: list = field(default_factory=list)
@@ -557,14 +562,15 @@ class Camera:
     the frame in units of the fitted side. clip_start/clip_end bound the visible depth along the ray.
 
     Depth of field (a thin lens, Cycles' conventions), on when use_dof: the aperture's radius is
-    lens x 1e-3 / (2 aperture_fstop) metres for "PERSP" (the focal length in mm read as metres, whatever the
+    lens x 1e-3 / (2 aperture_fstop) metres for "PERSP" and "PANO" (the focal length in mm read as metres, whatever the
     scene's unit scale, as Cycles does) and 1 / (2 aperture_fstop) for "ORTHO"; focus_distance (m) is the
     distance of the plane in focus along the view axis. aperture_blades >= 3 makes the aperture a regular
     polygon of that many sides inscribed in the aperture's circle, turned by aperture_rotation (radians);
     0 (or 1, 2) keeps it round. aperture_ratio squeezes the aperture horizontally by 1 / ratio (anamorphic
     bokeh). An f-stop or focus distance of 0 renders as a pinhole (see `aperture_radius`).
 
-    kind "PANO" (Cycles' panoramic camera; no depth of field): rays leave the camera position in the directions
+    kind "PANO" (Cycles' panoramic camera; depth of field as Cycles: the focus is a sphere of radius
+    focus_distance around the camera, see core.camera._panorama_rays): rays leave the camera position in the directions
     panorama_type maps the image to, u = x / width + shift_x and v = y / height + shift_y (from the bottom),
     each in [0, 1] across the image. "EQUIRECTANGULAR": longitude from longitude_min at the left edge to
     longitude_max at the right (0 straight ahead, positive to the left), latitude from latitude_min at the
@@ -661,7 +667,7 @@ class Camera:
     def aperture_radius(self) -> float:
         """The lens aperture's radius in metres; 0 renders a pinhole camera (depth of field off, an f-stop of
         0 or a focus distance of 0: Blender lets both be typed in, and a pinhole is what they mean)."""
-        if not self.use_dof or self.aperture_fstop == 0 or self.focus_distance == 0 or self.kind == "PANO":
+        if not self.use_dof or self.aperture_fstop == 0 or self.focus_distance == 0:
             return 0.0
         numerator = 1.0 if self.kind == "ORTHO" else self.lens * 1e-3
         return numerator / (2.0 * self.aperture_fstop)
@@ -918,6 +924,14 @@ class Scene:
                 self.world.environment.validate(self.warnings)
             except EnvironmentMapError as exc:
                 raise SceneError(str(exc)) from None
+        if self.world.portals is not None:
+            portals = np.asarray(self.world.portals, dtype=np.float64)
+            if portals.ndim != 3 or portals.shape[1:] != (4, 3) or not np.isfinite(portals).all():
+                raise SceneError(f"world portals must be a finite (P, 4, 3) array, got shape {portals.shape}")
+            flat = np.linalg.norm(np.cross(portals[:, 1], portals[:, 2]), axis=1) <= 0
+            if flat.any():
+                self.warnings.append(f"{int(flat.sum())} light portal(s) of zero area are ignored")
+            self.world.portals = portals[~flat] if len(portals[~flat]) else None
         kept: list[Light] = []
         for light in self.lights:
             _validate_light_sets(light, f"{type(light).__name__} {light.name!r}")

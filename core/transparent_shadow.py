@@ -5,8 +5,8 @@ A shadow ray that meets a surface whose material can be transparent (it has a Tr
 Transparent BSDF are exported) goes on through it, its light multiplied by the surface's transparency there: the
 summed colour of those lobes at the hit, after the material's node program ran (node-driven alpha, alpha
 textures). A surface of any other material blocks the light, as does the transparent surface after
-`max_hits` = Render Settings > Light Paths > Transparent bounces (Cycles' transparent_max_bounce; Cycles further
-subtracts the transparent bounces its path already made, which Monte does not count separately).
+`max_hits` = Render Settings > Light Paths > Transparent bounces (Cycles' transparent_max_bounce) less the
+transparent bounces the ray's path already made (core.integrator counts them apart from bounces, as Cycles).
 
 Only scenes with such a material pay for it (`clear_materials` is None otherwise, and shadow rays stay one
 occlusion query each); even then only the shadow rays an occlusion query finds blocked are traced again, hit by
@@ -42,17 +42,19 @@ def transparency(lobes: LobeBatch) -> np.ndarray:
 
 
 def trace(tracer, occluders: tuple[Accelerator, np.ndarray | None], origin: np.ndarray, direction: np.ndarray,
-          tmax: np.ndarray, max_hits: int) -> tuple[np.ndarray, np.ndarray]:
+          tmax: np.ndarray, max_hits: "int | np.ndarray") -> tuple[np.ndarray, np.ndarray]:
     """(blocked (N,) bool, transmittance (N, 3) float32) of N shadow rays through the scene of
     `tracer` (a core.integrator.PathTracer: its prepared scene, surface interactions and node programs).
 
     occluders: the ray-casting structure the shadow rays see and the scene triangle index of each of its
     triangles (None: the whole scene, same indices). A ray is blocked at its first surface whose material is
-    not in the scene's clear materials, whose transparency is black, or that would be its (max_hits + 1)-th."""
+    not in the scene's clear materials, whose transparency is black, or that would be its (max_hits + 1)-th
+    (max_hits: one limit for all, or (N,) one per ray)."""
     ps = tracer.ps
     clear = ps.shadow_clear
     accel, keep = occluders
     n = len(origin)
+    limit = np.broadcast_to(np.asarray(max_hits, np.int64), (n,))
     blocked = accel.occluded(origin, direction, tmax)
     transmit = np.ones((n, 3), np.float32)
     rows = np.flatnonzero(blocked)
@@ -67,9 +69,8 @@ def trace(tracer, occluders: tuple[Accelerator, np.ndarray | None], origin: np.n
         blocked[rows[~found]] = False  # nothing more in the way (an occlusion query and a closest hit may differ
         # by a grazing hit; the closest-hit query decides)
         at = np.flatnonzero(found)
+        at = at[layer < limit[rows[at]]]  # the others meet one transparent surface too many: blocked
         mat = ps.material_index[prim[at]]
-        if layer >= max_hits:
-            break  # every ray still in the way meets one transparent surface too many: blocked
         at, mat = at[clear[mat]], mat[clear[mat]]  # the others meet an opaque surface: blocked
         if len(at) == 0:
             break

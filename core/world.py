@@ -24,7 +24,7 @@ import numpy as np
 from . import world_kernels as wk
 
 __all__ = ["EnvironmentMap", "EnvironmentMapError", "EnvironmentDistribution", "IMPORTANCE_FLOOR",
-           "MAX_IMPORTANCE_WIDTH"]
+           "MAX_IMPORTANCE_WIDTH", "portal_table"]
 
 # Share of the mean luminance added to every cell of the importance grid: where a cell's centre is black but its
 # texels are not (a small light between grid centres), light sampling keeps a chance to find it.
@@ -176,3 +176,23 @@ def empty_tables() -> tuple:
     """The kernel tables of a world without a map (same types, so the kernels compile once)."""
     return (np.zeros((1, 1, 3), np.float32), np.zeros(wk.E_FIELDS), np.ones((1, 1)), np.array([0.0, 1.0]),
             np.array([[0.0, 1.0]]))
+
+
+def portal_table(portals: np.ndarray | None, shift: np.ndarray) -> np.ndarray:
+    """The kernels' table of light portals (core.world_kernels' P_* columns) from core.scene.World.portals,
+    positions made relative to the integrator's `shift`: (P, P_FIELDS) float64, (0, P_FIELDS) when none."""
+    if portals is None or len(portals) == 0:
+        return np.zeros((0, wk.P_FIELDS))
+    portals = np.asarray(portals, dtype=np.float64)
+    u, v = portals[:, 1], portals[:, 2]
+    table = np.zeros((len(portals), wk.P_FIELDS))
+    table[:, wk.P_CX:wk.P_CX + 3] = portals[:, 0] - 0.5 * (u + v) - np.asarray(shift, np.float64).reshape(3)
+    table[:, wk.P_UX:wk.P_UX + 3] = u
+    table[:, wk.P_VX:wk.P_VX + 3] = v
+    n = portals[:, 3] / np.linalg.norm(portals[:, 3], axis=1, keepdims=True)
+    table[:, wk.P_NX:wk.P_NX + 3] = n
+    uu, vv, uv = (u * u).sum(axis=1), (v * v).sum(axis=1), (u * v).sum(axis=1)
+    table[:, wk.P_AREA] = np.linalg.norm(np.cross(u, v), axis=1)
+    det = uu * vv - uv * uv
+    table[:, wk.P_G00], table[:, wk.P_G01], table[:, wk.P_G11] = vv / det, -uv / det, uu / det  # Gram inverse
+    return np.ascontiguousarray(table)

@@ -29,6 +29,15 @@ from .jit_cache import jit_no_nrt as _jit
  E_CLOSEST) = range(14)
 E_FIELDS = 14
 
+# Light portals (core.world.portal_table): a corner, the two edges, the unit normal towards the inside, the area,
+# and the inverse of the edges' Gram matrix (a point's edge coordinates from its dot products with the edges).
+(P_CX, P_CY, P_CZ, P_UX, P_UY, P_UZ, P_VX, P_VY, P_VZ, P_NX, P_NY, P_NZ, P_AREA, P_G00, P_G01, P_G11) = range(16)
+P_FIELDS = 16
+# Share of a world light sample that goes through the portals when a shading point is inside some (the rest
+# follows the map, or the cosine about n for a uniform world), as Cycles splits its background samples.
+PORTAL_SHARE = 0.5
+_BELOW_ONE = 0.9999999403953552  # the largest float32 below 1
+
 _TWO_PI = 2.0 * math.pi
 _INV_TWO_PI = 1.0 / (2.0 * math.pi)
 _INV_PI = 1.0 / math.pi
@@ -204,3 +213,79 @@ def pdf_batch(func, d, pdf):
     """env_pdf for every unit direction d[k] ((N, 3) float64) into pdf (N,)."""
     for k in range(d.shape[0]):
         pdf[k] = env_pdf(func, d[k, 0], d[k, 1], d[k, 2])
+
+
+@_inline
+def _inside_portal(portals, i, px, py, pz):
+    return ((px - portals[i, P_CX]) * portals[i, P_NX] + (py - portals[i, P_CY]) * portals[i, P_NY]
+            + (pz - portals[i, P_CZ]) * portals[i, P_NZ]) > 0.0
+
+
+@_inline
+def portals_facing(portals, px, py, pz):
+    """How many portals have p on their inner side (0: the world is sampled without them at p)."""
+    count = 0
+    for i in range(portals.shape[0]):
+        if _inside_portal(portals, i, px, py, pz):
+            count += 1
+    return count
+
+
+@_inline
+def portal_direction(portals, count, px, py, pz, u0, u1):
+    """A unit direction from p towards a point uniform (by area) on one of the `count` portals facing p, each
+    picked with probability 1 / count (u0 picks it and, rescaled, places the point with u1)."""
+    x = u0 * count
+    pick = min(int(x), count - 1)
+    s = min(x - pick, _BELOW_ONE)
+    seen = 0
+    for i in range(portals.shape[0]):
+        if not _inside_portal(portals, i, px, py, pz):
+            continue
+        if seen == pick:
+            qx = portals[i, P_CX] + s * portals[i, P_UX] + u1 * portals[i, P_VX] - px
+            qy = portals[i, P_CY] + s * portals[i, P_UY] + u1 * portals[i, P_VY] - py
+            qz = portals[i, P_CZ] + s * portals[i, P_UZ] + u1 * portals[i, P_VZ] - pz
+            length = math.sqrt(qx * qx + qy * qy + qz * qz)
+            if length > 0.0:
+                return qx / length, qy / length, qz / length
+            return 0.0, 0.0, 1.0
+        seen += 1
+    return 0.0, 0.0, 1.0
+
+
+@_inline
+def portal_pdf(portals, count, px, py, pz, dx, dy, dz):
+    """The solid-angle pdf of portal_direction at p (count portals facing it) in unit direction d: the mean over
+    the facing portals of dist^2 / (|cos| area) for each one the ray from p along d passes through."""
+    total = 0.0
+    for i in range(portals.shape[0]):
+        if not _inside_portal(portals, i, px, py, pz):
+            continue
+        dn = dx * portals[i, P_NX] + dy * portals[i, P_NY] + dz * portals[i, P_NZ]
+        if dn >= 0.0:
+            continue  # away from the portal's plane
+        t = ((portals[i, P_CX] - px) * portals[i, P_NX] + (portals[i, P_CY] - py) * portals[i, P_NY]
+             + (portals[i, P_CZ] - pz) * portals[i, P_NZ]) / dn
+        hx, hy, hz = px + t * dx - portals[i, P_CX], py + t * dy - portals[i, P_CY], pz + t * dz - portals[i, P_CZ]
+        hu = hx * portals[i, P_UX] + hy * portals[i, P_UY] + hz * portals[i, P_UZ]
+        hv = hx * portals[i, P_VX] + hy * portals[i, P_VY] + hz * portals[i, P_VZ]
+        a = portals[i, P_G00] * hu + portals[i, P_G01] * hv
+        b = portals[i, P_G01] * hu + portals[i, P_G11] * hv
+        if 0.0 <= a <= 1.0 and 0.0 <= b <= 1.0:
+            total += t * t / (-dn * portals[i, P_AREA])
+    return total / count
+
+
+@_jit
+def portal_sample_batch(portals, p, u, d, pdf):
+    """portal_direction and portal_pdf for each point p (N, 3) with numbers u (N, 2): d (N, 3), pdf (N,) (pdf 0
+    and d (0, 0, 1) where no portal faces the point). For tests."""
+    for k in range(p.shape[0]):
+        count = portals_facing(portals, p[k, 0], p[k, 1], p[k, 2])
+        if count == 0:
+            d[k, 0], d[k, 1], d[k, 2], pdf[k] = 0.0, 0.0, 1.0, 0.0
+            continue
+        x, y, z = portal_direction(portals, count, p[k, 0], p[k, 1], p[k, 2], u[k, 0], u[k, 1])
+        d[k, 0], d[k, 1], d[k, 2] = x, y, z
+        pdf[k] = portal_pdf(portals, count, p[k, 0], p[k, 1], p[k, 2], x, y, z)

@@ -292,7 +292,7 @@ def test_panels_draw_real_properties_and_blender_panels_are_opted_in():
             "film_transparent_glass", "panorama_type", "visible_diffuse", "is_holdout", "use_pass_mist",
             "use_pass_object_index", "use_pass_cryptomatte_asset", "pass_cryptomatte_depth", "falloff",
             "transparent_max_bounces", "motion_blur_shutter",
-            "motion_blur_position", "motion_steps"} <= set(drawn)
+            "motion_blur_position", "motion_steps", "is_portal"} <= set(drawn)
     for kind in ("FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL", "EQUIRECTANGULAR"):
         cam.panorama_type = kind
         ui.MONTE_CAMERA_PT_panorama.draw(types.SimpleNamespace(layout=_Recorder(drawn)), ctx)

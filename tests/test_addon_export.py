@@ -594,7 +594,6 @@ def _set_pano(kind: str, dof: bool = False):
 UNSUPPORTED_CAMERA_FILM = {
     "panoramic-cubemap-face": (_set_pano("EQUIANGULAR_CUBEMAP_FACE"),
                                ["panoramic", "Equiangular Cubemap Face", "perspective"]),
-    "panoramic-depth-of-field": (_set_pano("EQUIRECTANGULAR", dof=True), ["depth of field", "panoramic"]),
     "f-stop-0": (lambda scene, cam: (setattr(cam.data.dof, "use_dof", True),
                                      setattr(cam.data.dof, "aperture_fstop", 0.0)), ["F-Stop 0", "pinhole"]),
     "focus-distance-0": (lambda scene, cam: (setattr(cam.data.dof, "use_dof", True),
@@ -628,6 +627,11 @@ def test_film_and_panorama_settings_are_exported(scene):
         assert (c.kind, c.panorama_type) == ("PANO", kind)
         assert (c.fisheye_fov, c.fisheye_lens) == pytest.approx((2.5, 7.0))
         assert (c.latitude_min, c.longitude_max) == pytest.approx((-0.4, 1.2))
+    # depth of field on a panorama renders (Cycles' panoramic lens), with the focal length's aperture
+    cam.data.dof.use_dof, cam.data.dof.aperture_fstop = True, 2.0
+    got, _ = export()
+    assert got.warnings == [] and got.camera.kind == "PANO"
+    assert got.camera.aperture_radius() == pytest.approx(cam.data.lens * 1e-3 / (2 * 2.0))
 
 
 @pytest.mark.parametrize("name", list(UNSUPPORTED_CAMERA_FILM))

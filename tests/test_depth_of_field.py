@@ -196,3 +196,31 @@ def test_render_spreads_an_emitter_by_the_circle_of_confusion():
         grown = variance(images[1], axis) - variance(images[0], axis)
         print(f"axis {axis}: variance grew by {grown:.3f} px^2, circle of confusion {coc:.2f} px: {coc**2 / 4:.3f}")
         assert grown == pytest.approx(coc**2 / 4, rel=0.05)
+
+
+@pytest.mark.parametrize("panorama", ["EQUIRECTANGULAR", "FISHEYE_EQUIDISTANT", "MIRRORBALL"])
+def test_panoramic_depth_of_field_focuses_on_a_sphere(panorama):
+    """Cycles' depth of field on a panorama: every lens ray through a raster position passes through the point
+    at focus_distance along that position's pinhole ray (a sphere in focus about the camera, not a plane), from
+    a lens point in the plane perpendicular to the pinhole ray, uniform in the disk of the aperture's radius;
+    the ray starts clip_start beyond its lens point."""
+    cam = dof_camera("PANO", panorama_type=panorama, aperture_fstop=0.5, focus_distance=3.0, clip_start=0.25)
+    pinhole = Camera(**{**cam.__dict__, "use_dof": False})
+    rx, ry = np.full(N, 20.5), np.full(N, 16.5)
+    rays = camera_rays(cam, rx, ry, lens_samples())
+    centre = camera_rays(pinhole, rx[:1], ry[:1]).directions[0].astype(np.float64)
+    o, d = rays.origins.astype(np.float64), rays.directions.astype(np.float64)
+    lens_point = o - cam.clip_start * d
+    in_focus = centre * cam.focus_distance
+    miss = np.cross(in_focus - lens_point, d)  # distance of the point in focus from each ray's line
+    assert np.linalg.norm(miss, axis=1).max() < 1e-5 * cam.focus_distance
+    radius = cam.aperture_radius()
+    assert radius == pytest.approx(cam.lens * 1e-3 / (2 * 0.5))
+    assert np.abs(lens_point @ centre).max() < 1e-6
+    r2 = (lens_point**2).sum(axis=1) / radius**2
+    assert r2.max() <= 1 + 1e-4 and r2.max() > 1 - 1e-2
+    assert abs(r2.mean() - 0.5) < 5 * math.sqrt(1 / 12 / N)
+    # off the sphere in focus the rays spread: at twice the focus distance, by the aperture's radius again
+    far = o + ((2 * cam.focus_distance - cam.clip_start) * d)
+    spread = np.linalg.norm(far - 2 * in_focus, axis=1) / radius
+    assert 0.95 < spread.max() < 1.05

@@ -3,7 +3,8 @@ rendered by both engines, colour and alpha compared by their means and per-pixel
 
 Cycles' per-pixel variance comes from K renders with different seeds (core.compare.runs_mean_and_variance),
 Monte's from its film. Small images (32x32 or 48x32) at sample counts where a 1 % difference of the means is
-several sigma. The default suite runs transparent film and object holdout (about 15 s); the rest (holdout by
+several sigma. The default suite runs transparent film, object holdout and a fisheye with depth of field
+(about 25 s); the rest (holdout by
 shader and collection, transparent glass, every panorama type, every ray visibility flag, Cast Shadow) is
 `@pytest.mark.slow` (about 30 s on 2 cores with compiled kernels cached):
 `.venv/bin/python -m pytest -m slow tests/test_film_camera_cycles.py`.
@@ -207,6 +208,26 @@ def test_panoramic_cameras_match_cycles(name, tmp_path):
     mon, mon_var = monte_rgba(scene, spp, 2)
     cyc, cyc_var = cycles_rgba(scene, tmp_path, spp // 2, 2)
     check(f"panorama {name}", mon, mon_var, cyc, cyc_var, spp)
+
+
+def test_panoramic_depth_of_field_matches_cycles(tmp_path):
+    """A fisheye with depth of field (a wide aperture focused 1 m away, the walls 1.5-2.5 m off: blurred) against
+    Cycles. The control: the same camera without depth of field (the pinhole, sharp) must disagree."""
+    scene = panorama_room()
+    cam = bf.camera_object(scene, (0.2, -0.3, 0.1), (math.radians(80), 0, math.radians(20)), kind="PANO",
+                           **PANORAMAS["fisheye-equidistant"])
+    cam.data.dof.use_dof = True
+    cam.data.dof.aperture_fstop = 0.1  # radius 50 mm / (2 x 0.1) = 0.25 m
+    cam.data.dof.focus_distance = 1.0
+    scene.render.resolution_x, scene.render.resolution_y = 48, 32
+    scene.render.resolution_percentage = 100
+    spp = 64
+    mon, mon_var = monte_rgba(scene, spp, 2)
+    cyc, cyc_var = cycles_rgba(scene, tmp_path, spp // 2, 2)
+    check("panorama depth of field", mon, mon_var, cyc, cyc_var, spp)
+    cam.data.dof.use_dof = False
+    sharp, sharp_var = monte_rgba(scene, spp, 2)
+    assert not cmp.compare(sharp[..., :3], sharp_var, cyc[..., :3], cyc_var[..., :3], rel_cap=0.01).verdict()[0]
 
 
 VISIBILITY = {

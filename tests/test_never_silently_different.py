@@ -184,6 +184,9 @@ AUDIT = {
     "panorama lens polynomial": (_pano("FISHEYE_LENS_POLYNOMIAL", fisheye_polynomial_k1=-0.5),
                                  ("renders", lambda c: c.camera.fisheye_polynomial[1] == -0.5)),
     "panorama cubemap face": (_pano("EQUIANGULAR_CUBEMAP_FACE"), ("warns", ["Equiangular Cubemap Face"])),
+    "panorama depth of field": (lambda s: (_pano("FISHEYE_EQUIDISTANT")(s),
+                                           _set(s.camera.data.dof, use_dof=True, aperture_fstop=2.0)),
+                                ("renders", lambda c: c.camera.kind == "PANO" and c.camera.aperture_radius() > 0)),
     # render and film
     "resolution percentage": (lambda s: _set(s.render, resolution_percentage=50),
                               ("renders", lambda c: c.camera.resolution == (16, 12))),
@@ -193,6 +196,10 @@ AUDIT = {
     "shutter curve": (lambda s: (_moving_cube(s), _bent_shutter_curve(s)),
                       ("renders", lambda c: c.camera.shutter_curve is not None)),
     "pixel aspect": (lambda s: _set(s.render, pixel_aspect_x=2.0), ("warns", ["pixel aspect"])),
+    "simplify texture limit": (lambda s: (_set(s.render, use_simplify=True), _set(s.cycles, texture_limit_render="256")),
+                               ("warns", ["Simplify > Texture Limit 256"])),
+    "simplify AO bounces": (lambda s: (_set(s.render, use_simplify=True), _set(s.cycles, ao_bounces_render=2)),
+                            ("warns", ["Simplify > AO Bounces 2"])),
     "film transparent": (lambda s: _set(s.render, film_transparent=True),
                          ("renders", lambda c: c.film.transparent)),
     "film transparent glass": (lambda s: (_set(s.render, film_transparent=True),
@@ -287,3 +294,22 @@ def test_each_setting_is_rendered_or_named(name):
         assert expect(got) and not expect(before), f"{name}: the export does not carry the setting"
     else:
         assert any(all(word in w for word in expect) for w in got.warnings), got.warnings
+
+
+def test_a_light_portal_is_no_light():
+    """An area light marked as a portal (Cycles: no emission, unseen, unshadowing; it only guides the world's
+    sampling, which changes noise) leaves the lights for the world's portals, with no warning."""
+    scene = build_scene()
+    bf.add_light(scene, "AREA", (0, 0, 3), name="window", energy=50.0, size=2.0)
+    assert sorted(light.name for light in export().lights) == ["lamp", "window"]
+    light = obj("window").data
+    if hasattr(light, "is_portal"):
+        light.is_portal = True
+    else:
+        light.cycles.is_portal = True
+    got = export()
+    assert got.warnings == [] and [light.name for light in got.lights] == ["lamp"]
+    portal = got.world.portals
+    assert portal.shape == (1, 4, 3)
+    assert np.allclose(portal[0, 0], (0, 0, 3)) and np.allclose(np.abs(portal[0, 1:3]).sum(axis=0), (2, 2, 0))
+    assert np.allclose(portal[0, 3], (0, 0, -1))  # the light's -Z: where it lets the world in

@@ -3,7 +3,8 @@
 and compared by monte.addon.crosscheck (channel means within max(4 sigma, 0.5 %), at most 1 % of per-pixel
 |z| > 5, and the power to see a 1 % error: tests/test_crosscheck.py's `check`). The sheet is a Transparent BSDF
 under an area light (default suite; the control: Monte with Transparent bounces 0, every transparent surface
-blocking shadow rays as before, must disagree), a Principled BSDF of Alpha 0.5 under a sun, a Principled BSDF
+blocking shadow rays as before, must disagree; and two camera-visible sheets at Max Bounces 1: a pass through a
+Transparent BSDF is a transparent bounce, not a bounce), a Principled BSDF of Alpha 0.5 under a sun, a Principled BSDF
 whose Alpha is a Checker texture under a point light, and a Transparent BSDF under an HDRI world (those three
 are slow: `pytest -m slow tests/test_transparent_shadows_cycles.py`).
 """
@@ -85,6 +86,36 @@ def test_transparent_bsdf_sheet_under_an_area_light(tmp_path):
     cycles_var = np.stack([ch[f"variance.{c}"] for c in "RGB"], -1)
     left = np.s_[:, :14]  # under the sheet
     assert wrong[left].mean() < 0.9 * cycles[left].mean()
+    assert not cmp.compare(wrong, wrong_var, cycles, cycles_var, rel_floor=0.005).verdict()[0]
+
+
+def test_transparent_surfaces_are_not_bounces(tmp_path):
+    """Two Transparent BSDF sheets over the whole floor, seen by the camera, at Max Bounces 1: Cycles counts a
+    pass through them as a transparent bounce (up to Transparent Max Bounces), not as a bounce, so the floor
+    behind them still gets its direct light (Monte counting them as bounces left it black). The control: Monte
+    with Transparent Max Bounces 1, whose paths end at the second sheet, must disagree."""
+    from monte.addon import crosscheck as cc
+    from monte.core import compare as cmp
+    from monte.core.exr import read_exr
+
+    scene = sheet_scene(transparent_bsdf, AREA)
+    sheet = bpy.data.objects["sheet"]
+    sheet.visible_camera = True
+    sheet.scale.x = 2.0  # its x from -5..0 stretched to -10..0, then moved to -5..5: over the whole floor
+    sheet.location.x = 5.0
+    second = bs.mesh_object("sheet2", [(-5, -5, 1.0), (5, -5, 1.0), (5, 5, 1.0), (-5, 5, 1.0)], [(0, 1, 2, 3)],
+                            bs.node_material("clear2", "ShaderNodeBsdfTransparent", Color=(0.9, 0.8, 0.9)))
+    assert second.visible_camera
+    check(scene, tmp_path, "small", max_bounces=1)
+    scene.render.engine = "MONTE"
+    scene.cycles.transparent_max_bounces = 1
+    m = scene.monte
+    m.samples, m.max_bounces, m.threads, m.seed = SIZES["small"][1], 1, 2, 1
+    wrong, wrong_var = cc.render_monte(scene)
+    ch = read_exr(tmp_path / "cc" / "cycles.exr")
+    cycles = np.stack([ch[c] for c in "RGB"], -1)
+    cycles_var = np.stack([ch[f"variance.{c}"] for c in "RGB"], -1)
+    assert wrong.mean() < 0.1 * cycles.mean()
     assert not cmp.compare(wrong, wrong_var, cycles, cycles_var, rel_floor=0.005).verdict()[0]
 
 

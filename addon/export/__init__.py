@@ -20,6 +20,7 @@ from .camera import export_camera, render_region, render_resolution  # noqa: F40
 from .film import export_film
 from .light import export_light
 from .light_linking import LightLinking
+from .light import export_light, is_portal, portal_geometry
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
 from .motion import (Shutter, deforms, instance_key, object_steps, placed_motion, sample_motion,
@@ -169,6 +170,25 @@ def _warn_object_settings(obj, original, view_layer, warnings: list[str]) -> Non
                                  "supported and is skipped")
 
 
+def _warn_simplify(scene, warnings: list[str]) -> None:
+    """Render > Simplify: Max Subdivision and Child Particles reach Monte through the render's evaluated depsgraph
+    (Blender applies them); the Cycles settings below it that Cycles applies itself, Monte does not."""
+    cycles = getattr(scene, "cycles", None)
+    if not scene.render.use_simplify or cycles is None:
+        return
+    limit = getattr(cycles, "texture_limit_render", "OFF")
+    if limit != "OFF":
+        warnings.append(f"render: Simplify > Texture Limit {limit} is not supported; image textures are read at "
+                        "their full size")
+    resolution = float(getattr(cycles, "texture_resolution_render", 1.0))
+    if resolution != 1.0:
+        warnings.append(f"render: Simplify > Texture Resolution {resolution:g} is not supported; image textures are "
+                        "read at their full size")
+    ao_bounces = int(getattr(cycles, "ao_bounces_render", 0))
+    if ao_bounces > 0:
+        warnings.append(f"render: Simplify > AO Bounces {ao_bounces} is not supported; every bounce is path traced")
+
+
 def is_indirect_only(obj, view_layer) -> bool:
     """Whether an (original) object is in a collection set to Indirect Only in the view layer."""
     if view_layer is None:
@@ -256,7 +276,9 @@ def export_scene(
         if moved:
             frame_set(shutter.frame, shutter.subframe)
     if moved:
+        portals = out[0].world.portals
         out[0].world = export_world(scene.world, [])  # at the frame (its warnings are the centre's, already given)
+        out[0].world.portals = portals
     if vector_only:
         _motion_to_vectors(out[0])
     return out
@@ -287,6 +309,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
     if camera_object is not None:
         camera_object = camera_object.evaluated_get(depsgraph)
     camera = export_camera(camera_object, scene, warnings)
+    _warn_simplify(scene, warnings)
 
     shader_aovs = view_layer_aovs(depsgraph.view_layer, scene.world, warnings)
     materials = MaterialExporter(warnings, None if camera is None else camera.matrix_world, shader_aovs)
@@ -295,6 +318,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
     # for many geometry-node instances, so this keeps the per-instance work to a few attribute reads.
     resolved: dict[tuple[int, int], tuple | None] = {}
     lights = []
+    portals = []  # light portals (core.scene.World.portals)
     unsupported: dict[str, int] = {}
     linking = LightLinking(depsgraph.objects, warnings)
     for i, inst in enumerate(depsgraph.object_instances):
@@ -303,7 +327,9 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
         obj = inst.object
         kind = obj.type
         if kind == "LIGHT":
-            if inst.show_self:
+            if inst.show_self and is_portal(obj.data):
+                portals.append(portal_geometry(obj.data, _matrix(inst.matrix_world)))
+            elif inst.show_self:
                 light = export_light(obj.name, obj.data, _matrix(inst.matrix_world), warnings)
                 if light is not None:
                     light.visible_camera = bool(getattr(obj, "visible_camera", False))
@@ -382,6 +408,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
     if not materials.materials:
         materials.index(None)  # core needs at least one material
     world = export_world(scene.world, warnings)
+    world.portals = np.stack(portals) if portals else None
     lights = lights + world.lights  # a Sky Texture's sun disc
     out = Scene(camera=camera, meshes=meshes, materials=materials.materials, lights=lights, world=world,
                 textures=materials.textures, name=scene.name, warnings=warnings,

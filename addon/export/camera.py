@@ -86,9 +86,6 @@ def export_camera(camera_object, scene, warnings: list[str]) -> Camera:
         warnings.append(f"render: non-square pixel aspect {r.pixel_aspect_x:g}:{r.pixel_aspect_y:g} is not "
                         "supported; rendering square pixels")
     dof = cam.dof
-    if kind == "PANO" and dof.use_dof and dof.aperture_fstop > 0:
-        warnings.append(f"camera {name!r}: depth of field on a panoramic camera is not supported; rendered in "
-                        "focus (a pinhole)")
     focus = focus_distance(camera_object, dof) if dof.use_dof else float(dof.focus_distance)
     if dof.use_dof and dof.aperture_fstop == 0:
         # Cycles clamps the f-stop to 1e-5: an aperture kilometres wide that blurs everything into one colour.

@@ -24,8 +24,37 @@ def light_color_power(light) -> np.ndarray:
     return color * float(light.energy) * (2.0 ** exposure)
 
 
+def is_portal(light) -> bool:
+    """Whether an area light is a Cycles light portal (the flag sits on `light.cycles` in Blender 4.x-5.x and on
+    the light itself where Blender moved it)."""
+    if light.type != "AREA":
+        return False
+    # The original light's: a change of an add-on's setting (Cycles' is_portal) may not reach the evaluated copy
+    light = getattr(light, "original", None) or light
+    cycles = getattr(light, "cycles", None)
+    return bool(getattr(light, "is_portal", False) or getattr(cycles, "is_portal", False))
+
+
+def portal_geometry(light, matrix_world) -> np.ndarray:
+    """A light portal as core.scene.World.portals holds it: (4, 3) centre, the two full edges (the light's size
+    along its local x and y, object scale included; a disk or ellipse by its bounding rectangle) and the unit
+    direction it lets the world in (the light's local -Z, where it would emit)."""
+    m = np.array(matrix_world, dtype=np.float64).reshape(4, 4)
+    size_x = float(light.size)
+    size_y = float(light.size_y) if light.shape in ("RECTANGLE", "ELLIPSE") else size_x
+    inward = -m[:3, 2]
+    norm = np.linalg.norm(inward)
+    return np.stack([m[:3, 3], m[:3, 0] * size_x, m[:3, 1] * size_y,
+                     inward / norm if norm > 0 else np.zeros(3)])
+
+
 def export_light(name: str, light, matrix_world, warnings: list[str]):
-    """One light instance (light data + world matrix) -> core light, or None for a light Monte skips."""
+    """One light instance (light data + world matrix) -> core light, or None for a light Monte skips.
+
+    A light portal is no light (None): in Cycles it emits nothing and no ray sees it; it guides the world's
+    sampling (see portal_geometry and core.scene.World.portals), which changes noise, not the image."""
+    if is_portal(light):
+        return None
     m = np.array(matrix_world, dtype=np.float64).reshape(4, 4)
     position = m[:3, 3].copy()
     down = -m[:3, 2]

@@ -1,0 +1,70 @@
+"""Render > Simplify as Monte renders it.
+
+Max Subdivision (and Child Particles) are applied by Blender's depsgraph for the render: the engine's export
+sees the simplified geometry, checked here by the triangles a render through Blender's operator exports from a
+cube with a Subdivision Surface modifier. Cycles' own Simplify settings (Texture Limit, Texture Resolution, AO
+Bounces) are named in a warning (tests/test_never_silently_different.py).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+bpy = pytest.importorskip("bpy")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import blender_fixtures as bf  # noqa: E402
+
+from monte.addon import engine  # noqa: E402
+from monte.addon.engine import render_with_operator  # noqa: E402
+
+pytestmark = [pytest.mark.blender]
+
+
+def subdivided_cube():
+    """A cube (6 quads) with a Subdivision Surface modifier: 1 level in the viewport, 3 for the render."""
+    scene = bf.reset()
+    v = [(-1, -1, -1), (1, -1, -1), (1, 1, -1), (-1, 1, -1), (-1, -1, 1), (1, -1, 1), (1, 1, 1), (-1, 1, 1)]
+    f = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
+    cube = bf.mesh_object("cube", v, f, bf.diffuse("cube", (0.5, 0.5, 0.5)))
+    mod = cube.modifiers.new("subdivision", "SUBSURF")
+    mod.levels, mod.render_levels = 1, 3
+    bf.camera_object(scene, (0, -6, 0), (1.5708, 0, 0))
+    bf.set_world(scene, (0.5, 0.5, 0.5), 1.0)
+    scene.render.resolution_x, scene.render.resolution_y = 8, 8
+    scene.render.resolution_percentage = 100
+    scene.render.engine = "MONTE"
+    scene.monte.samples, scene.monte.threads = 1, 1
+    return scene
+
+
+def rendered_triangles(scene, monkeypatch) -> int:
+    """Triangles the engine exported for one render through Blender's operator (the real export, its result
+    recorded on the way out)."""
+    seen = []
+    real = engine.export_scene
+
+    def recording(*args, **kwargs):
+        out = real(*args, **kwargs)
+        seen.append(out[1].triangles)
+        return out
+
+    monkeypatch.setattr(engine, "export_scene", recording)
+    render_with_operator(scene)
+    monkeypatch.setattr(engine, "export_scene", real)
+    assert len(seen) == 1
+    return seen[0]
+
+
+def test_max_subdivision_reaches_the_render(monkeypatch):
+    scene = subdivided_cube()
+    quads = 6
+    assert rendered_triangles(scene, monkeypatch) == quads * 4**3 * 2  # the modifier's render levels
+    scene.render.use_simplify = True
+    scene.render.simplify_subdivision_render = 2
+    scene.render.simplify_subdivision = 0  # the viewport's: not the render's
+    assert rendered_triangles(scene, monkeypatch) == quads * 4**2 * 2
+    scene.render.simplify_subdivision_render = 0
+    assert rendered_triangles(scene, monkeypatch) == quads * 2
