@@ -423,6 +423,18 @@ def _peak_memory_mb() -> float:
         return math.nan
 
 
+class _LazyFilms(dict):
+    """tile -> TileFilm, each made by `make(tile)` on its first lookup."""
+
+    def __init__(self, make: Callable[[TileRect], TileFilm]) -> None:
+        super().__init__()
+        self.make = make
+
+    def __missing__(self, tile: TileRect) -> TileFilm:
+        film = self[tile] = self.make(tile)
+        return film
+
+
 class _TileRender:
     """One render while its batches run: the tiles' films, the batches in flight, the counters.
 
@@ -456,9 +468,12 @@ class _TileRender:
             self.tiles = [self.tiles[i] for i in tile_order]
         alpha = scene.has_alpha
         catcher = CatcherOutput.of(scene)
-        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features, alpha=alpha,
-                                  catcher=catcher, light_passes=settings.light_passes)
-                      for t in self.tiles}
+        # Each tile's film is made when first asked for (its first samples): at low spp, where tiles are final
+        # after one pass and released then, films are made and freed a few at a time, and memory freed by one
+        # is reused by the next instead of all films' small arrays staying resident in the heap.
+        self.films = _LazyFilms(lambda t: TileFilm(t[2], t[3], settings.aovs, self.sampler,
+                                                   settings.denoising_features, alpha=alpha, catcher=catcher,
+                                                   light_passes=settings.light_passes))
         # Cycles' data passes (core.data_passes), local renders only (render_samples' merge does not carry them)
         self.data_tables = None
         self.data_films: dict = {}
