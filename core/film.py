@@ -44,7 +44,9 @@ add 32 B (float32 albedo, normal and depth sums, int32 depth count), the denoisi
 The sums and the fold of a render's add() calls run compiled (core.film_kernels: the same operations in the
 same order, one pass over the samples and one over the tile, where NumPy's form made some thirty passes over
 the tile per call and cost more per sample than the path itself at 1 sample per pixel and pass); the raw sums
-of a film in capture mode (below) and their fold stay in NumPy.
+of a film in capture mode (below) and their fold stay in NumPy. So do the image methods (mean, variance_of_mean,
+aov_images, ...), the reference for write_colour_images / write_aov_images, which the frame's assembly uses:
+the same bits, compiled, written straight into the frame's arrays.
 
 Shadow catcher (core.scene.Mesh.shadow_catcher; core.integrator.CatcherSamples): the film also sums each
 pixel's matte M (the radiance gathered before paths met a catcher) with its transparency T_m, the catcher
