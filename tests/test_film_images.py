@@ -73,3 +73,32 @@ def test_the_tiles_shown_as_they_land_are_the_final_images_pixels(fast_settings)
         np.testing.assert_array_equal(t.variance, result.variance[rows, cols])
         np.testing.assert_array_equal(t.depth, result.depth[rows, cols])
     assert result.stats["assembly_seconds"] > 0
+
+
+def test_at_one_sample_per_pixel_only_the_films_of_tiles_in_flight_exist(fast_settings, monkeypatch):
+    """Films are made when a tile's first samples arrive and released when its last pass lands, so a 1-spp
+    render of 128 tiles (16 per batch of 1024 paths) never holds more than the batches in flight need, where
+    making every film up front held all 128 (an 8K frame's 3.2 GB of films at once)."""
+    import monte.core.render as render_module
+
+    counts = {"made": 0, "live": 0, "peak": 0}
+
+    class CountedFilm(TileFilm):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            counts["made"] += 1
+            counts["live"] += 1
+            counts["peak"] = max(counts["peak"], counts["live"])
+
+        def release(self):
+            super().release()
+            counts["live"] -= 1
+
+    monkeypatch.setattr(render_module, "TileFilm", CountedFilm)
+    threads = 2
+    result = render(scenes.cornell_box((128, 64)), fast_settings(spp=1, tile_size=8, batch_paths=1024,
+                                                                 threads=threads))
+    assert counts["made"] == 128 and counts["live"] == 0
+    # batches in flight (threads + 1) and the one being gathered, 16 tiles each
+    assert counts["peak"] <= (threads + 2) * 16
+    assert int(result.sample_count.sum()) == 128 * 64
