@@ -45,7 +45,9 @@ and 88 B with stored group counts.)
 The sums and the fold of a render's add() calls run compiled (core.film_kernels: the same operations in the
 same order, one pass over the samples and one over the tile, where NumPy's form made some thirty passes over
 the tile per call and cost more per sample than the path itself at 1 sample per pixel and pass); the raw sums
-of a film in capture mode (below) and their fold stay in NumPy.
+of a film in capture mode (below) and their fold stay in NumPy. So do the image methods (mean, variance_of_mean,
+aov_images, ...), the reference for write_colour_images / write_aov_images, which the frame's assembly uses:
+the same bits, compiled, written straight into the frame's arrays.
 
 Shadow catcher (core.scene.Mesh.shadow_catcher; core.integrator.CatcherSamples): the film also sums each
 pixel's matte M (the radiance gathered before paths met a catcher) with its transparency T_m, the catcher
@@ -81,6 +83,7 @@ _OUT_OF_ORDER = ("film: each pixel's samples must arrive in order, sample 0 firs
                  "the pixel's last pass ended")
 _NO_SQUARES = np.zeros((0, 3), np.float32)  # dev_sq of a film that keeps no squares (never read)
 _NO_SUMS = np.zeros((0, 3), np.float64)
+_NO_ALPHA = np.zeros(0, np.float32)  # transparent_sum of a film without alpha (never read)
 _SCRATCH = threading.local()  # per thread: films may be filled on several threads (a cluster worker's units)
 
 
@@ -557,6 +560,26 @@ class TileFilm:
                 grouped = (ng * dev * dev).sum(axis=1) / ((filled - 1) * n)
             var = np.where(filled >= 2, grouped, var)
         return np.maximum(var, 0.0)
+
+    def write_colour_images(self, color: np.ndarray, variance: np.ndarray, y0: int, x0: int) -> None:
+        """Write combined_rgba() and variance_of_mean() into color (H, W, 4) and variance (H, W, 3) float32
+        (C-contiguous) at rows y0.., columns x0..: the same bits, compiled where there is no shadow catcher
+        (core.film_kernels.colour_images; one pass over the tile instead of some forty float64 passes)."""
+        if self.catcher is not None:
+            color[y0:y0 + self.height, x0:x0 + self.width] = self.combined_rgba()
+            variance[y0:y0 + self.height, x0:x0 + self.width] = self.variance_of_mean()
+            return
+        film_kernels.colour_images(self.shift, self.group_dev, self.sample_count, self._group_prefix[0],
+                                   self.squares, self.dev_sq if self.squares else _NO_SQUARES, self.alpha,
+                                   self.transparent_sum if self.alpha else _NO_ALPHA, y0, x0, self.width,
+                                   color, variance)
+
+    def write_aov_images(self, albedo: np.ndarray, normal: np.ndarray, depth: np.ndarray, y0: int, x0: int
+                         ) -> None:
+        """Write aov_images() into albedo, normal (H, W, 3) and depth (H, W) float32 (C-contiguous) at rows y0..,
+        columns x0.. (compiled: core.film_kernels.aov_images, the same bits)."""
+        film_kernels.aov_images(self.albedo, self.normal, self.depth_sum, self.depth_count, self.sample_count,
+                                y0, x0, self.width, albedo, normal, depth)
 
     def variance_of_mean(self) -> np.ndarray:
         """(h, w, 3) estimated variance of each pixel's mean (see the module docstring; 0 with fewer than 2

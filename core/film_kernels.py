@@ -127,3 +127,82 @@ def add_sums1(pixel, values, finite_only, out, counts, scratch, scratch_counts):
         counts[p] += scratch_counts[p]
         scratch[p] = 0.0
         scratch_counts[p] = 0
+
+
+@_jit
+def colour_images(shift, group_dev, sample_count, prefix, squares, dev_sq, alpha, transparent_sum, y0, x0, width,
+                  color, variance):
+    """A tile's colour images from its film (core.film.TileFilm.mean, alpha_image and _variance_of_mean: the same
+    float64 operations in the same order, so the same float32 bits), written into color (H, W, 4) and variance
+    (H, W, 3) float32 at rows y0.., columns x0.. (the tile `width` pixels wide, pixel p at row p // width):
+    NumPy's form made some forty float64 passes over (n, G, 3) temporaries per tile, a per-pixel cost that no
+    sample count amortises. alpha: whether transparent_sum (n,) float32 is read (1 elsewhere)."""
+    n, G = group_dev.shape[0], group_dev.shape[1]
+    period = prefix.shape[0] - 1
+    for p in range(n):
+        y, x = y0 + p // width, x0 + p % width
+        count = np.int64(sample_count[p])
+        n_real = np.float64(count)
+        n_mean = np.float64(max(count, 1))
+        full, rest = count // period, count % period
+        filled = 0
+        for g in range(G):
+            if full * prefix[period, g] + prefix[rest, g] > 0:
+                filled += 1
+        for c in range(3):
+            total = np.float64(group_dev[p, 0, c])
+            for g in range(1, G):
+                total += np.float64(group_dev[p, g, c])
+            color[y, x, c] = np.float32(np.float64(shift[p, c]) + total / n_mean)
+            var = 0.0
+            if squares and count > 1:
+                var = (np.float64(dev_sq[p, c]) - total * total / n_real) / (n_real - 1.0) / n_real
+            if G > 1 and filled >= 2:
+                grouped = 0.0
+                mean_dev = total / max(n_real, 1.0)
+                for g in range(G):
+                    ng = np.float64(full * prefix[period, g] + prefix[rest, g])
+                    dev = 0.0
+                    if ng > 0:
+                        dev = np.float64(group_dev[p, g, c]) / max(ng, 1.0) - mean_dev
+                    grouped += ng * dev * dev
+                var = grouped / ((np.float64(filled) - 1.0) * n_real)
+            if var < 0.0:  # (NaN stays NaN, as np.maximum keeps it)
+                var = 0.0
+            variance[y, x, c] = np.float32(var)
+        if alpha:
+            color[y, x, 3] = np.float32(1.0 - np.float64(transparent_sum[p]) / n_mean)
+        else:
+            color[y, x, 3] = np.float32(1.0)
+
+
+@_jit
+def aov_images(albedo, normal, depth_sum, depth_count, sample_count, y0, x0, width, albedo_out, normal_out,
+               depth_out):
+    """A tile's AOV images from its film (core.film.TileFilm.aov_images, the same float64 operations in the same
+    order): albedo and normal (H, W, 3), depth (H, W) float32 written at rows y0.., columns x0.. (see
+    colour_images). The normal is unit where the pixel saw a surface (0 elsewhere); depth 1e10 where nothing was
+    hit."""
+    for p in range(albedo.shape[0]):
+        y, x = y0 + p // width, x0 + p % width
+        n = np.float64(max(np.int64(sample_count[p]), 1))
+        nx = np.float64(normal[p, 0]) / n
+        ny = np.float64(normal[p, 1]) / n
+        nz = np.float64(normal[p, 2]) / n
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        for c in range(3):
+            albedo_out[y, x, c] = np.float32(np.float64(albedo[p, c]) / n)
+        if length > 0:
+            scale = max(length, 1e-30)
+            normal_out[y, x, 0] = np.float32(nx / scale)
+            normal_out[y, x, 1] = np.float32(ny / scale)
+            normal_out[y, x, 2] = np.float32(nz / scale)
+        else:
+            normal_out[y, x, 0] = np.float32(0.0)
+            normal_out[y, x, 1] = np.float32(0.0)
+            normal_out[y, x, 2] = np.float32(0.0)
+        hits = depth_count[p]
+        if hits > 0:
+            depth_out[y, x] = np.float32(np.float64(depth_sum[p]) / np.float64(max(hits, 1)))
+        else:
+            depth_out[y, x] = np.float32(1e10)

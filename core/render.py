@@ -282,75 +282,105 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     return result
 
 
+class FrameImages:
+    """A region's images (see Tile for the arrays), filled tile by tile from the tiles' films as each is final.
+
+    The arrays are allocated at once but zeroed lazily (np.zeros), so their memory is committed as tiles are
+    written, while each tile's film is released (TileFilm.release) as soon as it is read: films and images are
+    never all held at once, and at low sample counts, where each tile is final after one pass, only the films
+    of the tiles in flight are held. put() returns the tile's images as views of the region's arrays, so a
+    tile shown as it lands (Render callbacks) is not built a second time for the frame."""
+
+    def __init__(self, region: TileRect, aovs: bool, film: TileFilm | None,
+                 world_to_camera: np.ndarray | None = None) -> None:
+        """film: any of the region's tile films (they share their settings), None for an empty region;
+        world_to_camera: the rotation that turns the denoising normal to camera space (the denoising features are
+        written only with it, where the films keep them)."""
+        self.region, self.aovs = region, aovs
+        rx, ry, rw, rh = region
+        self.color = np.zeros((rh, rw, 4), np.float32)
+        self.variance = np.zeros((rh, rw, 3), np.float32)
+        self.albedo = np.zeros((rh, rw, 3), np.float32) if aovs else None
+        self.normal = np.zeros((rh, rw, 3), np.float32) if aovs else None
+        self.depth = np.full((rh, rw), 1e10, np.float32) if aovs else None
+        self.counts = np.zeros((rh, rw), np.int32)
+        self.extras: dict = {}
+        if film is not None and film.catcher is not None:
+            self.extras["shadow_catcher"] = np.ones((rh, rw, 3), np.float32)
+            self.extras["shadow_catcher_matte"] = np.zeros((rh, rw, 4), np.float32)
+        if film is not None and film.light_passes:
+            self.extras["light_passes"] = {name: np.zeros((rh, rw, 3), np.float32) for name in film.light_passes}
+        if film is not None and film.shader_aovs:
+            self.extras["shader_aovs"] = {name: np.zeros((rh, rw, 4 if kind == "COLOR" else 1), np.float32)
+                                          for name, kind in film.shader_aovs}
+        self.features = None
+        self.rot = world_to_camera
+        if film is not None and film.features and world_to_camera is not None:
+            self.features = (np.zeros((rh, rw, 3), np.float32), np.zeros((rh, rw, 3), np.float32))
+
+    def put(self, tile: TileRect, film: TileFilm, samples: int = 0) -> Tile:
+        """Write a tile's images from its film; returns them as a Tile of views into the region's arrays
+        (samples: what Tile.samples reports). The film is left as it is (the caller releases it)."""
+        rx, ry = self.region[:2]
+        tx, ty, tw, th = tile
+        oy, ox = ty - ry, tx - rx
+        sl = (slice(oy, oy + th), slice(ox, ox + tw))
+        film.write_colour_images(self.color, self.variance, oy, ox)
+        self.counts[sl] = film.count.reshape(th, tw)
+        out = Tile(tx, ty, self.color[sl], self.variance[sl], samples=samples)
+        if self.aovs:
+            film.write_aov_images(self.albedo, self.normal, self.depth, oy, ox)
+            out.albedo, out.normal, out.depth = self.albedo[sl], self.normal[sl], self.depth[sl]
+        if self.features is not None:
+            feature_albedo, feature_normal = film.feature_images()
+            self.features[0][sl] = feature_albedo
+            self.features[1][sl] = feature_normal @ self.rot.T
+            out.denoising_albedo, out.denoising_normal = self.features[0][sl], self.features[1][sl]
+        if "shadow_catcher" in self.extras:
+            catcher, matte = film.shadow_catcher_images()[:2]
+            self.extras["shadow_catcher"][sl], self.extras["shadow_catcher_matte"][sl] = catcher, matte
+            out.shadow_catcher = self.extras["shadow_catcher"][sl]
+            out.shadow_catcher_matte = self.extras["shadow_catcher_matte"][sl]
+        if "light_passes" in self.extras:
+            out.light_passes = {}
+            for name, arr in film.light_pass_images().items():
+                self.extras["light_passes"][name][sl] = arr
+                out.light_passes[name] = self.extras["light_passes"][name][sl]
+        if "shader_aovs" in self.extras:
+            out.shader_aovs = {}
+            for name, arr in film.shader_aov_images().items():
+                self.extras["shader_aovs"][name][sl] = arr
+                out.shader_aovs[name] = self.extras["shader_aovs"][name][sl]
+        return out
+
+    def images(self) -> tuple:
+        """(color, variance, albedo, normal, depth, sample counts, denoising features, extras): see
+        assemble_image."""
+        return (self.color, self.variance, self.albedo, self.normal, self.depth, self.counts, self.features,
+                self.extras)
+
+
 def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: RenderSettings, region: TileRect,
                    scene: Scene) -> tuple:
     """The region's (color, variance, albedo, normal, depth, sample counts, denoising features) from its tiles'
     films (see Tile for the arrays; AOVs None when settings.aovs is off; the features (albedo, normal in camera
     space) None unless the films keep them), and the extras: {RenderResult attribute: image} of the shadow
     catcher's and the light passes' images (shadow_catcher, shadow_catcher_matte, light_passes) where the films
-    keep them. Each film is released (TileFilm.release) once its tile is read, so the films and the images are
-    never all held at once: an 8K frame's peak memory is the larger of the two, not their sum."""
-    rx, ry, rw, rh = region
-    color = np.zeros((rh, rw, 4), np.float32)
-    variance = np.zeros((rh, rw, 3), np.float32)
-    albedo = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
-    normal = np.zeros((rh, rw, 3), np.float32) if settings.aovs else None
-    depth = np.full((rh, rw), 1e10, np.float32) if settings.aovs else None
-    counts = np.zeros((rh, rw), np.int32)
-    extras: dict = {}
-    if films and films[0].catcher is not None:
-        extras["shadow_catcher"] = np.ones((rh, rw, 3), np.float32)
-        extras["shadow_catcher_matte"] = np.zeros((rh, rw, 4), np.float32)
-    if films and films[0].light_passes:
-        extras["light_passes"] = {name: np.zeros((rh, rw, 3), np.float32) for name in films[0].light_passes}
-    if films and films[0].shader_aovs:
-        extras["shader_aovs"] = {name: np.zeros((rh, rw, 4 if kind == "COLOR" else 1), np.float32)
-                                 for name, kind in films[0].shader_aovs}
-    features = None
-    if films and films[0].features:
-        rot = world_to_camera(scene)
-        features = (np.zeros((rh, rw, 3), np.float32), np.zeros((rh, rw, 3), np.float32))
+    keep them. Each film is released (TileFilm.release) once its tile is read (see FrameImages)."""
+    rot = world_to_camera(scene) if films and films[0].features else None
+    frame = FrameImages(region, settings.aovs, films[0] if films else None, rot)
     for tile, film in zip(tile_list, films):
-        tx, ty, tw, th = tile
-        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
-        tr = tile_result(tile, film, 0, settings.aovs)
-        color[sl], variance[sl] = tr.color, tr.variance
-        counts[sl] = film.count.reshape(th, tw)
-        if settings.aovs:
-            albedo[sl], normal[sl], depth[sl] = tr.albedo, tr.normal, tr.depth
-        if features is not None:
-            feature_albedo, feature_normal = film.feature_images()
-            features[0][sl] = feature_albedo
-            features[1][sl] = feature_normal @ rot.T
-        if "shadow_catcher" in extras:
-            extras["shadow_catcher"][sl], extras["shadow_catcher_matte"][sl] = film.shadow_catcher_images()[:2]
-        for name, arr in (film.light_pass_images().items() if "light_passes" in extras else ()):
-            extras["light_passes"][name][sl] = arr
-        for name, arr in (film.shader_aov_images().items() if "shader_aovs" in extras else ()):
-            extras["shader_aovs"][name][sl] = arr
+        frame.put(tile, film)
         film.release()
-    return color, variance, albedo, normal, depth, counts, features, extras
+    return frame.images()
 
 
 def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
                 world_to_camera: np.ndarray | None = None) -> Tile:
-    """A tile's images from its film (samples: what Tile.samples reports; world_to_camera: the rotation that
-    turns the denoising normal to camera space, needed when the film keeps the denoising features)."""
-    color = film.combined_rgba()
-    albedo = normal = depth = None
-    if aovs:
-        albedo, normal, depth = film.aov_images()
-    out = Tile(tile[0], tile[1], color, film.variance_of_mean(), albedo, normal, depth, samples)
-    if film.catcher is not None:
-        out.shadow_catcher, out.shadow_catcher_matte = film.shadow_catcher_images()[:2]
-    if film.light_passes:
-        out.light_passes = film.light_pass_images()
-    if film.shader_aovs:
-        out.shader_aovs = film.shader_aov_images()
-    if film.features and world_to_camera is not None:
-        out.denoising_albedo, world_normal = film.feature_images()
-        out.denoising_normal = (world_normal @ world_to_camera.T).astype(np.float32)
-    return out
+    """A tile's images from its film, in arrays of its own (samples: what Tile.samples reports;
+    world_to_camera: the rotation that turns the denoising normal to camera space, needed for the denoising
+    features when the film keeps them)."""
+    return FrameImages(tile, aovs, film, world_to_camera).put(tile, film, samples)
 
 
 def world_to_camera(scene: Scene) -> np.ndarray:
@@ -419,6 +449,18 @@ def _peak_memory_mb() -> float:
         return math.nan
 
 
+class _LazyFilms(dict):
+    """tile -> TileFilm, each made by `make(tile)` on its first lookup."""
+
+    def __init__(self, make: Callable[[TileRect], TileFilm]) -> None:
+        super().__init__()
+        self.make = make
+
+    def __missing__(self, tile: TileRect) -> TileFilm:
+        film = self[tile] = self.make(tile)
+        return film
+
+
 class _TileRender:
     """One render while its batches run: the tiles' films, the batches in flight, the counters.
 
@@ -452,10 +494,13 @@ class _TileRender:
             self.tiles = [self.tiles[i] for i in tile_order]
         alpha = scene.has_alpha
         catcher = CatcherOutput.of(scene)
-        self.films = {t: TileFilm(t[2], t[3], settings.aovs, self.sampler, settings.denoising_features, alpha=alpha,
-                                  catcher=catcher, light_passes=settings.light_passes,
-                                  shader_aovs=scene.shader_aovs)
-                      for t in self.tiles}
+        # Each tile's film is made when first asked for (its first samples): at low spp, where tiles are final
+        # after one pass and released then, films are made and freed a few at a time, and memory freed by one
+        # is reused by the next instead of all films' small arrays staying resident in the heap.
+        self.films = _LazyFilms(lambda t: TileFilm(t[2], t[3], settings.aovs, self.sampler,
+                                                   settings.denoising_features, alpha=alpha, catcher=catcher,
+                                                   light_passes=settings.light_passes,
+                                                   shader_aovs=scene.shader_aovs))
         # Cycles' data passes (core.data_passes), local renders only (render_samples' merge does not carry them)
         self.data_tables = None
         self.data_films: dict = {}
@@ -472,6 +517,7 @@ class _TileRender:
         self.pixels_converged = np.zeros(len(self.tiles), np.int64)  # adaptive sampling: pixels that stopped early
         self.largest_batch = 0  # paths in the largest batch traced (memory scales with it, times the threads)
         self.film_seconds = 0.0
+        self.assembly_seconds = 0.0  # the tiles' images written into the frame's (main thread)
         self.adaptive = settings.adaptive_threshold > 0
         self.min_samples = settings.adaptive_min_samples_for(self.spp) if self.adaptive else self.spp
         # render_samples(): only these sample ranges are taken; tiles whose range starts past 0 keep each pass's
@@ -481,6 +527,14 @@ class _TileRender:
         for ti, (start, _end) in (self.work or {}).items():
             if start > 0:  # these tiles' films keep each pass's raw sums apart (TileFilm.capture_passes)
                 self.films[self.tiles[ti]].capture_passes()
+
+        # The region's images, each tile's written (and its film released) as soon as its last pass lands
+        # (FrameImages); render_samples() hands films on instead.
+        self.frame: FrameImages | None = None
+        self.final: set[int] = set()  # tiles already in self.frame
+        if work is None:
+            self.frame = FrameImages(region, settings.aovs, self.films[self.tiles[0]] if self.tiles else None,
+                                     world_to_camera(scene) if settings.denoising_features else None)
 
         self.workers = settings.thread_count
         self.target = batch_target(settings, self.total_paths)
@@ -694,7 +748,11 @@ class _TileRender:
                 self.samples_started[seg.tile_index] = seg.sample_end
                 if self.work is not None and self.work[seg.tile_index][0] > 0:
                     self.pass_sums.setdefault(seg.tile_index, []).append(film.take_pass())
-                if self.on_tile is not None and not quiet:
+                if self.frame is not None and seg.sample_end == self.spp:  # the tile is final: its images once
+                    tile = self._final_tile(seg.tile_index, seg.tile, film)
+                    if self.on_tile is not None and not quiet:
+                        self.on_tile(tile)
+                elif self.on_tile is not None and not quiet:
                     self.on_tile(self._tile_result(seg.tile, film, seg.sample_end))
 
     # ----------------------------------------------------------------------- sample ranges (render_samples)
@@ -746,6 +804,18 @@ class _TileRender:
         structures = [self.accel] + [accel for accel, _ in list(self.prepared._subsets.values())]
         return (sum(a.rays_closest for a in structures), sum(a.rays_shadow for a in structures))
 
+    def _final_tile(self, ti: int, tile: TileRect, film: TileFilm) -> Tile:
+        """Write a tile that holds all its samples into the frame's images and release its film; the tile's
+        images (views of the frame's) for on_tile."""
+        t0 = time.perf_counter()
+        out = self.frame.put(tile, film, self.spp)
+        film.release()
+        self.final.add(ti)
+        if self.data_tables is not None:
+            out.data_passes = self.data_films[tile].images()
+        self.assembly_seconds += time.perf_counter() - t0
+        return out
+
     def _tile_result(self, tile: TileRect, film: TileFilm, samples: int) -> Tile:
         rot = world_to_camera(self.scene) if self.settings.denoising_features else None
         out = tile_result(tile, film, samples, self.settings.aovs, rot)
@@ -757,8 +827,13 @@ class _TileRender:
         """The region's image assembled from the tiles, with the render's statistics."""
         settings, scene, accel = self.settings, self.scene, self.accel
         rx, ry, rw, rh = self.region
-        color, variance, albedo, normal, depth, counts, features, extras = assemble_image(
-            self.tiles, [self.films[t] for t in self.tiles], settings, self.region, scene)
+        t0 = time.perf_counter()
+        for ti, tile in enumerate(self.tiles):  # tiles a cancel, a time limit or adaptive sampling left open
+            if ti not in self.final:
+                self.frame.put(tile, self.films[tile])
+                self.films[tile].release()
+        color, variance, albedo, normal, depth, counts, features, extras = self.frame.images()
+        self.assembly_seconds += time.perf_counter() - t0
         elapsed = time.perf_counter() - self.t_start
         st = PathStats.total([t.stats for t in self.tracers])
         rays_closest, rays_shadow = self._ray_counts()
@@ -779,6 +854,8 @@ class _TileRender:
             # Share of all worker thread-time (wall time x workers) spent inside Embree.
             "embree_share": (st.seconds_intersect + st.seconds_occluded) / max(elapsed * self.workers, 1e-9),
             "stage_seconds": {**st.stage_seconds(), "film": self.film_seconds},
+            # the main thread's writing of the tiles' images into the frame's (beside its film sums)
+            "assembly_seconds": self.assembly_seconds,
             "nonfinite_samples": st.nonfinite,
             "clamped_contributions": st.clamped,
             "peak_memory_mb": _peak_memory_mb(),

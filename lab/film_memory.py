@@ -3,6 +3,10 @@
     python -m monte.lab.film_memory                      # bytes per pixel, each film configuration
     python -m monte.lab.film_memory --render 3840x2160   # + the peak RSS of a 1-spp Cornell box at 4K
     python -m monte.lab.film_memory --render 3840x2160 --film OLD_FILM.py   # the same with another film module
+    python -m monte.lab.film_memory --table             # samples/s and peak RSS: 256x256 at 256 spp, 1080p, 4K
+                                                         # and 8K at 1 spp, one process each, in one run
+    python -m monte.lab.film_memory --table --package-root DIR   # the same for another checkout's `monte`
+                                                         # (DIR holds its `monte` folder, e.g. from git archive)
 
 --film loads TileFilm from another version of core/film.py (e.g. `git show REV:core/film.py > old.py`) so that
 a change to the film can be measured before and after in one checkout. The render runs in this process: run one
@@ -13,6 +17,9 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import json
+import os
+import subprocess
 import sys
 
 import numpy as np
@@ -47,12 +54,60 @@ def film_bytes_per_pixel(film_class, aovs: bool, features: bool) -> float:
     return total / (64 * 64)
 
 
+# (width, height, spp) of the throughput table: the shape of the work, from many samples of few pixels to one
+# sample of many
+TABLE = ((256, 256, 256), (1920, 1080, 1), (3840, 2160, 1), (7680, 4320, 1))
+
+# One render in a fresh process (peak RSS is per process), through the API every version of the core has.
+_ONE_RENDER = """
+import json, resource, sys
+from monte.core import builtin_scenes
+from monte.core.render import render
+from monte.core.settings import RenderSettings
+w, h, spp, threads = (int(v) for v in sys.argv[1:5])
+r = render(builtin_scenes.cornell_box((w, h)), RenderSettings(spp=spp, threads=threads))
+st = r.stats
+print(json.dumps({"samples_per_second": st["samples_per_second"], "seconds": st["seconds"],
+                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+                  "film_seconds": st["stage_seconds"].get("film", 0.0),
+                  "assembly_seconds": st.get("assembly_seconds", float("nan"))}))
+"""
+
+
+def throughput_table(threads: int, package_root: str | None, sizes=TABLE) -> list[dict]:
+    """Samples/s (the whole render: preparation, paths, film, the frame's assembly) and peak RSS of the Cornell
+    box at each (width, height, spp), each in its own process; package_root: a folder whose `monte` is imported
+    instead of this one (to measure another version in the same run)."""
+    env = dict(os.environ)
+    if package_root:
+        env["PYTHONPATH"] = os.pathsep.join([package_root, env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    rows = []
+    for w, h, spp in sizes:
+        out = subprocess.run([sys.executable, "-c", _ONE_RENDER, str(w), str(h), str(spp), str(threads)],
+                             env=env, check=True, capture_output=True, text=True).stdout
+        row = {"width": w, "height": h, "spp": spp, **json.loads(out.strip().splitlines()[-1])}
+        print(f"{w}x{h} {spp:4d} spp: {row['samples_per_second'] / 1e3:7.0f} k samples/s, {row['seconds']:7.1f} s, "
+              f"peak RSS {row['peak_rss_mb']:7,.0f} MB, film {row['film_seconds']:.2f} s, "
+              f"assembly {row['assembly_seconds']:.2f} s", flush=True)
+        rows.append(row)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m monte.lab.film_memory", description=__doc__.splitlines()[0])
     parser.add_argument("--film", help="a core/film.py to measure instead of this checkout's")
     parser.add_argument("--render", help="WIDTHxHEIGHT: render the Cornell box at 1 spp and report peak RSS")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--table", action="store_true", help="the throughput table (see the module docstring)")
+    parser.add_argument("--package-root", help="with --table: measure the `monte` package in this folder")
+    parser.add_argument("--json", help="with --table: write the rows to this file")
     args = parser.parse_args(argv)
+    if args.table:
+        rows = throughput_table(args.threads, args.package_root)
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(rows, f, indent=1)
+        return 0
     film_class = load_film_class(args.film)
     for aovs, features in ((False, False), (True, False), (True, True)):
         print(f"film bytes/pixel aovs={aovs!s:5} features={features!s:5}: "
