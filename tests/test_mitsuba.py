@@ -73,3 +73,20 @@ def test_mitsuba_translation_refuses_what_it_does_not_carry(tmp_path):
     scene = cornell_box((8, 8))
     with pytest.raises(MitsubaSceneError, match=r"pixel filter 'blackman-harris': Mitsuba gets box"):
         mitsuba_scene_dict(scene, tmp_path, spp=1, max_bounces=4, filter_type="blackman-harris")
+
+
+def test_bench_vs_mitsuba_argument_errors(tmp_path):
+    """`monte bench --vs mitsuba` names what is missing or not comparable before rendering anything."""
+    pytest.importorskip("bpy", reason="the bench needs the bpy module")
+    from monte.cli import build_parser
+    from monte.lab.bench_mitsuba import run_from_args
+
+    def args(*extra):
+        return build_parser().parse_args(["bench", "--vs", "mitsuba", *extra])
+
+    with pytest.raises(ValueError, match=r"--vs mitsuba needs --reference-dir DIR"):
+        run_from_args(args("-o", str(tmp_path)), {})
+    with pytest.raises(ValueError, match=r"--vs mitsuba benches the Cornell box only"):
+        run_from_args(args("--scene", "glass", "--reference-dir", str(tmp_path), "-o", str(tmp_path)), {})
+    with pytest.raises(ValueError, match=r"--vs mitsuba fixes these settings for a fair comparison: spp"):
+        run_from_args(args("--reference-dir", str(tmp_path), "-o", str(tmp_path)), {"spp": 8})
