@@ -384,11 +384,23 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 2
     if args.vs:
         try:
-            from .lab.bench_cycles import run_from_args
+            if args.vs == "mitsuba":
+                from .lab.bench_mitsuba import run_from_args
+            else:
+                from .lab.bench_cycles import run_from_args
         except ImportError as exc:
-            print(f"monte bench --vs cycles needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
+            print(f"monte bench --vs {args.vs} needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
             return 2
-        report = run_from_args(args, _settings_from(args))
+        if args.vs == "mitsuba":
+            from .lab.bench_mitsuba import MitsubaUnavailable
+
+            try:
+                report = run_from_args(args, _settings_from(args))
+            except MitsubaUnavailable as exc:
+                print(f"monte bench --vs mitsuba: {exc}", file=sys.stderr)
+                return 2
+        else:
+            report = run_from_args(args, _settings_from(args))
     elif args.samplers or args.batch_sizes or args.seed_table:
         from .lab.bench_ladders import run_ladders
 

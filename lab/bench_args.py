@@ -1,6 +1,6 @@
 """`monte bench` command-line options beyond the render options (argparse only: cheap to import).
 
---vs cycles (lab/bench_cycles.py, needs bpy), --samplers, --batch-sizes and --seed-table
+--vs cycles (lab/bench_cycles.py, needs bpy), --vs mitsuba (lab/bench_mitsuba.py, needs bpy and mitsuba), --samplers, --batch-sizes and --seed-table
 (lab/bench_ladders.py, no bpy).
 """
 
@@ -35,7 +35,15 @@ def _float_list(text: str) -> list[float]:
 def add_bench_arguments(p: argparse.ArgumentParser) -> None:
     """`monte bench` options beyond the render options: --vs cycles, the ladders, the seed table."""
     p.add_argument("blend", nargs="*", help="with --vs cycles: .blend files to bench as well")
-    p.add_argument("--vs", choices=("cycles",), help="Monte against Cycles, run time against error (needs bpy)")
+    p.add_argument("--vs", choices=("cycles", "mitsuba"),
+                   help="Monte against Cycles, run time against error (needs bpy); mitsuba: Monte against "
+                        "Mitsuba 3 and Cycles on the Cornell box, box filter (needs bpy and mitsuba: "
+                        "pip install -r requirements/rivals.txt)")
+    p.add_argument("--mitsuba-variant", choices=("llvm_ad_rgb", "scalar_rgb"), default="llvm_ad_rgb",
+                   help="with --vs mitsuba: Mitsuba's variant (default llvm_ad_rgb, its fastest on CPUs)")
+    p.add_argument("--mitsuba-sampler", choices=("independent", "stratified", "multijitter", "orthogonal",
+                                                 "ldsampler"), default="independent",
+                   help="with --vs mitsuba: Mitsuba's sampler (default independent, Mitsuba's default)")
     p.add_argument("--scene", choices=(*BENCH_SCENES, "all", "none"),
                    help="with --vs cycles: which built-in bench scene(s) (default cornell; none = only .blend)")
     p.add_argument("--reference-dir", help="folder of cached converged references (created if missing)")

@@ -56,11 +56,13 @@ def _read_combined(path: Path) -> np.ndarray:
 
 
 def render_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0,
-                  denoise: str | None = None) -> tuple[np.ndarray, float]:
+                  denoise: str | None = None, filter_type: str | None = None,
+                  filter_width: float | None = None) -> tuple[np.ndarray, float]:
     """One Cycles render: (linear RGB (H, W, 3) with row 0 at the top, seconds of the render call).
     denoise: None, or the Open Image Denoise quality ("high", "balanced", "fast") Cycles denoises with (CPU,
-    albedo and normal, accurate prefilter)."""
-    configure_cycles(scene, spp, max_bounces, threads, seed=seed, time_limit=time_limit)
+    albedo and normal, accurate prefilter). filter_type / filter_width: the pixel filter (None: the scene's)."""
+    configure_cycles(scene, spp, max_bounces, threads, seed=seed, time_limit=time_limit, filter_type=filter_type,
+                     filter_width=filter_width)
     if denoise is not None:
         c = scene.cycles
         c.use_denoising = True
@@ -90,10 +92,11 @@ def render_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, ti
 
 
 def monte_settings(spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0,
-                   **extra) -> RenderSettings:
-    """Monte's settings matching addon.crosscheck.configure_cycles as the bench calls it: Blackman-Harris 1.5 px, no clamp, no AOV passes."""
+                   filter_type: str = "blackman-harris", filter_width: float = 1.5, **extra) -> RenderSettings:
+    """Monte's settings matching addon.crosscheck.configure_cycles as the bench calls it: Blackman-Harris 1.5 px
+    (unless given), no clamp, no AOV passes."""
     return RenderSettings(spp=int(spp), seed=int(seed), threads=int(threads), max_bounces=int(max_bounces),
-                          filter_type="blackman-harris", filter_width=1.5, clamp=0.0, time_limit=time_limit,
+                          filter_type=filter_type, filter_width=filter_width, clamp=0.0, time_limit=time_limit,
                           aovs=False, **extra).validate()
 
 
@@ -121,15 +124,18 @@ def _resolution_of(scene) -> tuple[int, int]:
     return (r.resolution_x * r.resolution_percentage // 100, r.resolution_y * r.resolution_percentage // 100)
 
 
-def reference_params(name: str, version: str, resolution, max_bounces: int, spp: int, seeds: int) -> dict:
+def reference_params(name: str, version: str, resolution, max_bounces: int, spp: int, seeds: int,
+                     filter_type: str = "blackman-harris", filter_width: float = 1.5) -> dict:
     return {"scene": name, "scene_version": version, "resolution": [int(resolution[0]), int(resolution[1])],
-            "max_bounces": int(max_bounces), "filter_type": "blackman-harris", "filter_width": 1.5,
+            "max_bounces": int(max_bounces), "filter_type": filter_type, "filter_width": float(filter_width),
             "spp_per_seed": int(spp), "seeds": int(seeds), "renderer": f"cycles {bpy.app.version_string}"}
 
 
 def ensure_reference(scene, params: dict, cache: ReferenceCache, threads: int,
-                     log: Callable[[str], None]) -> Reference:
-    """The cached reference for params, or render it now with Cycles (seeds 1..K) and cache it."""
+                     log: Callable[[str], None], filter_type: str | None = None,
+                     filter_width: float | None = None) -> Reference:
+    """The cached reference for params, or render it now with Cycles (seeds 1..K) and cache it. filter_type /
+    filter_width: the pixel filter to render it with (None: the scene's, which params must name)."""
     ref = cache.load(params)
     if ref is not None:
         log(f"  reference: {ref.source} {ref.path} (own RMSE {np.sqrt(ref.own_mse):.4g})")
@@ -137,7 +143,8 @@ def ensure_reference(scene, params: dict, cache: ReferenceCache, threads: int,
     k, n = params["seeds"], params["spp_per_seed"]
     log(f"  reference: rendering with Cycles, {k} seeds x {n} spp (cached for next time) ...")
     t0 = time.perf_counter()
-    images = [render_cycles(scene, n, 1000 + s, threads, params["max_bounces"])[0] for s in range(k)]
+    images = [render_cycles(scene, n, 1000 + s, threads, params["max_bounces"], filter_type=filter_type,
+                            filter_width=filter_width)[0] for s in range(k)]
     mean, own_mse = reference_from_seeds(images)
     path = cache.store(mean, own_mse, params, note=f"Cycles, {k} seeds x {n} spp, "
                                                    f"{time.perf_counter() - t0:.0f} s")
