@@ -161,8 +161,8 @@ def test_zip_holds_only_the_add_on(built_zip):
                                             "pyyaml") for py in ("cp311", "cp313")]
     assert sorted(w.split("-")[0] for w in wheels if w.split("-")[3] == "abi3") == ["psutil", "tornado"]
     assert sorted(w.split("-")[0] for w in wheels if w.endswith("-none-any.whl")) == [
-        "click", "cloudpickle", "dask", "distributed", "fsspec", "jinja2", "locket", "packaging", "partd",
-        "sortedcontainers", "tblib", "toolz", "zict"]
+        "click", "cloudpickle", "dask", "distributed", "fsspec", "importlib_metadata", "jinja2", "locket",
+        "packaging", "partd", "sortedcontainers", "tblib", "toolz", "zict", "zipp"]
     assert not any(n.startswith(("tests/", "tools/", ".venv", "dist/")) for n in names)
 
 
