@@ -1376,17 +1376,17 @@ class PathTracer:
         else:
             occluders = (self.accel, None)
         transmit = None  # shadow rays through transparent surfaces: their transmittance (core.transparent_shadow)
+        max_hits = self.settings.transparent_max_bounces
         if ps.shadow_clear is None:
             blocked = occluders[0].occluded(origin[:count], direction[:count], tmax[:count], shadow_time)
         else:
-            max_hits = self.settings.transparent_max_bounces
             if transparent_bounces is not None:  # Cycles: the limit less the transparent bounces already made
                 max_hits = np.maximum(max_hits - transparent_bounces[sample_of[:count]], 0)
             blocked, transmit = transparent_shadow.trace(self, occluders, origin[:count], direction[:count],
                                                          tmax[:count], max_hits)
         if linked_set is not None and not self._catcher_copies:
             self._shadow_linked(linked_set, idx, can, sample_of[:count], origin[:count], direction[:count],
-                                tmax[:count], shadow_time, blocked, transmit)
+                                tmax[:count], shadow_time, blocked, transmit, max_hits)
         self.stats.seconds_occluded += time.perf_counter() - clock
         self.stats.seconds_nee -= time.perf_counter() - clock  # counted once, as shadow rays
         if ps.no_shadow is not None and not textured:
@@ -1431,9 +1431,10 @@ class PathTracer:
         return restricted
 
     def _shadow_linked(self, linked_set, idx, can, sample_of, origin, direction, tmax, shadow_time, blocked,
-                       transmit) -> None:
+                       transmit, max_hits=None) -> None:
         """Recast (in place in `blocked` and `transmit`) the shadow rays of samples on shadow-linked lights
-        against their light's blockers alone (core.light_linking)."""
+        against their light's blockers alone (core.light_linking). max_hits: the transparent surfaces each
+        shadow ray may pass (a scalar or one per ray; used where `transmit` is kept)."""
         ps = self.ps
         row_of = np.zeros(int(idx.max()) + 1 if len(idx) else 0, np.int64)
         row_of[idx[can]] = np.arange(len(can))
@@ -1453,8 +1454,9 @@ class PathTracer:
             if transmit is None:
                 blocked[r] = occluders[0].occluded(origin[r], direction[r], tmax[r], t)
             else:
+                hits = max_hits[r] if np.ndim(max_hits) else max_hits  # the remaining transparent bounces
                 blocked[r], transmit[r] = transparent_shadow.trace(self, occluders, origin[r], direction[r], tmax[r],
-                                                                   self.settings.transparent_max_bounces)
+                                                                   hits)
 
     def _sample_textured(self, p: np.ndarray, u_select: np.ndarray, u: np.ndarray,
                          path: np.ndarray | None = None) -> LightSample:

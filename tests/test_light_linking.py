@@ -122,6 +122,31 @@ def test_a_blocker_collection_with_the_square_keeps_its_shadow():
     np.testing.assert_array_equal(got, render(_square_scene({}, 0.0), SETTINGS).color)
 
 
+def _behind_a_clear_card(**light) -> Scene:
+    """The floor seen through a clear card (a Transparent BSDF above the lamp, so only camera rays cross it) with
+    two stacked clear squares between the floor and the point lamp."""
+    clear = Material("clear", [Lobe("refraction", np.full(3, 0.8), roughness=0.0, ior=1.0)])
+    meshes = [_quad("floor", 3.0, -1.0, 0, shadow_sets=-1 & ~0b10), _quad("square", 0.4, 0.5, 4),
+              _quad("square2", 0.4, 0.8, 4), _quad("card", 3.0, 2.5, 4)]
+    lamp = PointLight("lamp", np.array([1.2, 0.0, 2.0]), np.full(3, 200.0), **light)
+    return Scene(camera=_camera(), meshes=meshes, materials=MATERIALS + [clear], lights=[lamp],
+                 world=World(np.zeros(3)))
+
+
+def test_shadow_linked_rays_pass_only_the_transparent_bounces_left():
+    """Transparent Bounces 2, one spent by the camera ray on the card: a shadow ray may pass one more clear
+    surface, not the two squares, so they shadow the floor; with a blocker collection holding the squares (the
+    floor left out) the lamp's shadow rays, recast against its blockers, keep that limit and the image is the
+    unlinked one, bit for bit. Control: with Transparent Bounces 3 the squares let light through."""
+    settings = SETTINGS.replace(transparent_max_bounces=2)
+    linked = render(_behind_a_clear_card(blocker_set=1), settings)
+    unlinked = render(_behind_a_clear_card(), settings).color
+    assert linked.stats["features"]["shadow_linking"] == 1
+    np.testing.assert_array_equal(linked.color, unlinked)
+    passing = render(_behind_a_clear_card(), SETTINGS.replace(transparent_max_bounces=3)).color
+    assert (unlinked[..., 0] < 0.5 * passing[..., 0]).mean() > 0.02  # the squares' shadow at the limit
+
+
 def _lit_floor(material: int, **light) -> Scene:
     return Scene(camera=_camera(), meshes=[_quad("floor", 3.0, -1.0, material)], materials=MATERIALS,
                  lights=[_area("lamp", 0.0, **light)], world=World(np.zeros(3)))
