@@ -18,9 +18,8 @@ from ...core.motion import densify_transforms, resample_steps
 from ...core.scene import Scene, SceneError
 from .camera import export_camera, render_region, render_resolution  # noqa: F401  (re-exported)
 from .film import export_film
-from .light import export_light
-from .light_linking import LightLinking
 from .light import export_light, is_portal, portal_geometry
+from .light_linking import LightLinking
 from .material import MaterialExporter
 from .mesh import LocalMesh, instances_to_mesh, read_mesh
 from .motion import (Shutter, deforms, instance_key, object_steps, placed_motion, sample_motion,
