@@ -93,6 +93,39 @@ def render_still_exr(scene, path) -> None:
     assert bpy.ops.render.render(write_still=True, scene=scene.name) == {"FINISHED"}
 
 
+def composite_to_exr(scene, node_type: str, output: str, name: str = "test comp"):
+    """Composite a node of `node_type` (its `output` socket) as the scene's image, written as a single-layer
+    32-bit EXR on F12 (compositing switched on: the caller switches it off after rendering). Returns the node
+    for the caller to set up (its scene, layer, matte)."""
+    bpy = bpy_module()
+    tree = bpy.data.node_groups.new(name, "CompositorNodeTree")
+    tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+    node = tree.nodes.new(node_type)
+    node.scene = scene
+    out = tree.nodes.new("NodeGroupOutput")
+    tree.links.new(node.outputs[output], out.inputs[0])
+    scene.compositing_node_group = tree
+    use_float_exr(scene, multilayer=False)
+    scene.render.use_compositing = True
+    return node
+
+
+def cycles_and_monte_exrs(scene, folder: Path, spp: int, bounces: int) -> tuple[Path, Path]:
+    """F12 with Cycles, then with Monte (the scene's engine left on Monte): the same samples and bounces, seed 1,
+    2 threads, a 1.5-pixel Blackman-Harris filter, no compositing; returns the two multilayer EXRs' paths."""
+    from monte.addon import crosscheck as cc
+
+    scene.render.use_compositing = False
+    cc.configure_cycles(scene, spp, bounces, threads=2, seed=1, filter_type="blackman-harris", filter_width=1.5)
+    render_still_exr(scene, folder / "cycles.exr")
+    scene.render.engine = "MONTE"
+    m = scene.monte
+    m.samples, m.max_bounces, m.seed, m.threads = spp, bounces, 1, 2
+    m.filter_type, m.filter_width = "blackman-harris", 1.5
+    render_still_exr(scene, folder / "monte.exr")
+    return folder / "cycles.exr", folder / "monte.exr"
+
+
 def save_render_exr(scene, path, multilayer: bool = True) -> dict[str, np.ndarray]:
     """Save Blender's Render Result as a 32-bit EXR and read it back."""
     bpy = bpy_module()

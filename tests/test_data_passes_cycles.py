@@ -180,22 +180,10 @@ def test_compositor_cryptomatte_node_picks_each_object(renders, tmp_path):
     matte equals its mask (the Object Index pass's coverage: 1 inside, partial only on edges)."""
     scene, _, _, mon, _ = renders
     scene.render.engine = "MONTE"
-    tree = bpy.data.node_groups.new("crypto comp", "CompositorNodeTree")
-    tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
-    node = tree.nodes.new("CompositorNodeCryptomatteV2")
+    node = bf.composite_to_exr(scene, "CompositorNodeCryptomatteV2", "Matte", "crypto comp")
     node.source = "RENDER"
-    node.scene = scene
     node.layer_name = f"{scene.view_layers[0].name}.CryptoObject"
-    out = tree.nodes.new("NodeGroupOutput")
-    tree.links.new(node.outputs["Matte"], out.inputs[0])
-    scene.compositing_node_group = tree
-    settings = scene.render.image_settings
-    if hasattr(settings, "media_type"):
-        settings.media_type = "IMAGE"
-    settings.file_format = "OPEN_EXR"
-    settings.color_depth = "32"
     scene.view_settings.view_transform = "Standard"
-    scene.render.use_compositing = True
     crypto = mon["CryptoObject00"]
     for name in ("Ball", "Box", "Floor"):
         node.matte_id = name

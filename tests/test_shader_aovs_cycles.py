@@ -16,7 +16,6 @@ bpy = pytest.importorskip("bpy")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import blender_fixtures as bf  # noqa: E402
 
-from monte.addon import crosscheck as cc  # noqa: E402
 from monte.addon.engine import requested_passes, shader_aov_passes, unsupported_passes  # noqa: E402
 from monte.core import exr  # noqa: E402
 
@@ -82,17 +81,8 @@ def renders(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("shader_aovs")
     scene = aov_scene()
     layer = scene.view_layers[0].name
-    scene.render.use_compositing = False
-    cc.configure_cycles(scene, SPP, 4, threads=2, seed=1, filter_type="blackman-harris", filter_width=1.5)
-    bf.render_still_exr(scene, tmp / "cycles.exr")
-    cycles = passes_of(exr.read_exr(tmp / "cycles.exr"), layer)
-    scene.render.engine = "MONTE"
-    m = scene.monte
-    m.samples, m.max_bounces, m.seed, m.threads = SPP, 4, 1, 2
-    m.filter_type, m.filter_width = "blackman-harris", 1.5
-    bf.render_still_exr(scene, tmp / "monte.exr")
-    monte = passes_of(exr.read_exr(tmp / "monte.exr"), layer)
-    return scene, cycles, monte
+    cycles_exr, monte_exr = bf.cycles_and_monte_exrs(scene, tmp, SPP, 4)
+    return scene, passes_of(exr.read_exr(cycles_exr), layer), passes_of(exr.read_exr(monte_exr), layer)
 
 
 def _columns() -> np.ndarray:
@@ -159,19 +149,7 @@ def test_aov_passes_are_registered_and_reach_the_compositor(renders, tmp_path):
     assert requested_passes(layer, scene)[-2:] == ["coords", "noise"]
     assert unsupported_passes(layer) == []
     scene.render.engine = "MONTE"
-    tree = bpy.data.node_groups.new("aov comp", "CompositorNodeTree")
-    tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
-    node = tree.nodes.new("CompositorNodeRLayers")
-    node.scene = scene
-    out = tree.nodes.new("NodeGroupOutput")
-    tree.links.new(node.outputs["coords"], out.inputs[0])
-    scene.compositing_node_group = tree
-    settings = scene.render.image_settings
-    if hasattr(settings, "media_type"):
-        settings.media_type = "IMAGE"
-    settings.file_format = "OPEN_EXR"
-    settings.color_depth = "32"
-    scene.render.use_compositing = True
+    bf.composite_to_exr(scene, "CompositorNodeRLayers", "coords", "aov comp")
     path = tmp_path / "composited.exr"
     scene.render.filepath = str(path)
     try:

@@ -14,7 +14,6 @@ bpy = pytest.importorskip("bpy")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import blender_fixtures as bf  # noqa: E402
 
-from monte.addon import crosscheck as cc  # noqa: E402
 from monte.addon.engine import data_passes, requested_passes, unavailable_pass_warnings  # noqa: E402
 from monte.core import exr  # noqa: E402
 
@@ -63,18 +62,9 @@ def renders(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("vector")
     scene = moving_scene()
     layer = scene.view_layers[0].name
-    scene.render.use_compositing = False
-    cc.configure_cycles(scene, SPP, 2, threads=2, seed=1, filter_type="blackman-harris", filter_width=1.5)
-    scene.render.use_motion_blur = False
-    bf.render_still_exr(scene, tmp / "cycles.exr")
-    cycles = passes_of(exr.read_exr(tmp / "cycles.exr"), layer)
-    scene.render.engine = "MONTE"
-    m = scene.monte
-    m.samples, m.max_bounces, m.seed, m.threads = SPP, 2, 1, 2
-    m.filter_type, m.filter_width = "blackman-harris", 1.5
-    bf.render_still_exr(scene, tmp / "monte.exr")
-    monte = passes_of(exr.read_exr(tmp / "monte.exr"), layer)
-    return scene, cycles, monte
+    scene.render.use_motion_blur = False  # Cycles renders the Vector pass only without motion blur
+    cycles_exr, monte_exr = bf.cycles_and_monte_exrs(scene, tmp, SPP, 2)
+    return scene, passes_of(exr.read_exr(cycles_exr), layer), passes_of(exr.read_exr(monte_exr), layer)
 
 
 def interior(index: np.ndarray) -> np.ndarray:
