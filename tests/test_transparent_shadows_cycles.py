@@ -68,25 +68,32 @@ SUN = dict(kind="SUN", location=(0, 0, 5), rotation=(0.3, 0.2, 0), energy=2.0, a
 POINT = dict(kind="POINT", location=(-1.0, 0.5, 3.0), energy=600.0, shadow_soft_size=0.3)
 
 
-def test_transparent_bsdf_sheet_under_an_area_light(tmp_path):
+def _control_disagrees(scene, tmp_path, max_bounces: int):
+    """Monte's render of `scene` with a setting changed (the control) at check()'s small size, and Cycles' image
+    that check() rendered; asserts that the two disagree (per-pixel comparison). Returns (control, Cycles) RGB."""
     from monte.addon import crosscheck as cc
     from monte.core import compare as cmp
     from monte.core.exr import read_exr
 
-    scene = sheet_scene(transparent_bsdf, AREA)
-    check(scene, tmp_path, "small", max_bounces=2)
-    # The control: shadow rays blocked by the sheet (Transparent bounces 0: Monte before transparent shadows)
     scene.render.engine = "MONTE"
-    scene.cycles.transparent_max_bounces = 0
     m = scene.monte
-    m.samples, m.max_bounces, m.threads, m.seed = SIZES["small"][1], 2, 2, 1
+    m.samples, m.max_bounces, m.threads, m.seed = SIZES["small"][1], max_bounces, 2, 1
     wrong, wrong_var = cc.render_monte(scene)
     ch = read_exr(tmp_path / "cc" / "cycles.exr")
     cycles = np.stack([ch[c] for c in "RGB"], -1)
     cycles_var = np.stack([ch[f"variance.{c}"] for c in "RGB"], -1)
+    assert not cmp.compare(wrong, wrong_var, cycles, cycles_var, rel_floor=0.005).verdict()[0]
+    return wrong, cycles
+
+
+def test_transparent_bsdf_sheet_under_an_area_light(tmp_path):
+    scene = sheet_scene(transparent_bsdf, AREA)
+    check(scene, tmp_path, "small", max_bounces=2)
+    # The control: shadow rays blocked by the sheet (Transparent bounces 0: Monte before transparent shadows)
+    scene.cycles.transparent_max_bounces = 0
+    wrong, cycles = _control_disagrees(scene, tmp_path, max_bounces=2)
     left = np.s_[:, :14]  # under the sheet
     assert wrong[left].mean() < 0.9 * cycles[left].mean()
-    assert not cmp.compare(wrong, wrong_var, cycles, cycles_var, rel_floor=0.005).verdict()[0]
 
 
 def test_transparent_surfaces_are_not_bounces(tmp_path):
@@ -94,10 +101,6 @@ def test_transparent_surfaces_are_not_bounces(tmp_path):
     pass through them as a transparent bounce (up to Transparent Max Bounces), not as a bounce, so the floor
     behind them still gets its direct light (Monte counting them as bounces left it black). The control: Monte
     with Transparent Max Bounces 1, whose paths end at the second sheet, must disagree."""
-    from monte.addon import crosscheck as cc
-    from monte.core import compare as cmp
-    from monte.core.exr import read_exr
-
     scene = sheet_scene(transparent_bsdf, AREA)
     sheet = bpy.data.objects["sheet"]
     sheet.visible_camera = True
@@ -107,16 +110,9 @@ def test_transparent_surfaces_are_not_bounces(tmp_path):
                             bs.node_material("clear2", "ShaderNodeBsdfTransparent", Color=(0.9, 0.8, 0.9)))
     assert second.visible_camera
     check(scene, tmp_path, "small", max_bounces=1)
-    scene.render.engine = "MONTE"
     scene.cycles.transparent_max_bounces = 1
-    m = scene.monte
-    m.samples, m.max_bounces, m.threads, m.seed = SIZES["small"][1], 1, 2, 1
-    wrong, wrong_var = cc.render_monte(scene)
-    ch = read_exr(tmp_path / "cc" / "cycles.exr")
-    cycles = np.stack([ch[c] for c in "RGB"], -1)
-    cycles_var = np.stack([ch[f"variance.{c}"] for c in "RGB"], -1)
+    wrong, cycles = _control_disagrees(scene, tmp_path, max_bounces=1)
     assert wrong.mean() < 0.1 * cycles.mean()
-    assert not cmp.compare(wrong, wrong_var, cycles, cycles_var, rel_floor=0.005).verdict()[0]
 
 
 @pytest.mark.slow
