@@ -126,6 +126,15 @@ def cycles_and_monte_exrs(scene, folder: Path, spp: int, bounces: int) -> tuple[
     return folder / "cycles.exr", folder / "monte.exr"
 
 
+def footprint(image: np.ndarray) -> np.ndarray:
+    """How much a pass changes across one pixel: per pixel (and channel, for an (H, W, C) image) the largest
+    difference to a 4-neighbour; the shape of `image`."""
+    pad = np.pad(image, ((1, 1), (1, 1)) + ((0, 0),) * (image.ndim - 2), mode="edge")
+    h, w = image.shape[:2]
+    return np.max([np.abs(pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - image)
+                   for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1))], axis=0)
+
+
 def save_render_exr(scene, path, multilayer: bool = True) -> dict[str, np.ndarray]:
     """Save Blender's Render Result as a 32-bit EXR and read it back."""
     bpy = bpy_module()

@@ -108,14 +108,6 @@ def interior(index_image: np.ndarray) -> np.ndarray:
     return same
 
 
-def footprint(image: np.ndarray) -> np.ndarray:
-    """(H, W, C) how much a pass changes across one pixel: the largest difference to a 4-neighbour."""
-    pad = np.pad(image, ((1, 1), (1, 1), (0, 0)), mode="edge")
-    h, w = image.shape[:2]
-    return np.max([np.abs(pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - image)
-                   for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1))], axis=0)
-
-
 def test_index_and_position_passes_equal_cycles_per_pixel(renders):
     _, cyc, _, mon, _ = renders
     inside = interior(mon["Object Index"]) & interior(cyc["Object Index"])
@@ -126,7 +118,7 @@ def test_index_and_position_passes_equal_cycles_per_pixel(renders):
     assert set(np.unique(mon["Material Index"])) == {0.0, 11.0, 12.0, 13.0}
     # Position: one sample's hit within the filter's 1.5 pixels in each: at most 1.5 pixels' change apart
     diff = np.abs(mon["Position"] - cyc["Position"])[inside]
-    bound = 1.5 * footprint(cyc["Position"])[inside] + 1e-4
+    bound = 1.5 * bf.footprint(cyc["Position"])[inside] + 1e-4
     print(f"\nPosition: mean |Monte - Cycles| {diff.mean():.4f} m, max {diff.max():.4f} m, largest share of "
           f"the bound {(diff / bound).max():.2f}")
     assert np.all(diff <= bound)
@@ -147,7 +139,7 @@ def test_mist_and_uv_match_cycles(renders):
     inside = interior(mon["Object Index"]) & interior(cyc["Object Index"])
     # per pixel: means of 16 samples over the same footprint, apart by far less than the pass changes per pixel
     diff = np.abs(mon["Mist"] - cyc["Mist"])[inside]
-    assert np.all(diff <= 0.5 * footprint(cyc["Mist"])[inside] + 2e-3), diff.max()
+    assert np.all(diff <= 0.5 * bf.footprint(cyc["Mist"])[inside] + 2e-3), diff.max()
     world = inside & (mon["Object Index"][..., 0] == 0)
     assert world.sum() > 10 and np.all(mon["Mist"][world] == 1.0)  # the world: no mist written, 1
 

@@ -94,14 +94,6 @@ def _within(a: np.ndarray, b: np.ndarray, tol: np.ndarray) -> np.ndarray:
     return np.abs(a - b) <= tol
 
 
-def footprint(image: np.ndarray) -> np.ndarray:
-    """(H, W) how much a pass changes across one pixel: the largest difference to a 4-neighbour."""
-    pad = np.pad(image, 1, mode="edge")
-    h, w = image.shape
-    return np.max([np.abs(pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - image)
-                   for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1))], axis=0)
-
-
 def test_aovs_match_cycles_per_pixel(renders):
     """A pixel's value is the mean of its samples' values, each taken at a filter-jittered point: Monte and Cycles
     differ by that jitter's mean, a small share of the value's change across one pixel (measured at 32 spp: rms
@@ -113,7 +105,7 @@ def test_aovs_match_cycles_per_pixel(renders):
     away = np.abs(np.abs(x) - 1) > 2 * pixel  # columns not straddling a sheet's edge
     for name, c in (("coords", 0), ("coords", 1), ("noise", 0)):
         ref, got = cyc[name][..., c], mon[name][..., c]
-        reach = footprint(ref)[:, away]
+        reach = bf.footprint(ref)[:, away]
         signed = (got - ref)[:, away]
         live = reach > 0
         print(f"\n{name}[{c}]: |Monte - Cycles| / change across a pixel: largest "
@@ -138,7 +130,7 @@ def test_control_a_one_pixel_shift_fails_the_comparison(renders):
     away = np.abs(np.abs(x) - 1) > 2 * pixel
     ref = cyc["coords"][..., 0]
     shifted = np.roll(mon["coords"][..., 0], 1, axis=1)
-    assert not np.all(np.abs(shifted - ref)[:, away] <= 0.15 * footprint(ref)[:, away] + 1e-6)
+    assert not np.all(np.abs(shifted - ref)[:, away] <= 0.15 * bf.footprint(ref)[:, away] + 1e-6)
 
 
 def test_aov_passes_are_registered_and_reach_the_compositor(renders, tmp_path):

@@ -76,20 +76,13 @@ def interior(index: np.ndarray) -> np.ndarray:
     return same
 
 
-def footprint(image: np.ndarray) -> np.ndarray:
-    pad = np.pad(image, 1, mode="edge")
-    h, w = image.shape
-    return np.max([np.abs(pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - image)
-                   for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1))], axis=0)
-
-
 def test_vector_pass_matches_cycles_per_pixel(renders):
     _, (cyc, cyc_index), (mon, mon_index) = renders
     inside = interior(cyc_index) & interior(mon_index) & (cyc_index > 0)
     assert inside.sum() > 200 and (inside & (cyc_index == 2)).sum() > 20
     for c, axis in enumerate("XYZW"):
         ref, got = cyc[..., c], mon[..., c]
-        tol = 0.15 * footprint(ref) + 0.02
+        tol = 0.15 * bf.footprint(ref) + 0.02
         diff = np.abs(got - ref)[inside]
         print(f"\nVector.{axis}: Cycles mean {ref[inside].mean():+.3f} px (ball {ref[inside & (cyc_index == 2)].mean():+.3f}),"
               f" max |Monte - Cycles| {diff.max():.4f} px")
@@ -97,7 +90,7 @@ def test_vector_pass_matches_cycles_per_pixel(renders):
     # the ball moves about 1 m per frame: several pixels; the control: a vector of the wrong sign fails
     ball = inside & (cyc_index == 2)
     assert np.abs(cyc[ball][:, 0]).mean() > 3.0
-    assert not np.all(np.abs(-mon[..., 0] - cyc[..., 0])[ball] <= 0.15 * footprint(cyc[..., 0])[ball] + 0.02)
+    assert not np.all(np.abs(-mon[..., 0] - cyc[..., 0])[ball] <= 0.15 * bf.footprint(cyc[..., 0])[ball] + 0.02)
 
 
 def test_vector_pass_needs_motion_blur_off(renders):
