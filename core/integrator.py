@@ -218,7 +218,8 @@ class PreparedScene:
         verts, tris, mats, normals, uvs, smooth, objs, seen_by, terminator, layers = ([], [], [], [], [], [], [], [],
                                                                               [], [])
         catchers = []
-        link_rows, shadow_rows = [], []  # per mesh: (triangles, light_sets, receiver_set), (triangles, shadow_sets)
+        # per mesh: (triangles, light_sets, receiver_set), (triangles, shadow_sets, blocker_set)
+        link_rows, shadow_rows = [], []
         layer_names = list(scene.uv_layer_names)
         attribute_names, attrs = list(scene.attribute_names), []
         tangent_names = list(scene.tangent_layer_names)
@@ -240,7 +241,7 @@ class PreparedScene:
             seen_by.append((t, *(bool(getattr(mesh, f"visible_{kind}")) for kind in RAY_KINDS)))
             catchers.append(np.full(t, bool(mesh.shadow_catcher)))
             link_rows.append((t, int(mesh.light_sets), int(mesh.receiver_set)))
-            shadow_rows.append((t, int(mesh.shadow_sets)))
+            shadow_rows.append((t, int(mesh.shadow_sets), int(mesh.blocker_set)))
             if layer_names:  # the named UV maps node programs read; (0, 0) where a mesh lacks one
                 per = np.zeros((t, len(layer_names), 3, 2), np.float32)
                 for j, lname in enumerate(layer_names):
@@ -336,7 +337,7 @@ class PreparedScene:
         no_shadow = NoShadowLights.build(scene.lights, shift)
         features["lights_without_shadow"] = no_shadow is not None
         links = LightLinks.build(scene, shift, emissive, radius, sample_world, link_rows)
-        shadow_links = ShadowLinks.build(scene.lights, shift, shadow_rows)
+        shadow_links = ShadowLinks.build(scene.lights, shift, shadow_rows, emissive, vertices, triangles)
         features["light_linking"] = 0 if links is None else len(links.samplers)
         features["shadow_linking"] = 0 if shadow_links is None else len(shadow_links.sets)
         light_visibility = LightVisibility.build(scene.lights, shift)
@@ -368,8 +369,8 @@ class PreparedScene:
                                                        lambda t, b1, b2: emission_at(
                 prepared, t, b1, b2, path=np.broadcast_to(nee_state, (len(t), PATH_COLUMNS))))
             features["textured_emitters"] = 0 if prepared.textured is None else prepared.textured.count
-        if links is not None and (prepared.textured is not None or moving_emitters is not None):
-            _warn_unlinked_emitters(scene, link_rows, prepared.textured, moving_emitters)
+        if prepared.textured is not None or moving_emitters is not None:
+            _warn_unlinked_emitters(scene, link_rows, shadow_rows, prepared.textured, moving_emitters)
         return prepared
 
     def hit_triangles(self, tri: np.ndarray, ray_time: np.ndarray | None) -> tuple:
@@ -429,16 +430,20 @@ def _motion_geometry(meshes, shift: np.ndarray, corner_normals: np.ndarray | Non
 RAY_KINDS = ("camera", "shadow", "diffuse", "glossy", "transmission")  # core.scene.Mesh.visible_<kind>
 
 
-def _warn_unlinked_emitters(scene: Scene, link_rows: list, textured, moving: np.ndarray | None) -> None:
-    """Light linking is not applied to emitters whose emission a node program drives (core.textured_emitters)
-    nor to moving ones: name the case in the scene's warnings when such an emitter has a receiver set."""
-    receiver = np.concatenate([np.full(t, r, np.int64) for t, _, r in link_rows])
+def _warn_unlinked_emitters(scene: Scene, link_rows: list, shadow_rows: list, textured,
+                            moving: np.ndarray | None) -> None:
+    """Light and shadow linking are not applied to emitters whose emission a node program drives
+    (core.textured_emitters) nor to moving ones: name the case in the scene's warnings when such an emitter has a
+    receiver or a blocker set."""
     tris = np.concatenate([np.zeros(0, np.int64) if textured is None else np.asarray(textured.triangle_id),
                            np.zeros(0, np.int64) if moving is None else np.flatnonzero(moving)]).astype(np.int64)
-    if (receiver[tris] > 0).any():
-        msg = ("light linking: an emissive mesh whose emission a node program drives, or that moves, lights every "
-               "object (its receiver collection is not applied)")
-        if msg not in scene.warnings:
+    for rows, msg in (
+            (link_rows, "light linking: an emissive mesh whose emission a node program drives, or that moves, "
+                        "lights every object (its receiver collection is not applied)"),
+            (shadow_rows, "shadow linking: an emissive mesh whose emission a node program drives, or that moves, "
+                          "is blocked by every object (its blocker collection is not applied)")):
+        emitter_set = np.concatenate([np.full(row[0], row[2], np.int64) for row in rows])
+        if (emitter_set[tris] > 0).any() and msg not in scene.warnings:
             scene.warnings.append(msg)
 
 
@@ -555,6 +560,11 @@ class _SplitPaths:
     prev_normal: np.ndarray | None
     prev_transmits: np.ndarray | None
     origin_class: np.ndarray | None = None  # light linking: the receiver class of each ray's origin
+    # the paths' bounces and transparent bounces so far (None: not counted) and the kind of the ray that met the
+    # catcher (core.ray_visibility; None: not kept), which the copies go on from
+    bounces: np.ndarray | None = None
+    transparent_bounces: np.ndarray | None = None
+    bounce_kind: np.ndarray | None = None
 
 
 @dataclass
@@ -665,10 +675,12 @@ class _CatcherState:
         self.groups: list[_SplitPaths] = []
 
     def visit(self, tracer: "PathTracer", depth, hit, prim, clear_here, idx, pix, smp, o, d, tm, throughput,
-              prev_pdf, prev_delta, prev_normal, prev_transmits, radiance, transparent, origin_class=None) -> None:
+              prev_pdf, prev_delta, prev_normal, prev_transmits, radiance, transparent, origin_class=None,
+              bounces=None, transparent_bounces=None, bounce_kind=None) -> None:
         """The live paths' rays at `depth` have been intersected: paths that still count as transparent and meet
         a catcher for the first time split here (before anything at this vertex is added). origin_class: the
-        receiver class of each sample's ray origin (light linking) or None."""
+        receiver class of each sample's ray origin (light linking) or None; bounces, transparent_bounces,
+        bounce_kind: per sample, the path's bounce counters and its ray's kind, or None where not kept."""
         ps = tracer.ps
         if self.background is not None:  # the world along camera rays that escape (Cycles' Background pass)
             gone = np.flatnonzero(~hit & clear_here)
@@ -687,7 +699,9 @@ class _CatcherState:
                                        prev_pdf[on], prev_delta[on],
                                        None if prev_normal is None else prev_normal[on],
                                        None if prev_transmits is None else prev_transmits[on],
-                                       None if origin_class is None else origin_class[rows]))
+                                       None if origin_class is None else origin_class[rows],
+                                       *(None if a is None else a[rows].copy()
+                                         for a in (bounces, transparent_bounces, bounce_kind))))
 
     @staticmethod
     def _world(tracer: "PathTracer", o: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -814,9 +828,12 @@ class PathTracer:
         film_transparent = alpha and ps.scene.film.transparent
         # Per sample: the kind of ray its path casts next (core.ray_visibility), kept only when some mesh hides
         # from diffuse, glossy or transmission rays, or some light does (core.light_visibility).
-        bounce_kind = (np.zeros(n, np.int8) if not copies and (
+        # The catcher copies keep it where some light hides from some kind (their rays see only catchers).
+        bounce_kind = (np.zeros(n, np.int8) if (not copies and (
             any(k in ps.visible_to for k in ("diffuse", "glossy", "transmission"))
-            or ("camera" in ps.visible_to and ps.has_clear) or ps.light_visibility is not None) else None)
+            or ("camera" in ps.visible_to and ps.has_clear))) or ps.light_visibility is not None else None)
+        if bounce_kind is not None and copies and self._resume.bounce_kind is not None:
+            bounce_kind[:] = self._resume.bounce_kind
         catch = _CatcherState(n, self._needs_background()) if ps.catcher is not None and not copies else None
         # Shadow rays go through Transparent BSDFs: so does MIS (core.transparent_shadow.MisOrigins)
         through = transparent_shadow.MisOrigins.start(o) if ps.shadow_clear is not None else None
@@ -833,12 +850,14 @@ class PathTracer:
         # Per sample: its bounces so far and, apart, its passes straight through Transparent BSDFs, which Cycles
         # counts as transparent bounces up to Transparent Max Bounces and not as bounces (a transparent card does
         # not use up max_bounces). Kept only when some material has a Transparent BSDF lobe (the catcher copies
-        # resume at their split and count every surface as a bounce, as before).
+        # go on from their paths' counts at the split).
         bounces = transparent_bounces = None
         transparent_limit = max(int(s.transparent_max_bounces), 1)  # Cycles: the next surface after the limit ends it
         last_vertex = s.max_bounces + 1
-        if through is not None and not copies:
+        if through is not None:
             bounces, transparent_bounces = np.zeros(n, np.int32), np.zeros(n, np.int32)
+            if copies and self._resume.bounces is not None:
+                bounces[:], transparent_bounces[:] = self._resume.bounces, self._resume.transparent_bounces
             last_vertex += transparent_limit
 
         for depth in range(start_depth, last_vertex + 1):
@@ -869,7 +888,8 @@ class PathTracer:
             clear_here = clear[idx] if alpha else None
             if catch is not None:
                 catch.visit(self, depth, hit, hits.prim, clear_here, idx, pix, smp, o, d, tm, throughput, prev_pdf,
-                            prev_delta, prev_normal, prev_transmits, radiance, transparent, origin_class)
+                            prev_delta, prev_normal, prev_transmits, radiance, transparent, origin_class,
+                            bounces, transparent_bounces, bounce_kind)
             if film_transparent:
                 # Rays that still count as transparent and escape: alpha 0 and no world colour.
                 gone = np.flatnonzero(~hit & clear_here)
@@ -939,6 +959,11 @@ class PathTracer:
                     if origin_class is not None and depth > 0:  # an emitter not linked to the ray's origin
                         cls_e = origin_class[idx[e]]
                         w = w * ps.links.emitter_linked[cls_e, em_idx]
+                    if (ps.shadow_links is not None and ps.shadow_links.emitter_set is not None and depth > 0
+                            and self.mis and self.use_nee):
+                        # shadow-linked emitters count from light sampling alone after a non-delta bounce
+                        # (core.light_linking)
+                        w = w * ~(ps.shadow_links.hides_triangles(prim[e]) & ~prev_delta[e])
                     self._add_split(radiance, lp, depth, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))

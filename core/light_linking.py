@@ -12,13 +12,15 @@ linked ones use that class's selection, so the two strategies stay consistent. C
 (they leave no object). Objects are grouped into receiver classes (the distinct memberships of the sets some
 emitter uses), one sampler each.
 
-Shadow linking: a light with a blocker collection (`blocker_set` b > 0) is shadowed only by the objects whose
-`shadow_sets` hold b. Its light samples are matched to it geometrically (core.light_shadow's matcher) and their
-shadow rays cast against those objects alone. Cycles adds, for BSDF-sampled rays, a pass that finds such a light
-behind an object that does not block it; Monte instead takes such lights' contribution from light sampling
-alone (MIS weight 1 for their light samples, and BSDF rays after a non-delta bounce do not see them), which has
-the same expectation. Rays after a delta bounce (mirrors, clear glass) still see them, blocked by whatever they
-hit first. Emissive meshes are not shadow-linked (the add-on warns).
+Shadow linking: an emitter with a blocker collection (`blocker_set` b > 0: a light, or an emissive mesh) is
+shadowed only by the objects whose `shadow_sets` hold b. Its light samples are matched to it geometrically (a
+light by core.light_shadow's matcher; an emissive mesh's by a ray cast against its own triangles, which must meet
+the sampled point) and their shadow rays cast against those objects alone. Cycles adds, for BSDF-sampled rays, a
+pass that finds such an emitter behind an object that does not block it; Monte instead takes such emitters'
+contribution from light sampling alone (MIS weight 1 for their light samples, and BSDF rays after a non-delta
+bounce do not see them), which has the same expectation. Rays after a delta bounce (mirrors, clear glass) still
+see them, blocked by whatever they hit first. Emissive meshes whose emission a node program drives, or that move,
+are not shadow-linked (core.integrator names them in a warning).
 
 Only scenes that use linking pay for it: `LightLinks.build` and `ShadowLinks.build` return None otherwise.
 """
@@ -30,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .accel import Accelerator
 from .light_shadow import NoShadowLights
 from .lights import EmissiveTriangles, LightSample, LightSampler
 
@@ -145,22 +148,44 @@ class LightLinks:
         return ok, pdf
 
 
+# A light sample lies on a shadow-linked emissive triangle when the ray towards it meets one of those triangles
+# within this fraction of the sample's distance (float32 ray casting; light samples on distinct emitters are far
+# further apart).
+_ON_EMITTER = 1e-3
+
+
 @dataclass
 class ShadowLinks:
-    """The shadow-linked lights: per blocker set b, the matcher of its lights' samples and the (T,) bool mask of
-    the triangles that block them; `hidden` the ids of all of them (unseen by BSDF rays after a non-delta
-    bounce, see the module docstring)."""
+    """The shadow-linked emitters: per blocker set b (`sets`), the matcher of its lights' samples (None when only
+    emissive meshes use b) and the (T,) bool mask of the triangles that block them; `hidden` the ids of the lights
+    (unseen by BSDF rays after a non-delta bounce, see the module docstring). Shadow-linked emissive triangles:
+    `emitter_set` (T,) int, each triangle's position in `sets` + 1 (0: not shadow-linked), and the ray-casting
+    structure of those triangles with their scene indices (`emitters`); both None when no emissive mesh is
+    shadow-linked."""
 
     sets: list
     matchers: list
     blockers: list
     hidden: frozenset
+    emitter_set: np.ndarray | None = None
+    emitters: tuple | None = None
 
     @classmethod
-    def build(cls, lights: list, shift, mesh_rows: list[tuple[int, int]]) -> "ShadowLinks | None":
-        """mesh_rows: per mesh with triangles, in the prepared order, (triangle count, shadow_sets mask). None
-        when no light has a blocker set."""
-        used = sorted({int(getattr(lt, "blocker_set", 0)) for lt in lights} - {0})
+    def build(cls, lights: list, shift, mesh_rows: list[tuple[int, int, int]],
+              emissive: EmissiveTriangles | None = None, vertices: np.ndarray | None = None,
+              triangles: np.ndarray | None = None) -> "ShadowLinks | None":
+        """mesh_rows: per mesh with triangles, in the prepared order, (triangle count, shadow_sets mask, its own
+        blocker_set as an emitter); emissive: the scene's light-sampled emitters, vertices / triangles the
+        prepared scene's (the emitters' ray-casting structure is built from them). None when no emitter has a
+        blocker set."""
+        blocker_of_triangle = np.concatenate([np.full(t, b, np.int64) for t, _, b in mesh_rows]) \
+            if mesh_rows else np.zeros(0, np.int64)
+        linked_emitters = np.zeros(0, np.int64)
+        if emissive is not None and emissive.count:
+            ids = np.asarray(emissive.triangle_id, np.int64)
+            linked_emitters = ids[blocker_of_triangle[ids] > 0]
+        used = sorted(({int(getattr(lt, "blocker_set", 0)) for lt in lights}
+                       | set(np.unique(blocker_of_triangle[linked_emitters]).tolist())) - {0})
         if not used:
             return None
         sets, matchers, blockers, hidden = [], [], [], set()
@@ -169,14 +194,38 @@ class ShadowLinks:
             hidden |= {id(lt) for lt in chosen}
             sets.append(b)
             matchers.append(NoShadowLights.of(chosen, shift))
-            blockers.append(np.concatenate([np.full(t, linked(mask, b), bool) for t, mask in mesh_rows])
+            blockers.append(np.concatenate([np.full(t, linked(mask, b), bool) for t, mask, _ in mesh_rows])
                             if mesh_rows else np.zeros(0, bool))
-        return cls(sets, matchers, blockers, frozenset(hidden))
+        emitter_set = emitters = None
+        if len(linked_emitters):
+            emitter_set = np.zeros(len(blocker_of_triangle), np.int64)
+            position = {b: j + 1 for j, b in enumerate(sets)}
+            emitter_set[linked_emitters] = [position[int(b)] for b in blocker_of_triangle[linked_emitters]]
+            keep = np.sort(linked_emitters)
+            emitters = (Accelerator(vertices, np.ascontiguousarray(triangles[keep], np.int32)), keep)
+        return cls(sets, matchers, blockers, frozenset(hidden), emitter_set, emitters)
 
     def set_of_samples(self, p, wi, dist) -> np.ndarray:
         """(N,) int: for each light sample (from p towards wi, at dist), the position in `sets` + 1 of the
-        shadow-linked light it lies on, 0 for every other light."""
+        shadow-linked emitter it lies on, 0 for every other emitter."""
         out = np.zeros(len(dist), np.int64)
         for j, matcher in enumerate(self.matchers):
-            out[(out == 0) & matcher.matches(p, wi, dist)] = j + 1
+            if matcher is not None:
+                out[(out == 0) & matcher.matches(p, wi, dist)] = j + 1
+        if self.emitters is not None:
+            rows = np.flatnonzero((out == 0) & np.isfinite(dist) & (dist > 0))
+            if len(rows):
+                accel, keep = self.emitters
+                reach = np.asarray(dist[rows], np.float32)
+                hits = accel.intersect(np.asarray(p[rows], np.float32), np.asarray(wi[rows], np.float32),
+                                       (reach * np.float32(1 + _ON_EMITTER)).astype(np.float32))
+                on = (hits.prim >= 0) & (np.abs(hits.t - reach) <= np.float32(_ON_EMITTER) * reach)
+                out[rows[on]] = self.emitter_set[keep[hits.prim[on]]]
         return out
+
+    def hides_triangles(self, prim: np.ndarray) -> np.ndarray:
+        """(N,) bool: the triangles `prim` are shadow-linked emitters (BSDF rays after a non-delta bounce do not
+        count them)."""
+        if self.emitter_set is None:
+            return np.zeros(len(prim), bool)
+        return self.emitter_set[prim] > 0

@@ -238,7 +238,8 @@ class Mesh:
       there, as Cycles.
     light_sets / shadow_sets: bitmasks of the light sets (core.light_linking, bit k: set k, 0..63) the object
       receives light from / blocks the light of; -1 (every bit, the default): every set. receiver_set: as an
-      emitter (an emissive mesh), the light set it lights; 0: every object.
+      emitter (an emissive mesh), the light set it lights; 0: every object. blocker_set: as an emitter, the light
+      set whose members alone block its light (Shadow Linking); 0: every object.
     motion_vertices: optional (S, V, 3) world positions of the vertices at S >= 2 times evenly spaced over the
       camera's shutter (step 0 at shutter open, S - 1 at close; core.motion): motion blur of a moving or
       deforming mesh. `vertices` stays the frame's pose (light sampling of emitters reads it). None: still.
@@ -268,6 +269,7 @@ class Mesh:
     light_sets: int = -1
     shadow_sets: int = -1
     receiver_set: int = 0
+    blocker_set: int = 0
     # The Vector pass (core.data_passes): (2, V, 3) world positions of the vertices at the previous and the next
     # frame; None: where it is now at both.
     vector_vertices: np.ndarray | None = None

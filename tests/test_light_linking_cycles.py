@@ -10,7 +10,7 @@ Scenes (diffuse quads on the ground seen from above by an orthographic camera):
   rough glass sheet over a floor under an area light with Transmission off.
 - blockers: a floor and a square hovering over it under an area light whose blocker collection holds only a
   small cube off to the side: the square casts no shadow from that light (Cycles' shadow linking); the square
-  itself is lit.
+  itself is lit. The same with an emissive quad in place of the area light (shadow linking of an emissive mesh).
 
 Each is compared by its mean (within max(4 sigma, 1 %) capped at 1 %) and per-pixel z-scores (core.compare:
 at most 1 % of pixels beyond 5 sigma), Cycles' per-pixel variance from 4 seeds at half Monte's samples, Monte's
@@ -93,6 +93,19 @@ def blockers_scene(linked: bool = True):
     return scene
 
 
+def emissive_blockers_scene(linked: bool = True):
+    """blockers_scene lit by an emissive quad (its blocker collection: the cube) instead of the area light."""
+    scene = _base()
+    _quad("floor", -3.5, 3.5, -3.5, 3.5, 0, bf.diffuse("floor", (0.8, 0.8, 0.8)))
+    _quad("square", -1.0, 1.0, -1.0, 1.0, 0.8, bf.diffuse("square", (0.2, 0.5, 0.8)))
+    _quad("cube", 2.4, 3.0, 2.4, 3.0, 0.4, bf.diffuse("cube", (0.8, 0.3, 0.2)))
+    glow = bf.node_material("glow", "ShaderNodeEmission", Strength=30.0)
+    lamp = _quad("lamp", -0.75, 0.75, -0.75, 0.75, 2.5, glow)
+    if linked:
+        lamp.light_linking.blocker_collection = _linking_collection("lamp blockers", {"cube": "INCLUDE"})
+    return scene
+
+
 def visibility_scene(flag: str | None):
     """Diffuse, half diffuse / half glossy (a Mix Shader) and glossy quads under a square area light and a sphere
     light, both with Ray Visibility `flag` turned (None: defaults)."""
@@ -170,6 +183,10 @@ def test_blocker_collection_matches_cycles(tmp_path):
     check("shadow linking", blockers_scene, tmp_path)
 
 
+def test_emissive_mesh_blocker_collection_matches_cycles(tmp_path):
+    check("shadow linking of an emissive mesh", emissive_blockers_scene, tmp_path)
+
+
 @pytest.mark.parametrize("flag", ["visible_diffuse", "visible_glossy",
                                   pytest.param("visible_camera", marks=pytest.mark.slow)])
 def test_light_ray_visibility_matches_cycles(flag, tmp_path):
@@ -179,7 +196,7 @@ def test_light_ray_visibility_matches_cycles(flag, tmp_path):
 def test_collections_become_light_sets_as_blenders_manual_states():
     """Include and Exclude: included minus excluded (a child collection's state applies to all inside it), only
     excluded: everything else; emitters sharing a collection share its set; instances keep their object's
-    sets; an emissive mesh's Blocker Collection is named in a warning."""
+    sets; an emissive mesh's Blocker Collection gives it a blocker set of its own."""
     scene = _base()
     grey = bf.diffuse("grey", (0.8, 0.8, 0.8))
     for i, name in enumerate("abcd"):
@@ -205,8 +222,8 @@ def test_collections_become_light_sets_as_blenders_manual_states():
                 for name in "abcd"}
     assert receives == {"a": (True, True), "b": (True, True), "c": (False, True), "d": (False, False)}
     assert [bool(masks[name].shadow_sets >> blocker_set & 1) for name in "abcd"] == [True, True, False, False]
-    assert any("object 'd': Shadow Linking (collection 'only excluded') of an emissive mesh is not supported" in w
-               for w in core.warnings)
+    assert masks["d"].blocker_set > 0 and masks["d"].blocker_set != blocker_set and masks["a"].blocker_set == 0
+    assert not any("Shadow Linking" in w for w in core.warnings)
 
 
 def test_light_transmission_visibility_matches_cycles(tmp_path):

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from monte.core.render import render
-from monte.core.scene import Camera, Film, Lobe, Material, Mesh, Scene, SunLight, World
+from monte.core.scene import AreaLight, Camera, Film, Lobe, Material, Mesh, Scene, SunLight, World
 from monte.core.settings import RenderSettings
 
 RES = (24, 24)
@@ -158,6 +158,42 @@ def test_catcher_seen_through_a_transparent_bsdf_still_splits():
     np.testing.assert_allclose(result.color[UMBRA][..., 3], 1.0, atol=1e-6)
     np.testing.assert_allclose(result.color[LIT][..., 3], 0.0, atol=1e-5)
     np.testing.assert_array_equal(result.shadow_catcher[UMBRA], 0.0)
+
+
+def test_catcher_copies_keep_the_transparent_bounces_apart():
+    # Max Bounces 0 behind the Transparent BSDF sheet: the pass through the sheet is a transparent bounce, not a
+    # bounce, so the catcher behind it gets its direct light, in the path and in its shadow-free copy alike
+    # (a copy counting the sheet as a bounce would end there unlit: the umbra's pass would read 1, alpha 0).
+    scene = _scene(Film(transparent=True))
+    scene.materials.append(Material("clear", [Lobe("refraction", np.ones(3), roughness=0.0, ior=1.0)]))
+    sheet = _square("sheet", 1.0, -0.3, 2)
+    sheet.visible_shadow = False
+    scene.meshes.append(sheet)
+    result = render(scene, SETTINGS.replace(max_bounces=0))
+    np.testing.assert_array_equal(result.shadow_catcher[UMBRA], 0.0)
+    np.testing.assert_allclose(result.shadow_catcher[LIT], 1.0, atol=1e-5)
+    np.testing.assert_allclose(result.color[UMBRA][..., 3], 1.0, atol=1e-6)
+    np.testing.assert_allclose(result.color[LIT][..., 3], 0.0, atol=1e-5)
+
+
+def test_catcher_copies_honour_a_lights_ray_visibility():
+    # An area light hidden from diffuse rays over the diffuse catcher (no sun): the catcher gets nothing from it,
+    # by light sampling or by BSDF rays, in the path and in its copy, so there is no shadow to catch: the pass is
+    # 1 and the film transparent everywhere. A copy whose BSDF rays saw the light would read a shadow (pass 0,
+    # alpha > 0) wherever one found it. Control: with the light visible, the square's shadow is in the pass.
+    def scene(hidden: bool) -> Scene:
+        sc = _scene(Film(transparent=True))
+        m = np.eye(4)
+        m[:3, 3] = (0.0, 0.0, -0.2)  # above the square (unseen by the camera, as the square)
+        sc.lights = [AreaLight("lamp", m, np.full(3, 5.0), size_x=0.3, size_y=0.3, visible_diffuse=not hidden)]
+        return sc
+
+    result = render(scene(True), SETTINGS)
+    assert result.stats["features"]["light_ray_visibility"]
+    np.testing.assert_array_equal(result.shadow_catcher, 1.0)
+    np.testing.assert_array_equal(result.color, 0.0)
+    lit = render(scene(False), SETTINGS)
+    assert lit.shadow_catcher[UMBRA].mean() < 0.5
 
 
 def _mirror_scene(catcher: bool) -> Scene:

@@ -59,7 +59,8 @@ class _Prototype:
     visibility: tuple = (True,) * 5  # Mesh.visible_<kind> for each of MESH_RAY_VISIBILITY
     shadow_terminator_offset: float = 0.0
     shadow_catcher: bool = False  # Object > Visibility > Shadow Catcher (core.scene.Mesh.shadow_catcher)
-    links: tuple = (-1, -1, 0)  # light linking: Mesh.light_sets, shadow_sets, receiver_set (export/light_linking.py)
+    # light and shadow linking: Mesh.light_sets, shadow_sets, receiver_set, blocker_set (export/light_linking.py)
+    links: tuple = (-1, -1, 0, 0)
     instance_keys: list = field(default_factory=list)  # per instance: its key across subframes (motion blur)
     steps: int = 0  # motion steps (the most of its instances'); 0: no motion blur
     deform_name: str | None = None  # the object whose deforming mesh this is (deformation blur), or None
@@ -87,9 +88,9 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     None when it has nothing to render. linking: the export's LightLinking (None: none)."""
     original = obj.original
     _warn_object_settings(obj, original, view_layer, warnings)
-    links = (-1, -1, 0)
+    links = (-1, -1, 0, 0)
     if linking is not None and linking.active:
-        links = (*linking.membership(obj), linking.emitter(obj)[0])
+        links = (*linking.membership(obj), *linking.emitter(obj))
     held = is_holdout(original, view_layer)
     seen = tuple(bool(getattr(obj, f"visible_{kind}", True)) for kind in MESH_RAY_VISIBILITY)
     if is_indirect_only(original, view_layer):
@@ -97,7 +98,7 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     slots = tuple(slot.material for slot in obj.material_slots)
     catcher = bool(getattr(obj, "is_shadow_catcher", False))
     slot_key = (tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ()) + seen
-                + (("shadow catcher",) if catcher else ()) + (() if links == (-1, -1, 0) else (("links",) + links)))
+                + (("shadow catcher",) if catcher else ()) + (() if links == (-1, -1, 0, 0) else (("links",) + links)))
     terminator = _terminator_offset(original)
     if kind == "MESH" and obj.data is not None:
         key = ("mesh", obj.data.as_pointer(), slot_key, terminator)
@@ -137,14 +138,6 @@ def _warn_once(warnings: list[str], msg: str) -> None:
         warnings.append(msg)
 
 
-def _warn_mesh_shadow_linking(obj, warnings: list[str]) -> None:
-    """Shadow Linking of an emissive mesh is not rendered (its light and receivers' links are)."""
-    coll = getattr(getattr(obj, "light_linking", None), "blocker_collection", None)
-    if coll is not None:
-        _warn_once(warnings, f"object {obj.original.name!r}: Shadow Linking (collection {coll.name!r}) of an "
-                             "emissive mesh is not supported; every object blocks its light")
-
-
 def _warn_light_settings(obj, warnings: list[str]) -> None:
     """Name each light setting that changes Cycles' image and that Monte does not render."""
     name = obj.original.name
@@ -157,7 +150,6 @@ def _warn_light_settings(obj, warnings: list[str]) -> None:
 def _warn_object_settings(obj, original, view_layer, warnings: list[str]) -> None:
     """Name each object setting that changes Cycles' image and that Monte does not render."""
     name = original.name
-    _warn_mesh_shadow_linking(obj, warnings)
     off = [label for prop, label in UNSUPPORTED_RAY_VISIBILITY.items() if not getattr(obj, prop, True)]
     if off:
         _warn_once(warnings, f"object {name!r}: Ray Visibility {', '.join(off)} off is not supported; rendered "
@@ -399,7 +391,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
         for kind, seen in zip(MESH_RAY_VISIBILITY, proto.visibility):
             setattr(mesh, f"visible_{kind}", seen)
         mesh.shadow_catcher = proto.shadow_catcher
-        mesh.light_sets, mesh.shadow_sets, mesh.receiver_set = proto.links
+        mesh.light_sets, mesh.shadow_sets, mesh.receiver_set, mesh.blocker_set = proto.links
         if motion is not None and proto.steps:
             _attach_motion(mesh, proto, matrices, motion, warnings)
         meshes.append(mesh)
