@@ -1028,7 +1028,11 @@ class PathTracer:
                 survive = survive & ~ending
             if depth >= s.rr_depth:
                 q = np.minimum(np.sqrt(_max3(throughput)), np.float32(1.0))
+                before_roulette = survive
                 survive = survive & (u_vertex[:, 3] < q)
+                if aov_path is not None:  # AOV Output nodes write before the roulette, as Cycles' shader does
+                    self._rouletted_aovs(aov_path, np.flatnonzero(before_roulette & ~survive), idx, prim, hits, d,
+                                         tr, path_state, hit_dp)
             rows = np.flatnonzero(survive)
             if want_aovs and depth == 0:
                 hit_rows = np.flatnonzero(hit)
@@ -1151,6 +1155,22 @@ class PathTracer:
                 first = FirstHit(None, None, None)
             first.catcher = catch.finish(self, radiance, transparent)
         return radiance, first, transparent
+
+    def _rouletted_aovs(self, aov_path: AovPath, ended: np.ndarray, idx, prim, hits, d, tr, path_state,
+                        hit_dp) -> None:
+        """The AOV Output writes (core.shader_aovs) of the surfaces where Russian roulette ends the paths `ended`
+        (rows of the live paths idx): shaded for their AOVs alone."""
+        ended = ended[aov_path.writing(idx[ended])]
+        if len(ended) == 0:
+            return
+        ps = self.ps
+        g = self._surface(ended, prim, hits.u, hits.v, d, tr)
+        mat = ps.material_index[prim[ended]]
+        lobes = ps.materials.gather(mat, g.uv)
+        out = np.zeros((len(ended), aov_path.values.shape[1], 4), np.float32)
+        self._shade(g, mat, prim[ended], d[ended], lobes, bary=(hits.u[ended], hits.v[ended]),
+                    path=_rows_of(path_state, idx[ended]), dp=None if hit_dp is None else hit_dp[ended], aov_out=out)
+        aov_path.record(idx[ended], np.ones(len(ended), bool), out, lobes)
 
     def _needs_background(self) -> bool:
         """Whether the shadow catcher needs the world behind it (Cycles' approximate catcher on an opaque film)."""
