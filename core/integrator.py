@@ -1428,7 +1428,7 @@ class PathTracer:
             if transparent_bounces is not None:  # Cycles: the limit less the transparent bounces already made
                 max_hits = np.maximum(max_hits - transparent_bounces[sample_of[:count]], 0)
             blocked, transmit = transparent_shadow.trace(self, occluders, origin[:count], direction[:count],
-                                                         tmax[:count], max_hits)
+                                                         tmax[:count], max_hits, shadow_time)
         if linked_set is not None and not self._catcher_copies:
             self._shadow_linked(linked_set, idx, can, sample_of[:count], origin[:count], direction[:count],
                                 tmax[:count], shadow_time, blocked, transmit, max_hits)
@@ -1501,7 +1501,7 @@ class PathTracer:
             else:
                 hits = max_hits[r] if np.ndim(max_hits) else max_hits  # the remaining transparent bounces
                 blocked[r], transmit[r] = transparent_shadow.trace(self, occluders, origin[r], direction[r], tmax[r],
-                                                                   hits)
+                                                                   hits, t)
 
     def _sample_textured(self, p: np.ndarray, u_select: np.ndarray, u: np.ndarray,
                          path: np.ndarray | None = None) -> LightSample:

@@ -42,26 +42,31 @@ def transparency(lobes: LobeBatch) -> np.ndarray:
 
 
 def trace(tracer, occluders: tuple[Accelerator, np.ndarray | None], origin: np.ndarray, direction: np.ndarray,
-          tmax: np.ndarray, max_hits: "int | np.ndarray") -> tuple[np.ndarray, np.ndarray]:
+          tmax: np.ndarray, max_hits: "int | np.ndarray",
+          time: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(blocked (N,) bool, transmittance (N, 3) float32) of N shadow rays through the scene of
     `tracer` (a core.integrator.PathTracer: its prepared scene, surface interactions and node programs).
 
     occluders: the ray-casting structure the shadow rays see and the scene triangle index of each of its
     triangles (None: the whole scene, same indices). A ray is blocked at its first surface whose material is
     not in the scene's clear materials, whose transparency is black, or that would be its (max_hits + 1)-th
-    (max_hits: one limit for all, or (N,) one per ray)."""
+    (max_hits: one limit for all, or (N,) one per ray). time: (N,) the rays' times over the shutter (motion blur:
+    moving surfaces are met, and shaded, where they are at each ray's time), None for a still scene."""
     ps = tracer.ps
     clear = ps.shadow_clear
     accel, keep = occluders
     n = len(origin)
     limit = np.broadcast_to(np.asarray(max_hits, np.int64), (n,))
-    blocked = accel.occluded(origin, direction, tmax)
+    # the times only where the structure has motion (without, surfaces are shaded at the frame's pose too)
+    time = None if time is None or getattr(accel, "motion", None) is None else np.asarray(time, np.float32)
+    blocked = accel.occluded(origin, direction, tmax, time)
     transmit = np.ones((n, 3), np.float32)
     rows = np.flatnonzero(blocked)
     o, d, tm = origin[rows], np.ascontiguousarray(direction[rows]), tmax[rows].copy()
+    tr = None if time is None else time[rows]
     layer = 0
     while len(rows):
-        hits = accel.intersect(o, d, tm)
+        hits = accel.intersect(o, d, tm, tr)
         prim = hits.prim
         if keep is not None and len(keep):
             prim = np.where(prim >= 0, keep[np.maximum(prim, 0)], np.int32(-1)).astype(np.int32)
@@ -74,7 +79,7 @@ def trace(tracer, occluders: tuple[Accelerator, np.ndarray | None], origin: np.n
         at, mat = at[clear[mat]], mat[clear[mat]]  # the others meet an opaque surface: blocked
         if len(at) == 0:
             break
-        g = tracer._surface(at, prim, hits.u, hits.v, d)
+        g = tracer._surface(at, prim, hits.u, hits.v, d, tr)
         lobes = ps.materials.gather(mat, g.uv)
         if ps.shading is not None:
             tracer._shade(g, mat, prim[at], d[at], lobes, bary=(hits.u[at], hits.v[at]))
@@ -90,6 +95,7 @@ def trace(tracer, occluders: tuple[Accelerator, np.ndarray | None], origin: np.n
         passed = tm <= 0
         blocked[rows[passed]] = False
         rows, o, d, tm = rows[~passed], o[~passed], np.ascontiguousarray(d[~passed]), tm[~passed]
+        tr = None if time is None else time[rows]
         layer += 1
     return blocked, transmit
 

@@ -322,3 +322,37 @@ def _diffuse():
     from monte.core.scene import Lobe
 
     return Lobe("diffuse", color=np.array([0.8, 0.8, 0.8]))
+
+
+def test_a_moving_transparent_card_casts_its_shadow_where_it_is_at_each_rays_time():
+    """A Transparent BSDF card (transparency 0.5, unseen by the camera; x in [-0.5, 0.5] at the frame) moving
+    from x = -1 to x = +1 over the shutter between a sun shining straight down and a grey floor: the shadow rays
+    pass it where it is at their time, so each column reads L0 (1 - 0.5 c) with c its mean coverage by the card
+    over pixel and shutter (0.5 in the middle: 0.75 L0, where the frame's pose would give 0.5 L0), each sample
+    0.5 L0 or L0: within 5 standard errors of that mean."""
+    from monte.core.scene import Lobe, SunLight
+
+    def card(dx: float) -> np.ndarray:
+        return np.array([[-0.5, -3, 0.5], [0.5, -3, 0.5], [0.5, 3, 0.5], [-0.5, 3, 0.5]], np.float64) + [dx, 0, 0]
+
+    floor = Mesh("floor", np.array([[-3, -3, 0], [3, -3, 0], [3, 3, 0], [-3, 3, 0]], np.float64),
+                 np.array([[0, 1, 2], [0, 2, 3]]), material_index=0)
+    veil = Mesh("veil", card(0.0), np.array([[0, 1, 2], [0, 2, 3]]), material_index=1, visible_camera=False)
+    veil.motion_vertices = np.stack([card(-1.0), card(1.0)])
+    materials = [Material("grey", [Lobe("diffuse", np.full(3, 0.5))]),
+                 Material("veil", [Lobe("refraction", np.full(3, 0.5), roughness=0.0, ior=1.0)])]
+    sun = SunLight("sun", np.array([0.0, 0.0, -1.0]), np.full(3, 3.0), angle=0.0)
+    scene = Scene(camera=_camera(), meshes=[floor, veil], materials=materials, lights=[sun],
+                  world=World(color=np.zeros(3)))
+    result = render(scene, _settings(spp=64))
+    assert result.stats["features"]["transparent_shadows"] and result.stats["features"]["moving_triangles"] == 2
+    lit = 0.5 * 3.0 / math.pi
+    columns = result.color[..., 0].astype(np.float64).mean(axis=0) / lit
+    u = (np.arange(20000) + 0.5) / 20000
+    edges = -SCALE / 2 + SCALE * np.arange(WIDTH + 1) / WIDTH
+    lo, hi = -1.5 + 2 * u, -0.5 + 2 * u
+    cover = np.clip(np.minimum(hi[:, None], edges[None, 1:]) - np.maximum(lo[:, None], edges[None, :-1]), 0, None)
+    expected = 1 - 0.5 * (cover / (SCALE / WIDTH)).mean(axis=0)
+    sigma = 0.5 * np.sqrt(np.maximum((1 - expected) * 2 * (1 - 2 * (1 - expected)), 1 / 64) / (64 * HEIGHT))
+    assert np.all(np.abs(columns - expected) < 5 * sigma + 1e-5), np.c_[columns, expected]
+    assert abs(columns[WIDTH // 2 - 4:WIDTH // 2 + 4].mean() - 0.75) < 0.02
