@@ -211,9 +211,11 @@ def render_settings(scene, overrides=None) -> RenderSettings:
         values["seed"] = (values["seed"] + scene.frame_current) % (2**32)
     values["adaptive_threshold"] = props.adaptive_threshold if props.use_adaptive_sampling else 0.0
     values["denoising_features"] = bool(props.use_denoising)
-    cycles = getattr(scene, "cycles", None)  # Light Paths > Transparent bounces: Cycles' setting, shared
+    cycles = getattr(scene, "cycles", None)  # Light Paths > Transparent bounces: Cycles' settings, shared
     if cycles is not None and hasattr(cycles, "transparent_max_bounces"):
         values["transparent_max_bounces"] = int(cycles.transparent_max_bounces)
+    if cycles is not None and hasattr(cycles, "min_transparent_bounces"):
+        values["transparent_min_bounces"] = int(cycles.min_transparent_bounces)
     values.update(overrides or {})
     return RenderSettings(**{**_field_defaults(), **values}).validate()
 

@@ -155,6 +155,8 @@ class MONTE_RENDER_PT_light_paths(MonteButtonsPanel, Panel):
         cycles = getattr(context.scene, "cycles", None)  # shared with Cycles' setting, as Monte reads it
         if cycles is not None and "transparent_max_bounces" in cycles.bl_rna.properties:
             split_layout(self.layout).prop(cycles, "transparent_max_bounces", text="Transparent Bounces")
+        if cycles is not None and "min_transparent_bounces" in cycles.bl_rna.properties:
+            split_layout(self.layout).prop(cycles, "min_transparent_bounces", text="Min Transparent Bounces")
 
 
 class MONTE_RENDER_PT_film(MonteButtonsPanel, Panel):

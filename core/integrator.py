@@ -565,6 +565,7 @@ class _SplitPaths:
     bounces: np.ndarray | None = None
     transparent_bounces: np.ndarray | None = None
     bounce_kind: np.ndarray | None = None
+    came_through: np.ndarray | None = None  # its last scatter went on through a Transparent BSDF
 
 
 @dataclass
@@ -676,11 +677,12 @@ class _CatcherState:
 
     def visit(self, tracer: "PathTracer", depth, hit, prim, clear_here, idx, pix, smp, o, d, tm, throughput,
               prev_pdf, prev_delta, prev_normal, prev_transmits, radiance, transparent, origin_class=None,
-              bounces=None, transparent_bounces=None, bounce_kind=None) -> None:
+              bounces=None, transparent_bounces=None, bounce_kind=None, came_through=None) -> None:
         """The live paths' rays at `depth` have been intersected: paths that still count as transparent and meet
         a catcher for the first time split here (before anything at this vertex is added). origin_class: the
         receiver class of each sample's ray origin (light linking) or None; bounces, transparent_bounces,
-        bounce_kind: per sample, the path's bounce counters and its ray's kind, or None where not kept."""
+        bounce_kind, came_through: per sample, the path's bounce counters, its ray's kind and whether it came
+        through a Transparent BSDF, or None where not kept."""
         ps = tracer.ps
         if self.background is not None:  # the world along camera rays that escape (Cycles' Background pass)
             gone = np.flatnonzero(~hit & clear_here)
@@ -701,7 +703,7 @@ class _CatcherState:
                                        None if prev_transmits is None else prev_transmits[on],
                                        None if origin_class is None else origin_class[rows],
                                        *(None if a is None else a[rows].copy()
-                                         for a in (bounces, transparent_bounces, bounce_kind))))
+                                         for a in (bounces, transparent_bounces, bounce_kind, came_through))))
 
     @staticmethod
     def _world(tracer: "PathTracer", o: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -851,13 +853,18 @@ class PathTracer:
         # counts as transparent bounces up to Transparent Max Bounces and not as bounces (a transparent card does
         # not use up max_bounces). Kept only when some material has a Transparent BSDF lobe (the catcher copies
         # go on from their paths' counts at the split).
-        bounces = transparent_bounces = None
+        # came_through: per sample, its last scatter went on through a Transparent BSDF (Russian roulette then
+        # counts transparent bounces against transparent_rr_depth, as Cycles).
+        bounces = transparent_bounces = came_through = None
         transparent_limit = max(int(s.transparent_max_bounces), 1)  # Cycles: the next surface after the limit ends it
+        transparent_rr_depth = int(s.transparent_min_bounces) + 2
         last_vertex = s.max_bounces + 1
         if through is not None:
             bounces, transparent_bounces = np.zeros(n, np.int32), np.zeros(n, np.int32)
+            came_through = np.zeros(n, bool)
             if copies and self._resume.bounces is not None:
                 bounces[:], transparent_bounces[:] = self._resume.bounces, self._resume.transparent_bounces
+                came_through[:] = self._resume.came_through
             last_vertex += transparent_limit
 
         for depth in range(start_depth, last_vertex + 1):
@@ -889,7 +896,7 @@ class PathTracer:
             if catch is not None:
                 catch.visit(self, depth, hit, hits.prim, clear_here, idx, pix, smp, o, d, tm, throughput, prev_pdf,
                             prev_delta, prev_normal, prev_transmits, radiance, transparent, origin_class,
-                            bounces, transparent_bounces, bounce_kind)
+                            bounces, transparent_bounces, bounce_kind, came_through)
             if film_transparent:
                 # Rays that still count as transparent and escape: alpha 0 and no world colour.
                 gone = np.flatnonzero(~hit & clear_here)
@@ -1026,8 +1033,17 @@ class PathTracer:
             survive = hit if held is None else hit & ~held
             if ending is not None:
                 survive = survive & ~ending
-            if depth >= s.rr_depth:
+            rolls = depth >= s.rr_depth
+            if bounces is not None:
+                # Cycles: a path that arrived through a Transparent BSDF meets the roulette after more than
+                # Min Transparent Bounces + 1 transparent bounces, any other after rr_depth bounces
+                per_path = np.where(came_through[idx], transparent_bounces[idx] >= transparent_rr_depth,
+                                    bounces[idx] >= s.rr_depth)
+                rolls = bool(per_path.any())
+            if rolls:
                 q = np.minimum(np.sqrt(_max3(throughput)), np.float32(1.0))
+                if bounces is not None:
+                    q = np.where(per_path, q, np.float32(1.0)).astype(np.float32)
                 before_roulette = survive
                 survive = survive & (u_vertex[:, 3] < q)
                 if aov_path is not None:  # AOV Output nodes write before the roulette, as Cycles' shader does
@@ -1054,7 +1070,7 @@ class PathTracer:
                 break
             idx, pix, smp, u_vertex = idx[rows], pix[rows], smp[rows], u_vertex[rows]
             throughput = throughput[rows]
-            if depth >= s.rr_depth:
+            if rolls:
                 throughput /= q[rows][:, None]
             mat = ps.material_index[prim[rows]]
             if origin_class is not None:
@@ -1114,6 +1130,7 @@ class PathTracer:
             if bounces is not None:  # idx is unique among live paths
                 transparent_bounces[idx[passed]] += 1
                 bounces[idx[~passed]] += 1
+                came_through[idx] = passed
             if bounce_kind is not None:
                 kinds = bounce_kind[idx]
                 bounce_kinds(lobes.arrays(), u_lobe, bs.transmitted, kinds)

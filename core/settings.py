@@ -23,7 +23,8 @@ PREVIEW_SAMPLES = 16
 _LABELS = {"spp": "samples per pixel (spp)", "max_bounces": "max bounces", "rr_depth": "Russian roulette depth",
            "batch_paths": "batch size (batch_paths)", "tile_size": "tile size", "filter_width": "filter width",
            "time_limit": "time limit", "adaptive_threshold": "adaptive threshold",
-           "adaptive_min_samples": "adaptive min samples", "transparent_max_bounces": "transparent max bounces"}
+           "adaptive_min_samples": "adaptive min samples", "transparent_max_bounces": "transparent max bounces",
+           "transparent_min_bounces": "transparent min bounces"}
 
 
 @dataclass
@@ -53,6 +54,10 @@ class RenderSettings:
     ..., "Emission", "Environment"); empty (the default) costs nothing.
     transparent_max_bounces: transparent surfaces a shadow ray goes through before it counts as blocked (Cycles'
     Light Paths > Transparent bounces, default 8; see core.transparent_shadow).
+    transparent_min_bounces: Cycles' Min Transparent Bounces (scene.cycles.min_transparent_bounces, default 0): a
+    path that arrives at a surface through a Transparent BSDF meets Russian roulette only once it has made more
+    than this + 1 transparent bounces (Cycles' transparent_min_bounce); any other path once its bounces (passes
+    through Transparent BSDFs not counted) reach rr_depth.
     """
 
     spp: int = 64
@@ -76,11 +81,12 @@ class RenderSettings:
     cryptomatte_levels: int = 6
     light_passes: tuple[str, ...] = ()
     transparent_max_bounces: int = 8
+    transparent_min_bounces: int = 0
 
     def validate(self) -> "RenderSettings":
         """Raise ValueError naming the setting for absurd values (NaN, Inf and non-numbers included)."""
         for name in ("spp", "seed", "max_bounces", "rr_depth", "threads", "batch_paths", "tile_size",
-                     "adaptive_min_samples", "transparent_max_bounces"):
+                     "adaptive_min_samples", "transparent_max_bounces", "transparent_min_bounces"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) \
                     or int(value) != value:
@@ -103,6 +109,8 @@ class RenderSettings:
             raise ValueError(f"max bounces must be a non-negative integer, got {self.max_bounces}")
         if self.transparent_max_bounces < 0:
             raise ValueError(f"transparent max bounces must be >= 0, got {self.transparent_max_bounces}")
+        if self.transparent_min_bounces < 0:
+            raise ValueError(f"transparent min bounces must be >= 0, got {self.transparent_min_bounces}")
         if self.rr_depth < 0:
             raise ValueError(f"Russian roulette depth must be >= 0, got {self.rr_depth}")
         if not (math.isfinite(self.clamp) and self.clamp >= 0):

@@ -150,6 +150,18 @@ def test_a_path_ended_by_russian_roulette_writes_its_last_surfaces_aovs():
     q = sqrt(max throughput) = 0.6 there and at each sheet after) ends paths among the sheets; the surface where a
     path ends still writes, as Cycles' shader runs before its roulette: the mean is 2 + (1 + 0.6 + 0.36 + 0.216) =
     4.176 (writing only where the path survives would give 2 + 0.6 x 2.176 = 3.31), within 1 % at 64 spp."""
+    out = render(_six_veils(), RenderSettings(spp=64, seed=3, threads=1, max_bounces=4))
+    np.testing.assert_allclose(out.shader_aovs["layers"].mean(), 2 + 1 + 0.6 + 0.36 + 0.216, rtol=0.01)
+
+
+def test_min_transparent_bounces_spare_the_paths_from_russian_roulette():
+    """Cycles' Min Transparent Bounces 4: a path coming through Transparent BSDFs meets the roulette only after
+    more than 5 transparent bounces, so every path crosses the six veils and each pixel reads exactly 6."""
+    out = render(_six_veils(), RenderSettings(spp=8, seed=3, threads=1, max_bounces=4, transparent_min_bounces=4))
+    np.testing.assert_allclose(out.shader_aovs["layers"], 6.0, rtol=1e-6)
+
+
+def _six_veils() -> Scene:
     sheet = _program([[1.0, 0.0, 0.0]], [_inst("aov_output", value=0, aov=0)])
     materials = [Material("veil", [Lobe("refraction", np.full(3, 0.6), ior=1.0)], program=sheet)]
     meshes = [_quad(f"veil{k}", -3, 3, float(k), 0) for k in range(6)]
@@ -157,5 +169,4 @@ def test_a_path_ended_by_russian_roulette_writes_its_last_surfaces_aovs():
                          ortho_scale=2 * HALF)
     scene = Scene(cam, meshes, materials, shader_aovs=[("layers", "VALUE")])
     scene.world.color = np.zeros(3)
-    out = render(scene, RenderSettings(spp=64, seed=3, threads=1, max_bounces=4))
-    np.testing.assert_allclose(out.shader_aovs["layers"].mean(), 2 + 1 + 0.6 + 0.36 + 0.216, rtol=0.01)
+    return scene

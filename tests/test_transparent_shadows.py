@@ -111,11 +111,14 @@ def test_mis_through_the_sheet_is_unbiased():
     assert means["mis"] == pytest.approx(means["bsdf"], rel=0.03), means
 
 
-@pytest.mark.parametrize("value, message", [(-1, "transparent max bounces must be >= 0, got -1"),
-                                            (2.5, "transparent max bounces must be a whole number, got 2.5")])
-def test_bad_transparent_bounce_limits_are_named(value, message):
+@pytest.mark.parametrize("field, value, message", [
+    ("transparent_max_bounces", -1, "transparent max bounces must be >= 0, got -1"),
+    ("transparent_max_bounces", 2.5, "transparent max bounces must be a whole number, got 2.5"),
+    ("transparent_min_bounces", -1, "transparent min bounces must be >= 0, got -1"),
+    ("transparent_min_bounces", 2.5, "transparent min bounces must be a whole number, got 2.5")])
+def test_bad_transparent_bounce_limits_are_named(field, value, message):
     with pytest.raises(ValueError, match=message.replace(".", r"\.")):
-        SETTINGS.replace(transparent_max_bounces=value).validate()
+        SETTINGS.replace(**{field: value}).validate()
 
 
 def test_a_sheet_hidden_from_shadow_rays_is_skipped(alone):
