@@ -1046,7 +1046,7 @@ class PathTracer:
                     q = np.where(per_path, q, np.float32(1.0)).astype(np.float32)
                 before_roulette = survive
                 survive = survive & (u_vertex[:, 3] < q)
-                if aov_path is not None:  # AOV Output nodes write before the roulette, as Cycles' shader does
+                if aov_path is not None:  # an emitting surface is shaded before the roulette ends the path there
                     self._rouletted_aovs(aov_path, np.flatnonzero(before_roulette & ~survive), idx, prim, hits, d,
                                          tr, path_state, hit_dp)
             rows = np.flatnonzero(survive)
@@ -1176,11 +1176,16 @@ class PathTracer:
     def _rouletted_aovs(self, aov_path: AovPath, ended: np.ndarray, idx, prim, hits, d, tr, path_state,
                         hit_dp) -> None:
         """The AOV Output writes (core.shader_aovs) of the surfaces where Russian roulette ends the paths `ended`
-        (rows of the live paths idx): shaded for their AOVs alone."""
-        ended = ended[aov_path.writing(idx[ended])]
+        (rows of the live paths idx) and whose material emits: Cycles still shades such a surface (for its
+        emission) and its AOV Output nodes write; a path ended on any other surface is never shaded there."""
+        ps = self.ps
+        mat = ps.material_index[prim[ended]]
+        emits = ps.materials.emission[mat].max(axis=1) > 0
+        if ps.shading is not None and ps.shading.any_emits:
+            emits |= ps.shading.emits[mat]
+        ended = ended[emits & aov_path.writing(idx[ended])]
         if len(ended) == 0:
             return
-        ps = self.ps
         g = self._surface(ended, prim, hits.u, hits.v, d, tr)
         mat = ps.material_index[prim[ended]]
         lobes = ps.materials.gather(mat, g.uv)

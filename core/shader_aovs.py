@@ -11,8 +11,9 @@ What the passes hold, with Cycles' (Blender 5.3) meaning:
   then the path is done: Cycles' PATH_RAY_SINGLE_PASS_DONE). Never after a bounce of another kind (no AOV through
   glass, in reflections or from light bounces).
 - The value is written as the node computes it, not weighted by the path's throughput, and the writes of a
-  sample's surfaces add up (two transparent layers with AOV nodes write twice, as in Cycles). The surface where
-  Russian roulette ends a path still writes (Cycles runs the shader before its roulette).
+  sample's surfaces add up (two transparent layers with AOV nodes write twice, as in Cycles). Russian roulette
+  ends a path before its surface is shaded, so that surface writes nothing, unless its material emits (Cycles
+  decides the roulette before shading and still shades an emitting surface, whose AOV Output nodes then write).
 - A pixel holds the mean over its samples (a sample that wrote nothing adds 0): a COLOR AOV is RGBA whose alpha
   is the share of the pixel's samples that wrote it (Cycles writes alpha 1 with each colour); a VALUE AOV is
   one channel. Pixels no sample wrote are 0.
