@@ -924,10 +924,17 @@ class PathTracer:
                 if depth > 0 and not self.use_bsdf_emission:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
-                if lp is not None and depth == 0:
-                    self._add_camera_light(radiance, lp, idx, throughput * le, o, d, hit, hits, prev_pdf, prev_delta)
+                if lp is not None and (depth == 0 or (bounces is not None and not bounces[idx].all())):
+                    # seen by the camera, directly or through Transparent BSDFs only: Emission / Environment
+                    seen = np.ones(len(idx), bool) if depth == 0 else bounces[idx] == 0
+                    r = np.flatnonzero(seen)
+                    self._add_camera_light(radiance, lp, idx[r], (throughput * le)[r], o[r], d[r], t_hit[r],
+                                           prev_pdf[r], prev_delta[r])
+                    r = np.flatnonzero(~seen)
+                    if len(r):
+                        self._add_split(radiance, lp, bounces[idx[r]], idx[r], (throughput * le)[r])
                 else:
-                    self._add_split(radiance, lp, depth, idx, throughput * le)
+                    self._add_split(radiance, lp, depth if bounces is None else bounces[idx], idx, throughput * le)
                 if features is not None:
                     features.add_emission(idx, throughput * le)
             prim = hits.prim
@@ -971,7 +978,8 @@ class PathTracer:
                         # shadow-linked emitters count from light sampling alone after a non-delta bounce
                         # (core.light_linking)
                         w = w * ~(ps.shadow_links.hides_triangles(prim[e]) & ~prev_delta[e])
-                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
+                    self._add_split(radiance, lp, depth if bounces is None else bounces[idx[e]], idx[e],
+                                    throughput[e] * le * w[:, None].astype(np.float32))
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
             # Moving emitters are not light-sampled: what BSDF sampling (or the camera) finds counts in full.
@@ -979,7 +987,8 @@ class PathTracer:
                 e = np.flatnonzero(hit & ps.moving_emitters[np.maximum(prim, 0)] & (True if held is None else ~held))
                 if len(e):
                     le = ps.materials.emission[ps.material_index[prim[e]]]
-                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le)
+                    self._add_split(radiance, lp, depth if bounces is None else bounces[idx[e]], idx[e],
+                                    throughput[e] * le)
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
             # Emission that varies per point (a node program drives it): MIS-weighted against the textured
@@ -1006,7 +1015,8 @@ class PathTracer:
                             pb = prev_pdf[e]
                             w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
                         le = le * w[:, None].astype(np.float32)
-                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le)
+                    self._add_split(radiance, lp, depth if bounces is None else bounces[idx[e]], idx[e],
+                                    throughput[e] * le)
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
 
@@ -1094,6 +1104,10 @@ class PathTracer:
                 data_path.record(idx, prim[rows], mat, g.p, g.uv, lobes, throughput)
             if lp is not None and depth == 0:  # the Color passes: the first surface's lobe albedos by kind
                 lp.add_colors(idx, lp_mod.colors(lobes, g.wo, g.cos_o_geo < 0), throughput)
+            elif lp is not None and bounces is not None:  # and those seen through Transparent BSDFs (Cycles)
+                r = np.flatnonzero(bounces[idx] == 0)
+                if len(r):
+                    lp.add_colors(idx[r], lp_mod.colors(lobes.take(r), g.wo[r], g.cos_o_geo[r] < 0), throughput[r])
 
             clock = self._lap("emission", clock)
             if self.use_nee:
@@ -1104,13 +1118,17 @@ class PathTracer:
                         at = ps.hit_triangles(prim[rows], tr[rows])
                         bary = (np.arange(len(rows), dtype=np.int32), hits.u[rows], hits.v[rows], at[0], at[3],
                                 ps.terminator_offset[prim[rows]])
+                # with light passes, which paths' vertex is their first bounce (only Transparent BSDFs before it)
+                first_bounce = None if lp is None or bounces is None else bounces[idx] == 0
                 if ps.lights.has_lights:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp,
+                                     first_bounce=first_bounce,
                                      bumped=bumped, ray_time=ray_time,
                                      classes=None if origin_class is None else origin_class[idx],
                                      transparent_bounces=transparent_bounces)
                 if ps.textured is not None:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp, textured=True,
+                                     first_bounce=first_bounce,
                                      bumped=bumped, ray_time=ray_time,
                                      path=_rows_of(path_state, idx), transparent_bounces=transparent_bounces)
                 clock = self._lap("nee", clock)
@@ -1128,6 +1146,7 @@ class PathTracer:
                 aov_path.scattered(idx, bs.transmitted, mat)
             passed = None if through is None else transparent_shadow.clear_passes(lobes, u_lobe, bs.transmitted)
             if bounces is not None:  # idx is unique among live paths
+                at_first = bounces[idx] == 0  # (light passes) no bounce before this vertex
                 transparent_bounces[idx[passed]] += 1
                 bounces[idx[~passed]] += 1
                 came_through[idx] = passed
@@ -1137,6 +1156,12 @@ class PathTracer:
                 bounce_kind[idx] = kinds
             if lp is not None and depth == 0:
                 self._first_bounce_weights(lp, idx, lobes, g, bs, u_lobe)
+            elif lp is not None and bounces is not None:  # a first bounce behind Transparent BSDFs (Cycles)
+                r = np.flatnonzero(at_first)
+                if len(r):
+                    part = bsdf_mod.BsdfSample(*(np.asarray(getattr(bs, f))[r] for f in
+                                                 ("wi", "weight", "pdf", "delta", "transmitted", "valid")))
+                    self._first_bounce_weights(lp, idx[r], lobes.take(r), g.take(r), part, u_lobe[r])
             if path_state is not None:
                 state = path_state[idx]
                 next_path_state(lobes.arrays(), u_lobe, bs.transmitted, state)
@@ -1384,7 +1409,7 @@ class PathTracer:
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
                     bary=None, lp: "lp_mod.LightPassSamples | None" = None, textured: bool = False,
                     path: np.ndarray | None = None, bumped=None, ray_time=None, classes=None,
-                    transparent_bounces: np.ndarray | None = None) -> None:
+                    transparent_bounces: np.ndarray | None = None, first_bounce: np.ndarray | None = None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
         u, v) of each path's hit when some mesh has a shadow terminator offset, else None (with motion blur:
         (row, u, v, corners, corner normals, offsets) of the hits' own triangles at their times); ray_time: each
@@ -1393,7 +1418,8 @@ class PathTracer:
         path went through (its shadow rays may pass that many fewer; None: none counted). textured: sample the textured emitters
         (core.textured_emitters) instead of the lights, the emission from their programs; path: the paths' Light
         Path state there (None when no program reads it); classes: the paths' receiver classes (light linking,
-        core.light_linking) or None."""
+        core.light_linking) or None; first_bounce: with light passes, per path, whether its vertex here is its
+        first bounce (only Transparent BSDFs passed before it; None: the vertex at depth 0 alone)."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
@@ -1470,10 +1496,10 @@ class PathTracer:
             self._add(radiance, sample_of[vis], shadowed)
             return
         value = self._add_clean(radiance, sample_of[vis], shadowed)
-        if depth > 0:
+        if depth > 0 and (first_bounce is None or not first_bounce[can].any()):
             lp.add_split(False, sample_of[vis], value)
             return
-        # At the first surface every path has one light sample: its sample index finds its row in `can`.
+        # At the first bounce every path has one light sample: its sample index finds its row in `can`.
         shares = lp_mod.split_ratios(lobes, gc.wo, wi_local, gc.cos_o_geo < 0, rows=can)
         for r, part in restricted:  # lights hidden from some kinds: the shares of the lobes that see them
             for share, sub in zip(shares, lp_mod.split_ratios(part, gc.wo[r], wi_local[r], gc.cos_o_geo[r] < 0)):
@@ -1481,7 +1507,13 @@ class PathTracer:
         row_of = np.zeros(len(radiance), np.int64)
         row_of[idx[can]] = np.arange(m)
         k = row_of[sample_of[:count][vis]]
-        lp.add_split(True, sample_of[vis], value, tuple(share[k] for share in shares))
+        if depth == 0:
+            lp.add_split(True, sample_of[vis], value, tuple(share[k] for share in shares))
+            return
+        # behind Transparent BSDFs only (Cycles: no bounce yet), the light sample is direct light
+        first = first_bounce[can][k]
+        lp.add_split(True, sample_of[vis][first], value[first], tuple(share[k[first]] for share in shares))
+        lp.add_split(False, sample_of[vis][~first], value[~first])
 
     def _visible_lobes_only(self, f_cos, lobes, can, gc, wi, wi_local, dist) -> list:
         """Re-evaluate (in place in f_cos) the BSDF of light samples of lights hidden from some ray kinds with
@@ -1568,26 +1600,36 @@ class PathTracer:
         path_kernels.accumulate(radiance, np.asarray(idx, np.int64), clean, np.float32(0), counters)
         return clean
 
-    def _add_split(self, radiance: np.ndarray, lp: "lp_mod.LightPassSamples | None", depth: int, idx: np.ndarray,
+    def _add_split(self, radiance: np.ndarray, lp: "lp_mod.LightPassSamples | None", depth, idx: np.ndarray,
                    value: np.ndarray) -> None:
-        """Emission found at vertex `depth` added to the image and, with light passes, to Emission (seen by the
+        """Emission found after `depth` bounces (one count, or (M,) one per row: passes through Transparent BSDFs
+        are not bounces, as in Cycles) added to the image and, with light passes, to Emission (seen by the
         camera), the Direct passes (found by the first bounce) or the Indirect ones (later)."""
         if lp is None:
             self._add(radiance, idx, value)
             return
         clean = self._add_clean(radiance, idx, value)
-        if depth == 0:
-            lp.add(lp_mod.EMISSION, idx, clean)
-        else:
-            lp.add_split(depth == 1, idx, clean)
+        if np.ndim(depth) == 0:
+            if depth == 0:
+                lp.add(lp_mod.EMISSION, idx, clean)
+            else:
+                lp.add_split(depth == 1, idx, clean)
+            return
+        depth = np.asarray(depth)
+        for rows, part in ((np.flatnonzero(depth == 0), None), (np.flatnonzero(depth == 1), True),
+                           (np.flatnonzero(depth > 1), False)):
+            if len(rows) and part is None:
+                lp.add(lp_mod.EMISSION, idx[rows], clean[rows])
+            elif len(rows):
+                lp.add_split(part, idx[rows], clean[rows])
 
-    def _add_camera_light(self, radiance, lp: "lp_mod.LightPassSamples", idx, value, o, d, hit, hits, prev_pdf,
+    def _add_camera_light(self, radiance, lp: "lp_mod.LightPassSamples", idx, value, o, d, t_hit, prev_pdf,
                           prev_delta) -> None:
-        """Lights and world seen by camera rays, with light passes: the lights' share to Emission, the world's to
-        Environment (the lights alone are looked up once more, without the world)."""
+        """Lights and world seen by camera rays (t_hit: the distance to each ray's hit, inf where it escapes),
+        with light passes: the lights' share to Emission, the world's to Environment (the lights alone are looked
+        up once more, without the world)."""
         clean = self._add_clean(radiance, idx, value)
-        lamps = self.ps.lights.intersect(o, d, np.where(hit, hits.t, np.float32(np.inf)), prev_pdf, prev_delta,
-                                         False, camera=True, world=False)
+        lamps = self.ps.lights.intersect(o, d, t_hit, prev_pdf, prev_delta, False, camera=True, world=False)
         total = np.asarray(value, np.float64)
         with np.errstate(invalid="ignore", divide="ignore"):
             lamp_share = np.where(total > 0, np.clip(lamps / np.where(total > 0, total, 1.0), 0, 1), 0.0)

@@ -11,6 +11,11 @@ The passes (Cycles' names and meaning, Blender 5.3):
 - Emission: emitters (lamps, emissive surfaces) seen directly by the camera;
 - Environment: the world seen directly by the camera (0 where Film > Transparent made it transparent).
 
+A pass through a Transparent BSDF is no bounce (Cycles' transparent bounces): what is seen through one counts as
+seen directly, the first surface scattered from behind it is the first bounce, and each surface met through
+Transparent BSDFs alone adds its colours (times the throughput reaching it); core.integrator classes the
+contributions by its per-path bounce counts.
+
 How a first-surface contribution is split (Cycles' bsdf_eval diffuse / glossy / sum): for a direction wi the
 lobes' values f_K(wi) are summed per kind K, a glass lobe counting as glossy where wi is on wo's side and as
 transmission where it crosses, and the contribution c goes c f_K / f to kind K (per channel; the three shares
@@ -131,7 +136,7 @@ def colors(lobes: "bsdf_mod.LobeBatch", wo: np.ndarray, back: np.ndarray) -> tup
     """(diffuse, glossy, transmission) colours (M, 3) float32 of first surfaces: per lobe kind the lobe albedos
     at wo (core.bsdf.albedo, Fresnel and layering included; a rough Glossy BSDF lobe with its multiscatter
     darkening, see _multiscatter_darkening), a glass lobe split F(cos wo) : 1 - F between glossy and
-    transmission."""
+    transmission, a Transparent BSDF lobe in none."""
     m, n_slots = lobes.kind.shape
     out = [np.zeros((m, 3), np.float32) for _ in COMPONENTS]
     wo = np.ascontiguousarray(wo, np.float32)
@@ -147,7 +152,10 @@ def colors(lobes: "bsdf_mod.LobeBatch", wo: np.ndarray, back: np.ndarray) -> tup
         if glossy.any() and lobes.multiscatter:
             albedo = albedo * _multiscatter_darkening(lobes, slot, glossy, wo)
         out[1] += np.where(glossy[:, None], albedo, 0)
-        out[2] += np.where((kind == bsdf_mod.KIND_CODE["refraction"])[:, None], albedo, 0)
+        # a Transparent BSDF (refraction of IOR 1, roughness 0) is no transmission colour (Cycles: its closure is
+        # not a transmission closure; what is seen through it has a colour of its own)
+        clear = (lobes.ior[:, slot] == 1.0) & (lobes.roughness[:, slot] == 0.0)
+        out[2] += np.where(((kind == bsdf_mod.KIND_CODE["refraction"]) & ~clear)[:, None], albedo, 0)
         glass = kind == bsdf_mod.KIND_CODE["glass"]
         if glass.any():
             ior = lobes.ior[:, slot].astype(np.float64)
