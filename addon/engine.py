@@ -210,6 +210,10 @@ def requested_light_passes(passes: list[str]) -> tuple[str, ...]:
 
 # Extra progress callbacks (core.render.Progress -> None), e.g. the headless command's progress bar.
 progress_listeners: list = []
+# A headless cluster export (addon/headless.py export_blend_frames) listens here: while one is set, F12 exports
+# the scene through its render depsgraph (render subdivision levels, the render's motion-blur subframes) and hands
+# it over, (core scene, export stats), rendering nothing itself.
+export_listeners: list = []
 # Callbacks for each finished view layer: (view_layer_name, core RenderResult, region, (width, height)),
 # region = (x0, y0 from the top, w, h) or None; used by the headless entry point to write Monte's EXR layout.
 result_listeners: list = []
@@ -312,6 +316,10 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         for w in core_scene.warnings + unavailable_pass_warnings(view_layer, scene):
             self.report({"WARNING"}, f"Monte: {w}")
         self.report({"INFO"}, f"Monte: {stats.line()}")
+        if export_listeners:  # a headless cluster export: the scene as F12 exports it, rendered elsewhere
+            for listener in list(export_listeners):
+                listener(core_scene, stats)
+            return
         settings = render_settings(scene, {"aovs": any(p in passes for p in ("Depth", "Normal", "Albedo")),
                                            "data_passes": data_passes(view_layer, scene),
                                            "cryptomatte_levels": 2 * cryptomatte_layers(view_layer),

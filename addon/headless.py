@@ -299,8 +299,6 @@ def export_blend_frames(blend_path: str | os.PathLike, overrides: dict[str, Any]
 
     overrides as render_blend_file's (but "scene" and "multilayer" do not apply); a render border is refused
     (a cluster render is the whole frame). Raises FileNotFoundError / HeadlessError / ValueError."""
-    from ..core.scene import SceneError
-    from .export import export_scene
     from .properties import render_settings
 
     say = log or (lambda msg: print(msg, flush=True))
@@ -318,13 +316,28 @@ def export_blend_frames(blend_path: str | os.PathLike, overrides: dict[str, Any]
         raise HeadlessError(f"cannot render {blend}: scene {scene.name!r} has no camera")
     if scene.render.use_border:
         raise HeadlessError(f"{blend}: a render border does not apply to a cluster render (turn it off)")
+    from .engine import export_listeners
+
     for frame in (frames if frames is not None else [scene.frame_current]):
         scene.frame_set(int(frame))
-        depsgraph = bpy.context.evaluated_depsgraph_get()
+        # F12's own export (its render depsgraph: render subdivision levels and the like, as a local render
+        # sees the scene), handed over by the engine instead of rendered there
+        exported: list = []
+        export_listeners.append(lambda core, stats: exported.append((core, stats)))
         try:
-            core_scene, stats = export_scene(depsgraph)
-        except SceneError as exc:
-            raise HeadlessError(f"{blend}, frame {frame}: {exc}") from exc
+            bpy.ops.render.render(write_still=False, scene=scene.name)
+        except RuntimeError as exc:
+            message = str(exc).strip()
+            message = message[len("Error: "):] if message.startswith("Error: ") else message
+            raise HeadlessError(f"{blend}, frame {frame}: {message}") from exc
+        finally:
+            export_listeners.clear()
+        if not exported:
+            raise HeadlessError(f"{blend}, frame {frame}: nothing was exported (no view layer is enabled for "
+                                "rendering)")
+        core_scene, stats = exported[0]
+        if len(exported) > 1:
+            say(f"Monte: {len(exported)} view layers; the cluster renders the first")
         settings = render_settings(scene, {"aovs": True})
         say(f"Monte: exported {blend.name} frame {frame}: {stats.line()}")
         yield int(frame), core_scene, settings

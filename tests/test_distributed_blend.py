@@ -1,6 +1,7 @@
 """A .blend animation on a Dask cluster (`monte render scene.blend --dask local:2 --frames 1-2`): each frame is
 exported once here through the add-on, rendered on a real LocalCluster and written as OUTPUT_####.exr, equal bit
-for bit to the core render of the same exported frame; --resume renders only the frames whose file is missing."""
+for bit to the core render of the same exported frame; --resume renders only the frames whose file is missing.
+The export is F12's (its render depsgraph: render subdivision levels)."""
 
 from __future__ import annotations
 
@@ -69,3 +70,25 @@ def test_frames_on_a_cluster_equal_the_core_render_of_each_frame(animated_blend,
 def test_frames_without_a_cluster_are_refused(animated_blend, tmp_path, capsys):
     assert main(["render", str(animated_blend), "-o", str(tmp_path / "x.exr"), "--frames", "1-2"] + OPTIONS) == 2
     assert "--frames and --resume render a .blend's frames on a cluster" in capsys.readouterr().err
+
+
+def test_a_cluster_export_sees_the_scene_as_f12_does(tmp_path):
+    """A cube with a Subdivision Surface modifier of 1 level in the viewport and 3 for renders: the frames
+    exported for a cluster hold the render levels, 6 x 4^3 quads = 768 triangles, as F12's own render does
+    (control: the viewport depsgraph the export used before holds 6 x 4 quads = 48)."""
+    from monte.addon.export import export_scene
+
+    bf.cornell_box((8, 8))
+    for obj in list(bpy.data.objects):
+        if obj.type == "MESH":
+            bpy.data.objects.remove(obj)
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.0, 0.0, 0.0))
+    modifier = bpy.context.active_object.modifiers.new("Subdivision", "SUBSURF")
+    modifier.levels, modifier.render_levels = 1, 3
+    blend = tmp_path / "subdivided.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    exported = list(export_blend_frames(blend, {"spp": 1}, None, log=lambda _m: None))
+    assert len(exported) == 1
+    assert sum(m.triangle_count for m in exported[0][1].meshes) == 6 * 4 ** 3 * 2
+    viewport, _ = export_scene(bpy.context.evaluated_depsgraph_get())
+    assert sum(m.triangle_count for m in viewport.meshes) == 6 * 4 * 2
