@@ -20,6 +20,7 @@ from distributed import Client, LocalCluster
 
 from monte.cli import main
 from monte.core.builtin_scenes import builtin_scene
+from monte.core.exr import read_exr
 from monte.core.distributed import (ClusterError, check_workers, connect, plan_units, render_frames_on_cluster,
                                     render_on_cluster, render_unit, worker_versions)
 from monte.core.render import merge_tile_samples, render, render_samples
@@ -342,11 +343,13 @@ def test_malformed_addresses_are_refused(address, message):
 
 
 def test_cli_dask_local_writes_the_same_exr_as_a_local_render(tmp_path, capsys):
+    """With data passes too (--passes): the EXR's bytes, Mist and Cryptomatte with its manifest included."""
     common = ["render", "cornell", "--resolution", "32x24", "--spp", "12", "--seed", "7", "--batch", "1024",
-              "--tile", "16", "--no-png", "-q"]
+              "--tile", "16", "--no-png", "-q", "--passes", "mist,object_index,crypto_material"]
     assert main(common + ["-o", str(tmp_path / "local.exr")]) == 0
     assert main(common + ["-o", str(tmp_path / "cluster.exr"), "--dask", "local:1"]) == 0
     assert (tmp_path / "local.exr").read_bytes() == (tmp_path / "cluster.exr").read_bytes()
+    assert {"Mist.Z", "CryptoMaterial00.R"} <= set(read_exr(tmp_path / "cluster.exr"))
 
 
 def test_ctrl_c_stops_a_cluster_render_writes_nothing_and_leaves_no_worker(tmp_path):
