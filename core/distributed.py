@@ -258,7 +258,7 @@ def render_on_cluster(scene: Scene, settings: RenderSettings, client, *,
     on_tile: called on this thread with each tile (core.render.Tile, all its samples) as soon as the units
     holding its samples are back, so a viewer can show the frame filling in; its images equal the final ones.
     stats: seconds, samples/s, units, workers, threads, scene_bytes (the pickled scene sent once per worker),
-    film_bytes (all film sums sent back) and film_bytes_per_unit.
+    film_bytes (all film sums sent back; data_pass_bytes of them the data passes') and film_bytes_per_unit.
     """
     job = _FrameJob(client, scene, settings, units, submit_seed, log, on_tile=on_tile, region=region)
     _run_jobs([job], on_progress, should_cancel)
@@ -358,6 +358,7 @@ class _FrameJob:
         self.parts: list[TileSamples] = []
         self.done_paths = 0
         self.film_bytes = 0
+        self.data_bytes = 0  # of film_bytes, the data passes' sums
         self._hand_out()
 
     def _unit_key(self, i: int) -> str:
@@ -398,6 +399,7 @@ class _FrameJob:
             if self.on_tile is not None:
                 self._show_finished_tiles(result)
             self.film_bytes += sum(part.nbytes() for part in result)
+            self.data_bytes += sum(a.nbytes for part in result for sums in part.data for a in sums.values())
             self.done_paths += self.unit_paths[f.key]
         if finished or self.settings.time_limit > 0:
             self._hand_out()
@@ -456,6 +458,7 @@ class _FrameJob:
             "threads": self.threads,
             "scene_bytes": self.scene_bytes,
             "film_bytes": self.film_bytes,
+            "data_pass_bytes": self.data_bytes,
             "film_bytes_per_unit": self.film_bytes / max(len(self.futures), 1),
             "units_done": len(self.futures),
             "stopped_by_time_limit": self.stopped,

@@ -229,7 +229,7 @@ def test_workers_with_another_monte_are_refused(cluster):
 
 def test_monte_worker_joins_a_scheduler_and_renders_the_same_image(reference, tmp_path):
     """`monte worker ADDRESS` (kernels loaded, then `dask worker` in the same process) against a scheduler with
-    no worker of its own."""
+    no worker of its own: a still and two frames on this one worker, each equal to its own render."""
     with LocalCluster(n_workers=0, processes=True, dashboard_address=":0") as lc, Client(lc) as client:
         with open(tmp_path / "worker.log", "wb") as log:
             proc = subprocess.Popen([sys.executable, "-m", "monte", "worker", lc.scheduler_address,
@@ -240,6 +240,11 @@ def test_monte_worker_joins_a_scheduler_and_renders_the_same_image(reference, tm
             names = [w["name"] for w in client.scheduler_info(n_workers=-1)["workers"].values()]
             assert names == ["monte-test-worker"]
             _assert_same_images(render_on_cluster(_scene(), _settings(), client), reference)
+            delivered = {}
+            frames = [(seed, _scene(), _settings(seed=seed)) for seed in (7, 8)]
+            assert render_frames_on_cluster(client, iter(frames), delivered.__setitem__) == 2
+            _assert_same_images(delivered[7], reference)
+            _assert_same_images(delivered[8], render(_scene(), _settings(seed=8)))
         finally:
             proc.terminate()
             try:
