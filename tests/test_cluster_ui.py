@@ -213,7 +213,8 @@ def test_data_passes_arrive_from_the_cluster_with_the_local_bits(scheduler, tmp_
     (_, result, _, _), = captured
     assert result.stats["units"] == 12 and result.stats["workers"] == 2
     assert {"ViewLayer.Mist.Z", "ViewLayer.Position.X", "ViewLayer.UV.U", "ViewLayer.Object Index.X",
-            "ViewLayer.Material Index.X", "ViewLayer.CryptoObject00.r", "ViewLayer.CryptoMaterial00.g"} <= set(on_cluster)
+            "ViewLayer.Material Index.X", "ViewLayer.CryptoObject00.r",
+            "ViewLayer.CryptoMaterial00.g"} <= set(on_cluster)
     assert sorted(local) == sorted(on_cluster)
     for name in local:
         assert np.array_equal(local[name], on_cluster[name]), name
