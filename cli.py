@@ -18,6 +18,7 @@ import json
 import os
 import sys
 import time
+from typing import Callable
 from pathlib import Path
 
 from .core.settings import CLI_SETTINGS, FILTERS, SAMPLERS, RenderSettings
@@ -183,10 +184,6 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     scene = builtin_scene(args.scene, args.resolution)
     if args.passes:
-        if args.dask:
-            print("monte render: --passes: a render on a Dask cluster does not produce the data passes",
-                  file=sys.stderr)
-            return 2
         overrides["data_passes"] = args.passes
     settings = RenderSettings(**overrides).validate()
     if output.suffix.lower() != ".exr":
@@ -267,7 +264,7 @@ def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: 
     """A .blend's frames exported here (through the add-on) and rendered on a Dask cluster, each frame written
     atomically as it completes (a cancelled or failed animation keeps its finished frames)."""
     try:
-        from .addon.headless import HeadlessError, export_blend_frames
+        from .addon.headless import HeadlessError, export_blend_frames, write_monte_exr
     except ImportError as exc:
         print(f"monte render: rendering a .blend needs the bpy module ({BPY_HINT}): {exc}", file=sys.stderr)
         return 2
@@ -299,6 +296,12 @@ def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: 
     bar = ProgressBar(not args.quiet)
 
     undenoised = []
+    exported = {}  # frame -> its BlendFrame (the render region and the frame's size, for the output)
+
+    def frames_to_render():
+        for item in export_blend_frames(args.scene, overrides, todo, log=log):
+            exported[item.frame] = item
+            yield item.frame, item.scene, item.settings, item.region  # a render region: only its tiles go out
 
     def write_frame(frame, result) -> None:
         bar.close()
@@ -307,13 +310,16 @@ def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: 
                 _denoise_result(result, args.denoise_quality, log)
             except DenoiseFailed as exc:
                 undenoised.append(str(exc))
-        _write_outputs(result, outputs[frame if frames is not None else None], args.no_png)
+        item = exported.pop(frame)
+        # the layout `monte render scene.blend` writes (shader AOVs too; a render region padded to the frame)
+        _write_outputs(result, outputs[frame if frames is not None else None], args.no_png,
+                       write=lambda out: write_monte_exr(out, result, item.region, item.size, item.cropped))
 
     try:
         with connect(args.dask, args.dask_timeout, log) as client:
             try:  # two frames in flight: the workers render one while this process exports the next
-                render_frames_on_cluster(client, export_blend_frames(args.scene, overrides, todo, log=log),
-                                         write_frame, frames_in_flight=2, on_progress=bar, log=log)
+                render_frames_on_cluster(client, frames_to_render(), write_frame, frames_in_flight=2,
+                                         on_progress=bar, log=log)
             finally:
                 bar.close()
     except (ClusterError, HeadlessError) as exc:
@@ -326,23 +332,28 @@ def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: 
     return 0
 
 
-def _write_outputs(result, output: Path, no_png: bool) -> list[str]:
-    """The EXR (and PNG preview) of a render, each written atomically; reports what it wrote."""
+def _write_outputs(result, output: Path, no_png: bool, write: Callable[[Path], None] | None = None) -> list[str]:
+    """The EXR (and PNG preview) of a render, each written atomically; reports what it wrote. write(output):
+    writes the EXR instead of the core layout below (a .blend's render region, padded to its frame)."""
     from .core import exr
 
     from .core.data_passes import cryptomatte_metadata
 
-    channels = exr.image_channels(result.color, result.variance, result.albedo, result.normal, result.depth,
-                                  noisy=result.noisy, denoising_albedo=result.denoising_albedo,
-                                  denoising_normal=result.denoising_normal,
-                                  shadow_catcher=result.shadow_catcher,
-                                  light_passes=result.light_passes)
-    data = getattr(result, "data_passes", {})
-    channels.update(exr.data_pass_channels(data, {"Mist": "Z", "Position": "XYZ", "UV": "UVA", "Object Index": "X",
-                                                  "Material Index": "X", "Vector": "XYZW"}))
-    metadata = {k: v for base, names in getattr(result, "cryptomatte", {}).items()
-                for k, v in cryptomatte_metadata(base, names).items()}
-    exr.write_exr(output, channels, metadata)
+    if write is not None:
+        write(output)
+    else:
+        channels = exr.image_channels(result.color, result.variance, result.albedo, result.normal, result.depth,
+                                      noisy=result.noisy, denoising_albedo=result.denoising_albedo,
+                                      denoising_normal=result.denoising_normal,
+                                      shadow_catcher=result.shadow_catcher,
+                                      light_passes=result.light_passes)
+        data = getattr(result, "data_passes", {})
+        channels.update(exr.data_pass_channels(data, {"Mist": "Z", "Position": "XYZ", "UV": "UVA",
+                                                      "Object Index": "X", "Material Index": "X",
+                                                      "Vector": "XYZW"}))
+        metadata = {k: v for base, names in getattr(result, "cryptomatte", {}).items()
+                    for k, v in cryptomatte_metadata(base, names).items()}
+        exr.write_exr(output, channels, metadata)
     written = [str(output)]
     if not no_png:
         png = output.with_suffix(".png")

@@ -81,12 +81,9 @@ def vector_unavailable(view_layer, scene) -> str:
 
 
 def data_passes(view_layer, scene=None) -> tuple[str, ...]:
-    """The core data pass keys (core.data_passes) this view layer asks for; none on a cluster render, which does
-    not carry them (see unavailable_pass_warnings)."""
+    """The core data pass keys (core.data_passes) this view layer asks for (a cluster render carries them as a
+    local one does)."""
     if view_layer is None:
-        return ()
-    monte_scene = getattr(scene, "monte", None)
-    if monte_scene is not None and monte_scene.use_cluster:
         return ()
     skip_vector = bool(vector_unavailable(view_layer, scene))
     return tuple(key for flag, key in DATA_PASS_FLAGS.items() if getattr(view_layer, flag, False)
@@ -121,12 +118,6 @@ def unavailable_pass_warnings(view_layer, scene=None) -> list[str]:
     vector = vector_unavailable(view_layer, scene)
     if vector:
         out.append(f"view layer {view_layer.name!r}: {vector}")
-    monte_scene = getattr(scene, "monte", None)
-    if monte_scene is not None and monte_scene.use_cluster:
-        chosen = [flag for flag in DATA_PASS_FLAGS if getattr(view_layer, flag, False)]
-        if chosen:
-            out.append(f"view layer {view_layer.name!r}: a render on a Dask cluster does not produce the data "
-                       f"passes ({', '.join(f.removeprefix('use_pass_') for f in chosen)}): they are left out")
     return out
 
 # Cycles' light passes (core.light_passes): Blender's pass name -> the view layer property that asks for it

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, NamedTuple
 
 import bpy  # at import time, so that callers without the bpy module get an ImportError up front
 import numpy as np
@@ -280,25 +280,47 @@ def render_blend_file(
             say(f"Monte: {len(captured)} view layers rendered; writing {layer_name!r} (multilayer=True writes all)")
         if result.cancelled:
             say("Monte: the render stopped early (time limit); the image holds the samples taken")
-        if scene.render.use_crop_to_border:
-            region = None  # the region alone, as Blender's cropped render
-        from ..core.data_passes import cryptomatte_metadata
-
-        # Cryptomatte layers are named by their pass (CryptoObject00.R, ...): the metadata names "CryptoObject"
-        metadata = {k: v for base, names in getattr(result, "cryptomatte", {}).items()
-                    for k, v in cryptomatte_metadata(base, names).items()}
-        write_exr(out, _monte_channels(result, region, size), metadata)
+        write_monte_exr(out, result, region, size, scene.render.use_crop_to_border)
     say(f"Monte: wrote {out}")
 
 
-def export_blend_frames(blend_path: str | os.PathLike, overrides: dict[str, Any] | None, frames: list[int] | None,
-                        *, log: Callable[[str], None] | None = None) -> Iterator[tuple[int, Any, RenderSettings]]:
-    """Open a .blend once and export each frame's core Scene and RenderSettings (with AOVs), for a render of
-    the core scene elsewhere (a Dask cluster: core.distributed); yields (frame, scene, settings) one frame at
-    a time, so a caller that stops early exports no more. frames None: the scene's current frame.
+def write_monte_exr(out: Path, result, region, size: tuple[int, int], cropped: bool) -> None:
+    """A render of a .blend in Monte's channel layout (_monte_channels), written atomically: a render region
+    (x0, y0 from the top, width, height) padded to the full frame of `size`, or alone when `cropped` (Blender's
+    Crop to Render Region); the Cryptomatte manifests in the header."""
+    from ..core.data_passes import cryptomatte_metadata
+    from ..core.exr import write_exr
 
-    overrides as render_blend_file's (but "scene" and "multilayer" do not apply); a render border is refused
-    (a cluster render is the whole frame). Raises FileNotFoundError / HeadlessError / ValueError."""
+    # Cryptomatte layers are named by their pass (CryptoObject00.R, ...): the metadata names "CryptoObject"
+    metadata = {k: v for base, names in getattr(result, "cryptomatte", {}).items()
+                for k, v in cryptomatte_metadata(base, names).items()}
+    write_exr(out, _monte_channels(result, None if cropped else region, size), metadata)
+
+
+class BlendFrame(NamedTuple):
+    """One frame of a .blend exported for a render elsewhere (export_blend_frames)."""
+
+    frame: int
+    scene: Any  # core.scene.Scene
+    settings: RenderSettings
+    region: tuple[int, int, int, int] | None  # the render region (x0, y0 from the top, w, h), None: the frame
+    size: tuple[int, int]  # the frame's (width, height) in pixels
+    cropped: bool  # Crop to Render Region: the output is the region alone
+
+
+def export_blend_frames(blend_path: str | os.PathLike, overrides: dict[str, Any] | None, frames: list[int] | None,
+                        *, log: Callable[[str], None] | None = None) -> Iterator[BlendFrame]:
+    """Open a .blend once and export each frame's core Scene and RenderSettings (with AOVs, and the data passes,
+    light passes and Cryptomatte levels its active view layer selects, as the engine's F12 render), for a render
+    of the core scene elsewhere (a Dask cluster: core.distributed); yields a BlendFrame one frame at a time, so a
+    caller that stops early exports no more. frames None: the scene's current frame. A render border
+    (Render Region) is the frame's region: render only it (render(region=...) or render_on_cluster's).
+
+    overrides as render_blend_file's (but "scene" and "multilayer" do not apply).
+    Raises FileNotFoundError / HeadlessError / ValueError."""
+    from .engine import (cryptomatte_layers, data_passes, export_listeners, requested_light_passes,
+                         requested_passes, unavailable_pass_warnings)
+    from .export import render_region, render_resolution
     from .properties import render_settings
 
     say = log or (lambda msg: print(msg, flush=True))
@@ -314,10 +336,11 @@ def export_blend_frames(blend_path: str | os.PathLike, overrides: dict[str, Any]
     _apply_overrides(bpy, scene, clean)
     if scene.camera is None:
         raise HeadlessError(f"cannot render {blend}: scene {scene.name!r} has no camera")
-    if scene.render.use_border:
-        raise HeadlessError(f"{blend}: a render border does not apply to a cluster render (turn it off)")
-    from .engine import export_listeners
-
+    view_layer = bpy.context.view_layer
+    for warning in unavailable_pass_warnings(view_layer, scene):
+        say(f"Monte: warning: {warning}")
+    keys = data_passes(view_layer, scene)
+    region, size = render_region(scene), render_resolution(scene)
     for frame in (frames if frames is not None else [scene.frame_current]):
         scene.frame_set(int(frame))
         # F12's own export (its render depsgraph: render subdivision levels and the like, as a local render
@@ -338,9 +361,13 @@ def export_blend_frames(blend_path: str | os.PathLike, overrides: dict[str, Any]
         core_scene, stats = exported[0]
         if len(exported) > 1:
             say(f"Monte: {len(exported)} view layers; the cluster renders the first")
-        settings = render_settings(scene, {"aovs": True})
-        say(f"Monte: exported {blend.name} frame {frame}: {stats.line()}")
-        yield int(frame), core_scene, settings
+        settings = render_settings(scene, {"aovs": True, "data_passes": keys,
+                                           "cryptomatte_levels": 2 * cryptomatte_layers(view_layer),
+                                           "light_passes": requested_light_passes(requested_passes(view_layer,
+                                                                                                    scene))})
+        say(f"Monte: exported {blend.name} frame {frame}: {stats.line()}"
+            + (f"; render region {region}" if region is not None else ""))
+        yield BlendFrame(int(frame), core_scene, settings, region, size, bool(scene.render.use_crop_to_border))
 
 
 def _save_blender_multilayer(bpy, scene, blend: Path, out: Path) -> None:

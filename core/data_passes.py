@@ -160,6 +160,19 @@ class DataTables:
         return cls(tuple(passes), int(levels), object_table[rows], material_pass, name_of_triangle, names, ids,
                    getattr(scene, "mist", None) or Mist(), matrix[:3, 3].copy(), forward, vector)
 
+    @classmethod
+    def for_merge(cls, passes: tuple[str, ...], levels: int, names: dict[str, list[str]]) -> "DataTables":
+        """Tables for films that only add up sums made elsewhere (core.render.merge_tile_samples): the passes, the
+        Cryptomatte levels and each kind's names (as the renders that took the samples listed them), no scene."""
+        kinds = [k for k in CRYPTO_NAMES if k in passes]
+        missing = [k for k in kinds if k not in names]
+        if missing:
+            raise ValueError(f"the Cryptomatte names of {', '.join(missing)} are missing from the film sums")
+        names = {kind: list(names[kind]) for kind in kinds}
+        ids = {kind: np.array([hash_to_float(name_hash(n)) for n in names[kind]], np.float32) for kind in kinds}
+        return cls(tuple(passes), int(levels), np.zeros(0, np.float32), np.zeros(0, np.float32),
+                   {kind: np.zeros(0, np.int32) for kind in kinds}, names, ids, Mist(), np.zeros(3), None)
+
     def samples(self, path: "DataPath") -> dict:
         """What each camera sample of a batch adds to the passes (see the module docstring), from the surfaces
         its path recorded (DataPath). Per-sample arrays, except Cryptomatte: per kind (sample row, name index,
@@ -418,9 +431,13 @@ class DataFilm:
             self.vector_weight = np.zeros(n, np.float64)
         # Cryptomatte: sparse sums of coverage, keyed pixel * K + name index, kept sorted
         self.crypto = {kind: (np.zeros(0, np.int64), np.zeros(0, np.float64)) for kind in tables.name_of_triangle}
+        self._capture: DataFilm | None = None  # capture_passes(): the current pass's sums, kept apart
 
     def add(self, pixel: np.ndarray, sample: np.ndarray, values: dict[str, np.ndarray]) -> None:
         """Accumulate samples (tile-local pixel indices, their sample indices, DataTables.samples' values)."""
+        if self._capture is not None:
+            self._capture.add(pixel, sample, values)
+            return
         n = self.width * self.height
         pixel = np.asarray(pixel, np.int64)
         self.count += np.bincount(pixel, minlength=n)
@@ -437,14 +454,84 @@ class DataFilm:
         for name in ("position", "object_index", "material_index"):
             if name in values and len(first):
                 getattr(self, name)[pixel[first]] = values[name][first]
-        for kind, (keys, sums) in self.crypto.items():
+        for kind in self.crypto:
             rows, idx, weight = values[kind]
             k = len(self.tables.names[kind])
-            new_keys = pixel[rows] * k + idx
-            all_keys, inverse = np.unique(np.concatenate([keys, new_keys]), return_inverse=True)
-            all_sums = np.bincount(inverse.reshape(-1), weights=np.concatenate([sums, weight]),
-                                   minlength=len(all_keys))
-            self.crypto[kind] = (all_keys, all_sums)
+            # The samples' coverage per (pixel, name) is summed first, then added to the film's: a pixel's
+            # coverage is its passes' sums added in pass order, which a film merged from passes taken
+            # elsewhere (add_sums) repeats bit for bit.
+            new_keys, inverse = np.unique(pixel[rows] * k + idx, return_inverse=True)
+            self._add_crypto(kind, new_keys, np.bincount(inverse.reshape(-1), weights=weight,
+                                                         minlength=len(new_keys)))
+
+    def _add_crypto(self, kind: str, new_keys: np.ndarray, new_sums: np.ndarray) -> None:
+        """Add sparse coverage sums (unique keys pixel * K + name index) to the film's Cryptomatte sums."""
+        keys, sums = self.crypto[kind]
+        all_keys, inverse = np.unique(np.concatenate([keys, new_keys]), return_inverse=True)
+        all_sums = np.bincount(inverse.reshape(-1), weights=np.concatenate([sums, new_sums]),
+                               minlength=len(all_keys))
+        self.crypto[kind] = (all_keys, all_sums)
+
+    # ------------------------------------------------ sums of a render split across machines (core.distributed)
+    def _sum_names(self) -> list[str]:
+        """The accumulators a pass adds to (the single-sample passes are set by the pixel's sample 0 only)."""
+        return [name for name in ("count", "mist", "uv", "vector", "vector_weight") if hasattr(self, name)]
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Copies of the film's accumulators by name (Cryptomatte's as "crypto_keys/<kind>" and
+        "crypto_sums/<kind>"): set_state() of a film of the same tile and passes makes it this film."""
+        names = self._sum_names() + [n for n in ("position", "object_index", "material_index") if hasattr(self, n)]
+        out = {name: getattr(self, name).copy() for name in names}
+        for kind, (keys, sums) in self.crypto.items():
+            out[f"crypto_keys/{kind}"], out[f"crypto_sums/{kind}"] = keys.copy(), sums.copy()
+        return out
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        """Make this film the film whose state() `state` is."""
+        mine = self.state()
+        self._check(state, mine)
+        for name in mine:
+            if not name.startswith("crypto_"):
+                getattr(self, name)[...] = state[name]
+        for kind in self.crypto:
+            self.crypto[kind] = (np.asarray(state[f"crypto_keys/{kind}"], np.int64).copy(),
+                                 np.asarray(state[f"crypto_sums/{kind}"], np.float64).copy())
+
+    def capture_passes(self) -> None:
+        """Keep the sums of the samples added from now on apart, one pass at a time (take_pass), instead of adding
+        them to this film: a render split across machines sends them to be added in pass order (add_sums)."""
+        self._capture = DataFilm(self.width, self.height, self.tables)
+
+    def take_pass(self) -> dict[str, np.ndarray]:
+        """The sums of the samples added since capture_passes() or the last take_pass() (one pass of the
+        tile's samples, starting past sample 0); capturing starts over."""
+        captured = self._capture
+        if captured is None:
+            raise ValueError("this data film is not capturing passes (capture_passes())")
+        self._capture = DataFilm(self.width, self.height, self.tables)
+        return {name: value for name, value in captured.state().items()
+                if name not in ("position", "object_index", "material_index")}
+
+    def add_sums(self, sums: dict[str, np.ndarray]) -> None:
+        """Add one pass's sums (take_pass() of a film of the same tile and passes): bit for bit what add() of
+        that pass's samples gives, since add() adds each pass's per-pixel sums the same way."""
+        mine = {name: value for name, value in self.state().items()
+                if name not in ("position", "object_index", "material_index")}
+        self._check(sums, mine)
+        for name in self._sum_names():
+            getattr(self, name)[...] += sums[name]
+        for kind in self.crypto:
+            self._add_crypto(kind, np.asarray(sums[f"crypto_keys/{kind}"], np.int64),
+                             np.asarray(sums[f"crypto_sums/{kind}"], np.float64))
+
+    @staticmethod
+    def _check(given: dict[str, np.ndarray], mine: dict[str, np.ndarray]) -> None:
+        if set(given) != set(mine):
+            raise ValueError(f"data pass sums hold {sorted(given)}, this film keeps {sorted(mine)}")
+        for name, arr in mine.items():
+            if not name.startswith("crypto_") and np.shape(given[name]) != arr.shape:
+                raise ValueError(f"data pass sums {name!r} have shape {np.shape(given[name])}, this film "
+                                 f"{arr.shape}")
 
     def images(self) -> dict[str, np.ndarray]:
         """{Blender pass name: (h, w, C) float32} for every pass the film keeps (Cryptomatte as its layers)."""

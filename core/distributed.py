@@ -26,9 +26,10 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator
 
+from .data_passes import DataFilm
 from .film import CatcherOutput, TileFilm
-from .render import (CancelCallback, RenderResult, SampleRanges, TileCallback, TileSamples, merge_tile_samples,
-                     render_samples, tile_result, world_to_camera)
+from .render import (CancelCallback, RenderResult, SampleRanges, TileCallback, TileSamples, fold_tile_part,
+                     merge_data_tables, merge_tile_samples, render_samples, tile_result, world_to_camera)
 from .sampling import VARIANCE_GROUPS, make_sampler
 from .scene import Scene
 from .schedule import TileRect, pass_bounds, tiles
@@ -257,19 +258,20 @@ def render_on_cluster(scene: Scene, settings: RenderSettings, client, *,
     on_tile: called on this thread with each tile (core.render.Tile, all its samples) as soon as the units
     holding its samples are back, so a viewer can show the frame filling in; its images equal the final ones.
     stats: seconds, samples/s, units, workers, threads, scene_bytes (the pickled scene sent once per worker),
-    film_bytes (all film sums sent back) and film_bytes_per_unit.
+    film_bytes (all film sums sent back; data_pass_bytes of them the data passes') and film_bytes_per_unit.
     """
     job = _FrameJob(client, scene, settings, units, submit_seed, log, on_tile=on_tile, region=region)
     _run_jobs([job], on_progress, should_cancel)
     return job.result()
 
 
-def render_frames_on_cluster(client, frames: Iterable[tuple[object, Scene, RenderSettings]],
+def render_frames_on_cluster(client, frames: Iterable[tuple],
                              on_frame: Callable[[object, RenderResult], None], *, frames_in_flight: int = 2,
                              on_progress: Callable[[ClusterProgress], None] | None = None,
                              should_cancel: CancelCallback | None = None,
                              log: Callable[[str], None] | None = None) -> int:
-    """Render a sequence of frames ((key, scene, settings), e.g. a .blend's exported frames) on the cluster,
+    """Render a sequence of frames ((key, scene, settings) or (key, scene, settings, region), e.g. a .blend's
+    exported frames; region as render_on_cluster's, None the whole frame) on the cluster,
     with up to frames_in_flight frames' units queued at once, so that workers keep busy while the client
     takes the next frame from `frames` (an export) and merges the last. on_frame(key, result) is called on this
     thread as each frame completes (in completion order), with images bit-identical to render()'s of that
@@ -288,11 +290,11 @@ def render_frames_on_cluster(client, frames: Iterable[tuple[object, Scene, Rende
         while (source is not None and sum(not j.done for j in jobs) < frames_in_flight
                and not any(j.settings.time_limit > 0 and not j.done for j in jobs)):
             try:
-                key, scene, settings = next(source)
+                key, scene, settings, *rest = next(source)
             except StopIteration:
                 source = None
                 return
-            jobs.append(_FrameJob(client, scene, settings, None, None, log, key))
+            jobs.append(_FrameJob(client, scene, settings, None, None, log, key, region=rest[0] if rest else None))
 
     def deliver() -> None:
         nonlocal finished
@@ -356,6 +358,7 @@ class _FrameJob:
         self.parts: list[TileSamples] = []
         self.done_paths = 0
         self.film_bytes = 0
+        self.data_bytes = 0  # of film_bytes, the data passes' sums
         self._hand_out()
 
     def _unit_key(self, i: int) -> str:
@@ -395,7 +398,8 @@ class _FrameJob:
             self.parts += result
             if self.on_tile is not None:
                 self._show_finished_tiles(result)
-            self.film_bytes += sum(a.nbytes for part in result for sums in part.films for a in sums.values())
+            self.film_bytes += sum(part.nbytes() for part in result)
+            self.data_bytes += sum(a.nbytes for part in result for sums in part.data for a in sums.values())
             self.done_paths += self.unit_paths[f.key]
         if finished or self.settings.time_limit > 0:
             self._hand_out()
@@ -418,15 +422,16 @@ class _FrameJob:
             film = TileFilm(tile[2], tile[3], self.settings.aovs, sampler, self.settings.denoising_features,
                             alpha=self.scene.has_alpha, catcher=CatcherOutput.of(self.scene),
                             light_passes=self.settings.light_passes, shader_aovs=self.scene.shader_aovs)
+            tables = merge_data_tables(self.settings, parts)
+            data_film = DataFilm(tile[2], tile[3], tables) if tables is not None else None
             for p in parts:
-                if p.sample_start == 0:  # the film's state after the first samples (TileSamples)
-                    film.set_state(p.films[0])
-                else:
-                    for sums in p.films:
-                        film.add_sums(sums)
+                fold_tile_part(film, data_film, p)
             del self.tile_parts[ti]
             rot = world_to_camera(self.scene) if self.settings.denoising_features else None
-            self.on_tile(tile_result(tile, film, spp, self.settings.aovs, rot))
+            shown = tile_result(tile, film, spp, self.settings.aovs, rot)
+            if data_film is not None:
+                shown.data_passes = data_film.images()
+            self.on_tile(shown)
 
     def cancel(self) -> None:
         self.to_submit = []
@@ -453,6 +458,7 @@ class _FrameJob:
             "threads": self.threads,
             "scene_bytes": self.scene_bytes,
             "film_bytes": self.film_bytes,
+            "data_pass_bytes": self.data_bytes,
             "film_bytes_per_unit": self.film_bytes / max(len(self.futures), 1),
             "units_done": len(self.futures),
             "stopped_by_time_limit": self.stopped,

@@ -206,6 +206,14 @@ class TileSamples:
     sample_start: int
     sample_end: int
     films: list[dict[str, np.ndarray]]
+    # Cycles' data passes (settings.data_passes), as `films`: the DataFilm's state() from sample 0, else one
+    # take_pass() per sample pass; crypto_names: each Cryptomatte kind's names, which its sums index.
+    data: list[dict[str, np.ndarray]] = field(default_factory=list)
+    crypto_names: dict[str, list[str]] = field(default_factory=dict)
+
+    def nbytes(self) -> int:
+        """Bytes of the sums (what a cluster worker sends back for this range)."""
+        return sum(a.nbytes for sums in self.films + self.data for a in sums.values())
 
 
 def render_samples(scene: Scene, settings: RenderSettings, work: SampleRanges, *,
@@ -249,6 +257,8 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
                       catcher=CatcherOutput.of(scene), light_passes=settings.light_passes,
                       shader_aovs=scene.shader_aovs) for t in tile_list]
+    tables = merge_data_tables(settings, parts)
+    data_films = [DataFilm(t[2], t[3], tables) for t in tile_list] if tables is not None else None
     reached = [0] * len(tile_list)
     for part in sorted(parts, key=lambda p: (p.tile_index, p.sample_start)):
         ti = part.tile_index
@@ -258,13 +268,9 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
             if partial and part.sample_start > reached[ti]:
                 continue  # past a missing range: its samples cannot be added without those before them
             raise ValueError(f"tile {ti}: samples from {part.sample_start} follow samples up to {reached[ti]}")
-        if part.sample_start == 0:
-            if len(part.films) != 1:
-                raise ValueError(f"tile {ti}: samples from 0 come as one film state, not {len(part.films)}")
-            films[ti].set_state(part.films[0])
-        else:
-            for sums in part.films:
-                films[ti].add_sums(sums)
+        if part.sample_start == 0 and len(part.films) != 1:
+            raise ValueError(f"tile {ti}: samples from 0 come as one film state, not {len(part.films)}")
+        fold_tile_part(films[ti], None if data_films is None else data_films[ti], part)
         reached[ti] = part.sample_end
     missing = [ti for ti, r in enumerate(reached) if r != settings.spp]
     if missing and not partial:
@@ -279,7 +285,36 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
         result.denoising_albedo, result.denoising_normal = features
     for name, value in extras.items():
         setattr(result, name, value)
+    if data_films is not None:
+        result.data_passes = assemble_data(list(zip(tile_list, data_films)), region)
+        result.cryptomatte = manifests(tables)
     return result
+
+
+def merge_data_tables(settings: RenderSettings, parts: list[TileSamples]) -> DataTables | None:
+    """The data passes' tables for films merged from `parts` (None without data passes): the Cryptomatte names
+    come with the parts (each unit's render listed them from the same scene)."""
+    if not settings.data_passes:
+        return None
+    names = next((p.crypto_names for p in parts if p.crypto_names), {})
+    return DataTables.for_merge(tuple(settings.data_passes), 2 * math.ceil(settings.cryptomatte_levels / 2), names)
+
+
+def fold_tile_part(film: TileFilm, data_film: DataFilm | None, part: TileSamples) -> None:
+    """Add one range's sums to its tile's films (those holding the tile's samples before part.sample_start): its
+    film state from sample 0, else its passes' sums one by one in pass order, as render() adds them."""
+    if data_film is not None and len(part.data) != len(part.films):
+        raise ValueError(f"tile {part.tile_index}: samples from {part.sample_start} come without the data passes' "
+                         f"sums ({len(part.data)} for {len(part.films)} films)")
+    if part.sample_start == 0:
+        film.set_state(part.films[0])
+        if data_film is not None:
+            data_film.set_state(part.data[0])
+        return
+    for sums in part.films:
+        film.add_sums(sums)
+    for sums in part.data if data_film is not None else ():
+        data_film.add_sums(sums)
 
 
 class FrameImages:
@@ -501,13 +536,15 @@ class _TileRender:
                                                    settings.denoising_features, alpha=alpha, catcher=catcher,
                                                    light_passes=settings.light_passes,
                                                    shader_aovs=scene.shader_aovs))
-        # Cycles' data passes (core.data_passes), local renders only (render_samples' merge does not carry them)
+        # Cycles' data passes (core.data_passes); render_samples() hands their sums on beside the films'
         self.data_tables = None
         self.data_films: dict = {}
-        if settings.data_passes and work is None:
+        if settings.data_passes:
             self.data_tables = DataTables.build(scene, prepared, tuple(settings.data_passes),
                                                 2 * math.ceil(settings.cryptomatte_levels / 2))
-            self.data_films = {t: DataFilm(t[2], t[3], self.data_tables) for t in self.tiles}
+            wanted = self.tiles if work is None else [self.tiles[int(ti)] for ti in work
+                                                      if 0 <= int(ti) < len(self.tiles)]
+            self.data_films = {t: DataFilm(t[2], t[3], self.data_tables) for t in wanted}
 
         self.spp = int(settings.spp)
         self.total_paths = self.spp * rw * rh
@@ -524,9 +561,12 @@ class _TileRender:
         # sums apart (the merge adds them to the earlier passes' film one pass at a time, as render() does).
         self.work = self._check_work(work) if work is not None else None
         self.pass_sums: dict[int, list[dict[str, np.ndarray]]] = {}
+        self.data_pass_sums: dict[int, list[dict[str, np.ndarray]]] = {}
         for ti, (start, _end) in (self.work or {}).items():
             if start > 0:  # these tiles' films keep each pass's raw sums apart (TileFilm.capture_passes)
                 self.films[self.tiles[ti]].capture_passes()
+                if self.data_tables is not None:
+                    self.data_films[self.tiles[ti]].capture_passes()
 
         # The region's images, each tile's written (and its film released) as soon as its last pass lands
         # (FrameImages); render_samples() hands films on instead.
@@ -748,6 +788,9 @@ class _TileRender:
                 self.samples_started[seg.tile_index] = seg.sample_end
                 if self.work is not None and self.work[seg.tile_index][0] > 0:
                     self.pass_sums.setdefault(seg.tile_index, []).append(film.take_pass())
+                    if self.data_tables is not None:
+                        self.data_pass_sums.setdefault(seg.tile_index, []).append(
+                            self.data_films[seg.tile].take_pass())
                 if self.frame is not None and seg.sample_end == self.spp:  # the tile is final: its images once
                     tile = self._final_tile(seg.tile_index, seg.tile, film)
                     if self.on_tile is not None and not quiet:
@@ -780,12 +823,18 @@ class _TileRender:
     def tile_samples(self) -> list[TileSamples]:
         """After run() with work: each tile range's film sums (see TileSamples)."""
         out = []
+        names = {} if self.data_tables is None else {kind: list(n) for kind, n in self.data_tables.names.items()}
         for ti, (start, end) in sorted(self.work.items()):
+            data = []
             if start > 0:
                 films = self.pass_sums.get(ti, [])
+                if self.data_tables is not None:
+                    data = self.data_pass_sums.get(ti, [])
             else:
                 films = [{name: arr.copy() for name, arr in self.films[self.tiles[ti]].state().items()}]
-            out.append(TileSamples(ti, start, end, films))
+                if self.data_tables is not None:
+                    data = [self.data_films[self.tiles[ti]].state()]
+            out.append(TileSamples(ti, start, end, films, data, names))
         return out
 
     # ------------------------------------------------------------------------------------------ reporting

@@ -192,6 +192,36 @@ def test_a_render_region_goes_to_the_cluster_alone_and_equals_the_local_region(s
     assert local.color[..., :3].max() > 0
 
 
+def test_data_passes_arrive_from_the_cluster_with_the_local_bits(scheduler, tmp_path):
+    """Mist, Position, UV, the indices and Cryptomatte (View Layer > Passes > Data) on F12 on the cluster: every
+    layer of Blender's EXR, the Cryptomatte manifest included, equals the local render's; 32 spp is 2 sample
+    passes per 8x8 tile, so each tile is merged from 2 units (one from sample 0, one past it)."""
+    scene = small_cornell(spp=32)
+    layer = scene.view_layers[0]
+    for flag in ("use_pass_mist", "use_pass_position", "use_pass_uv", "use_pass_object_index",
+                 "use_pass_material_index", "use_pass_cryptomatte_object", "use_pass_cryptomatte_material"):
+        setattr(layer, flag, True)
+    local = render_still(scene, tmp_path, "local")
+    scene.monte.use_cluster = True
+    scene.monte.cluster_address = scheduler[0]
+    captured = []
+    engine_mod.result_listeners.append(lambda *args: captured.append(args))
+    try:
+        on_cluster = render_still(scene, tmp_path, "cluster")
+    finally:
+        engine_mod.result_listeners.pop()
+    (_, result, _, _), = captured
+    assert result.stats["units"] == 12 and result.stats["workers"] == 2
+    assert {"ViewLayer.Mist.Z", "ViewLayer.Position.X", "ViewLayer.UV.U", "ViewLayer.Object Index.X",
+            "ViewLayer.Material Index.X", "ViewLayer.CryptoObject00.r",
+            "ViewLayer.CryptoMaterial00.g"} <= set(on_cluster)
+    assert sorted(local) == sorted(on_cluster)
+    for name in local:
+        assert np.array_equal(local[name], on_cluster[name]), name
+    assert np.ptp(on_cluster["ViewLayer.Mist.Z"]) > 0 and on_cluster["ViewLayer.CryptoObject00.g"].max() > 0
+    assert set(result.cryptomatte) == {"CryptoObject", "CryptoMaterial"} and result.cryptomatte["CryptoObject"]
+
+
 def test_an_animation_keeps_one_connection_for_all_its_frames(scheduler, tmp_path):
     """An animation rendered from Blender (render_init .. render_complete) connects once; every frame equals the
     local render of that frame bit for bit; the connection is closed when the animation ends."""

@@ -20,6 +20,7 @@ from distributed import Client, LocalCluster
 
 from monte.cli import main
 from monte.core.builtin_scenes import builtin_scene
+from monte.core.exr import read_exr
 from monte.core.distributed import (ClusterError, check_workers, connect, plan_units, render_frames_on_cluster,
                                     render_on_cluster, render_unit, worker_versions)
 from monte.core.render import merge_tile_samples, render, render_samples
@@ -228,7 +229,7 @@ def test_workers_with_another_monte_are_refused(cluster):
 
 def test_monte_worker_joins_a_scheduler_and_renders_the_same_image(reference, tmp_path):
     """`monte worker ADDRESS` (kernels loaded, then `dask worker` in the same process) against a scheduler with
-    no worker of its own."""
+    no worker of its own: a still and two frames on this one worker, each equal to its own render."""
     with LocalCluster(n_workers=0, processes=True, dashboard_address=":0") as lc, Client(lc) as client:
         with open(tmp_path / "worker.log", "wb") as log:
             proc = subprocess.Popen([sys.executable, "-m", "monte", "worker", lc.scheduler_address,
@@ -239,6 +240,11 @@ def test_monte_worker_joins_a_scheduler_and_renders_the_same_image(reference, tm
             names = [w["name"] for w in client.scheduler_info(n_workers=-1)["workers"].values()]
             assert names == ["monte-test-worker"]
             _assert_same_images(render_on_cluster(_scene(), _settings(), client), reference)
+            delivered = {}
+            frames = [(seed, _scene(), _settings(seed=seed)) for seed in (7, 8)]
+            assert render_frames_on_cluster(client, iter(frames), delivered.__setitem__) == 2
+            _assert_same_images(delivered[7], reference)
+            _assert_same_images(delivered[8], render(_scene(), _settings(seed=8)))
         finally:
             proc.terminate()
             try:
@@ -342,11 +348,13 @@ def test_malformed_addresses_are_refused(address, message):
 
 
 def test_cli_dask_local_writes_the_same_exr_as_a_local_render(tmp_path, capsys):
+    """With data passes too (--passes): the EXR's bytes, Mist and Cryptomatte with its manifest included."""
     common = ["render", "cornell", "--resolution", "32x24", "--spp", "12", "--seed", "7", "--batch", "1024",
-              "--tile", "16", "--no-png", "-q"]
+              "--tile", "16", "--no-png", "-q", "--passes", "mist,object_index,crypto_material"]
     assert main(common + ["-o", str(tmp_path / "local.exr")]) == 0
     assert main(common + ["-o", str(tmp_path / "cluster.exr"), "--dask", "local:1"]) == 0
     assert (tmp_path / "local.exr").read_bytes() == (tmp_path / "cluster.exr").read_bytes()
+    assert {"Mist.Z", "CryptoMaterial00.R"} <= set(read_exr(tmp_path / "cluster.exr"))
 
 
 def test_ctrl_c_stops_a_cluster_render_writes_nothing_and_leaves_no_worker(tmp_path):

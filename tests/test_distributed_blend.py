@@ -17,6 +17,7 @@ import blender_fixtures as bf  # noqa: E402
 
 from monte.addon.headless import export_blend_frames  # noqa: E402
 from monte.cli import main  # noqa: E402
+from monte.core.distributed import plan_units  # noqa: E402
 from monte.core.exr import read_exr  # noqa: E402
 from monte.core.render import render  # noqa: E402
 
@@ -48,7 +49,9 @@ def test_frames_on_a_cluster_equal_the_core_render_of_each_frame(animated_blend,
     assert sorted(p.name for p in out.parent.iterdir()) == ["shot_0001.exr", "shot_0002.exr"]
     overrides = {"spp": 8, "seed": 3, "batch_paths": 1024, "tile_size": 16, "resolution": (24, 16)}
     colors = []
-    for frame, scene, settings in export_blend_frames(animated_blend, overrides, [1, 2], log=lambda _m: None):
+    for frame, scene, settings, region, _size, _cropped in export_blend_frames(animated_blend, overrides, [1, 2],
+                                                                             log=lambda _m: None):
+        assert region is None
         local = render(scene, settings)
         written = read_exr(out.parent / f"shot_{frame:04d}.exr")
         assert np.array_equal(written["R"], local.color[..., 0]) and np.array_equal(written["B"], local.color[..., 2])
@@ -89,6 +92,46 @@ def test_a_cluster_export_sees_the_scene_as_f12_does(tmp_path):
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     exported = list(export_blend_frames(blend, {"spp": 1}, None, log=lambda _m: None))
     assert len(exported) == 1
-    assert sum(m.triangle_count for m in exported[0][1].meshes) == 6 * 4 ** 3 * 2
+    assert sum(m.triangle_count for m in exported[0].scene.meshes) == 6 * 4 ** 3 * 2
     viewport, _ = export_scene(bpy.context.evaluated_depsgraph_get())
     assert sum(m.triangle_count for m in viewport.meshes) == 6 * 4 * 2
+
+
+def test_a_render_region_sends_out_only_its_tiles_and_equals_the_local_region_render(tmp_path, capsys):
+    """Render Region x 0.25-0.75 of 24x16 (pixels 6-18, y 4-12 from the top): only the region's tiles go out (the
+    units plan_units cuts for the region, fewer paths than the frame's), the EXR is padded to the frame as
+    `monte render scene.blend` writes a region, and it equals that local render's file bit for bit, the view
+    layer's data passes (Mist, Cryptomatte) included."""
+    bf.cornell_box((24, 16))
+    scene = bpy.context.scene
+    scene.render.use_border, scene.render.use_crop_to_border = True, False
+    scene.render.border_min_x, scene.render.border_max_x = 0.25, 0.75
+    scene.render.border_min_y, scene.render.border_max_y = 0.25, 0.75
+    layer = scene.view_layers[0]  # the view layer's data passes go to the cluster too
+    layer.use_pass_mist, layer.use_pass_cryptomatte_object = True, True
+    blend = tmp_path / "region.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    options = [o for o in OPTIONS if o != "-q"]
+    assert main(["render", str(blend), "-o", str(tmp_path / "cluster.exr"), "--dask", "local:2"] + options) == 0
+    log = capsys.readouterr().err
+    assert main(["render", str(blend), "-o", str(tmp_path / "local.exr")] + OPTIONS) == 0
+
+    overrides = {"spp": 8, "seed": 3, "batch_paths": 1024, "tile_size": 16, "resolution": (24, 16)}
+    item, = export_blend_frames(blend, overrides, None, log=lambda _m: None)
+    assert item.region == (6, 4, 12, 8) and item.size == (24, 16) and not item.cropped
+    units = plan_units(item.scene, item.settings, 2, region=item.region)
+    assert {ti for u in units for ti in u} == {0}  # the region is one 12x8 tile of 16x16 tiles
+    assert f"{len(units)} units on 2 workers" in log
+    local = render(item.scene, item.settings, region=item.region)
+    written = read_exr(tmp_path / "cluster.exr")
+    assert written["R"].shape == (16, 24)
+    assert np.array_equal(written["R"][4:12, 6:18], local.color[..., 0]) and local.color[..., 0].max() > 0
+    outside = np.ones((16, 24), bool)
+    outside[4:12, 6:18] = False
+    assert np.all(written["R"][outside] == 0) and np.all(written["Z"][outside] == 1e10)
+    assert np.array_equal(written["Mist.Z"][4:12, 6:18], local.data_passes["Mist"][..., 0])
+    from_blender = read_exr(tmp_path / "local.exr")
+    common = set(written) & set(from_blender)
+    assert {"R", "A", "variance.R", "Mist.Z", "CryptoObject00.R", "CryptoObject00.G"} <= common
+    for name in common:
+        assert np.array_equal(written[name], from_blender[name]), name
