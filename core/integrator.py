@@ -24,6 +24,7 @@ from . import geometry_kernels, path_kernels, transparent_shadow
 from . import light_passes as lp_mod
 from .accel import Accelerator, Hits, MotionTriangles
 from .data_passes import DataPath
+from .light_groups import LightGroups, LightGroupSamples, emission_shares
 from .light_linking import LightLinks, ShadowLinks
 from .shader_aovs import AovPath
 from .light_shadow import NoShadowLights
@@ -165,6 +166,7 @@ class PreparedScene:
     links: "LightLinks | None" = None
     shadow_links: "ShadowLinks | None" = None
     light_visibility: "LightVisibility | None" = None  # lights hidden from some bounce rays (core.light_visibility)
+    light_groups: "LightGroups | None" = None  # Cycles' light groups (core.light_groups); None: the scene has none
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -219,6 +221,8 @@ class PreparedScene:
                                                                               [], [])
         catchers = []
         link_rows, shadow_rows = [], []  # per mesh: (triangles, light_sets, receiver_set), (triangles, shadow_sets)
+        group_index = {name: i for i, name in enumerate(scene.light_groups)}
+        group_rows = []  # per mesh: its triangles' light group (core.light_groups), only with light groups
         layer_names = list(scene.uv_layer_names)
         attribute_names, attrs = list(scene.attribute_names), []
         tangent_names = list(scene.tangent_layer_names)
@@ -241,6 +245,8 @@ class PreparedScene:
             catchers.append(np.full(t, bool(mesh.shadow_catcher)))
             link_rows.append((t, int(mesh.light_sets), int(mesh.receiver_set)))
             shadow_rows.append((t, int(mesh.shadow_sets)))
+            if group_index:
+                group_rows.append(np.full(t, group_index.get(mesh.lightgroup, -1), np.int32))
             if layer_names:  # the named UV maps node programs read; (0, 0) where a mesh lacks one
                 per = np.zeros((t, len(layer_names), 3, 2), np.float32)
                 for j, lname in enumerate(layer_names):
@@ -370,6 +376,15 @@ class PreparedScene:
             features["textured_emitters"] = 0 if prepared.textured is None else prepared.textured.count
         if links is not None and (prepared.textured is not None or moving_emitters is not None):
             _warn_unlinked_emitters(scene, link_rows, prepared.textured, moving_emitters)
+        if group_index:
+            emitting = np.zeros(len(triangles), bool)
+            for table in (emissive, prepared.textured):
+                if table is not None:
+                    emitting[table.triangle_id] = True
+            prepared.light_groups = LightGroups.build(
+                scene, shift, np.concatenate(group_rows) if group_rows else np.zeros(0, np.int32), emitting,
+                vertices, triangles)
+        features["light_groups"] = 0 if prepared.light_groups is None else prepared.light_groups.count
         return prepared
 
     def hit_triangles(self, tri: np.ndarray, ray_time: np.ndarray | None) -> tuple:
@@ -574,6 +589,7 @@ class FirstHit:
     data: dict | None = None  # what each sample adds to the data passes (core.data_passes.DataTables.samples)
     light_passes: "lp_mod.LightPassSamples | None" = None  # Cycles' light passes (settings.light_passes)
     shader_aovs: "AovPath | None" = None  # what AOV Output nodes wrote (core.shader_aovs; Scene.shader_aovs)
+    light_groups: "LightGroupSamples | None" = None  # Cycles' light groups (core.light_groups; Scene.light_groups)
 
 
 def _smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
@@ -775,6 +791,12 @@ class PathTracer:
             if first is None:
                 first = FirstHit(None, None, None)
             first.light_passes = lp
+        lg = None  # the light groups (core.light_groups), only when the scene has some
+        if ps.light_groups is not None and not self._catcher_copies:
+            lg = LightGroupSamples(n, ps.light_groups.count)
+            if first is None:
+                first = FirstHit(None, None, None)
+            first.light_groups = lg
         aov_path = None  # the shader AOVs (core.shader_aovs), only when some material writes one
         if ps.scene.shader_aovs and ps.shading is not None and ps.shading.writes_aovs and not self._catcher_copies:
             aov_path = AovPath(n, len(ps.scene.shader_aovs), ps)
@@ -882,6 +904,13 @@ class PathTracer:
                          else bounce_kind[idx])
                 le = self._light_emission(o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal, depth == 0,
                                           prev_transmits, clear_here if film_transparent else None, classes, kinds)
+                shares = None
+                if lg is not None:  # each group's share of it: the same look-up with the other emitters hidden
+                    shares = emission_shares([self._light_emission(
+                        o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal, depth == 0, prev_transmits,
+                        (clear_here if film_transparent else None) if ps.light_groups.world_in[g]
+                        else np.ones(len(o), bool), classes, kinds, ps.light_groups.hidden[g])
+                        for g in range(ps.light_groups.count)], le)
                 if through is not None:
                     through.light_emission(self, le, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal,
                                            prev_transmits, clear_here if film_transparent else None, classes,
@@ -898,9 +927,12 @@ class PathTracer:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
                 if lp is not None and depth == 0:
-                    self._add_camera_light(radiance, lp, idx, throughput * le, o, d, hit, hits, prev_pdf, prev_delta)
+                    clean = self._add_camera_light(radiance, lp, idx, throughput * le, o, d, hit, hits, prev_pdf,
+                                                   prev_delta)
+                    if lg is not None:
+                        lg.add(idx, clean, shares)
                 else:
-                    self._add_split(radiance, lp, depth, idx, throughput * le)
+                    self._add_split(radiance, lp, depth, idx, throughput * le, lg, shares)
                 if features is not None:
                     features.add_emission(idx, throughput * le)
             prim = hits.prim
@@ -939,7 +971,8 @@ class PathTracer:
                     if origin_class is not None and depth > 0:  # an emitter not linked to the ray's origin
                         cls_e = origin_class[idx[e]]
                         w = w * ps.links.emitter_linked[cls_e, em_idx]
-                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le * w[:, None].astype(np.float32))
+                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le * w[:, None].astype(np.float32),
+                                    lg, None if lg is None else ps.light_groups.group_of_triangle[prim[e]])
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
             # Moving emitters are not light-sampled: what BSDF sampling (or the camera) finds counts in full.
@@ -947,7 +980,8 @@ class PathTracer:
                 e = np.flatnonzero(hit & ps.moving_emitters[np.maximum(prim, 0)] & (True if held is None else ~held))
                 if len(e):
                     le = ps.materials.emission[ps.material_index[prim[e]]]
-                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le)
+                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le,
+                                    lg, None if lg is None else ps.light_groups.group_of_triangle[prim[e]])
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
             # Emission that varies per point (a node program drives it): MIS-weighted against the textured
@@ -974,7 +1008,8 @@ class PathTracer:
                             pb = prev_pdf[e]
                             w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
                         le = le * w[:, None].astype(np.float32)
-                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le)
+                    self._add_split(radiance, lp, depth, idx[e], throughput[e] * le,
+                                    lg, None if lg is None else ps.light_groups.group_of_triangle[prim[e]])
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
 
@@ -1063,11 +1098,12 @@ class PathTracer:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp,
                                      bumped=bumped, ray_time=ray_time,
                                      classes=None if origin_class is None else origin_class[idx],
-                                     transparent_bounces=transparent_bounces)
+                                     transparent_bounces=transparent_bounces, lg=lg)
                 if ps.textured is not None:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp, textured=True,
                                      bumped=bumped, ray_time=ray_time,
-                                     path=_rows_of(path_state, idx), transparent_bounces=transparent_bounces)
+                                     path=_rows_of(path_state, idx), transparent_bounces=transparent_bounces,
+                                     lg=lg)
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
@@ -1143,18 +1179,19 @@ class PathTracer:
         return radiance
 
     def _light_emission(self, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,
-                        clear, classes=None, kinds=None) -> np.ndarray:
+                        clear, classes=None, kinds=None, group_hidden: frozenset = frozenset()) -> np.ndarray:
         """Emission of lights and the world along the rays (core.lights.LightSampler.intersect); rays where
         `clear` (None: none) count as transparent and see no world. classes: the receiver class of each ray's
         origin (light linking, core.light_linking; None: camera rays or no linking): each class sees its linked
         emitters; with shadow linking, rays after a non-delta bounce do not see shadow-linked lights (light
         sampling alone counts them). kinds: each ray's kind (core.ray_visibility) where some light hides from
-        some kind (core.light_visibility), else None."""
+        some kind (core.light_visibility), else None. group_hidden: lights hidden besides (a light group's share,
+        core.light_groups)."""
         ps = self.ps
         hide = ps.shadow_links is not None and not camera and mis_here and self.use_nee
         if classes is None and not hide and kinds is None:
             return self._emission_of(ps.lights, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera,
-                                     prev_transmits, clear, frozenset())
+                                     prev_transmits, clear, group_hidden)
         # one group per (receiver class, ray kind, shadow-linked lights hidden)
         key = np.zeros(len(o), np.int64) if classes is None else np.asarray(classes, np.int64) * 16
         if kinds is not None:
@@ -1165,7 +1202,7 @@ class PathTracer:
         for k in np.unique(key):
             rows = np.flatnonzero(key == k)
             lights = ps.lights if classes is None else ps.links.samplers[int(k) // 16]
-            hidden = ps.shadow_links.hidden if hide and k % 2 else frozenset()
+            hidden = (ps.shadow_links.hidden if hide and k % 2 else frozenset()) | group_hidden
             if kinds is not None:
                 hidden = hidden | ps.light_visibility.hidden((int(k) % 16) // 2)
             out[rows] = self._emission_of(lights, o[rows], d[rows], tmax[rows], prev_pdf[rows], prev_delta[rows],
@@ -1317,7 +1354,7 @@ class PathTracer:
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
                     bary=None, lp: "lp_mod.LightPassSamples | None" = None, textured: bool = False,
                     path: np.ndarray | None = None, bumped=None, ray_time=None, classes=None,
-                    transparent_bounces: np.ndarray | None = None) -> None:
+                    transparent_bounces: np.ndarray | None = None, lg: "LightGroupSamples | None" = None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
         u, v) of each path's hit when some mesh has a shadow terminator offset, else None (with motion blur:
         (row, u, v, corners, corner normals, offsets) of the hits' own triangles at their times); ray_time: each
@@ -1326,7 +1363,7 @@ class PathTracer:
         path went through (its shadow rays may pass that many fewer; None: none counted). textured: sample the textured emitters
         (core.textured_emitters) instead of the lights, the emission from their programs; path: the paths' Light
         Path state there (None when no program reads it); classes: the paths' receiver classes (light linking,
-        core.light_linking) or None."""
+        core.light_linking) or None; lg: the light groups to attribute the light to (core.light_groups; None: off)."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
@@ -1399,10 +1436,18 @@ class PathTracer:
                 transmit[free[sample_of[:count]]] = 1.0
         vis = np.flatnonzero(~blocked)
         shadowed = contrib[vis] if transmit is None else contrib[vis] * transmit[vis]
-        if lp is None:
+        if lp is None and lg is None:
             self._add(radiance, sample_of[vis], shadowed)
             return
         value = self._add_clean(radiance, sample_of[vis], shadowed)
+        if lg is not None:  # each light sample to its emitter's group; one sample per path finds its row in `can`
+            row_of = np.zeros(len(radiance), np.int64)
+            row_of[idx[can]] = np.arange(m)
+            k = row_of[sample_of[:count][vis]]
+            lg.add(sample_of[vis], value, ps.light_groups.of_light_samples(
+                gc.p[k], wi[k], np.asarray(ls.dist)[k], origin[:count][vis], triangles_only=textured))
+        if lp is None:
+            return
         if depth > 0:
             lp.add_split(False, sample_of[vis], value)
             return
@@ -1502,20 +1547,25 @@ class PathTracer:
         return clean
 
     def _add_split(self, radiance: np.ndarray, lp: "lp_mod.LightPassSamples | None", depth: int, idx: np.ndarray,
-                   value: np.ndarray) -> None:
+                   value: np.ndarray, lg: "LightGroupSamples | None" = None, groups=None) -> None:
         """Emission found at vertex `depth` added to the image and, with light passes, to Emission (seen by the
-        camera), the Direct passes (found by the first bounce) or the Indirect ones (later)."""
-        if lp is None:
+        camera), the Direct passes (found by the first bounce) or the Indirect ones (later); with light groups
+        (lg) to the emitters' groups (`groups`: see core.light_groups.LightGroupSamples.add)."""
+        if lp is None and lg is None:
             self._add(radiance, idx, value)
             return
         clean = self._add_clean(radiance, idx, value)
+        if lg is not None:
+            lg.add(idx, clean, groups)
+        if lp is None:
+            return
         if depth == 0:
             lp.add(lp_mod.EMISSION, idx, clean)
         else:
             lp.add_split(depth == 1, idx, clean)
 
     def _add_camera_light(self, radiance, lp: "lp_mod.LightPassSamples", idx, value, o, d, hit, hits, prev_pdf,
-                          prev_delta) -> None:
+                          prev_delta) -> np.ndarray:
         """Lights and world seen by camera rays, with light passes: the lights' share to Emission, the world's to
         Environment (the lights alone are looked up once more, without the world)."""
         clean = self._add_clean(radiance, idx, value)
@@ -1527,6 +1577,7 @@ class PathTracer:
         em = (clean * lamp_share).astype(np.float32)
         lp.add(lp_mod.EMISSION, idx, em)
         lp.add(lp_mod.ENVIRONMENT, idx, clean - em)
+        return clean
 
     def _first_bounce_weights(self, lp: "lp_mod.LightPassSamples", idx, lobes, g: "SurfaceBatch", bs,
                               u_lobe) -> None:

@@ -1,0 +1,120 @@
+"""Cycles' light groups (core.light_groups): per group the light of its emitters; the groups sum to Combined when
+every emitter is in one; an emitter in no listed group lights none; scenes without groups pay nothing (no film
+sums, Combined bit for bit the same)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from monte.core.builtin_scenes import icosphere, quad
+from monte.core.film import TileFilm
+from monte.core.integrator import PreparedScene
+from monte.core.light_groups import pass_name
+from monte.core.render import render
+from monte.core.scene import AreaLight, Camera, Film, Lobe, Material, PointLight, Scene, SceneError, SunLight, World
+from monte.core.settings import RenderSettings
+
+
+def grouped_scene(groups=("key", "fill", "panel", "sky"), resolution=(24, 24), transparent=False) -> Scene:
+    """Diffuse ground and wall, a diffuse, a rough glossy and a clear glass sphere; an area light seen by the camera
+    (group "key"), a sphere light and a sun ("fill"), an emissive quad ("panel") and a coloured world ("sky")."""
+    materials = [
+        Material("ground", [Lobe("diffuse", np.array((0.6, 0.55, 0.5)))]),
+        Material("metal", [Lobe("glossy", np.array((0.9, 0.8, 0.5)), roughness=0.3)]),
+        Material("glass", [Lobe("glass", np.ones(3), roughness=0.0, ior=1.45)]),
+        Material("panel", [Lobe("diffuse", np.zeros(3))], emission=np.array((2.0, 1.5, 1.0))),
+    ]
+    meshes = [
+        quad("ground", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], 0),
+        quad("wall", [(-4, 1.5, 0), (4, 1.5, 0), (4, 1.5, 2.2), (-4, 1.5, 2.2)], 0),
+        icosphere("clay", (-1.0, 0.2, 0.4), 0.4, 0),
+        icosphere("metal", (0.0, 0.5, 0.4), 0.4, 1),
+        icosphere("glass", (0.9, -0.3, 0.4), 0.4, 2),
+        quad("panel", [(-1.6, 1.45, 1.4), (-0.8, 1.45, 1.4), (-0.8, 1.45, 1.9), (-1.6, 1.45, 1.9)], 3),
+    ]
+    meshes[-1].lightgroup = "panel"
+    m = np.eye(4)
+    m[:3, 3] = (1.0, -0.5, 2.5)
+    lights = [AreaLight("lamp", m, np.full(3, 300.0), size_x=0.8, size_y=0.8, visible_camera=True,
+                        lightgroup="key"),
+              PointLight("bulb", np.array((-1.5, -1.0, 1.2)), np.array((40.0, 30.0, 20.0)), radius=0.1,
+                         lightgroup="fill"),
+              SunLight("sun", np.array((0.3, 0.5, -1.0)), np.array((1.0, 0.9, 0.8)), angle=math.radians(5.0),
+                       lightgroup="fill")]
+    camera = Camera.look_at((0, -4.5, 1.6), (0, 0.5, 1.0), horizontal_fov=math.radians(55.0),
+                            resolution=resolution)
+    return Scene(camera=camera, meshes=meshes, materials=materials, lights=lights,
+                 world=World(np.array((0.3, 0.4, 0.6)), lightgroup="sky"), film=Film(transparent=transparent),
+                 light_groups=list(groups), name="grouped")
+
+
+@pytest.mark.parametrize("transparent,clamp", [(False, 0.0), (True, 1.0)])
+def test_groups_sum_to_combined_and_cost_nothing_when_off(transparent, clamp):
+    """Every emitter in a group: the groups sum to Combined per pixel (float32 rounding), also with Film >
+    Transparent (the world seen directly is not in the image, nor in its group) and clamping; each group holds
+    light; Combined is bit for bit the image rendered without light groups, whose film keeps no group sums."""
+    settings = RenderSettings(spp=8, threads=2, clamp=clamp)
+    result = render(grouped_scene(transparent=transparent), settings)
+    names = [pass_name(g) for g in ("key", "fill", "panel", "sky")]
+    assert list(result.light_groups) == names
+    total = sum(result.light_groups[n].astype(np.float64) for n in names)
+    np.testing.assert_allclose(total, result.color[..., :3], rtol=2e-5, atol=2e-6)
+    for n in names:
+        assert result.light_groups[n].mean() > 1e-3, n
+    plain = render(grouped_scene(groups=(), transparent=transparent), settings)
+    assert plain.light_groups is None
+    np.testing.assert_array_equal(plain.color, result.color)
+
+
+def test_group_passes_attribute_each_emitter():
+    """A group's pass does not depend on the other groups (bit for bit when they are left out of the view layer);
+    an emitter naming an unlisted group lights none (the listed groups then miss its light); the lamp's group
+    holds what the lamp adds to the image: Combined with the lamp less Combined without it, within noise."""
+    settings = RenderSettings(spp=32, threads=2)
+    full = render(grouped_scene(), settings)
+    only_key = render(grouped_scene(groups=("key",)), settings)
+    np.testing.assert_array_equal(only_key.light_groups[pass_name("key")], full.light_groups[pass_name("key")])
+    assert list(only_key.light_groups) == [pass_name("key")]
+    np.testing.assert_array_equal(only_key.color, full.color)
+    # the sky and the panel unlisted: the listed groups hold the image less their light
+    partial = render(grouped_scene(groups=("key", "fill")), settings)
+    rest = full.light_groups[pass_name("panel")] + full.light_groups[pass_name("sky")]
+    np.testing.assert_allclose(partial.light_groups[pass_name("key")] + partial.light_groups[pass_name("fill")],
+                               full.color[..., :3] - rest, rtol=1e-4, atol=1e-5)
+    # what the lamp adds to the image, measured by removing it
+    scene = grouped_scene()
+    scene.lights = scene.lights[1:]
+    without = render(scene, settings)
+    lamp = full.light_groups[pass_name("key")].mean()
+    added = full.color[..., :3].mean() - without.color[..., :3].mean()
+    assert abs(added - lamp) < 0.03 * lamp, (added, lamp)
+    # the control: the lamp and the bulb swapped between groups; the key group then fails the same check
+    swapped = grouped_scene()
+    swapped.lights[0].lightgroup, swapped.lights[1].lightgroup = "fill", "key"
+    wrong = render(swapped, settings).light_groups[pass_name("key")].mean()
+    assert abs(added - wrong) > 10 * 0.03 * lamp, (added, wrong)
+
+
+def test_no_light_groups_keep_nothing():
+    """Without light groups the prepared scene has no group tables and the film no group sums."""
+    scene = grouped_scene(groups=()).validate()
+    assert PreparedScene.build(scene).light_groups is None
+    film = TileFilm(4, 4, False)
+    assert "light_group_sum" not in film.state()
+    film = TileFilm(4, 4, False, light_groups=("a", "b"))
+    assert film.state()["light_group_sum"].shape == (16, 2, 3)
+
+
+@pytest.mark.parametrize("groups,message", [
+    (["key", "key"], "light group 'key' is listed twice"),
+    (["key", ""], "light group '': the name must be a non-empty string"),
+    ("key", "light groups must be a list of names, got the string 'key'"),
+])
+def test_bad_light_groups_are_named(groups, message):
+    scene = grouped_scene()
+    scene.light_groups = groups
+    with pytest.raises(SceneError, match=message):
+        scene.validate()
