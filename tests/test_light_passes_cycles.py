@@ -113,8 +113,8 @@ def test_light_passes_match_cycles(tmp_path):
 
 
 def test_unsupported_pass_is_named_and_left_out(tmp_path, capfd):
-    """Ambient Occlusion ticked and a light group declared: the render warns by name and the result has no such
-    pass (never a black pass that looks real)."""
+    """Ambient Occlusion ticked: the render warns by name and the result has no such pass (never a black pass that
+    looks real); a light group is not among the unsupported passes (core.light_groups renders it)."""
     scene = bf.plane_under_world(resolution=(8, 8))
     scene.render.engine = "MONTE"
     layer = scene.view_layers[0]
@@ -124,7 +124,7 @@ def test_unsupported_pass_is_named_and_left_out(tmp_path, capfd):
 
     assert unsupported_passes(layer) == ["Ambient Occlusion"]
     bpy.ops.scene.view_layer_add_lightgroup(name="dirt")
-    assert unsupported_passes(layer) == ["Ambient Occlusion", "Combined_dirt (light group)"]
+    assert unsupported_passes(layer) == ["Ambient Occlusion"]
     assert "Ambient Occlusion" not in requested_passes(layer, scene)
     assert "Emission" in requested_passes(layer, scene)
     render_with_operator(scene)
@@ -132,7 +132,8 @@ def test_unsupported_pass_is_named_and_left_out(tmp_path, capfd):
     assert "Monte: the Ambient Occlusion pass (view layer 'ViewLayer') is not produced by Monte" in \
         printed.out + printed.err
     saved = bf.save_render_exr(scene, tmp_path / "m.exr")
-    assert not any("Ambient Occlusion" in key or ".AO." in key or "dirt" in key for key in saved)
+    assert not any("Ambient Occlusion" in key or ".AO." in key for key in saved)
+    assert f"{layer.name}.Combined_dirt.R" in saved
     assert f"{layer.name}.Emission.R" in saved
 
 
