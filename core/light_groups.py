@@ -32,6 +32,8 @@ import numpy as np
 
 from .light_shadow import NoShadowLights
 
+SHADOW_CATCHER_WARNING = ("light groups with a shadow catcher: the groups hold the light of the paths as traced, "
+                          "without the catcher's own compositing, so they do not sum to Combined")
 PASS_PREFIX = "Combined_"  # Cycles' (and Blender's) pass name of a light group: "Combined_" + the group's name
 
 
@@ -69,6 +71,8 @@ class LightGroups:
         names = tuple(scene.light_groups)
         if not names:
             return None
+        if scene.has_shadow_catcher and SHADOW_CATCHER_WARNING not in scene.warnings:
+            scene.warnings.append(SHADOW_CATCHER_WARNING)
         index = {name: i for i, name in enumerate(names)}
         world_group = index.get(getattr(scene.world, "lightgroup", ""), -1)
         world_lights = {id(lt) for lt in getattr(scene.world, "lights", [])}

@@ -118,3 +118,24 @@ def test_bad_light_groups_are_named(groups, message):
     scene.light_groups = groups
     with pytest.raises(SceneError, match=message):
         scene.validate()
+
+
+def test_sample_ranges_merged_equal_one_render():
+    """A render on a Dask cluster merges units of sample ranges (core.render.render_samples / merge_tile_samples):
+    the light groups' sums travel in the film sums, so the merged groups equal one render's bit for bit."""
+    from monte.core.render import merge_tile_samples, render_samples
+    from monte.core.schedule import pass_bounds, tiles
+
+    scene = grouped_scene(resolution=(32, 24))
+    settings = RenderSettings(spp=12, seed=7, threads=1, batch_paths=1024, tile_size=16, filter_type="box",
+                              filter_width=1.0)
+    local = render(scene, settings)
+    bounds = pass_bounds(tiles(0, 0, 32, 24, 16), 12, settings)  # each tile's sample passes
+    parts = [part for ti, b in enumerate(bounds) for start, stop in zip(b[:-1], b[1:])
+             for part in render_samples(scene, settings, {ti: (start, stop)})]
+    merged = merge_tile_samples(scene, settings, parts[::-1])
+    assert np.array_equal(merged.color, local.color)
+    assert list(merged.light_groups) == list(local.light_groups)
+    for name, arr in local.light_groups.items():
+        assert np.array_equal(merged.light_groups[name], arr), name
+    assert local.light_groups[pass_name("panel")].max() > 0

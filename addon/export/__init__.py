@@ -425,6 +425,10 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
                 attribute_names=list(materials.attribute_names),
                 tangent_layer_names=list(materials.tangent_names), shader_aovs=shader_aovs,
                 light_groups=view_layer_light_groups(depsgraph.view_layer))
+    if out.light_groups and out.has_shadow_catcher:
+        from ..core.light_groups import SHADOW_CATCHER_WARNING
+
+        warnings.append(SHADOW_CATCHER_WARNING)
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "
                          "metaballs); check the objects' render visibility and the view layer's collections")
