@@ -945,6 +945,8 @@ class PathTracer:
                 if len(seen):
                     transparent[idx[seen]] += h[seen] * throughput[seen].mean(axis=1)
                     held = h >= 1
+                    if aov_path is not None and held.any():  # Cycles evaluates the shader before the holdout
+                        self._holdout_aovs(aov_path, np.flatnonzero(held), idx, prim, hits, d, tr, path_state, hit_dp)
 
             # Emission of an emissive triangle hit (two-sided), MIS-weighted against light sampling.
             if ps.emissive is not None:
@@ -1344,6 +1346,21 @@ class PathTracer:
         f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, r), g.wo[r], wl, back=g.cos_o_geo[r] < 0)
         loss = np.where(reject, 1.0, 1.0 - g1)[:, None] * f_d / np.maximum(np.asarray(bs.pdf, np.float32)[r], 1e-30)[:, None]
         bs.weight[r] = np.maximum(bs.weight[r] - loss.astype(np.float32), 0.0)
+
+    def _holdout_aovs(self, aov_path: AovPath, rows, idx, prim, hits, d, tr, path_state, hit_dp) -> None:
+        """AOV Output nodes of the full holdout surfaces that live paths `rows` hit still write (core.shader_aovs):
+        Cycles evaluates a surface's shader, AOV nodes included, before its holdout ends the path."""
+        writing = aov_path.writing(idx[rows])
+        if not writing.any():
+            return
+        ps = self.ps
+        g = self._surface(rows, prim, hits.u, hits.v, d, tr)
+        mat = ps.material_index[prim[rows]]
+        lobes = ps.materials.gather(mat, g.uv)
+        out = np.zeros((len(rows), aov_path.values.shape[1], 4), np.float32)
+        self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]),
+                    path=_rows_of(path_state, idx[rows]), dp=None if hit_dp is None else hit_dp[rows], aov_out=out)
+        aov_path.record(idx[rows], writing, out, lobes)
 
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""
