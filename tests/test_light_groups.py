@@ -13,6 +13,7 @@ from monte.core.builtin_scenes import icosphere, quad
 from monte.core.film import TileFilm
 from monte.core.integrator import PreparedScene
 from monte.core.light_groups import pass_name
+from monte.core.memory import LIGHT_GROUP_BYTES, estimate_render_memory
 from monte.core.render import render
 from monte.core.scene import AreaLight, Camera, Film, Lobe, Material, PointLight, Scene, SceneError, SunLight, World
 from monte.core.settings import RenderSettings
@@ -106,6 +107,11 @@ def test_no_light_groups_keep_nothing():
     assert "light_group_sum" not in film.state()
     film = TileFilm(4, 4, False, light_groups=("a", "b"))
     assert film.state()["light_group_sum"].shape == (16, 2, 3)
+    # the memory estimate counts what the film keeps per group and pixel
+    assert film.state()["light_group_sum"].nbytes == 16 * 2 * LIGHT_GROUP_BYTES
+    grouped = grouped_scene().validate()
+    more = estimate_render_memory(grouped, RenderSettings()).film - estimate_render_memory(scene, RenderSettings()).film
+    assert more == 24 * 24 * 4 * LIGHT_GROUP_BYTES
 
 
 @pytest.mark.parametrize("groups,message", [
