@@ -904,13 +904,6 @@ class PathTracer:
                          else bounce_kind[idx])
                 le = self._light_emission(o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal, depth == 0,
                                           prev_transmits, clear_here if film_transparent else None, classes, kinds)
-                shares = None
-                if lg is not None:  # each group's share of it: the same look-up with the other emitters hidden
-                    shares = emission_shares([self._light_emission(
-                        o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal, depth == 0, prev_transmits,
-                        (clear_here if film_transparent else None) if ps.light_groups.world_in[g]
-                        else np.ones(len(o), bool), classes, kinds, ps.light_groups.hidden[g])
-                        for g in range(ps.light_groups.count)], le)
                 if through is not None:
                     through.light_emission(self, le, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal,
                                            prev_transmits, clear_here if film_transparent else None, classes,
@@ -926,6 +919,11 @@ class PathTracer:
                 if depth > 0 and not self.use_bsdf_emission:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
+                shares = None
+                if lg is not None:  # each light group's share of it (core.light_groups)
+                    shares = self._group_shares(le, o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal,
+                                                depth == 0, prev_transmits, clear_here if film_transparent else None,
+                                                classes, kinds)
                 if lp is not None and depth == 0:
                     clean = self._add_camera_light(radiance, lp, idx, throughput * le, o, d, hit, hits, prev_pdf,
                                                    prev_delta)
@@ -1212,6 +1210,31 @@ class PathTracer:
                                           None if prev_transmits is None else prev_transmits[rows],
                                           None if clear is None else clear[rows], hidden)
         return out
+
+    def _group_shares(self, le, o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,
+                      clear, classes, kinds) -> tuple:
+        """(rows of `le` that hold light, (G, M, 3) each light group's share there) of the emission of lights and
+        world along the rays (core.light_groups): _light_emission with the other groups' lights hidden (and the
+        world unless it is in the group), over _light_emission of all."""
+        groups = self.ps.light_groups
+        rows = np.flatnonzero(le.max(axis=1) > 0)
+        if len(rows) == 0:
+            return rows, np.zeros((groups.count, 0, 3), np.float32)
+
+        def sub(a):
+            return None if a is None else a[rows]
+
+        args = (o[rows], d[rows], t_hit[rows], prev_pdf[rows], prev_delta[rows], mis_here, sub(prev_normal), camera,
+                sub(prev_transmits))
+        no_world = np.ones(len(rows), bool)
+        per_group = [self._light_emission(*args, sub(clear) if groups.world_in[g] else no_world, sub(classes),
+                                          sub(kinds), groups.hidden[g])
+                     if groups.world_in[g] or groups.matchers[g] is not None else np.zeros((len(rows), 3), np.float32)
+                     for g in range(groups.count)]
+        # every light and the world in a group: the groups' parts sum to the whole look-up
+        total = (np.sum(per_group, axis=0) if groups.lights_grouped
+                 else self._light_emission(*args, sub(clear), sub(classes), sub(kinds)))
+        return rows, emission_shares(per_group, total)
 
     @staticmethod
     def _emission_of(lights, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,

@@ -47,17 +47,19 @@ class LightGroups:
     """A prepared scene's light groups: `names`; per triangle its emitter's group (T,) int32 (-1: none);
     per group the ids of the scene lights outside it (`hidden`, what its share of core.lights.LightSampler's
     `intersect` does not see), whether the world is in it, and the geometric matcher of its analytic lights
-    (None: it has none); `any_light`: the matcher of every analytic light (None: no light); `emitters`: the
-    (ray-casting structure, scene triangle index) of the grouped emissive triangles, or None."""
+    (None: it has none); `ungrouped`: the matcher of the analytic lights in no group (None: none); `emitters`: the
+    (ray-casting structure, scene triangle index) of the grouped emissive triangles, or None; `lights_grouped`:
+    every analytic light and the world are in some group (the groups' emission along a ray then sums to all)."""
 
     names: tuple[str, ...]
     group_of_triangle: np.ndarray
     hidden: list
     world_in: list
     matchers: list
-    any_light: NoShadowLights | None
+    ungrouped: NoShadowLights | None
     world_group: int
     emitters: tuple | None
+    lights_grouped: bool
 
     @property
     def count(self) -> int:
@@ -95,8 +97,9 @@ class LightGroups:
             from .accel import Accelerator
 
             emitters = (Accelerator(vertices, triangles[keep]), keep.astype(np.int32))
-        return cls(names, group_of_triangle, hidden, world_in, matchers, NoShadowLights.of(list(scene.lights), shift),
-                   world_group, emitters)
+        ungrouped = [lt for lt, lg in zip(scene.lights, groups) if lg < 0]
+        return cls(names, group_of_triangle, hidden, world_in, matchers, NoShadowLights.of(ungrouped, shift),
+                   world_group, emitters, not ungrouped and world_group >= 0)
 
     def of_light_samples(self, p: np.ndarray, wi: np.ndarray, dist: np.ndarray, origin: np.ndarray,
                          triangles_only: bool = False) -> np.ndarray:
@@ -109,11 +112,15 @@ class LightGroups:
             return out
         dist = np.asarray(dist, np.float64)
         on_light = np.zeros(n, bool)
-        if not triangles_only and self.any_light is not None:
-            on_light = self.any_light.matches(p, wi, dist)
-            for g, matcher in enumerate(self.matchers):
-                if matcher is not None:
-                    out[(out < 0) & matcher.matches(p, wi, dist)] = g
+        if not triangles_only:  # each group's lights, then the ungrouped ones, over the samples left
+            left = np.arange(n)
+            for g, matcher in enumerate(self.matchers + [self.ungrouped]):
+                if matcher is not None and len(left):
+                    found = matcher.matches(p[left], wi[left], dist[left])
+                    on_light[left[found]] = True
+                    if g < len(self.matchers):
+                        out[left[found]] = g
+                    left = left[~found]
         far = ~np.isfinite(dist)
         if not triangles_only and self.world_group >= 0:
             out[far & ~on_light] = self.world_group
@@ -143,15 +150,21 @@ class LightGroupSamples:
 
     def add(self, idx: np.ndarray, value: np.ndarray, groups) -> None:
         """Add the contributions `value` (M, 3) of samples idx (each at most once) to their groups: `groups` an
-        (M,) int array (-1: no group) or (G, M, 3) shares of each group."""
+        (M,) int array (-1: no group), or (rows, (G, K, 3) shares of each group in those K rows; the others add
+        nothing)."""
         value = np.asarray(value, np.float32)
+        if isinstance(groups, tuple):
+            rows, shares = groups
+            idx, value = idx[rows], value[rows]
+            for g, share in enumerate(shares):
+                self._groups[g][idx] += value * share
+            return
         if isinstance(groups, np.ndarray) and groups.ndim == 1:
             for g in np.unique(groups[groups >= 0]):
                 rows = np.flatnonzero(groups == g)
                 self._groups[int(g)][idx[rows]] += value[rows]
             return
-        for g, share in enumerate(groups):
-            self._groups[g][idx] += value * share
+        raise TypeError(f"light groups: expected group indices or (rows, shares), got {type(groups).__name__}")
 
 
 def emission_shares(per_group: list, total: np.ndarray) -> np.ndarray:
