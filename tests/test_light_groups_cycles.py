@@ -119,3 +119,24 @@ def test_light_group_reaches_the_compositor_and_skips_unknown_groups(tmp_path, c
     assert result.color[..., :3].mean() > 1.05
     composited = exr.read_exr(path)
     np.testing.assert_allclose(np.stack([composited[c] for c in "RGB"], axis=-1), sky, rtol=1e-5, atol=1e-6)
+
+
+def test_headless_blend_writes_the_light_groups(tmp_path):
+    """`monte render scene.blend` (addon.headless) writes each group as Combined_<name>.R/G/B into Monte's EXR
+    layout, padded to the frame outside a render border like the other passes."""
+    from monte.addon.headless import render_blend_file
+
+    scene = bf.plane_under_world(albedo=0.5, world=2.0, resolution=(12, 10))
+    bpy.ops.scene.view_layer_add_lightgroup(name="sky")
+    scene.world.lightgroup = "sky"
+    scene.render.use_border = True
+    scene.render.border_max_x = 0.5
+    blend = tmp_path / "plane.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp_path / "plane.exr"
+    render_blend_file(blend, out, {"spp": 4}, log=lambda _m: None)
+    channels = exr.read_exr(out)
+    # albedo 0.5 x world 2: 1 where the border rendered (a zero-variance estimator), 0 outside
+    np.testing.assert_allclose(channels["Combined_sky.G"][:, :6], 1.0, rtol=1e-4)
+    assert np.all(channels["Combined_sky.R"][:, 6:] == 0)
+    np.testing.assert_allclose(channels["Combined_sky.B"][:, :6], channels["B"][:, :6], rtol=1e-5)
