@@ -1485,7 +1485,8 @@ class PathTracer:
             row_of[idx[can]] = np.arange(m)
             k = row_of[sample_of[:count][vis]]
             lg.add(sample_of[vis], value, ps.light_groups.of_light_samples(
-                gc.p[k], wi[k], np.asarray(ls.dist)[k], origin[:count][vis], triangles_only=textured))
+                gc.p[k], wi[k], np.asarray(ls.dist)[k], origin[:count][vis], direction[:count][vis],
+                triangles_only=textured))
         if lp is None:
             return
         if depth > 0:

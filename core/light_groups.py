@@ -102,10 +102,11 @@ class LightGroups:
                    world_group, emitters, not ungrouped and world_group >= 0)
 
     def of_light_samples(self, p: np.ndarray, wi: np.ndarray, dist: np.ndarray, origin: np.ndarray,
-                         triangles_only: bool = False) -> np.ndarray:
+                         direction: np.ndarray, triangles_only: bool = False) -> np.ndarray:
         """(N,) int32 group of each light sample (from shading points p towards unit wi, at dist, inf at infinity;
-        origin: its shadow ray's origin), -1 where its emitter is in no group. triangles_only: the samples are of
-        emissive triangles (core.textured_emitters)."""
+        origin, direction: its shadow ray's, which aims at the sampled point from an origin lifted off the
+        surface), -1 where its emitter is in no group. triangles_only: the samples are of emissive triangles
+        (core.textured_emitters)."""
         n = len(dist)
         out = np.full(n, -1, np.int32)
         if n == 0:
@@ -128,12 +129,20 @@ class LightGroups:
         if len(rest) and self.emitters is not None:
             accel, scene_index = self.emitters
             o = np.ascontiguousarray(origin[rest], np.float32)
-            reach = np.linalg.norm(np.asarray(p, np.float64)[rest] + np.asarray(wi, np.float64)[rest]
-                                   * dist[rest, None] - o, axis=1)
-            hits = accel.intersect(o, np.ascontiguousarray(wi[rest], np.float32),
+            target = np.asarray(p, np.float64)[rest] + np.asarray(wi, np.float64)[rest] * dist[rest, None]
+            reach = np.linalg.norm(target - o, axis=1)
+            hits = accel.intersect(o, np.ascontiguousarray(direction[rest], np.float32),
                                    (reach * (1 + 1e-3) + 1e-4).astype(np.float32))
             found = hits.prim >= 0
             out[rest[found]] = self.group_of_triangle[scene_index[hits.prim[found]]]
+            lost = np.flatnonzero(~found)
+            if len(lost):  # (a point on an edge, a grazing ray) a short ray across the sampled point itself
+                w = np.asarray(direction, np.float64)[rest[lost]]
+                step = 1e-4 * (reach[lost] + np.abs(target[lost]).max(axis=1) + 1e-3)
+                back = accel.intersect(np.ascontiguousarray(target[lost] + w * step[:, None], np.float32),
+                                       np.ascontiguousarray(-w, np.float32), (2 * step).astype(np.float32))
+                ok = back.prim >= 0
+                out[rest[lost[ok]]] = self.group_of_triangle[scene_index[back.prim[ok]]]
         return out
 
 
