@@ -161,3 +161,38 @@ def test_one_group_of_every_emitter_is_combined(name):
     scene.light_groups = ["all"]
     result = render(scene, RenderSettings(spp=8, threads=2))
     np.testing.assert_allclose(result.light_groups[pass_name("all")], result.color[..., :3], rtol=1e-5, atol=1e-6)
+
+
+def _linked(scene):  # the lamp lights the ground alone (light linking)
+    scene.lights[0].receiver_set = 1
+    scene.meshes[0].light_sets = 0b11
+    for mesh in scene.meshes[1:]:
+        mesh.light_sets = 0b01
+
+
+def _hidden_from_diffuse(scene):  # the lamp unseen by diffuse bounces and lobes (light ray visibility)
+    scene.lights[0].visible_diffuse = False
+
+
+def _veiled(scene):  # a sphere half Transparent BSDF: shadow rays and MIS through it
+    scene.materials.append(Material("veil", [Lobe("refraction", np.full(3, 0.7), ior=1.0),
+                                             Lobe("diffuse", np.full(3, 0.3))]))
+    scene.meshes[2].material_index = len(scene.materials) - 1
+
+
+@pytest.mark.parametrize("change", [_linked, _hidden_from_diffuse, _veiled], ids=lambda f: f.__name__.strip("_"))
+def test_groups_with_linking_visibility_and_transparent_shadows(change):
+    """With light linking, a light hidden from diffuse rays, or shadow rays through a Transparent BSDF, the groups
+    still sum to Combined, and the lamp's group is what removing the lamp takes from the image (within 3 %)."""
+    settings = RenderSettings(spp=48, threads=2)
+    scene = grouped_scene()
+    change(scene)
+    full = render(scene, settings)
+    total = sum(arr.astype(np.float64) for arr in full.light_groups.values())
+    np.testing.assert_allclose(total, full.color[..., :3], rtol=2e-5, atol=2e-6)
+    without = grouped_scene()
+    change(without)
+    del without.lights[0]
+    lamp = full.light_groups[pass_name("key")].mean()
+    added = full.color[..., :3].mean() - render(without, settings).color[..., :3].mean()
+    assert abs(added - lamp) < 0.03 * lamp, (added, lamp)
