@@ -155,9 +155,17 @@ def unsupported_passes(view_layer) -> list[str]:
         holder = view_layer if owner == "view_layer" else getattr(view_layer, owner, None)
         if holder is not None and bool(getattr(holder, prop, False)):
             names.append(name)
-    # Light groups (View Layer Properties > Light Groups: Cycles' "Combined_<name>" passes): not rendered by Monte
-    names += [f"Combined_{group.name} (light group)" for group in getattr(view_layer, "lightgroups", ())]
     return names
+
+
+def light_group_passes(view_layer) -> list[str]:
+    """The view layer's light group passes (View Layer Properties > Light Groups), Cycles' names "Combined_<group>"
+    (core.light_groups), registered as RGB colour passes as Cycles registers them."""
+    from ..core.light_groups import pass_name
+
+    if view_layer is None:
+        return []
+    return [pass_name(str(group.name)) for group in getattr(view_layer, "lightgroups", ()) if group.name]
 
 
 def shader_aov_passes(view_layer) -> dict[str, tuple[int, str, str]]:
@@ -191,7 +199,8 @@ def requested_passes(view_layer, scene=None) -> list[str]:
     if uses_shadow_catcher_pass(view_layer):
         names.append("Shadow Catcher")
     names += [name for name, prop in LIGHT_PASS_PROPERTIES.items() if getattr(view_layer, prop, False)]
-    return names + data_pass_names(view_layer, scene) + list(shader_aov_passes(view_layer))
+    return (names + data_pass_names(view_layer, scene) + list(shader_aov_passes(view_layer))
+            + light_group_passes(view_layer))
 
 
 def requested_light_passes(passes: list[str]) -> tuple[str, ...]:
@@ -245,8 +254,10 @@ class MonteRenderEngine(bpy.types.RenderEngine):
     # ------------------------------------------------------------------------------------------ passes
     def update_render_passes(self, scene=None, renderlayer=None):
         aovs = shader_aov_passes(renderlayer)
+        groups = set(light_group_passes(renderlayer))
         for name in requested_passes(renderlayer, scene):
-            channels, chanid, kind = PASSES.get(name) or aovs.get(name) or CRYPTO_LAYER
+            channels, chanid, kind = PASSES.get(name) or aovs.get(name) or (
+                (3, "RGB", "COLOR") if name in groups else CRYPTO_LAYER)
             self.register_pass(scene, renderlayer, name, channels, chanid, kind)
 
     # ------------------------------------------------------------------------------------------ render
@@ -609,6 +620,8 @@ def _pass_pixels(name: str, src, h: int, w: int, channels: int) -> np.ndarray:
         arr = (getattr(src, "light_passes", None) or {}).get(name)
     elif name in (getattr(src, "shader_aovs", None) or {}):
         arr = src.shader_aovs[name]
+    elif name in (getattr(src, "light_groups", None) or {}):
+        arr = src.light_groups[name]
     else:
         data = getattr(src, "data_passes", {})
         arr = data.get(name)

@@ -214,6 +214,15 @@ def _monte_channels(result, region, size) -> dict:
             aovs[name] = full
     channels.update(data_pass_channels(aovs, {name: "RGBA" if arr.shape[2] == 4 else "X"
                                               for name, arr in aovs.items()}))
+    # light groups (core.light_groups): "Combined_<group>.R/G/B", as Blender names the passes
+    groups = dict(getattr(result, "light_groups", None) or {})
+    if region is not None:
+        x0, y0, w, h = region
+        for name, arr in groups.items():
+            full = np.zeros((size[1], size[0], 3), np.float32)
+            full[y0:y0 + h, x0:x0 + w] = arr
+            groups[name] = full
+    channels.update(data_pass_channels(groups, {name: "RGB" for name in groups}))
     return channels
 
 

@@ -455,6 +455,62 @@ class MONTE_VIEWLAYER_PT_passes_aov(MonteButtonsPanel, Panel):
             layout.label(text="Conflicts with another render pass with the same name", icon="ERROR")
 
 
+class MONTE_VIEWLAYER_PT_light_groups(MonteButtonsPanel, Panel):
+    """Cycles' Light Groups list (Blender's own view layer light groups and operators; core.light_groups): each
+    group is a Combined_<name> pass."""
+
+    bl_label = "Light Groups"
+    bl_context = "view_layer"
+    bl_parent_id = "MONTE_VIEWLAYER_PT_passes"
+
+    def draw(self, context):
+        view_layer = context.view_layer
+        row = self.layout.row()
+        row.column().template_list("UI_UL_list", "lightgroups", view_layer, "lightgroups", view_layer,
+                                   "active_lightgroup_index", rows=3)
+        sub = row.column(align=True)
+        sub.operator("scene.view_layer_add_lightgroup", icon="ADD", text="")
+        sub.operator("scene.view_layer_remove_lightgroup", icon="REMOVE", text="")
+        sub.separator()
+        sub.operator("scene.view_layer_add_used_lightgroups", icon="ADD", text="")
+        sub.operator("scene.view_layer_remove_unused_lightgroups", icon="REMOVE", text="")
+
+
+def _draw_light_group(layout, owner, view_layer) -> None:
+    """An emitter's Light Group: chosen among the view layer's groups (a name not among them lights no group)."""
+    layout = split_layout(layout)
+    layout.prop_search(owner, "lightgroup", view_layer, "lightgroups", text="Light Group",
+                       results_are_suggestions=True)
+
+
+class MONTE_OBJECT_PT_light_group(MonteButtonsPanel, Panel):
+    """Object > Shading > Light Group of a light or an emissive mesh (core.light_groups)."""
+
+    bl_label = "Light Group"
+    bl_context = "object"
+    bl_options = {"DEFAULT_CLOSED"}
+    CONTEXT_MEMBER = "object"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and hasattr(context.object, "lightgroup")
+
+    def draw(self, context):
+        _draw_light_group(self.layout, context.object, context.view_layer)
+
+
+class MONTE_WORLD_PT_light_group(MonteButtonsPanel, Panel):
+    """World > Settings > Light Group (core.light_groups)."""
+
+    bl_label = "Light Group"
+    bl_context = "world"
+    bl_options = {"DEFAULT_CLOSED"}
+    CONTEXT_MEMBER = "world"
+
+    def draw(self, context):
+        _draw_light_group(self.layout, context.world, context.view_layer)
+
+
 def _draw_node_input(layout, tree, input_name: str) -> None:
     output = tree.get_output_node("CYCLES") if tree is not None else None
     if output is None:
@@ -576,6 +632,9 @@ classes = (
     MONTE_VIEWLAYER_PT_passes_cryptomatte,
     MONTE_VIEWLAYER_PT_passes_light,
     MONTE_VIEWLAYER_PT_passes_aov,
+    MONTE_VIEWLAYER_PT_light_groups,
+    MONTE_OBJECT_PT_light_group,
+    MONTE_WORLD_PT_light_group,
     MONTE_MATERIAL_PT_surface,
     MONTE_WORLD_PT_surface,
     MONTE_WORLD_PT_mist,

@@ -339,7 +339,8 @@ class SceneSync:
             table.pop(key, None)
 
     def scene(self, camera: Camera, name: str = "viewport") -> Scene:
-        """The current export as a core Scene seen through `camera` (raises SceneError when nothing is visible)."""
+        """The current export as a core Scene seen through `camera` (raises SceneError when nothing is visible).
+        It lists no shader AOV and no light group (the viewport shows Combined alone): nothing computes them."""
         if not self.meshes:
             raise SceneError("nothing to render in the viewport: no visible meshes, curves, text or metaballs")
         # The object table node programs read (object space, texture space, Object Info), as the exporter
@@ -435,7 +436,10 @@ class ViewportSession:
                  on_image: Callable[[], None] | None = None) -> None:
         if samples < 1:
             raise ValueError(f"viewport samples must be at least 1, got {samples}")
-        self.settings = settings.replace(aovs=False, time_limit=0.0, adaptive_threshold=0.0).validate()
+        # The viewport shows Combined alone: no pass beside it is computed (the data passes, the light passes, the
+        # denoising features; its scene lists no shader AOV and no light group, see SceneSync.scene).
+        self.settings = settings.replace(aovs=False, denoising_features=False, data_passes=(), light_passes=(),
+                                         time_limit=0.0, adaptive_threshold=0.0).validate()
         self.samples = int(samples)
         self.pixel_size = max(1, int(pixel_size))
         self.start_resolution = max(0, int(start_resolution))

@@ -421,7 +421,8 @@ class _FrameJob:
             sampler = make_sampler(self.settings.sampler, self.settings.seed, max(spp, 1), groups=VARIANCE_GROUPS)
             film = TileFilm(tile[2], tile[3], self.settings.aovs, sampler, self.settings.denoising_features,
                             alpha=self.scene.has_alpha, catcher=CatcherOutput.of(self.scene),
-                            light_passes=self.settings.light_passes, shader_aovs=self.scene.shader_aovs)
+                            light_passes=self.settings.light_passes, shader_aovs=self.scene.shader_aovs,
+                            light_groups=self.scene.light_groups)
             tables = merge_data_tables(self.settings, parts)
             data_film = DataFilm(tile[2], tile[3], tables) if tables is not None else None
             for p in parts:

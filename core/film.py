@@ -74,6 +74,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import film_kernels
+from .light_groups import images as light_group_images
 from .light_passes import LIGHT_PASSES, finish
 from .shader_aovs import CHANNELS as AOV_CHANNELS
 from .shader_aovs import images as aov_images
@@ -114,6 +115,7 @@ _FEATURE_RAW = ("feature_albedo", "feature_normal")
 _ALPHA_RAW = ("transparent_sum",)
 _LIGHT_RAW = ("light_pass_sum",)
 _SHADER_AOV_RAW = ("shader_aov_sum",)
+_LIGHT_GROUP_RAW = ("light_group_sum",)
 _CATCHER_RAW = ("matte_sum", "matte_transparent_sum", "catcher_sum", "catcher_count", "background_sum")
 
 
@@ -140,13 +142,14 @@ class TileFilm:
 
     def __init__(self, width: int, height: int, aovs: bool, sampler: Sampler | None = None,
                  features: bool = False, alpha: bool = False, catcher: CatcherOutput | None = None,
-                 light_passes: tuple[str, ...] = (), shader_aovs=()) -> None:
+                 light_passes: tuple[str, ...] = (), shader_aovs=(), light_groups=()) -> None:
         """features: keep the denoising features' sums; alpha: keep each pixel's summed transparency
         (core.scene.Film); without it alpha is 1; catcher: keep the shadow catcher's sums and form Combined
         from them (see the module docstring), None without a shadow catcher; light_passes: the light passes asked
         for (the film keeps the sums of all of core.light_passes.LIGHT_PASSES when any is asked for: Direct and
         Indirect need their Color); shader_aovs: core.scene.Scene.shader_aovs, (name, kind) pairs, whose sums
-        (core.shader_aovs.AovPath.values, 16 B per AOV and pixel) the film keeps."""
+        (core.shader_aovs.AovPath.values, 16 B per AOV and pixel) the film keeps; light_groups:
+        core.scene.Scene.light_groups, whose float32 RGB sums (core.light_groups, 12 B per group and pixel) it keeps."""
         self.width, self.height = width, height
         n = width * height
         # Independent samples need no groups: s^2 / n is exact for them and has the most degrees of freedom.
@@ -188,6 +191,9 @@ class TileFilm:
         self.shader_aovs = tuple(tuple(a) for a in shader_aovs)
         if self.shader_aovs:
             self.shader_aov_sum = np.zeros((n, len(self.shader_aovs), AOV_CHANNELS), np.float32)
+        self.light_groups = tuple(light_groups)
+        if self.light_groups:
+            self.light_group_sum = np.zeros((n, len(self.light_groups), 3), np.float32)
         self._capture: dict[str, np.ndarray] | None = None
 
     # ------------------------------------------------------------------------------------------ totals
@@ -327,6 +333,14 @@ class TileFilm:
         sums = np.bincount(slot, weights=np.asarray(values, np.float64).reshape(-1), minlength=n * k)
         self._take({"shader_aov_sum": sums.reshape(n, len(self.shader_aovs), AOV_CHANNELS)})
 
+    def add_light_groups(self, pixel: np.ndarray, values: np.ndarray) -> None:
+        """Accumulate the light groups of samples: values (N, G, 3) (core.light_groups.LightGroupSamples.values)."""
+        n, k = self.pixels, len(self.light_groups) * 3
+        pixel = np.asarray(pixel, np.int64)
+        slot = (pixel[:, None] * k + np.arange(k)[None, :]).ravel()
+        sums = np.bincount(slot, weights=np.asarray(values, np.float64).reshape(-1), minlength=n * k)
+        self._take({"light_group_sum": sums.reshape(n, len(self.light_groups), 3)})
+
     def _pixels(self, pixel: np.ndarray) -> np.ndarray:
         """The samples' tile-local pixel indices as contiguous int64, checked to lie in the tile (the compiled
         accumulation does not check its indices)."""
@@ -367,7 +381,7 @@ class TileFilm:
                     self.dev_sq[took] = (self.dev_sq[took].astype(np.float64) + raw["dev_sq"][took]
                                          + c[:, None] * d * d).astype(np.float32)
                 self.sample_count[took] = after
-        for name in _AOV_RAW + _FEATURE_RAW + _ALPHA_RAW + _CATCHER_RAW + _LIGHT_RAW + _SHADER_AOV_RAW:
+        for name in _AOV_RAW + _FEATURE_RAW + _ALPHA_RAW + _CATCHER_RAW + _LIGHT_RAW + _SHADER_AOV_RAW + _LIGHT_GROUP_RAW:
             if name in raw:
                 arr = getattr(self, name)
                 if arr.dtype == np.float32:
@@ -390,6 +404,8 @@ class TileFilm:
             names += _LIGHT_RAW
         if self.shader_aovs:
             names += _SHADER_AOV_RAW
+        if self.light_groups:
+            names += _LIGHT_GROUP_RAW
         return names
 
     def state(self) -> dict[str, np.ndarray]:
@@ -408,6 +424,8 @@ class TileFilm:
             names += list(_LIGHT_RAW)
         if self.shader_aovs:
             names += list(_SHADER_AOV_RAW)
+        if self.light_groups:
+            names += list(_LIGHT_GROUP_RAW)
         return {name: getattr(self, name) for name in names}
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
@@ -486,6 +504,13 @@ class TileFilm:
         n = np.maximum(self.count, 1).astype(np.float64)[:, None, None]
         return {name: self._image(arr) for name, arr in
                 aov_images(self.shader_aov_sum.astype(np.float64) / n, self.shader_aovs).items()}
+
+    def light_group_images(self) -> dict[str, np.ndarray]:
+        """The light groups: pass name (Combined_<group>) -> (h, w, 3), means over the pixel's samples
+        (core.light_groups.images)."""
+        n = np.maximum(self.count, 1).astype(np.float64)[:, None, None]
+        return {name: self._image(arr) for name, arr in
+                light_group_images(self.light_group_sum.astype(np.float64) / n, self.light_groups).items()}
 
     def _image(self, arr: np.ndarray) -> np.ndarray:
         return arr.reshape(self.height, self.width, *arr.shape[1:]).astype(np.float32)

@@ -24,6 +24,7 @@ from . import geometry_kernels, path_kernels, transparent_shadow
 from . import light_passes as lp_mod
 from .accel import Accelerator, Hits, MotionTriangles
 from .data_passes import DataPath
+from .light_groups import LightGroups, LightGroupSamples, emission_shares
 from .light_linking import LightLinks, ShadowLinks
 from .shader_aovs import AovPath
 from .light_shadow import NoShadowLights
@@ -165,6 +166,7 @@ class PreparedScene:
     links: "LightLinks | None" = None
     shadow_links: "ShadowLinks | None" = None
     light_visibility: "LightVisibility | None" = None  # lights hidden from some bounce rays (core.light_visibility)
+    light_groups: "LightGroups | None" = None  # Cycles' light groups (core.light_groups); None: the scene has none
     _subsets: dict = field(default_factory=dict)
     _subsets_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -220,6 +222,8 @@ class PreparedScene:
         catchers = []
         # per mesh: (triangles, light_sets, receiver_set), (triangles, shadow_sets, blocker_set)
         link_rows, shadow_rows = [], []
+        group_index = {name: i for i, name in enumerate(scene.light_groups)}
+        group_rows = []  # per mesh: its triangles' light group (core.light_groups), only with light groups
         layer_names = list(scene.uv_layer_names)
         attribute_names, attrs = list(scene.attribute_names), []
         tangent_names = list(scene.tangent_layer_names)
@@ -242,6 +246,8 @@ class PreparedScene:
             catchers.append(np.full(t, bool(mesh.shadow_catcher)))
             link_rows.append((t, int(mesh.light_sets), int(mesh.receiver_set)))
             shadow_rows.append((t, int(mesh.shadow_sets), int(mesh.blocker_set)))
+            if group_index:
+                group_rows.append(np.full(t, group_index.get(mesh.lightgroup, -1), np.int32))
             if layer_names:  # the named UV maps node programs read; (0, 0) where a mesh lacks one
                 per = np.zeros((t, len(layer_names), 3, 2), np.float32)
                 for j, lname in enumerate(layer_names):
@@ -371,6 +377,15 @@ class PreparedScene:
             features["textured_emitters"] = 0 if prepared.textured is None else prepared.textured.count
         if prepared.textured is not None or moving_emitters is not None:
             _warn_unlinked_emitters(scene, link_rows, shadow_rows, prepared.textured, moving_emitters)
+        if group_index:
+            emitting = np.zeros(len(triangles), bool)
+            for table in (emissive, prepared.textured):
+                if table is not None:
+                    emitting[table.triangle_id] = True
+            prepared.light_groups = LightGroups.build(
+                scene, shift, np.concatenate(group_rows) if group_rows else np.zeros(0, np.int32), emitting,
+                vertices, triangles)
+        features["light_groups"] = 0 if prepared.light_groups is None else prepared.light_groups.count
         return prepared
 
     def hit_triangles(self, tri: np.ndarray, ray_time: np.ndarray | None) -> tuple:
@@ -445,6 +460,16 @@ def _warn_unlinked_emitters(scene: Scene, link_rows: list, shadow_rows: list, te
         emitter_set = np.concatenate([np.full(row[0], row[2], np.int64) for row in rows])
         if (emitter_set[tris] > 0).any() and msg not in scene.warnings:
             scene.warnings.append(msg)
+
+
+def _shares_of_rows(shares: tuple, r: np.ndarray, m: int) -> tuple:
+    """The light groups' (rows, (G, K, 3) shares) of M rays (Integrator._group_shares) restricted to the rays `r`,
+    renumbered as rows of r."""
+    rows, part = shares
+    position = np.full(m, -1, np.int64)
+    position[r] = np.arange(len(r))
+    keep = position[rows] >= 0
+    return position[rows[keep]], part[:, keep]
 
 
 def _rows_of(state: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
@@ -585,6 +610,7 @@ class FirstHit:
     data: dict | None = None  # what each sample adds to the data passes (core.data_passes.DataTables.samples)
     light_passes: "lp_mod.LightPassSamples | None" = None  # Cycles' light passes (settings.light_passes)
     shader_aovs: "AovPath | None" = None  # what AOV Output nodes wrote (core.shader_aovs; Scene.shader_aovs)
+    light_groups: "LightGroupSamples | None" = None  # Cycles' light groups (core.light_groups; Scene.light_groups)
 
 
 def _smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
@@ -791,6 +817,12 @@ class PathTracer:
             if first is None:
                 first = FirstHit(None, None, None)
             first.light_passes = lp
+        lg = None  # the light groups (core.light_groups), only when the scene has some
+        if ps.light_groups is not None and not self._catcher_copies:
+            lg = LightGroupSamples(n, ps.light_groups.count)
+            if first is None:
+                first = FirstHit(None, None, None)
+            first.light_groups = lg
         aov_path = None  # the shader AOVs (core.shader_aovs), only when some material writes one
         if ps.scene.shader_aovs and ps.shading is not None and ps.shading.writes_aovs and not self._catcher_copies:
             aov_path = AovPath(n, len(ps.scene.shader_aovs), ps)
@@ -924,17 +956,26 @@ class PathTracer:
                 if depth > 0 and not self.use_bsdf_emission:
                     # Light sampling only: emission reached by BSDF sampling counts after delta scattering only.
                     le = np.where(prev_delta[:, None], le, np.float32(0))
+                shares = None
+                if lg is not None:  # each light group's share of it (core.light_groups)
+                    shares = self._group_shares(le, o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal,
+                                                depth == 0, prev_transmits, clear_here if film_transparent else None,
+                                                classes, kinds)
                 if lp is not None and (depth == 0 or (bounces is not None and not bounces[idx].all())):
                     # seen by the camera, directly or through Transparent BSDFs only: Emission / Environment
                     seen = np.ones(len(idx), bool) if depth == 0 else bounces[idx] == 0
                     r = np.flatnonzero(seen)
-                    self._add_camera_light(radiance, lp, idx[r], (throughput * le)[r], o[r], d[r], t_hit[r],
-                                           prev_pdf[r], prev_delta[r])
+                    clean = self._add_camera_light(radiance, lp, idx[r], (throughput * le)[r], o[r], d[r], t_hit[r],
+                                                   prev_pdf[r], prev_delta[r])
+                    if lg is not None:
+                        lg.add(idx[r], clean, _shares_of_rows(shares, r, len(idx)))
                     r = np.flatnonzero(~seen)
                     if len(r):
-                        self._add_split(radiance, lp, bounces[idx[r]], idx[r], (throughput * le)[r])
+                        self._add_split(radiance, lp, bounces[idx[r]], idx[r], (throughput * le)[r], lg,
+                                        None if lg is None else _shares_of_rows(shares, r, len(idx)))
                 else:
-                    self._add_split(radiance, lp, depth if bounces is None else bounces[idx], idx, throughput * le)
+                    self._add_split(radiance, lp, depth if bounces is None else bounces[idx], idx, throughput * le,
+                                    lg, shares)
                 if features is not None:
                     features.add_emission(idx, throughput * le)
             prim = hits.prim
@@ -947,6 +988,8 @@ class PathTracer:
                 if len(seen):
                     transparent[idx[seen]] += h[seen] * throughput[seen].mean(axis=1)
                     held = h >= 1
+                    if aov_path is not None and held.any():  # Cycles evaluates the shader before the holdout
+                        self._holdout_aovs(aov_path, np.flatnonzero(held), idx, prim, hits, d, tr, path_state, hit_dp)
 
             # Emission of an emissive triangle hit (two-sided), MIS-weighted against light sampling.
             if ps.emissive is not None:
@@ -979,7 +1022,8 @@ class PathTracer:
                         # (core.light_linking)
                         w = w * ~(ps.shadow_links.hides_triangles(prim[e]) & ~prev_delta[e])
                     self._add_split(radiance, lp, depth if bounces is None else bounces[idx[e]], idx[e],
-                                    throughput[e] * le * w[:, None].astype(np.float32))
+                                    throughput[e] * le * w[:, None].astype(np.float32),
+                                    lg, None if lg is None else ps.light_groups.group_of_triangle[prim[e]])
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le * w[:, None].astype(np.float32))
             # Moving emitters are not light-sampled: what BSDF sampling (or the camera) finds counts in full.
@@ -988,7 +1032,8 @@ class PathTracer:
                 if len(e):
                     le = ps.materials.emission[ps.material_index[prim[e]]]
                     self._add_split(radiance, lp, depth if bounces is None else bounces[idx[e]], idx[e],
-                                    throughput[e] * le)
+                                    throughput[e] * le,
+                                    lg, None if lg is None else ps.light_groups.group_of_triangle[prim[e]])
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
             # Emission that varies per point (a node program drives it): MIS-weighted against the textured
@@ -1016,7 +1061,8 @@ class PathTracer:
                             w = np.where(prev_delta[e], 1.0, pb * pb / np.maximum(pb * pb + pdf_l * pdf_l, 1e-30))
                         le = le * w[:, None].astype(np.float32)
                     self._add_split(radiance, lp, depth if bounces is None else bounces[idx[e]], idx[e],
-                                    throughput[e] * le)
+                                    throughput[e] * le,
+                                    lg, None if lg is None else ps.light_groups.group_of_triangle[prim[e]])
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
 
@@ -1125,12 +1171,13 @@ class PathTracer:
                                      first_bounce=first_bounce,
                                      bumped=bumped, ray_time=ray_time,
                                      classes=None if origin_class is None else origin_class[idx],
-                                     transparent_bounces=transparent_bounces)
+                                     transparent_bounces=transparent_bounces, lg=lg)
                 if ps.textured is not None:
                     self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp, textured=True,
                                      first_bounce=first_bounce,
                                      bumped=bumped, ray_time=ray_time,
-                                     path=_rows_of(path_state, idx), transparent_bounces=transparent_bounces)
+                                     path=_rows_of(path_state, idx), transparent_bounces=transparent_bounces,
+                                     lg=lg)
                 clock = self._lap("nee", clock)
 
             # Sample the BSDF for the next direction; the paths that go on are written compacted.
@@ -1235,18 +1282,19 @@ class PathTracer:
         return radiance
 
     def _light_emission(self, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,
-                        clear, classes=None, kinds=None) -> np.ndarray:
+                        clear, classes=None, kinds=None, group_hidden: frozenset = frozenset()) -> np.ndarray:
         """Emission of lights and the world along the rays (core.lights.LightSampler.intersect); rays where
         `clear` (None: none) count as transparent and see no world. classes: the receiver class of each ray's
         origin (light linking, core.light_linking; None: camera rays or no linking): each class sees its linked
         emitters; with shadow linking, rays after a non-delta bounce do not see shadow-linked lights (light
         sampling alone counts them). kinds: each ray's kind (core.ray_visibility) where some light hides from
-        some kind (core.light_visibility), else None."""
+        some kind (core.light_visibility), else None. group_hidden: lights hidden besides (a light group's share,
+        core.light_groups)."""
         ps = self.ps
         hide = ps.shadow_links is not None and not camera and mis_here and self.use_nee
         if classes is None and not hide and kinds is None:
             return self._emission_of(ps.lights, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera,
-                                     prev_transmits, clear, frozenset())
+                                     prev_transmits, clear, group_hidden)
         # one group per (receiver class, ray kind, shadow-linked lights hidden)
         key = np.zeros(len(o), np.int64) if classes is None else np.asarray(classes, np.int64) * 16
         if kinds is not None:
@@ -1257,7 +1305,7 @@ class PathTracer:
         for k in np.unique(key):
             rows = np.flatnonzero(key == k)
             lights = ps.lights if classes is None else ps.links.samplers[int(k) // 16]
-            hidden = ps.shadow_links.hidden if hide and k % 2 else frozenset()
+            hidden = (ps.shadow_links.hidden if hide and k % 2 else frozenset()) | group_hidden
             if kinds is not None:
                 hidden = hidden | ps.light_visibility.hidden((int(k) % 16) // 2)
             out[rows] = self._emission_of(lights, o[rows], d[rows], tmax[rows], prev_pdf[rows], prev_delta[rows],
@@ -1265,6 +1313,31 @@ class PathTracer:
                                           None if prev_transmits is None else prev_transmits[rows],
                                           None if clear is None else clear[rows], hidden)
         return out
+
+    def _group_shares(self, le, o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,
+                      clear, classes, kinds) -> tuple:
+        """(rows of `le` that hold light, (G, M, 3) each light group's share there) of the emission of lights and
+        world along the rays (core.light_groups): _light_emission with the other groups' lights hidden (and the
+        world unless it is in the group), over _light_emission of all."""
+        groups = self.ps.light_groups
+        rows = np.flatnonzero(le.max(axis=1) > 0)
+        if len(rows) == 0:
+            return rows, np.zeros((groups.count, 0, 3), np.float32)
+
+        def sub(a):
+            return None if a is None else a[rows]
+
+        args = (o[rows], d[rows], t_hit[rows], prev_pdf[rows], prev_delta[rows], mis_here, sub(prev_normal), camera,
+                sub(prev_transmits))
+        no_world = np.ones(len(rows), bool)
+        per_group = [self._light_emission(*args, sub(clear) if groups.world_in[g] else no_world, sub(classes),
+                                          sub(kinds), groups.hidden[g])
+                     if groups.world_in[g] or groups.matchers[g] is not None else np.zeros((len(rows), 3), np.float32)
+                     for g in range(groups.count)]
+        # every light and the world in a group: the groups' parts sum to the whole look-up
+        total = (np.sum(per_group, axis=0) if groups.lights_grouped
+                 else self._light_emission(*args, sub(clear), sub(classes), sub(kinds)))
+        return rows, emission_shares(per_group, total)
 
     @staticmethod
     def _emission_of(lights, o, d, tmax, prev_pdf, prev_delta, mis_here, prev_normal, camera, prev_transmits,
@@ -1400,6 +1473,21 @@ class PathTracer:
         loss = np.where(reject, 1.0, 1.0 - g1)[:, None] * f_d / np.maximum(np.asarray(bs.pdf, np.float32)[r], 1e-30)[:, None]
         bs.weight[r] = np.maximum(bs.weight[r] - loss.astype(np.float32), 0.0)
 
+    def _holdout_aovs(self, aov_path: AovPath, rows, idx, prim, hits, d, tr, path_state, hit_dp) -> None:
+        """AOV Output nodes of the full holdout surfaces that live paths `rows` hit still write (core.shader_aovs):
+        Cycles evaluates a surface's shader, AOV nodes included, before its holdout ends the path."""
+        writing = aov_path.writing(idx[rows])
+        if not writing.any():
+            return
+        ps = self.ps
+        g = self._surface(rows, prim, hits.u, hits.v, d, tr)
+        mat = ps.material_index[prim[rows]]
+        lobes = ps.materials.gather(mat, g.uv)
+        out = np.zeros((len(rows), aov_path.values.shape[1], 4), np.float32)
+        self._shade(g, mat, prim[rows], d[rows], lobes, bary=(hits.u[rows], hits.v[rows]),
+                    path=_rows_of(path_state, idx[rows]), dp=None if hit_dp is None else hit_dp[rows], aov_out=out)
+        aov_path.record(idx[rows], writing, out, lobes)
+
     def _lap(self, stage: str, since: float) -> float:
         """Add the time since `since` to a stage's counter; returns now."""
         now = time.perf_counter()
@@ -1409,7 +1497,8 @@ class PathTracer:
     def _next_event(self, depth, idx, pix, smp, g: "SurfaceBatch", mat, lobes, throughput, radiance,
                     bary=None, lp: "lp_mod.LightPassSamples | None" = None, textured: bool = False,
                     path: np.ndarray | None = None, bumped=None, ray_time=None, classes=None,
-                    transparent_bounces: np.ndarray | None = None, first_bounce: np.ndarray | None = None) -> None:
+                    transparent_bounces: np.ndarray | None = None, first_bounce: np.ndarray | None = None,
+                    lg: "LightGroupSamples | None" = None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
         u, v) of each path's hit when some mesh has a shadow terminator offset, else None (with motion blur:
         (row, u, v, corners, corner normals, offsets) of the hits' own triangles at their times); ray_time: each
@@ -1419,7 +1508,8 @@ class PathTracer:
         (core.textured_emitters) instead of the lights, the emission from their programs; path: the paths' Light
         Path state there (None when no program reads it); classes: the paths' receiver classes (light linking,
         core.light_linking) or None; first_bounce: with light passes, per path, whether its vertex here is its
-        first bounce (only Transparent BSDFs passed before it; None: the vertex at depth 0 alone)."""
+        first bounce (only Transparent BSDFs passed before it; None: the vertex at depth 0 alone); lg: the light groups
+        to attribute the light to (core.light_groups; None: off)."""
         ps = self.ps
         can = np.flatnonzero(ps.has_nondelta[mat])
         if len(can) == 0:
@@ -1492,10 +1582,19 @@ class PathTracer:
                 transmit[free[sample_of[:count]]] = 1.0
         vis = np.flatnonzero(~blocked)
         shadowed = contrib[vis] if transmit is None else contrib[vis] * transmit[vis]
-        if lp is None:
+        if lp is None and lg is None:
             self._add(radiance, sample_of[vis], shadowed)
             return
         value = self._add_clean(radiance, sample_of[vis], shadowed)
+        if lg is not None:  # each light sample to its emitter's group; one sample per path finds its row in `can`
+            row_of = np.zeros(len(radiance), np.int64)
+            row_of[idx[can]] = np.arange(m)
+            k = row_of[sample_of[:count][vis]]
+            lg.add(sample_of[vis], value, ps.light_groups.of_light_samples(
+                gc.p[k], wi[k], np.asarray(ls.dist)[k], origin[:count][vis], direction[:count][vis],
+                triangles_only=textured))
+        if lp is None:
+            return
         if depth > 0 and (first_bounce is None or not first_bounce[can].any()):
             lp.add_split(False, sample_of[vis], value)
             return
@@ -1601,14 +1700,19 @@ class PathTracer:
         return clean
 
     def _add_split(self, radiance: np.ndarray, lp: "lp_mod.LightPassSamples | None", depth, idx: np.ndarray,
-                   value: np.ndarray) -> None:
+                   value: np.ndarray, lg: "LightGroupSamples | None" = None, groups=None) -> None:
         """Emission found after `depth` bounces (one count, or (M,) one per row: passes through Transparent BSDFs
         are not bounces, as in Cycles) added to the image and, with light passes, to Emission (seen by the
-        camera), the Direct passes (found by the first bounce) or the Indirect ones (later)."""
-        if lp is None:
+        camera), the Direct passes (found by the first bounce) or the Indirect ones (later); with light groups
+        (lg) to the emitters' groups (`groups`: see core.light_groups.LightGroupSamples.add)."""
+        if lp is None and lg is None:
             self._add(radiance, idx, value)
             return
         clean = self._add_clean(radiance, idx, value)
+        if lg is not None:
+            lg.add(idx, clean, groups)
+        if lp is None:
+            return
         if np.ndim(depth) == 0:
             if depth == 0:
                 lp.add(lp_mod.EMISSION, idx, clean)
@@ -1624,7 +1728,7 @@ class PathTracer:
                 lp.add_split(part, idx[rows], clean[rows])
 
     def _add_camera_light(self, radiance, lp: "lp_mod.LightPassSamples", idx, value, o, d, t_hit, prev_pdf,
-                          prev_delta) -> None:
+                          prev_delta) -> np.ndarray:
         """Lights and world seen by camera rays (t_hit: the distance to each ray's hit, inf where it escapes),
         with light passes: the lights' share to Emission, the world's to Environment (the lights alone are looked
         up once more, without the world)."""
@@ -1636,6 +1740,7 @@ class PathTracer:
         em = (clean * lamp_share).astype(np.float32)
         lp.add(lp_mod.EMISSION, idx, em)
         lp.add(lp_mod.ENVIRONMENT, idx, clean - em)
+        return clean
 
     def _first_bounce_weights(self, lp: "lp_mod.LightPassSamples", idx, lobes, g: "SurfaceBatch", bs,
                               u_lobe) -> None:

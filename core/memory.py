@@ -16,7 +16,8 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
   (36 B), the matte's transparency (4 B) and an int32 count of samples that met the catcher (4 B) (+ 44 B, and
   28 B more in the result: the Shadow Catcher pass and its matte); with light passes float32 RGB sums of all 11
   (132 B); with shader AOVs (Scene.shader_aovs) a float32 RGB sum and write count per AOV (16 B; the result
-  16 B per colour AOV, 4 B per value AOV). Each pass is summed in float64 over the batch's samples
+  16 B per colour AOV, 4 B per value AOV); with light groups (Scene.light_groups) a float32 RGB sum per group
+  (12 B, and 12 B in the result). Each pass is summed in float64 over the batch's samples
   (counted in the path batch) before it is folded in;
 - result: the assembled float32 colour RGBA (16 B), variance (12 B), int32 sample count (4 B); with AOVs
   albedo, normal (24 B) and depth (4 B); with the denoising features their albedo and normal (24 B); 12 B per
@@ -52,6 +53,7 @@ FILM_AOV_BYTES = 32
 FILM_LIGHT_PASS_BYTES = 132  # float32 RGB sums of the 11 light passes (core.light_passes)
 RESULT_LIGHT_PASS_BYTES = 12  # per light pass asked for: float32 RGB
 FILM_SHADER_AOV_BYTES = 16  # per shader AOV: float32 RGB sum and write count (core.shader_aovs)
+LIGHT_GROUP_BYTES = 12  # per light group, in the film and in the result: float32 RGB (core.light_groups)
 RESULT_BYTES = 32
 RESULT_AOV_BYTES = 28
 FILM_FEATURE_BYTES = 24
@@ -111,6 +113,9 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     aov_list = list(getattr(scene, "shader_aovs", ()))
     film += pixels * FILM_SHADER_AOV_BYTES * len(aov_list)
     result += pixels * sum(16 if kind == "COLOR" else 4 for _, kind in aov_list)
+    groups = len(getattr(scene, "light_groups", ()))
+    film += pixels * LIGHT_GROUP_BYTES * groups
+    result += pixels * LIGHT_GROUP_BYTES * groups
     if scene.has_shadow_catcher:
         film += pixels * FILM_CATCHER_BYTES
         result += pixels * RESULT_CATCHER_BYTES

@@ -31,6 +31,7 @@ from .integrator import (DIM_FILM, DIM_LENS, DIM_TIME, CatcherSamples, Denoising
 from .motion import moving_camera_rays, rolling_shutter_times, shutter_times
 from .shading.vector_context import camera_differentials
 from .jit_cache import compile_cache_is_cold
+from .light_groups import LightGroupSamples, pass_name
 from .light_passes import LightPassSamples
 from .memory import check_render_memory
 from .sampling import VARIANCE_GROUPS, make_sampler
@@ -82,6 +83,8 @@ class Tile:
     light_passes: dict[str, np.ndarray] | None = None  # Cycles' light passes asked for (core.light_passes)
     # Scene.shader_aovs: name -> (h, w, 4) RGBA (COLOR) or (h, w, 1) (VALUE) (core.shader_aovs)
     shader_aovs: dict[str, np.ndarray] | None = None
+    # Scene.light_groups: pass name (Combined_<group>) -> (h, w, 3) (core.light_groups)
+    light_groups: dict[str, np.ndarray] | None = None
 
     @property
     def width(self) -> int:
@@ -138,6 +141,7 @@ class RenderResult:
     # settings.light_passes: name -> (h, w, 3) float32 (core.light_passes: Direct/Indirect divided by Color)
     light_passes: dict[str, np.ndarray] | None = None
     shader_aovs: dict[str, np.ndarray] | None = None  # see Tile.shader_aovs
+    light_groups: dict[str, np.ndarray] | None = None  # see Tile.light_groups
 
 
 ProgressCallback = Callable[[Progress], None]
@@ -256,7 +260,7 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
     films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
                       catcher=CatcherOutput.of(scene), light_passes=settings.light_passes,
-                      shader_aovs=scene.shader_aovs) for t in tile_list]
+                      shader_aovs=scene.shader_aovs, light_groups=scene.light_groups) for t in tile_list]
     tables = merge_data_tables(settings, parts)
     data_films = [DataFilm(t[2], t[3], tables) for t in tile_list] if tables is not None else None
     reached = [0] * len(tile_list)
@@ -348,6 +352,9 @@ class FrameImages:
         if film is not None and film.shader_aovs:
             self.extras["shader_aovs"] = {name: np.zeros((rh, rw, 4 if kind == "COLOR" else 1), np.float32)
                                           for name, kind in film.shader_aovs}
+        if film is not None and film.light_groups:
+            self.extras["light_groups"] = {pass_name(name): np.zeros((rh, rw, 3), np.float32)
+                                           for name in film.light_groups}
         self.features = None
         self.rot = world_to_camera
         if film is not None and film.features and world_to_camera is not None:
@@ -386,6 +393,11 @@ class FrameImages:
             for name, arr in film.shader_aov_images().items():
                 self.extras["shader_aovs"][name][sl] = arr
                 out.shader_aovs[name] = self.extras["shader_aovs"][name][sl]
+        if "light_groups" in self.extras:
+            out.light_groups = {}
+            for name, arr in film.light_group_images().items():
+                self.extras["light_groups"][name][sl] = arr
+                out.light_groups[name] = self.extras["light_groups"][name][sl]
         return out
 
     def images(self) -> tuple:
@@ -535,7 +547,8 @@ class _TileRender:
         self.films = _LazyFilms(lambda t: TileFilm(t[2], t[3], settings.aovs, self.sampler,
                                                    settings.denoising_features, alpha=alpha, catcher=catcher,
                                                    light_passes=settings.light_passes,
-                                                   shader_aovs=scene.shader_aovs))
+                                                   shader_aovs=scene.shader_aovs,
+                                                   light_groups=scene.light_groups))
         # Cycles' data passes (core.data_passes); render_samples() hands their sums on beside the films'
         self.data_tables = None
         self.data_films: dict = {}
@@ -755,6 +768,9 @@ class _TileRender:
                 first.light_passes.values[live] = first_l.light_passes.values
             if first_l.shader_aovs is not None:  # dead rays wrote nothing
                 first.shader_aovs = first_l.shader_aovs.spread(live, n)
+            if first_l.light_groups is not None:  # dead rays gathered no light
+                first.light_groups = LightGroupSamples(n, first_l.light_groups.values.shape[1])
+                first.light_groups.values[live] = first_l.light_groups.values
         return radiance, first, transparent
 
     def _finish_one(self, quiet: bool = False) -> None:
@@ -780,6 +796,8 @@ class _TileRender:
                 film.add_light_passes(seg.loc, first.light_passes.values[rows])
             if first is not None and first.shader_aovs is not None:
                 film.add_shader_aovs(seg.loc, first.shader_aovs.values[rows])
+            if first is not None and first.light_groups is not None:
+                film.add_light_groups(seg.loc, first.light_groups.values[rows])
             self.film_seconds += time.perf_counter() - t0
             self.done_paths += len(seg.loc)
             if not quiet:

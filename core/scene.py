@@ -270,6 +270,7 @@ class Mesh:
     shadow_sets: int = -1
     receiver_set: int = 0
     blocker_set: int = 0
+    lightgroup: str = ""  # as an emitter, Cycles' light group it lights (core.light_groups); "": none
     # The Vector pass (core.data_passes): (2, V, 3) world positions of the vertices at the previous and the next
     # frame; None: where it is now at both.
     vector_vertices: np.ndarray | None = None
@@ -448,6 +449,7 @@ class PointLight:
     visible_transmission: bool = True
     receiver_set: int = 0
     blocker_set: int = 0
+    lightgroup: str = ""  # Cycles' light group (core.light_groups); "": none
 
 
 @dataclass
@@ -470,6 +472,7 @@ class SpotLight:
     visible_transmission: bool = True
     receiver_set: int = 0
     blocker_set: int = 0
+    lightgroup: str = ""  # Cycles' light group (core.light_groups); "": none
 
 
 @dataclass
@@ -489,6 +492,7 @@ class SunLight:
     visible_transmission: bool = True
     receiver_set: int = 0
     blocker_set: int = 0
+    lightgroup: str = ""  # Cycles' light group (core.light_groups); "": none
 
 
 @dataclass
@@ -513,6 +517,7 @@ class AreaLight:
     visible_transmission: bool = True
     receiver_set: int = 0
     blocker_set: int = 0
+    lightgroup: str = ""  # Cycles' light group (core.light_groups); "": none
 
 
 Light = PointLight | SpotLight | SunLight | AreaLight
@@ -544,6 +549,7 @@ class World:
     # Lights that belong to the world (a Sky Texture's sun disc, core.sky): the exporters add them to the
     # scene's lights; the world itself does not render them.
     lights: list = field(default_factory=list)
+    lightgroup: str = ""  # Cycles' light group of the world's light (core.light_groups); "": none
 
     @property
     def is_black(self) -> bool:
@@ -871,6 +877,9 @@ class Scene:
     # Cycles' shader AOVs (core.shader_aovs): (name, "COLOR" | "VALUE") in the view layer's order; the node
     # programs' aov_output instructions index this list. Empty: no AOV pass, nothing kept.
     shader_aovs: list[tuple[str, str]] = field(default_factory=list)
+    # Cycles' light groups (View Layer > Light Groups, core.light_groups): their names in the view layer's order;
+    # emitters name theirs in `lightgroup`. Empty: no light group pass, nothing kept.
+    light_groups: list[str] = field(default_factory=list)
 
     @property
     def has_alpha(self) -> bool:
@@ -907,6 +916,7 @@ class Scene:
         for mat in self.materials:
             mat.validate(len(self.textures))
         self._validate_shader_aovs()
+        self._validate_light_groups()
         n_objects = 0
         if self.objects is not None:
             from .shading.program import OBJECT_COLUMNS
@@ -973,6 +983,21 @@ class Scene:
             if len(slots) and (slots.min() < 0 or slots.max() >= len(self.shader_aovs)):
                 raise SceneError(f"material {mat.name!r}: an AOV Output instruction names AOV {int(slots.max())}, "
                                  f"the scene lists {len(self.shader_aovs)} shader AOV(s)")
+
+
+    def _validate_light_groups(self) -> None:
+        """Normalise Scene.light_groups to a list of names; SceneError for an empty or repeated name or a non-string.
+        An emitter naming a group not listed lights no group (as Cycles)."""
+        if isinstance(self.light_groups, str):
+            raise SceneError(f"light groups must be a list of names, got the string {self.light_groups!r}")
+        checked: list[str] = []
+        for name in self.light_groups:
+            if not isinstance(name, str) or not name:
+                raise SceneError(f"light group {name!r}: the name must be a non-empty string")
+            if name in checked:
+                raise SceneError(f"light group {name!r} is listed twice")
+            checked.append(name)
+        self.light_groups = checked
 
 
 MAX_LIGHT_SETS = 64  # light sets 0..63, as Cycles' 64-bit membership masks

@@ -18,8 +18,11 @@ What the passes hold, with Cycles' (Blender 5.3) meaning:
   is the share of the pixel's samples that wrote it (Cycles writes alpha 1 with each colour); a VALUE AOV is
   one channel. Pixels no sample wrote are 0.
 
-Differences: a full holdout surface ends its path before shading, so it writes no AOV (Cycles evaluates the
-shader there first); AOV Output nodes of the world are not evaluated (the add-on warns).
+- A full holdout surface (a Holdout material, or an object or collection held out) still writes: Cycles evaluates
+  the surface's shader, AOV Output nodes included, before the holdout ends the path (core.integrator shades it
+  for its AOVs alone).
+
+Differences: AOV Output nodes of the world are not evaluated (the add-on warns).
 
 Nothing here runs unless the scene lists AOVs and some material writes one: the compiler keeps AOV Output
 nodes only for AOVs the view layer lists, so other renders carry no AOV instruction, film channel or state.

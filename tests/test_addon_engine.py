@@ -256,14 +256,14 @@ class _Recorder:
     def __getattr__(self, name):
         if name in ("column", "row", "split", "box"):
             return lambda *a, **k: _Recorder(self._log)
-        if name == "prop":
+        if name in ("prop", "prop_search"):
             return self._prop
         return lambda *a, **k: None
 
     def __setattr__(self, name, value):
         object.__setattr__(self, name, value)
 
-    def _prop(self, data, name, **_kw):
+    def _prop(self, data, name, *_search, **_kw):  # prop_search also names the collection to search
         assert name in data.bl_rna.properties.keys(), f"{type(data).__name__} has no property {name!r}"
         self._log.append(name)
 
@@ -292,7 +292,7 @@ def test_panels_draw_real_properties_and_blender_panels_are_opted_in():
             "film_transparent_glass", "panorama_type", "visible_diffuse", "is_holdout", "use_pass_mist",
             "use_pass_object_index", "use_pass_cryptomatte_asset", "pass_cryptomatte_depth", "falloff",
             "transparent_max_bounces", "motion_blur_shutter",
-            "motion_blur_position", "motion_steps", "is_portal"} <= set(drawn)
+            "motion_blur_position", "motion_steps", "is_portal", "lightgroup"} <= set(drawn)
     for kind in ("FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL", "EQUIRECTANGULAR"):
         cam.panorama_type = kind
         ui.MONTE_CAMERA_PT_panorama.draw(types.SimpleNamespace(layout=_Recorder(drawn)), ctx)

@@ -325,6 +325,21 @@ def test_light_passes_on_the_cluster_equal_one_render(cluster):
     assert local.light_passes["Diffuse Direct"].max() > 0
 
 
+def test_light_groups_on_the_cluster_equal_one_render(cluster):
+    """The light groups' sums travel in the film sums too (core.light_groups): bit-identical to one render."""
+    scene, settings = _scene(), _settings()
+    for emitter in [*scene.lights, *scene.meshes, scene.world]:
+        emitter.lightgroup = "all"
+    scene.light_groups = ["all", "none"]
+    local = render(scene, settings)
+    remote = render_on_cluster(scene, settings, cluster[1], units=plan_units(scene, settings, 2, ranges_per_tile=3))
+    _assert_same_images(remote, local)
+    assert list(remote.light_groups) == ["Combined_all", "Combined_none"]
+    for name, arr in local.light_groups.items():
+        assert np.array_equal(remote.light_groups[name], arr), name
+    assert local.light_groups["Combined_all"].max() > 0 and not local.light_groups["Combined_none"].any()
+
+
 def test_a_unit_runs_without_a_cluster_too(reference):
     """render_unit is the workers' task: plain core, callable anywhere (what a worker imports)."""
     scene, settings = _scene(), _settings()

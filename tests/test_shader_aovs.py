@@ -111,6 +111,20 @@ def test_aovs_change_nothing_else_and_cost_nothing_when_not_listed(result):
     assert np.array_equal(without.color, result.color)  # the AOV writes draw no random numbers
 
 
+def test_a_full_holdout_still_writes_its_aovs():
+    """Cycles evaluates a surface's shader (its AOV Output nodes) before a holdout ends the path: the floor made a
+    full holdout still writes its colour and x where the camera sees it, while the image is transparent there."""
+    scene = aov_scene()
+    scene.meshes = scene.meshes[:1]  # the floor alone
+    scene.materials[0].holdout = 1.0
+    out = render(scene, settings())
+    np.testing.assert_allclose(out.color[..., 3], 0.0, atol=1e-6)  # held out: alpha 0 everywhere
+    tint = out.shader_aovs["tint"]
+    np.testing.assert_allclose(tint, np.broadcast_to([0.25, 0.5, 0.75, 1.0], tint.shape), atol=1e-6)
+    x = out.shader_aovs["x"][..., 0]
+    np.testing.assert_allclose(x.mean(axis=0), _columns(), atol=0.5 * 2 * HALF / SIZE)
+
+
 def test_misses_write_nothing():
     scene = aov_scene()
     scene.meshes = scene.meshes[1:]  # no floor: the veil's samples go on to the world

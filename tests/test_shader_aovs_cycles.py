@@ -254,3 +254,21 @@ def test_russian_roulette_ends_aov_writes_as_in_cycles(emits, tmp_path):
     assert abs(mon / cyc - 1) < 0.01
     other = 2 + 0.6 * 2.176 if emits else 2 + 2.176
     assert abs(other / cyc - 1) > 0.01
+
+
+def test_a_held_out_floor_writes_its_aovs_as_in_cycles(tmp_path):
+    """The floor set to holdout (Object > Visibility > Holdout): Cycles evaluates its shader, AOV Output nodes
+    included, before the holdout ends the path, so the AOVs hold the floor's values where the camera sees it; so
+    do Monte's (the same per-pixel bound as above; the colour alpha, the share of samples writing, equal)."""
+    scene = aov_scene()
+    bpy.data.objects["Floor"].is_holdout = True
+    layer = scene.view_layers[0].name
+    cycles_exr, monte_exr = bf.cycles_and_monte_exrs(scene, tmp_path, SPP, 4)
+    cyc, mon = passes_of(exr.read_exr(cycles_exr), layer), passes_of(exr.read_exr(monte_exr), layer)
+    x = _columns()
+    open_floor = np.abs(x) < 1 - 2 * 2 * HALF / SIZE[0]  # the floor seen directly, between the sheets
+    assert np.allclose(cyc["coords"][:, open_floor, 3], 1.0)  # Cycles writes there
+    for name, c in (("coords", 0), ("coords", 1), ("noise", 0)):
+        ref, got = cyc[name][..., c][:, open_floor], mon[name][..., c][:, open_floor]
+        assert np.all(np.abs(got - ref) <= 0.15 * bf.footprint(cyc[name][..., c])[:, open_floor] + 1e-6), (name, c)
+    assert np.allclose(mon["coords"][:, open_floor, 3], cyc["coords"][:, open_floor, 3], atol=1e-5)

@@ -324,6 +324,62 @@ def test_a_change_cancels_the_render_in_flight(changes):
     assert not session._thread.is_alive()
 
 
+def test_the_viewport_computes_no_pass_beside_combined(monkeypatch):
+    """A view layer asking for shader AOVs (with an AOV Output node), data passes, light passes, a light group and
+    denoising: the viewport session, which shows Combined alone, renders none of them (the scene it renders lists
+    no AOV and no light group, its materials write no AOV, its settings ask for no pass) -- while F12's export and
+    settings do ask for them, so the test would see them if the session let them through."""
+    from monte.addon.engine import render_settings
+    from monte.addon.export import export_scene
+    from monte.core import render as render_mod
+    from monte.core.shading.registry import OP_AOV_OUTPUT
+
+    scene = block_scene()
+    tree = bpy.data.materials["paint"].node_tree
+    aov = tree.nodes.new("ShaderNodeOutputAOV")
+    aov.aov_name = "tint"
+    aov.inputs["Color"].default_value = (0.0, 1.0, 0.0, 1.0)
+    bpy.ops.scene.view_layer_add_aov()
+    layer = scene.view_layers[0]
+    layer.active_aov.name = "tint"
+    layer.use_pass_mist = layer.use_pass_diffuse_direct = layer.use_pass_cryptomatte_object = True
+    bpy.ops.scene.view_layer_add_lightgroup(name="lamps")
+    for obj in bpy.data.objects:
+        if obj.type == "LIGHT":
+            obj.lightgroup = "lamps"
+    scene.monte.use_denoising = True
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    full, _ = export_scene(depsgraph)
+    assert full.shader_aovs == [("tint", "COLOR")] and full.light_groups == ["lamps"]
+    settings = render_settings(scene, {"data_passes": ("mist", "crypto_object"), "light_passes": ("Diffuse Direct",)})
+    assert settings.denoising_features
+    seen = []
+    real = render_mod.render
+
+    def spy(core_scene, core_settings, **kw):
+        result = real(core_scene, core_settings, **kw)
+        seen.append((core_scene, core_settings, result))
+        return result
+
+    monkeypatch.setattr(render_mod, "render", spy)
+    session = vp.ViewportSession(settings.replace(threads=2), samples=2, start_resolution=0)
+    try:
+        session.sync(depsgraph)
+        session.set_view(vp.scene_camera_view(depsgraph, (40, 30)))
+        assert session.wait(timeout=300).samples == 2
+    finally:
+        session.stop()
+    assert seen
+    for core_scene, core_settings, result in seen:
+        assert core_scene.shader_aovs == [] and core_scene.light_groups == []
+        assert not any(getattr(m, "program", None) is not None and np.any(m.program.code[:, 0] == OP_AOV_OUTPUT)
+                       for m in core_scene.materials)
+        assert (core_settings.data_passes, core_settings.light_passes, core_settings.denoising_features,
+                core_settings.aovs) == ((), (), False, False)
+        assert result.shader_aovs is None and result.light_groups is None and result.light_passes is None
+        assert result.data_passes == {} and result.denoising_albedo is None
+
+
 def test_a_scene_monte_cannot_render_shows_the_error_and_recovers(changes):
     scene = bf.reset()
     bf.camera_object(scene, (0.0, -5.0, 1.0), (math.radians(90), 0.0, 0.0))

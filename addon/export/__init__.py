@@ -61,6 +61,7 @@ class _Prototype:
     shadow_catcher: bool = False  # Object > Visibility > Shadow Catcher (core.scene.Mesh.shadow_catcher)
     # light and shadow linking: Mesh.light_sets, shadow_sets, receiver_set, blocker_set (export/light_linking.py)
     links: tuple = (-1, -1, 0, 0)
+    lightgroup: str = ""  # Object > Shading > Light Group (core.scene.Mesh.lightgroup)
     instance_keys: list = field(default_factory=list)  # per instance: its key across subframes (motion blur)
     steps: int = 0  # motion steps (the most of its instances'); 0: no motion blur
     deform_name: str | None = None  # the object whose deforming mesh this is (deformation blur), or None
@@ -97,8 +98,10 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
         seen = (False,) + seen[1:]  # Cycles renders an Indirect Only collection as hidden from camera rays
     slots = tuple(slot.material for slot in obj.material_slots)
     catcher = bool(getattr(obj, "is_shadow_catcher", False))
+    lightgroup = str(getattr(original, "lightgroup", "") or "")
     slot_key = (tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ()) + seen
-                + (("shadow catcher",) if catcher else ()) + (() if links == (-1, -1, 0, 0) else (("links",) + links)))
+                + (("shadow catcher",) if catcher else ()) + (() if links == (-1, -1, 0, 0) else (("links",) + links))
+                + ((("lightgroup", lightgroup),) if lightgroup else ()))
     terminator = _terminator_offset(original)
     if kind == "MESH" and obj.data is not None:
         key = ("mesh", obj.data.as_pointer(), slot_key, terminator)
@@ -128,7 +131,8 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
         attribute_names(local.slots)
     materials.warn_missing_attributes(used_materials, local.missing_attributes, original.name)
     prototypes[key] = _Prototype(local, lut, original.name, texspace=_texspace(obj, local), visibility=seen,
-                                 shadow_terminator_offset=terminator, shadow_catcher=catcher, links=links)
+                                 shadow_terminator_offset=terminator, shadow_catcher=catcher, links=links,
+                                 lightgroup=lightgroup)
     stats.meshes_converted += 1
     return key
 
@@ -326,6 +330,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
                     light.visible_camera = bool(getattr(obj, "visible_camera", False))
                     light.cast_shadow = bool(getattr(obj.data, "use_shadow", True))
                     light.receiver_set, light.blocker_set = linking.emitter(obj)
+                    light.lightgroup = str(getattr(obj.original, "lightgroup", "") or "")
                     for ray in LIGHT_RAY_VISIBILITY:
                         setattr(light, f"visible_{ray}", bool(getattr(obj, f"visible_{ray}", True)))
                     _warn_light_settings(obj, warnings)
@@ -392,6 +397,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
             setattr(mesh, f"visible_{kind}", seen)
         mesh.shadow_catcher = proto.shadow_catcher
         mesh.light_sets, mesh.shadow_sets, mesh.receiver_set, mesh.blocker_set = proto.links
+        mesh.lightgroup = proto.lightgroup
         if motion is not None and proto.steps:
             _attach_motion(mesh, proto, matrices, motion, warnings)
         meshes.append(mesh)
@@ -400,6 +406,7 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
         materials.index(None)  # core needs at least one material
     world = export_world(scene.world, warnings)
     world.portals = np.stack(portals) if portals else None
+    world.lightgroup = str(getattr(scene.world, "lightgroup", "") or "") if scene.world is not None else ""
     lights = lights + world.lights  # a Sky Texture's sun disc
     out = Scene(camera=camera, meshes=meshes, materials=materials.materials, lights=lights, world=world,
                 textures=materials.textures, name=scene.name, warnings=warnings,
@@ -408,7 +415,12 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
                 uv_layer_names=list(materials.uv_names), mist=export_mist(scene.world),
                 object_names=object_names, asset_names=asset_names,
                 attribute_names=list(materials.attribute_names),
-                tangent_layer_names=list(materials.tangent_names), shader_aovs=shader_aovs)
+                tangent_layer_names=list(materials.tangent_names), shader_aovs=shader_aovs,
+                light_groups=view_layer_light_groups(depsgraph.view_layer))
+    if out.light_groups and out.has_shadow_catcher:
+        from ..core.light_groups import SHADOW_CATCHER_WARNING
+
+        warnings.append(SHADOW_CATCHER_WARNING)
     if not meshes:
         raise SceneError(f"scene {scene.name!r} has no visible objects to render (meshes, curves, text, "
                          "metaballs); check the objects' render visibility and the view layer's collections")
@@ -440,6 +452,12 @@ def view_layer_aovs(view_layer, world, warnings: list[str]) -> list[tuple[str, s
         warnings.append(f"world {world.name!r}: AOV Output nodes in the world are not evaluated by Monte; the "
                         "AOVs stay 0 where the camera sees the world")
     return out
+
+
+def view_layer_light_groups(view_layer) -> list[str]:
+    """The view layer's light groups (View Layer Properties > Light Groups) as core.scene.Scene.light_groups: their
+    names in order (Blender keeps them unique). Emitters naming another group light none, as in Cycles."""
+    return [str(group.name) for group in getattr(view_layer, "lightgroups", ()) if group.name]
 
 
 def _asset_name(inst, obj) -> str:
