@@ -45,7 +45,14 @@ def orthonormals(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     diagonal = (x == y) & (x == z)
     a = np.stack([z - y, np.where(diagonal, x + z, x - z), np.where(diagonal, -y - x, y - x)], axis=1)
     a /= np.maximum(row_lengths(a), 1e-300)[:, None]
-    return a, np.cross(n, a)
+    # b = n x a component by component: np.cross's own arithmetic (the same products and differences, the same
+    # bits) without its axis bookkeeping, which costs more than the products for these short rows
+    ax, ay, az = a[:, 0], a[:, 1], a[:, 2]
+    b = np.empty_like(a)
+    b[:, 0] = y * az - z * ay
+    b[:, 1] = z * ax - x * az
+    b[:, 2] = x * ay - y * ax
+    return a, b
 
 
 @dataclass
