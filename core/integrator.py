@@ -1437,10 +1437,12 @@ class PathTracer:
 
     @staticmethod
     def _diffuse_only(lobes: "bsdf_mod.LobeBatch", rows: np.ndarray) -> "bsdf_mod.LobeBatch":
-        part = lobes.take(rows)
-        part.weight = np.where((part.kind == bsdf_mod.KIND_CODE["diffuse"])[..., None], part.weight,
-                               np.float32(0)).astype(np.float32)
-        return part
+        """The lobes with every weight but the diffuse lobes' of `rows` zero, for eval_bsdf(rows=...): the other
+        arrays are shared, not copied (only the rows read are filled; the zeros are calloc'd pages)."""
+        weight = np.zeros_like(lobes.weight)
+        weight[rows] = np.where((lobes.kind[rows] == bsdf_mod.KIND_CODE["diffuse"])[..., None], lobes.weight[rows],
+                                np.float32(0))
+        return replace(lobes, weight=weight)
 
     def _bump_shadowing_eval(self, f_cos, lobes, can, gc, wi_local, wi, bumped, n_paths) -> np.ndarray:
         """f cos of next-event light samples with the bump shadowing applied at bumped points."""
@@ -1451,7 +1453,7 @@ class PathTracer:
             return f_cos
         ns = bumped[1][where[can[sel]]]
         g1, reject = self._bump_terms(gc.n_view[sel], ns, wi[sel])
-        f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, can[sel]), gc.wo[sel], wi_local[sel],
+        f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, can[sel]), gc.wo[sel], wi_local[sel], rows=can[sel],
                                     back=gc.cos_o_geo[sel] < 0)
         adjusted = f_cos[sel] - ((1.0 - g1)[:, None] * f_d).astype(np.float32)
         adjusted[reject] = 0.0
@@ -1469,7 +1471,7 @@ class PathTracer:
         wl = np.asarray(bs.wi, np.float32)[r]
         wi = (g.tangent[r] * wl[:, :1] + g.bitangent[r] * wl[:, 1:2] + g.ns[r] * wl[:, 2:3]).astype(np.float32)
         g1, reject = self._bump_terms(g.n_view[r], bumped[1][ok], wi)
-        f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, r), g.wo[r], wl, back=g.cos_o_geo[r] < 0)
+        f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, r), g.wo[r], wl, rows=r, back=g.cos_o_geo[r] < 0)
         loss = np.where(reject, 1.0, 1.0 - g1)[:, None] * f_d / np.maximum(np.asarray(bs.pdf, np.float32)[r], 1e-30)[:, None]
         bs.weight[r] = np.maximum(bs.weight[r] - loss.astype(np.float32), 0.0)
 

@@ -12,6 +12,8 @@ Sections (each a short run; all in one process, interleaved where two variants a
   RMSE against a long render of the same scene, the time saved, and the time at equal error (efficiency ratio).
 - nodes: ns per node per shading point of the main shading nodes (Image Texture, Noise, Voronoi, Mix, Math,
   Color Ramp, Bump, Normal Map, Principled), compiled from real Blender materials (lab/perf_nodes.py; needs bpy).
+- textured: the `textured` bench scene on one thread: CPU seconds, stages and the functions with the most own
+  time under cProfile (lab/perf_textured.py; needs bpy).
 Nothing here asserts a time: machines are shared and noisy; compare ratios within one run.
 """
 
@@ -30,7 +32,7 @@ from ..core.builtin_scenes import cornell_box, cornell_diffuse, spheres_under_sk
 from ..core.settings import RenderSettings
 from .bench_math import efficiency
 
-SECTIONS = ("stages", "threads", "memory", "skip", "adaptive", "nodes")
+SECTIONS = ("stages", "threads", "memory", "skip", "adaptive", "nodes", "textured")
 
 
 def render(scene, settings: RenderSettings):
@@ -168,6 +170,16 @@ def run_perf(args: argparse.Namespace) -> dict:
 
             r = report["nodes"] = node_costs(points=args.node_points, repeat=max(args.repeat, 3))
             print_node_costs(r)
+    if "textured" in sections:
+        import importlib.util
+
+        if importlib.util.find_spec("bpy") is None:
+            print("Textured profile skipped: the scene is built in Blender (needs the bpy module)")
+        else:
+            from .perf_textured import print_textured_profile, textured_profile
+
+            r = report["textured"] = textured_profile(res, spp, args.repeat)
+            print_textured_profile(r)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(report, fh, indent=2)

@@ -30,3 +30,23 @@ def test_node_costs_have_a_positive_row_per_main_node(capsys):
         row = [line for line in lines if line.strip().startswith(name)]
         assert len(row) == 1, name
         assert float(row[0].split()[-2]) > 0
+
+
+def test_textured_profile_names_the_node_interpreter_and_accounts_for_the_render(capsys):
+    """`monte perf --sections textured` at a tiny size: the profile's functions are sorted by own time, their
+    shares are of the profiled total, and the scene's node programs show up as the interpreter's calls (one per
+    vertex batch: at least one per bounce that hits a textured material)."""
+    from monte.lab.perf_textured import print_textured_profile, textured_profile
+
+    r = textured_profile(resolution=16, spp=2, repeat=1, top=200)
+    assert r["cpu_seconds_best"] > 0 and r["profiled_seconds"] > 0
+    seconds = [f["seconds"] for f in r["functions"]]
+    assert seconds == sorted(seconds, reverse=True)
+    assert 0 < sum(f["share"] for f in r["functions"]) <= 1 + 1e-9
+    interpreter = [f for f in r["functions"] if f["function"] == "shading/evaluator.py:evaluate"]
+    assert len(interpreter) == 1 and interpreter[0]["calls"] >= 1
+    assert set(r["stage_seconds"]) >= {"camera", "intersect", "emission", "nee", "scatter"}
+    print_textured_profile(r)
+    out = capsys.readouterr().out
+    assert out.startswith("Textured scene 16x16, 2 spp, 1 thread: ")
+    assert "shading/evaluator.py:evaluate" in out

@@ -29,6 +29,14 @@ class VectorContext:
     mesh_normal: np.ndarray | None = None
 
 
+def row_lengths(v: np.ndarray) -> np.ndarray:
+    """Euclidean length of each row of v (N, 3), bit for bit np.linalg.norm(v, axis=1) (the same float64
+    sum, (x^2 + y^2) + z^2) at about a third of its cost: the norm reduces along the short axis, which NumPy
+    runs as a slow strided reduction."""
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    return np.sqrt(x * x + y * y + z * z)
+
+
 def orthonormals(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit tangents (a, b) of unit normals n (N, 3) with b = n x a, chosen as Cycles' make_orthonormals:
     a along (1, 1, 1) x n, or (-1, 1, 1) x n when n is along (1, 1, 1)."""
@@ -36,8 +44,15 @@ def orthonormals(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     x, y, z = n[:, 0], n[:, 1], n[:, 2]
     diagonal = (x == y) & (x == z)
     a = np.stack([z - y, np.where(diagonal, x + z, x - z), np.where(diagonal, -y - x, y - x)], axis=1)
-    a /= np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-300)
-    return a, np.cross(n, a)
+    a /= np.maximum(row_lengths(a), 1e-300)[:, None]
+    # b = n x a component by component: np.cross's own arithmetic (the same products and differences, the same
+    # bits) without its axis bookkeeping, which costs more than the products for these short rows
+    ax, ay, az = a[:, 0], a[:, 1], a[:, 2]
+    b = np.empty_like(a)
+    b[:, 0] = y * az - z * ay
+    b[:, 1] = z * ax - x * az
+    b[:, 2] = x * ay - y * ax
+    return a, b
 
 
 @dataclass
@@ -176,6 +191,6 @@ def camera_differentials(camera, raster_x: np.ndarray, raster_y: np.ndarray, ray
     rx = camera_rays(camera, x + 1.0, y, lens_u)
     ry = camera_rays(camera, x, y + 1.0, lens_u)
     o, d = rays.origins.astype(np.float64), rays.directions.astype(np.float64)
-    dp = 0.5 * (np.linalg.norm(rx.origins - o, axis=1) + np.linalg.norm(ry.origins - o, axis=1))
-    dd = 0.5 * (np.linalg.norm(rx.directions - d, axis=1) + np.linalg.norm(ry.directions - d, axis=1))
+    dp = 0.5 * (row_lengths(rx.origins - o) + row_lengths(ry.origins - o))
+    dd = 0.5 * (row_lengths(rx.directions - d) + row_lengths(ry.directions - d))
     return dp.astype(np.float32), dd.astype(np.float32)
