@@ -118,13 +118,18 @@ def set_sky_world(scene, sky_type: str = "PREETHAM", strength: float = 1.0, sun_
 
 
 @pytest.mark.blender
-@pytest.mark.parametrize("sky_type", ["PREETHAM", "SINGLE_SCATTERING"])
+@pytest.mark.parametrize("sky_type", ["PREETHAM", "SINGLE_SCATTERING", "MULTIPLE_SCATTERING"])
 def test_sky_per_direction_through_an_equirectangular_camera(sky_type, tmp_path):
     """The sky alone (the single-scattering one without its sun disc: a light, checked by the lit plane), 64 x 32
     pixels over the whole sphere, each point-sampled at its centre (box filter 0.01 px in both renderers: the
     single-scattering ground fades as (1 + 2.5 z)^3, steep enough that pixel filters would differ by percents).
     The top and bottom pixel rows are left out: within half a map texel (0.18 degrees) of the poles the map's
-    bilinear lookup wraps vertically, blending zenith and nadir (3e-5 sr: nothing for lighting)."""
+    bilinear lookup wraps vertically, blending zenith and nadir (3e-5 sr: nothing for lighting).
+    The multiple-scattering sky is compared through a 1 px box filter in both renderers at 64 samples instead:
+    its Earth's horizon (0.32 degrees below the horizontal at 100 m) is a kink where the sky drops 5-fold within a
+    degree, and Cycles' 0.01 px box there comes out as the sky averaged over about 0.9 px of elevation (measured:
+    its rows equal the model averaged so, to 0.3 %, not its point values, which Monte's are), so point samples
+    differ by 40 % in the row below the horizon and the means by 1.7 %."""
     scene = bf.reset()
     set_sky_world(scene, sky_type, sun_disc=False)
     # Monte renders no scene without geometry: a 1 cm triangle 1 km below (1e-5 rad, inside one nadir pixel)
@@ -132,10 +137,11 @@ def test_sky_per_direction_through_an_equirectangular_camera(sky_type, tmp_path)
     bf.camera_object(scene, (0.0, 0.0, 0.0), (math.radians(90), 0, 0), kind="PANO", panorama_type="EQUIRECTANGULAR")
     scene.render.resolution_x, scene.render.resolution_y = 64, 32
     scene.render.resolution_percentage = 100
-    scene.monte.filter_type, scene.monte.filter_width = "box", 0.01
-    scene.cycles.pixel_filter_type, scene.cycles.filter_width = "BOX", 0.01
-    mon = monte_rgba(scene, 4, 1)[0][1:-1, :, :3]
-    cyc = cycles_rgba(scene, tmp_path, 4, 1)[0][1:-1, :, :3]
+    width, spp = (1.0, 64) if sky_type == "MULTIPLE_SCATTERING" else (0.01, 4)
+    scene.monte.filter_type, scene.monte.filter_width = "box", width
+    scene.cycles.pixel_filter_type, scene.cycles.filter_width = "BOX", width
+    mon = monte_rgba(scene, spp, 1)[0][1:-1, :, :3]
+    cyc = cycles_rgba(scene, tmp_path, spp, 1)[0][1:-1, :, :3]
     rel = np.abs(mon - cyc).max(axis=-1) / np.maximum(cyc.max(axis=-1), 1e-3 * cyc.max())
     means = mon.mean((0, 1)) / cyc.mean((0, 1)) - 1
     print(f"\nper direction ({sky_type}): means {np.round(100 * means, 3)} %, median {100 * np.median(rel):.3f} %, "
@@ -154,15 +160,21 @@ def test_sky_per_direction_through_an_equirectangular_camera(sky_type, tmp_path)
 
 
 @pytest.mark.blender
-def test_single_scattering_horizon_band_per_direction(tmp_path):
+@pytest.mark.parametrize("sky_type", ["SINGLE_SCATTERING",
+                                      pytest.param("MULTIPLE_SCATTERING", marks=pytest.mark.slow)])
+def test_scattering_horizon_band_per_direction(sky_type, tmp_path):
     """The band from 2.9 degrees below the horizon to 8.6 above, where the single-scattering sky brightens
     steeply and the ground fades from the horizon's colour, seen by an equirectangular camera's latitude range:
     360 x 100 pixels (1 degree a column, 0.11 a row), point-sampled. Asserted: median pixel within 0.5 %, 99 %
     within 3 %, all within 6 % (measured 0.13 %, 2.4 %, 4.1 %: what is left is where the sky changes fastest,
     within a pixel's offset between the two cameras' point samples; 16 columns instead of 360 gave 1.2 %, 13 %,
-    20 %)."""
+    20 %). The multiple-scattering sky (slow: its Earth's-horizon kink, see the test above, is checked here at
+    0.11 degrees a row) leaves out the 5 rows within 0.29 degrees of the kink (Cycles' ~0.9 px averaging there
+    gives up to 15 %) and asserts the rest's means within 0.2 %, median 0.5 %, 99 % within 3 %, all within 6 %
+    (measured 0.01 %, 0.09 %, 1.2 %, 3.8 %; baked at 1024 x 512 instead of 2048 x 1024, the 99th percentile
+    below the horizon was 4.6 %)."""
     scene = bf.reset()
-    set_sky_world(scene, "SINGLE_SCATTERING", sun_disc=False)
+    set_sky_world(scene, sky_type, sun_disc=False)
     bf.mesh_object("speck", [(0, 0, -1000), (0.01, 0, -1000), (0, 0.01, -1000)], [(0, 1, 2)])
     bf.camera_object(scene, (0.0, 0.0, 0.0), (math.radians(90), 0, 0), kind="PANO", panorama_type="EQUIRECTANGULAR",
                      latitude_min=-0.05, latitude_max=0.15)
@@ -173,14 +185,21 @@ def test_single_scattering_horizon_band_per_direction(tmp_path):
     mon = monte_rgba(scene, 2, 1)[0][..., :3]
     cyc = cycles_rgba(scene, tmp_path, 2, 1)[0][..., :3]
     rel = np.abs(mon - cyc).max(axis=-1) / cyc.max(axis=-1)
-    print(f"\nhorizon band: median {100 * np.median(rel):.3f} %, 99th pct {100 * np.quantile(rel, 0.99):.3f} %, "
+    if sky_type == "MULTIPLE_SCATTERING":
+        elevation = 0.15 - (np.arange(100) + 0.5) * 0.002  # the rows' centres (radians)
+        keep = np.abs(elevation + sky.earth_horizon_dip(scene.world.node_tree.nodes["Sky Texture"].altitude)) > 0.005
+        mon, cyc, rel = mon[keep], cyc[keep], rel[keep]
+        means = mon.mean((0, 1)) / cyc.mean((0, 1)) - 1
+        print(f"\nleft out rows {np.flatnonzero(~keep).tolist()}; means {np.round(100 * means, 3)} %")
+        assert np.all(np.abs(means) < 0.002)
+    print(f"\nhorizon band ({sky_type}): median {100 * np.median(rel):.3f} %, 99th pct {100 * np.quantile(rel, 0.99):.3f} %, "
           f"max {100 * rel.max():.3f} %")
     assert cyc.min() > 0.5
     assert np.median(rel) < 0.005 and np.quantile(rel, 0.99) < 0.03 and rel.max() < 0.06
 
 
 @pytest.mark.blender
-@pytest.mark.parametrize("sky_type", ["PREETHAM", "SINGLE_SCATTERING"])
+@pytest.mark.parametrize("sky_type", ["PREETHAM", "SINGLE_SCATTERING", "MULTIPLE_SCATTERING"])
 def test_diffuse_plane_under_the_sky(sky_type, tmp_path):
     """A diffuse plane under the sky (and, for single scattering, its sun disc as a light), filling the view:
     the image is the sky's irradiance (the sky itself is compared by the per-direction test)."""

@@ -9,8 +9,9 @@ through bpy (packed or on disk, its colour space applied); Strength multiplies i
 settings (`world.cycles.sampling_method`, `sample_map_resolution`) choose the importance map's resolution.
 Anything else warns and falls back: an Image Texture or other node on the colour -> its average colour or the
 socket's colour; a missing or unreadable image -> the Background's own colour. A Sky Texture of a built type
-(Preetham, core.sky) is baked into an equirectangular environment map; the other types warn by name and render
-the socket's colour. No node tree: the world's viewport colour; no world at all: black. The Light Path trick of a
+(Preetham, Single Scattering / Nishita, Multiple Scattering: core.sky) is baked into an equirectangular
+environment map, a scattering sky's sun disc made a sun light; the other type (Hosek-Wilkie) warns by name and
+renders the socket's colour. No node tree: the world's viewport colour; no world at all: black. The Light Path trick of a
 backdrop that differs from the light (a Mix Shader of two Backgrounds by Is Camera Ray) gives the world a
 camera-only colour (core World.camera_color).
 """
@@ -112,7 +113,8 @@ def _background_world(node, world, name: str, warnings: list[str]) -> World:
 
 
 # Sky types baked into an environment map (core.sky); the others warn by name and fall back.
-_BAKED_SKY_TYPES = {"PREETHAM": "Preetham", "SINGLE_SCATTERING": "Single Scattering", "NISHITA": "Nishita"}
+_BAKED_SKY_TYPES = {"PREETHAM": "Preetham", "SINGLE_SCATTERING": "Single Scattering", "NISHITA": "Nishita",
+                    "MULTIPLE_SCATTERING": "Multiple Scattering"}
 
 
 def _sky(world, tex, warnings: list[str]):
@@ -144,14 +146,18 @@ def _sky(world, tex, warnings: list[str]):
     else:
         elevation, rotation = sky_model.wrap_sun_position(float(tex.sun_elevation), float(tex.sun_rotation))
         aerosol = float(getattr(tex, "aerosol_density", getattr(tex, "dust_density", 1.0)))
-        lut = sky_model.single_scattering_lut(elevation, float(tex.altitude), float(tex.air_density), aerosol,
-                                              float(tex.ozone_density))
-        pixels = sky_model.bake_equirectangular(lambda d: sky_model.single_scattering_radiance(d, lut, rotation))
+        altitude, air, ozone = float(tex.altitude), float(tex.air_density), float(tex.ozone_density)
+        multiple = kind == "MULTIPLE_SCATTERING"
+        make_lut = sky_model.multiple_scattering_lut if multiple else sky_model.single_scattering_lut
+        lut = make_lut(elevation, altitude, air, aerosol, ozone)
+        pixels = sky_model.bake_equirectangular(lambda d: sky_model.single_scattering_radiance(d, lut, rotation),
+                                                2 * sky_model.SKY_BAKE_WIDTH if multiple else sky_model.SKY_BAKE_WIDTH)
         if tex.sun_disc:
             sun_light = sky_model.sun_disc_light(f"{name}/{tex.name} sun", elevation, rotation,
-                                                 float(tex.sun_size), float(tex.sun_intensity),
-                                                 float(tex.altitude), float(tex.air_density), aerosol)
-            if sun_light is not None and elevation - 0.5 * float(tex.sun_size) < 0.0:
+                                                 float(tex.sun_size), float(tex.sun_intensity), altitude, air,
+                                                 aerosol, ozone, multiple_scattering=multiple)
+            horizon = -sky_model.earth_horizon_dip(altitude) if multiple else 0.0
+            if sun_light is not None and elevation - 0.5 * float(tex.sun_size) < horizon:
                 warnings.append(f"world {name!r}: Sky Texture {tex.name!r} sun disc crosses the horizon; it is "
                                 "rendered whole")
     method = getattr(getattr(world, "cycles", None), "sampling_method", "AUTOMATIC")
