@@ -201,13 +201,15 @@ def test_scattering_horizon_band_per_direction(sky_type, tmp_path):
 @pytest.mark.blender
 @pytest.mark.parametrize("sky_type", ["PREETHAM", "SINGLE_SCATTERING", "MULTIPLE_SCATTERING"])
 def test_diffuse_plane_under_the_sky(sky_type, tmp_path):
-    """A diffuse plane under the sky (and, for single scattering, its sun disc as a light), filling the view:
-    the image is the sky's irradiance (the sky itself is compared by the per-direction test)."""
+    """A diffuse plane and a diffuse sphere on it under the sky (and, for the scattering skies, its sun disc as a
+    light), the plane filling the view: the image is the sky's irradiance and the sun's shadow (the sky itself is
+    compared by the per-direction test)."""
     from test_crosscheck import check
 
     scene = bf.reset()
     bf.mesh_object("plane", [(-40, -40, 0), (40, -40, 0), (40, 40, 0), (-40, 40, 0)], [(0, 1, 2, 3)],
                    bf.diffuse("plane", (0.7, 0.7, 0.7)))
+    bf.icosphere_object("ball", (0.0, 0.0, 0.6), 0.6, bf.diffuse("ball", (0.5, 0.6, 0.7)), subdivisions=3)
     bf.camera_object(scene, (0, -4.0, 3.0), (math.radians(50), 0, 0), lens=35.0)
     set_sky_world(scene, sky_type)
     scene.render.resolution_percentage = 100
