@@ -269,7 +269,10 @@ AUDIT = {
                                       ("renders", lambda c: c.world.environment is not None
                                        and [light.name for light in c.lights] == ["lamp", "World/Sky Texture sun"])),
     "sky texture multiple scattering": (lambda s: _sky(s, "MULTIPLE_SCATTERING"),
-                                        ("warns", ["Sky Texture", "'Multiple Scattering'"])),
+                                        ("renders", lambda c: c.world.environment is not None
+                                         and c.world.environment.pixels.shape == (1024, 2048, 3)
+                                         and [light.name for light in c.lights] == ["lamp",
+                                                                                    "World/Sky Texture sun"])),
 }
 
 

@@ -81,6 +81,36 @@ def test_sun_position_wraps_as_cycles():
     np.testing.assert_allclose(sky.sun_direction(0.0, math.pi / 2), [-1.0, 0.0, 0.0], atol=1e-12)
 
 
+def test_multiple_scattering_sun_sets_below_the_earths_horizon():
+    """The multiple-scattering sky's disc stays up to the Earth's horizon, which lies below the horizontal
+    (acos(R / (R + h)): 0.321 degrees at 100 m, R = 6371 km), and its light is reddened near it."""
+    dip = sky.earth_horizon_dip(100.0)
+    assert dip == pytest.approx(math.acos(6371.0 / 6371.1), rel=1e-6)
+    assert math.degrees(dip) == pytest.approx(0.321, abs=1e-3)
+    size = 0.002
+    args = (0.0, size, 1.0, 100.0, 1.0, 1.0, 1.0)
+    assert sky.sun_disc_light("sun", -dip - 0.5 * size + 1e-5, *args, multiple_scattering=True) is not None
+    assert sky.sun_disc_light("sun", -dip - 0.5 * size - 1e-5, *args, multiple_scattering=True) is None
+    assert sky.sun_disc_light("sun", -0.5 * size - 1e-5, *args) is None  # single scattering: the horizontal
+    low = sky.sun_disc_light("sun", math.radians(3.0), *args, multiple_scattering=True).strength
+    high = sky.sun_disc_light("sun", math.radians(40.0), *args, multiple_scattering=True).strength
+    assert np.all(low < high) and low[0] / low[2] > 2 * high[0] / high[2]
+
+
+def test_multiple_scattering_table_is_symmetric_and_brightest_towards_the_sun():
+    """The table's layout: mirrored about the sun's azimuth (column 256), brightest there just above the
+    horizon, continuous across the horizontal (row 127 is 0.0014 degrees below it, above the Earth's horizon) and
+    darker below the Earth's horizon (rows under 100: 2.4 degrees down and more; the ray stops at the ground)
+    than anywhere along the horizontal."""
+    lut = sky.multiple_scattering_lut(math.radians(10.0), 100.0, 1.0, 1.0, 1.0)
+    assert lut.shape == (256, 512, 3) and not lut.flags.writeable
+    np.testing.assert_array_equal(lut[:, :256], lut[:, 256:][:, ::-1])
+    horizon_up, horizon_down = lut[128, :, 1], lut[127, :, 1]
+    assert np.argmax(horizon_up) in (255, 256) and horizon_up.max() > 2 * horizon_up.min()
+    np.testing.assert_allclose(horizon_down, horizon_up, rtol=0.01)
+    assert lut[:100, :, 1].max() < horizon_up.min()
+
+
 def test_no_sun_light_below_the_horizon():
     assert sky.sun_disc_light("sun", math.radians(-5.0), 0.0, 0.01, 1.0, 100.0, 1.0, 1.0) is None
     high = sky.sun_disc_light("sun", math.radians(30.0), 0.0, 0.01, 1.0, 100.0, 1.0, 1.0)
@@ -217,8 +247,7 @@ def test_diffuse_plane_under_the_sky(sky_type, tmp_path):
 
 
 @pytest.mark.blender
-@pytest.mark.parametrize("sky_type, label", [("HOSEK_WILKIE", "Hosek-Wilkie"),
-                                             ("MULTIPLE_SCATTERING", "Multiple Scattering")])
+@pytest.mark.parametrize("sky_type, label", [("HOSEK_WILKIE", "Hosek-Wilkie")])
 def test_unbuilt_sky_types_warn_by_name(sky_type, label):
     from monte.addon.export.world import export_world
 
@@ -273,4 +302,30 @@ def test_single_scattering_export_makes_the_sun_disc_a_light():
                                rtol=1e-5)
     node.sun_disc = False
     assert export_world(scene.world, []).lights == []
+
+
+@pytest.mark.blender
+def test_multiple_scattering_export_bakes_the_table_and_makes_the_sun_a_light():
+    from monte.addon.export.world import export_world
+
+    scene = bf.reset()
+    node = set_sky_world(scene, "MULTIPLE_SCATTERING", strength=2.0)
+    node.sun_intensity, node.altitude = 0.5, 2000.0
+    warnings: list[str] = []
+    got = export_world(scene.world, warnings)
+    assert warnings == [] and len(got.lights) == 1
+    el, rot = sky.wrap_sun_position(math.radians(SUN_ELEVATION), math.radians(SUN_ROTATION))
+    lut = sky.multiple_scattering_lut(el, 2000.0, 1.2, 2.0, 1.5)
+    d = sky.equirectangular_directions(2048)[::97, ::89]
+    np.testing.assert_allclose(got.environment.pixels[::97, ::89].reshape(-1, 3),
+                               sky.single_scattering_radiance(d.reshape(-1, 3), lut, rot), rtol=1e-5, atol=1e-6)
+    bottom, top = sky.multiple_scattering_sun(el, node.sun_size, 2000.0, 1.2, 2.0, 1.5)
+    centre = np.maximum(0.5 * (bottom + top) @ sky.XYZ_TO_LINEAR_RGB.T, 0)
+    np.testing.assert_allclose(got.lights[0].strength,
+                               2.0 * 0.5 * 0.8 * centre * math.pi * math.sin(node.sun_size / 2) ** 2, rtol=1e-5)
+    node.sun_elevation = -sky.earth_horizon_dip(2000.0)  # half the disc below the Earth's horizon
+    warnings = []
+    assert len(export_world(scene.world, warnings).lights) == 1
+    assert warnings == [f"world 'World': Sky Texture {node.name!r} sun disc crosses the horizon; it is rendered "
+                        "whole"]
 
