@@ -1,6 +1,7 @@
 """Blender's Sky Texture models evaluated per direction and baked into an environment map: Preetham (analytic)
 and Single Scattering (Nishita's atmosphere, Blender 4.x's "Nishita"), with that one's sun disc as a sun light.
-Hosek-Wilkie and Multiple Scattering are not here (the add-on warns by name).
+Multiple Scattering (Blender 5.x), a spectral atmosphere with a fitted multiple-scattering term, tabulated as
+Cycles does (see its section below). Hosek-Wilkie is not here (the add-on warns by name).
 
 Preetham ("A Practical Analytic Model for Daylight", Preetham, Shirley and Smits 1999), as Cycles evaluates it:
 the Perez distribution F(theta, gamma) = (1 + A exp(B / cos theta)) (1 + C exp(D gamma) + E cos^2 gamma) for each
