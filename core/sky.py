@@ -1,7 +1,8 @@
 """Blender's Sky Texture models evaluated per direction and baked into an environment map: Preetham (analytic)
 and Single Scattering (Nishita's atmosphere, Blender 4.x's "Nishita"), with that one's sun disc as a sun light.
 Multiple Scattering (Blender 5.x), a spectral atmosphere with a fitted multiple-scattering term, tabulated as
-Cycles does (see its section below). Hosek-Wilkie is not here (the add-on warns by name).
+Cycles does (see its section below). Hosek-Wilkie (analytic, from its published fitted coefficients in
+core.hosek_wilkie_data; see its section below).
 
 Preetham ("A Practical Analytic Model for Daylight", Preetham, Shirley and Smits 1999), as Cycles evaluates it:
 the Perez distribution F(theta, gamma) = (1 + A exp(B / cos theta)) (1 + C exp(D gamma) + E cos^2 gamma) for each
@@ -28,7 +29,8 @@ import numpy as np
 __all__ = ["XYZ_TO_LINEAR_RGB", "preetham_radiance", "bake_equirectangular", "SKY_BAKE_WIDTH", "single_scattering_xyz",
            "single_scattering_lut", "single_scattering_sun", "single_scattering_radiance", "sun_disc_light",
            "wrap_sun_position", "sun_direction", "multiple_scattering_xyz", "multiple_scattering_lut",
-           "multiple_scattering_sun", "multiple_scattering_transmittance", "earth_horizon_dip"]
+           "multiple_scattering_sun", "multiple_scattering_transmittance", "earth_horizon_dip",
+           "hosek_wilkie_state", "hosek_wilkie_radiance"]
 
 # CIE XYZ (D65 white) -> linear Rec.709 / sRGB primaries, the scene-linear space of Blender's default config.
 XYZ_TO_LINEAR_RGB = np.array([[3.2404542, -1.5371385, -0.4985314],
@@ -91,6 +93,75 @@ def preetham_radiance(directions: np.ndarray, sun_direction, turbidity: float) -
     X = np.where(y != 0, x / safe_y * Y, 0.0)
     Z = np.where((y != 0) & (Y != 0), (1.0 - x - y) / safe_y * Y, 0.0)
     rgb = np.stack([X, Y, Z], -1) @ XYZ_TO_LINEAR_RGB.T
+    return np.maximum(np.where(np.isfinite(rgb), rgb, 0.0), 0.0)
+
+
+# ------------------------------------------------------------------------------------------ Hosek-Wilkie
+# "An Analytic Model for Full Spectral Sky-Dome Radiance" (Hosek and Wilkie 2012), its CIE XYZ version as Cycles
+# evaluates it: per channel F(theta, gamma) = (1 + A exp(B / (cos theta + 0.01))) (C + D exp(E gamma) + F cos^2
+# gamma + G (1 + cos^2 gamma) / (1 + I^2 - 2 I cos gamma)^1.5 + H sqrt(cos theta)) times the channel's radiance;
+# A..I and the radiance from the published fit (core.hosek_wilkie_data): a quintic Bezier curve over (solar
+# elevation / (pi / 2))^(1/3), linear between integer turbidities and between ground albedo 0 and 1. Cycles
+# scales the XYZ result by 2 pi / 683 and clamps negative RGB to 0; the view angle stops 0.001 rad above the
+# horizon (the lower hemisphere repeats the horizon), the sun's elevation is clamped to 0..pi/2.
+_HW_VIEW_CLAMP = 0.001  # radians above the horizon
+_HW_SCALE = 2.0 * math.pi / 683.0
+
+
+@functools.lru_cache(maxsize=1)
+def _hosek_wilkie_tables() -> tuple[np.ndarray, np.ndarray]:
+    from . import hosek_wilkie_data as data
+
+    return (np.array(data.CONFIGURATION, np.float64).reshape(data.CONFIGURATION_SHAPE),
+            np.array(data.RADIANCE, np.float64).reshape(data.RADIANCE_SHAPE))
+
+
+def _bezier5(points: np.ndarray, t: float) -> np.ndarray:
+    """The quintic Bezier curve of control points along axis -2 of `points` (..., 6, k) at t in [0, 1]."""
+    weights = np.array([math.comb(5, k) * (1.0 - t) ** (5 - k) * t ** k for k in range(6)])
+    return np.einsum("k,...kj->...j", weights, points)
+
+
+def hosek_wilkie_state(turbidity: float, ground_albedo: float, sun_elevation: float) -> tuple[np.ndarray, np.ndarray]:
+    """(configuration (3, 9): A..I per X, Y, Z channel; radiance (3,)) for `turbidity` (clamped to 1..10),
+    `ground_albedo` (0..1) and the sun `sun_elevation` radians above the horizon (clamped to 0..pi/2)."""
+    config, radiance = _hosek_wilkie_tables()
+    turbidity = min(max(float(turbidity), 1.0), 10.0)
+    albedo = min(max(float(ground_albedo), 0.0), 1.0)
+    t = (min(max(float(sun_elevation), 0.0), 0.5 * math.pi) / (0.5 * math.pi)) ** (1.0 / 3.0)
+    low = int(turbidity)
+    rest = turbidity - low
+    out_config, out_radiance = np.zeros((3, 9)), np.zeros(3)
+    for albedo_index, albedo_weight in ((0, 1.0 - albedo), (1, albedo)):
+        for turb, turb_weight in ((low, 1.0 - rest), (min(low + 1, 10), rest if low < 10 else 0.0)):
+            w = albedo_weight * turb_weight
+            if w == 0.0:
+                continue
+            out_config += w * _bezier5(config[:, albedo_index, turb - 1], t)
+            out_radiance += w * _bezier5(radiance[:, albedo_index, turb - 1, :, None], t)[:, 0]
+    return out_config, out_radiance
+
+
+def hosek_wilkie_radiance(directions: np.ndarray, sun_direction, turbidity: float,
+                          ground_albedo: float) -> np.ndarray:
+    """Linear RGB radiance (N, 3) of the Hosek-Wilkie sky in unit world directions (N, 3), for the sun in
+    `sun_direction` (any length > 0; Blender's Sun Direction), `turbidity` and `ground_albedo` (Blender's)."""
+    d = np.asarray(directions, np.float64).reshape(-1, 3)
+    s = np.asarray(sun_direction, np.float64).reshape(3)
+    n = float(np.linalg.norm(s))
+    s = s / n if n > 0 else np.array([0.0, 0.0, 1.0])
+    sun_elevation = 0.5 * math.pi - math.acos(min(max(s[2], -1.0), 1.0))
+    config, radiance = hosek_wilkie_state(turbidity, ground_albedo, sun_elevation)
+    cos_gamma = np.clip(d @ s, -1.0, 1.0)
+    gamma = np.arccos(cos_gamma)
+    theta = np.minimum(np.arccos(np.clip(d[:, 2], -1.0, 1.0)), 0.5 * math.pi - _HW_VIEW_CLAMP)
+    cos_theta = np.cos(theta)[:, None]
+    a, b, c, dd, e, f, g, h, i = (config[:, k][None, :] for k in range(9))
+    cg = cos_gamma[:, None]
+    mie = (1.0 + cg * cg) / (1.0 + i * i - 2.0 * i * cg) ** 1.5
+    xyz = (1.0 + a * np.exp(b / (cos_theta + 0.01))) * \
+        (c + dd * np.exp(e * gamma[:, None]) + f * cg * cg + g * mie + h * np.sqrt(cos_theta)) * radiance
+    rgb = xyz @ XYZ_TO_LINEAR_RGB.T * _HW_SCALE
     return np.maximum(np.where(np.isfinite(rgb), rgb, 0.0), 0.0)
 
 

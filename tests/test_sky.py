@@ -148,7 +148,7 @@ def set_sky_world(scene, sky_type: str = "PREETHAM", strength: float = 1.0, sun_
 
 
 @pytest.mark.blender
-@pytest.mark.parametrize("sky_type", ["PREETHAM", "SINGLE_SCATTERING", "MULTIPLE_SCATTERING"])
+@pytest.mark.parametrize("sky_type", ["PREETHAM", "HOSEK_WILKIE", "SINGLE_SCATTERING", "MULTIPLE_SCATTERING"])
 def test_sky_per_direction_through_an_equirectangular_camera(sky_type, tmp_path):
     """The sky alone (the single-scattering one without its sun disc: a light, checked by the lit plane), 64 x 32
     pixels over the whole sphere, each point-sampled at its centre (box filter 0.01 px in both renderers: the
@@ -167,7 +167,7 @@ def test_sky_per_direction_through_an_equirectangular_camera(sky_type, tmp_path)
     bf.camera_object(scene, (0.0, 0.0, 0.0), (math.radians(90), 0, 0), kind="PANO", panorama_type="EQUIRECTANGULAR")
     scene.render.resolution_x, scene.render.resolution_y = 64, 32
     scene.render.resolution_percentage = 100
-    width, spp = (1.0, 64) if sky_type == "MULTIPLE_SCATTERING" else (0.01, 4)
+    width, spp = (1.0, 64) if sky_type in ("MULTIPLE_SCATTERING", "HOSEK_WILKIE") else (0.01, 4)
     scene.monte.filter_type, scene.monte.filter_width = "box", width
     scene.cycles.pixel_filter_type, scene.cycles.filter_width = "BOX", width
     mon = monte_rgba(scene, spp, 1)[0][1:-1, :, :3]
@@ -229,7 +229,7 @@ def test_scattering_horizon_band_per_direction(sky_type, tmp_path):
 
 
 @pytest.mark.blender
-@pytest.mark.parametrize("sky_type", ["PREETHAM", "SINGLE_SCATTERING", "MULTIPLE_SCATTERING"])
+@pytest.mark.parametrize("sky_type", ["PREETHAM", "HOSEK_WILKIE", "SINGLE_SCATTERING", "MULTIPLE_SCATTERING"])
 def test_diffuse_plane_under_the_sky(sky_type, tmp_path):
     """A diffuse plane and a diffuse sphere on it under the sky (and, for the scattering skies, its sun disc as a
     light), the plane filling the view: the image is the sky's irradiance and the sun's shadow (the sky itself is
@@ -247,21 +247,20 @@ def test_diffuse_plane_under_the_sky(sky_type, tmp_path):
 
 
 @pytest.mark.blender
-@pytest.mark.parametrize("sky_type, label", [("HOSEK_WILKIE", "Hosek-Wilkie")])
-def test_unbuilt_sky_types_warn_by_name(sky_type, label):
+def test_hosek_wilkie_export_reads_sun_turbidity_albedo_and_strength():
     from monte.addon.export.world import export_world
 
-    if sky_type not in {e.identifier for e in bpy.types.ShaderNodeTexSky.bl_rna.properties["sky_type"].enum_items}:
-        pytest.skip(f"this Blender has no {sky_type} sky")
     scene = bf.reset()
-    node = set_sky_world(scene, sky_type)
-    scene.world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.1, 0.2, 0.3, 1.0)
+    node = set_sky_world(scene, "HOSEK_WILKIE", strength=2.0)
+    node.ground_albedo = 0.6
     warnings: list[str] = []
     got = export_world(scene.world, warnings)
-    assert got.environment is None
-    np.testing.assert_allclose(got.color, (0.1, 0.2, 0.3), rtol=1e-6)
-    assert warnings == [f"world 'World': Sky Texture {node.name!r} type {label!r} is not supported; using the "
-                        "socket's own colour as a uniform background"]
+    env = got.environment
+    assert warnings == [] and env.pixels.shape == (512, 1024, 3) and got.lights == []
+    np.testing.assert_allclose(env.strength, 2.0)
+    d = sky.equirectangular_directions(1024)[::13, ::17]
+    np.testing.assert_allclose(env.pixels[::13, ::17].reshape(-1, 3),
+                               sky.hosek_wilkie_radiance(d.reshape(-1, 3), SUN, TURBIDITY, 0.6), rtol=1e-5, atol=1e-7)
 
 
 @pytest.mark.blender

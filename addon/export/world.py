@@ -8,10 +8,9 @@ location ignored, as for any direction) fed by Texture Coordinate Generated (or 
 through bpy (packed or on disk, its colour space applied); Strength multiplies it. Cycles' world sampling
 settings (`world.cycles.sampling_method`, `sample_map_resolution`) choose the importance map's resolution.
 Anything else warns and falls back: an Image Texture or other node on the colour -> its average colour or the
-socket's colour; a missing or unreadable image -> the Background's own colour. A Sky Texture of a built type
-(Preetham, Single Scattering / Nishita, Multiple Scattering: core.sky) is baked into an equirectangular
-environment map, a scattering sky's sun disc made a sun light; the other type (Hosek-Wilkie) warns by name and
-renders the socket's colour. No node tree: the world's viewport colour; no world at all: black. The Light Path trick of a
+socket's colour; a missing or unreadable image -> the Background's own colour. A Sky Texture (Preetham, Hosek-Wilkie,
+Single Scattering / Nishita, Multiple Scattering: core.sky) is baked into an equirectangular environment map, a
+scattering sky's sun disc made a sun light; a type not built warns by name and renders the socket's colour. No node tree: the world's viewport colour; no world at all: black. The Light Path trick of a
 backdrop that differs from the light (a Mix Shader of two Backgrounds by Is Camera Ray) gives the world a
 camera-only colour (core World.camera_color).
 """
@@ -114,7 +113,7 @@ def _background_world(node, world, name: str, warnings: list[str]) -> World:
 
 # Sky types baked into an environment map (core.sky); the others warn by name and fall back.
 _BAKED_SKY_TYPES = {"PREETHAM": "Preetham", "SINGLE_SCATTERING": "Single Scattering", "NISHITA": "Nishita",
-                    "MULTIPLE_SCATTERING": "Multiple Scattering"}
+                    "MULTIPLE_SCATTERING": "Multiple Scattering", "HOSEK_WILKIE": "Hosek-Wilkie"}
 
 
 def _sky(world, tex, warnings: list[str]):
@@ -136,13 +135,18 @@ def _sky(world, tex, warnings: list[str]):
         warnings.append(f"world {name!r}: Sky Texture {tex.name!r} texture mapping (its own Mapping panel) is "
                         "ignored")
     sun_light = None
-    if kind == "PREETHAM":
+    if kind in ("PREETHAM", "HOSEK_WILKIE"):
         sun = np.array(tex.sun_direction[:3], np.float64)
         if not np.linalg.norm(sun) > 0:
             warnings.append(f"world {name!r}: Sky Texture {tex.name!r} sun direction is zero; using the zenith")
             sun = np.array([0.0, 0.0, 1.0])
         turbidity = float(tex.turbidity)
-        pixels = sky_model.bake_equirectangular(lambda d: sky_model.preetham_radiance(d, sun, turbidity))
+        if kind == "PREETHAM":
+            pixels = sky_model.bake_equirectangular(lambda d: sky_model.preetham_radiance(d, sun, turbidity))
+        else:
+            albedo = float(tex.ground_albedo)
+            pixels = sky_model.bake_equirectangular(
+                lambda d: sky_model.hosek_wilkie_radiance(d, sun, turbidity, albedo))
     else:
         elevation, rotation = sky_model.wrap_sun_position(float(tex.sun_elevation), float(tex.sun_rotation))
         aerosol = float(getattr(tex, "aerosol_density", getattr(tex, "dust_density", 1.0)))
