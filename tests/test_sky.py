@@ -1,18 +1,23 @@
 """Sky Texture worlds (core.sky baked into core.world's environment map) against Cycles.
 
 - Per direction: the world alone seen through an equirectangular panoramic camera (the whole sphere, 64 x 32,
-  each pixel point-sampled at its centre) rendered by Monte and by Cycles: the images differ only by the baking
-  (bilinear lookup in a 1024 x 512 map); asserted: channel means within 0.5 % (single scattering: 1 %), median
-  pixel within 0.5 %, 99 % of pixels within 3 % (single scattering: above 5.6 degrees, see the test).
-  Measured: Preetham means +0.00/-0.00/+0.02 %, median 0.08 %, max 2.1 %; single scattering means
-  +0.65/+0.57/+0.29 %, above 5.6 degrees median 0.28 %, 99th percentile 2.8 %; its horizon band (2.9 degrees
-  down to 8.6 up) at 360 x 100 pixels: median 0.13 %, 99th percentile 2.4 %, max 4.1 %.
-- Lit: a diffuse plane filling the view under the sky (single scattering: with its sun disc as a light), through
-  tests/test_crosscheck.py's `check` (means within max(4 sigma, 0.5 %), per-pixel z-scores). Measured: Preetham
-  -0.02/-0.01/+0.02 %, single scattering +0.12/+0.13/+0.13 %.
-- Export: the settings read, the sun light, and the unbuilt sky types warning by name with the socket's colour.
-Core (no Blender): the baked map against the model evaluated directly, and the zenith's value from the model's
-definition.
+  each pixel point-sampled at its centre; Hosek-Wilkie and multiple scattering through a 1 px box at 64 samples,
+  see the test) rendered by Monte and by Cycles: the images differ only by the baking (bilinear lookup in a
+  1024 x 512 map, multiple scattering 2048 x 1024); asserted: channel means within 0.5 % (single scattering:
+  1 %), median pixel within 0.5 %, 99 % of pixels within 3 % (single scattering: above 5.6 degrees, see the
+  test). Measured: Preetham means +0.00/-0.00/+0.02 %, median 0.08 %, max 2.1 %; Hosek-Wilkie means
+  -0.02/+0.00/+0.02 %, median 0.03 %, max 0.3 %; single scattering means +0.65/+0.57/+0.29 %, above 5.6 degrees
+  median 0.28 %, 99th percentile 2.8 %; multiple scattering means +0.01/+0.01/+0.03 %, median 0.08 %, 99th
+  percentile 1.8 %; the scattering skies' horizon band (2.9 degrees down to 8.6 up) at 360 x 100 pixels: single
+  median 0.13 %, 99th percentile 2.4 %, max 4.1 %; multiple (slow) median 0.09 %, 99th percentile 1.2 %.
+- Lit: a diffuse plane filling the view with a sphere on it under the sky (the scattering skies with their sun
+  disc as a light), through tests/test_crosscheck.py's `check` (means within max(4 sigma, 0.5 %), per-pixel
+  z-scores). Measured: Preetham -0.05/-0.02/+0.01 %, Hosek-Wilkie -0.03/+0.00/+0.03 %, single scattering
+  +0.11/+0.12/+0.13 %, multiple scattering +0.08/+0.09/+0.09 %.
+- Export: the settings read, the sun lights.
+Core (no Blender): the baked map against the model evaluated directly, the zenith's value from the model's
+definition, the Hosek-Wilkie coefficients against published values and their interpolation, the
+multiple-scattering table's layout and its sun's horizon.
 """
 
 from __future__ import annotations
@@ -79,6 +84,39 @@ def test_sun_position_wraps_as_cycles():
     el, rot = sky.wrap_sun_position(math.radians(-20.0), math.radians(-90.0))
     assert el == pytest.approx(math.radians(-20.0)) and rot == pytest.approx(math.radians(90.0))
     np.testing.assert_allclose(sky.sun_direction(0.0, math.pi / 2), [-1.0, 0.0, 0.0], atol=1e-12)
+
+
+def test_hosek_wilkie_coefficients_are_the_published_ones():
+    """A cross-check of core.hosek_wilkie_data against values printed in the published data set (v1.4a): the
+    first coefficients of X (albedo 0, turbidity 1), the last of Z (albedo 1, turbidity 10) and Z's radiance
+    control points at both ends."""
+    from monte.core import hosek_wilkie_data as data
+
+    config = np.array(data.CONFIGURATION).reshape(data.CONFIGURATION_SHAPE)
+    radiance = np.array(data.RADIANCE).reshape(data.RADIANCE_SHAPE)
+    np.testing.assert_array_equal(config[0, 0, 0, 0, :4], [-1.117001, -0.1867262, -11.13505, 12.59865])
+    np.testing.assert_array_equal(config[2, 1, 9, 5, -3:], [0.2272821, 1.771114, 0.6791814])
+    np.testing.assert_array_equal(radiance[2, 0, 0], [1.168084, 2.156455, -3.980314, 19.89302, 13.28335, 14.35621])
+    np.testing.assert_array_equal(radiance[2, 1, 9], [0.8640731, 0.9858301, 1.854956, -6.798097, 59.36468, 31.10255])
+
+
+def test_hosek_wilkie_state_interpolates_the_fit():
+    """At an integer turbidity and albedo 0 or 1 the state is the Bezier curve's end points at the horizon (sun
+    elevation 0) and the zenith (pi / 2); between turbidities and albedos it is linear."""
+    from monte.core import hosek_wilkie_data as data
+
+    config = np.array(data.CONFIGURATION).reshape(data.CONFIGURATION_SHAPE)
+    radiance = np.array(data.RADIANCE).reshape(data.RADIANCE_SHAPE)
+    c, r = sky.hosek_wilkie_state(3.0, 0.0, 0.0)
+    np.testing.assert_allclose(c, config[:, 0, 2, 0])
+    np.testing.assert_allclose(r, radiance[:, 0, 2, 0])
+    c, r = sky.hosek_wilkie_state(10.0, 1.0, math.pi / 2)
+    np.testing.assert_allclose(c, config[:, 1, 9, 5])
+    np.testing.assert_allclose(r, radiance[:, 1, 9, 5])
+    mixed = sky.hosek_wilkie_state(3.25, 0.4, 0.7)[0]
+    corners = [[sky.hosek_wilkie_state(t, a, 0.7)[0] for a in (0.0, 1.0)] for t in (3.0, 4.0)]
+    expect = 0.75 * (0.6 * corners[0][0] + 0.4 * corners[0][1]) + 0.25 * (0.6 * corners[1][0] + 0.4 * corners[1][1])
+    np.testing.assert_allclose(mixed, expect, rtol=1e-12)
 
 
 def test_multiple_scattering_sun_sets_below_the_earths_horizon():
