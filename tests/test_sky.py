@@ -351,12 +351,13 @@ def test_multiple_scattering_export_bakes_the_table_and_makes_the_sun_a_light():
     warnings: list[str] = []
     got = export_world(scene.world, warnings)
     assert warnings == [] and len(got.lights) == 1
-    el, rot = sky.wrap_sun_position(math.radians(SUN_ELEVATION), math.radians(SUN_ROTATION))
-    lut = sky.multiple_scattering_lut(el, 2000.0, 1.2, 2.0, 1.5)
+    el, rot = sky.wrap_sun_position(node.sun_elevation, node.sun_rotation)
+    densities = float(node.air_density), float(node.aerosol_density), float(node.ozone_density)
+    lut = sky.multiple_scattering_lut(el, 2000.0, *densities)  # the export's table (cached)
     d = sky.equirectangular_directions(2048)[::97, ::89]
     np.testing.assert_allclose(got.environment.pixels[::97, ::89].reshape(-1, 3),
                                sky.single_scattering_radiance(d.reshape(-1, 3), lut, rot), rtol=1e-5, atol=1e-6)
-    bottom, top = sky.multiple_scattering_sun(el, node.sun_size, 2000.0, 1.2, 2.0, 1.5)
+    bottom, top = sky.multiple_scattering_sun(el, node.sun_size, 2000.0, *densities)
     centre = np.maximum(0.5 * (bottom + top) @ sky.XYZ_TO_LINEAR_RGB.T, 0)
     np.testing.assert_allclose(got.lights[0].strength,
                                2.0 * 0.5 * 0.8 * centre * math.pi * math.sin(node.sun_size / 2) ** 2, rtol=1e-5)
