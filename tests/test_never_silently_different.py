@@ -264,12 +264,17 @@ AUDIT = {
     "sky texture preetham": (lambda s: _sky(s, "PREETHAM"),
                              ("renders", lambda c: c.world.environment is not None
                               and c.world.environment.pixels.shape == (512, 1024, 3))),
-    "sky texture hosek-wilkie": (lambda s: _sky(s, "HOSEK_WILKIE"), ("warns", ["Sky Texture", "'Hosek-Wilkie'"])),
+    "sky texture hosek-wilkie": (lambda s: _sky(s, "HOSEK_WILKIE"),
+                                 ("renders", lambda c: c.world.environment is not None
+                                  and c.world.environment.pixels.shape == (512, 1024, 3) and c.lights[1:] == [])),
     "sky texture single scattering": (lambda s: _sky(s, "SINGLE_SCATTERING"),
                                       ("renders", lambda c: c.world.environment is not None
                                        and [light.name for light in c.lights] == ["lamp", "World/Sky Texture sun"])),
     "sky texture multiple scattering": (lambda s: _sky(s, "MULTIPLE_SCATTERING"),
-                                        ("warns", ["Sky Texture", "'Multiple Scattering'"])),
+                                        ("renders", lambda c: c.world.environment is not None
+                                         and c.world.environment.pixels.shape == (1024, 2048, 3)
+                                         and [light.name for light in c.lights] == ["lamp",
+                                                                                    "World/Sky Texture sun"])),
 }
 
 

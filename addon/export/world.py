@@ -8,9 +8,9 @@ location ignored, as for any direction) fed by Texture Coordinate Generated (or 
 through bpy (packed or on disk, its colour space applied); Strength multiplies it. Cycles' world sampling
 settings (`world.cycles.sampling_method`, `sample_map_resolution`) choose the importance map's resolution.
 Anything else warns and falls back: an Image Texture or other node on the colour -> its average colour or the
-socket's colour; a missing or unreadable image -> the Background's own colour. A Sky Texture of a built type
-(Preetham, core.sky) is baked into an equirectangular environment map; the other types warn by name and render
-the socket's colour. No node tree: the world's viewport colour; no world at all: black. The Light Path trick of a
+socket's colour; a missing or unreadable image -> the Background's own colour. A Sky Texture (Preetham, Hosek-Wilkie,
+Single Scattering / Nishita, Multiple Scattering: core.sky) is baked into an equirectangular environment map, a
+scattering sky's sun disc made a sun light; a type not built warns by name and renders the socket's colour. No node tree: the world's viewport colour; no world at all: black. The Light Path trick of a
 backdrop that differs from the light (a Mix Shader of two Backgrounds by Is Camera Ray) gives the world a
 camera-only colour (core World.camera_color).
 """
@@ -112,7 +112,8 @@ def _background_world(node, world, name: str, warnings: list[str]) -> World:
 
 
 # Sky types baked into an environment map (core.sky); the others warn by name and fall back.
-_BAKED_SKY_TYPES = {"PREETHAM": "Preetham", "SINGLE_SCATTERING": "Single Scattering", "NISHITA": "Nishita"}
+_BAKED_SKY_TYPES = {"PREETHAM": "Preetham", "SINGLE_SCATTERING": "Single Scattering", "NISHITA": "Nishita",
+                    "MULTIPLE_SCATTERING": "Multiple Scattering", "HOSEK_WILKIE": "Hosek-Wilkie"}
 
 
 def _sky(world, tex, warnings: list[str]):
@@ -134,24 +135,33 @@ def _sky(world, tex, warnings: list[str]):
         warnings.append(f"world {name!r}: Sky Texture {tex.name!r} texture mapping (its own Mapping panel) is "
                         "ignored")
     sun_light = None
-    if kind == "PREETHAM":
+    if kind in ("PREETHAM", "HOSEK_WILKIE"):
         sun = np.array(tex.sun_direction[:3], np.float64)
         if not np.linalg.norm(sun) > 0:
             warnings.append(f"world {name!r}: Sky Texture {tex.name!r} sun direction is zero; using the zenith")
             sun = np.array([0.0, 0.0, 1.0])
         turbidity = float(tex.turbidity)
-        pixels = sky_model.bake_equirectangular(lambda d: sky_model.preetham_radiance(d, sun, turbidity))
+        if kind == "PREETHAM":
+            pixels = sky_model.bake_equirectangular(lambda d: sky_model.preetham_radiance(d, sun, turbidity))
+        else:
+            albedo = float(tex.ground_albedo)
+            pixels = sky_model.bake_equirectangular(
+                lambda d: sky_model.hosek_wilkie_radiance(d, sun, turbidity, albedo))
     else:
         elevation, rotation = sky_model.wrap_sun_position(float(tex.sun_elevation), float(tex.sun_rotation))
         aerosol = float(getattr(tex, "aerosol_density", getattr(tex, "dust_density", 1.0)))
-        lut = sky_model.single_scattering_lut(elevation, float(tex.altitude), float(tex.air_density), aerosol,
-                                              float(tex.ozone_density))
-        pixels = sky_model.bake_equirectangular(lambda d: sky_model.single_scattering_radiance(d, lut, rotation))
+        altitude, air, ozone = float(tex.altitude), float(tex.air_density), float(tex.ozone_density)
+        multiple = kind == "MULTIPLE_SCATTERING"
+        make_lut = sky_model.multiple_scattering_lut if multiple else sky_model.single_scattering_lut
+        lut = make_lut(elevation, altitude, air, aerosol, ozone)
+        pixels = sky_model.bake_equirectangular(lambda d: sky_model.single_scattering_radiance(d, lut, rotation),
+                                                2 * sky_model.SKY_BAKE_WIDTH if multiple else sky_model.SKY_BAKE_WIDTH)
         if tex.sun_disc:
             sun_light = sky_model.sun_disc_light(f"{name}/{tex.name} sun", elevation, rotation,
-                                                 float(tex.sun_size), float(tex.sun_intensity),
-                                                 float(tex.altitude), float(tex.air_density), aerosol)
-            if sun_light is not None and elevation - 0.5 * float(tex.sun_size) < 0.0:
+                                                 float(tex.sun_size), float(tex.sun_intensity), altitude, air,
+                                                 aerosol, ozone, multiple_scattering=multiple)
+            horizon = -sky_model.earth_horizon_dip(altitude) if multiple else 0.0
+            if sun_light is not None and elevation - 0.5 * float(tex.sun_size) < horizon:
                 warnings.append(f"world {name!r}: Sky Texture {tex.name!r} sun disc crosses the horizon; it is "
                                 "rendered whole")
     method = getattr(getattr(world, "cycles", None), "sampling_method", "AUTOMATIC")
