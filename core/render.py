@@ -261,29 +261,42 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     region = (0, 0, width, height) if region is None else tuple(int(v) for v in region)
     tile_list = tiles(*region, settings.tile_size)
     sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
-    films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
-                      catcher=CatcherOutput.of(scene), light_passes=settings.light_passes,
-                      shader_aovs=scene.shader_aovs, light_groups=scene.light_groups) for t in tile_list]
+
+    def make_film(t: TileRect) -> TileFilm:
+        return TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
+                        catcher=CatcherOutput.of(scene), light_passes=settings.light_passes,
+                        shader_aovs=scene.shader_aovs, light_groups=scene.light_groups)
+
     tables = merge_data_tables(settings, parts)
     data_films = [DataFilm(t[2], t[3], tables) for t in tile_list] if tables is not None else None
+    by_tile: dict[int, list[TileSamples]] = {}
+    for part in parts:
+        if not 0 <= part.tile_index < len(tile_list):
+            raise ValueError(f"tile index {part.tile_index} is not one of the frame's {len(tile_list)} tiles")
+        by_tile.setdefault(part.tile_index, []).append(part)
+    # One tile at a time: its parts folded into its film, its images written into the frame and the film
+    # released, so only one film is alive beside the parts and the frame (as render()'s FrameImages does).
+    first = make_film(tile_list[0]) if tile_list else None
+    frame = FrameImages(region, settings.aovs, first,
+                        world_to_camera(scene) if first is not None and first.features else None)
     reached = [0] * len(tile_list)
-    for part in sorted(parts, key=lambda p: (p.tile_index, p.sample_start)):
-        ti = part.tile_index
-        if not 0 <= ti < len(tile_list):
-            raise ValueError(f"tile index {ti} is not one of the frame's {len(tile_list)} tiles")
-        if part.sample_start != reached[ti]:
-            if partial and part.sample_start > reached[ti]:
-                continue  # past a missing range: its samples cannot be added without those before them
-            raise ValueError(f"tile {ti}: samples from {part.sample_start} follow samples up to {reached[ti]}")
-        if part.sample_start == 0 and len(part.films) != 1:
-            raise ValueError(f"tile {ti}: samples from 0 come as one film state, not {len(part.films)}")
-        fold_tile_part(films[ti], None if data_films is None else data_films[ti], part)
-        reached[ti] = part.sample_end
+    for ti, tile in enumerate(tile_list):
+        film = first if ti == 0 else make_film(tile)
+        for part in sorted(by_tile.get(ti, []), key=lambda p: p.sample_start):
+            if part.sample_start != reached[ti]:
+                if partial and part.sample_start > reached[ti]:
+                    continue  # past a missing range: its samples cannot be added without those before them
+                raise ValueError(f"tile {ti}: samples from {part.sample_start} follow samples up to {reached[ti]}")
+            if part.sample_start == 0 and len(part.films) != 1:
+                raise ValueError(f"tile {ti}: samples from 0 come as one film state, not {len(part.films)}")
+            fold_tile_part(film, None if data_films is None else data_films[ti], part)
+            reached[ti] = part.sample_end
+        frame.put(tile, film)
+        film.release()
     missing = [ti for ti, r in enumerate(reached) if r != settings.spp]
     if missing and not partial:
         raise ValueError(f"tiles {missing[:8]} do not hold all {settings.spp} samples")
-    color, variance, albedo, normal, depth, counts, features, extras = assemble_image(tile_list, films, settings,
-                                                                                      region, scene)
+    color, variance, albedo, normal, depth, counts, features, extras = frame.images()
     stats = {"scene": scene.name, "resolution": [width, height], "region": list(region), "spp": settings.spp,
              "samples": int(counts.sum())}
     result = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings),
