@@ -7,7 +7,8 @@ import pytest
 from monte.core import builtin_scenes as scenes
 from monte.core import render as render_module
 from monte.core.film import TileFilm
-from monte.core.schedule import pass_bounds, sample_passes, tile_windows, tiles
+from monte.core.memory import FILM_AOV_BYTES, FILM_BYTES, estimate_render_memory
+from monte.core.schedule import FILM_WINDOW_PIXELS, pass_bounds, sample_passes, tile_windows, tiles
 from monte.core.settings import RenderSettings
 
 # 32x32 in 8x8 tiles (16 tiles of 64 px), 1024-path batches: 16 samples per tile and pass, 3 passes at 48 spp
@@ -84,3 +85,16 @@ def test_a_time_limit_goes_round_the_whole_image(monkeypatch):
     # a time limit that never stops this render: the passes still go round all tiles (the image sharpens evenly)
     _, most = _render_counting_films(monkeypatch, WINDOW, time_limit=1e6)
     assert most == (SIZE // TILE) ** 2
+
+
+def test_the_memory_estimate_counts_one_window_of_films():
+    scene = scenes.cornell_box((7680, 4320))  # 8K: 33 M pixels, 16 windows
+    per_pixel = FILM_BYTES + FILM_AOV_BYTES
+    assert estimate_render_memory(scene, RenderSettings(spp=128)).film == FILM_WINDOW_PIXELS * per_pixel
+    # under a time limit the passes go round the whole image: every film alive
+    assert estimate_render_memory(scene, RenderSettings(spp=128, time_limit=60)).film == 7680 * 4320 * per_pixel
+    # a tile larger than the window is a window of its own
+    big = RenderSettings(spp=128, tile_size=2048)
+    assert estimate_render_memory(scene, big).film == 2048 * 2048 * per_pixel
+    small = scenes.cornell_box((64, 32))
+    assert estimate_render_memory(small, RenderSettings(spp=128)).film == 64 * 32 * per_pixel
