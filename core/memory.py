@@ -2,11 +2,14 @@
 
 The estimate (bytes), measured on this renderer (see docs/stress.md for the calibration):
 
-    total = pixels x (FILM_BYTES [+ FILM_SQUARES_BYTES] [+ FILM_AOV_BYTES] [+ FILM_FEATURE_BYTES]
-                      + RESULT_BYTES [+ RESULT_AOV_BYTES] [+ RESULT_FEATURE_BYTES])
+    total = film pixels x (FILM_BYTES [+ FILM_SQUARES_BYTES] [+ FILM_AOV_BYTES] [+ FILM_FEATURE_BYTES])
+          + pixels x (RESULT_BYTES [+ RESULT_AOV_BYTES] [+ RESULT_FEATURE_BYTES])
           + threads x min(batch, pixels x spp) x PATH_BYTES      (batch: core.schedule.batch_target)
           + triangles x TRIANGLE_BYTES + texels x TEXEL_BYTES
 
+- film pixels: the films alive at once, one window of tiles (core.schedule.FILM_WINDOW_PIXELS, or one tile
+  where a tile is larger) when the region is larger, every pixel under a time limit (its passes go round the
+  whole image); the data passes' films are all alive until the end (every pixel);
 - film (core.film, float32 storage): per pixel a float32 RGB shift (12 B), for each of the 4 variance groups a
   float32 RGB deviation sum (4 x 12 B), an int32 sample count (4 B) (64 B); for samplers other than Sobol a
   float32 RGB sum of squared deviations (FILM_SQUARES_BYTES, 12 B; the independent sampler's film keeps one group
@@ -43,7 +46,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .scene import Scene
-from .schedule import batch_target
+from .schedule import FILM_WINDOW_PIXELS, batch_target
 from .settings import RenderSettings
 
 FILM_BYTES = 64  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
@@ -106,18 +109,21 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     colour = {"sobol": FILM_BYTES, "stratified": FILM_BYTES + FILM_SQUARES_BYTES}.get(settings.sampler,
                                                                                      FILM_INDEPENDENT_BYTES)
     light = bool(getattr(settings, "light_passes", ()))
-    film = pixels * (colour + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0)
-                     + (FILM_LIGHT_PASS_BYTES if light else 0))
+    # the tiles' films alive at once (core.render: one window of tiles at a time, but round all under a time limit)
+    film_pixels = pixels if settings.time_limit > 0 else min(pixels, max(FILM_WINDOW_PIXELS,
+                                                                         int(settings.tile_size) ** 2))
+    film = film_pixels * (colour + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0)
+                          + (FILM_LIGHT_PASS_BYTES if light else 0))
     result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0)
                        + RESULT_LIGHT_PASS_BYTES * len(getattr(settings, "light_passes", ())))
     aov_list = list(getattr(scene, "shader_aovs", ()))
-    film += pixels * FILM_SHADER_AOV_BYTES * len(aov_list)
+    film += film_pixels * FILM_SHADER_AOV_BYTES * len(aov_list)
     result += pixels * sum(16 if kind == "COLOR" else 4 for _, kind in aov_list)
     groups = len(getattr(scene, "light_groups", ()))
-    film += pixels * LIGHT_GROUP_BYTES * groups
+    film += film_pixels * LIGHT_GROUP_BYTES * groups
     result += pixels * LIGHT_GROUP_BYTES * groups
     if scene.has_shadow_catcher:
-        film += pixels * FILM_CATCHER_BYTES
+        film += film_pixels * FILM_CATCHER_BYTES
         result += pixels * RESULT_CATCHER_BYTES
     passes = tuple(getattr(settings, "data_passes", ()))
     if passes:

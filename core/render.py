@@ -36,8 +36,8 @@ from .light_passes import LightPassSamples
 from .memory import check_render_memory
 from .sampling import VARIANCE_GROUPS, make_sampler
 from .scene import Scene
-from .schedule import (Segment, TileRect, adaptive_batch_target, batch_target, pass_bounds, pass_segments,
-                       sample_passes, tiles)
+from .schedule import (FILM_WINDOW_PIXELS, Segment, TileRect, adaptive_batch_target, batch_target, pass_bounds,
+                       pass_segments, sample_passes, tiles)
 
 SampleRanges = dict[int, tuple[int, int]]  # tile index -> samples [start, end) to take of it
 from .settings import RenderSettings
@@ -168,8 +168,11 @@ def render(
 
     Work is split into tiles x sample batches: each batch traces at most settings.batch_paths paths, so
     memory is bounded by the batch, not by the image or the sample count. Samples are taken in passes over
-    the tiles (a pass gives every tile as many samples as fit in one batch), so long renders refine the whole
-    image progressively and a time limit or cancel leaves a complete, noisier image.
+    the tiles (a pass gives every tile as many samples as fit in one batch), so long renders refine the image
+    progressively. The passes go round one window of tiles at a time (core.schedule.FILM_WINDOW_PIXELS, 2^21
+    pixels: a 1080p frame is one window), so that only that window's films are alive when tiles need several
+    passes; with a time limit they go round the whole image, which a time limit then leaves complete and
+    evenly noisier. A cancel leaves the windows not yet reached without their samples.
     on_tile is called with each tile after each pass over it (its current state); on_progress after every
     batch; should_cancel is polled before each batch is queued: when it returns True the render stops and the
     result (cancelled=True) holds every sample taken so far (pixels no batch reached yet are 0); batches
@@ -258,29 +261,42 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     region = (0, 0, width, height) if region is None else tuple(int(v) for v in region)
     tile_list = tiles(*region, settings.tile_size)
     sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
-    films = [TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
-                      catcher=CatcherOutput.of(scene), light_passes=settings.light_passes,
-                      shader_aovs=scene.shader_aovs, light_groups=scene.light_groups) for t in tile_list]
+
+    def make_film(t: TileRect) -> TileFilm:
+        return TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
+                        catcher=CatcherOutput.of(scene), light_passes=settings.light_passes,
+                        shader_aovs=scene.shader_aovs, light_groups=scene.light_groups)
+
     tables = merge_data_tables(settings, parts)
     data_films = [DataFilm(t[2], t[3], tables) for t in tile_list] if tables is not None else None
+    by_tile: dict[int, list[TileSamples]] = {}
+    for part in parts:
+        if not 0 <= part.tile_index < len(tile_list):
+            raise ValueError(f"tile index {part.tile_index} is not one of the frame's {len(tile_list)} tiles")
+        by_tile.setdefault(part.tile_index, []).append(part)
+    # One tile at a time: its parts folded into its film, its images written into the frame and the film
+    # released, so only one film is alive beside the parts and the frame (as render()'s FrameImages does).
+    first = make_film(tile_list[0]) if tile_list else None
+    frame = FrameImages(region, settings.aovs, first,
+                        world_to_camera(scene) if first is not None and first.features else None)
     reached = [0] * len(tile_list)
-    for part in sorted(parts, key=lambda p: (p.tile_index, p.sample_start)):
-        ti = part.tile_index
-        if not 0 <= ti < len(tile_list):
-            raise ValueError(f"tile index {ti} is not one of the frame's {len(tile_list)} tiles")
-        if part.sample_start != reached[ti]:
-            if partial and part.sample_start > reached[ti]:
-                continue  # past a missing range: its samples cannot be added without those before them
-            raise ValueError(f"tile {ti}: samples from {part.sample_start} follow samples up to {reached[ti]}")
-        if part.sample_start == 0 and len(part.films) != 1:
-            raise ValueError(f"tile {ti}: samples from 0 come as one film state, not {len(part.films)}")
-        fold_tile_part(films[ti], None if data_films is None else data_films[ti], part)
-        reached[ti] = part.sample_end
+    for ti, tile in enumerate(tile_list):
+        film = first if ti == 0 else make_film(tile)
+        for part in sorted(by_tile.get(ti, []), key=lambda p: p.sample_start):
+            if part.sample_start != reached[ti]:
+                if partial and part.sample_start > reached[ti]:
+                    continue  # past a missing range: its samples cannot be added without those before them
+                raise ValueError(f"tile {ti}: samples from {part.sample_start} follow samples up to {reached[ti]}")
+            if part.sample_start == 0 and len(part.films) != 1:
+                raise ValueError(f"tile {ti}: samples from 0 come as one film state, not {len(part.films)}")
+            fold_tile_part(film, None if data_films is None else data_films[ti], part)
+            reached[ti] = part.sample_end
+        frame.put(tile, film)
+        film.release()
     missing = [ti for ti, r in enumerate(reached) if r != settings.spp]
     if missing and not partial:
         raise ValueError(f"tiles {missing[:8]} do not hold all {settings.spp} samples")
-    color, variance, albedo, normal, depth, counts, features, extras = assemble_image(tile_list, films, settings,
-                                                                                      region, scene)
+    color, variance, albedo, normal, depth, counts, features, extras = frame.images()
     stats = {"scene": scene.name, "resolution": [width, height], "region": list(region), "spp": settings.spp,
              "samples": int(counts.sum())}
     result = RenderResult(color, variance, albedo, normal, depth, counts, stats, list(scene.warnings),
@@ -606,8 +622,11 @@ class _TileRender:
         """Queue every pass's segments in batches until all samples are taken or the render is stopped."""
         self.pool = ThreadPoolExecutor(self.workers) if self.workers > 1 else None
         try:
+            # One window of tiles at a time (their films alone alive when tiles need several passes), except
+            # under a time limit, where every pass goes round the whole image so that it sharpens evenly.
+            window = FILM_WINDOW_PIXELS if self.settings.time_limit <= 0 else 0
             for ti, tile, first_sample, count in sample_passes(self.tiles, self.spp, self.settings,
-                                                               self.min_samples):
+                                                               self.min_samples, window):
                 if self.work is not None and not self._in_work(ti, first_sample, count):
                     continue
                 pixels = np.arange(tile[2] * tile[3], dtype=np.int64)
@@ -639,19 +658,28 @@ class _TileRender:
     def _unconverged_pixels(self, ti: int, tile: TileRect, first_sample: int, count: int) -> np.ndarray:
         """Adaptive sampling: the tile's pixels still above the noise threshold, once its earlier samples are all
         in; a tile with none left is reported done for this pass."""
+        n_pix = tile[2] * tile[3]
+        if ti in self.final:  # converged whole at an earlier pass: its images are in the frame, its film released
+            self.done_paths += n_pix * count
+            self.samples_started[ti] = first_sample + count
+            self._progress(ti, first_sample + count)
+            return np.zeros(0, np.int64)
         if any(seg.tile_index == ti for seg in self.group):
             self._submit()
         while self._tile_busy(ti):  # the convergence test needs this tile's earlier samples
             self._finish_one()
-        n_pix = tile[2] * tile[3]
         pixels = self.films[tile].active_pixels(self.settings.adaptive_threshold)
         self.pixels_converged[ti] = n_pix - len(pixels)
         self.done_paths += (n_pix - len(pixels)) * count  # samples converged pixels no longer need
         if len(pixels) == 0:
             self.samples_started[ti] = first_sample + count
             self._progress(ti, first_sample + count)
+            if self.frame is not None:  # final now (no pixel takes more samples): its images once, film released
+                out = self._final_tile(ti, tile, self.films[tile], first_sample + count)
+            else:
+                out = self._tile_result(tile, self.films[tile], first_sample + count)
             if self.on_tile is not None:
-                self.on_tile(self._tile_result(tile, self.films[tile], first_sample + count))
+                self.on_tile(out)
         return pixels
 
     def _drop_queued_batches(self) -> None:
@@ -871,11 +899,11 @@ class _TileRender:
         structures = [self.accel] + [accel for accel, _ in list(self.prepared._subsets.values())]
         return (sum(a.rays_closest for a in structures), sum(a.rays_shadow for a in structures))
 
-    def _final_tile(self, ti: int, tile: TileRect, film: TileFilm) -> Tile:
-        """Write a tile that holds all its samples into the frame's images and release its film; the tile's
-        images (views of the frame's) for on_tile."""
+    def _final_tile(self, ti: int, tile: TileRect, film: TileFilm, samples: int | None = None) -> Tile:
+        """Write a tile that holds all its samples (or whose pixels all converged, at `samples`) into the frame's
+        images and release its film; the tile's images (views of the frame's) for on_tile."""
         t0 = time.perf_counter()
-        out = self.frame.put(tile, film, self.spp)
+        out = self.frame.put(tile, film, self.spp if samples is None else samples)
         film.release()
         self.final.add(ti)
         if self.data_tables is not None:

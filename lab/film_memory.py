@@ -3,6 +3,10 @@
     python -m monte.lab.film_memory                      # bytes per pixel, each film configuration
     python -m monte.lab.film_memory --render 3840x2160   # + the peak RSS of a 1-spp Cornell box at 4K
     python -m monte.lab.film_memory --render 3840x2160 --film OLD_FILM.py   # the same with another film module
+    python -m monte.lab.film_memory --render 3840x2160 --spp 2 --tile-size 512 [--whole-image]
+        # tiles that need several passes (512x512 tiles take 1 sample per pass at the default batch): the passes
+        # going round one window of tiles at a time (core.schedule.FILM_WINDOW_PIXELS), or with --whole-image
+        # round all tiles at once (every film alive until the last pass), as a time limit makes them
     python -m monte.lab.film_memory --table             # samples/s and peak RSS: 256x256 at 256 spp, 1080p, 4K
                                                          # and 8K at 1 spp, one process each, in one run
     python -m monte.lab.film_memory --table --package-root DIR   # the same for another checkout's `monte`
@@ -97,6 +101,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m monte.lab.film_memory", description=__doc__.splitlines()[0])
     parser.add_argument("--film", help="a core/film.py to measure instead of this checkout's")
     parser.add_argument("--render", help="WIDTHxHEIGHT: render the Cornell box at 1 spp and report peak RSS")
+    parser.add_argument("--spp", type=int, default=1, help="with --render: samples per pixel")
+    parser.add_argument("--tile-size", type=int, default=64, help="with --render: tile edge in pixels")
+    parser.add_argument("--whole-image", action="store_true",
+                        help="with --render: the passes go round all tiles at once (no window of tiles)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--table", action="store_true", help="the throughput table (see the module docstring)")
     parser.add_argument("--package-root", help="with --table: measure the `monte` package in this folder")
@@ -115,12 +123,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.render:
         w, h = (int(v) for v in args.render.lower().split("x"))
         render_module.TileFilm = film_class
+        if args.whole_image:
+            render_module.FILM_WINDOW_PIXELS = 0
         scene = scenes.cornell_box((w, h))
-        settings = RenderSettings(spp=1, threads=args.threads)
+        settings = RenderSettings(spp=args.spp, threads=args.threads, tile_size=args.tile_size)
         est = estimate_render_memory(scene, settings)
         r = render_module.render(scene, settings)
-        print(f"render {w}x{h} 1 spp: peak RSS {(peak_rss_bytes() or 0) / 2**20:,.0f} MB, estimate "
-              f"{est.describe()}, {r.stats['seconds']:.1f} s, image mean {r.color[..., :3].mean():.6f}")
+        order = "round all tiles" if args.whole_image else f"windows of {render_module.FILM_WINDOW_PIXELS:,} px"
+        print(f"render {w}x{h} {args.spp} spp, {args.tile_size}-px tiles, {order}: peak RSS "
+              f"{(peak_rss_bytes() or 0) / 2**20:,.0f} MB, estimate {est.describe()}, {r.stats['seconds']:.1f} s, "
+              f"image mean {r.color[..., :3].mean():.6f}")
     return 0
 
 
