@@ -417,25 +417,12 @@ class FrameImages:
         return out
 
     def images(self) -> tuple:
-        """(color, variance, albedo, normal, depth, sample counts, denoising features, extras): see
-        assemble_image."""
+        """(color, variance, albedo, normal, depth, sample counts, denoising features, extras): the region's images
+        (AOVs None when settings.aovs is off; the features (albedo, normal in camera space) None unless the films
+        keep them), and the extras: {RenderResult attribute: image} of the shadow catcher's, the light passes',
+        the shader AOVs' and the light groups' images where the films keep them."""
         return (self.color, self.variance, self.albedo, self.normal, self.depth, self.counts, self.features,
                 self.extras)
-
-
-def assemble_image(tile_list: list[TileRect], films: list[TileFilm], settings: RenderSettings, region: TileRect,
-                   scene: Scene) -> tuple:
-    """The region's (color, variance, albedo, normal, depth, sample counts, denoising features) from its tiles'
-    films (see Tile for the arrays; AOVs None when settings.aovs is off; the features (albedo, normal in camera
-    space) None unless the films keep them), and the extras: {RenderResult attribute: image} of the shadow
-    catcher's and the light passes' images (shadow_catcher, shadow_catcher_matte, light_passes) where the films
-    keep them. Each film is released (TileFilm.release) once its tile is read (see FrameImages)."""
-    rot = world_to_camera(scene) if films and films[0].features else None
-    frame = FrameImages(region, settings.aovs, films[0] if films else None, rot)
-    for tile, film in zip(tile_list, films):
-        frame.put(tile, film)
-        film.release()
-    return frame.images()
 
 
 def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
