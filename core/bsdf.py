@@ -127,6 +127,9 @@ class LobeBatch:
     under (N, L) int8: slot of the generalized-Schlick glossy lobe this lobe lies beneath, or -1 (see `Lobe.under`).
     tint (N, L, 2, 3) float32: reflection [:, :, 0] and transmission [:, :, 1] tints of glass lobes (else unused).
     f0, under and tint default to F0(ior), -1 and white.
+    diffuse_normal (N, 3) float32 or None: the diffuse lobes' normal in each hit's local frame, where the frame's
+    z (the microfacet lobes' normal) was tilted for valid specular reflection and the diffuse lobes keep the
+    untilted one (Cycles' valid_reflection_N is a specular closure's only); None: +z for every hit.
     """
 
     kind: np.ndarray
@@ -139,6 +142,7 @@ class LobeBatch:
     f0: np.ndarray | None = None
     under: np.ndarray | None = None
     tint: np.ndarray | None = None
+    diffuse_normal: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.f0 is None:
@@ -158,7 +162,9 @@ class LobeBatch:
                 np.ascontiguousarray(self.roughness, F32), np.ascontiguousarray(self.ior, F32),
                 np.ascontiguousarray(self.fresnel, np.int8), np.ascontiguousarray(self.select, F32),
                 np.ascontiguousarray(self.f0, F32), np.ascontiguousarray(self.under, np.int8),
-                np.ascontiguousarray(self.tint, F32))
+                np.ascontiguousarray(self.tint, F32),
+                np.zeros((0, 3), F32) if self.diffuse_normal is None
+                else np.ascontiguousarray(self.diffuse_normal, F32).reshape(-1, 3))
 
     def take(self, rows: np.ndarray) -> "LobeBatch":
         """The sub-batch of the given hit rows (copies)."""
@@ -173,6 +179,7 @@ class LobeBatch:
             f0=self.f0[rows],
             under=self.under[rows],
             tint=self.tint[rows],
+            diffuse_normal=None if self.diffuse_normal is None else self.diffuse_normal[rows],
         )
 
 
@@ -437,3 +444,36 @@ def albedo(lobes: LobeBatch, wo: np.ndarray | None = None) -> np.ndarray:
     w = _f32_rows(wo, 3) if wo is not None else np.zeros((0, 3), F32)
     bk.albedo_batch(lobes.arrays(), lobes.multiscatter, mf.kernel_tables(), w, wo is not None, out)
     return out
+
+
+def view_selection(lobes: LobeBatch, wo: np.ndarray) -> np.ndarray:
+    """(N, L) float32 lobe-choice probabilities for the viewer direction wo (N, 3, local frame), as Cycles picks a
+    closure by its sample weight: each lobe's colour x its albedo estimate seen from wo (Fresnel at |wo.z|, the
+    layering factor of a lobe under a coat; `albedo` per slot), summed over channels and normalised per hit.
+    Against the material's fixed `select` this follows the Principled specular lobe's rise towards grazing
+    angles. Every present lobe that has a fixed probability keeps at least 1% of it (no lobe the mixture pdf
+    needs gets probability 0 where the estimate underrates it); a hit whose estimates are all 0 keeps `select`.
+    Any positive probabilities are unbiased: eval_bsdf and sample_bsdf use the same ones."""
+    kind = np.asarray(lobes.kind)
+    n, slots = kind.shape
+    fixed = np.asarray(lobes.select, F32)
+    if slots == 1 or n == 0:
+        return fixed
+    present = kind >= 0
+    if not (present.sum(axis=1) > 1).any():
+        return fixed
+    w = _f32_rows(wo, 3)
+    est = np.zeros((n, slots), np.float64)
+    for slot in range(slots):
+        if not present[:, slot].any():
+            continue
+        only = replace(lobes, kind=np.where(np.arange(slots) == slot, kind, np.int8(-1)).astype(np.int8))
+        a = albedo(only, w)
+        est[:, slot] = np.asarray(a, np.float64).sum(axis=1)
+    est = np.where(present & np.isfinite(est), np.maximum(est, 0.0), 0.0)
+    total = est.sum(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = np.where(total > 0, est / total, fixed)
+    share = np.maximum(share, 0.01 * fixed)
+    share /= np.maximum(share.sum(axis=1, keepdims=True), 1e-30)
+    return np.ascontiguousarray(share, F32)

@@ -12,10 +12,12 @@ weight conventions are documented in core.bsdf and core.microfacet; this module 
 Arguments shared by the kernels:
   lobes = (kind (N, L) int8, weight (N, L, 3) float32, roughness (N, L) float32, ior (N, L) float32,
            fresnel (N, L) int8, select (N, L) float32, f0 (N, L, 3) float32, under (N, L) int8,
-           tint (N, L, 2, 3) float32)  -- a LobeBatch's arrays, C-contiguous. f0: reflectance at normal incidence
+           tint (N, L, 2, 3) float32, diffuse_normal (N, 3) or (0, 3) float32)  -- a LobeBatch's arrays,
+           C-contiguous. f0: reflectance at normal incidence
            of a generalized-Schlick glossy or glass lobe; under: slot of the generalized-Schlick glossy lobe this
            lobe lies beneath (-1: none), see `layer_factor`; tint: reflection [0] and transmission [1] tints of a
            glass lobe, see `glass_fresnel`.
+  diffuse_normal: the diffuse lobes' normal in the hit's local frame (see `diffuse_axis`); (0, 3): +z for all.
   tabs = (ggx_E (32, 32), ggx_Eavg (32,), glass_E2 (2, 16, 16, 16), glass_Eavg2 (2, 16, 16),
           gen_schlick_s (16, 16, 16)) float32: the tables of core.microfacet.tables().
   row: which hit of `lobes` a path reads (lets callers evaluate a subset without copying the lobe arrays).
@@ -452,18 +454,37 @@ def glass_fss(lobes, row, l, eta):
 
 
 @_inline
+def diffuse_axis(lobes, row, back):
+    """The diffuse lobes' normal of hit `row` in the frame flipped to wo's geometric side (`back`): the shading
+    normal before Cycles' specular-validity tilt, which only the microfacet lobes get (the frame's z is the tilted
+    normal); (0, 0, 1) where the hit has none or nothing was tilted."""
+    dn = lobes[9]
+    if dn.shape[0] == 0:
+        return 0.0, 0.0, 1.0
+    dx = np.float64(dn[row, 0])
+    dy = np.float64(dn[row, 1])
+    dz = np.float64(dn[row, 2])
+    if back:  # the flip z -> -z of the frame turns the normal on the viewer's side into (-x, -y, z)
+        return -dx, -dy, dz
+    return dx, dy, dz
+
+
+@_inline
 def eval_path(lobes, row, multiscatter, tabs, ox, oy, oz, back, ix, iy, iz):
     """f |cos wi| (3 channels) and the mixture pdf over the non-delta lobes of hit `row`, in the frame flipped to
     wo's geometric side (`back`: wo was below the surface); (f0, f1, f2, pdf). oz < 0 (wo below a smooth shading
     normal on that side) leaves the diffuse lobe as it is (Cycles' max(N.wi, 0) / pi) and the microfacet lobes
     zero. A lobe with under >= 0 is scaled by
-    `layer_factor` at cos wo (its value only: the pdf stays select x lobe pdf)."""
-    kind, weight, rough, ior, fresnel, select, f0s, under, tint = lobes
+    `layer_factor` at cos wo (its value only: the pdf stays select x lobe pdf). Diffuse lobes take their cosine
+    about `diffuse_axis`."""
+    kind, weight, rough, ior, fresnel, select, f0s, under, tint, dnorm = lobes
+    dx, dy, dz = diffuse_axis(lobes, row, back)
+    cos_d = ix * dx + iy * dy + iz * dz  # = iz exactly for the axis (0, 0, 1)
     f0 = f1 = f2 = pdf = 0.0
     for l in range(kind.shape[1]):
         k = kind[row, l]
         if k == DIFFUSE:
-            c = max(iz, 0.0) * _INV_PI
+            c = max(cos_d, 0.0) * _INV_PI
             pdf += select[row, l] * c
             j = under[row, l]
             if j >= 0:
@@ -584,7 +605,7 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, back, u_lobe, u1,
     the frame flipped to that side even where wo is below the shading normal there).
     Returns (wix, wiy, wiz, weight0, weight1, weight2, pdf, delta, transmitted, valid); wi is rounded to float32
     before the mixture is evaluated there. Invalid samples have wi = +z, zero weight and pdf."""
-    kind, weight, rough, ior, fresnel, select, f0s, under, tint = lobes
+    kind, weight, rough, ior, fresnel, select, f0s, under, tint, dnorm = lobes
     s = -1.0 if back else 1.0
     ox = np.float64(wox)
     oy = np.float64(woy)
@@ -596,9 +617,17 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, back, u_lobe, u1,
     is_delta = False
     p_event = 1.0
     gw0 = gw1 = gw2 = 1.0  # a delta glass sample's value / event probability per channel (1 untinted)
+    dx, dy, dz = diffuse_axis(lobes, row, back)
     if k == DIFFUSE:
         x, y, z = sample_cos_hemisphere_local(np.float64(u1), np.float64(u2))
         ok = z > 0.0
+        if not (dx == 0.0 and dy == 0.0):  # about the diffuse axis (Duff et al.'s basis around it)
+            sg = math.copysign(1.0, dz)
+            a = -1.0 / (sg + dz)
+            b = dx * dy * a
+            tx, ty, tz = 1.0 + sg * dx * dx * a, sg * b, -sg * dx
+            bx, by, bz = b, sg + dy * dy * a, -dy
+            x, y, z = x * tx + y * bx + z * dx, x * ty + y * by + z * dy, x * tz + y * bz + z * dz
     else:
         rough_c = np.float64(rough[row, c])
         is_delta = not rough_c > 0.0
@@ -667,7 +696,7 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, back, u_lobe, u1,
         pdf = sel_c * p_event
     elif kind.shape[1] == 1 and k == DIFFUSE and under[row, c] < 0:
         # a lone diffuse lobe needs no mixture sum: f cos / pdf = colour / select, pdf = select cos / pi
-        pdf = sel_c * (max(z, 0.0) * _INV_PI)
+        pdf = sel_c * (max(x * dx + y * dy + z * dz, 0.0) * _INV_PI)
         inv = 1.0 / max(np.float64(sel_c), 1e-30)
         w0, w1, w2 = weight[row, c, 0] * inv, weight[row, c, 1] * inv, weight[row, c, 2] * inv
     else:
@@ -679,7 +708,8 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, back, u_lobe, u1,
             w0 = w1 = w2 = 0.0
     if not (pdf > 0.0 and (w0 > 0.0 or w1 > 0.0 or w2 > 0.0)):
         return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, False, False
-    return x, y, z * s, w0, w1, w2, pdf, is_delta, z < 0.0, True
+    # a diffuse sample is a reflection even where it lies below the tilted normal (scatter checks the true side)
+    return x, y, z * s, w0, w1, w2, pdf, is_delta, z < 0.0 and k != DIFFUSE, True
 
 
 # ------------------------------------------------------------------------------------------ batch kernels
@@ -726,7 +756,7 @@ def albedo_batch(lobes, multiscatter, tabs, wo, use_wo, out):
     R + T = 1, a tinted glass F_c rt_c + (1 - F_c) tt_c with F_c = f0_c + (1 - f0_c) s, s from the
     generalized-Schlick table at |wo.z| or its average (f0 = F0(ior) for a plain glass; Cycles'
     bsdf_microfacet_estimate_albedo without the multiscatter darkening)."""
-    kind, weight, rough, ior, fresnel, select, f0s, under, tint = lobes
+    kind, weight, rough, ior, fresnel, select, f0s, under, tint, dnorm = lobes
     for k in range(kind.shape[0]):
         mu = abs(np.float64(wo[k, 2])) if use_wo else 1.0
         a0 = a1 = a2 = 0.0

@@ -78,7 +78,7 @@ def _valid_reflection_normal(gx, gy, gz, ix, iy, iz, nx, ny, nz):
 
 @_jit
 def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, smooth, tri_uvs, tri_magnitude,
-            material_index, specular, p, ng, ns_raw, ns, tangent, bitangent, wo, n_view, mag, cos_o_geo, uv):
+            material_index, specular, p, ng, ns_raw, ns, tangent, bitangent, wo, n_view, dn, mag, cos_o_geo, uv):
     """Surface interaction of the hits `rows` (indices into prim/bu/bv/d); writes row k of each output.
 
     p: point from barycentrics (the triangle's own precision). ng: face normal. ns_raw: interpolated shading
@@ -88,6 +88,8 @@ def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, s
     is below ns itself: the side the BSDF acts on (core.bsdf), light selection and MIS must agree on. mag: largest |coordinate| of p and its triangle (ray offset scale). cos_o_geo: -d . ng.
     corner_normals/smooth and tri_uvs may be empty arrays (flat shading, no UVs). specular (M,): materials
     with a glossy, glass or refraction lobe, whose smooth shading normals are kept valid for reflection.
+    dn: the diffuse lobes' normal in the local frame (tangent, bitangent, ns): the shading normal before that
+    validity tilt (Cycles tilts only the specular closures' normal), exactly (0, 0, 1) where nothing was tilted.
     """
     has_normals = corner_normals.shape[0] > 0
     has_uvs = tri_uvs.shape[0] > 0
@@ -120,6 +122,7 @@ def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, s
         cos_o_geo[k] = ox * gx + oy * gy + oz * gz
         if sx * gx + sy * gy + sz * gz < _F0:
             sx, sy, sz = -sx, -sy, -sz
+        ux, uy, uz = sx, sy, sz  # the normal the diffuse lobes keep
         if has_normals and smooth[t] and specular[material_index[t]]:
             side = _F1 if cos_o_geo[k] >= _F0 else -_F1  # work on the viewer's side of the surface
             bx, by, bz = _valid_reflection_normal(gx * side, gy * side, gz * side, ox, oy, oz,
@@ -129,6 +132,7 @@ def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, s
         tx, ty, tz, bx, by, bz = onb_f32(sx, sy, sz)
         tangent[k, 0], tangent[k, 1], tangent[k, 2] = tx, ty, tz
         bitangent[k, 0], bitangent[k, 1], bitangent[k, 2] = bx, by, bz
+        _diffuse_normal(dn, k, ux, uy, uz, sx, sy, sz, tx, ty, tz, bx, by, bz)
         wo[k, 0] = ox * tx + oy * ty + oz * tz
         wo[k, 1] = ox * bx + oy * by + oz * bz
         wo[k, 2] = ox * sx + oy * sy + oz * sz
@@ -137,14 +141,14 @@ def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, s
 
 
 @_jit
-def reframe(rows, normal, d, ng, cos_o_geo, correct, ns, tangent, bitangent, wo, n_view):
+def reframe(rows, normal, d, ng, cos_o_geo, correct, ns, tangent, bitangent, wo, n_view, dn):
     """Shading frames of the points `rows` rebuilt around a node-set shading normal (a Normal Map or Bump node
     driving the BSDFs' Normal input): normal (N, 3) world space on the viewer's side (Cycles' closure N), d the
     incoming ray directions, ng the face normals, cos_o_geo = -d . ng; correct (N,) bool: tilt the normal so
     that the mirror reflection of the viewer stays above the surface (Cycles' bump-map correction, applied where
     the material has specular lobes, as `surface` does for smooth normals). Writes ns (the normal on ng's side
-    of the viewer, Monte's "outside" convention of `surface`), the tangent frame, wo and n_view; a zero or
-    non-finite normal keeps the point's frame."""
+    of the viewer, Monte's "outside" convention of `surface`), the tangent frame, wo, n_view and dn (the node's
+    normal, untilted, for the diffuse lobes: see `surface`); a zero or non-finite normal keeps the point's frame."""
     for j in range(rows.shape[0]):
         k = rows[j]
         nx, ny, nz = normal[k, 0], normal[k, 1], normal[k, 2]
@@ -154,6 +158,7 @@ def reframe(rows, normal, d, ng, cos_o_geo, correct, ns, tangent, bitangent, wo,
         nx, ny, nz = nx / length, ny / length, nz / length
         side = _F1 if cos_o_geo[k] >= _F0 else -_F1
         ox, oy, oz = -d[k, 0], -d[k, 1], -d[k, 2]
+        ux, uy, uz = np.float32(nx * side), np.float32(ny * side), np.float32(nz * side)
         if correct[k]:
             bx, by, bz = _valid_reflection_normal(ng[k, 0] * side, ng[k, 1] * side, ng[k, 2] * side, ox, oy, oz,
                                                   nx, ny, nz)
@@ -168,6 +173,21 @@ def reframe(rows, normal, d, ng, cos_o_geo, correct, ns, tangent, bitangent, wo,
         wo[k, 0] = ox * tx + oy * ty + oz * tz
         wo[k, 1] = ox * bx2 + oy * by2 + oz * bz2
         wo[k, 2] = ox * sx + oy * sy + oz * sz
+        _diffuse_normal(dn, k, ux, uy, uz, sx, sy, sz, tx, ty, tz, bx2, by2, bz2)
+
+
+@_jit
+def _diffuse_normal(dn, k, ux, uy, uz, sx, sy, sz, tx, ty, tz, bx, by, bz):
+    """Row k of dn: the untilted normal u in the frame (t, b, s) of the tilted one, (0, 0, 1) exactly where
+    the tilt left the normal as it was (so that the diffuse lobes compute what they did without one)."""
+    if ux == sx and uy == sy and uz == sz:
+        dn[k, 0], dn[k, 1], dn[k, 2] = _F0, _F0, _F1
+        return
+    x = ux * tx + uy * ty + uz * tz
+    y = ux * bx + uy * by + uz * bz
+    z = ux * sx + uy * sy + uz * sz
+    length = max(np.float32(math.sqrt(x * x + y * y + z * z)), _TINY)
+    dn[k, 0], dn[k, 1], dn[k, 2] = x / length, y / length, z / length
 
 
 @_jit

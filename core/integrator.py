@@ -71,7 +71,7 @@ class SurfaceBatch:
     All of a vertex's values are one row of a single (M, K) float32 array, each field a column view of it, so
     that selecting the vertices that continue (`take`) is one row gather instead of one per field."""
 
-    _VECTORS = ("p", "ng", "ns_raw", "ns", "tangent", "bitangent", "wo", "n_view")  # (M, 3) views
+    _VECTORS = ("p", "ng", "ns_raw", "ns", "tangent", "bitangent", "wo", "n_view", "dn")  # (M, 3) views
     _SCALARS = ("mag", "cos_o_geo")  # (M,) views
     _UV = 3 * len(_VECTORS) + len(_SCALARS)  # first uv column
 
@@ -1144,6 +1144,10 @@ class PathTracer:
                                      aov_out=aov_out)
             if aov_out is not None:
                 aov_path.record(idx, aov_rows, aov_out, lobes)
+            if ps.specular.any():  # where a specular material's normal was tilted, the diffuse lobes keep it untilted
+                lobes.diffuse_normal = np.ascontiguousarray(g.dn)
+                # and the lobe choice follows each lobe's albedo seen from this viewer (Cycles' sample weights)
+                lobes.select = bsdf_mod.view_selection(lobes, g.wo)
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
             if data_path is not None:
@@ -1404,8 +1408,8 @@ class PathTracer:
                                      np.ascontiguousarray(bv[rows]), np.ascontiguousarray(d[rows], dtype=np.float32),
                                      corners, normals, corner_normals, smooth[tri] if len(smooth) else smooth,
                                      uvs[tri] if len(uvs) else uvs, magnitude, ps.material_index[tri], ps.specular,
-                                     g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo, g.n_view, g.mag,
-                                     g.cos_o_geo, g.uv_buffer)
+                                     g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo, g.n_view, g.dn,
+                                     g.mag, g.cos_o_geo, g.uv_buffer)
             return g
         return surface_batch(ps, rows, prim, bu, bv, d)
 
@@ -1452,11 +1456,13 @@ class PathTracer:
         if len(sel) == 0:
             return f_cos
         ns = bumped[1][where[can[sel]]]
-        g1, reject = self._bump_terms(gc.n_view[sel], ns, wi[sel])
+        # each closure's own normal: the specular lobes' is the frame's (tilted), the diffuse lobes' the untilted
+        _, reject = self._bump_terms(gc.n_view[sel], ns, wi[sel])
+        g1, reject_d = self._bump_terms(_diffuse_view_normal(gc, sel), ns, wi[sel])
         f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, can[sel]), gc.wo[sel], wi_local[sel], rows=can[sel],
                                     back=gc.cos_o_geo[sel] < 0)
-        adjusted = f_cos[sel] - ((1.0 - g1)[:, None] * f_d).astype(np.float32)
-        adjusted[reject] = 0.0
+        adjusted = (np.where(reject[:, None], np.float32(0), f_cos[sel] - f_d)
+                    + np.where(reject_d[:, None], 0.0, g1[:, None] * f_d)).astype(np.float32)
         f_cos = f_cos.copy()
         f_cos[sel] = np.maximum(adjusted, 0.0)
         return f_cos
@@ -1470,7 +1476,7 @@ class PathTracer:
         r = rows[ok]
         wl = np.asarray(bs.wi, np.float32)[r]
         wi = (g.tangent[r] * wl[:, :1] + g.bitangent[r] * wl[:, 1:2] + g.ns[r] * wl[:, 2:3]).astype(np.float32)
-        g1, reject = self._bump_terms(g.n_view[r], bumped[1][ok], wi)
+        g1, reject = self._bump_terms(_diffuse_view_normal(g, r), bumped[1][ok], wi)
         f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, r), g.wo[r], wl, rows=r, back=g.cos_o_geo[r] < 0)
         loss = np.where(reject, 1.0, 1.0 - g1)[:, None] * f_d / np.maximum(np.asarray(bs.pdf, np.float32)[r], 1e-30)[:, None]
         bs.weight[r] = np.maximum(bs.weight[r] - loss.astype(np.float32), 0.0)
@@ -1770,6 +1776,14 @@ class PathTracer:
         self.stats.clamped += int(counters[1])
 
 
+def _diffuse_view_normal(g: "SurfaceBatch", rows: np.ndarray) -> np.ndarray:
+    """(len(rows), 3) float32: the diffuse lobes' normal of those points (g.dn, see geometry_kernels.surface) in
+    world space on the viewer's side, as n_view is the frame's; equal to n_view where nothing was tilted."""
+    dn = g.dn[rows]
+    w = g.tangent[rows] * dn[:, :1] + g.bitangent[rows] * dn[:, 1:2] + g.ns[rows] * dn[:, 2:3]
+    return np.where((g.cos_o_geo[rows] < 0)[:, None], -w, w).astype(np.float32)
+
+
 def surface_batch(ps: PreparedScene, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":
     """Surface interactions of the hits `rows` (see core.geometry_kernels.surface)."""
     m = len(rows)
@@ -1777,7 +1791,7 @@ def surface_batch(ps: PreparedScene, rows: np.ndarray, prim, bu, bv, d) -> "Surf
     geometry_kernels.surface(rows.astype(np.int64), prim, bu, bv, np.ascontiguousarray(d, dtype=np.float32),
                     ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth,
                     ps.kernel_uvs, ps.tri_magnitude, ps.material_index, ps.specular, g.p, g.ng, g.ns_raw, g.ns, g.tangent, g.bitangent, g.wo,
-                    g.n_view, g.mag, g.cos_o_geo, g.uv_buffer)
+                    g.n_view, g.dn, g.mag, g.cos_o_geo, g.uv_buffer)
     return g
 
 def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np.ndarray, dirs: np.ndarray,
@@ -1855,7 +1869,7 @@ def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np
         if len(moved):
             geometry_kernels.reframe(moved.astype(np.int64), normal_out, np.ascontiguousarray(dirs, np.float32),
                                      g.ng, g.cos_o_geo, ps.specular[mat], g.ns, g.tangent, g.bitangent, g.wo,
-                                     g.n_view)
+                                     g.n_view, g.dn)
             return moved, n[moved].astype(np.float32)
     return None
 
