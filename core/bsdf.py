@@ -444,36 +444,3 @@ def albedo(lobes: LobeBatch, wo: np.ndarray | None = None) -> np.ndarray:
     w = _f32_rows(wo, 3) if wo is not None else np.zeros((0, 3), F32)
     bk.albedo_batch(lobes.arrays(), lobes.multiscatter, mf.kernel_tables(), w, wo is not None, out)
     return out
-
-
-def view_selection(lobes: LobeBatch, wo: np.ndarray) -> np.ndarray:
-    """(N, L) float32 lobe-choice probabilities for the viewer direction wo (N, 3, local frame), as Cycles picks a
-    closure by its sample weight: each lobe's colour x its albedo estimate seen from wo (Fresnel at |wo.z|, the
-    layering factor of a lobe under a coat; `albedo` per slot), summed over channels and normalised per hit.
-    Against the material's fixed `select` this follows the Principled specular lobe's rise towards grazing
-    angles. Every present lobe that has a fixed probability keeps at least 1% of it (no lobe the mixture pdf
-    needs gets probability 0 where the estimate underrates it); a hit whose estimates are all 0 keeps `select`.
-    Any positive probabilities are unbiased: eval_bsdf and sample_bsdf use the same ones."""
-    kind = np.asarray(lobes.kind)
-    n, slots = kind.shape
-    fixed = np.asarray(lobes.select, F32)
-    if slots == 1 or n == 0:
-        return fixed
-    present = kind >= 0
-    if not (present.sum(axis=1) > 1).any():
-        return fixed
-    w = _f32_rows(wo, 3)
-    est = np.zeros((n, slots), np.float64)
-    for slot in range(slots):
-        if not present[:, slot].any():
-            continue
-        only = replace(lobes, kind=np.where(np.arange(slots) == slot, kind, np.int8(-1)).astype(np.int8))
-        a = albedo(only, w)
-        est[:, slot] = np.asarray(a, np.float64).sum(axis=1)
-    est = np.where(present & np.isfinite(est), np.maximum(est, 0.0), 0.0)
-    total = est.sum(axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        share = np.where(total > 0, est / total, fixed)
-    share = np.maximum(share, 0.01 * fixed)
-    share /= np.maximum(share.sum(axis=1, keepdims=True), 1e-30)
-    return np.ascontiguousarray(share, F32)

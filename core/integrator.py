@@ -1146,8 +1146,6 @@ class PathTracer:
                 aov_path.record(idx, aov_rows, aov_out, lobes)
             if ps.specular.any():  # where a specular material's normal was tilted, the diffuse lobes keep it untilted
                 lobes.diffuse_normal = np.ascontiguousarray(g.dn)
-                # and the lobe choice follows each lobe's albedo seen from this viewer (Cycles' sample weights)
-                lobes.select = bsdf_mod.view_selection(lobes, g.wo)
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
             if data_path is not None:

@@ -1046,24 +1046,3 @@ def test_tints_only_on_glass():
         Material("m", [Lobe("glossy", roughness=0.2, transmission_tint=0.5)]).validate(0)
     with pytest.raises(SceneError, match="negative"):
         Lobe("glass", reflection_tint=(-1, 0, 0)).validate("m")
-
-
-@pytest.mark.parametrize("mu", [0.9, 0.15])
-def test_view_dependent_lobe_selection_is_unbiased_and_follows_the_fresnel_rise(mu):
-    """Choosing a Principled material's lobes by their albedo seen from wo (Cycles' sample weights,
-    bsdf.view_selection) changes only the noise: the one-sample albedo estimate keeps the expectation of the
-    fixed per-material choice (within 4 sigma of both), and at a grazing view, where the specular layer's
-    Fresnel rises above its hemispherical average, its variance is lower."""
-    layered = [spec_layer(0.2, 1.5, f0=[0.04] * 3, color=1.0), Lobe("diffuse", color=(0.8, 0.5, 0.3), under=0)]
-    wo = direction(mu, n=N_ALB)
-    fixed = batch(layered, N_ALB)
-    e0, se0, s0 = mc_albedo(fixed, wo)
-    viewed = batch(layered, N_ALB)
-    viewed.select = bsdf.view_selection(viewed, wo)
-    np.testing.assert_allclose(viewed.select.sum(axis=1), 1.0, rtol=1e-6)
-    assert viewed.select[0, 0] != pytest.approx(fixed.select[0, 0], rel=0.05)  # it does depend on the view
-    e1, se1, s1 = mc_albedo(viewed, wo, seed=8)
-    np.testing.assert_array_less(np.abs(e1 - e0), 4 * np.hypot(se0, se1))
-    if mu < 0.5:
-        assert viewed.select[0, 0] > fixed.select[0, 0]  # the layer's share grows towards grazing
-        assert s1.weight.astype(np.float64).var(axis=0).sum() < s0.weight.astype(np.float64).var(axis=0).sum()
