@@ -2,8 +2,9 @@
 
 Max Subdivision (and Child Particles) are applied by Blender's depsgraph for the render: the engine's export
 sees the simplified geometry, checked here by the triangles a render through Blender's operator exports from a
-cube with a Subdivision Surface modifier. Cycles' own Simplify settings (Texture Limit, Texture Resolution, AO
-Bounces) are named in a warning (tests/test_never_silently_different.py).
+cube with a Subdivision Surface modifier and from the child particles (shown as objects) of an emitter.
+Cycles' own Simplify settings (Texture Limit, Texture Resolution, AO Bounces) are named in a warning
+(tests/test_never_silently_different.py).
 """
 
 from __future__ import annotations
