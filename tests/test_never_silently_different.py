@@ -260,12 +260,14 @@ AUDIT = {
                            ("renders", lambda c: _material_of(c, "cube").holdout == 1.0)),
     "collection indirect only": (_collection_flag("indirect_only"),  # Cycles: the same image as camera-hidden
                                  ("renders", lambda c: not _mesh(c, "cube").visible_camera)),
-    "collection exclude": (_collection_flag("exclude"), ("renders", lambda c: "cube" not in [m.name for m in c.meshes])),
+    "collection exclude": (_collection_flag("exclude"),
+                           ("renders", lambda c: "cube" not in [m.name for m in c.meshes])),
     # view layer (Cycles reads these from it)
     "view layer material override": (_material_override,
                                      ("renders", lambda c: _material_of(c, "cube").name == "override"
                                       and _material_of(c, "floor").name == "override")),
-    "view layer world override": (_world_override, ("renders", lambda c: np.allclose(c.world.color, (0.9, 0.1, 0.1)))),
+    "view layer world override": (_world_override,
+                                  ("renders", lambda c: np.allclose(c.world.color, (0.9, 0.1, 0.1)))),
     "view layer sky off": (lambda s: _set(s.view_layers[0], use_sky=False),
                            ("renders", lambda c: np.allclose(c.world.color, 0) and c.world.environment is None)),
     "view layer samples": (lambda s: _set(s.view_layers[0], samples=16), ("warns", ["Samples 16"])),

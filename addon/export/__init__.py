@@ -302,7 +302,8 @@ def export_scene(
             frame_set(shutter.frame, shutter.subframe)
     if moved:
         portals = out[0].world.portals
-        out[0].world = export_layer_world(scene, depsgraph.view_layer, [])  # at the frame (its warnings are the centre's, already given)
+        # the world at the frame (its warnings are the centre's, already given)
+        out[0].world = export_layer_world(scene, depsgraph.view_layer, [])
         out[0].world.portals = portals
     if vector_only:
         _motion_to_vectors(out[0])
