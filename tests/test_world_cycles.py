@@ -157,17 +157,22 @@ def test_unreadable_hdri_warns_with_world_and_path_and_renders_the_background_co
     assert "using the Background's own colour" in warnings[0]
 
 
-def test_sky_texture_warns_and_keeps_the_socket_colour():
+def test_a_direction_varying_node_warns_and_keeps_the_socket_colour():
+    """A world colour that varies with direction through a node Monte does not bake (a Gradient Texture on
+    Generated coordinates): a warning naming the world and the node, and the socket's own colour. (Every Sky
+    Texture type is built now: tests/test_sky.py.)"""
     scene = bs.reset()
     world = bs.set_world(scene, (0.1, 0.2, 0.3), 1.0)
     tree = world.node_tree
-    sky = tree.nodes.new("ShaderNodeTexSky")
-    sky.sky_type = "HOSEK_WILKIE"  # not built yet, in every Blender (tests/test_sky.py has the built ones)
-    tree.links.new(sky.outputs["Color"], tree.nodes["Background"].inputs["Color"])
+    gradient = tree.nodes.new("ShaderNodeTexGradient")
+    coords = tree.nodes.new("ShaderNodeTexCoord")
+    tree.links.new(coords.outputs["Generated"], gradient.inputs["Vector"])
+    tree.links.new(gradient.outputs["Color"], tree.nodes["Background"].inputs["Color"])
     got, warnings = _export_world(scene)
+    assert got.environment is None
     np.testing.assert_allclose(got.color, (0.1, 0.2, 0.3), rtol=1e-6)
-    assert warnings == [f"world 'World': Sky Texture {sky.name!r} type 'Hosek-Wilkie' is not supported; "
-                        "using the socket's own colour as a uniform background"]
+    assert warnings == [f"world 'World': node {gradient.name!r} (Gradient Texture) driving the background colour is "
+                        "not supported; using the socket's own colour"]
 
 
 @pytest.mark.parametrize("factor", [1.0, 0.5])
