@@ -72,7 +72,8 @@ def vector_unavailable(view_layer, scene) -> str:
     not for a panoramic camera."""
     if scene is None or not getattr(view_layer, "use_pass_vector", False):
         return ""
-    if scene.render.use_motion_blur and scene.render.motion_blur_shutter > 0:
+    if (scene.render.use_motion_blur and scene.render.motion_blur_shutter > 0
+            and getattr(view_layer, "use_motion_blur", True)):
         return "the Vector pass is not available with motion blur on (as in Cycles); it is not produced"
     camera = scene.camera
     if camera is not None and camera.type == "CAMERA" and camera.data.type == "PANO":

@@ -29,13 +29,13 @@ import numpy as np
 
 from ..core.scene import Camera, Scene, SceneError
 from ..core.settings import RenderSettings
-from .export import GEOMETRY_TYPES, MESH_RAY_VISIBILITY, ExportStats, _object_rows, _prototype_for, _Prototype
+from .export import (GEOMETRY_TYPES, MESH_RAY_VISIBILITY, ExportStats, _object_rows, _prototype_for, _Prototype,
+                     export_layer_world)
 from .export.camera import export_camera
 from .export.film import export_film
 from .export.light import export_light
 from .export.material import MaterialExporter
 from .export.mesh import instances_to_mesh
-from .export.world import export_world
 
 # ------------------------------------------------------------------------------------------------ the view
 
@@ -319,7 +319,7 @@ class SceneSync:
             self.light_matrices = light_matrices
             report.lights_exported = len(light_items)
         if changes.full or changes.world or self.world is None:
-            self.world = export_world(depsgraph.scene.world, self.warnings)
+            self.world = export_layer_world(depsgraph.scene, depsgraph.view_layer, self.warnings)
             report.world_exported = True
 
         self.film = export_film(depsgraph.scene)

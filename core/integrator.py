@@ -939,16 +939,19 @@ class PathTracer:
                 classes = None if origin_class is None or depth == 0 else origin_class[idx]
                 kinds = (None if ps.light_visibility is None or bounce_kind is None or depth == 0
                          else bounce_kind[idx])
-                le = self._light_emission(o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal, depth == 0,
+                # Camera rays, and as in Cycles camera rays that went on through Transparent BSDFs only (they keep
+                # the camera ray's visibility): they see the lights visible to the camera and the camera backdrop.
+                camera_rays = depth == 0 if depth == 0 or bounces is None else bounces[idx] == 0
+                le = self._light_emission(o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal, camera_rays,
                                           prev_transmits, clear_here if film_transparent else None, classes, kinds)
                 if through is not None:
                     through.light_emission(self, le, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal,
                                            prev_transmits, clear_here if film_transparent else None, classes,
-                                           kinds)
+                                           kinds, camera_rays)
                 backdrop = ps.scene.world.camera_color
-                if depth == 0 and backdrop is not None and not film_transparent:
+                if np.any(camera_rays) and backdrop is not None and not film_transparent:
                     # camera rays that escape see the world's camera-only backdrop instead of the background
-                    gone = np.flatnonzero(~hit)
+                    gone = np.flatnonzero(~hit & camera_rays)
                     if len(gone):
                         le[gone] = np.asarray(backdrop, np.float32) + self.ps.lights.intersect(
                             o[gone], d[gone], np.full(len(gone), np.inf, np.float32), prev_pdf[gone],
@@ -959,7 +962,7 @@ class PathTracer:
                 shares = None
                 if lg is not None:  # each light group's share of it (core.light_groups)
                     shares = self._group_shares(le, o, d, t_hit, prev_pdf, prev_delta, mis_here, prev_normal,
-                                                depth == 0, prev_transmits, clear_here if film_transparent else None,
+                                                camera_rays, prev_transmits, clear_here if film_transparent else None,
                                                 classes, kinds)
                 if lp is not None and (depth == 0 or (bounces is not None and not bounces[idx].all())):
                     # seen by the camera, directly or through Transparent BSDFs only: Emission / Environment
@@ -1291,7 +1294,25 @@ class PathTracer:
         emitters; with shadow linking, rays after a non-delta bounce do not see shadow-linked lights (light
         sampling alone counts them). kinds: each ray's kind (core.ray_visibility) where some light hides from
         some kind (core.light_visibility), else None. group_hidden: lights hidden besides (a light group's share,
-        core.light_groups)."""
+        core.light_groups). camera: True for camera rays, or (N,) bool where only some rays still are (a camera ray
+        that went on through Transparent BSDFs stays one, as in Cycles, and sees only the lights visible to the
+        camera)."""
+        if not isinstance(camera, (bool, np.bool_)):
+            camera = np.asarray(camera, bool)
+            if camera.all() or not camera.any():
+                camera = bool(camera.all())
+            else:
+                out = np.empty((len(o), 3), np.float32)
+                for flag in (True, False):
+                    rows = np.flatnonzero(camera == flag)
+
+                    def sub(a, rows=rows):
+                        return None if a is None else a[rows]
+
+                    out[rows] = self._light_emission(o[rows], d[rows], tmax[rows], prev_pdf[rows], prev_delta[rows],
+                                                     mis_here, sub(prev_normal), flag, sub(prev_transmits),
+                                                     sub(clear), sub(classes), sub(kinds), group_hidden)
+                return out
         ps = self.ps
         hide = ps.shadow_links is not None and not camera and mis_here and self.use_nee
         if classes is None and not hide and kinds is None:
@@ -1329,8 +1350,8 @@ class PathTracer:
         def sub(a):
             return None if a is None else a[rows]
 
-        args = (o[rows], d[rows], t_hit[rows], prev_pdf[rows], prev_delta[rows], mis_here, sub(prev_normal), camera,
-                sub(prev_transmits))
+        args = (o[rows], d[rows], t_hit[rows], prev_pdf[rows], prev_delta[rows], mis_here, sub(prev_normal),
+                camera if isinstance(camera, (bool, np.bool_)) else camera[rows], sub(prev_transmits))
         no_world = np.ones(len(rows), bool)
         per_group = [self._light_emission(*args, sub(clear) if groups.world_in[g] else no_world, sub(classes),
                                           sub(kinds), groups.hidden[g])

@@ -128,17 +128,18 @@ class MisOrigins:
         return cls(np.asarray(origins, np.float32), np.zeros(len(origins), np.float32))
 
     def light_emission(self, tracer, le: np.ndarray, d, t_hit, prev_pdf, prev_delta, mis, prev_normal,
-                       prev_transmits, clear, classes=None, kinds=None) -> None:
+                       prev_transmits, clear, classes=None, kinds=None, camera=False) -> None:
         """Replace in `le` the light emission (PathTracer._light_emission) of the rays that went on through
         transparent surfaces: what lies beyond their origin on the line from the MIS origin, weighted from
-        there."""
+        there. camera: bool or (N,) bool, the rays that are still camera rays (through Transparent BSDFs only)."""
         r = np.flatnonzero(self.t > 0)
         if len(r) == 0:
             return
+        camera_r = camera if isinstance(camera, (bool, np.bool_)) else np.asarray(camera, bool)[r]
 
         def seen(tmax):
             return tracer._light_emission(self.o[r], d[r], tmax, prev_pdf[r], prev_delta[r], mis,
-                                          None if prev_normal is None else prev_normal[r], False,
+                                          None if prev_normal is None else prev_normal[r], camera_r,
                                           None if prev_transmits is None else prev_transmits[r],
                                           None if clear is None else clear[r],
                                           None if classes is None else classes[r],

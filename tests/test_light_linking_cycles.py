@@ -8,6 +8,8 @@ Scenes (diffuse quads on the ground seen from above by an orthographic camera):
 - visibility (32x32): diffuse, mixed and glossy quads under an area light and a sphere light, both with one
   Ray Visibility flag turned: Diffuse off, Glossy off, Camera on (the sphere light seen; `-m slow`); and a
   rough glass sheet over a floor under an area light with Transmission off.
+- a light with Camera visibility off (32x32) behind a Transparent BSDF card: camera rays stay camera rays through
+  the card and do not see it (control: the light seen, as Monte rendered it when such a ray was a bounce ray).
 - blockers: a floor and a square hovering over it under an area light whose blocker collection holds only a
   small cube off to the side: the square casts no shadow from that light (Cycles' shadow linking); the square
   itself is lit. The same with an emissive quad in place of the area light (shadow linking of an emissive mesh).
@@ -142,6 +144,21 @@ def transmission_scene(flag_off: bool):
     return scene
 
 
+def lamp_behind_card_scene(camera_off: bool):
+    """A floor lit from above by an area light, under a Transparent BSDF card over its left half, with a second
+    area light between card and floor facing the camera: Camera visibility off (Blender's default), Cycles' camera
+    rays keep their visibility through the card and do not see it; on (the control, which is also what Monte
+    rendered when a ray past a Transparent BSDF counted as a bounce ray), it is seen through the card."""
+    scene = _base(size=(32, 32))
+    _quad("floor", -3.5, 3.5, -3.5, 3.5, 0, bf.diffuse("floor", (0.8, 0.8, 0.8)))
+    _quad("card", -3.5, 0.0, -3.5, 3.5, 1.6,
+          bf.node_material("card", "ShaderNodeBsdfTransparent", Color=(0.5, 0.6, 0.4, 1.0)))
+    bf.add_light(scene, "AREA", (0.5, 0.0, 3.0), name="key", energy=150.0, size=2.0)
+    face = bf.add_light(scene, "AREA", (-1.5, 0.0, 1.0), rotation=(np.pi, 0, 0), name="face", energy=40.0, size=1.0)
+    face.visible_camera = not camera_off
+    return scene
+
+
 def monte(scene):
     m = scene.monte
     m.samples, m.max_bounces, m.seed, m.threads = SPP, BOUNCES, 1, 2
@@ -228,3 +245,7 @@ def test_collections_become_light_sets_as_blenders_manual_states():
 
 def test_light_transmission_visibility_matches_cycles(tmp_path):
     check("light visible_transmission", transmission_scene, tmp_path, control=False)
+
+
+def test_light_hidden_from_the_camera_stays_hidden_through_a_transparent_card(tmp_path):
+    check("light camera visibility through a Transparent BSDF", lamp_behind_card_scene, tmp_path)

@@ -137,6 +137,16 @@ def _shadow_linking(scene):
     obj("lamp").light_linking.blocker_collection = coll
 
 
+def _material_override(scene):
+    scene.view_layers[0].material_override = bf.diffuse("override", (0.1, 0.8, 0.1))
+
+
+def _world_override(scene):
+    own = scene.world
+    scene.view_layers[0].world_override = bf.set_world(scene, (0.9, 0.1, 0.1), 1.0)
+    scene.world = own
+
+
 def _pano(kind, **extra):
     def apply(scene):
         cam = scene.camera.data
@@ -250,6 +260,18 @@ AUDIT = {
                            ("renders", lambda c: _material_of(c, "cube").holdout == 1.0)),
     "collection indirect only": (_collection_flag("indirect_only"),  # Cycles: the same image as camera-hidden
                                  ("renders", lambda c: not _mesh(c, "cube").visible_camera)),
+    "collection exclude": (_collection_flag("exclude"),
+                           ("renders", lambda c: "cube" not in [m.name for m in c.meshes])),
+    # view layer (Cycles reads these from it)
+    "view layer material override": (_material_override,
+                                     ("renders", lambda c: _material_of(c, "cube").name == "override"
+                                      and _material_of(c, "floor").name == "override")),
+    "view layer world override": (_world_override,
+                                  ("renders", lambda c: np.allclose(c.world.color, (0.9, 0.1, 0.1)))),
+    "view layer sky off": (lambda s: _set(s.view_layers[0], use_sky=False),
+                           ("renders", lambda c: np.allclose(c.world.color, 0) and c.world.environment is None)),
+    "view layer samples": (lambda s: _set(s.view_layers[0], samples=16), ("warns", ["Samples 16"])),
+    "view layer surfaces off": (lambda s: _set(s.view_layers[0], use_solid=False), ("warns", ["Use Solid"])),
     "particle hair": (_particle_hair, ("warns", ["particle hair", "'floor'"])),
     # materials and world
     "holdout shader": (lambda s: _holdout_shader(_material(s)),
@@ -318,3 +340,14 @@ def test_a_light_portal_is_no_light():
     assert portal.shape == (1, 4, 3)
     assert np.allclose(portal[0, 0], (0, 0, 3)) and np.allclose(np.abs(portal[0, 1:3]).sum(axis=0), (2, 2, 0))
     assert np.allclose(portal[0, 3], (0, 0, -1))  # the light's -Z: where it lets the world in
+
+
+def test_view_layer_motion_blur_off_renders_sharp():
+    """Render > Motion Blur on with a moving cube, the view layer's Motion Blur off: Cycles renders the layer
+    sharp, and so does Monte (no motion exported, no warning); on, the cube carries its motion."""
+    scene = build_scene()
+    _moving_cube(scene)
+    assert any(m.motion_vertices is not None for m in export().meshes)
+    scene.view_layers[0].use_motion_blur = False
+    got = export()
+    assert got.warnings == [] and all(m.motion_vertices is None for m in got.meshes)

@@ -139,17 +139,40 @@ def test_missing_hdri_warns_with_world_and_path_and_renders_the_background_colou
     assert "using the Background's own colour" in warnings[0]
 
 
-def test_sky_texture_warns_and_keeps_the_socket_colour():
+def test_unreadable_hdri_warns_with_world_and_path_and_renders_the_background_colour(tmp_path):
+    """A file that is there but is no image (garbage bytes named .exr): the same warning and fallback as a
+    missing one, never an exception or a black world."""
+    scene = bs.reset()
+    world = bs.set_environment_world(scene, bs.studio_hdri("forest"), 2.0)
+    world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.2, 0.3, 0.4, 1.0)
+    image = world.node_tree.nodes["Environment Texture"].image
+    broken = tmp_path / "broken.exr"
+    broken.write_bytes(b"not an image at all " * 64)
+    image.filepath = str(broken)
+    image.reload()
+    got, warnings = _export_world(scene)
+    assert got.environment is None
+    np.testing.assert_allclose(got.color, (0.4, 0.6, 0.8), rtol=1e-6)
+    assert len(warnings) == 1 and warnings[0].startswith(f"world 'World': environment image 'forest.exr' ({broken})")
+    assert "using the Background's own colour" in warnings[0]
+
+
+def test_a_direction_varying_node_warns_and_keeps_the_socket_colour():
+    """A world colour that varies with direction through a node Monte does not bake (a Gradient Texture on
+    Generated coordinates): a warning naming the world and the node, and the socket's own colour. (Every Sky
+    Texture type is built now: tests/test_sky.py.)"""
     scene = bs.reset()
     world = bs.set_world(scene, (0.1, 0.2, 0.3), 1.0)
     tree = world.node_tree
-    sky = tree.nodes.new("ShaderNodeTexSky")
-    sky.sky_type = "HOSEK_WILKIE"  # not built yet, in every Blender (tests/test_sky.py has the built ones)
-    tree.links.new(sky.outputs["Color"], tree.nodes["Background"].inputs["Color"])
+    gradient = tree.nodes.new("ShaderNodeTexGradient")
+    coords = tree.nodes.new("ShaderNodeTexCoord")
+    tree.links.new(coords.outputs["Generated"], gradient.inputs["Vector"])
+    tree.links.new(gradient.outputs["Color"], tree.nodes["Background"].inputs["Color"])
     got, warnings = _export_world(scene)
+    assert got.environment is None
     np.testing.assert_allclose(got.color, (0.1, 0.2, 0.3), rtol=1e-6)
-    assert warnings == [f"world 'World': Sky Texture {sky.name!r} type 'Hosek-Wilkie' is not supported; "
-                        "using the socket's own colour as a uniform background"]
+    assert warnings == [f"world 'World': node {gradient.name!r} (Gradient Texture) driving the background colour is "
+                        "not supported; using the socket's own colour"]
 
 
 @pytest.mark.parametrize("factor", [1.0, 0.5])

@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 
 from ...core.motion import densify_transforms, resample_steps
-from ...core.scene import Scene, SceneError
+from ...core.scene import Scene, SceneError, World
 from .camera import export_camera, render_region, render_resolution  # noqa: F401  (re-exported)
 from .film import export_film
 from .light import export_light, is_portal, portal_geometry
@@ -97,6 +97,9 @@ def _prototype_for(obj, kind, prototypes, materials, warnings, stats, view_layer
     if is_indirect_only(original, view_layer):
         seen = (False,) + seen[1:]  # Cycles renders an Indirect Only collection as hidden from camera rays
     slots = tuple(slot.material for slot in obj.material_slots)
+    override = getattr(view_layer, "material_override", None) if view_layer is not None else None
+    if override is not None:  # View Layer > Material Override: every slot, or the one an object without slots gets
+        slots = tuple(override for _ in slots) or (override,)
     catcher = bool(getattr(obj, "is_shadow_catcher", False))
     lightgroup = str(getattr(original, "lightgroup", "") or "")
     slot_key = (tuple(0 if m is None else m.as_pointer() for m in slots) + (("holdout",) if held else ()) + seen
@@ -184,6 +187,33 @@ def _warn_simplify(scene, warnings: list[str]) -> None:
         warnings.append(f"render: Simplify > AO Bounces {ao_bounces} is not supported; every bounce is path traced")
 
 
+def layer_world(scene, view_layer):
+    """The world the view layer renders: its World Override, else the scene's (None: none)."""
+    override = getattr(view_layer, "world_override", None) if view_layer is not None else None
+    return override if override is not None else scene.world
+
+
+def export_layer_world(scene, view_layer, warnings: list[str]) -> World:
+    """The core World of the view layer's world (layer_world); black, as Cycles renders it, with the view layer's
+    Sky (Use Sky) off: the background shader is not evaluated, for camera rays and lighting alike."""
+    if view_layer is not None and not getattr(view_layer, "use_sky", True):
+        return World(np.zeros(3))
+    return export_world(layer_world(scene, view_layer), warnings)
+
+
+def _warn_view_layer(view_layer, warnings: list[str]) -> None:
+    """View layer settings Cycles reads that Monte does not render (Sky off is rendered: the world is black)."""
+    if view_layer is None:
+        return
+    name = view_layer.name
+    samples = int(getattr(view_layer, "samples", 0) or 0)
+    if samples > 0:
+        warnings.append(f"view layer {name!r}: Samples {samples} (the view layer's override) is not supported; Monte "
+                        "renders its own Samples setting")
+    if not getattr(view_layer, "use_solid", True):
+        warnings.append(f"view layer {name!r}: Surfaces (Use Solid) off is not supported; surfaces are rendered")
+
+
 def is_indirect_only(obj, view_layer) -> bool:
     """Whether an (original) object is in a collection set to Indirect Only in the view layer."""
     if view_layer is None:
@@ -253,7 +283,7 @@ def export_scene(
     t0 = time.perf_counter()
     scene = depsgraph.scene
     warnings: list[str] = []
-    shutter = motion_shutter(scene, warnings) if motion_blur else None
+    shutter = motion_shutter(scene, warnings, depsgraph.view_layer) if motion_blur else None
     # The Vector pass without motion blur (Cycles renders it only then): the motion from the previous to the next
     # frame, sampled as a shutter of two frames centred on this one and kept apart from the rays (no blur)
     vector_only = shutter is None and vector_pass
@@ -272,7 +302,8 @@ def export_scene(
             frame_set(shutter.frame, shutter.subframe)
     if moved:
         portals = out[0].world.portals
-        out[0].world = export_world(scene.world, [])  # at the frame (its warnings are the centre's, already given)
+        # the world at the frame (its warnings are the centre's, already given)
+        out[0].world = export_layer_world(scene, depsgraph.view_layer, [])
         out[0].world.portals = portals
     if vector_only:
         _motion_to_vectors(out[0])
@@ -306,7 +337,8 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
     camera = export_camera(camera_object, scene, warnings)
     _warn_simplify(scene, warnings)
 
-    shader_aovs = view_layer_aovs(depsgraph.view_layer, scene.world, warnings)
+    _warn_view_layer(depsgraph.view_layer, warnings)
+    shader_aovs = view_layer_aovs(depsgraph.view_layer, layer_world(scene, depsgraph.view_layer), warnings)
     materials = MaterialExporter(warnings, None if camera is None else camera.matrix_world, shader_aovs)
     prototypes: dict[tuple, _Prototype] = {}
     # (object pointer, data pointer) -> prototype key or None (skip). Blender reuses one temporary object
@@ -404,15 +436,16 @@ def _export_scene(depsgraph, camera_object, log, should_cancel, frame_set, shutt
 
     if not materials.materials:
         materials.index(None)  # core needs at least one material
-    world = export_world(scene.world, warnings)
+    world = export_layer_world(scene, depsgraph.view_layer, warnings)
+    world_object = layer_world(scene, depsgraph.view_layer)
     world.portals = np.stack(portals) if portals else None
-    world.lightgroup = str(getattr(scene.world, "lightgroup", "") or "") if scene.world is not None else ""
+    world.lightgroup = str(getattr(world_object, "lightgroup", "") or "") if world_object is not None else ""
     lights = lights + world.lights  # a Sky Texture's sun disc
     out = Scene(camera=camera, meshes=meshes, materials=materials.materials, lights=lights, world=world,
                 textures=materials.textures, name=scene.name, warnings=warnings,
                 film=export_film(scene, depsgraph.view_layer),
                 objects=np.concatenate(object_rows).astype(np.float32) if object_rows else None,
-                uv_layer_names=list(materials.uv_names), mist=export_mist(scene.world),
+                uv_layer_names=list(materials.uv_names), mist=export_mist(world_object),
                 object_names=object_names, asset_names=asset_names,
                 attribute_names=list(materials.attribute_names),
                 tangent_layer_names=list(materials.tangent_names), shader_aovs=shader_aovs,

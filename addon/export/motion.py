@@ -58,11 +58,11 @@ class Shutter:
         return out
 
 
-def shutter(scene, warnings: list[str]) -> Shutter | None:
-    """The render's shutter, or None without motion blur (off, or a shutter of 0 frames, which Cycles renders
-    sharp); warns for the shutter settings Monte does not render."""
+def shutter(scene, warnings: list[str], view_layer=None) -> Shutter | None:
+    """The render's shutter, or None without motion blur (off, off in the view layer as Cycles reads it, or a
+    shutter of 0 frames, which Cycles renders sharp); warns for the shutter settings Monte does not render."""
     r = scene.render
-    if not r.use_motion_blur:
+    if not r.use_motion_blur or not getattr(view_layer, "use_motion_blur", True):
         return None
     length = float(r.motion_blur_shutter)
     if not length > 0:
