@@ -1,8 +1,8 @@
 """`monte bench --vs cycles --whole-process`: Monte and Cycles timed as whole processes, as a user runs them.
 
 For each scene (a bench scene from bpy_scenes, or a user's .blend), the scene is saved to a temporary .blend
-and rendered, alternately, by two fresh processes: `python -m monte render X.blend -o m.exr --spp N ...` and
-a plain bpy process doing what `blender -b X.blend -E CYCLES -f 1` does (open the file, render with Cycles,
+and rendered, after one untimed run of each, alternately by two fresh processes: `python -m monte render
+X.blend -o m.exr --spp N ...` and a plain bpy process doing what `blender -b X.blend -E CYCLES -f 1` does (open the file, render with Cycles,
 write a 32-bit EXR). The time is the process's wall time, start to exit: the Python and bpy imports, opening
 the file, Monte's kernel loading and export or Cycles' sync, the render and writing the image, everything the
 render-call bench (lab/bench_cycles.py) leaves out. Settings as that bench's: the same samples, seed, bounce
@@ -62,6 +62,16 @@ def _run(command: list[str], env: dict) -> tuple[float, float]:
     return seconds, (after.children_user - before.children_user) + (after.children_system - before.children_system)
 
 
+def _process_env(tmp_dir: Path) -> dict:
+    """The renderers' environment: this one without PYTHONPATH, and with Python's bytecode cache on (into a
+    folder of tmp_dir unless PYTHONPYCACHEPREFIX names one), as a user's processes have it: with
+    PYTHONDONTWRITEBYTECODE set, every Monte process compiled its ~80 modules from source again (~0.3 s of CPU)
+    while bpy's own scripts ship compiled."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONDONTWRITEBYTECODE")}
+    env.setdefault("PYTHONPYCACHEPREFIX", str(tmp_dir / "pycache"))
+    return env
+
+
 def _save_for_cycles(scene, path: Path, spp: int, seed: int, threads: int, max_bounces: int, out: Path) -> None:
     configure_cycles(scene, spp, max_bounces, threads, seed=seed, filter_type="blackman-harris", filter_width=1.5)
     settings = scene.render.image_settings
@@ -85,15 +95,17 @@ def bench_scene_whole_process(spec: str, *, cache: ReferenceCache, spp: int = 64
     log(f"{name} {res[0]}x{res[1]}, {spp} spp, {threads} threads, whole processes x{repeats}")
     params = bench_cycles.reference_params(name, version, res, max_bounces, reference_spp, reference_seeds)
     ref = bench_cycles.ensure_reference(scene, params, cache, threads, log)
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     with tempfile.TemporaryDirectory(prefix="monte-whole-") as tmp:
         tmp_dir = Path(tmp)
+        env = _process_env(tmp_dir)
         blend, monte_out, cycles_out = tmp_dir / f"{name}.blend", tmp_dir / "monte.exr", tmp_dir / "cycles.exr"
         _save_for_cycles(scene, blend, spp, seed, threads, max_bounces, cycles_out)
         monte_cmd = [sys.executable, "-m", "monte", "render", str(blend), "-o", str(monte_out), "--no-png", "-q",
                      "--spp", str(spp), "--seed", str(seed), "--threads", str(threads), "--max-bounces",
                      str(max_bounces), "--filter", "blackman-harris", "--filter-width", "1.5", "--clamp", "0"]
         cycles_cmd = [sys.executable, "-c", _CYCLES_PROCESS, str(blend), str(cycles_out)]
+        for command in (monte_cmd, cycles_cmd):  # untimed: bytecode written, files in the OS's cache
+            _run(command, env)
         times: dict[str, list[float]] = {"monte": [], "cycles": []}
         cpu: dict[str, list[float]] = {"monte": [], "cycles": []}
         for _ in range(repeats):
