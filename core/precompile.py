@@ -90,8 +90,9 @@ def _dispatcher_name(d) -> tuple[str, str]:
 @contextmanager
 def _recording_entry_calls(found: dict) -> Iterator[None]:
     """Record into found {(module, qualname): {str(signature)}} each signature a kernel compiles or loads for a
-    call from Python: numba's dispatcher calls _compile_for_args when a Python call finds no loaded overload,
-    while a device function is compiled or loaded through compile() alone (while typing its caller)."""
+    call from Python, the kernels in the order of their first call: numba's dispatcher calls _compile_for_args
+    when a Python call finds no loaded overload, while a device function is compiled or loaded through compile()
+    alone (while typing its caller)."""
     from numba.core.dispatcher import Dispatcher
 
     original = Dispatcher._compile_for_args
@@ -115,18 +116,21 @@ def _recording_entry_calls(found: dict) -> Iterator[None]:
 
 
 def write_entry_kernels(found: dict) -> None:
-    """Write the entry kernels (found by _recording_entry_calls) with the sources they were recorded for."""
+    """Write the entry kernels (found by _recording_entry_calls) with the sources they were recorded for, in
+    the order the precompile first called them: its first case is a default render, so the loader loads what
+    a render needs first in the order the render asks for it."""
     from .atomic_file import write_bytes_atomically
 
     body = {"sources": jit_cache.sources_digest(),
-            "kernels": sorted([module, name, sorted(sigs)] for (module, name), sigs in found.items())}
+            "kernels": [[module, name, sorted(sigs)] for (module, name), sigs in found.items()]}
     os.makedirs(jit_cache.cache_dir(), exist_ok=True)
     write_bytes_atomically(entry_kernels_path(), (json.dumps(body, indent=1) + "\n").encode())
 
 
 def read_entry_kernels() -> dict[tuple[str, str], set[str]] | None:
-    """{(module, qualname): {str(signature)}} from the cache folder's entry-kernel list, or None when there is
-    none, it cannot be read, or it was written for other sources (then every cached signature is loaded)."""
+    """{(module, qualname): {str(signature)}} from the cache folder's entry-kernel list (in its order), or None
+    when there is none, it cannot be read, or it was written for other sources (then every cached signature is
+    loaded)."""
     try:
         with open(entry_kernels_path(), encoding="utf-8") as fh:
             body = json.load(fh)
@@ -141,8 +145,8 @@ def load_cached_kernels(entries_only: bool = True, should_stop: Callable[[], boo
     """Load kernel signatures the disk cache holds for these sources and this CPU, as the first call of each
     would (numba loads a kernel on its first call: about 0.3 s spread over a process's first render, more on a
     loaded machine). entries_only: only the entry kernels the precompile recorded (read_entry_kernels; every
-    cached signature when there is no valid list), the modules every render runs first and the feature modules
-    (jit_cache.FEATURE_KERNEL_MODULES) after them. should_stop() is asked before each signature: True ends the
+    cached signature when there is no valid list), in the order of the list (a default render's first).
+    should_stop() is asked before each signature: True ends the
     loading there. Compiles nothing: an entry that does not apply here is skipped. Returns how many signatures
     it loaded. Safe beside a render on another thread: numba loads and compiles under one lock."""
     from numba.core.registry import cpu_target
@@ -151,8 +155,8 @@ def load_cached_kernels(entries_only: bool = True, should_stop: Callable[[], boo
     codegen = cpu_target.target_context.codegen()
     dispatchers = _dispatchers()
     if entries is not None:
-        dispatchers = [d for d in dispatchers if _dispatcher_name(d) in entries]
-        dispatchers.sort(key=lambda d: _dispatcher_name(d)[0] in jit_cache.FEATURE_KERNEL_MODULES)
+        by_name = {_dispatcher_name(d): d for d in dispatchers}
+        dispatchers = [by_name[name] for name in entries if name in by_name]
     loaded = 0
     for d in dispatchers:
         cache = getattr(d, "_cache", None)

@@ -48,9 +48,10 @@ def test_entry_kernel_list_round_trip_and_staleness(tmp_path, monkeypatch):
     monkeypatch.setattr(precompile, "entry_kernels_path", lambda: str(path))
     monkeypatch.setattr(jit_cache, "cache_dir", lambda: str(tmp_path))
     assert precompile.read_entry_kernels() is None  # none written: every cached signature is loaded
-    found = {("camera", "_camera_rays"): {"(array(float64, 2d, C),)"}, ("embree", "trace_closest"): {"(int64,)"}}
+    found = {("embree", "trace_closest"): {"(int64,)"}, ("camera", "_camera_rays"): {"(array(float64, 2d, C),)"}}
     precompile.write_entry_kernels(found)
     assert precompile.read_entry_kernels() == found
+    assert list(precompile.read_entry_kernels()) == list(found)  # the order of first calls: the loading order
     body = json.loads(path.read_text())
     body["sources"] = "0" * 64  # written for other sources (an edited kernel module): ignored
     path.write_text(json.dumps(body))
