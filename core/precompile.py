@@ -383,14 +383,17 @@ def _cases() -> list[tuple[str, Callable[[], object], dict]]:
 
 def precompile_kernels(log: Callable[[str], None] | None = None) -> dict[str, int]:
     """Render every warm-up case (a few pixels, 2 samples each), compiling and caching each kernel the cache
-    does not hold yet, and write the entry kernels they called from Python (ENTRY_KERNELS_FILE); returns
-    kernel_cache_counts(), the number of entry signatures and the seconds it took."""
+    does not hold yet, and write the entry kernels they called from Python (ENTRY_KERNELS_FILE) when this
+    process had run no kernel before (else the list is left as it is); returns kernel_cache_counts(), the number
+    of entry signatures (None when not listed) and the seconds it took."""
     from .render import render
     from .settings import RenderSettings
 
     say = log or (lambda m: None)
     t0 = time.perf_counter()
     entries: dict = {}
+    # A kernel this process already ran is called without being seen: the list would miss it; keep the one there.
+    fresh = not any(d.signatures for d in _dispatchers())
     with _recording_entry_calls(entries):
         for name, build, overrides in _cases():
             settings = RenderSettings(**{"spp": 2, "seed": 1, "threads": 2, "tile_size": 8, **overrides})
@@ -398,9 +401,10 @@ def precompile_kernels(log: Callable[[str], None] | None = None) -> dict[str, in
             say(f"  {name}")
         _fold_constants_once()
         say("  node constant folding")
-    write_entry_kernels(entries)
+    if fresh:
+        write_entry_kernels(entries)
     counts = kernel_cache_counts()
-    counts["entry_signatures"] = sum(len(sigs) for sigs in entries.values())
+    counts["entry_signatures"] = sum(len(sigs) for sigs in entries.values()) if fresh else None
     counts["seconds"] = time.perf_counter() - t0
     return counts
 
@@ -410,8 +414,20 @@ def main() -> int:
           "(cached: the first time takes about two minutes of CPU)", flush=True)
     counts = precompile_kernels(log=lambda m: print(m, flush=True))
     print(f"Monte: {counts['compiled']} kernel signatures compiled, {counts['loaded']} loaded from the cache, "
-          f"{counts['used']} of {counts['kernels']} kernels used, {counts['seconds']:.1f} s; "
-          f"{counts['entry_signatures']} entry signatures listed in {entry_kernels_path()}", flush=True)
+          f"{counts['used']} of {counts['kernels']} kernels used, {counts['seconds']:.1f} s", flush=True)
+    if counts["compiled"]:
+        # A kernel compiled first as another's device function, then called from Python, was not seen being
+        # called (numba had it already): list the entry kernels from a process that finds them all cached.
+        import subprocess
+
+        code = (f"import sys; sys.path[:0] = {sys.path!r}; from {jit_cache.PACKAGE}.precompile import "
+                "precompile_kernels; print(precompile_kernels()['entry_signatures'])")
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        if proc.returncode != 0:
+            print(f"Monte: listing the entry kernels failed:\n{proc.stderr[-2000:]}", flush=True)
+            return 1
+        counts["entry_signatures"] = proc.stdout.strip().splitlines()[-1]
+    print(f"Monte: {counts['entry_signatures']} entry signatures listed in {entry_kernels_path()}", flush=True)
     return 0
 
 

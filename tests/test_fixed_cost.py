@@ -61,14 +61,20 @@ def test_entry_kernel_list_round_trip_and_staleness(tmp_path, monkeypatch):
 
 
 def test_the_loader_loads_only_entry_kernels_and_they_cover_a_render():
-    """The cache built by `make setup` lists its entry kernels: far fewer than the signatures it holds (device
-    functions are carried inside their callers), and a render after loading them loads and compiles nothing."""
-    precompile.precompile_kernels()  # the cache and its list (a few seconds when `make setup` built the cache)
+    """The precompile (in a fresh process) lists its entry kernels: far fewer than the signatures the cache holds
+    (device functions are carried inside their callers), and a render after loading them loads and compiles
+    nothing more. A process that had run kernels before does not rewrite the list (it would miss those)."""
+    written = _python("""
+        import json
+        from monte.core.precompile import precompile_kernels
+        print("RESULT " + json.dumps(precompile_kernels()))
+    """)  # a few seconds when `make setup` built the cache
     entries = precompile.read_entry_kernels()
-    assert entries is not None
+    assert entries is not None and written["entry_signatures"] == sum(len(sigs) for sigs in entries.values())
     result = _python("""
         import json
-        from monte.core.precompile import kernel_cache_counts, load_cached_kernels
+        from monte.core.precompile import (entry_kernels_path, kernel_cache_counts, load_cached_kernels,
+                                           precompile_kernels)
         from monte.core.builtin_scenes import builtin_scene
         from monte.core.render import render
         from monte.core.settings import RenderSettings
@@ -79,8 +85,11 @@ def test_the_loader_loads_only_entry_kernels_and_they_cover_a_render():
         render(builtin_scene("cornell", (16, 16)), RenderSettings(spp=2, threads=2))
         after = kernel_cache_counts()
         everything = load_cached_kernels(entries_only=False)
+        listed = open(entry_kernels_path()).read()
+        again = precompile_kernels()["entry_signatures"]
         print("RESULT " + json.dumps({"stopped": stopped, "preloaded": preloaded, "before": before,
-                                      "after": after, "rest": everything}))
+                                      "after": after, "rest": everything, "again": again,
+                                      "kept": open(entry_kernels_path()).read() == listed}))
     """)
     listed = sum(len(sigs) for sigs in entries.values())
     assert result["stopped"] == 3  # should_stop() True ends the loading there
@@ -88,6 +97,7 @@ def test_the_loader_loads_only_entry_kernels_and_they_cover_a_render():
     assert result["after"]["compiled"] == 0
     assert result["after"]["loaded"] == result["before"]["loaded"]  # the render found its kernels loaded
     assert result["rest"] > 2 * listed  # what the loader no longer loads: device functions nobody calls
+    assert result["again"] is None and result["kept"]
 
 
 def test_unregister_stops_the_loader():
