@@ -575,7 +575,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from .core.exr import OutputError
+    from .core.atomic_file import OutputError  # not core.exr: OpenEXR is imported where a file is written
     from .core.scene import SceneError
 
     try:

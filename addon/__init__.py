@@ -45,8 +45,10 @@ def unregister() -> None:
     bpy.utils.unregister_class(engine.MonteRenderEngine)
     properties.unregister()
     _registered = False
-    if _kernel_loader is not None:
-        _kernel_loader.join(timeout=60)  # not still loading while Blender shuts down
+    if _kernel_loader is not None:  # stopped after its current kernel: not still loading while Blender shuts down
+        from ..core.precompile import stop_loading_kernels
+
+        stop_loading_kernels()
 
 
 def is_registered() -> bool:

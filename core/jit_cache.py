@@ -29,7 +29,6 @@ so a cache built on one machine loads on every other: see `kernel_cpu()`.
 
 from __future__ import annotations
 
-import glob
 import hashlib
 import os
 import warnings
@@ -212,8 +211,11 @@ def compile_cache_is_cold(with_node_programs: bool = False) -> bool:
     every render)."""
     if _cache_warm[with_node_programs]:
         return False
-    cache = cache_dir()
-    cold = any(not glob.glob(os.path.join(cache, f"{os.path.basename(name)}.*.nbi"))
+    try:  # one listing of the folder (hundreds of files), not one glob per module: ~0.1 s off a first render
+        indexes = {entry.split(".", 1)[0] for entry in os.listdir(cache_dir()) if entry.endswith(".nbi")}
+    except OSError:
+        indexes = set()
+    cold = any(os.path.basename(name) not in indexes
                for name in KERNEL_MODULES if name not in FEATURE_KERNEL_MODULES
                or (with_node_programs and name.startswith("shading/")))
     _cache_warm[with_node_programs] = not cold

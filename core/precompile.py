@@ -12,16 +12,26 @@ writes each kernel it compiles into the on-disk cache (core/jit_cache.py), so a 
 Run by `make setup` (`python -m monte.core.precompile`) for a checkout and by tools/build_extension.py, under
 Blender's import name, for the extension zip. `kernel_cache_counts()` says what this process compiled and what
 it loaded from the cache (the tests check that a process using a built cache compiled nothing).
+
+The cache holds every kernel numba compiled, device functions included (~330 signatures), but a render calls
+only ~45 of them from Python: a cached kernel carries the code of the device functions it calls, so those are
+never loaded again. The precompile records the signatures its renders call from Python (the entry kernels) in
+the cache folder (`ENTRY_KERNELS_FILE`); the add-on's loader thread loads only those, and stops when the
+add-on unregisters (the end of a `monte render X.blend` process), so a short render no longer waits at exit for
+hundreds of device functions nobody calls.
 """
 
 from __future__ import annotations
 
+import json
 import math
+import os
 import sys
 import threading
 import time
+from contextlib import contextmanager
 from types import ModuleType
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -63,17 +73,94 @@ def kernel_cache_counts() -> dict[str, int]:
     return {"compiled": compiled, "loaded": loaded, "kernels": len(dispatchers), "used": used}
 
 
-def load_cached_kernels() -> int:
-    """Load every kernel signature the disk cache holds for these sources and this CPU, as the first call of
-    each would (numba loads a kernel on its first call: about 0.3 s spread over a process's first render).
-    Compiles nothing: an entry that does not apply here is skipped. Returns how many signatures it loaded.
-    Safe beside a render on another thread: numba loads and compiles under one lock."""
+ENTRY_KERNELS_FILE = "entry-kernels.json"  # in jit_cache.cache_dir(), beside numba's index files
+
+
+def entry_kernels_path() -> str:
+    """The file listing the kernels a render calls from Python (written by precompile_kernels)."""
+    return os.path.join(jit_cache.cache_dir(), ENTRY_KERNELS_FILE)
+
+
+def _dispatcher_name(d) -> tuple[str, str]:
+    """(kernel module as listed in jit_cache.KERNEL_MODULES, function's qualified name)."""
+    module = d.py_func.__module__[len(jit_cache.PACKAGE) + 1:].replace(".", "/")
+    return module, d.py_func.__qualname__
+
+
+@contextmanager
+def _recording_entry_calls(found: dict) -> Iterator[None]:
+    """Record into found {(module, qualname): {str(signature)}} each signature a kernel compiles or loads for a
+    call from Python, the kernels in the order of their first call: numba's dispatcher calls _compile_for_args
+    when a Python call finds no loaded overload, while a device function is compiled or loaded through compile()
+    alone (while typing its caller)."""
+    from numba.core.dispatcher import Dispatcher
+
+    original = Dispatcher._compile_for_args
+    lock = threading.Lock()
+
+    def recording(self, *args, **kws):
+        before = set(self.overloads)
+        try:
+            return original(self, *args, **kws)
+        finally:
+            added = set(self.overloads) - before
+            if added and getattr(self.py_func, "__module__", "").startswith(jit_cache.PACKAGE + "."):
+                with lock:
+                    found.setdefault(_dispatcher_name(self), set()).update(str(sig) for sig in added)
+
+    Dispatcher._compile_for_args = recording
+    try:
+        yield
+    finally:
+        Dispatcher._compile_for_args = original
+
+
+def write_entry_kernels(found: dict) -> None:
+    """Write the entry kernels (found by _recording_entry_calls) with the sources they were recorded for, in
+    the order the precompile first called them: its first case is a default render, so the loader loads what
+    a render needs first in the order the render asks for it."""
+    from .atomic_file import write_bytes_atomically
+
+    body = {"sources": jit_cache.sources_digest(),
+            "kernels": [[module, name, sorted(sigs)] for (module, name), sigs in found.items()]}
+    os.makedirs(jit_cache.cache_dir(), exist_ok=True)
+    write_bytes_atomically(entry_kernels_path(), (json.dumps(body, indent=1) + "\n").encode())
+
+
+def read_entry_kernels() -> dict[tuple[str, str], set[str]] | None:
+    """{(module, qualname): {str(signature)}} from the cache folder's entry-kernel list (in its order), or None
+    when there is none, it cannot be read, or it was written for other sources (then every cached signature is
+    loaded)."""
+    try:
+        with open(entry_kernels_path(), encoding="utf-8") as fh:
+            body = json.load(fh)
+        if body.get("sources") != jit_cache.sources_digest():
+            return None
+        return {(module, name): set(sigs) for module, name, sigs in body["kernels"]}
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def load_cached_kernels(entries_only: bool = True, should_stop: Callable[[], bool] | None = None) -> int:
+    """Load kernel signatures the disk cache holds for these sources and this CPU, as the first call of each
+    would (numba loads a kernel on its first call: about 0.3 s spread over a process's first render, more on a
+    loaded machine). entries_only: only the entry kernels the precompile recorded (read_entry_kernels; every
+    cached signature when there is no valid list), in the order of the list (a default render's first).
+    should_stop() is asked before each signature: True ends the
+    loading there. Compiles nothing: an entry that does not apply here is skipped. Returns how many signatures
+    it loaded. Safe beside a render on another thread: numba loads and compiles under one lock."""
     from numba.core.registry import cpu_target
 
+    entries = read_entry_kernels() if entries_only else None
     codegen = cpu_target.target_context.codegen()
+    dispatchers = _dispatchers()
+    if entries is not None:
+        by_name = {_dispatcher_name(d): d for d in dispatchers}
+        dispatchers = [by_name[name] for name in entries if name in by_name]
     loaded = 0
-    for d in _dispatchers():
+    for d in dispatchers:
         cache = getattr(d, "_cache", None)
+        wanted = entries.get(_dispatcher_name(d)) if entries is not None else None
         try:
             index = cache._cache_file._load_index()  # {} when the cache is stale or absent
         except Exception:  # noqa: BLE001 - an unreadable index is numba's to report on the first call
@@ -82,6 +169,10 @@ def load_cached_kernels() -> int:
             sig = key[0]
             if sig in d.overloads or cache._index_key(sig, codegen) != key:  # loaded, or another CPU / code
                 continue
+            if wanted is not None and str(sig) not in wanted:
+                continue
+            if should_stop is not None and should_stop():
+                return loaded
             d.compile(sig)
             loaded += 1
     return loaded
@@ -89,14 +180,15 @@ def load_cached_kernels() -> int:
 
 _loader: threading.Thread | None = None
 _loader_lock = threading.Lock()
+_stop_loading = threading.Event()
 
 
 def load_cached_kernels_in_background() -> threading.Thread:
     """load_cached_kernels() on a daemon thread, started once per process (later calls return the same
     thread): the add-on starts it when it registers (after bpy's import: a thread importing modules while
     the bpy module itself is being imported can deadlock), so the kernels load while Blender starts or opens
-    the file and the first render finds them loaded. Errors are left to the
-    first render, which loads (or compiles) the kernels itself."""
+    the file and the first render finds them loaded. stop_loading_kernels() ends it early. Errors are left to
+    the first render, which loads (or compiles) the kernels itself."""
     global _loader
 
     def work() -> None:
@@ -104,15 +196,26 @@ def load_cached_kernels_in_background() -> threading.Thread:
             import importlib
 
             importlib.import_module(f"{jit_cache.PACKAGE}.render")  # the rest of the renderer's modules too
-            load_cached_kernels()
+            load_cached_kernels(should_stop=_stop_loading.is_set)
         except Exception:  # noqa: BLE001 - only a head start
             pass
 
     with _loader_lock:
         if _loader is None:
+            _stop_loading.clear()
             _loader = threading.Thread(target=work, name="monte-load-kernels", daemon=True)
             _loader.start()
         return _loader
+
+
+def stop_loading_kernels(timeout: float = 60.0) -> None:
+    """Stop the background loader after the signature it is loading (what it has not loaded, a render loads on
+    its first call) and wait for it: nothing is left loading while the process or Blender shuts down."""
+    _stop_loading.set()
+    with _loader_lock:
+        loader = _loader
+    if loader is not None:
+        loader.join(timeout=timeout)
 
 
 def every_feature_scene(resolution: tuple[int, int] = (12, 8)):
@@ -280,19 +383,28 @@ def _cases() -> list[tuple[str, Callable[[], object], dict]]:
 
 def precompile_kernels(log: Callable[[str], None] | None = None) -> dict[str, int]:
     """Render every warm-up case (a few pixels, 2 samples each), compiling and caching each kernel the cache
-    does not hold yet; returns kernel_cache_counts() and the seconds it took."""
+    does not hold yet, and write the entry kernels they called from Python (ENTRY_KERNELS_FILE) when this
+    process had run no kernel before (else the list is left as it is); returns kernel_cache_counts(), the number
+    of entry signatures (None when not listed) and the seconds it took."""
     from .render import render
     from .settings import RenderSettings
 
     say = log or (lambda m: None)
     t0 = time.perf_counter()
-    for name, build, overrides in _cases():
-        settings = RenderSettings(**{"spp": 2, "seed": 1, "threads": 2, "tile_size": 8, **overrides})
-        render(build(), settings.validate())
-        say(f"  {name}")
-    _fold_constants_once()
-    say("  node constant folding")
+    entries: dict = {}
+    # A kernel this process already ran is called without being seen: the list would miss it; keep the one there.
+    fresh = not any(d.signatures for d in _dispatchers())
+    with _recording_entry_calls(entries):
+        for name, build, overrides in _cases():
+            settings = RenderSettings(**{"spp": 2, "seed": 1, "threads": 2, "tile_size": 8, **overrides})
+            render(build(), settings.validate())
+            say(f"  {name}")
+        _fold_constants_once()
+        say("  node constant folding")
+    if fresh:
+        write_entry_kernels(entries)
     counts = kernel_cache_counts()
+    counts["entry_signatures"] = sum(len(sigs) for sigs in entries.values()) if fresh else None
     counts["seconds"] = time.perf_counter() - t0
     return counts
 
@@ -303,6 +415,19 @@ def main() -> int:
     counts = precompile_kernels(log=lambda m: print(m, flush=True))
     print(f"Monte: {counts['compiled']} kernel signatures compiled, {counts['loaded']} loaded from the cache, "
           f"{counts['used']} of {counts['kernels']} kernels used, {counts['seconds']:.1f} s", flush=True)
+    if counts["compiled"]:
+        # A kernel compiled first as another's device function, then called from Python, was not seen being
+        # called (numba had it already): list the entry kernels from a process that finds them all cached.
+        import subprocess
+
+        code = (f"import sys; sys.path[:0] = {sys.path!r}; from {jit_cache.PACKAGE}.precompile import "
+                "precompile_kernels; print(precompile_kernels()['entry_signatures'])")
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        if proc.returncode != 0:
+            print(f"Monte: listing the entry kernels failed:\n{proc.stderr[-2000:]}", flush=True)
+            return 1
+        counts["entry_signatures"] = proc.stdout.strip().splitlines()[-1]
+    print(f"Monte: {counts['entry_signatures']} entry signatures listed in {entry_kernels_path()}", flush=True)
     return 0
 
 

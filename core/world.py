@@ -21,7 +21,14 @@ from typing import Literal
 
 import numpy as np
 
-from . import world_kernels as wk
+
+def _kernels():
+    """core.world_kernels, imported on first use: core.scene imports this module, and what only builds or checks
+    a scene (the `monte` command's parser, `monte render --list`) should not import numba."""
+    from . import world_kernels
+
+    return world_kernels
+
 
 __all__ = ["EnvironmentMap", "EnvironmentMapError", "EnvironmentDistribution", "IMPORTANCE_FLOOR",
            "MAX_IMPORTANCE_WIDTH", "portal_table"]
@@ -124,15 +131,15 @@ class EnvironmentDistribution:
             self.tables = empty_tables()
             self.mean_luminance = 0.0
             return
-        par = np.zeros(wk.E_FIELDS)
-        par[wk.E_M00:wk.E_M22 + 1] = np.asarray(env.matrix, np.float64).reshape(9)
-        par[wk.E_SR:wk.E_SB + 1] = env.strength
-        par[wk.E_MIRROR_BALL] = env.projection == "MIRROR_BALL"
-        par[wk.E_CLOSEST] = env.interpolation == "CLOSEST"
+        par = np.zeros(_kernels().E_FIELDS)
+        par[_kernels().E_M00:_kernels().E_M22 + 1] = np.asarray(env.matrix, np.float64).reshape(9)
+        par[_kernels().E_SR:_kernels().E_SB + 1] = env.strength
+        par[_kernels().E_MIRROR_BALL] = env.projection == "MIRROR_BALL"
+        par[_kernels().E_CLOSEST] = env.interpolation == "CLOSEST"
         pix = np.ascontiguousarray(env.pixels, dtype=np.float32)
         w, h = env.importance_resolution
         lum = np.empty((h, w))
-        wk.importance_grid(pix, par, w, h, IMPORTANCE_SUBSAMPLES if w * h <= _SUBSAMPLED_CELLS else 1, lum)
+        _kernels().importance_grid(pix, par, w, h, IMPORTANCE_SUBSAMPLES if w * h <= _SUBSAMPLED_CELLS else 1, lum)
         lum = np.where(np.isfinite(lum) & (lum > 0), lum, 0.0)
         cos_el = np.cos(math.pi * ((np.arange(h) + 0.5) / h - 0.5))
         weighted = lum * cos_el[:, None]
@@ -154,27 +161,27 @@ class EnvironmentDistribution:
         u = np.ascontiguousarray(np.asarray(u, np.float64).reshape(-1, 2))
         d, pdf = np.empty((u.shape[0], 3)), np.empty(u.shape[0])
         _, par, func, marg, cond = self.tables
-        wk.sample_batch(par, func, marg, cond, u, d, pdf)
+        _kernels().sample_batch(par, func, marg, cond, u, d, pdf)
         return d, pdf
 
     def pdf(self, d: np.ndarray) -> np.ndarray:
         """Solid-angle pdf (N,) of unit world directions d (N, 3)."""
         d = np.ascontiguousarray(np.asarray(d, np.float64).reshape(-1, 3))
         out = np.empty(d.shape[0])
-        wk.pdf_batch(self.tables[2], d, out)
+        _kernels().pdf_batch(self.tables[2], d, out)
         return out
 
     def radiance(self, d: np.ndarray) -> np.ndarray:
         """Radiance (N, 3) of the world in directions d (N, 3)."""
         d = np.ascontiguousarray(np.asarray(d, np.float64).reshape(-1, 3))
         out = np.empty((d.shape[0], 3))
-        wk.radiance_batch(self.tables[0], self.tables[1], d, out)
+        _kernels().radiance_batch(self.tables[0], self.tables[1], d, out)
         return out
 
 
 def empty_tables() -> tuple:
     """The kernel tables of a world without a map (same types, so the kernels compile once)."""
-    return (np.zeros((1, 1, 3), np.float32), np.zeros(wk.E_FIELDS), np.ones((1, 1)), np.array([0.0, 1.0]),
+    return (np.zeros((1, 1, 3), np.float32), np.zeros(_kernels().E_FIELDS), np.ones((1, 1)), np.array([0.0, 1.0]),
             np.array([[0.0, 1.0]]))
 
 
@@ -182,17 +189,17 @@ def portal_table(portals: np.ndarray | None, shift: np.ndarray) -> np.ndarray:
     """The kernels' table of light portals (core.world_kernels' P_* columns) from core.scene.World.portals,
     positions made relative to the integrator's `shift`: (P, P_FIELDS) float64, (0, P_FIELDS) when none."""
     if portals is None or len(portals) == 0:
-        return np.zeros((0, wk.P_FIELDS))
+        return np.zeros((0, _kernels().P_FIELDS))
     portals = np.asarray(portals, dtype=np.float64)
     u, v = portals[:, 1], portals[:, 2]
-    table = np.zeros((len(portals), wk.P_FIELDS))
-    table[:, wk.P_CX:wk.P_CX + 3] = portals[:, 0] - 0.5 * (u + v) - np.asarray(shift, np.float64).reshape(3)
-    table[:, wk.P_UX:wk.P_UX + 3] = u
-    table[:, wk.P_VX:wk.P_VX + 3] = v
+    table = np.zeros((len(portals), _kernels().P_FIELDS))
+    table[:, _kernels().P_CX:_kernels().P_CX + 3] = portals[:, 0] - 0.5 * (u + v) - np.asarray(shift, np.float64).reshape(3)
+    table[:, _kernels().P_UX:_kernels().P_UX + 3] = u
+    table[:, _kernels().P_VX:_kernels().P_VX + 3] = v
     n = portals[:, 3] / np.linalg.norm(portals[:, 3], axis=1, keepdims=True)
-    table[:, wk.P_NX:wk.P_NX + 3] = n
+    table[:, _kernels().P_NX:_kernels().P_NX + 3] = n
     uu, vv, uv = (u * u).sum(axis=1), (v * v).sum(axis=1), (u * v).sum(axis=1)
-    table[:, wk.P_AREA] = np.linalg.norm(np.cross(u, v), axis=1)
+    table[:, _kernels().P_AREA] = np.linalg.norm(np.cross(u, v), axis=1)
     det = uu * vv - uv * uv
-    table[:, wk.P_G00], table[:, wk.P_G01], table[:, wk.P_G11] = vv / det, -uv / det, uu / det  # Gram inverse
+    table[:, _kernels().P_G00], table[:, _kernels().P_G01], table[:, _kernels().P_G11] = vv / det, -uv / det, uu / det  # Gram inverse
     return np.ascontiguousarray(table)

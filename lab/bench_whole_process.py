@@ -1,14 +1,16 @@
 """`monte bench --vs cycles --whole-process`: Monte and Cycles timed as whole processes, as a user runs them.
 
 For each scene (a bench scene from bpy_scenes, or a user's .blend), the scene is saved to a temporary .blend
-and rendered, alternately, by two fresh processes: `python -m monte render X.blend -o m.exr --spp N ...` and
-a plain bpy process doing what `blender -b X.blend -E CYCLES -f 1` does (open the file, render with Cycles,
+and rendered, after one untimed run of each, alternately by two fresh processes: `python -m monte render
+X.blend -o m.exr --spp N ...` and a plain bpy process doing what `blender -b X.blend -E CYCLES -f 1` does (open the file, render with Cycles,
 write a 32-bit EXR). The time is the process's wall time, start to exit: the Python and bpy imports, opening
 the file, Monte's kernel loading and export or Cycles' sync, the render and writing the image, everything the
 render-call bench (lab/bench_cycles.py) leaves out. Settings as that bench's: the same samples, seed, bounce
 limit, Blackman-Harris 1.5 px filter and threads, Cycles without denoising, adaptive sampling or clamping.
 The error is the RMSE against the cached converged Cycles reference (its own noise removed), the efficiency
-1/(seconds x MSE) with the whole process's seconds.
+1/(seconds x MSE) with the whole process's seconds: the best of the repeats (`efficiency`) and their median
+(`efficiency_median`: on a shared machine the median is the figure to quote). Each process's CPU seconds (user +
+system, its threads included) are reported beside its wall time: on a loaded machine they vary less.
 
 Writes OUTDIR/bench_whole_process.json and returns the report; prints a table.
 """
@@ -16,6 +18,7 @@ Writes OUTDIR/bench_whole_process.json and returns the report; prints a table.
 from __future__ import annotations
 
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -45,15 +48,28 @@ _CYCLES_PROCESS = textwrap.dedent("""
 """)
 
 
-def _run(command: list[str], env: dict) -> float:
-    """Wall seconds of one process from start to exit; a failure raises with its output."""
+def _run(command: list[str], env: dict) -> tuple[float, float]:
+    """(wall seconds, CPU seconds: user + system) of one process from start to exit; a failure raises with its
+    output."""
+    before = os.times()
     t0 = time.perf_counter()
     proc = subprocess.run(command, capture_output=True, text=True, env=env)
     seconds = time.perf_counter() - t0
+    after = os.times()
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(command[:4])} ... failed (exit {proc.returncode}):\n{proc.stdout[-2000:]}\n"
                            f"{proc.stderr[-2000:]}")
-    return seconds
+    return seconds, (after.children_user - before.children_user) + (after.children_system - before.children_system)
+
+
+def _process_env(tmp_dir: Path) -> dict:
+    """The renderers' environment: this one without PYTHONPATH, and with Python's bytecode cache on (into a
+    folder of tmp_dir unless PYTHONPYCACHEPREFIX names one), as a user's processes have it: with
+    PYTHONDONTWRITEBYTECODE set, every Monte process compiled its ~80 modules from source again (~0.3 s of CPU)
+    while bpy's own scripts ship compiled."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONDONTWRITEBYTECODE")}
+    env.setdefault("PYTHONPYCACHEPREFIX", str(tmp_dir / "pycache"))
+    return env
 
 
 def _save_for_cycles(scene, path: Path, spp: int, seed: int, threads: int, max_bounces: int, out: Path) -> None:
@@ -79,32 +95,43 @@ def bench_scene_whole_process(spec: str, *, cache: ReferenceCache, spp: int = 64
     log(f"{name} {res[0]}x{res[1]}, {spp} spp, {threads} threads, whole processes x{repeats}")
     params = bench_cycles.reference_params(name, version, res, max_bounces, reference_spp, reference_seeds)
     ref = bench_cycles.ensure_reference(scene, params, cache, threads, log)
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     with tempfile.TemporaryDirectory(prefix="monte-whole-") as tmp:
         tmp_dir = Path(tmp)
+        env = _process_env(tmp_dir)
         blend, monte_out, cycles_out = tmp_dir / f"{name}.blend", tmp_dir / "monte.exr", tmp_dir / "cycles.exr"
         _save_for_cycles(scene, blend, spp, seed, threads, max_bounces, cycles_out)
         monte_cmd = [sys.executable, "-m", "monte", "render", str(blend), "-o", str(monte_out), "--no-png", "-q",
                      "--spp", str(spp), "--seed", str(seed), "--threads", str(threads), "--max-bounces",
                      str(max_bounces), "--filter", "blackman-harris", "--filter-width", "1.5", "--clamp", "0"]
         cycles_cmd = [sys.executable, "-c", _CYCLES_PROCESS, str(blend), str(cycles_out)]
+        for command in (monte_cmd, cycles_cmd):  # untimed: bytecode written, files in the OS's cache
+            _run(command, env)
         times: dict[str, list[float]] = {"monte": [], "cycles": []}
+        cpu: dict[str, list[float]] = {"monte": [], "cycles": []}
         for _ in range(repeats):
-            times["monte"].append(_run(monte_cmd, env))
-            times["cycles"].append(_run(cycles_cmd, env))
+            for renderer, command in (("monte", monte_cmd), ("cycles", cycles_cmd)):
+                wall, used = _run(command, env)
+                times[renderer].append(wall)
+                cpu[renderer].append(used)
         images = {"monte": bench_cycles._read_combined(monte_out), "cycles": bench_cycles._read_combined(cycles_out)}
     report = {"scene": name, "source": spec, "resolution": list(res), "spp": spp, "threads": threads,
               "max_bounces": max_bounces, "repeats": repeats, "renderers": {}}
     for renderer, image in images.items():
         err = corrected_rmse(metrics.rmse(image, ref.image), ref.own_mse)
-        best = min(times[renderer])
-        report["renderers"][renderer] = {"seconds": best, "seconds_all": times[renderer], "rmse_corrected": err,
-                                         "efficiency": efficiency(best, err * err)}
+        best, median = min(times[renderer]), statistics.median(times[renderer])
+        report["renderers"][renderer] = {"seconds": best, "seconds_all": times[renderer], "seconds_median": median,
+                                         "cpu_seconds_all": cpu[renderer],
+                                         "cpu_seconds_median": statistics.median(cpu[renderer]),
+                                         "rmse_corrected": err, "efficiency": efficiency(best, err * err),
+                                         "efficiency_median": efficiency(median, err * err)}
     m, c = report["renderers"]["monte"], report["renderers"]["cycles"]
     report["monte_over_cycles_efficiency"] = m["efficiency"] / c["efficiency"]
-    log(f"  monte {m['seconds']:6.2f} s RMSE {m['rmse_corrected']:.4f} eff {m['efficiency']:8.1f} | cycles "
-        f"{c['seconds']:6.2f} s RMSE {c['rmse_corrected']:.4f} eff {c['efficiency']:8.1f} | "
-        f"ratio {report['monte_over_cycles_efficiency']:.2f}")
+    report["monte_over_cycles_efficiency_median"] = m["efficiency_median"] / c["efficiency_median"]
+    log(f"  monte {m['seconds_median']:6.2f} s (median; CPU {m['cpu_seconds_median']:.2f} s) RMSE "
+        f"{m['rmse_corrected']:.4f} eff {m['efficiency_median']:8.1f} | cycles {c['seconds_median']:6.2f} s (CPU "
+        f"{c['cpu_seconds_median']:.2f} s) RMSE {c['rmse_corrected']:.4f} eff {c['efficiency_median']:8.1f} | "
+        f"ratio {report['monte_over_cycles_efficiency_median']:.2f} (best times: "
+        f"{report['monte_over_cycles_efficiency']:.2f})")
     return report
 
 
@@ -118,12 +145,15 @@ def run_whole_process(specs: Sequence[str], reference_dir: str | os.PathLike, ou
     report = {"kind": "monte-vs-cycles-whole-process", "blender": bpy.app.version_string,
               "cpu_count": os.cpu_count(), "time": time.strftime("%Y-%m-%d %H:%M:%S"), "scenes": scenes}
     write_json(out / "bench_whole_process.json", report)
-    rows = [[s["scene"], s["spp"], s["renderers"]["monte"]["seconds"], s["renderers"]["monte"]["rmse_corrected"],
-             s["renderers"]["monte"]["efficiency"], s["renderers"]["cycles"]["seconds"],
-             s["renderers"]["cycles"]["rmse_corrected"], s["renderers"]["cycles"]["efficiency"],
-             s["monte_over_cycles_efficiency"]] for s in scenes]
+    rows = [[s["scene"], s["spp"], s["renderers"]["monte"]["seconds_median"],
+             s["renderers"]["monte"]["cpu_seconds_median"], s["renderers"]["monte"]["rmse_corrected"],
+             s["renderers"]["monte"]["efficiency_median"], s["renderers"]["cycles"]["seconds_median"],
+             s["renderers"]["cycles"]["cpu_seconds_median"], s["renderers"]["cycles"]["rmse_corrected"],
+             s["renderers"]["cycles"]["efficiency_median"], s["monte_over_cycles_efficiency_median"]]
+            for s in scenes]
     log("")
-    log(format_table(["scene", "spp", "monte s", "monte RMSE", "monte eff", "cycles s", "cycles RMSE", "cycles eff",
-                      "monte/cycles"], rows))
+    log("medians of the repeats (wall seconds, CPU seconds, efficiency with the median wall time)")
+    log(format_table(["scene", "spp", "monte s", "monte CPU s", "monte RMSE", "monte eff", "cycles s", "cycles CPU s",
+                      "cycles RMSE", "cycles eff", "monte/cycles"], rows))
     log(f"wrote {out / 'bench_whole_process.json'}")
     return report

@@ -121,6 +121,9 @@ def test_bench_whole_process_tiny_end_to_end(tmp_path):
     for r in (monte, cycles):
         assert r["seconds"] == min(r["seconds_all"]) > 0 and len(r["seconds_all"]) == 1
         assert r["efficiency"] == pytest.approx(1 / (r["seconds"] * r["rmse_corrected"] ** 2))
+        assert r["seconds_median"] == r["seconds_all"][0] and len(r["cpu_seconds_all"]) == 1
+        assert 0 < r["cpu_seconds_median"] == r["cpu_seconds_all"][0]  # the child's own CPU time was counted
+        assert r["efficiency_median"] == pytest.approx(1 / (r["seconds_median"] * r["rmse_corrected"] ** 2))
     assert 0.5 < monte["rmse_corrected"] / cycles["rmse_corrected"] < 2.0  # same scene, same samples
     assert scene["monte_over_cycles_efficiency"] == pytest.approx(monte["efficiency"] / cycles["efficiency"])
 

@@ -261,7 +261,7 @@ def check_zip(path: Path, manifest: dict) -> None:
         raise BuildError(f"{path.name} holds files the add-on does not need: {', '.join(unexpected)} "
                          "(extend [build] paths_exclude_pattern in blender_manifest.toml)")
     junk = [n for n in names if n.endswith(".pyc") or ("__pycache__" in n and not (
-        n.startswith(KERNEL_CACHE_DIR + "/") and n.endswith((".nbi", ".nbc"))))]
+        n.startswith(KERNEL_CACHE_DIR + "/") and n.endswith((".nbi", ".nbc", "/entry-kernels.json"))))]
     if junk:
         raise BuildError(f"{path.name} holds compiled Python files: {junk[:5]}")
     for required in ("__init__.py", "blender_manifest.toml", "core/render.py", "addon/engine.py"):

@@ -1,0 +1,132 @@
+"""A render's fixed cost: what the `monte` command imports before it needs it, and the add-on's kernel loader
+(only the kernels a render calls from Python, in the order renders need them, stopped when the add-on
+unregisters). Speed itself is measured by `monte bench --vs cycles --whole-process` and lab/fixed_cost.py,
+never asserted here."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+from monte.core import jit_cache, precompile
+
+HEAVY = ("numba", "llvmlite", "dask", "distributed", "OpenEXR", "bpy", "scipy")
+
+
+def _python(code: str) -> dict:
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != jit_cache.KERNEL_CPU_ENV}
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
+                          timeout=600, env=clean)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, f"exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    return json.loads(lines[-1][len("RESULT "):])
+
+
+def test_the_command_line_imports_no_heavy_module_before_it_needs_one():
+    """Parsing any command and listing the built-in scenes import none of numba, Dask, OpenEXR, bpy, scipy;
+    a built-in scene's construction neither (the world's kernels load on its first use)."""
+    result = _python(f"""
+        import json, sys
+        from monte.cli import build_parser, main
+        build_parser().parse_args(["render", "scene.blend", "-o", "out.exr", "--spp", "1"])
+        after_parse = [m for m in {HEAVY!r} if m in sys.modules]
+        main(["render", "--list"])
+        from monte.core.builtin_scenes import builtin_scene
+        builtin_scene("cornell", (8, 8))
+        after_list = [m for m in {HEAVY!r} if m in sys.modules]
+        from monte.core import render  # the renderer itself does import numba: the check above can fail
+        print("RESULT " + json.dumps({{"parse": after_parse, "list": after_list, "render": "numba" in sys.modules}}))
+    """)
+    assert result == {"parse": [], "list": [], "render": True}
+
+
+def test_entry_kernel_list_round_trip_and_staleness(tmp_path, monkeypatch):
+    path = tmp_path / precompile.ENTRY_KERNELS_FILE
+    monkeypatch.setattr(precompile, "entry_kernels_path", lambda: str(path))
+    monkeypatch.setattr(jit_cache, "cache_dir", lambda: str(tmp_path))
+    assert precompile.read_entry_kernels() is None  # none written: every cached signature is loaded
+    found = {("embree", "trace_closest"): {"(int64,)"}, ("camera", "_camera_rays"): {"(array(float64, 2d, C),)"}}
+    precompile.write_entry_kernels(found)
+    assert precompile.read_entry_kernels() == found
+    assert list(precompile.read_entry_kernels()) == list(found)  # the order of first calls: the loading order
+    body = json.loads(path.read_text())
+    body["sources"] = "0" * 64  # written for other sources (an edited kernel module): ignored
+    path.write_text(json.dumps(body))
+    assert precompile.read_entry_kernels() is None
+    path.write_text("{not json")
+    assert precompile.read_entry_kernels() is None
+
+
+def test_the_loader_loads_only_entry_kernels_and_they_cover_a_render():
+    """The precompile (in a fresh process) lists its entry kernels: far fewer than the signatures the cache holds
+    (device functions are carried inside their callers), and a render after loading them loads and compiles
+    nothing more. A process that had run kernels before does not rewrite the list (it would miss those)."""
+    written = _python("""
+        import json
+        from monte.core.precompile import precompile_kernels
+        print("RESULT " + json.dumps(precompile_kernels()))
+    """)  # a few seconds when `make setup` built the cache
+    entries = precompile.read_entry_kernels()
+    assert entries is not None and written["entry_signatures"] == sum(len(sigs) for sigs in entries.values())
+    result = _python("""
+        import json
+        from monte.core.precompile import (entry_kernels_path, kernel_cache_counts, load_cached_kernels,
+                                           precompile_kernels)
+        from monte.core.builtin_scenes import builtin_scene
+        from monte.core.render import render
+        from monte.core.settings import RenderSettings
+        counted = []
+        stopped = load_cached_kernels(should_stop=lambda: len(counted) >= 3 or counted.append(1))
+        preloaded = stopped + load_cached_kernels()
+        before = kernel_cache_counts()
+        render(builtin_scene("cornell", (16, 16)), RenderSettings(spp=2, threads=2))
+        after = kernel_cache_counts()
+        everything = load_cached_kernels(entries_only=False)
+        listed = open(entry_kernels_path()).read()
+        again = precompile_kernels()["entry_signatures"]
+        print("RESULT " + json.dumps({"stopped": stopped, "preloaded": preloaded, "before": before,
+                                      "after": after, "rest": everything, "again": again,
+                                      "kept": open(entry_kernels_path()).read() == listed}))
+    """)
+    listed = sum(len(sigs) for sigs in entries.values())
+    assert result["stopped"] == 3  # should_stop() True ends the loading there
+    assert result["preloaded"] == result["before"]["loaded"] == listed
+    assert result["after"]["compiled"] == 0
+    assert result["after"]["loaded"] == result["before"]["loaded"]  # the render found its kernels loaded
+    assert result["rest"] > 2 * listed  # what the loader no longer loads: device functions nobody calls
+    assert result["again"] is None and result["kept"]
+
+
+def test_unregister_stops_the_loader():
+    """`monte render X.blend` ends by unregistering: the loader stops after its current kernel instead of
+    loading the rest first."""
+    result = _python("""
+        import json, time
+        import bpy
+        import monte
+        from monte.core import precompile
+        monte.register()
+        loader = precompile._loader
+        monte.unregister()
+        print("RESULT " + json.dumps({"started": loader is not None, "alive": loader.is_alive(),
+                                      "stop_set": precompile._stop_loading.is_set()}))
+    """)
+    assert result == {"started": True, "alive": False, "stop_set": True}
+
+
+def test_cold_cache_check_lists_the_folder_once(tmp_path, monkeypatch):
+    """compile_cache_is_cold: cold while a module every render runs has no index in the cache folder, warm once
+    each has one (and then remembered for the process)."""
+    monkeypatch.setattr(jit_cache, "cache_dir", lambda: str(tmp_path))
+    monkeypatch.setattr(jit_cache, "_cache_warm", {False: False, True: False})
+    common = [n for n in jit_cache.KERNEL_MODULES if n not in jit_cache.FEATURE_KERNEL_MODULES]
+    for name in common[:-1]:
+        (tmp_path / f"{os.path.basename(name)}.kernel-12.py313.nbi").write_bytes(b"")
+    (tmp_path / f"{os.path.basename(common[-1])}.kernel-12.py313.1.nbc").write_bytes(b"")  # data, no index
+    assert jit_cache.compile_cache_is_cold()
+    (tmp_path / f"{os.path.basename(common[-1])}.kernel-12.py313.nbi").write_bytes(b"")
+    assert not jit_cache.compile_cache_is_cold()
+    assert jit_cache.compile_cache_is_cold(with_node_programs=True)  # the node evaluator's modules: no index yet
