@@ -1068,7 +1068,8 @@ class PathTracer:
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
 
-            le = t_hit = None  # added: not held through the surface stage
+            # added, and the rays' origins read by nothing below: not held through the surface stage
+            le = t_hit = o = tm = origins = tmax = None
             ending = None  # the paths whose vertex here only contributes emission (Cycles' bounce counting)
             if bounces is None:
                 if depth == s.max_bounces + 1:
@@ -1133,6 +1134,9 @@ class PathTracer:
             throughput = throughput[rows]
             if rolls:
                 throughput /= q[rows][:, None]
+            # the camera's arguments are read by nothing below (the direction and the hits still are, until the
+            # surface is shaded): not held while the vertex's lobes are gathered
+            q = t_start = depth_scale = pixel_id = sample_id = None
             mat = ps.material_index[prim[rows]]
             if origin_class is not None:
                 origin_class[idx] = ps.links.class_of_triangle[prim[rows]]
