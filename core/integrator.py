@@ -54,6 +54,8 @@ DIM_TIME = 0x7FFF0000
 _D_VERTEX, _D_LIGHT = 1, 4
 
 SHADOW_EPSILON = np.float32(1e-4)  # shadow rays stop this fraction short of the light (its own surface)
+# Next-event estimation runs over at most this many paths at a time (its temporaries: see PathTracer._next_event)
+NEE_CHUNK = 1 << 15
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -1069,6 +1071,8 @@ class PathTracer:
                     if features is not None:
                         features.add_emission(idx[e], throughput[e] * le)
 
+            # added, and the rays' origins read by nothing below: not held through the surface stage
+            le = t_hit = o = tm = origins = tmax = None
             ending = None  # the paths whose vertex here only contributes emission (Cycles' bounce counting)
             if bounces is None:
                 if depth == s.max_bounces + 1:
@@ -1088,7 +1092,6 @@ class PathTracer:
             # 0.0165 with sqrt), and a terminated path casts no shadow ray here. The paths that go on (hit and
             # survived) are selected once, here; random numbers of paths that missed are drawn and unused (they
             # depend only on pixel, sample and dimension).
-            u_vertex = self.sampler.get_4d(pix, smp, self._dim(depth, _D_VERTEX))
             survive = hit if held is None else hit & ~held
             if ending is not None:
                 survive = survive & ~ending
@@ -1104,7 +1107,9 @@ class PathTracer:
                 if bounces is not None:
                     q = np.where(per_path, q, np.float32(1.0)).astype(np.float32)
                 before_roulette = survive
-                survive = survive & (u_vertex[:, 3] < q)
+                # the roulette's number, the 4th of the vertex's set (the rest are drawn again for the survivors
+                # before the BSDF is sampled: they depend only on pixel, sample and dimension)
+                survive = survive & (self.sampler.get_4d(pix, smp, self._dim(depth, _D_VERTEX))[:, 3] < q)
                 if aov_path is not None:  # an emitting surface is shaded before the roulette ends the path there
                     self._rouletted_aovs(aov_path, np.flatnonzero(before_roulette & ~survive), idx, prim, hits, d,
                                          tr, path_state, hit_dp)
@@ -1121,16 +1126,20 @@ class PathTracer:
                 first.albedo[idx[hit_rows]] = bsdf_mod.albedo(lobes_first)
                 first.normal[idx[hit_rows]] = g.ns_raw
                 first.depth[idx[hit_rows]] = (t_start[hit_rows] + hits.t[hit_rows]) * depth_scale[hit_rows]
+                lobes_first = None
                 if len(rows) < len(hit_rows):
                     g = g.take(np.flatnonzero(survive[hit_rows]))
             elif len(rows):
                 g = self._surface(rows, prim, hits.u, hits.v, d, tr)
             if len(rows) == 0:
                 break
-            idx, pix, smp, u_vertex = idx[rows], pix[rows], smp[rows], u_vertex[rows]
+            idx, pix, smp = idx[rows], pix[rows], smp[rows]
             throughput = throughput[rows]
             if rolls:
                 throughput /= q[rows][:, None]
+            # the camera's arguments are read by nothing below (the direction and the hits still are, until the
+            # surface is shaded): not held while the vertex's lobes are gathered
+            q = t_start = depth_scale = pixel_id = sample_id = None
             mat = ps.material_index[prim[rows]]
             if origin_class is not None:
                 origin_class[idx] = ps.links.class_of_triangle[prim[rows]]
@@ -1161,14 +1170,21 @@ class PathTracer:
                     lp.add_colors(idx[r], lp_mod.colors(lobes.take(r), g.wo[r], g.cos_o_geo[r] < 0), throughput[r])
 
             clock = self._lap("emission", clock)
+            bary = None
+            if self.use_nee and ps.terminator_offset is not None:  # the terminator lift needs the hits' triangles
+                bary = (prim[rows], hits.u[rows], hits.v[rows])
+                if tr is not None and ps.motion_slot is not None:  # the hits' triangles at their times
+                    at = ps.hit_triangles(prim[rows], tr[rows])
+                    bary = (np.arange(len(rows), dtype=np.int32), hits.u[rows], hits.v[rows], at[0], at[3],
+                            ps.terminator_offset[prim[rows]])
+            # Paths in flight hold only what the rest of the vertex reads: the ray that arrived here, its hits and
+            # the emission stage's per-path temporaries are dropped before next-event estimation and the scatter
+            # allocate theirs (the scatter writes the next rays; the MIS origins keep their own copy).
+            o = d = tm = tr = hits = hit = prim = le = t_hit = lobes_first = mat_first = survive = em_idx = None
+            pixel_id = sample_id = origins = directions = tmax = t_start = depth_scale = None  # the camera rays
+            if through is None:  # the scatter writes the next rays' state afresh; only the MIS origins read these
+                prev_pdf = prev_delta = prev_normal = prev_transmits = None
             if self.use_nee:
-                bary = None
-                if ps.terminator_offset is not None:  # the shadow terminator lift needs the hits' triangles
-                    bary = (prim[rows], hits.u[rows], hits.v[rows])
-                    if tr is not None and ps.motion_slot is not None:  # the hits' triangles at their times
-                        at = ps.hit_triangles(prim[rows], tr[rows])
-                        bary = (np.arange(len(rows), dtype=np.int32), hits.u[rows], hits.v[rows], at[0], at[3],
-                                ps.terminator_offset[prim[rows]])
                 # with light passes, which paths' vertex is their first bounce (only Transparent BSDFs before it)
                 first_bounce = None if lp is None or bounces is None else bounces[idx] == 0
                 if ps.lights.has_lights:
@@ -1185,8 +1201,12 @@ class PathTracer:
                                      lg=lg)
                 clock = self._lap("nee", clock)
 
-            # Sample the BSDF for the next direction; the paths that go on are written compacted.
+            # Sample the BSDF for the next direction; the paths that go on are written compacted. The vertex's
+            # numbers depend only on pixel, sample and dimension: drawing them again here for the survivors gives
+            # the values drawn before the roulette without holding them through the vertex.
+            u_vertex = self.sampler.get_4d(pix, smp, self._dim(depth, _D_VERTEX))
             u_dir, u_lobe = np.ascontiguousarray(u_vertex[:, :2]), np.ascontiguousarray(u_vertex[:, 2])
+            u_vertex = None
             bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir, back=g.cos_o_geo < 0)
             if bumped is not None:
                 self._bump_shadowing_sampled(bs, lobes, g, bumped)
@@ -1218,6 +1238,7 @@ class PathTracer:
                 state = path_state[idx]
                 next_path_state(lobes.arrays(), u_lobe, bs.transmitted, state)
                 path_state[idx] = state
+            lobes = u_dir = u_lobe = state = None  # read by nothing below: not held while the next rays are written
             m = len(idx)
             old_pdf, old_delta, old_normal, old_transmits = prev_pdf, prev_delta, prev_normal, prev_transmits
             o, d = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
@@ -1241,6 +1262,10 @@ class PathTracer:
                                           (prev_pdf, prev_delta, prev_normal, prev_transmits))
             idx, pix, smp = next_idx[:count], next_pix[:count], next_smp[:count]
             tm = np.full(count, np.float32(3e38))
+            # this vertex's surface, lobes, BSDF sample and the rays' previous state are done with: not held
+            # while the next rays are intersected
+            g = lobes = bs = mat = u_dir = u_lobe = rows = bumped = bary = passed = None
+            old_pdf = old_delta = old_normal = old_transmits = next_throughput = None
             self._lap("scatter", clock)
         if transparent is not None:
             np.clip(transparent, 0.0, 1.0, out=transparent)
@@ -1525,7 +1550,7 @@ class PathTracer:
                     bary=None, lp: "lp_mod.LightPassSamples | None" = None, textured: bool = False,
                     path: np.ndarray | None = None, bumped=None, ray_time=None, classes=None,
                     transparent_bounces: np.ndarray | None = None, first_bounce: np.ndarray | None = None,
-                    lg: "LightGroupSamples | None" = None) -> None:
+                    lg: "LightGroupSamples | None" = None, can: np.ndarray | None = None) -> None:
         """Next-event estimation: one light sample per path with a shadow ray, MIS-weighted. bary: (triangle,
         u, v) of each path's hit when some mesh has a shadow terminator offset, else None (with motion blur:
         (row, u, v, corners, corner normals, offsets) of the hits' own triangles at their times); ray_time: each
@@ -1536,14 +1561,26 @@ class PathTracer:
         Path state there (None when no program reads it); classes: the paths' receiver classes (light linking,
         core.light_linking) or None; first_bounce: with light passes, per path, whether its vertex here is its
         first bounce (only Transparent BSDFs passed before it; None: the vertex at depth 0 alone); lg: the light groups
-        to attribute the light to (core.light_groups; None: off)."""
+        to attribute the light to (core.light_groups; None: off). can: the rows that take a light sample (None:
+        every path whose material next-event estimation can reach, NEE_CHUNK rows at a time)."""
         ps = self.ps
-        can = np.flatnonzero(ps.has_nondelta[mat])
+        if can is None:
+            can = np.flatnonzero(ps.has_nondelta[mat])
+            if len(can) > NEE_CHUNK:
+                # The light samples, their BSDF values and shadow rays are ~200 B per path: in chunks they stay a
+                # fixed few MB instead of growing with the batch. Each path takes one light sample, keyed by its
+                # pixel, sample and depth, and adds it to its own sample: the same numbers in any chunking.
+                for a in range(0, len(can), NEE_CHUNK):
+                    self._next_event(depth, idx, pix, smp, g, mat, lobes, throughput, radiance, bary, lp, textured,
+                                     path, bumped, ray_time, classes, transparent_bounces, first_bounce, lg,
+                                     can[a:a + NEE_CHUNK])
+                return
         if len(can) == 0:
             return
         gc = g.take(can) if len(can) < len(idx) else g
         u_light = self.sampler.get_3d(pix[can], smp[can], self._dim(depth, _D_LIGHT))
         u_l, u_sel = np.ascontiguousarray(u_light[:, :2]), np.ascontiguousarray(u_light[:, 2])
+        u_light = None
         transmits = ps.materials.has_transmission[mat[can]]
         if textured:
             ls = self._sample_textured(gc.p, u_sel, u_l, None if path is None else path[can])
@@ -1577,6 +1614,10 @@ class PathTracer:
                                     tmax, sample_of, *self._terminator_args(bary, can, gc))
         if count == 0:
             return
+        if lp is None and lg is None and (ps.no_shadow is None or textured):
+            # the light samples, their BSDF values and the vertices' surfaces have been folded into the shadow
+            # rays: not held while Embree traces them
+            gc = ls = wi = wi_local = f_cos = pdf_b = u_l = u_sel = transmits = restricted = None
         clock = time.perf_counter()
         shadow_time = None if ray_time is None else ray_time[sample_of[:count]]
         if self._catcher_copies:

@@ -29,7 +29,8 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
   DATA_PASS_BYTES (Mist float64 sum / float32; UV float64 RGB sums / float32; Position and the indices float32);
   a Cryptomatte kind keeps sparse (key, coverage) pairs, about 2 per pixel (32 B), and levels x 8 B of layers;
 - batch: the integrator's float32 structure-of-arrays for every path in flight, ray buffers and temporaries
-  (measured: about 800 B per path at 2^18 paths);
+  (measured by `monte perf --sections memory`: a batch of 2^18 Cornell box paths with AOVs peaks at about 320 B
+  per path; PATH_BYTES keeps a margin for materials with more lobes, whose per-path lobe arrays are 63 B a lobe);
 - scene: the camera-shifted float32 triangle soup, face and corner normals, UVs, material indices and the Embree
   BVH (about 400 B per triangle), textures (float32 RGB, kept twice during preparation), and the world's
   environment map (float32 RGB, held once) with its importance tables (two float64 per grid cell).
@@ -63,7 +64,7 @@ FILM_FEATURE_BYTES = 24
 RESULT_FEATURE_BYTES = 24
 FILM_CATCHER_BYTES = 44
 RESULT_CATCHER_BYTES = 28
-PATH_BYTES = 800
+PATH_BYTES = 400
 TRIANGLE_BYTES = 400
 TEXEL_BYTES = 24
 # Data passes: key -> (film bytes, result bytes) per pixel; Cryptomatte kinds add levels x 8 B of result layers.

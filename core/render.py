@@ -736,12 +736,19 @@ class _TileRender:
         if self.camera_offset is not None:  # prepared for another camera position (render(prepared=...))
             rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
+        # the pixel coordinates and film offsets are in the rays now: not held while the paths are traced
+        px = py = offsets = raster_x = raster_y = lens_u = None
         if rays.alive is not None:  # a panoramic camera's dead rays: nothing traced, nothing added
             out = self._trace_alive(tracer, pixel_id, smp, rays, differentials, ray_time)
         else:
-            out = tracer.trace(pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale,
-                               rays.t_start, self.settings.aovs, self.settings.denoising_features,
-                               self.data_tables is not None, *differentials, ray_time)
+            # Handed over, not kept here: CPython moves a call's arguments into the function's variables, so once
+            # the tracer is past the camera rays' first hits (it drops them there) nothing holds them.
+            camera_arrays = [pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale, rays.t_start]
+            pixel_id = smp = rays = None
+            take = camera_arrays.pop
+            out = tracer.trace(take(0), take(0), take(0), take(0), take(0), take(0), take(0), self.settings.aovs,
+                               self.settings.denoising_features, self.data_tables is not None, differentials[0],
+                               differentials[1], ray_time)  # (no *args: a call with them keeps its arguments)
         if self.data_tables is not None:
             first = out[1]
             first.data = self.data_tables.samples(first.surface)

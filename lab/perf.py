@@ -5,7 +5,8 @@ Sections (each a short run; all in one process, interleaved where two variants a
   surface interaction, next-event estimation, BSDF sampling and compaction, film) and Embree's share of the
   worker thread-time.
 - threads: samples/s at 1, 2, ... N worker threads and the speed-up over 1 (alternating runs, best of `repeat`).
-- memory: peak NumPy allocation (tracemalloc) per batch size, and MB per million paths in flight.
+- memory: peak NumPy allocation (tracemalloc) of a batch of paths per batch size, and MB per million paths in
+  flight (the slope).
 - skip: the diffuse-only Cornell box with and without an unused glass material (features a scene does not use
   cost nothing: the times should agree within noise).
 - adaptive: the Cornell box and the spheres-under-sky scene at a fixed spp with adaptive sampling off and on,
@@ -71,21 +72,45 @@ def thread_scaling(resolution: int, spp: int, max_threads: int, repeat: int) -> 
 
 
 def memory_per_batch(resolution: int, spp: int, batches: list[int]) -> dict:
-    """Peak traced allocation (NumPy reports to tracemalloc) per batch size, one worker thread."""
-    rows = []
-    for batch in batches:
-        scene = cornell_box((resolution, resolution))
-        tracemalloc.start()
+    """Peak traced allocation (NumPy reports to tracemalloc) of a batch of paths above what was allocated when it
+    started: its camera rays, the paths' state, every per-bounce temporary and its results. One worker thread, so
+    batches run one at a time on the calling thread; the largest over the render's batches, per batch size. The
+    slope against the batch size is the cost per path in flight (fixed costs, e.g. next-event estimation's chunk of
+    core.integrator.NEE_CHUNK paths, fall out of it); bytes_per_path: the largest batch's peak over its paths."""
+    from ..core import render as render_mod
+
+    traced = render_mod._TileRender._trace_batch
+    peaks: list[tuple[int, int]] = []
+
+    def measured(self, segments):
+        start = tracemalloc.get_traced_memory()[0]
         tracemalloc.reset_peak()
-        st = render(scene, _settings(spp=spp, threads=1, batch_paths=batch, tile_size=64)).stats
-        _, peak = tracemalloc.get_traced_memory()
-        tracemalloc.stop()
-        rows.append({"batch_paths": batch, "largest_batch": st["largest_batch"], "peak_mb": peak / 2**20})
-    # Slope of peak memory against paths in flight: the per-path cost, independent of image and spp.
+        out = traced(self, segments)
+        peaks.append((tracemalloc.get_traced_memory()[1] - start, sum(len(seg.loc) for seg in segments)))
+        return out
+
+    rows = []
+    render_mod._TileRender._trace_batch = measured
+    try:
+        for batch in batches:
+            peaks.clear()
+            # enough samples for full batches of this size (core.schedule.batch_target makes at least 8)
+            spp_here = max(spp, -(-8 * batch // (resolution * resolution)))
+            tracemalloc.start()
+            try:
+                st = render(cornell_box((resolution, resolution)),
+                            _settings(spp=spp_here, threads=1, batch_paths=batch, tile_size=64)).stats
+            finally:
+                tracemalloc.stop()
+            peak, paths = max(peaks)
+            rows.append({"batch_paths": batch, "largest_batch": st["largest_batch"], "peak_mb": peak / 2**20,
+                         "bytes_per_path": peak / paths})
+    finally:
+        render_mod._TileRender._trace_batch = traced
     x = np.array([r["largest_batch"] for r in rows], float)
     y = np.array([r["peak_mb"] for r in rows], float)
     slope = float(np.polyfit(x / 1e6, y, 1)[0]) if len(rows) > 1 else float(y[0] / (x[0] / 1e6))
-    return {"rows": rows, "mb_per_million_paths": slope}
+    return {"rows": rows, "mb_per_million_paths": slope, "bytes_per_path": rows[-1]["bytes_per_path"]}
 
 
 def _with_unused_glass(scene):
@@ -141,10 +166,11 @@ def run_perf(args: argparse.Namespace) -> dict:
         print("Thread scaling (best of %d): " % args.repeat + ", ".join(
             f"{n}: {v / 1e3:.0f} k/s ({r['speedup'][n]:.2f}x)" for n, v in r["samples_per_second"].items()))
     if "memory" in sections:
-        r = report["memory"] = memory_per_batch(256, 32, [1 << 14, 1 << 16, 1 << 17])
-        print("Peak NumPy memory by batch size: " + ", ".join(
-            f"{row['largest_batch']} paths: {row['peak_mb']:.0f} MB" for row in r["rows"])
-            + f"; {r['mb_per_million_paths']:.0f} MB per million paths in flight (x worker threads)")
+        r = report["memory"] = memory_per_batch(args.memory_resolution, 1, args.memory_batches)
+        print("Peak NumPy memory of a batch by its size: " + ", ".join(
+            f"{row['largest_batch']} paths: {row['peak_mb']:.1f} MB" for row in r["rows"])
+            + f"; paths in flight {r['mb_per_million_paths']:.0f} MB per million (x worker threads; "
+            f"{r['bytes_per_path']:.0f} B per path in the largest batch)")
     if "skip" in sections:
         r = report["skip"] = feature_skip(res, spp, threads, args.repeat)
         print(f"Unused glass material: {r['seconds_plain']:.2f} s without, {r['seconds_unused_glass']:.2f} s with "
@@ -197,4 +223,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--adaptive-spp", type=int, default=256, help="spp of the adaptive comparison (128x128 image)")
     p.add_argument("--node-points", type=int, default=1 << 16,
                    help="shading points per program run in the nodes section (default 65536)")
+    p.add_argument("--memory-batches", type=int, nargs="+", default=[1 << 15, 1 << 16, 1 << 17, 1 << 18],
+                   help="batch sizes (paths) of the memory section (default 32768 65536 131072 262144)")
+    p.add_argument("--memory-resolution", type=int, default=256,
+                   help="square image size of the memory section (default 256)")
     p.add_argument("--json", help="also write the numbers to this JSON file")
