@@ -87,6 +87,10 @@ def _background_world(node, world, name: str, warnings: list[str]) -> World:
         warnings.append(f"world {name!r}: node {node.name!r} ({node.bl_label}) is not supported on the world "
                         "surface; using the world's viewport colour as a uniform background")
         return World(np.array(world.color[:3], dtype=np.float64))
+    if _needs_program(node):
+        programmed = _program_world(node, world, name, warnings)
+        if programmed is not None:
+            return programmed
     strength = float(socket_value(node.inputs["Strength"], f"world {name!r}", warnings))
     src = follow_link(node.inputs["Color"])
     factor = np.ones(3)
@@ -109,6 +113,105 @@ def _background_world(node, world, name: str, warnings: list[str]) -> World:
         return World(np.maximum(np.array(node.inputs["Color"].default_value[:3], np.float64) * strength, 0.0))
     color = _background_color(node.inputs["Color"], name, warnings)
     return World(np.maximum(color * strength, 0.0))
+
+
+# Nodes a world program cannot express (their direct uses are the cases above): a graph holding one keeps the
+# documented fallback.
+_NOT_IN_PROGRAMS = {"ShaderNodeTexEnvironment": "Environment Texture", "ShaderNodeTexSky": "Sky Texture"}
+
+
+def _needs_program(background) -> bool:
+    """Whether the Background's Color or Strength is driven by a node graph none of the direct cases covers
+    (uniform colour, Environment Texture, Sky Texture, an Image Texture's average, a constant Multiply of an
+    Environment Texture; a Value node on Strength)."""
+    strength = follow_link(background.inputs["Strength"])
+    if strength is not None and strength.bl_idname != "ShaderNodeValue":
+        return True
+    src = follow_link(background.inputs["Color"])
+    if src is None or src.bl_idname in ("ShaderNodeTexEnvironment", "ShaderNodeTexSky", "ShaderNodeTexImage"):
+        return False
+    if src.bl_idname in ("ShaderNodeMix", "ShaderNodeMixRGB") and _constant_multiply(src)[0] is not None:
+        return False
+    return True
+
+
+def _upstream_node(node, kinds: dict, seen: set | None = None):
+    """The first node of a type in `kinds` feeding `node` (through links, not into node groups), or None."""
+    seen = set() if seen is None else seen
+    for sock in node.inputs:
+        for link in getattr(sock, "links", ()):
+            src = link.from_node
+            if src.as_pointer() in seen:
+                continue
+            seen.add(src.as_pointer())
+            if src.bl_idname in kinds:
+                return src
+            found = _upstream_node(src, kinds, seen)
+            if found is not None:
+                return found
+    return None
+
+
+def _program_world(background, world, name: str, warnings: list[str]) -> World | None:
+    """The Background's colour x strength compiled as a node program (the material compiler, Cycles' background
+    shading context: core.world_program) and baked into an equirectangular environment map that lights the
+    scene (importance sampled) and is what escaping rays see. None (warned) when the graph holds a node a program
+    cannot express; the caller then falls back as documented."""
+    from ...core.shading import registry as R
+    from ...core.world_program import bake_world_program
+    from .material import image_rgba
+    from .nodes.compiler import FLOAT, RGBA, CompileError, Ctx, ProgramBuilder
+
+    blocker = _upstream_node(background, _NOT_IN_PROGRAMS)
+    if blocker is not None:
+        warnings.append(f"world {name!r}: node {blocker.name!r} ({_NOT_IN_PROGRAMS[blocker.bl_idname]}) inside a "
+                        "world node graph is not supported (only directly on the Background, or times a constant "
+                        "colour)")
+        return None
+    owner = f"world {name!r}"
+    textures: list = []
+    by_image: dict = {}
+
+    def image_texture(node, alpha_used):
+        image = node.image
+        if image is None:
+            warnings.append(f"{owner}: image texture {node.name!r} has no image; using Cycles' missing-texture "
+                            "colour (magenta)")
+            return None, 0
+        key = image.as_pointer()
+        if key not in by_image:
+            try:
+                pixels, encoded = image_rgba(image, warnings)
+            except Exception as exc:  # missing file, unreadable image
+                warnings.append(f"{owner}: node {node.name!r}: image {image.name!r} could not be read ({exc}); "
+                                "using Cycles' missing-texture colour (magenta)")
+                return None, 0
+            from ...core.scene import Texture
+
+            textures.append(Texture(image.name, np.where(np.isfinite(pixels), pixels, np.float32(0))))
+            by_image[key] = (len(textures) - 1, 2 if encoded else 0)
+        return by_image[key]
+
+    builder = ProgramBuilder(owner, warnings, textures, image_texture)
+    try:
+        colour = builder.input(background, "Color", RGBA, Ctx())
+        strength = builder.input(background, "Strength", FLOAT, Ctx())
+        emission = builder.vmath("SCALE", colour, scale=strength)
+        program = builder.finish(np.zeros((0, 6), np.int32), emission)
+    except CompileError as exc:
+        warnings.append(f"{owner}: the background's node graph could not be compiled ({exc}); using the socket's "
+                        "own colour as a uniform background")
+        return None
+    program.validate(owner, 0, len(textures))
+    if len(program.code) and np.any(program.code[:, 0] == R.OP_LIGHT_PATH):
+        warnings.append(f"{owner}: a Light Path node read in the background's colour is evaluated as for a light "
+                        "sample (no ray flags set); the camera sees the same world")
+    pixels = bake_world_program(program, textures)
+    method = getattr(getattr(world, "cycles", None), "sampling_method", "AUTOMATIC")
+    resolution = int(getattr(world.cycles, "sample_map_resolution", 1024)) if method == "MANUAL" else 0
+    env = EnvironmentMap(pixels=pixels, projection="EQUIRECTANGULAR", interpolation="LINEAR", matrix=np.eye(3),
+                         map_resolution=resolution, importance_sampling=method != "NONE", name=f"{name}/program")
+    return World(np.zeros(3), environment=env)
 
 
 # Sky types baked into an environment map (core.sky); the others warn by name and fall back.
