@@ -3,7 +3,8 @@ Color Ramp), compiled as a node program and baked into an environment map (core.
 an equirectangular panoramic camera looking at the world alone (per pixel: at most 1 % of pixels with |z| > 5,
 means within max(4 sigma, 0.5 %), see tests/test_crosscheck.py's `check`), and a diffuse floor and sphere lit by
 the Gradient world. The Background's own colour is a saturated red no program yields: a world that fell back to
-it fails every check by far. About 30 s in all.
+it fails every check by far. Is Camera Ray in the colour graph (or a Mix Shader of Backgrounds by it) gives a
+camera-only backdrop map over the light. The Noise panorama is slow: `pytest -m slow tests/test_world_programs.py`.
 """
 
 from __future__ import annotations
@@ -80,7 +81,7 @@ def panorama_scene(texture: str):
     return scene
 
 
-@pytest.mark.parametrize("texture", ["gradient", "noise"])
+@pytest.mark.parametrize("texture", ["gradient", pytest.param("noise", marks=pytest.mark.slow)])
 def test_a_program_world_seen_through_a_panorama_matches_cycles_per_pixel(texture, tmp_path):
     check(panorama_scene(texture), tmp_path, "small")
 
@@ -96,4 +97,69 @@ def test_a_gradient_world_lights_a_diffuse_scene_as_in_cycles(tmp_path):
     bs._finish(scene, (32, 32))
     world, warnings = _export_world(scene)
     assert warnings == [] and world.environment is not None
+    check(scene, tmp_path, "small", max_bounces=4)
+
+
+def camera_backdrop_world(scene):
+    """Is Camera Ray mixing, inside the colour graph, the Gradient world (what the camera sees) over a uniform
+    grey-blue (what lights the scene)."""
+    world = gradient_world(scene)
+    tree = world.node_tree
+    background = tree.nodes["Background"]
+    ramp = background.inputs["Color"].links[0].from_node
+    mix = tree.nodes.new("ShaderNodeMix")
+    mix.data_type = "RGBA"
+    colours = [sk for sk in mix.inputs if sk.type == "RGBA" and sk.enabled]
+    colours[0].default_value = (0.3, 0.35, 0.4, 1.0)
+    path = tree.nodes.new("ShaderNodeLightPath")
+    tree.links.new(path.outputs["Is Camera Ray"], mix.inputs[0])
+    tree.links.new(ramp.outputs["Color"], colours[1])
+    tree.links.new(mix.outputs["Result"], background.inputs["Color"])
+    return world
+
+
+def test_is_camera_ray_in_the_colour_graph_gives_a_camera_only_backdrop():
+    """The program baked twice: with the camera flag (World.camera_environment: the gradient) and without it
+    (the light: the uniform colour x strength)."""
+    scene = bs.reset()
+    camera_backdrop_world(scene)
+    world, warnings = _export_world(scene)
+    assert warnings == []
+    np.testing.assert_allclose(world.environment.pixels, np.broadcast_to(1.5 * np.array([0.3, 0.35, 0.4]),
+                                                                         world.environment.pixels.shape), rtol=1e-6)
+    seen = world.camera_environment.pixels
+    assert seen.shape == (512, 1024, 3) and seen[..., 2].min() < 0.35 * 1.5 < seen[..., 0].max()
+
+
+def test_a_mix_shader_camera_backdrop_may_be_a_program():
+    """Mix Shader (Is Camera Ray) of a uniform Background (the light) and a Gradient one (what the camera sees):
+    the camera's Background is baked into World.camera_environment, without a warning."""
+    scene = bs.reset()
+    world = gradient_world(scene)
+    tree = world.node_tree
+    seen = tree.nodes["Background"]
+    light = tree.nodes.new("ShaderNodeBackground")
+    light.inputs["Color"].default_value = (0.2, 0.2, 0.2, 1.0)
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    path = tree.nodes.new("ShaderNodeLightPath")
+    tree.links.new(path.outputs["Is Camera Ray"], mix.inputs[0])
+    tree.links.new(light.outputs[0], mix.inputs[1])
+    tree.links.new(seen.outputs[0], mix.inputs[2])
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputWorld")
+    tree.links.new(mix.outputs[0], output.inputs["Surface"])
+    got, warnings = _export_world(scene)
+    assert warnings == [] and got.environment is None and got.camera_environment is not None
+    np.testing.assert_allclose(got.color, 0.2, rtol=1e-6)
+
+
+def test_a_camera_only_gradient_backdrop_over_a_uniform_light_as_in_cycles(tmp_path):
+    """A diffuse sphere on a floor lit by the uniform colour while the camera sees the gradient behind them."""
+    scene = bs.reset()
+    s = 4.0
+    bs.mesh_object("floor", [(-s, -s, -1), (s, -s, -1), (s, s, -1), (-s, s, -1)], [(0, 1, 2, 3)],
+                   bs.diffuse("floor", (0.6, 0.6, 0.6)))
+    bs.icosphere_object("ball", (0, 0, 0), 1.0, bs.diffuse("ball", (0.7, 0.7, 0.7)))
+    bs.camera_object(scene, (0, -5, 0.5), (math.radians(84), 0, 0.5), lens=25.0)
+    camera_backdrop_world(scene)
+    bs._finish(scene, (32, 32))
     check(scene, tmp_path, "small", max_bounces=4)

@@ -7,12 +7,16 @@ location ignored, as for any direction) fed by Texture Coordinate Generated (or 
 (Color, Multiply) with a constant colour. The image's pixels come
 through bpy (packed or on disk, its colour space applied); Strength multiplies it. Cycles' world sampling
 settings (`world.cycles.sampling_method`, `sample_map_resolution`) choose the importance map's resolution.
-Anything else warns and falls back: an Image Texture or other node on the colour -> its average colour or the
-socket's colour; a missing or unreadable image -> the Background's own colour. A Sky Texture (Preetham, Hosek-Wilkie,
+Any other graph on the Background's Color or Strength (Gradient, Noise, Color Ramp, Mix, Layer Weight, ...) is
+compiled as a node program (the material compiler) and baked over directions into an equirectangular map
+(core.world_program: Cycles' background context), which lights the scene and is what escaping rays see; Is Camera
+Ray read in it gives a camera-only map (World.camera_environment). A graph holding an Environment or Sky Texture
+elsewhere than directly on the Background warns and falls back to the socket's colour; an Image Texture directly
+on the colour -> its average colour (warned); a missing or unreadable image -> the Background's own colour. A Sky Texture (Preetham, Hosek-Wilkie,
 Single Scattering / Nishita, Multiple Scattering: core.sky) is baked into an equirectangular environment map, a
 scattering sky's sun disc made a sun light; a type not built warns by name and renders the socket's colour. No node tree: the world's viewport colour; no world at all: black. The Light Path trick of a
 backdrop that differs from the light (a Mix Shader of two Backgrounds by Is Camera Ray) gives the world a
-camera-only colour (core World.camera_color).
+camera-only colour or map (core World.camera_color / camera_environment).
 """
 
 from __future__ import annotations
@@ -61,8 +65,9 @@ def export_world(world, warnings: list[str]) -> World:
 
 def _camera_backdrop(mix, world, name: str, warnings: list[str]) -> World | None:
     """The Light Path > Is Camera Ray trick: a Mix Shader whose factor is Is Camera Ray, of two Backgrounds (or
-    nothing: black): the first lights the scene, the second is what the camera sees (uniform; an environment
-    map there warns and the camera sees the light's world). None for any other surface."""
+    nothing: black): the first lights the scene, the second is what the camera sees (uniform, or a map:
+    World.camera_environment; a sun disc of a Sky Texture seen only by the camera is not drawn). None for any
+    other surface."""
     if mix.bl_idname != "ShaderNodeMixShader" or not mix.inputs[0].is_linked:
         return None
     link = mix.inputs[0].links[0]
@@ -73,11 +78,13 @@ def _camera_backdrop(mix, world, name: str, warnings: list[str]) -> World | None
         return None
     light, seen = (World(np.zeros(3)) if s is None else _background_world(s, world, name, warnings)
                    for s in shaders)
+    if seen.lights:
+        warnings.append(f"world {name!r}: the sun disc of a sky seen only by the camera (Light Path Is Camera Ray) "
+                        "is not drawn")
     if seen.environment is not None:
-        warnings.append(f"world {name!r}: an environment map seen only by the camera (Light Path Is Camera Ray) is "
-                        "not supported; the camera sees the world that lights the scene")
-        return light
-    light.camera_color = np.asarray(seen.color, np.float64)
+        light.camera_environment = seen.environment
+    else:
+        light.camera_color = np.asarray(seen.color, np.float64)
     return light
 
 
@@ -158,6 +165,7 @@ def _program_world(background, world, name: str, warnings: list[str]) -> World |
     scene (importance sampled) and is what escaping rays see. None (warned) when the graph holds a node a program
     cannot express; the caller then falls back as documented."""
     from ...core.shading import registry as R
+    from ...core.shading.program import RAY_CAMERA, RAY_DIFFUSE, RAY_REFLECT
     from ...core.world_program import bake_world_program
     from .material import image_rgba
     from .nodes.compiler import FLOAT, RGBA, CompileError, Ctx, ProgramBuilder
@@ -203,15 +211,28 @@ def _program_world(background, world, name: str, warnings: list[str]) -> World |
                         "own colour as a uniform background")
         return None
     program.validate(owner, 0, len(textures))
-    if len(program.code) and np.any(program.code[:, 0] == R.OP_LIGHT_PATH):
-        warnings.append(f"{owner}: a Light Path node read in the background's colour is evaluated as for a light "
-                        "sample (no ray flags set); the camera sees the same world")
-    pixels = bake_world_program(program, textures)
     method = getattr(getattr(world, "cycles", None), "sampling_method", "AUTOMATIC")
     resolution = int(getattr(world.cycles, "sample_map_resolution", 1024)) if method == "MANUAL" else 0
-    env = EnvironmentMap(pixels=pixels, projection="EQUIRECTANGULAR", interpolation="LINEAR", matrix=np.eye(3),
-                         map_resolution=resolution, importance_sampling=method != "NONE", name=f"{name}/program")
-    return World(np.zeros(3), environment=env)
+
+    def as_map(pixels, label):
+        return EnvironmentMap(pixels=pixels, projection="EQUIRECTANGULAR", interpolation="LINEAR",
+                              matrix=np.eye(3), map_resolution=resolution, importance_sampling=method != "NONE",
+                              name=f"{name}/{label}")
+
+    pixels = bake_world_program(program, textures)  # the light: as a light sample sees it (no ray flags)
+    got = World(np.zeros(3), environment=as_map(pixels, "program"))
+    if len(program.code) and np.any(program.code[:, 0] == R.OP_LIGHT_PATH):
+        # Is Camera Ray: the camera sees the program with the camera flag set (a backdrop that differs from the
+        # light). The other outputs are those of a light sample (Cycles' BSDF rays that escape read their own).
+        seen = bake_world_program(program, textures, path_flags=RAY_CAMERA)
+        if not np.array_equal(seen, pixels):
+            got.camera_environment = as_map(seen, "program (camera)")
+        bounce = bake_world_program(program, textures, path_flags=RAY_DIFFUSE | RAY_REFLECT)
+        if not np.array_equal(bounce, pixels):
+            warnings.append(f"{owner}: Light Path outputs other than Is Camera Ray in the background's colour are "
+                            "read as for a light sample (not a diffuse or glossy ray); the world lights the scene "
+                            "as a light sample sees it")
+    return got
 
 
 # Sky types baked into an environment map (core.sky); the others warn by name and fall back.
