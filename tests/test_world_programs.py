@@ -163,3 +163,32 @@ def test_a_camera_only_gradient_backdrop_over_a_uniform_light_as_in_cycles(tmp_p
     camera_backdrop_world(scene)
     bs._finish(scene, (32, 32))
     check(scene, tmp_path, "small", max_bounces=4)
+
+
+def test_a_mix_shader_of_backgrounds_by_a_texture_is_baked():
+    """Mix Shader of two Backgrounds by a Linear Gradient on Generated (D.x clamped): each texel is
+    (1 - f) a sa + f b sb, without a warning."""
+    from monte.core.sky import equirectangular_directions
+
+    scene = bs.reset()
+    world = bs.set_world(scene, (0.8, 0.2, 0.1), 1.0)
+    tree = world.node_tree
+    first = tree.nodes["Background"]
+    second = tree.nodes.new("ShaderNodeBackground")
+    second.inputs["Color"].default_value = (0.1, 0.3, 0.9, 1.0)
+    second.inputs["Strength"].default_value = 2.0
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    gradient = tree.nodes.new("ShaderNodeTexGradient")
+    coords = tree.nodes.new("ShaderNodeTexCoord")
+    tree.links.new(coords.outputs["Generated"], gradient.inputs["Vector"])
+    tree.links.new(gradient.outputs["Fac"], mix.inputs[0])
+    tree.links.new(first.outputs[0], mix.inputs[1])
+    tree.links.new(second.outputs[0], mix.inputs[2])
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputWorld")
+    tree.links.new(mix.outputs[0], output.inputs["Surface"])
+    got, warnings = _export_world(scene)
+    assert warnings == [] and got.environment is not None and got.camera_environment is None
+    d = equirectangular_directions(1024)
+    f = np.clip(d[..., 0], 0.0, 1.0)[..., None]
+    want = (1 - f) * np.array([0.8, 0.2, 0.1]) + f * 2.0 * np.array([0.1, 0.3, 0.9])
+    np.testing.assert_allclose(got.environment.pixels, want, atol=2e-5)

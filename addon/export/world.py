@@ -60,7 +60,26 @@ def export_world(world, warnings: list[str]) -> World:
     backdrop = _camera_backdrop(node, world, name, warnings)
     if backdrop is not None:
         return backdrop
+    if node.bl_idname in _SHADER_MIXES and _only_backgrounds(node):
+        programmed = _program_world(node, world, name, warnings)
+        if programmed is not None:
+            return programmed
     return _background_world(node, world, name, warnings)
+
+
+_SHADER_MIXES = ("ShaderNodeMixShader", "ShaderNodeAddShader")
+
+
+def _only_backgrounds(node, depth: int = 0) -> bool:
+    """Whether the shader tree at `node` is Mix / Add Shaders of Background nodes (or nothing) alone."""
+    if depth > 32:
+        return False
+    if node.bl_idname == "ShaderNodeBackground":
+        return True
+    if node.bl_idname not in _SHADER_MIXES:
+        return False
+    socks = node.inputs[1:3] if node.bl_idname == "ShaderNodeMixShader" else node.inputs[0:2]
+    return all(src is None or _only_backgrounds(src, depth + 1) for src in (follow_link(sk) for sk in socks))
 
 
 def _camera_backdrop(mix, world, name: str, warnings: list[str]) -> World | None:
@@ -159,16 +178,43 @@ def _upstream_node(node, kinds: dict, seen: set | None = None):
     return None
 
 
+def _world_radiance(c, node, ctx, w: int, acc: int, depth: int = 0) -> int:
+    """acc + w x the radiance of the world shader `node` (a Background: colour x strength; Mix / Add Shaders of
+    them), as registers of the ProgramBuilder c."""
+    from .nodes.compiler import FLOAT, RGBA, CompileError
+
+    if depth > 32:
+        raise CompileError("the world's shaders nest too deeply")
+    kind = node.bl_idname
+    if kind == "ShaderNodeBackground":
+        return c.vmath("ADD", acc, c.vmath("SCALE", c.input(node, "Color", RGBA, ctx),
+                                           scale=c.math("MULTIPLY", w, c.input(node, "Strength", FLOAT, ctx))))
+    if kind not in _SHADER_MIXES:
+        raise CompileError(f"node {node.name!r} ({node.bl_label}) is not supported on the world surface")
+    if kind == "ShaderNodeMixShader":
+        fac = c.math("MINIMUM", c.math("MAXIMUM", c.input(node, 0, FLOAT, ctx), c.const(0.0)), c.const(1.0))
+        parts = ((node.inputs[1], c.math("MULTIPLY", w, c.math("SUBTRACT", c.const(1.0), fac))),
+                 (node.inputs[2], c.math("MULTIPLY", w, fac)))
+    else:
+        parts = ((node.inputs[0], w), (node.inputs[1], w))
+    for sock, weight in parts:
+        found = c.source(sock, ctx)
+        if found[0] != "default":
+            acc = _world_radiance(c, found[1], found[3], weight, acc, depth + 1)
+    return acc
+
+
 def _program_world(background, world, name: str, warnings: list[str]) -> World | None:
-    """The Background's colour x strength compiled as a node program (the material compiler, Cycles' background
-    shading context: core.world_program) and baked into an equirectangular environment map that lights the
-    scene (importance sampled) and is what escaping rays see. None (warned) when the graph holds a node a program
-    cannot express; the caller then falls back as documented."""
+    """The radiance of the world shader `background` (a Background's colour x strength, or Mix / Add Shaders of
+    Backgrounds) compiled as a node program (the material compiler, Cycles' background shading context:
+    core.world_program) and baked into an equirectangular environment map that lights the scene (importance
+    sampled) and is what escaping rays see. None (warned) when the graph holds a node a program cannot express;
+    the caller then falls back as documented."""
     from ...core.shading import registry as R
     from ...core.shading.program import RAY_CAMERA, RAY_DIFFUSE, RAY_REFLECT
     from ...core.world_program import bake_world_program
     from .material import image_rgba
-    from .nodes.compiler import FLOAT, RGBA, CompileError, Ctx, ProgramBuilder
+    from .nodes.compiler import CompileError, Ctx, ProgramBuilder
 
     blocker = _upstream_node(background, _NOT_IN_PROGRAMS)
     if blocker is not None:
@@ -202,13 +248,10 @@ def _program_world(background, world, name: str, warnings: list[str]) -> World |
 
     builder = ProgramBuilder(owner, warnings, textures, image_texture)
     try:
-        colour = builder.input(background, "Color", RGBA, Ctx())
-        strength = builder.input(background, "Strength", FLOAT, Ctx())
-        emission = builder.vmath("SCALE", colour, scale=strength)
+        emission = _world_radiance(builder, background, Ctx(), builder.const(1.0), builder.const(0.0))
         program = builder.finish(np.zeros((0, 6), np.int32), emission)
     except CompileError as exc:
-        warnings.append(f"{owner}: the background's node graph could not be compiled ({exc}); using the socket's "
-                        "own colour as a uniform background")
+        warnings.append(f"{owner}: the world's node graph could not be compiled ({exc}); falling back")
         return None
     program.validate(owner, 0, len(textures))
     method = getattr(getattr(world, "cycles", None), "sampling_method", "AUTOMATIC")
