@@ -192,3 +192,17 @@ def test_a_mix_shader_of_backgrounds_by_a_texture_is_baked():
     f = np.clip(d[..., 0], 0.0, 1.0)[..., None]
     want = (1 - f) * np.array([0.8, 0.2, 0.1]) + f * 2.0 * np.array([0.1, 0.3, 0.9])
     np.testing.assert_allclose(got.environment.pixels, want, atol=2e-5)
+
+
+def test_camera_coordinates_on_the_world_warn_by_name():
+    """Texture Coordinate Camera on the world (Cycles: the direction in camera space) is not built: a warning
+    naming the world and the outputs; the rest of the graph still renders."""
+    scene = bs.reset()
+    world = bs.set_world(scene, (0.1, 0.2, 0.3), 1.0)
+    tree = world.node_tree
+    coords = tree.nodes.new("ShaderNodeTexCoord")
+    tree.links.new(coords.outputs["Camera"], tree.nodes["Background"].inputs["Color"])
+    got, warnings = _export_world(scene)
+    assert got.environment is not None
+    assert warnings == ["world 'World': Texture Coordinate Camera / Window on the world are not supported; they "
+                        "read the ray direction (Camera) and 0 (Window)"]

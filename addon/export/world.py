@@ -254,6 +254,11 @@ def _program_world(background, world, name: str, warnings: list[str]) -> World |
         warnings.append(f"{owner}: the world's node graph could not be compiled ({exc}); falling back")
         return None
     program.validate(owner, 0, len(textures))
+    texcoord = R.op("texture_coordinate")
+    rows = program.code[program.code[:, 0] == R.OP_TEXCOORD] if len(program.code) else program.code
+    if len(rows) and np.any(rows[:, [texcoord.slot("camera"), texcoord.slot("window")]] >= 0):
+        warnings.append(f"{owner}: Texture Coordinate Camera / Window on the world are not supported; they read "
+                        "the ray direction (Camera) and 0 (Window)")
     method = getattr(getattr(world, "cycles", None), "sampling_method", "AUTOMATIC")
     resolution = int(getattr(world.cycles, "sample_map_resolution", 1024)) if method == "MANUAL" else 0
 
