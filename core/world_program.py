@@ -55,7 +55,25 @@ def evaluate_world_program(program: ShadingProgram, directions: np.ndarray, text
 def bake_world_program(program: ShadingProgram, textures=(), width: int = SKY_BAKE_WIDTH,
                        path_flags: int = 0) -> np.ndarray:
     """The (width // 2, width, 3) float32 equirectangular map (row 0 at the top) of the world program's radiance,
-    non-finite values read as 0 (Cycles' background ignores them)."""
+    non-finite values read as 0 (Cycles' background ignores them). The last few bakes of programs without
+    textures are kept (a viewport re-exports the world on every change elsewhere); each call returns its own
+    copy."""
+    key = None
+    if not len(textures):
+        key = (program.code.tobytes(), program.registers.tobytes(), program.data.tobytes(), program.emission,
+               int(width), int(path_flags))
+        hit = _BAKED.get(key)
+        if hit is not None:
+            return hit.copy()
     d = equirectangular_directions(width)
     pixels = evaluate_world_program(program, d.reshape(-1, 3), textures, path_flags).reshape(d.shape)
-    return np.where(np.isfinite(pixels), pixels, np.float32(0)).astype(np.float32)
+    pixels = np.where(np.isfinite(pixels), pixels, np.float32(0)).astype(np.float32)
+    if key is not None:
+        while len(_BAKED) >= _KEEP:
+            _BAKED.pop(next(iter(_BAKED)))
+        _BAKED[key] = pixels.copy()
+    return pixels
+
+
+_KEEP = 4
+_BAKED: dict = {}

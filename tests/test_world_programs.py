@@ -206,3 +206,21 @@ def test_camera_coordinates_on_the_world_warn_by_name():
     assert got.environment is not None
     assert warnings == ["world 'World': Texture Coordinate Camera / Window on the world are not supported; they "
                         "read the ray direction (Camera) and 0 (Window)"]
+
+
+def test_a_re_export_reuses_the_bake(monkeypatch):
+    """The second export of the same world reads the kept bake (the program is not evaluated again): equal
+    pixels, its own array."""
+    from monte.core import world_program
+
+    scene = bs.reset()
+    gradient_world(scene, "noise")
+    first, _ = _export_world(scene)
+
+    def no_second_bake(*args, **kwargs):
+        raise AssertionError("the world program was baked again")
+
+    monkeypatch.setattr(world_program, "evaluate_world_program", no_second_bake)
+    second, _ = _export_world(scene)
+    assert second.environment.pixels is not first.environment.pixels
+    np.testing.assert_array_equal(second.environment.pixels, first.environment.pixels)
