@@ -36,6 +36,7 @@ from .scene import Scene
 from .settings import RenderSettings
 from .shading import PreparedShading
 from .textured_emitters import TexturedEmitters
+from .world import environment_radiance
 from .shading.program import (ATTRIBUTE_COLUMNS, MESH_ATTRIBUTE_COLUMNS, PATH_COLUMNS, PATH_DEPTH, PATH_FLAGS,
                               PATH_LENGTH, RAY_CAMERA)
 from .shading.vector_context import VectorNeeds, vector_context
@@ -935,7 +936,8 @@ class PathTracer:
                 # Rays that still count as transparent and escape: alpha 0 and no world colour.
                 gone = np.flatnonzero(~hit & clear_here)
                 transparent[idx[gone]] += throughput[gone].mean(axis=1)
-            if ps.lights.has_emission or ps.scene.world.camera_color is not None:
+            if ps.lights.has_emission or ps.scene.world.camera_color is not None \
+                    or ps.scene.world.camera_environment is not None:
                 mis_here = self.mis and depth > 0
                 t_hit = np.where(hit, hits.t, np.float32(np.inf))
                 classes = None if origin_class is None or depth == 0 else origin_class[idx]
@@ -951,11 +953,15 @@ class PathTracer:
                                            prev_transmits, clear_here if film_transparent else None, classes,
                                            kinds, camera_rays)
                 backdrop = ps.scene.world.camera_color
-                if np.any(camera_rays) and backdrop is not None and not film_transparent:
+                backdrop_map = ps.scene.world.camera_environment
+                if np.any(camera_rays) and (backdrop is not None or backdrop_map is not None) \
+                        and not film_transparent:
                     # camera rays that escape see the world's camera-only backdrop instead of the background
                     gone = np.flatnonzero(~hit & camera_rays)
                     if len(gone):
-                        le[gone] = np.asarray(backdrop, np.float32) + self.ps.lights.intersect(
+                        seen = (environment_radiance(backdrop_map, d[gone]) if backdrop_map is not None
+                                else np.asarray(backdrop, np.float32))
+                        le[gone] = seen + self.ps.lights.intersect(
                             o[gone], d[gone], np.full(len(gone), np.inf, np.float32), prev_pdf[gone],
                             prev_delta[gone], False, camera=True, world=False)
                 if depth > 0 and not self.use_bsdf_emission:

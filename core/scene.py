@@ -536,7 +536,9 @@ class World:
     strength), or, when `environment` is set, that image (core.world.EnvironmentMap, its Background strength
     folded into its `strength`) in place of the colour. camera_color: optional (3,) radiance that camera rays see
     where they escape, instead of the background (Blender's Light Path > Is Camera Ray mixing two Backgrounds: a
-    backdrop that differs from the light); None: the background.
+    backdrop that differs from the light); None: the background. camera_environment: optional map
+    (core.world.EnvironmentMap, its strength folded in) that camera rays see in its place, taking precedence over
+    camera_color (the same trick with a direction-varying backdrop); it lights nothing.
     portals: (P, 4, 3) float64 light portals (Cycles' area lights marked Portal), each a parallelogram: its
     centre, its two full edge vectors (world units) and the unit normal pointing to the side it lets the world
     in (the area light's emission direction); None: none. They emit nothing and no ray sees them: shading
@@ -545,6 +547,7 @@ class World:
     color: np.ndarray = field(default_factory=lambda: np.zeros(3))
     environment: EnvironmentMap | None = None
     camera_color: np.ndarray | None = None
+    camera_environment: EnvironmentMap | None = None
     portals: np.ndarray | None = None
     # Lights that belong to the world (a Sky Texture's sun disc, core.sky): the exporters add them to the
     # scene's lights; the world itself does not render them.
@@ -931,6 +934,11 @@ class Scene:
         self.world.color = _as_rgb(self.world.color, "world background")
         if self.world.camera_color is not None:
             self.world.camera_color = _as_rgb(self.world.camera_color, "world background seen by the camera")
+        if self.world.camera_environment is not None:
+            try:
+                self.world.camera_environment.validate(self.warnings)
+            except EnvironmentMapError as exc:
+                raise SceneError(str(exc)) from None
         if self.world.environment is not None:
             try:
                 self.world.environment.validate(self.warnings)

@@ -31,7 +31,7 @@ def _kernels():
 
 
 __all__ = ["EnvironmentMap", "EnvironmentMapError", "EnvironmentDistribution", "IMPORTANCE_FLOOR",
-           "MAX_IMPORTANCE_WIDTH", "portal_table"]
+           "MAX_IMPORTANCE_WIDTH", "environment_radiance", "portal_table"]
 
 # Share of the mean luminance added to every cell of the importance grid: where a cell's centre is black but its
 # texels are not (a small light between grid centres), light sampling keeps a chance to find it.
@@ -177,6 +177,20 @@ class EnvironmentDistribution:
         out = np.empty((d.shape[0], 3))
         _kernels().radiance_batch(self.tables[0], self.tables[1], d, out)
         return out
+
+
+def environment_radiance(env: EnvironmentMap, d: np.ndarray) -> np.ndarray:
+    """Radiance (N, 3) float32 of the map `env` (its matrix, projection, interpolation and strength) in unit world
+    directions d (N, 3): the lookup alone, no importance tables (the world's camera-only backdrop)."""
+    par = np.zeros(_kernels().E_FIELDS)
+    par[_kernels().E_M00:_kernels().E_M22 + 1] = np.asarray(env.matrix, np.float64).reshape(9)
+    par[_kernels().E_SR:_kernels().E_SB + 1] = env.strength
+    par[_kernels().E_MIRROR_BALL] = env.projection == "MIRROR_BALL"
+    par[_kernels().E_CLOSEST] = env.interpolation == "CLOSEST"
+    d = np.ascontiguousarray(np.asarray(d, np.float64).reshape(-1, 3))
+    out = np.empty((d.shape[0], 3))
+    _kernels().radiance_batch(np.ascontiguousarray(env.pixels, np.float32), par, d, out)
+    return out.astype(np.float32)
 
 
 def empty_tables() -> tuple:

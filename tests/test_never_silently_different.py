@@ -66,6 +66,15 @@ def _sky(scene, sky_type: str) -> None:
     tree.links.new(node.outputs["Color"], tree.nodes["Background"].inputs["Color"])
 
 
+def _gradient_world(scene) -> None:
+    """Texture Coordinate Generated -> Gradient Texture -> the world's Background colour (a node program)."""
+    tree = scene.world.node_tree
+    gradient = tree.nodes.new("ShaderNodeTexGradient")
+    coords = tree.nodes.new("ShaderNodeTexCoord")
+    tree.links.new(coords.outputs["Generated"], gradient.inputs["Vector"])
+    tree.links.new(gradient.outputs["Color"], tree.nodes["Background"].inputs["Color"])
+
+
 def _cycles_output(material_or_world):
     tree = material_or_world.node_tree
     return tree, next(n for n in tree.nodes if n.bl_idname in ("ShaderNodeOutputMaterial", "ShaderNodeOutputWorld"))
@@ -283,6 +292,9 @@ AUDIT = {
     "world volume": (lambda s: _volume(s.world), ("warns", ["world volumes"])),
     "world camera visibility": (lambda s: _set(s.world.cycles_visibility, camera=False),
                                 ("warns", ["world", "Camera"])),
+    "world gradient texture": (_gradient_world,
+                               ("renders", lambda c: c.world.environment is not None
+                                and c.world.environment.name == "World/program")),
     "sky texture preetham": (lambda s: _sky(s, "PREETHAM"),
                              ("renders", lambda c: c.world.environment is not None
                               and c.world.environment.pixels.shape == (512, 1024, 3))),

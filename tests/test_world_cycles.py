@@ -157,10 +157,10 @@ def test_unreadable_hdri_warns_with_world_and_path_and_renders_the_background_co
     assert "using the Background's own colour" in warnings[0]
 
 
-def test_a_direction_varying_node_warns_and_keeps_the_socket_colour():
-    """A world colour that varies with direction through a node Monte does not bake (a Gradient Texture on
-    Generated coordinates): a warning naming the world and the node, and the socket's own colour. (Every Sky
-    Texture type is built now: tests/test_sky.py.)"""
+def test_a_direction_varying_node_renders_through_a_baked_program():
+    """A world colour that varies with direction through other nodes (a Gradient Texture on Generated
+    coordinates) is compiled as a node program and baked into an equirectangular map, without a warning
+    (tests/test_world_programs.py compares it with Cycles)."""
     scene = bs.reset()
     world = bs.set_world(scene, (0.1, 0.2, 0.3), 1.0)
     tree = world.node_tree
@@ -169,10 +169,30 @@ def test_a_direction_varying_node_warns_and_keeps_the_socket_colour():
     tree.links.new(coords.outputs["Generated"], gradient.inputs["Vector"])
     tree.links.new(gradient.outputs["Color"], tree.nodes["Background"].inputs["Color"])
     got, warnings = _export_world(scene)
+    assert warnings == [] and got.environment is not None
+    assert got.environment.pixels.shape == (512, 1024, 3) and np.allclose(got.color, 0.0)
+
+
+def test_an_environment_texture_inside_a_world_graph_warns_and_keeps_the_socket_colour():
+    """The control: an Environment Texture mixed with a colour by a Layer Weight (a graph a world program cannot
+    express) warns naming the world and the node, and renders the socket's own colour."""
+    scene = bs.reset()
+    world = bs.set_environment_world(scene, bs.studio_hdri("forest"), 1.0)
+    tree = world.node_tree
+    background = tree.nodes["Background"]
+    background.inputs["Color"].default_value = (0.1, 0.2, 0.3, 1.0)
+    mix = tree.nodes.new("ShaderNodeMix")
+    mix.data_type = "RGBA"
+    weight = tree.nodes.new("ShaderNodeLayerWeight")
+    colours = [sk for sk in mix.inputs if sk.type == "RGBA" and sk.enabled]
+    tree.links.new(weight.outputs["Facing"], mix.inputs[0])
+    tree.links.new(tree.nodes["Environment Texture"].outputs["Color"], colours[0])
+    tree.links.new(mix.outputs["Result"], background.inputs["Color"])
+    got, warnings = _export_world(scene)
     assert got.environment is None
     np.testing.assert_allclose(got.color, (0.1, 0.2, 0.3), rtol=1e-6)
-    assert warnings == [f"world 'World': node {gradient.name!r} (Gradient Texture) driving the background colour is "
-                        "not supported; using the socket's own colour"]
+    assert warnings[0] == ("world 'World': node 'Environment Texture' (Environment Texture) inside a world node "
+                           "graph is not supported (only directly on the Background, or times a constant colour)")
 
 
 @pytest.mark.parametrize("factor", [1.0, 0.5])

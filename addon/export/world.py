@@ -7,12 +7,16 @@ location ignored, as for any direction) fed by Texture Coordinate Generated (or 
 (Color, Multiply) with a constant colour. The image's pixels come
 through bpy (packed or on disk, its colour space applied); Strength multiplies it. Cycles' world sampling
 settings (`world.cycles.sampling_method`, `sample_map_resolution`) choose the importance map's resolution.
-Anything else warns and falls back: an Image Texture or other node on the colour -> its average colour or the
-socket's colour; a missing or unreadable image -> the Background's own colour. A Sky Texture (Preetham, Hosek-Wilkie,
+Any other graph on the Background's Color or Strength (Gradient, Noise, Color Ramp, Mix, Layer Weight, ...) is
+compiled as a node program (the material compiler) and baked over directions into an equirectangular map
+(core.world_program: Cycles' background context), which lights the scene and is what escaping rays see; Is Camera
+Ray read in it gives a camera-only map (World.camera_environment). A graph holding an Environment or Sky Texture
+elsewhere than directly on the Background warns and falls back to the socket's colour; an Image Texture directly
+on the colour -> its average colour (warned); a missing or unreadable image -> the Background's own colour. A Sky Texture (Preetham, Hosek-Wilkie,
 Single Scattering / Nishita, Multiple Scattering: core.sky) is baked into an equirectangular environment map, a
 scattering sky's sun disc made a sun light; a type not built warns by name and renders the socket's colour. No node tree: the world's viewport colour; no world at all: black. The Light Path trick of a
 backdrop that differs from the light (a Mix Shader of two Backgrounds by Is Camera Ray) gives the world a
-camera-only colour (core World.camera_color).
+camera-only colour or map (core World.camera_color / camera_environment).
 """
 
 from __future__ import annotations
@@ -56,13 +60,33 @@ def export_world(world, warnings: list[str]) -> World:
     backdrop = _camera_backdrop(node, world, name, warnings)
     if backdrop is not None:
         return backdrop
+    if node.bl_idname in _SHADER_MIXES and _only_backgrounds(node):
+        programmed = _program_world(node, world, name, warnings)
+        if programmed is not None:
+            return programmed
     return _background_world(node, world, name, warnings)
+
+
+_SHADER_MIXES = ("ShaderNodeMixShader", "ShaderNodeAddShader")
+
+
+def _only_backgrounds(node, depth: int = 0) -> bool:
+    """Whether the shader tree at `node` is Mix / Add Shaders of Background nodes (or nothing) alone."""
+    if depth > 32:
+        return False
+    if node.bl_idname == "ShaderNodeBackground":
+        return True
+    if node.bl_idname not in _SHADER_MIXES:
+        return False
+    socks = node.inputs[1:3] if node.bl_idname == "ShaderNodeMixShader" else node.inputs[0:2]
+    return all(src is None or _only_backgrounds(src, depth + 1) for src in (follow_link(sk) for sk in socks))
 
 
 def _camera_backdrop(mix, world, name: str, warnings: list[str]) -> World | None:
     """The Light Path > Is Camera Ray trick: a Mix Shader whose factor is Is Camera Ray, of two Backgrounds (or
-    nothing: black): the first lights the scene, the second is what the camera sees (uniform; an environment
-    map there warns and the camera sees the light's world). None for any other surface."""
+    nothing: black): the first lights the scene, the second is what the camera sees (uniform, or a map:
+    World.camera_environment; a sun disc of a Sky Texture seen only by the camera is not drawn). None for any
+    other surface."""
     if mix.bl_idname != "ShaderNodeMixShader" or not mix.inputs[0].is_linked:
         return None
     link = mix.inputs[0].links[0]
@@ -73,11 +97,13 @@ def _camera_backdrop(mix, world, name: str, warnings: list[str]) -> World | None
         return None
     light, seen = (World(np.zeros(3)) if s is None else _background_world(s, world, name, warnings)
                    for s in shaders)
+    if seen.lights:
+        warnings.append(f"world {name!r}: the sun disc of a sky seen only by the camera (Light Path Is Camera Ray) "
+                        "is not drawn")
     if seen.environment is not None:
-        warnings.append(f"world {name!r}: an environment map seen only by the camera (Light Path Is Camera Ray) is "
-                        "not supported; the camera sees the world that lights the scene")
-        return light
-    light.camera_color = np.asarray(seen.color, np.float64)
+        light.camera_environment = seen.environment
+    else:
+        light.camera_color = np.asarray(seen.color, np.float64)
     return light
 
 
@@ -87,6 +113,10 @@ def _background_world(node, world, name: str, warnings: list[str]) -> World:
         warnings.append(f"world {name!r}: node {node.name!r} ({node.bl_label}) is not supported on the world "
                         "surface; using the world's viewport colour as a uniform background")
         return World(np.array(world.color[:3], dtype=np.float64))
+    if _needs_program(node):
+        programmed = _program_world(node, world, name, warnings)
+        if programmed is not None:
+            return programmed
     strength = float(socket_value(node.inputs["Strength"], f"world {name!r}", warnings))
     src = follow_link(node.inputs["Color"])
     factor = np.ones(3)
@@ -109,6 +139,148 @@ def _background_world(node, world, name: str, warnings: list[str]) -> World:
         return World(np.maximum(np.array(node.inputs["Color"].default_value[:3], np.float64) * strength, 0.0))
     color = _background_color(node.inputs["Color"], name, warnings)
     return World(np.maximum(color * strength, 0.0))
+
+
+# Nodes a world program cannot express (their direct uses are the cases above): a graph holding one keeps the
+# documented fallback.
+_NOT_IN_PROGRAMS = {"ShaderNodeTexEnvironment": "Environment Texture", "ShaderNodeTexSky": "Sky Texture"}
+
+
+def _needs_program(background) -> bool:
+    """Whether the Background's Color or Strength is driven by a node graph none of the direct cases covers
+    (uniform colour, Environment Texture, Sky Texture, an Image Texture's average, a constant Multiply of an
+    Environment Texture; a Value node on Strength)."""
+    strength = follow_link(background.inputs["Strength"])
+    if strength is not None and strength.bl_idname != "ShaderNodeValue":
+        return True
+    src = follow_link(background.inputs["Color"])
+    if src is None or src.bl_idname in ("ShaderNodeTexEnvironment", "ShaderNodeTexSky", "ShaderNodeTexImage"):
+        return False
+    if src.bl_idname in ("ShaderNodeMix", "ShaderNodeMixRGB") and _constant_multiply(src)[0] is not None:
+        return False
+    return True
+
+
+def _upstream_node(node, kinds: dict, seen: set | None = None):
+    """The first node of a type in `kinds` feeding `node` (through links, not into node groups), or None."""
+    seen = set() if seen is None else seen
+    for sock in node.inputs:
+        for link in getattr(sock, "links", ()):
+            src = link.from_node
+            if src.as_pointer() in seen:
+                continue
+            seen.add(src.as_pointer())
+            if src.bl_idname in kinds:
+                return src
+            found = _upstream_node(src, kinds, seen)
+            if found is not None:
+                return found
+    return None
+
+
+def _world_radiance(c, node, ctx, w: int, acc: int, depth: int = 0) -> int:
+    """acc + w x the radiance of the world shader `node` (a Background: colour x strength; Mix / Add Shaders of
+    them), as registers of the ProgramBuilder c."""
+    from .nodes.compiler import FLOAT, RGBA, CompileError
+
+    if depth > 32:
+        raise CompileError("the world's shaders nest too deeply")
+    kind = node.bl_idname
+    if kind == "ShaderNodeBackground":
+        return c.vmath("ADD", acc, c.vmath("SCALE", c.input(node, "Color", RGBA, ctx),
+                                           scale=c.math("MULTIPLY", w, c.input(node, "Strength", FLOAT, ctx))))
+    if kind not in _SHADER_MIXES:
+        raise CompileError(f"node {node.name!r} ({node.bl_label}) is not supported on the world surface")
+    if kind == "ShaderNodeMixShader":
+        fac = c.math("MINIMUM", c.math("MAXIMUM", c.input(node, 0, FLOAT, ctx), c.const(0.0)), c.const(1.0))
+        parts = ((node.inputs[1], c.math("MULTIPLY", w, c.math("SUBTRACT", c.const(1.0), fac))),
+                 (node.inputs[2], c.math("MULTIPLY", w, fac)))
+    else:
+        parts = ((node.inputs[0], w), (node.inputs[1], w))
+    for sock, weight in parts:
+        found = c.source(sock, ctx)
+        if found[0] != "default":
+            acc = _world_radiance(c, found[1], found[3], weight, acc, depth + 1)
+    return acc
+
+
+def _program_world(background, world, name: str, warnings: list[str]) -> World | None:
+    """The radiance of the world shader `background` (a Background's colour x strength, or Mix / Add Shaders of
+    Backgrounds) compiled as a node program (the material compiler, Cycles' background shading context:
+    core.world_program) and baked into an equirectangular environment map that lights the scene (importance
+    sampled) and is what escaping rays see. None (warned) when the graph holds a node a program cannot express;
+    the caller then falls back as documented."""
+    from ...core.shading import registry as R
+    from ...core.shading.program import RAY_CAMERA, RAY_DIFFUSE, RAY_REFLECT
+    from ...core.world_program import bake_world_program
+    from .material import image_rgba
+    from .nodes.compiler import CompileError, Ctx, ProgramBuilder
+
+    blocker = _upstream_node(background, _NOT_IN_PROGRAMS)
+    if blocker is not None:
+        warnings.append(f"world {name!r}: node {blocker.name!r} ({_NOT_IN_PROGRAMS[blocker.bl_idname]}) inside a "
+                        "world node graph is not supported (only directly on the Background, or times a constant "
+                        "colour)")
+        return None
+    owner = f"world {name!r}"
+    textures: list = []
+    by_image: dict = {}
+
+    def image_texture(node, alpha_used):
+        image = node.image
+        if image is None:
+            warnings.append(f"{owner}: image texture {node.name!r} has no image; using Cycles' missing-texture "
+                            "colour (magenta)")
+            return None, 0
+        key = image.as_pointer()
+        if key not in by_image:
+            try:
+                pixels, encoded = image_rgba(image, warnings)
+            except Exception as exc:  # missing file, unreadable image
+                warnings.append(f"{owner}: node {node.name!r}: image {image.name!r} could not be read ({exc}); "
+                                "using Cycles' missing-texture colour (magenta)")
+                return None, 0
+            from ...core.scene import Texture
+
+            textures.append(Texture(image.name, np.where(np.isfinite(pixels), pixels, np.float32(0))))
+            by_image[key] = (len(textures) - 1, 2 if encoded else 0)
+        return by_image[key]
+
+    builder = ProgramBuilder(owner, warnings, textures, image_texture)
+    try:
+        emission = _world_radiance(builder, background, Ctx(), builder.const(1.0), builder.const(0.0))
+        program = builder.finish(np.zeros((0, 6), np.int32), emission)
+    except CompileError as exc:
+        warnings.append(f"{owner}: the world's node graph could not be compiled ({exc}); falling back")
+        return None
+    program.validate(owner, 0, len(textures))
+    texcoord = R.op("texture_coordinate")
+    rows = program.code[program.code[:, 0] == R.OP_TEXCOORD] if len(program.code) else program.code
+    if len(rows) and np.any(rows[:, [texcoord.slot("camera"), texcoord.slot("window")]] >= 0):
+        warnings.append(f"{owner}: Texture Coordinate Camera / Window on the world are not supported; they read "
+                        "the ray direction (Camera) and 0 (Window)")
+    method = getattr(getattr(world, "cycles", None), "sampling_method", "AUTOMATIC")
+    resolution = int(getattr(world.cycles, "sample_map_resolution", 1024)) if method == "MANUAL" else 0
+
+    def as_map(pixels, label):
+        return EnvironmentMap(pixels=pixels, projection="EQUIRECTANGULAR", interpolation="LINEAR",
+                              matrix=np.eye(3), map_resolution=resolution, importance_sampling=method != "NONE",
+                              name=f"{name}/{label}")
+
+    pixels = bake_world_program(program, textures)  # the light: as a light sample sees it (no ray flags)
+    got = World(np.zeros(3), environment=as_map(pixels, "program"))
+    if len(program.code) and np.any(program.code[:, 0] == R.OP_LIGHT_PATH):
+        # Is Camera Ray: the camera sees the program with the camera flag set (a backdrop that differs from the
+        # light). The other outputs are those of a light sample (Cycles' BSDF rays that escape read their own).
+        seen = bake_world_program(program, textures, path_flags=RAY_CAMERA)
+        if not np.array_equal(seen, pixels):
+            got.camera_environment = as_map(seen, "program (camera)")
+        bounce = bake_world_program(program, textures, path_flags=RAY_DIFFUSE | RAY_REFLECT)
+        if not np.array_equal(bounce, pixels):
+            warnings.append(f"{owner}: Light Path outputs other than Is Camera Ray in the background's colour are "
+                            "read as for a light sample (not a diffuse or glossy ray); the world lights the scene "
+                            "as a light sample sees it")
+    return got
 
 
 # Sky types baked into an environment map (core.sky); the others warn by name and fall back.
