@@ -345,7 +345,15 @@ def export_blend_frames(blend_path: str | os.PathLike, overrides: dict[str, Any]
     _apply_overrides(bpy, scene, clean)
     if scene.camera is None:
         raise HeadlessError(f"cannot render {blend}: scene {scene.name!r} has no camera")
-    view_layer = bpy.context.view_layer
+    # One view layer goes to the cluster: the active one when it renders, else the first that does; F12 renders
+    # only it (the others are off while it runs), so its passes, overrides and export are the same layer's.
+    rendered = [layer for layer in scene.view_layers if layer.use]
+    if not rendered:
+        raise HeadlessError(f"{blend}: no view layer of scene {scene.name!r} is enabled for rendering")
+    active = bpy.context.view_layer
+    view_layer = active if active.use else rendered[0]
+    if len(rendered) > 1:
+        say(f"Monte: {len(rendered)} view layers render; the cluster renders view layer {view_layer.name!r}")
     for warning in unavailable_pass_warnings(view_layer, scene):
         say(f"Monte: warning: {warning}")
     keys = data_passes(view_layer, scene)
@@ -355,7 +363,14 @@ def export_blend_frames(blend_path: str | os.PathLike, overrides: dict[str, Any]
         # F12's own export (its render depsgraph: render subdivision levels and the like, as a local render
         # sees the scene), handed over by the engine instead of rendered there
         exported: list = []
-        export_listeners.append(lambda core, stats: exported.append((core, stats)))
+
+        def listener(core, stats) -> None:
+            exported.append((core, stats))
+
+        export_listeners.append(listener)
+        others = [layer for layer in rendered if layer != view_layer]
+        for layer in others:
+            layer.use = False
         try:
             bpy.ops.render.render(write_still=False, scene=scene.name)
         except RuntimeError as exc:
@@ -363,13 +378,13 @@ def export_blend_frames(blend_path: str | os.PathLike, overrides: dict[str, Any]
             message = message[len("Error: "):] if message.startswith("Error: ") else message
             raise HeadlessError(f"{blend}, frame {frame}: {message}") from exc
         finally:
-            export_listeners.clear()
-        if not exported:
-            raise HeadlessError(f"{blend}, frame {frame}: nothing was exported (no view layer is enabled for "
-                                "rendering)")
+            export_listeners.remove(listener)
+            for layer in others:
+                layer.use = True
+        if len(exported) != 1:
+            raise HeadlessError(f"{blend}, frame {frame}: view layer {view_layer.name!r} exported "
+                                f"{len(exported)} times (expected once)")
         core_scene, stats = exported[0]
-        if len(exported) > 1:
-            say(f"Monte: {len(exported)} view layers; the cluster renders the first")
         settings = render_settings(scene, {"aovs": True, "data_passes": keys,
                                            "cryptomatte_levels": 2 * cryptomatte_layers(view_layer),
                                            "light_passes": requested_light_passes(requested_passes(view_layer,

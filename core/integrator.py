@@ -1186,8 +1186,8 @@ class PathTracer:
             # Paths in flight hold only what the rest of the vertex reads: the ray that arrived here, its hits and
             # the emission stage's per-path temporaries are dropped before next-event estimation and the scatter
             # allocate theirs (the scatter writes the next rays; the MIS origins keep their own copy).
-            o = d = tm = tr = hits = hit = prim = le = t_hit = lobes_first = mat_first = survive = em_idx = None
-            pixel_id = sample_id = origins = directions = tmax = t_start = depth_scale = None  # the camera rays
+            # (the rays' origins, the emission temporaries and the camera's arguments went after their last use)
+            d = tr = hits = hit = prim = lobes_first = mat_first = survive = em_idx = directions = None
             if through is None:  # the scatter writes the next rays' state afresh; only the MIS origins read these
                 prev_pdf = prev_delta = prev_normal = prev_transmits = None
             if self.use_nee:
@@ -1292,15 +1292,8 @@ class PathTracer:
         if ps.shading is not None and ps.shading.any_emits:
             emits |= ps.shading.emits[mat]
         ended = ended[emits & aov_path.writing(idx[ended])]
-        if len(ended) == 0:
-            return
-        g = self._surface(ended, prim, hits.u, hits.v, d, tr)
-        mat = ps.material_index[prim[ended]]
-        lobes = ps.materials.gather(mat, g.uv)
-        out = np.zeros((len(ended), aov_path.values.shape[1], 4), np.float32)
-        self._shade(g, mat, prim[ended], d[ended], lobes, bary=(hits.u[ended], hits.v[ended]),
-                    path=_rows_of(path_state, idx[ended]), dp=None if hit_dp is None else hit_dp[ended], aov_out=out)
-        aov_path.record(idx[ended], np.ones(len(ended), bool), out, lobes)
+        if len(ended):
+            self._shade_aovs(aov_path, ended, np.ones(len(ended), bool), idx, prim, hits, d, tr, path_state, hit_dp)
 
     def _needs_background(self) -> bool:
         """Whether the shadow catcher needs the world behind it (Cycles' approximate catcher on an opaque film)."""
@@ -1493,7 +1486,7 @@ class PathTracer:
     def _diffuse_only(lobes: "bsdf_mod.LobeBatch", rows: np.ndarray) -> "bsdf_mod.LobeBatch":
         """The lobes with every weight but the diffuse lobes' of `rows` zero, for eval_bsdf(rows=...): the other
         arrays are shared, not copied (only the rows read are filled; the zeros are calloc'd pages)."""
-        weight = np.zeros_like(lobes.weight)
+        weight = np.zeros(lobes.weight.shape, lobes.weight.dtype)  # (zeros_like writes every page)
         weight[rows] = np.where((lobes.kind[rows] == bsdf_mod.KIND_CODE["diffuse"])[..., None], lobes.weight[rows],
                                 np.float32(0))
         return replace(lobes, weight=weight)
@@ -1535,8 +1528,12 @@ class PathTracer:
         """AOV Output nodes of the full holdout surfaces that live paths `rows` hit still write (core.shader_aovs):
         Cycles evaluates a surface's shader, AOV nodes included, before its holdout ends the path."""
         writing = aov_path.writing(idx[rows])
-        if not writing.any():
-            return
+        if writing.any():
+            self._shade_aovs(aov_path, rows, writing, idx, prim, hits, d, tr, path_state, hit_dp)
+
+    def _shade_aovs(self, aov_path: AovPath, rows, writing, idx, prim, hits, d, tr, path_state, hit_dp) -> None:
+        """Shade the surfaces that live paths `rows` hit only for their AOV Output writes, recorded where
+        `writing` (per row) is true."""
         ps = self.ps
         g = self._surface(rows, prim, hits.u, hits.v, d, tr)
         mat = ps.material_index[prim[rows]]
@@ -1660,10 +1657,11 @@ class PathTracer:
             self._add(radiance, sample_of[vis], shadowed)
             return
         value = self._add_clean(radiance, sample_of[vis], shadowed)
-        if lg is not None:  # each light sample to its emitter's group; one sample per path finds its row in `can`
-            row_of = np.zeros(len(radiance), np.int64)
-            row_of[idx[can]] = np.arange(m)
-            k = row_of[sample_of[:count][vis]]
+        # every path has one light sample: its sample index finds its row in `can`
+        row_of = np.zeros(len(radiance), np.int64)
+        row_of[idx[can]] = np.arange(m)
+        k = row_of[sample_of[:count][vis]]
+        if lg is not None:  # each light sample to its emitter's group
             lg.add(sample_of[vis], value, ps.light_groups.of_light_samples(
                 gc.p[k], wi[k], np.asarray(ls.dist)[k], origin[:count][vis], direction[:count][vis],
                 triangles_only=textured))
@@ -1672,14 +1670,11 @@ class PathTracer:
         if depth > 0 and (first_bounce is None or not first_bounce[can].any()):
             lp.add_split(False, sample_of[vis], value)
             return
-        # At the first bounce every path has one light sample: its sample index finds its row in `can`.
+        # the first bounce: split by the lobes' shares
         shares = lp_mod.split_ratios(lobes, gc.wo, wi_local, gc.cos_o_geo < 0, rows=can)
         for r, part in restricted:  # lights hidden from some kinds: the shares of the lobes that see them
             for share, sub in zip(shares, lp_mod.split_ratios(part, gc.wo[r], wi_local[r], gc.cos_o_geo[r] < 0)):
                 share[r] = sub
-        row_of = np.zeros(len(radiance), np.int64)
-        row_of[idx[can]] = np.arange(m)
-        k = row_of[sample_of[:count][vis]]
         if depth == 0:
             lp.add_split(True, sample_of[vis], value, tuple(share[k] for share in shares))
             return

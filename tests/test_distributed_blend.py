@@ -97,6 +97,40 @@ def test_a_cluster_export_sees_the_scene_as_f12_does(tmp_path):
     assert sum(m.triangle_count for m in viewport.meshes) == 6 * 4 * 2
 
 
+def test_a_cluster_export_takes_one_view_layer_its_passes_and_its_overrides_together(tmp_path):
+    """Two view layers: "Override" (a Material Override, no passes) and "Mist" (the Mist pass). The cluster renders
+    one layer: the scene it exports and the passes it asks for come from that same layer (the log names it), and
+    the export runs once; with "Mist" the only layer that renders, it is that one. (Before, F12 exported every
+    layer, the first was kept and the passes came from the active one.)"""
+    bf.cornell_box((8, 8))
+    scene = bpy.context.scene
+    first = scene.view_layers[0]
+    first.name = "Override"
+    first.material_override = bpy.data.materials.new("override material")
+    second = scene.view_layers.new("Mist")
+    second.use_pass_mist = True
+
+    def exported_layer(blend):
+        said: list[str] = []
+        item, = export_blend_frames(blend, {"spp": 1}, None, log=said.append)
+        names = {m.name for m in item.scene.materials}
+        overridden = any("override material" in name for name in names)
+        return overridden, "mist" in item.settings.data_passes, said
+
+    blend = tmp_path / "layers.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    overridden, mist, said = exported_layer(blend)
+    assert overridden != mist  # the override and the passes of one layer, whichever it is
+    chosen = "Mist" if mist else "Override"
+    assert f"Monte: 2 view layers render; the cluster renders view layer {chosen!r}" in said
+
+    bpy.context.scene.view_layers["Override"].use = False  # (the file loaded above)
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    overridden, mist, said = exported_layer(blend)
+    assert mist and not overridden
+    assert not any("view layers render" in line for line in said)
+
+
 def test_a_render_region_sends_out_only_its_tiles_and_equals_the_local_region_render(tmp_path, capsys):
     """Render Region x 0.25-0.75 of 24x16 (pixels 6-18, y 4-12 from the top): only the region's tiles go out (the
     units plan_units cuts for the region, fewer paths than the frame's), the EXR is padded to the frame as
