@@ -327,19 +327,19 @@ class TileFilm:
 
     def add_shader_aovs(self, pixel: np.ndarray, values: np.ndarray) -> None:
         """Accumulate the shader AOVs of samples: values (N, K, 4) (core.shader_aovs.AovPath.values)."""
-        n, k = self.pixels, len(self.shader_aovs) * AOV_CHANNELS
-        pixel = np.asarray(pixel, np.int64)
-        slot = (pixel[:, None] * k + np.arange(k)[None, :]).ravel()
-        sums = np.bincount(slot, weights=np.asarray(values, np.float64).reshape(-1), minlength=n * k)
-        self._take({"shader_aov_sum": sums.reshape(n, len(self.shader_aovs), AOV_CHANNELS)})
+        self._take({"shader_aov_sum": self._per_pixel_sums(pixel, values)})
 
     def add_light_groups(self, pixel: np.ndarray, values: np.ndarray) -> None:
         """Accumulate the light groups of samples: values (N, G, 3) (core.light_groups.LightGroupSamples.values)."""
-        n, k = self.pixels, len(self.light_groups) * 3
-        pixel = np.asarray(pixel, np.int64)
-        slot = (pixel[:, None] * k + np.arange(k)[None, :]).ravel()
-        sums = np.bincount(slot, weights=np.asarray(values, np.float64).reshape(-1), minlength=n * k)
-        self._take({"light_group_sum": sums.reshape(n, len(self.light_groups), 3)})
+        self._take({"light_group_sum": self._per_pixel_sums(pixel, values)})
+
+    def _per_pixel_sums(self, pixel: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """(pixels, *values' row shape) float64 sums of the samples' values (N, ...) into their pixels."""
+        values = np.asarray(values, np.float64)
+        k = int(np.prod(values.shape[1:]))
+        slot = (np.asarray(pixel, np.int64)[:, None] * k + np.arange(k)[None, :]).ravel()
+        sums = np.bincount(slot, weights=values.reshape(-1), minlength=self.pixels * k)
+        return sums.reshape(self.pixels, *values.shape[1:])
 
     def _pixels(self, pixel: np.ndarray) -> np.ndarray:
         """The samples' tile-local pixel indices as contiguous int64, checked to lie in the tile (the compiled

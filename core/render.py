@@ -399,21 +399,14 @@ class FrameImages:
             self.extras["shadow_catcher"][sl], self.extras["shadow_catcher_matte"][sl] = catcher, matte
             out.shadow_catcher = self.extras["shadow_catcher"][sl]
             out.shadow_catcher_matte = self.extras["shadow_catcher_matte"][sl]
-        if "light_passes" in self.extras:
-            out.light_passes = {}
-            for name, arr in film.light_pass_images().items():
-                self.extras["light_passes"][name][sl] = arr
-                out.light_passes[name] = self.extras["light_passes"][name][sl]
-        if "shader_aovs" in self.extras:
-            out.shader_aovs = {}
-            for name, arr in film.shader_aov_images().items():
-                self.extras["shader_aovs"][name][sl] = arr
-                out.shader_aovs[name] = self.extras["shader_aovs"][name][sl]
-        if "light_groups" in self.extras:
-            out.light_groups = {}
-            for name, arr in film.light_group_images().items():
-                self.extras["light_groups"][name][sl] = arr
-                out.light_groups[name] = self.extras["light_groups"][name][sl]
+        # the named images of the light passes, shader AOVs and light groups: Tile attribute -> the film's images
+        for key, images in (("light_passes", film.light_pass_images), ("shader_aovs", film.shader_aov_images),
+                            ("light_groups", film.light_group_images)):
+            if key in self.extras:
+                frame, tile_images = self.extras[key], images()
+                for name, arr in tile_images.items():
+                    frame[name][sl] = arr
+                setattr(out, key, {name: frame[name][sl] for name in tile_images})
         return out
 
     def images(self) -> tuple:
