@@ -11,6 +11,8 @@ changes the last bits of the float64 sums (the control below shows it does).
 from __future__ import annotations
 
 import random
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,25 +24,13 @@ from monte.core.render import merge_data_tables, merge_tile_samples, render, ren
 from monte.core.scene import Camera, Lobe, Material, Mesh, Mist, Scene, World
 from monte.core.schedule import pass_bounds, tiles
 from monte.core.settings import RenderSettings
-from monte.core.shading import registry as R
-from monte.core.shading.program import OBJECT_PASS_INDEX, WIDTH, ShadingProgram, identity_object_row
+from monte.core.shading.program import OBJECT_PASS_INDEX, identity_object_row
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from node_programs import instruction as _inst, program as _program  # noqa: E402
 
 IMAGES = ("color", "variance", "albedo", "normal", "depth", "sample_count")
 SIZE = 16  # pixels; 8x8 tiles: 4 tiles of 3 sample passes each at 48 spp (batch 1024 = 16 samples of 64 px)
-
-
-def _inst(opname: str, **operands) -> list[int]:
-    spec = R.op(opname)
-    inst = [-1] * WIDTH
-    inst[0] = spec.code
-    for name, value in operands.items():
-        inst[spec.slot(name)] = value
-    return inst
-
-
-def _program(registers, code, n_lobes: int = 1) -> ShadingProgram:
-    return ShadingProgram(np.asarray(code, np.int32).reshape(-1, WIDTH), np.asarray(registers, np.float32),
-                          np.full((n_lobes, 6), -1, np.int32))
 
 
 def _quad(name: str, z: float, x0: float, x1: float, material: int, obj: int) -> Mesh:

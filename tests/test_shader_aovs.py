@@ -5,6 +5,9 @@ for bad AOV lists. Blender and Cycles: tests/test_shader_aovs_cycles.py."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,25 +15,13 @@ from monte.core.render import render, render_samples, merge_tile_samples
 from monte.core.scene import Camera, Lobe, Material, Mesh, Scene, SceneError
 from monte.core.settings import RenderSettings
 from monte.core.shading import registry as R
-from monte.core.shading.program import WIDTH, ShadingProgram
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from node_programs import instruction as _inst, program as _program  # noqa: E402
 
 SIZE = 16
 SPP = 8
 HALF = 2.0  # the orthographic view spans [-2, 2] in x and y
-
-
-def _inst(opname: str, **operands) -> list[int]:
-    spec = R.op(opname)
-    inst = [-1] * WIDTH
-    inst[0] = spec.code
-    for name, value in operands.items():
-        inst[spec.slot(name)] = value
-    return inst
-
-
-def _program(registers, code, n_lobes: int = 1) -> ShadingProgram:
-    return ShadingProgram(np.asarray(code, np.int32).reshape(-1, WIDTH), np.asarray(registers, np.float32),
-                          np.full((n_lobes, 6), -1, np.int32))
 
 
 def _quad(name: str, x0: float, x1: float, z: float, material: int) -> Mesh:
