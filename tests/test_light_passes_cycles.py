@@ -22,6 +22,16 @@ from monte.core import exr  # noqa: E402
 pytestmark = [pytest.mark.blender]
 
 
+def _every_light_pass(scene, size):
+    """`scene` at `size` pixels with every light pass ticked on its first view layer."""
+    scene.render.resolution_x, scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    layer = scene.view_layers[0]
+    for prop in LIGHT_PASS_PROPERTIES.values():
+        setattr(layer, prop, True)
+    return scene
+
+
 def light_scene(size=(32, 32)):
     """Diffuse floor and wall, a diffuse, a glossy (roughness 0.4), a clear glass and a frosted glass (roughness
     0.3) sphere, an emissive panel, a square area light and a blue-grey world seen above the wall; every light
@@ -49,12 +59,7 @@ def light_scene(size=(32, 32)):
     bf.add_light(scene, "AREA", (1.2, -1.0, 2.6), (0.4, 0.0, 0.6), energy=400.0, shape="SQUARE", size=2.0)
     bf.camera_object(scene, (0, -4.5, 1.6), (math.radians(82), 0, 0), lens=30.0)
     bf.set_world(scene, (0.3, 0.4, 0.6), 1.0)
-    scene.render.resolution_x, scene.render.resolution_y = size
-    scene.render.resolution_percentage = 100
-    layer = scene.view_layers[0]
-    for prop in LIGHT_PASS_PROPERTIES.values():
-        setattr(layer, prop, True)
-    return scene
+    return _every_light_pass(scene, size)
 
 
 def cycles_passes(scene, spp: int, tmp_path) -> dict[str, np.ndarray]:
@@ -140,12 +145,7 @@ def veiled_scene(size=(24, 24)):
     bf.add_light(scene, "AREA", (0.5, 0.0, 3.0), (0, 0, 0), energy=300.0, shape="SQUARE", size=1.5)
     bf.camera_object(scene, (0, 0, 6), (0, 0, 0), kind="ORTHO", ortho_scale=5.0)
     bf.set_world(scene, (0.3, 0.4, 0.6), 1.0)
-    scene.render.resolution_x, scene.render.resolution_y = size
-    scene.render.resolution_percentage = 100
-    layer = scene.view_layers[0]
-    for prop in LIGHT_PASS_PROPERTIES.values():
-        setattr(layer, prop, True)
-    return scene
+    return _every_light_pass(scene, size)
 
 
 def test_light_seen_through_a_transparent_bsdf_is_classed_as_cycles_does(tmp_path):
