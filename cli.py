@@ -599,7 +599,7 @@ def run() -> None:
     if "bpy" in sys.modules:
         from .addon.headless import end_bpy_process
 
-        end_bpy_process(status)
+        end_bpy_process(status, quick_exit=True)  # the interpreter's teardown skipped: ~0.5 s
     sys.exit(status)
 
 

@@ -82,6 +82,41 @@ def _select_kernel_cpu() -> str:
 
 
 KERNEL_CPU = _select_kernel_cpu()
+
+
+def _import_numba_array_support_without_blas() -> bool:
+    """Import numba's NumPy-array implementations (numba.np.arraymath) without letting it import SciPy's linear
+    algebra, which it does only to ask whether a BLAS exists (0.4-0.45 s of a process's first kernel load on the
+    2-core machine, the largest single part of loading the cached kernels). Monte's kernels call no BLAS: they
+    compile and load in Blender, which ships no SciPy. numba's answer feeds one choice only (the inner product of
+    its np.correlate and np.convolve: a plain loop instead of BLAS); numba's np.dot and np.linalg ask for the
+    BLAS again themselves and keep working with SciPy. Done under numba's compiler lock, so no kernel compiled
+    on another thread meanwhile sees the stand-in. Nothing is changed when numba.np.arraymath or SciPy's
+    linear algebra is already imported (another package in the process chose already, or the import is free).
+    Returns True when it imported arraymath this way."""
+    import sys
+
+    if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
+        return False
+    from numba.core.compiler_lock import global_compiler_lock
+    from numba.np import linalg
+
+    def no_blas_lookup() -> None:
+        raise ImportError("numba.np.arraymath imported by Monte without SciPy's BLAS lookup")
+
+    with global_compiler_lock:
+        if "numba.np.arraymath" in sys.modules:
+            return False
+        original = linalg.ensure_blas
+        linalg.ensure_blas = no_blas_lookup
+        try:
+            import numba.np.arraymath  # noqa: F401 - its import-time BLAS check sees no_blas_lookup
+        finally:
+            linalg.ensure_blas = original
+    return True
+
+
+NUMBA_ARRAY_SUPPORT_WITHOUT_BLAS = _import_numba_array_support_without_blas()
 PACKAGE = __name__.rpartition(".")[0] or "core"  # "monte.core", "bl_ext.user_default.monte.core", ...
 
 
