@@ -46,20 +46,21 @@ def end_bpy_process(status: int, quick_exit: bool = False) -> None:
 
     Call it last, once every output is written and closed: the bpy module of Blender 4.2 crashes (SIGSEGV,
     status 139) at interpreter exit and 4.5's hangs, so a finished headless render would report a failure or
-    never return. There the process ends with os._exit(status) after flushing stdout and stderr; on 5.0 and
-    newer, after unregistering, this returns and Python exits normally.
+    never return. There the process ends with os._exit(status) after removing Blender's temporary folder and
+    flushing stdout and stderr; on 5.0 and newer, after unregistering, this returns and Python exits normally.
 
     quick_exit (the `monte` command): on 5.0 and newer too, end the process here once the exit handlers ran
     (Python's atexit functions, among them bpy's), Blender's temporary folder is removed and stdout and stderr
-    are flushed, skipping the interpreter's teardown of every module and object: with
-    numba's compiled kernels loaded that teardown took 0.5-0.7 s of a 1-spp render's process (Cycles' process
-    0.25 s). Only when no other non-daemon thread is running (their join is part of a normal exit); else Python
-    exits normally.
+    are flushed, skipping the interpreter's teardown of every module and object: with numba's compiled kernels
+    loaded that teardown took 0.5-0.7 s of a 1-spp render's process (all of Cycles' process exit: 0.25 s).
+    Only when no other non-daemon thread is running (a normal exit waits for those); else Python exits
+    normally.
     """
     from . import unregister
 
     unregister()
     if bpy.app.version < (5, 0, 0):
+        _remove_session_temp_folder()
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(int(status))

@@ -130,3 +130,33 @@ def test_cold_cache_check_lists_the_folder_once(tmp_path, monkeypatch):
     (tmp_path / f"{os.path.basename(common[-1])}.kernel-12.py313.nbi").write_bytes(b"")
     assert not jit_cache.compile_cache_is_cold()
     assert jit_cache.compile_cache_is_cold(with_node_programs=True)  # the node evaluator's modules: no index yet
+
+
+def test_kernel_loading_skips_scipy_linear_algebra_and_numba_linalg_still_works():
+    """numba's array support is imported without its SciPy BLAS lookup (scipy.linalg's import was ~0.45 s of a
+    process's first kernel load): loading the cached kernels imports no scipy.linalg, and numba's own np.dot
+    still finds the BLAS afterwards (only its np.correlate/np.convolve inner product uses a plain loop)."""
+    result = _python("""
+        import json, sys
+        import numpy as np
+        from monte.core import jit_cache, precompile
+        import monte.core.render  # noqa: F401
+        loaded = precompile.load_cached_kernels()
+        linalg_after_load = "scipy.linalg" in sys.modules
+        import numba
+        import numba.np.arraymath
+
+        @numba.njit
+        def product(a, b):
+            return np.dot(a, b)
+
+        a = np.array([[1.0, 2.0], [3.0, 4.0]])
+        b = np.array([[5.0, 6.0], [7.0, 8.0]])
+        print("RESULT " + json.dumps({"patched": jit_cache.NUMBA_ARRAY_SUPPORT_WITHOUT_BLAS, "loaded": loaded,
+                                      "linalg_after_load": linalg_after_load,
+                                      "have_blas": numba.np.arraymath._HAVE_BLAS,
+                                      "dot": product(a, b).tolist(), "numpy_dot": (a @ b).tolist()}))
+    """)
+    assert result["patched"] is True and result["loaded"] > 0
+    assert result["linalg_after_load"] is False and result["have_blas"] is False
+    assert result["dot"] == result["numpy_dot"] == [[19.0, 22.0], [43.0, 50.0]]

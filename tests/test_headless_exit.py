@@ -7,6 +7,7 @@ older Blender, `make test` on the newest."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -35,9 +36,12 @@ SCENE = textwrap.dedent(r"""
 TIMEOUT = 600  # a cold first render compiles Monte's kernels (about a minute on 2 cores); a hang ends here
 
 
-def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+def _run(args: list[str], cwd: Path, temp_folder: Path | None = None) -> subprocess.CompletedProcess:
+    """args run by this Python in cwd; temp_folder: the process's TMPDIR (where Blender makes its session folder)."""
+    env = dict(os.environ, TMPDIR=str(temp_folder)) if temp_folder is not None else None
     try:
-        return subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT, cwd=cwd)
+        return subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT, cwd=cwd,
+                              env=env)
     except subprocess.TimeoutExpired as exc:
         pytest.fail(f"{' '.join(args)} did not end within {TIMEOUT} s (hung at exit?):\n{exc.stdout}\n{exc.stderr}")
 
@@ -58,9 +62,10 @@ def test_headless_render_exits_zero_with_a_complete_exr(blends, tmp_path):
 
     from monte.core import exr
 
-    out = tmp_path / "plane.exr"
+    out, temp = tmp_path / "plane.exr", tmp_path.parent / f"{tmp_path.name}-tmp"
+    temp.mkdir()
     proc = _run(["-m", "monte", "render", str(blends["plane"]), "-o", str(out), "--spp", "4", "--threads", "2"],
-                tmp_path)
+                tmp_path, temp)
     assert proc.returncode == 0, f"Blender {bpy.app.version_string}: status {proc.returncode}\n{proc.stderr[-3000:]}"
     assert f"wrote {out}" in proc.stdout
     channels = exr.read_exr(out)
@@ -70,13 +75,52 @@ def test_headless_render_exits_zero_with_a_complete_exr(blends, tmp_path):
     np.testing.assert_allclose(rgb, 0.5, atol=1e-5)
     np.testing.assert_allclose(channels["Z"], 1.0, rtol=1e-5)  # the plane is 1 m below the camera
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plane.exr"]  # no temporary files left
+    # Blender's session folder removed (the process ends without the interpreter's teardown, which removed it)
+    assert list(temp.iterdir()) == []
 
 
 def test_failed_headless_render_exits_one_and_keeps_the_existing_output(blends, tmp_path):
-    out = tmp_path / "keep.exr"
+    out, temp = tmp_path / "keep.exr", tmp_path.parent / f"{tmp_path.name}-tmp"
     out.write_bytes(b"an earlier render")
-    proc = _run(["-m", "monte", "render", str(blends["no_camera"]), "-o", str(out), "--spp", "1"], tmp_path)
+    temp.mkdir()
+    proc = _run(["-m", "monte", "render", str(blends["no_camera"]), "-o", str(out), "--spp", "1"], tmp_path, temp)
     assert proc.returncode == 1, proc.stderr[-3000:]
     assert "has no camera" in proc.stderr and "Traceback" not in proc.stderr
     assert out.read_bytes() == b"an earlier render"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.exr"]
+    assert list(temp.iterdir()) == []
+
+
+# end_bpy_process(status, quick_exit=True), as `monte render` ends: the exit handlers run, Blender's session
+# folder goes, the process ends with the status there; with a non-daemon thread still running it returns instead
+# (a normal exit waits for that thread).
+QUICK_EXIT = textwrap.dedent(r"""
+    import atexit, sys, threading, time
+    import bpy
+    from monte.addon.headless import end_bpy_process
+    atexit.register(lambda: print("exit handler ran", flush=True))
+    if sys.argv[1] == "thread":
+        threading.Thread(target=lambda: (time.sleep(0.5), print("thread finished", flush=True))).start()
+    end_bpy_process(3, quick_exit=True)
+    print("returned", flush=True)
+    sys.exit(4)
+""")
+
+
+@pytest.mark.parametrize("case", ["alone", "thread"])
+def test_quick_exit_runs_the_exit_handlers_and_waits_for_threads(tmp_path, case):
+    import bpy
+
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    proc = _run(["-c", QUICK_EXIT, case], tmp_path, temp)
+    lines = proc.stdout.splitlines()
+    returns = case == "thread" and bpy.app.version >= (5, 0, 0)  # before 5.0 it ends at once, thread or not
+    assert proc.returncode == (4 if returns else 3), proc.stderr[-3000:]
+    if returns:
+        assert lines[0] == "returned" and sorted(lines[1:]) == ["exit handler ran", "thread finished"]
+    elif bpy.app.version >= (5, 0, 0):
+        assert lines == ["exit handler ran"]
+    else:
+        assert "returned" not in lines
+    assert list(temp.iterdir()) == []
