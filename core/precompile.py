@@ -87,12 +87,15 @@ def _dispatcher_name(d) -> tuple[str, str]:
     return module, d.py_func.__qualname__
 
 
+EntryKernel = tuple[str, str, str]  # (kernel module as in jit_cache.KERNEL_MODULES, qualified name, signature)
+
+
 @contextmanager
 def _recording_entry_calls(found: dict) -> Iterator[None]:
-    """Record into found {(module, qualname): {str(signature)}} each signature a kernel compiles or loads for a
-    call from Python, the kernels in the order of their first call: numba's dispatcher calls _compile_for_args
-    when a Python call finds no loaded overload, while a device function is compiled or loaded through compile()
-    alone (while typing its caller)."""
+    """Record into found {(module, qualname, str(signature)): None} each signature a kernel compiles or loads for
+    a call from Python, in the order of their first calls (the dict's order): numba's dispatcher calls
+    _compile_for_args when a Python call finds no loaded overload, while a device function is compiled or loaded
+    through compile() alone (while typing its caller)."""
     from numba.core.dispatcher import Dispatcher
 
     original = Dispatcher._compile_for_args
@@ -106,7 +109,8 @@ def _recording_entry_calls(found: dict) -> Iterator[None]:
             added = set(self.overloads) - before
             if added and getattr(self.py_func, "__module__", "").startswith(jit_cache.PACKAGE + "."):
                 with lock:
-                    found.setdefault(_dispatcher_name(self), set()).update(str(sig) for sig in added)
+                    for sig in added:  # one per call
+                        found.setdefault((*_dispatcher_name(self), str(sig)), None)
 
     Dispatcher._compile_for_args = recording
     try:
@@ -115,28 +119,36 @@ def _recording_entry_calls(found: dict) -> Iterator[None]:
         Dispatcher._compile_for_args = original
 
 
-def write_entry_kernels(found: dict) -> None:
-    """Write the entry kernels (found by _recording_entry_calls) with the sources they were recorded for, in
-    the order the precompile first called them: its first case is a default render, so the loader loads what
-    a render needs first in the order the render asks for it."""
+ENTRY_KERNELS_FORMAT = 2  # 2: one row per signature, in the order of first calls (1: one row per kernel)
+
+
+def write_entry_kernels(found) -> None:
+    """Write the entry kernels (the (module, qualname, signature) rows found by _recording_entry_calls) with the
+    sources they were recorded for, one row per signature in the order the precompile first called them: it
+    folds a node constant first (as the add-on's export does) and then renders a default scene, so the loader
+    loads what an export and a render need first, signature by signature, in the order they ask for them (a
+    kernel's other signatures, for other features, come when a case first calls them)."""
     from .atomic_file import write_bytes_atomically
 
-    body = {"sources": jit_cache.sources_digest(),
-            "kernels": [[module, name, sorted(sigs)] for (module, name), sigs in found.items()]}
+    body = {"sources": jit_cache.sources_digest(), "format": ENTRY_KERNELS_FORMAT,
+            "kernels": [list(row) for row in found]}
     os.makedirs(jit_cache.cache_dir(), exist_ok=True)
     write_bytes_atomically(entry_kernels_path(), (json.dumps(body, indent=1) + "\n").encode())
 
 
-def read_entry_kernels() -> dict[tuple[str, str], set[str]] | None:
-    """{(module, qualname): {str(signature)}} from the cache folder's entry-kernel list (in its order), or None
-    when there is none, it cannot be read, or it was written for other sources (then every cached signature is
-    loaded)."""
+def read_entry_kernels() -> list[EntryKernel] | None:
+    """The (module, qualname, signature) rows of the cache folder's entry-kernel list, in its order, or None when
+    there is none, it cannot be read, it has another format or it was written for other sources (then every
+    cached signature is loaded)."""
     try:
         with open(entry_kernels_path(), encoding="utf-8") as fh:
             body = json.load(fh)
-        if body.get("sources") != jit_cache.sources_digest():
+        if body.get("sources") != jit_cache.sources_digest() or body.get("format") != ENTRY_KERNELS_FORMAT:
             return None
-        return {(module, name): set(sigs) for module, name, sigs in body["kernels"]}
+        rows = [(module, name, sig) for module, name, sig in body["kernels"]]
+        if not all(isinstance(part, str) for row in rows for part in row):
+            return None
+        return rows
     except (OSError, ValueError, KeyError, TypeError):
         return None
 
@@ -154,27 +166,34 @@ def load_cached_kernels(entries_only: bool = True, should_stop: Callable[[], boo
     entries = read_entry_kernels() if entries_only else None
     codegen = cpu_target.target_context.codegen()
     dispatchers = _dispatchers()
+    indexes: dict[int, dict] = {}
+
+    def applicable(d) -> dict:
+        """{str(signature): signature} of d's cached entries valid for these sources and this CPU."""
+        if id(d) not in indexes:
+            cache = getattr(d, "_cache", None)
+            try:
+                index = cache._cache_file._load_index()  # {} when the cache is stale or absent
+            except Exception:  # noqa: BLE001 - an unreadable index is numba's to report on the first call
+                index = {}
+            indexes[id(d)] = {str(key[0]): key[0] for key in index
+                              if cache._index_key(key[0], codegen) == key}  # else another CPU or other code
+        return indexes[id(d)]
+
     if entries is not None:
         by_name = {_dispatcher_name(d): d for d in dispatchers}
-        dispatchers = [by_name[name] for name in entries if name in by_name]
+        order = [(by_name[(module, name)], sig) for module, name, sig in entries if (module, name) in by_name]
+    else:
+        order = [(d, sig) for d in dispatchers for sig in applicable(d)]
     loaded = 0
-    for d in dispatchers:
-        cache = getattr(d, "_cache", None)
-        wanted = entries.get(_dispatcher_name(d)) if entries is not None else None
-        try:
-            index = cache._cache_file._load_index()  # {} when the cache is stale or absent
-        except Exception:  # noqa: BLE001 - an unreadable index is numba's to report on the first call
+    for d, text in order:
+        sig = applicable(d).get(text)
+        if sig is None or sig in d.overloads:  # not cached here, or loaded already
             continue
-        for key in index:
-            sig = key[0]
-            if sig in d.overloads or cache._index_key(sig, codegen) != key:  # loaded, or another CPU / code
-                continue
-            if wanted is not None and str(sig) not in wanted:
-                continue
-            if should_stop is not None and should_stop():
-                return loaded
-            d.compile(sig)
-            loaded += 1
+        if should_stop is not None and should_stop():
+            return loaded
+        d.compile(sig)
+        loaded += 1
     return loaded
 
 
@@ -395,16 +414,16 @@ def precompile_kernels(log: Callable[[str], None] | None = None) -> dict[str, in
     # A kernel this process already ran is called without being seen: the list would miss it; keep the one there.
     fresh = not any(d.signatures for d in _dispatchers())
     with _recording_entry_calls(entries):
+        _fold_constants_once()  # first, as the add-on's export folds constants before its render
+        say("  node constant folding")
         for name, build, overrides in _cases():
             settings = RenderSettings(**{"spp": 2, "seed": 1, "threads": 2, "tile_size": 8, **overrides})
             render(build(), settings.validate())
             say(f"  {name}")
-        _fold_constants_once()
-        say("  node constant folding")
     if fresh:
         write_entry_kernels(entries)
     counts = kernel_cache_counts()
-    counts["entry_signatures"] = sum(len(sigs) for sigs in entries.values()) if fresh else None
+    counts["entry_signatures"] = len(entries) if fresh else None
     counts["seconds"] = time.perf_counter() - t0
     return counts
 

@@ -48,11 +48,16 @@ def test_entry_kernel_list_round_trip_and_staleness(tmp_path, monkeypatch):
     monkeypatch.setattr(precompile, "entry_kernels_path", lambda: str(path))
     monkeypatch.setattr(jit_cache, "cache_dir", lambda: str(tmp_path))
     assert precompile.read_entry_kernels() is None  # none written: every cached signature is loaded
-    found = {("embree", "trace_closest"): {"(int64,)"}, ("camera", "_camera_rays"): {"(array(float64, 2d, C),)"}}
+    # one row per signature, in the order of first calls (the loading order): a kernel's second signature
+    # (another feature's) after a kernel the first case called later
+    found = {("embree", "trace_closest", "(int64,)"): None, ("camera", "_camera_rays", "(array(float64, 2d, C),)"):
+             None, ("embree", "trace_closest", "(int32,)"): None}
     precompile.write_entry_kernels(found)
-    assert precompile.read_entry_kernels() == found
-    assert list(precompile.read_entry_kernels()) == list(found)  # the order of first calls: the loading order
+    assert precompile.read_entry_kernels() == list(found)
     body = json.loads(path.read_text())
+    old_format = dict(body, format=1, kernels=[["embree", "trace_closest", ["(int32,)", "(int64,)"]]])
+    path.write_text(json.dumps(old_format))  # a list of the earlier format (one row per kernel): ignored
+    assert precompile.read_entry_kernels() is None
     body["sources"] = "0" * 64  # written for other sources (an edited kernel module): ignored
     path.write_text(json.dumps(body))
     assert precompile.read_entry_kernels() is None
@@ -70,7 +75,7 @@ def test_the_loader_loads_only_entry_kernels_and_they_cover_a_render():
         print("RESULT " + json.dumps(precompile_kernels()))
     """)  # a few seconds when `make setup` built the cache
     entries = precompile.read_entry_kernels()
-    assert entries is not None and written["entry_signatures"] == sum(len(sigs) for sigs in entries.values())
+    assert entries is not None and written["entry_signatures"] == len(entries) == len(set(entries))
     result = _python("""
         import json
         from monte.core.precompile import (entry_kernels_path, kernel_cache_counts, load_cached_kernels,
@@ -91,7 +96,7 @@ def test_the_loader_loads_only_entry_kernels_and_they_cover_a_render():
                                       "after": after, "rest": everything, "again": again,
                                       "kept": open(entry_kernels_path()).read() == listed}))
     """)
-    listed = sum(len(sigs) for sigs in entries.values())
+    listed = len(entries)
     assert result["stopped"] == 3  # should_stop() True ends the loading there
     assert result["preloaded"] == result["before"]["loaded"] == listed
     assert result["after"]["compiled"] == 0
@@ -160,3 +165,25 @@ def test_kernel_loading_skips_scipy_linear_algebra_and_numba_linalg_still_works(
     assert result["patched"] is True and result["loaded"] > 0
     assert result["linalg_after_load"] is False and result["have_blas"] is False
     assert result["dot"] == result["numpy_dot"] == [[19.0, 22.0], [43.0, 50.0]]
+
+
+def test_entry_kernels_list_an_export_and_a_default_render_first():
+    """The loader loads signature by signature in the list's order: first the export's constant folding, then
+    exactly the signatures a default render of the first built-in scene calls, so such a render started while
+    the loader works finds its kernels loaded in the order it asks for them (other features' come after)."""
+    entries = precompile.read_entry_kernels()
+    assert entries is not None
+    result = _python("""
+        import json
+        from monte.core import precompile
+        from monte.core.builtin_scenes import BUILTIN_SCENES, builtin_scene
+        from monte.core.render import render
+        from monte.core.settings import RenderSettings
+        render(builtin_scene(list(BUILTIN_SCENES)[0], (16, 16)), RenderSettings(spp=2, threads=2).validate())
+        used = [[*precompile._dispatcher_name(d), str(sig)] for d in precompile._dispatchers() for sig in d.overloads]
+        print("RESULT " + json.dumps(used))
+    """)
+    used = {tuple(row) for row in result}
+    assert entries[0][:2] == ("shading/evaluator", "_run_one")
+    assert set(entries[1:1 + len(used)]) == used
+    assert len(entries) > len(used) + 1  # other features' signatures follow
