@@ -157,10 +157,10 @@ def load_cached_kernels(entries_only: bool = True, should_stop: Callable[[], boo
     """Load kernel signatures the disk cache holds for these sources and this CPU, as the first call of each
     would (numba loads a kernel on its first call: about 0.3 s spread over a process's first render, more on a
     loaded machine). entries_only: only the entry kernels the precompile recorded (read_entry_kernels; every
-    cached signature when there is no valid list), signature by signature in the list's order (an export's and a default render's first).
-    should_stop() is asked before each signature: True ends the
-    loading there. Compiles nothing: an entry that does not apply here is skipped. Returns how many signatures
-    it loaded. Safe beside a render on another thread: numba loads and compiles under one lock."""
+    cached signature when there is no valid list), signature by signature in the list's order (an export's and
+    a default render's first). should_stop() is asked before each signature: True ends the loading there.
+    Compiles nothing: an entry that does not apply here is skipped. Returns how many signatures it loaded. Safe
+    beside a render on another thread: numba loads and compiles under one lock."""
     from numba.core.registry import cpu_target
 
     entries = read_entry_kernels() if entries_only else None
