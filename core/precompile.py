@@ -138,14 +138,20 @@ def write_entry_kernels(found) -> None:
 
 def read_entry_kernels() -> list[EntryKernel] | None:
     """The (module, qualname, signature) rows of the cache folder's entry-kernel list, in its order, or None when
-    there is none, it cannot be read, it has another format or it was written for other sources (then every
-    cached signature is loaded)."""
+    there is none, it cannot be read, it has an unknown format or it was written for other sources (then every
+    cached signature is loaded). A list of the first format (one row per kernel, from an earlier `make setup`)
+    gives each kernel's signatures together, in its kernels' order."""
     try:
         with open(entry_kernels_path(), encoding="utf-8") as fh:
             body = json.load(fh)
-        if body.get("sources") != jit_cache.sources_digest() or body.get("format") != ENTRY_KERNELS_FORMAT:
+        if body.get("sources") != jit_cache.sources_digest():
             return None
-        rows = [(module, name, sig) for module, name, sig in body["kernels"]]
+        if body.get("format", 1) == 1:
+            rows = [(module, name, sig) for module, name, sigs in body["kernels"] for sig in sigs]
+        elif body["format"] == ENTRY_KERNELS_FORMAT:
+            rows = [(module, name, sig) for module, name, sig in body["kernels"]]
+        else:
+            return None
         if not all(isinstance(part, str) for row in rows for part in row):
             return None
         return rows

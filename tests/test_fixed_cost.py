@@ -55,8 +55,13 @@ def test_entry_kernel_list_round_trip_and_staleness(tmp_path, monkeypatch):
     precompile.write_entry_kernels(found)
     assert precompile.read_entry_kernels() == list(found)
     body = json.loads(path.read_text())
-    old_format = dict(body, format=1, kernels=[["embree", "trace_closest", ["(int32,)", "(int64,)"]]])
-    path.write_text(json.dumps(old_format))  # a list of the earlier format (one row per kernel): ignored
+    earlier = {k: v for k, v in body.items() if k != "format"}  # the first format: one row per kernel
+    earlier["kernels"] = [["embree", "trace_closest", ["(int32,)", "(int64,)"]], ["camera", "_camera_rays", ["(x,)"]]]
+    path.write_text(json.dumps(earlier))
+    assert precompile.read_entry_kernels() == [("embree", "trace_closest", "(int32,)"),
+                                               ("embree", "trace_closest", "(int64,)"),
+                                               ("camera", "_camera_rays", "(x,)")]
+    path.write_text(json.dumps(dict(body, format=99)))  # a format this version does not know: ignored
     assert precompile.read_entry_kernels() is None
     body["sources"] = "0" * 64  # written for other sources (an edited kernel module): ignored
     path.write_text(json.dumps(body))
