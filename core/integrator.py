@@ -1467,22 +1467,6 @@ class PathTracer:
     # (cos(Ns, wi) cos(Ns, N) cos(N, wi) < 0: every lobe when evaluated, diffuse lobes when sampled) and diffuse
     # lobes are softened towards grazing light by a GGX shadowing factor of the normals' deviation.
     @staticmethod
-    def _bump_terms(n: np.ndarray, ns: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(diffuse softening factor, rejected) per row for bumped normals n, smooth normals ns, directions wi."""
-        cos_si = np.einsum("ij,ij->i", ns, wi).astype(np.float64)
-        cos_sn = np.einsum("ij,ij->i", ns, n).astype(np.float64)
-        cos_ni = np.einsum("ij,ij->i", n, wi).astype(np.float64)
-        reject = cos_si * cos_sn * cos_ni < 0
-        cos_i, cos_d = np.abs(cos_si), np.minimum(np.abs(cos_sn), 1.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tan2_d = 1.0 / np.maximum(cos_d * cos_d, 1e-30) - 1.0
-            alpha2 = np.clip(0.125 * tan2_d, 0.0, 1.0)
-            tan2_i = 1.0 / np.maximum(cos_i * cos_i, 1e-30) - 1.0
-            g1 = 2.0 / (1.0 + np.sqrt(1.0 + alpha2 * tan2_i))
-        g1 = np.where((cos_d >= 1.0) | (cos_i >= 1.0), 1.0, np.where(cos_i < 1e-6, 0.0, g1))
-        return g1, reject
-
-    @staticmethod
     def _diffuse_only(lobes: "bsdf_mod.LobeBatch", rows: np.ndarray) -> "bsdf_mod.LobeBatch":
         """The lobes with every weight but the diffuse lobes' of `rows` zero, for eval_bsdf(rows=...): the other
         arrays are shared, not copied (only the rows read are filled; the zeros are calloc'd pages)."""
@@ -1500,8 +1484,7 @@ class PathTracer:
             return f_cos
         ns = bumped[1][where[can[sel]]]
         # each closure's own normal: the specular lobes' is the frame's (tilted), the diffuse lobes' the untilted
-        _, reject = self._bump_terms(gc.n_view[sel], ns, wi[sel])
-        g1, reject_d = self._bump_terms(_diffuse_view_normal(gc, sel), ns, wi[sel])
+        g1, reject, reject_d = _bump_terms(gc, sel, ns, wi[sel], local=False)
         f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, can[sel]), gc.wo[sel], wi_local[sel], rows=can[sel],
                                     back=gc.cos_o_geo[sel] < 0)
         adjusted = (np.where(reject[:, None], np.float32(0), f_cos[sel] - f_d)
@@ -1518,8 +1501,7 @@ class PathTracer:
             return
         r = rows[ok]
         wl = np.asarray(bs.wi, np.float32)[r]
-        wi = (g.tangent[r] * wl[:, :1] + g.bitangent[r] * wl[:, 1:2] + g.ns[r] * wl[:, 2:3]).astype(np.float32)
-        g1, reject = self._bump_terms(_diffuse_view_normal(g, r), bumped[1][ok], wi)
+        g1, _, reject = _bump_terms(g, r, bumped[1][ok], wl, local=True)
         f_d, _ = bsdf_mod.eval_bsdf(self._diffuse_only(lobes, r), g.wo[r], wl, rows=r, back=g.cos_o_geo[r] < 0)
         loss = np.where(reject, 1.0, 1.0 - g1)[:, None] * f_d / np.maximum(np.asarray(bs.pdf, np.float32)[r], 1e-30)[:, None]
         bs.weight[r] = np.maximum(bs.weight[r] - loss.astype(np.float32), 0.0)
@@ -1837,12 +1819,19 @@ class PathTracer:
         self.stats.clamped += int(counters[1])
 
 
-def _diffuse_view_normal(g: "SurfaceBatch", rows: np.ndarray) -> np.ndarray:
-    """(len(rows), 3) float32: the diffuse lobes' normal of those points (g.dn, see geometry_kernels.surface) in
-    world space on the viewer's side, as n_view is the frame's; equal to n_view where nothing was tilted."""
-    dn = g.dn[rows]
-    w = g.tangent[rows] * dn[:, :1] + g.bitangent[rows] * dn[:, 1:2] + g.ns[rows] * dn[:, 2:3]
-    return np.where((g.cos_o_geo[rows] < 0)[:, None], -w, w).astype(np.float32)
+def _bump_terms(g: "SurfaceBatch", rows: np.ndarray, smooth: np.ndarray, w: np.ndarray,
+                local: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cycles' bump shadowing at the points `rows` of g (their node program set the normal), smooth (M, 3) their
+    smooth normals, w (M, 3) directions (world space, or in each point's shading frame when `local`):
+    (g1 (M,) the diffuse lobes' softening factor, rejected (M,) for the frame's normal (the microfacet lobes'),
+    rejected (M,) for the diffuse lobes' normal); geometry_kernels.bump_shadowing_terms."""
+    m = len(rows)
+    g1, reject, reject_d = np.empty(m, np.float64), np.empty(m, np.bool_), np.empty(m, np.bool_)
+    geometry_kernels.bump_shadowing_terms(np.ascontiguousarray(rows, np.int64),
+                                          np.ascontiguousarray(smooth, np.float32),
+                                          np.ascontiguousarray(w, np.float32), local, g.tangent, g.bitangent,
+                                          g.ns, g.n_view, g.dn, g.cos_o_geo, g1, reject, reject_d)
+    return g1, reject, reject_d
 
 
 def surface_batch(ps: PreparedScene, rows: np.ndarray, prim, bu, bv, d) -> "SurfaceBatch":

@@ -370,6 +370,19 @@ def _fold_constants_once() -> None:
     evaluator.run_single(program)
 
 
+def _bump_shadowing_once() -> None:
+    """Points whose node program sets the normal (Normal Map, Bump) take Cycles' bump shadowing
+    (geometry_kernels.bump_shadowing_terms, through the integrator's helper, on a surface batch's column views):
+    compile it here, so that the first such render compiles nothing."""
+    from .integrator import SurfaceBatch, _bump_terms
+
+    g = SurfaceBatch.empty(1, False)
+    g.data[:] = 0.0
+    none = np.zeros((0, 3), np.float32)
+    for local in (False, True):
+        _bump_terms(g, np.zeros(0, np.int64), none, none, local)
+
+
 def _panoramic(scene):
     """The scene seen through Cycles' equirectangular panoramic camera (its own ray kernel)."""
     scene.camera.kind = "PANO"
@@ -426,6 +439,8 @@ def precompile_kernels(log: Callable[[str], None] | None = None) -> dict[str, in
             settings = RenderSettings(**{"spp": 2, "seed": 1, "threads": 2, "tile_size": 8, **overrides})
             render(build(), settings.validate())
             say(f"  {name}")
+        _bump_shadowing_once()
+        say("  bump shadowing")
     if fresh:
         write_entry_kernels(entries)
     counts = kernel_cache_counts()

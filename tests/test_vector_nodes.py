@@ -115,3 +115,68 @@ def test_camera_differentials_are_the_pixel_footprint():
     width = persp.frame()[1] - persp.frame()[0]  # of the image plane at distance 1
     assert np.allclose(dd, width / 64, rtol=1e-3)
     assert np.allclose(dp, rays.t_start * dd, rtol=1e-3)
+
+
+def _bump_term_reference(n, s, w):
+    """Cycles' bump shadowing (closure/bsdf.h) in float64 NumPy: (g1, rejected, |the sign test's product|)."""
+    cos_si, cos_sn, cos_ni = (np.einsum("ij,ij->i", a, b) for a, b in ((s, w), (s, n), (n, w)))
+    cos_i, cos_d = np.abs(cos_si), np.minimum(np.abs(cos_sn), 1.0)
+    alpha2 = np.clip(0.125 * (1.0 / np.maximum(cos_d ** 2, 1e-30) - 1.0), 0.0, 1.0)
+    g1 = 2.0 / (1.0 + np.sqrt(1.0 + alpha2 * (1.0 / np.maximum(cos_i ** 2, 1e-30) - 1.0)))
+    g1 = np.where((cos_d >= 1.0) | (cos_i >= 1.0), 1.0, np.where(cos_i < 1e-6, 0.0, g1))
+    return g1, cos_si * cos_sn * cos_ni < 0, np.abs(cos_si * cos_sn * cos_ni)
+
+
+def test_bump_shadowing_terms_are_cycles_terms_for_both_normals_in_world_and_local_directions():
+    """The compiled bump shadowing (one pass per point) against Cycles' formula: the frame's normal decides the
+    rejection of every lobe, the diffuse normal (dn in the frame, negated on back faces) the diffuse softening;
+    directions given in world space and in the shading frame agree."""
+    from monte.core.integrator import SurfaceBatch, _bump_terms
+
+    rng = np.random.default_rng(7)
+    m = 400
+    g = SurfaceBatch.empty(m, False)
+    g.data[:] = 0.0
+
+    def units(k):
+        v = rng.normal(size=(k, 3))
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+    ns = units(m)
+    t = np.cross(ns, units(m))
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    b = np.cross(ns, t)
+    g.ns[:], g.tangent[:], g.bitangent[:] = ns, t, b
+    back = rng.random(m) < 0.3
+    g.cos_o_geo[:] = np.where(back, -0.5, 0.5)
+    g.n_view[:] = np.where(back[:, None], -ns, ns)
+    dn = units(m) * [0.3, 0.3, 1.0]
+    dn /= np.linalg.norm(dn, axis=1, keepdims=True)
+    dn[::4] = (0.0, 0.0, 1.0)  # untilted points: the diffuse normal is the frame's
+    g.dn[:] = dn
+    smooth = units(m)
+    smooth[::5] = g.n_view[::5]  # the node left the normal as it was: no softening
+    w_world = units(m)
+    grazing = np.zeros(m, bool)
+    grazing[3::7] = True  # perpendicular to the smooth normal: fully shadowed diffuse lobes
+    w_world[grazing] = np.cross(smooth[grazing], w_world[grazing])
+    w_world[grazing] /= np.linalg.norm(w_world[grazing], axis=1, keepdims=True)
+    w_local = np.stack([np.einsum("ij,ij->i", w_world, a) for a in (t, b, ns)], axis=1)
+    rows = rng.permutation(m)[: m - 50]
+
+    f64 = lambda a: np.asarray(a, np.float32).astype(np.float64)  # what the kernel reads (float32)
+    t, b, ns, smooth, w_world = f64(g.tangent), f64(g.bitangent), f64(g.ns), f64(smooth), f64(w_world)
+    diffuse_normal = t * dn[:, :1] + b * dn[:, 1:2] + ns * dn[:, 2:3]
+    diffuse_normal = np.where(back[:, None], -diffuse_normal, diffuse_normal)
+    want_g1, want_reject_d, size_d = _bump_term_reference(diffuse_normal[rows], smooth[rows], w_world[rows])
+    _, want_reject, size = _bump_term_reference(f64(g.n_view)[rows], smooth[rows], w_world[rows])
+    clear, clear_d = size > 1e-4, size_d > 1e-4  # sign tests float32 rounding cannot flip
+    for w in (w_world, w_local):
+        g1, reject, reject_d = _bump_terms(g, rows, smooth[rows], w[rows], local=w is w_local)
+        np.testing.assert_allclose(g1, want_g1, atol=1e-4)
+        assert np.array_equal(reject[clear], want_reject[clear])
+        assert np.array_equal(reject_d[clear_d], want_reject_d[clear_d])
+    assert want_reject.sum() > 50 and ((want_g1 > 0.01) & (want_g1 < 0.99)).sum() > 50  # the cases meant
+    same = ((rows % 20) == 0) & ~grazing[rows]  # untilted and the node's normal the smooth one: no softening
+    assert np.all(g1[same] > 1.0 - 1e-5)
+    assert np.all(g1[grazing[rows]] < 1e-3)

@@ -15,6 +15,7 @@ import numpy as np
 
 from .. import bsdf_kernels as bk
 from .. import microfacet as mf
+from ..jit_cache import jit_inline as _jit_inline
 from ..jit_cache import jit_no_nrt as _jit
 from . import color
 from . import registry as R
@@ -552,7 +553,7 @@ def _normalize3(x, y, z):
     return 0.0, 0.0, 0.0
 
 
-@_jit
+@_jit_inline
 def _normal_map(a, regs, k, N, back, obj, objects, tan, nraw):
     """Cycles' svm_node_normal_map: the colour as 2 c - 1 in tangent, object or world space; world-space result
     on the viewer's side (negated on a back face). Strength scales the tangent-space offset (x, y times it, z
@@ -605,7 +606,7 @@ def _normal_map(a, regs, k, N, back, obj, objects, tan, nraw):
     set3(regs, a[1], ox, oy, oz)
 
 
-@_jit
+@_jit_inline
 def _bump(a, regs, k, N, dP):
     """Cycles' svm_node_set_bump: the heights h_c, h_x, h_y at P, P + w dP.dx, P + w dP.dy (w: filter width)
     tilt the normal by the surface gradient, strength blends from the input normal."""
@@ -875,43 +876,7 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         setf(regs, a[4], objects[o, OBJECT_PASS_INDEX])
         setf(regs, a[5], objects[o, OBJECT_RANDOM])
     elif op == _IMAGE:
-        if a[3] >= 0:
-            x, y, z = get3(regs, a[3])
-        elif has_uv:
-            b, w = _bump_shift(regs, a[10], a[11])
-            x, y, z = float(uv[k, 0]) + w * duv[k, b, 0], float(uv[k, 1]) + w * duv[k, b, 1], 0.0
-        else:
-            x, y, z = 0.0, 0.0, 0.0
-        t = a[4]
-        proj = a[8]
-        if proj == 1:  # box: up to three lookups, unassociated after the sum (Cycles, against fringes)
-            blend = float(regs[a[9], 0]) if a[9] >= 0 else 0.0
-            wx, wy, wz, sx, sy, sz = _box_weights(N, k, obj, objects, blend)
-            r = g = b = alpha = 0.0
-            for face in range(3):
-                wf = wx if face == 0 else (wy if face == 1 else wz)
-                if wf <= 0.0:
-                    continue
-                if face == 0:
-                    u, v = (1.0 - y if sx < 0.0 else y), z
-                elif face == 1:
-                    u, v = (1.0 - x if sy > 0.0 else x), z
-                else:
-                    u, v = (1.0 - y if sz > 0.0 else y), x
-                fr, fg, fb, fa = _image_rgba(tex_pixels, tex_offset[t], tex_h[t], tex_w[t], u, v, a[5], a[6],
-                                             a[7] & 3)
-                r, g, b, alpha = r + wf * fr, g + wf * fg, b + wf * fb, alpha + wf * fa
-            if a[7] & 4 and alpha != 0.0 and alpha != 1.0:
-                r, g, b = r / alpha, g / alpha, b / alpha
-        else:
-            if proj == 2 or proj == 3:  # sphere / tube about the centre of the [0, 1] cube (Cycles' map_to_*)
-                cx, cy, cz = 2.0 * x - 1.0, 2.0 * y - 1.0, 2.0 * z - 1.0
-                u, v = _map_to_sphere(cx, cy, cz) if proj == 2 else _map_to_tube(cx, cy, cz)
-            else:
-                u, v = x, y
-            r, g, b, alpha = _image_rgba(tex_pixels, tex_offset[t], tex_h[t], tex_w[t], u, v, a[5], a[6], a[7])
-        set3(regs, a[1], r, g, b)
-        setf(regs, a[2], alpha)
+        _image_op(a, regs, k, N, uv, has_uv, obj, objects, tex_pixels, tex_offset, tex_h, tex_w, duv)
     elif op == _NORMAL_MAP:
         _normal_map(a, regs, k, N, back, obj, objects, tan, nraw)
     elif op == _BUMP_OP:
@@ -920,6 +885,48 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         _vector_transform(a, regs, data, k, obj, objects)
     elif op == _TANGENT:
         _tangent(a, regs, k, N, obj, objects, tan)
+
+
+@_jit_inline
+def _image_op(a, regs, k, N, uv, has_uv, obj, objects, tex_pixels, tex_offset, tex_h, tex_w, duv):
+    """The Image Texture instruction (Color into a[1], Alpha into a[2]) for shading point k."""
+    if a[3] >= 0:
+        x, y, z = get3(regs, a[3])
+    elif has_uv:
+        b, w = _bump_shift(regs, a[10], a[11])
+        x, y, z = float(uv[k, 0]) + w * duv[k, b, 0], float(uv[k, 1]) + w * duv[k, b, 1], 0.0
+    else:
+        x, y, z = 0.0, 0.0, 0.0
+    t = a[4]
+    proj = a[8]
+    if proj == 1:  # box: up to three lookups, unassociated after the sum (Cycles, against fringes)
+        blend = float(regs[a[9], 0]) if a[9] >= 0 else 0.0
+        wx, wy, wz, sx, sy, sz = _box_weights(N, k, obj, objects, blend)
+        r = g = b = alpha = 0.0
+        for face in range(3):
+            wf = wx if face == 0 else (wy if face == 1 else wz)
+            if wf <= 0.0:
+                continue
+            if face == 0:
+                u, v = (1.0 - y if sx < 0.0 else y), z
+            elif face == 1:
+                u, v = (1.0 - x if sy > 0.0 else x), z
+            else:
+                u, v = (1.0 - y if sz > 0.0 else y), x
+            fr, fg, fb, fa = _image_rgba(tex_pixels, tex_offset[t], tex_h[t], tex_w[t], u, v, a[5], a[6],
+                                         a[7] & 3)
+            r, g, b, alpha = r + wf * fr, g + wf * fg, b + wf * fb, alpha + wf * fa
+        if a[7] & 4 and alpha != 0.0 and alpha != 1.0:
+            r, g, b = r / alpha, g / alpha, b / alpha
+    else:
+        if proj == 2 or proj == 3:  # sphere / tube about the centre of the [0, 1] cube (Cycles' map_to_*)
+            cx, cy, cz = 2.0 * x - 1.0, 2.0 * y - 1.0, 2.0 * z - 1.0
+            u, v = _map_to_sphere(cx, cy, cz) if proj == 2 else _map_to_tube(cx, cy, cz)
+        else:
+            u, v = x, y
+        r, g, b, alpha = _image_rgba(tex_pixels, tex_offset[t], tex_h[t], tex_w[t], u, v, a[5], a[6], a[7])
+    set3(regs, a[1], r, g, b)
+    setf(regs, a[2], alpha)
 
 
 @_jit
@@ -948,7 +955,7 @@ def _light_path(a, regs, k, extra):
         setf(regs, a[8 + j], vals[j])
 
 
-@_jit
+@_jit_inline
 def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects, dP, duv):
     o = obj[k]
     b, w = _bump_shift(regs, a[8], a[9])
@@ -1041,7 +1048,19 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
             # the families straight from here (not through _execute): register-only ops take 3-4 arguments,
             # only the ops that read the shading context get its arrays
             if op < _COLOR_BASE:
-                if not _register_op(op, a, scratch):
+                if _register_op(op, a, scratch):
+                    pass
+                # the context ops of textured materials inlined here with the arrays they read: through
+                # _core_op each call passed the whole context (two dozen arrays) twice, ~120 ns per instruction
+                elif op == _TEXCO:
+                    _texture_coordinate(a, scratch, k, P, N, I, uv, has_uv, obj, objects, dP, duv)
+                elif op == _IMAGE:
+                    _image_op(a, scratch, k, N, uv, has_uv, obj, objects, tex_pixels, tex_offset, tex_h, tex_w, duv)
+                elif op == _NORMAL_MAP:
+                    _normal_map(a, scratch, k, N, back, obj, objects, tan, nraw)
+                elif op == _BUMP_OP:
+                    _bump(a, scratch, k, N, dP)
+                else:
                     _core_op(op, a, scratch, pdata, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels,
                              tex_offset, tex_h, tex_w, uvx, extra, dP, duv, tan, nraw)
             elif op < _PROC_BASE:
