@@ -55,7 +55,7 @@ from .settings import RenderSettings
 FILM_BYTES = 64  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
 FILM_SQUARES_BYTES = 12  # the sum of squared deviations: kept for all samplers but Sobol (core.film)
 FILM_INDEPENDENT_BYTES = 40  # independent samples: one group (no variance groups) and the squares
-FILM_AOV_BYTES = 32
+FILM_AOV_BYTES = 32  # AOV sums in a film render_samples() hands on (a render's films keep none)
 FILM_LIGHT_PASS_BYTES = 132  # float32 RGB sums of the 11 light passes (core.light_passes)
 RESULT_LIGHT_PASS_BYTES = 12  # per light pass asked for: float32 RGB
 FILM_SHADER_AOV_BYTES = 16  # per shader AOV: float32 RGB sum and write count (core.shader_aovs)

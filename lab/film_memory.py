@@ -16,6 +16,10 @@
                                                          # group excess sums) and float16 AOV running means against
                                                          # the film's storage and float64, a million samples per pixel
 
+    python -m monte.lab.film_memory --render-films 1920x1080 --spp 2 --tile-size 512 [--package-root DIR]
+        # the films a render makes (bytes per pixel, the most alive at once) and the process's peak RSS, in a
+        # fresh process; with --package-root also that checkout's `monte`, in the same run
+
 --film loads TileFilm from another version of core/film.py (e.g. `git show REV:core/film.py > old.py`) so that
 a change to the film can be measured before and after in one checkout. The render runs in this process: run one
 render per invocation (peak RSS is per process).
@@ -101,6 +105,48 @@ def throughput_table(threads: int, package_root: str | None, sizes=TABLE) -> lis
     return rows
 
 
+# One render in a fresh process, counting the films it makes (their arrays' bytes, the most alive at once).
+_FILM_RENDER = """
+import gc, json, resource, sys, weakref
+import numpy as np
+from monte.core import builtin_scenes
+from monte.core import render as render_module
+from monte.core.settings import RenderSettings
+w, h, spp, tile, threads = (int(v) for v in sys.argv[1:6])
+made, alive = [], weakref.WeakSet()
+most = [0]
+class CountedFilm(render_module.TileFilm):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        made.append(sum(v.nbytes for v in vars(self).values() if isinstance(v, np.ndarray)) / max(self.pixels, 1))
+        alive.add(self)
+        most[0] = max(most[0], sum(f.pixels for f in alive))
+render_module.TileFilm = CountedFilm
+r = render_module.render(builtin_scenes.cornell_box((w, h)), RenderSettings(spp=spp, threads=threads, tile_size=tile,
+                                                                           aovs=True))
+print(json.dumps({"film_bytes_per_pixel": max(made), "film_pixels_alive_max": most[0],
+                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+                  "seconds": r.stats["seconds"], "image_mean": float(r.color[..., :3].mean()),
+                  "albedo_mean": float(r.albedo.mean()), "depth_mean": float(r.depth.mean())}))
+"""
+
+
+def render_films(width: int, height: int, spp: int, tile: int, threads: int, package_root: str | None) -> dict:
+    """The films a Cornell box render with AOVs makes (bytes per pixel of their arrays, the most pixels of film
+    alive at once) and the process's peak RSS, in a fresh process; package_root as throughput_table's."""
+    env = dict(os.environ)
+    if package_root:
+        env["PYTHONPATH"] = os.pathsep.join([package_root, env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    out = subprocess.run([sys.executable, "-c", _FILM_RENDER, str(width), str(height), str(spp), str(tile),
+                          str(threads)], env=env, check=True, capture_output=True, text=True).stdout
+    row = json.loads(out.strip().splitlines()[-1])
+    print(f"{package_root or 'this checkout'}: {width}x{height} {spp} spp, {tile}-px tiles: film "
+          f"{row['film_bytes_per_pixel']:.1f} B/px, at most {row['film_pixels_alive_max']:,} px of film alive, peak RSS "
+          f"{row['peak_rss_mb']:,.0f} MB, {row['seconds']:.1f} s, image mean {row['image_mean']:.6f}, albedo mean "
+          f"{row['albedo_mean']:.6f}, depth mean {row['depth_mean']:.6f}", flush=True)
+    return row
+
+
 def _grouped_variance(dev: np.ndarray, group_n: np.ndarray, mean_dev: np.ndarray) -> np.ndarray:
     """core.film's grouped variance of the mean from per-group sums of deviations dev (p, G, 3) from a common
     value, group_n (G,) samples per group and mean_dev (p, 3) the mean's deviation from that value."""
@@ -183,11 +229,19 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --render: the passes go round all tiles at once (no window of tiles)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--table", action="store_true", help="the throughput table (see the module docstring)")
-    parser.add_argument("--package-root", help="with --table: measure the `monte` package in this folder")
+    parser.add_argument("--package-root", help="with --table or --render-films: measure the `monte` package in this "
+                                               "folder")
     parser.add_argument("--json", help="with --table: write the rows to this file")
+    parser.add_argument("--render-films", metavar="WIDTHxHEIGHT",
+                        help="the films a render makes and its peak RSS (see the module docstring)")
     parser.add_argument("--storage-study", action="store_true",
                         help="the compact storages' errors at a million samples (see the module docstring)")
     args = parser.parse_args(argv)
+    if args.render_films:
+        w, h = (int(v) for v in args.render_films.lower().split("x"))
+        for root in ([args.package_root] if args.package_root else []) + [None]:
+            render_films(w, h, args.spp, args.tile_size, args.threads, root)
+        return 0
     if args.storage_study:
         storage_study()
         return 0
