@@ -37,8 +37,11 @@ groups holding samples. Under the Sobol sampler's rule (group i mod G) 2 samples
 with fewer there is no variance to estimate, so a film for it keeps no squares.
 
 Memory per pixel (core.memory): K 12 B, group deviation sums 48 B (G = 4), the sample count 4 B = 64 B, and
-the sum of squared deviations 12 B more where the estimate reads it (stratified, independent samples); the AOVs
-add 32 B (float32 albedo, normal and depth sums, int32 depth count), the denoising features 24 B, alpha (Film > Transparent, holdout) 4 B, a shadow catcher 44 B, the light passes
+the sum of squared deviations 12 B more where the estimate reads it (stratified, independent samples); a film made
+with aovs keeps 32 B more (float32 albedo, normal and depth sums, int32 depth count), but a render's films are
+made without: it sums the AOVs straight into the frame's AOV images with the same operations
+(core.render.FrameImages.add_aovs), so only the films render_samples() hands on keep them; the denoising
+features add 24 B, alpha (Film > Transparent, holdout) 4 B, a shadow catcher 44 B, the light passes
 (core.light_passes) 132 B, the shader AOVs (core.shader_aovs) 16 B each. (It was 136 + 64 + 48 B in float64,
 and 88 B with stored group counts.)
 

@@ -206,3 +206,66 @@ def aov_images(albedo, normal, depth_sum, depth_count, sample_count, y0, x0, wid
             depth_out[y, x] = np.float32(np.float64(depth_sum[p]) / np.float64(max(hits, 1)))
         else:
             depth_out[y, x] = np.float32(1e10)
+
+
+@_jit
+def add_aovs_to_frame(pixel, albedo_in, normal_in, depth_in, y0, x0, width, albedo, normal, depth, hits, sums3,
+                      sums1, scratch_counts):
+    """A local render's first-hit AOVs summed straight into the frame's albedo, normal (H, W, 3) and depth (H, W)
+    float32 images and the depth hits into its sample-count image (H, W) int32 (borrowed until the tile is final:
+    finish_frame_aovs), for the tile whose pixel p lies at row y0 + p // width, column x0 + p % width: the
+    operations and order of add_sums3 (albedo, normal) and add_sums1 (finite depths) on a film's sums, so the same
+    bits. Scratch: sums3 (n, 6) float64, sums1 (n,) float64, scratch_counts (n,) int64 for the tile's n pixels,
+    zero, and zero again on return."""
+    for i in range(pixel.shape[0]):
+        p = pixel[i]
+        for c in range(3):
+            sums3[p, c] += albedo_in[i, c]
+        for c in range(3):
+            sums3[p, 3 + c] += normal_in[i, c]
+        d = depth_in[i]
+        if np.isfinite(d):
+            sums1[p] += d
+            scratch_counts[p] += 1
+    for p in range(sums1.shape[0]):
+        y, x = y0 + p // width, x0 + p % width
+        for c in range(3):
+            albedo[y, x, c] = np.float32(np.float64(albedo[y, x, c]) + sums3[p, c])
+            normal[y, x, c] = np.float32(np.float64(normal[y, x, c]) + sums3[p, 3 + c])
+            sums3[p, c] = 0.0
+            sums3[p, 3 + c] = 0.0
+        depth[y, x] = np.float32(np.float64(depth[y, x]) + sums1[p])
+        hits[y, x] += scratch_counts[p]
+        sums1[p] = 0.0
+        scratch_counts[p] = 0
+
+
+@_jit
+def finish_frame_aovs(sample_count, y0, x0, width, albedo, normal, depth, hits):
+    """A final tile's AOV sums in the frame's images (add_aovs_to_frame) made its AOV images in place: the
+    operations of aov_images, so the same bits as a film's AOV sums give. sample_count (n,) int32: the tile's
+    samples per pixel (its film's). Leaves the tile's hits at 0 (the caller writes the sample counts there)."""
+    for p in range(sample_count.shape[0]):
+        y, x = y0 + p // width, x0 + p % width
+        n = np.float64(max(np.int64(sample_count[p]), 1))
+        nx = np.float64(normal[y, x, 0]) / n
+        ny = np.float64(normal[y, x, 1]) / n
+        nz = np.float64(normal[y, x, 2]) / n
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        for c in range(3):
+            albedo[y, x, c] = np.float32(np.float64(albedo[y, x, c]) / n)
+        if length > 0:
+            scale = max(length, 1e-30)
+            normal[y, x, 0] = np.float32(nx / scale)
+            normal[y, x, 1] = np.float32(ny / scale)
+            normal[y, x, 2] = np.float32(nz / scale)
+        else:
+            normal[y, x, 0] = np.float32(0.0)
+            normal[y, x, 1] = np.float32(0.0)
+            normal[y, x, 2] = np.float32(0.0)
+        count = hits[y, x]
+        if count > 0:
+            depth[y, x] = np.float32(np.float64(depth[y, x]) / np.float64(max(count, 1)))
+        else:
+            depth[y, x] = np.float32(1e10)
+        hits[y, x] = 0

@@ -2,7 +2,7 @@
 
 The estimate (bytes), measured on this renderer (see docs/stress.md for the calibration):
 
-    total = film pixels x (FILM_BYTES [+ FILM_SQUARES_BYTES] [+ FILM_AOV_BYTES] [+ FILM_FEATURE_BYTES])
+    total = film pixels x (FILM_BYTES [+ FILM_SQUARES_BYTES] [+ FILM_FEATURE_BYTES])
           + pixels x (RESULT_BYTES [+ RESULT_AOV_BYTES] [+ RESULT_FEATURE_BYTES])
           + threads x min(batch, pixels x spp) x PATH_BYTES      (batch: core.schedule.batch_target)
           + triangles x TRIANGLE_BYTES + texels x TEXEL_BYTES
@@ -13,8 +13,10 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
 - film (core.film, float32 storage): per pixel a float32 RGB shift (12 B), for each of the 4 variance groups a
   float32 RGB deviation sum (4 x 12 B), an int32 sample count (4 B) (64 B); for samplers other than Sobol a
   float32 RGB sum of squared deviations (FILM_SQUARES_BYTES, 12 B; the independent sampler's film keeps one group
-  and the squares: FILM_INDEPENDENT_BYTES, 40 B); with
-  AOVs float32 albedo and normal sums (24 B), a float32 depth sum and int32 count (8 B); with the denoising
+  and the squares: FILM_INDEPENDENT_BYTES, 40 B); the AOVs' float32 albedo, normal and depth sums are kept in
+  the result's own AOV images until each tile is final, their depth hit count in its sample-count image
+  (core.render.FrameImages.add_aovs), so they add nothing to a render's films (render_samples()' films, which are
+  handed on, keep them: FILM_AOV_BYTES, 32 B); with the denoising
   features float32 albedo and normal sums (24 B); with a shadow catcher float32 matte, catcher and world sums
   (36 B), the matte's transparency (4 B) and an int32 count of samples that met the catcher (4 B) (+ 44 B, and
   28 B more in the result: the Shadow Catcher pass and its matte); with light passes float32 RGB sums of all 11
@@ -53,7 +55,7 @@ from .settings import RenderSettings
 FILM_BYTES = 64  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
 FILM_SQUARES_BYTES = 12  # the sum of squared deviations: kept for all samplers but Sobol (core.film)
 FILM_INDEPENDENT_BYTES = 40  # independent samples: one group (no variance groups) and the squares
-FILM_AOV_BYTES = 32
+FILM_AOV_BYTES = 32  # AOV sums in a film render_samples() hands on (a render's films keep none)
 FILM_LIGHT_PASS_BYTES = 132  # float32 RGB sums of the 11 light passes (core.light_passes)
 RESULT_LIGHT_PASS_BYTES = 12  # per light pass asked for: float32 RGB
 FILM_SHADER_AOV_BYTES = 16  # per shader AOV: float32 RGB sum and write count (core.shader_aovs)
@@ -113,7 +115,7 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     # the tiles' films alive at once (core.render: one window of tiles at a time, but round all under a time limit)
     film_pixels = pixels if settings.time_limit > 0 else min(pixels, max(FILM_WINDOW_PIXELS,
                                                                          int(settings.tile_size) ** 2))
-    film = film_pixels * (colour + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0)
+    film = film_pixels * (colour + (FILM_FEATURE_BYTES if features else 0)
                           + (FILM_LIGHT_PASS_BYTES if light else 0))
     result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0)
                        + RESULT_LIGHT_PASS_BYTES * len(getattr(settings, "light_passes", ())))

@@ -24,6 +24,7 @@ from .accel import Accelerator
 from .camera import camera_rays
 from .data_passes import DataFilm, DataTables, manifests, take_samples
 from .data_passes import assemble as assemble_data
+from . import film_kernels
 from .film import CatcherOutput, TileFilm
 from .filters import PixelFilter
 from .integrator import (DIM_FILM, DIM_LENS, DIM_TIME, CatcherSamples, DenoisingFeatures, FirstHit, PathStats,
@@ -357,8 +358,10 @@ class FrameImages:
         self.variance = np.zeros((rh, rw, 3), np.float32)
         self.albedo = np.zeros((rh, rw, 3), np.float32) if aovs else None
         self.normal = np.zeros((rh, rw, 3), np.float32) if aovs else None
-        self.depth = np.full((rh, rw), 1e10, np.float32) if aovs else None
+        # (0 until a tile's images are written: put() writes 1e10 where nothing was hit, and every tile is put)
+        self.depth = np.zeros((rh, rw), np.float32) if aovs else None
         self.counts = np.zeros((rh, rw), np.int32)
+        self._aov_scratch: tuple | None = None  # add_aovs(): float64 / int64 sums for one tile's pixels
         self.extras: dict = {}
         if film is not None and film.catcher is not None:
             self.extras["shadow_catcher"] = np.ones((rh, rw, 3), np.float32)
@@ -376,19 +379,43 @@ class FrameImages:
         if film is not None and film.features and world_to_camera is not None:
             self.features = (np.zeros((rh, rw, 3), np.float32), np.zeros((rh, rw, 3), np.float32))
 
+    def add_aovs(self, tile: TileRect, pixel: np.ndarray, albedo: np.ndarray, normal: np.ndarray,
+                 depth: np.ndarray) -> None:
+        """Sum a local render's first-hit AOVs of samples at the tile's `pixel` (tile-local) straight into the
+        region's albedo, normal and depth images, instead of into the tile's film (whose memory per pixel that
+        halves: the images exist anyway). The depth hits are counted in the sample-count image until the tile is
+        put(), which makes the sums the AOV images (core.film_kernels.add_aovs_to_frame / finish_frame_aovs: the
+        operations of the film's AOV sums and images, so the same bits). A tile's film then keeps no AOVs."""
+        tx, ty, tw, th = tile
+        n = tw * th
+        pixel = np.ascontiguousarray(pixel, np.int64).reshape(-1)
+        if len(pixel) and (pixel.min() < 0 or pixel.max() >= n):
+            raise ValueError(f"frame: pixel index out of range [0, {n}) for a {tw}x{th} tile")
+        if self._aov_scratch is None or len(self._aov_scratch[1]) != n:
+            self._aov_scratch = (np.zeros((n, 6)), np.zeros(n), np.zeros(n, np.int64))
+        f64 = lambda a: np.ascontiguousarray(a, np.float64)
+        film_kernels.add_aovs_to_frame(pixel, f64(albedo), f64(normal), f64(depth).reshape(-1), ty - self.region[1],
+                                       tx - self.region[0], tw, self.albedo, self.normal, self.depth, self.counts,
+                                       *self._aov_scratch)
+
     def put(self, tile: TileRect, film: TileFilm, samples: int = 0) -> Tile:
-        """Write a tile's images from its film; returns them as a Tile of views into the region's arrays
-        (samples: what Tile.samples reports). The film is left as it is (the caller releases it)."""
+        """Write a tile's images from its film (and, where the film keeps no AOVs, from the AOV sums add_aovs()
+        left in the region's images); returns them as a Tile of views into the region's arrays (samples: what
+        Tile.samples reports). The film is left as it is (the caller releases it)."""
         rx, ry = self.region[:2]
         tx, ty, tw, th = tile
         oy, ox = ty - ry, tx - rx
         sl = (slice(oy, oy + th), slice(ox, ox + tw))
         film.write_colour_images(self.color, self.variance, oy, ox)
-        self.counts[sl] = film.count.reshape(th, tw)
         out = Tile(tx, ty, self.color[sl], self.variance[sl], samples=samples)
         if self.aovs:
-            film.write_aov_images(self.albedo, self.normal, self.depth, oy, ox)
+            if film.aovs:
+                film.write_aov_images(self.albedo, self.normal, self.depth, oy, ox)
+            else:  # the sums are in the images (and the depth hits in the counts, read before they are written)
+                film_kernels.finish_frame_aovs(film.sample_count, oy, ox, tw, self.albedo, self.normal, self.depth,
+                                               self.counts)
             out.albedo, out.normal, out.depth = self.albedo[sl], self.normal[sl], self.depth[sl]
+        self.counts[sl] = film.count.reshape(th, tw)
         if self.features is not None:
             feature_albedo, feature_normal = film.feature_images()
             self.features[0][sl] = feature_albedo
@@ -540,7 +567,10 @@ class _TileRender:
         # Each tile's film is made when first asked for (its first samples): at low spp, where tiles are final
         # after one pass and released then, films are made and freed a few at a time, and memory freed by one
         # is reused by the next instead of all films' small arrays staying resident in the heap.
-        self.films = _LazyFilms(lambda t: TileFilm(t[2], t[3], settings.aovs, self.sampler,
+        # A local render sums the AOVs into its frame's images (FrameImages.add_aovs), render_samples() into the films
+        # it hands on.
+        film_aovs = settings.aovs and work is not None
+        self.films = _LazyFilms(lambda t: TileFilm(t[2], t[3], film_aovs, self.sampler,
                                                    settings.denoising_features, alpha=alpha, catcher=catcher,
                                                    light_passes=settings.light_passes,
                                                    shader_aovs=scene.shader_aovs,
@@ -800,7 +830,10 @@ class _TileRender:
             film = self.films[seg.tile]
             film.add(seg.loc, radiance[rows], seg.smp, None if transparent is None else transparent[rows])
             if first is not None and first.albedo is not None:
-                film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
+                if film.aovs:
+                    film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
+                else:
+                    self.frame.add_aovs(seg.tile, seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
             if first is not None and first.features is not None:
                 film.add_features(seg.loc, first.features.albedo[rows], first.features.normal[rows])
             if first is not None and first.catcher is not None:

@@ -12,6 +12,14 @@
     python -m monte.lab.film_memory --table --package-root DIR   # the same for another checkout's `monte`
                                                          # (DIR holds its `monte` folder, e.g. from git archive)
 
+    python -m monte.lab.film_memory --storage-study      # the 52 B/px colour storage (float32 running mean and three
+                                                         # group excess sums) and float16 AOV running means against
+                                                         # the film's storage and float64, a million samples per pixel
+
+    python -m monte.lab.film_memory --render-films 1920x1080 --spp 2 --tile-size 512 [--package-root DIR]
+        # the films a render makes (bytes per pixel, the most alive at once) and the process's peak RSS, in a
+        # fresh process; with --package-root also that checkout's `monte`, in the same run
+
 --film loads TileFilm from another version of core/film.py (e.g. `git show REV:core/film.py > old.py`) so that
 a change to the film can be measured before and after in one checkout. The render runs in this process: run one
 render per invocation (peak RSS is per process).
@@ -97,6 +105,120 @@ def throughput_table(threads: int, package_root: str | None, sizes=TABLE) -> lis
     return rows
 
 
+# One render in a fresh process, counting the films it makes (their arrays' bytes, the most alive at once).
+_FILM_RENDER = """
+import gc, json, resource, sys, weakref
+import numpy as np
+from monte.core import builtin_scenes
+from monte.core import render as render_module
+from monte.core.settings import RenderSettings
+w, h, spp, tile, threads = (int(v) for v in sys.argv[1:6])
+made, alive = [], weakref.WeakSet()
+most = [0]
+class CountedFilm(render_module.TileFilm):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        made.append(sum(v.nbytes for v in vars(self).values() if isinstance(v, np.ndarray)) / max(self.pixels, 1))
+        alive.add(self)
+        most[0] = max(most[0], sum(f.pixels for f in alive))
+render_module.TileFilm = CountedFilm
+r = render_module.render(builtin_scenes.cornell_box((w, h)), RenderSettings(spp=spp, threads=threads, tile_size=tile,
+                                                                           aovs=True))
+print(json.dumps({"film_bytes_per_pixel": max(made), "film_pixels_alive_max": most[0],
+                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+                  "seconds": r.stats["seconds"], "image_mean": float(r.color[..., :3].mean()),
+                  "albedo_mean": float(r.albedo.mean()), "depth_mean": float(r.depth.mean())}))
+"""
+
+
+def render_films(width: int, height: int, spp: int, tile: int, threads: int, package_root: str | None) -> dict:
+    """The films a Cornell box render with AOVs makes (bytes per pixel of their arrays, the most pixels of film
+    alive at once) and the process's peak RSS, in a fresh process; package_root as throughput_table's."""
+    env = dict(os.environ)
+    if package_root:
+        env["PYTHONPATH"] = os.pathsep.join([package_root, env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    out = subprocess.run([sys.executable, "-c", _FILM_RENDER, str(width), str(height), str(spp), str(tile),
+                          str(threads)], env=env, check=True, capture_output=True, text=True).stdout
+    row = json.loads(out.strip().splitlines()[-1])
+    print(f"{package_root or 'this checkout'}: {width}x{height} {spp} spp, {tile}-px tiles: film "
+          f"{row['film_bytes_per_pixel']:.1f} B/px, at most {row['film_pixels_alive_max']:,} px of film alive, peak RSS "
+          f"{row['peak_rss_mb']:,.0f} MB, {row['seconds']:.1f} s, image mean {row['image_mean']:.6f}, albedo mean "
+          f"{row['albedo_mean']:.6f}, depth mean {row['depth_mean']:.6f}", flush=True)
+    return row
+
+
+def _grouped_variance(dev: np.ndarray, group_n: np.ndarray, mean_dev: np.ndarray) -> np.ndarray:
+    """core.film's grouped variance of the mean from per-group sums of deviations dev (p, G, 3) from a common
+    value, group_n (G,) samples per group and mean_dev (p, 3) the mean's deviation from that value."""
+    d = dev / group_n[None, :, None] - mean_dev[:, None]
+    return (group_n[None, :, None] * d * d).sum(axis=1) / ((len(group_n) - 1) * group_n.sum())
+
+
+def storage_study(samples: int = 1_000_000, groups: int = VARIANCE_GROUPS, seed: int = 7) -> list[dict]:
+    """Errors of the mean and of the grouped variance of the mean after `samples` samples per pixel, against
+    float64, for the film's colour storage (float32 shift and `groups` float32 deviation sums: 64 B/px with the
+    count) and the 12-number one (float32 running mean, groups - 1 float32 excess sums, the last one implied by
+    their sum being 0: 52 B/px), each pass folded as core.film folds it; and of a float16 running mean of an AOV
+    (an edge pixel: albedo 0.2 or 0.8 at random). Pixels: uniform noise on a level (the tests' 1000 + U(0, 1), a
+    pixel as noisy as it is bright, a quiet one)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    group = np.arange(samples) % groups
+    for level, noise in ((1000.0, 1.0), (1.0, 1.0), (0.5, 0.01)):
+        values = (np.float32(level) + np.float32(noise) * rng.random((2, samples, 3), dtype=np.float32))
+        v64 = values.astype(np.float64)
+        mean = v64.mean(axis=1)
+        group_n = np.bincount(group, minlength=groups)
+        reference = _grouped_variance(np.stack([(v64[:, group == g] - mean[:, None]).sum(axis=1)
+                                                for g in range(groups)], axis=1), group_n, np.zeros_like(mean))
+        for pass_size in (4096, 64):
+            shift = running = None
+            dev = np.zeros((2, groups, 3), np.float32)
+            excess = np.zeros((2, groups - 1, 3), np.float32)
+            before = np.zeros(groups, np.int64)
+            for s0 in range(0, samples, pass_size):
+                chunk, g = v64[:, s0:s0 + pass_size], group[s0:s0 + pass_size]
+                sums = np.stack([chunk[:, g == k].sum(axis=1) for k in range(groups)], axis=1)
+                counts = np.bincount(g, minlength=groups)
+                if shift is None:
+                    shift = running = (sums.sum(axis=1) / chunk.shape[1]).astype(np.float32)
+                k = shift.astype(np.float64)[:, None]
+                dev = (dev.astype(np.float64) + sums - counts[None, :, None] * k).astype(np.float32)
+                old = running.astype(np.float64)
+                after = before + counts
+                new = (old + (sums.sum(axis=1) - counts.sum() * old) / after.sum()).astype(np.float32)
+                m = new.astype(np.float64)[:, None]
+                excess = (excess.astype(np.float64) - before[None, :-1, None] * (m - old[:, None])
+                          + sums[:, :-1] - counts[None, :-1, None] * m).astype(np.float32)
+                running, before = new, after
+            d64 = dev.astype(np.float64)
+            film_mean = shift.astype(np.float64) + d64.sum(axis=1) / samples
+            film_var = _grouped_variance(d64, group_n, d64.sum(axis=1) / samples)
+            e64 = excess.astype(np.float64)
+            all_excess = np.concatenate([e64, -e64.sum(axis=1, keepdims=True)], axis=1)
+            compact_var = _grouped_variance(all_excess, group_n, np.zeros_like(mean))
+            rel = lambda a, b: float(np.max(np.abs(a - b) / np.abs(b)))
+            row = {"pixel": f"{level:g} + {noise:g} U(0,1)", "pass": pass_size,
+                   "mean_err_film": rel(film_mean, mean), "mean_err_52B": rel(running.astype(np.float64), mean),
+                   "var_err_film": rel(film_var, reference), "var_err_52B": rel(compact_var, reference)}
+            print(f"{row['pixel']:>18}, {pass_size:4d} samples/pass: mean rel. error film {row['mean_err_film']:.1e},"
+                  f" 52 B {row['mean_err_52B']:.1e}; grouped variance rel. error film {row['var_err_film']:.1e},"
+                  f" 52 B {row['var_err_52B']:.1e}", flush=True)
+            rows.append(row)
+    albedo = np.where(rng.random(samples) < 0.5, 0.2, 0.8)
+    for pass_size in (64, 1):
+        half, n = np.float16(0.0), 0
+        for s0 in range(0, samples, pass_size):
+            chunk = albedo[s0:s0 + pass_size]
+            n += len(chunk)
+            half = np.float16(np.float64(half) + (chunk.sum() - len(chunk) * np.float64(half)) / n)
+        err = abs(float(half) - albedo.mean())
+        print(f"AOV edge pixel (albedo 0.2 or 0.8), {pass_size:2d} samples/pass: float16 running mean off by {err:.1e}"
+              f" (float32 sums: {abs(float(np.float32(albedo.sum())) / samples - albedo.mean()):.1e})", flush=True)
+        rows.append({"pixel": "albedo 0.2/0.8", "pass": pass_size, "float16_running_mean_err": err})
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m monte.lab.film_memory", description=__doc__.splitlines()[0])
     parser.add_argument("--film", help="a core/film.py to measure instead of this checkout's")
@@ -107,9 +229,22 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --render: the passes go round all tiles at once (no window of tiles)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--table", action="store_true", help="the throughput table (see the module docstring)")
-    parser.add_argument("--package-root", help="with --table: measure the `monte` package in this folder")
+    parser.add_argument("--package-root", help="with --table or --render-films: measure the `monte` package in this "
+                                               "folder")
     parser.add_argument("--json", help="with --table: write the rows to this file")
+    parser.add_argument("--render-films", metavar="WIDTHxHEIGHT",
+                        help="the films a render makes and its peak RSS (see the module docstring)")
+    parser.add_argument("--storage-study", action="store_true",
+                        help="the compact storages' errors at a million samples (see the module docstring)")
     args = parser.parse_args(argv)
+    if args.render_films:
+        w, h = (int(v) for v in args.render_films.lower().split("x"))
+        for root in ([args.package_root] if args.package_root else []) + [None]:
+            render_films(w, h, args.spp, args.tile_size, args.threads, root)
+        return 0
+    if args.storage_study:
+        storage_study()
+        return 0
     if args.table:
         rows = throughput_table(args.threads, args.package_root)
         if args.json:

@@ -129,7 +129,7 @@ def test_memory_estimate_follows_the_documented_formula():
     s = RenderSettings(spp=4, batch_paths=1 << 14, threads=3)
     est = memory.estimate_render_memory(scene, s)
     pixels = 100 * 50
-    assert est.film == pixels * (memory.FILM_BYTES + memory.FILM_AOV_BYTES)
+    assert est.film == pixels * memory.FILM_BYTES  # the AOV sums live in the result's AOV images
     assert est.result == pixels * (memory.RESULT_BYTES + memory.RESULT_AOV_BYTES)
     # each of the 3 worker threads traces one batch of min(batch_paths, all paths) paths at a time
     assert est.batch == 3 * min(1 << 14, pixels * 4) * memory.PATH_BYTES

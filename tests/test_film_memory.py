@@ -10,7 +10,7 @@ import pytest
 
 from monte.core import sampling
 from monte.core.film import TileFilm
-from monte.core.builtin_scenes import cornell_box
+from monte.core.builtin_scenes import cornell_box, spheres_under_sky
 from monte.core.memory import FILM_AOV_BYTES, FILM_BYTES, FILM_FEATURE_BYTES, estimate_render_memory
 from monte.core.settings import SAMPLERS, RenderSettings
 
@@ -26,17 +26,46 @@ def _film_bytes(film: TileFilm) -> int:
 @pytest.mark.parametrize("kind", SAMPLERS)
 def test_film_bytes_per_pixel_match_the_memory_estimate(aovs, features, kind):
     sampler = sampling.make_sampler(kind, 0, 16, groups=sampling.VARIANCE_GROUPS)
-    film = TileFilm(16, 8, aovs, sampler, features)
+    # a render's film keeps no AOVs (their sums live in the frame's AOV images); render_samples()' films do
+    film, handed_on = TileFilm(16, 8, False, sampler, features), TileFilm(16, 8, aovs, sampler, features)
     scene = cornell_box((16, 8))
     estimate = estimate_render_memory(scene, RenderSettings(spp=16, sampler=kind, aovs=aovs,
                                                             denoising_features=features))
     assert _film_bytes(film) == film.nbytes == estimate.film
     colour = {"sobol": 12 + 4 * 12 + 4, "stratified": 12 + 4 * 12 + 4 + 12, "independent": 12 + 12 + 4 + 12}[kind]
-    expected = colour + (FILM_AOV_BYTES if aovs else 0) + (FILM_FEATURE_BYTES if features else 0)
-    assert film.nbytes == expected * 16 * 8
-    # shift, 4 group sums, the count (float64 sums took 200 B per pixel with the AOVs, stored group counts and
-    # squares 120); Sobol's film keeps no squared deviations
-    assert FILM_BYTES + FILM_AOV_BYTES == 96
+    assert film.nbytes == (colour + (FILM_FEATURE_BYTES if features else 0)) * 16 * 8
+    assert handed_on.nbytes == film.nbytes + (FILM_AOV_BYTES if aovs else 0) * 16 * 8
+    # shift, 4 group sums, the count: with the AOVs and the variance (float64 sums took 200 B per pixel with the
+    # AOVs, stored group counts and squares 120, the AOV sums in the film 96); Sobol's film keeps no squares
+    assert FILM_BYTES == 64 and FILM_AOV_BYTES == 32
+
+
+def test_a_render_sums_its_aovs_in_the_frame_and_its_films_keep_64_bytes_per_pixel(monkeypatch):
+    """The films a render makes (counted as they are made) keep the colour only, with AOVs on; the AOV images are
+    the bits a film's own AOV sums give: those of render_samples() (films that keep the AOVs) merged."""
+    from monte.core import render as render_module
+
+    made = []
+
+    class CountedFilm(TileFilm):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append((self.pixels, self.nbytes))
+
+    monkeypatch.setattr(render_module, "TileFilm", CountedFilm)
+    scene = spheres_under_sky((24, 16))  # sky above the horizon: pixels that hit nothing (depth 1e10)
+    settings = RenderSettings(spp=8, tile_size=8, batch_paths=1 << 10, threads=1, aovs=True,
+                              adaptive_threshold=0.05, adaptive_min_samples=4)
+    local = render_module.render(scene, settings)
+    assert len(made) == 6 and all(nbytes == FILM_BYTES * pixels for pixels, nbytes in made)
+    made.clear()
+    parts = render_module.render_samples(scene, settings, {ti: (0, 8) for ti in range(6)})
+    assert len(made) == 6 and all(nbytes == (FILM_BYTES + FILM_AOV_BYTES) * pixels for pixels, nbytes in made)
+    merged = render_module.merge_tile_samples(scene, settings, parts)
+    assert (local.depth == 1e10).any() and (local.depth < 1e10).any()
+    for name in ("color", "variance", "albedo", "normal", "depth", "sample_count"):
+        assert getattr(local, name).tobytes() == getattr(merged, name).tobytes(), name
+    assert local.sample_count.min() < 8  # adaptive sampling stopped some tiles early (their AOVs finished then)
 
 
 def _feed(film: TileFilm, values: np.ndarray, pass_size: int) -> None:

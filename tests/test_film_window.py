@@ -7,7 +7,7 @@ import pytest
 from monte.core import builtin_scenes as scenes
 from monte.core import render as render_module
 from monte.core.film import TileFilm
-from monte.core.memory import FILM_AOV_BYTES, FILM_BYTES, estimate_render_memory
+from monte.core.memory import FILM_BYTES, estimate_render_memory
 from monte.core.schedule import FILM_WINDOW_PIXELS, pass_bounds, sample_passes, tile_windows, tiles
 from monte.core.settings import RenderSettings
 
@@ -89,7 +89,7 @@ def test_a_time_limit_goes_round_the_whole_image(monkeypatch):
 
 def test_the_memory_estimate_counts_one_window_of_films():
     scene = scenes.cornell_box((7680, 4320))  # 8K: 33 M pixels, 16 windows
-    per_pixel = FILM_BYTES + FILM_AOV_BYTES
+    per_pixel = FILM_BYTES  # with the AOVs: their sums live in the frame's AOV images
     assert estimate_render_memory(scene, RenderSettings(spp=128)).film == FILM_WINDOW_PIXELS * per_pixel
     # under a time limit the passes go round the whole image: every film alive
     assert estimate_render_memory(scene, RenderSettings(spp=128, time_limit=60)).film == 7680 * 4320 * per_pixel
