@@ -10,7 +10,8 @@ Three parts, each testable without a window:
   and Pixel Size), then one sample at a time up to the viewport sample count, each image a float RGBA array. A
   new change cancels the pass in flight and restarts; a camera (view) move re-prepares nothing (the prepared
   triangles and Embree scene are reused, rays start from the new position), a shading change rebuilds the
-  shading tables and keeps the Embree scene, only a geometry change rebuilds both.
+  shading tables and keeps the Embree scene, only a geometry change rebuilds both. Either way only the meshes
+  the update brought are checked again (triangle by triangle); the kept ones were checked when they came.
 - `camera_from_view` turns a 3D view's view and projection matrices into core's Camera; `draw_image` draws an
   image with Blender's `gpu` module (the engine brackets it with the view's colour management).
 
