@@ -10,7 +10,8 @@ Three parts, each testable without a window:
   and Pixel Size), then one sample at a time up to the viewport sample count, each image a float RGBA array. A
   new change cancels the pass in flight and restarts; a camera (view) move re-prepares nothing (the prepared
   triangles and Embree scene are reused, rays start from the new position), a shading change rebuilds the
-  shading tables and keeps the Embree scene, only a geometry change rebuilds both.
+  shading tables and keeps the Embree scene, only a geometry change rebuilds both. Either way only the meshes
+  the update brought are checked again (triangle by triangle); the kept ones were checked when they came.
 - `camera_from_view` turns a 3D view's view and projection matrices into core's Camera; `draw_image` draws an
   image with Blender's `gpu` module (the engine brackets it with the view's colour management).
 
@@ -448,6 +449,7 @@ class ViewportSession:
         self.error: str | None = None
         self.last_report: SyncReport | None = None
         self.prepare_count = {"geometry": 0, "shading": 0}  # how often the worker rebuilt each (for tests)
+        self._checked_meshes: dict[int, object] = {}  # (worker) id -> the meshes the last preparation validated
         self._on_image = on_image
         self._cond = threading.Condition()
         self._callback_lock = threading.Lock()
@@ -585,13 +587,20 @@ class ViewportSession:
                 prepared = None
 
     def _prepare(self, scene: Scene, accel):
+        """(worker) core.render.prepare_scene's work, with the Embree scene `accel` kept when given (a shading
+        change). Meshes the previous preparation validated and the update kept (the same Mesh objects: SceneSync
+        replaces a mesh it re-places or re-reads) skip their per-triangle checks, which on a big scene cost more
+        than the update itself (core.scene.Scene.validate's checked_meshes)."""
+        from ..core.accel import Accelerator
         from ..core.integrator import PreparedScene
-        from ..core.render import prepare_scene
 
+        scene.validate(checked_meshes=self._checked_meshes.keys())
+        # Holding the meshes keeps their ids from being reused by new ones while they are trusted.
+        self._checked_meshes = {id(mesh): mesh for mesh in scene.meshes}
+        prepared = PreparedScene.build(scene, sample_world=self.settings.light_sampling == "light")
         if accel is None:
-            return prepare_scene(scene, self.settings)
-        scene.validate()
-        return PreparedScene.build(scene, sample_world=self.settings.light_sampling == "light"), accel
+            accel = Accelerator(prepared.vertices, prepared.triangles, motion=prepared.motion)
+        return prepared, accel
 
     def _render_passes(self, generation: int, scene: Scene, prepared, changed_at: float) -> None:
         from ..core.render import render as core_render

@@ -15,6 +15,7 @@ counted in `Scene.warnings` -- never a crash deep inside NumPy or Embree.
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
@@ -907,8 +908,15 @@ class Scene:
         return (self.camera.motion_matrices is not None or self.camera.motion_lens is not None
                 or any(m.motion_vertices is not None for m in self.meshes))
 
-    def validate(self) -> "Scene":
-        """Validate in place; raise SceneError for what cannot be rendered, drop and count what can be."""
+    def validate(self, checked_meshes: Collection[int] = ()) -> "Scene":
+        """Validate in place; raise SceneError for what cannot be rendered, drop and count what can be.
+
+        checked_meshes: ids (id()) of meshes of this scene that an earlier validate() passed and that nobody has
+        changed since, whose material and object indices the caller keeps in range (the viewport: a mesh kept
+        across an update, with the material list only growing and the object table rebuilt around it); their
+        per-triangle checks are skipped (a fraction of a second per million triangles) as long as their object
+        indices fit the object table (else they are checked in full). Their light sets are checked as every
+        mesh's."""
         self.camera.validate()
         self.film.validate()
         self.mist.validate()
@@ -929,7 +937,8 @@ class Scene:
                 raise SceneError("scene objects: NaN/Inf in the object table (a degenerate object transform?)")
             n_objects = len(self.objects)
         for mesh in self.meshes:
-            mesh.validate(len(self.materials), self.warnings, n_objects)
+            if id(mesh) not in checked_meshes or not _object_index_fits(mesh, n_objects):
+                mesh.validate(len(self.materials), self.warnings, n_objects)
             _validate_light_sets(mesh, f"mesh {mesh.name!r}")
         self.world.color = _as_rgb(self.world.color, "world background")
         if self.world.camera_color is not None:
@@ -1009,6 +1018,16 @@ class Scene:
 
 
 MAX_LIGHT_SETS = 64  # light sets 0..63, as Cycles' 64-bit membership masks
+
+
+def _object_index_fits(mesh: Mesh, n_objects: int) -> bool:
+    """Whether a validated mesh's object indices (None, or one int32 per triangle) lie in [0, n_objects)."""
+    objs = mesh.object_index
+    if objs is None:
+        return True
+    if not isinstance(objs, np.ndarray) or objs.dtype != np.int32 or objs.shape != (len(mesh.triangles),):
+        return False
+    return not objs.size or (int(objs.min()) >= 0 and int(objs.max()) < n_objects)
 
 
 def _validate_light_sets(item, owner: str) -> None:

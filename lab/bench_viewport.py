@@ -1,7 +1,8 @@
 """Viewport and preview timings: how long after each kind of change the Rendered viewport shows its first image
 and its 16th sample, and how long a material preview takes. Prints numbers; asserts nothing.
 
-    python -m monte.lab.bench_viewport [--width 1280 --height 720 --threads 2 --samples 16]
+    python -m monte.lab.bench_viewport [--width 1280 --height 720 --threads 2 --samples 16 --repeats 5
+                                        --extra-triangles 500000]
 
 The scene is the bench's `interior` room (lab/bpy_scenes.py) seen through its camera at the view size. Each
 change goes through Blender's depsgraph (a depsgraph handler reads the updates as view_update does) into a real
@@ -12,8 +13,12 @@ printed separately) to the image being published by the worker.
 from __future__ import annotations
 
 import argparse
+import gc
 import math
+import statistics
+import threading
 import time
+from dataclasses import dataclass, field
 
 import bpy
 import numpy as np
@@ -48,6 +53,27 @@ class _Recorder:
         return first[0], full, first[2]
 
 
+class _CollectorPauses:
+    """Seconds the garbage collector held the interpreter (any thread, any generation) since the last mark():
+    a full collection stops every Python thread, the viewport's worker included."""
+
+    def __init__(self) -> None:
+        self.total = 0.0
+        self.full = 0
+        self._started: dict[int, float] = {}
+
+    def __call__(self, phase: str, info: dict) -> None:
+        key = threading.get_ident()
+        if phase == "start":
+            self._started[key] = time.perf_counter()
+        elif key in self._started:
+            self.total += time.perf_counter() - self._started.pop(key)
+            self.full += info["generation"] == 2
+
+    def mark(self) -> None:
+        self.total, self.full = 0.0, 0
+
+
 def _changes_handler(captured: list):
     @bpy.app.handlers.persistent
     def handler(_scene, depsgraph):
@@ -64,13 +90,37 @@ def _apply(change, captured: list):
     return depsgraph, vp.merged_changes(captured)
 
 
+@dataclass
+class _Row:
+    """One kind of change measured `repeats` times: seconds per repeat."""
+
+    label: str
+    rebuild: str = ""
+    export: list[float] = field(default_factory=list)
+    first: list[float] = field(default_factory=list)
+    full: list[float] = field(default_factory=list)
+    collector: list[float] = field(default_factory=list)
+    full_collections: int = 0
+    size: str = ""
+
+
 def bench_viewport(width: int, height: int, threads: int, samples: int, start_resolution: int,
-                   pixel_size: int) -> None:
+                   pixel_size: int, repeats: int = 1, extra_triangles: int = 0) -> dict[str, _Row]:
+    """Print (and return) each kind of change's times over `repeats` repeats: the median, and the range when
+    repeated. Each repeat of a change is a real change (object and camera moves alternate between two places,
+    edits between two values, an added object is deleted by the next "object delete"). extra_triangles: a rug
+    of about that many triangles on the floor, which no change touches (what an update costs in a big scene)."""
+    repeats = max(1, int(repeats))
     bpy_scenes.interior((width, height))
+    if extra_triangles > 0:
+        bpy_scenes.grid_object("rug", (-1.5, -1.5, 0.005), (1.5, 1.5, 0.005),
+                               max(1, round(math.sqrt(extra_triangles / 2))), bpy.data.materials["fabric"])
     settings = RenderSettings(threads=threads, seed=1)
     captured: list = []
     handler = _changes_handler(captured)
     bpy.app.handlers.depsgraph_update_post.append(handler)
+    pauses = _CollectorPauses()
+    gc.callbacks.append(pauses)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     camera = vp.scene_camera_view(depsgraph, (width, height))
 
@@ -85,48 +135,70 @@ def bench_viewport(width: int, height: int, threads: int, samples: int, start_re
     rec = _Recorder(session)
     quads = sum(len(o.data.polygons) for o in bpy.data.objects if o.type == "MESH")
     print(f"viewport {width}x{height}, {threads} threads, {samples} samples, start resolution {start_resolution}, "
-          f"pixel size {pixel_size}; interior scene ({quads} quads)")
-    print(f"{'change':<16} {'export ms':>9} {'first image ms':>15} {'(size)':>10} {f'{samples} samples s':>12}  "
-          "rebuild")
+          f"pixel size {pixel_size}, {repeats} repeats; interior scene ({quads} quads)")
+    rows: dict[str, _Row] = {}
 
-    def row(label: str, report: vp.SyncReport | None, export_s: float) -> None:
+    def measure(label: str, report: vp.SyncReport | None, export_s: float) -> None:
         first, full, divider = rec.first_and_full(samples)
-        size = f"{width // divider}x{height // divider}"
-        rebuild = report.rebuild if report is not None else "camera"
-        print(f"{label:<16} {export_s * 1e3:9.1f} {first * 1e3:15.1f} {size:>10} {full:12.2f}  {rebuild}")
-
-    t = time.perf_counter()
-    report = session.sync(depsgraph)
-    export_s = time.perf_counter() - t
-    rec.mark()
-    session.set_view(camera)
-    row("initial", report, export_s)
-
-    rec.mark()
-    moved = vp.camera_from_view(np.linalg.inv(camera.matrix_world @ _rotation_z(0.05)), _projection(camera),
-                                (width, height))
-    session.set_view(moved)
-    row("camera move", None, 0.0)
+        row = rows.setdefault(label, _Row(label))
+        row.rebuild = report.rebuild if report is not None else "camera"
+        row.export.append(export_s)
+        row.first.append(first)
+        row.full.append(full)
+        row.collector.append(pauses.total)
+        row.full_collections += pauses.full
+        row.size = f"{width // divider}x{height // divider}"
 
     def timed_sync(label, change):
         dg, changes = _apply(change, captured)
         t = time.perf_counter()
         rec.mark()
+        pauses.mark()
         report = session.sync(dg, changes)
         export_s = time.perf_counter() - t
-        row(label, report, export_s)
+        measure(label, report, export_s)
 
     table = bpy.data.objects["table_top"]
-    timed_sync("object move", lambda: setattr(table, "location", (0.2, 0.1, 0.0)))
     node = bpy.data.materials["fabric"].node_tree.nodes["Diffuse BSDF"]
-    timed_sync("material edit", lambda: node.inputs["Color"].__setattr__("default_value", (0.6, 0.2, 0.2, 1)))
     lamp = next(o for o in bpy.data.objects if o.type == "LIGHT" and o.data.type == "AREA")
-    timed_sync("light edit", lambda: setattr(lamp.data, "energy", 90.0))
-    timed_sync("object add", lambda: bpy_scenes.box_object("crate", (1.0, -1.0, 0.0), (1.4, -0.6, 0.4),
-                                                           bpy.data.materials["wood"]))
-    timed_sync("object delete", lambda: bpy.data.objects.remove(bpy.data.objects["crate"]))
+    wood = bpy.data.materials["wood"]
+    for i in range(repeats):
+        if i == 0:
+            t = time.perf_counter()
+            rec.mark()
+            pauses.mark()
+            report = session.sync(depsgraph)
+            export_s = time.perf_counter() - t
+            session.set_view(camera)
+            measure("initial", report, export_s)
+        rec.mark()
+        pauses.mark()
+        turn = _rotation_z(0.05 if i % 2 == 0 else -0.05)
+        moved = vp.camera_from_view(np.linalg.inv(camera.matrix_world @ turn), _projection(camera), (width, height))
+        session.set_view(moved)
+        measure("camera move", None, 0.0)
+        odd = i % 2
+        timed_sync("object move", lambda: setattr(table, "location", (0.2, 0.1 + 0.1 * odd, 0.0)))
+        colour = (0.6, 0.2, 0.2, 1) if odd == 0 else (0.5, 0.3, 0.2, 1)
+        timed_sync("material edit", lambda: node.inputs["Color"].__setattr__("default_value", colour))
+        timed_sync("light edit", lambda: setattr(lamp.data, "energy", 90.0 if odd == 0 else 80.0))
+        timed_sync("object add", lambda: bpy_scenes.box_object("crate", (1.0, -1.0, 0.0), (1.4, -0.6, 0.4), wood))
+        timed_sync("object delete", lambda: bpy.data.objects.remove(bpy.data.objects["crate"]))
     session.stop()
+    gc.callbacks.remove(pauses)
     bpy.app.handlers.depsgraph_update_post.remove(handler)
+
+    def ms(values: list[float]) -> str:
+        mid = statistics.median(values) * 1e3
+        return f"{mid:.1f}" if len(values) == 1 else f"{mid:.1f} ({min(values) * 1e3:.0f}-{max(values) * 1e3:.0f})"
+
+    print("medians (range) in ms; gc: the garbage collector's pauses inside the row (full collections)")
+    print(f"{'change':<14} {'export ms':>16} {'first image ms':>18} {'(size)':>7} {f'{samples} samples s':>12} "
+          f"{'gc ms':>16}  rebuild")
+    for row in rows.values():
+        print(f"{row.label:<14} {ms(row.export):>16} {ms(row.first):>18} {row.size:>7} "
+              f"{statistics.median(row.full):12.2f} {ms(row.collector):>12} ({row.full_collections})  {row.rebuild}")
+    return rows
 
 
 def _rotation_z(angle: float) -> np.ndarray:
@@ -187,8 +259,13 @@ def main(argv=None) -> None:
     parser.add_argument("--pixel-size", type=int, default=1)
     parser.add_argument("--preview-size", type=int, default=128)
     parser.add_argument("--preview-samples", type=int, default=16)
+    parser.add_argument("--repeats", type=int, default=1, help="measure each kind of change this many times "
+                        "and print medians")
+    parser.add_argument("--extra-triangles", type=int, default=0, help="add a rug of about this many triangles "
+                        "that no change touches (an update's cost in a big scene)")
     args = parser.parse_args(argv)
-    bench_viewport(args.width, args.height, args.threads, args.samples, args.start_resolution, args.pixel_size)
+    bench_viewport(args.width, args.height, args.threads, args.samples, args.start_resolution, args.pixel_size,
+                   args.repeats, args.extra_triangles)
     bench_preview(args.preview_size, args.threads, args.preview_samples)
 
 

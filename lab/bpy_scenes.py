@@ -23,6 +23,7 @@ import math
 from typing import Callable
 
 import bpy
+import numpy as np
 
 SCENES_VERSION = 1
 # glass 2: the cube and the slab lifted 1 mm off the floor (coplanar faces made the image depend on how each
@@ -140,6 +141,31 @@ def mesh_object(name: str, vertices, faces, material=None, collection=None, smoo
         me.shade_smooth()
     ob = bpy.data.objects.new(name, me)
     (collection or bpy.context.scene.collection).objects.link(ob)
+    return ob
+
+
+def grid_object(name: str, corner0, corner1, quads_per_side: int, material=None):
+    """A flat grid of quads_per_side^2 quads (twice as many triangles) at height corner0[2], spanning corner0 to
+    corner1 in x and y; built with foreach_set, so a million triangles take a fraction of a second."""
+    n = int(quads_per_side)
+    xs = np.linspace(corner0[0], corner1[0], n + 1)
+    ys = np.linspace(corner0[1], corner1[1], n + 1)
+    gx, gy = np.meshgrid(xs, ys)
+    vertices = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, float(corner0[2]))], 1)
+    index = np.arange((n + 1) * (n + 1)).reshape(n + 1, n + 1)
+    quads = np.stack([index[:-1, :-1], index[:-1, 1:], index[1:, 1:], index[1:, :-1]], -1).reshape(-1, 4)
+    me = bpy.data.meshes.new(name)
+    me.vertices.add(len(vertices))
+    me.vertices.foreach_set("co", vertices.astype(np.float32).ravel())
+    me.loops.add(quads.size)
+    me.loops.foreach_set("vertex_index", quads.astype(np.int32).ravel())
+    me.polygons.add(len(quads))
+    me.polygons.foreach_set("loop_start", np.arange(0, quads.size, 4, dtype=np.int32))
+    me.update()
+    if material is not None:
+        me.materials.append(material)
+    ob = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(ob)
     return ob
 
 

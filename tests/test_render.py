@@ -9,6 +9,7 @@ from monte.core import builtin_scenes as scenes
 from monte.core import metrics
 from monte.core.render import render
 from monte.core.scene import Lobe, Material, Mesh, SceneError
+from monte.core.shading.program import OBJECT_COLUMNS
 
 Z = 4.0  # tolerance in standard errors of the image mean
 
@@ -303,6 +304,33 @@ def test_bad_geometry_is_dropped_with_counted_warnings(fast_settings):
     assert "mesh 'junk': dropped 1 triangles with NaN/Inf" in text
     assert "mesh 'junk': dropped 2 zero-area (degenerate) triangles" in text
     assert np.all(np.isfinite(result.color))
+
+
+def test_checked_meshes_skip_their_triangle_checks_unless_their_object_indices_do_not_fit():
+    """Scene.validate(checked_meshes): a mesh named there keeps what a check would drop (its triangles are not
+    examined again), the other meshes are checked; a named mesh whose object indices leave the object table is
+    checked in full and refused with the usual error."""
+    def scene_with_junk():
+        scene = scenes.plane_under_world((8, 8))
+        v = np.array([[0, 0, 0.5], [1, 0, 0.5], [0, 1, 0.5]], np.float64)
+        junk = Mesh("junk", v, np.array([[0, 1, 2], [0, 0, 1]], np.int32), 0)  # the second is degenerate
+        scene.meshes.append(junk)
+        scene.objects = np.zeros((2, OBJECT_COLUMNS), np.float32)
+        for mesh in scene.meshes:
+            mesh.object_index = np.zeros(len(mesh.triangles), np.int32)
+        return scene, junk
+
+    scene, junk = scene_with_junk()
+    scene.validate(checked_meshes={id(junk)})
+    assert len(junk.triangles) == 2 and not any("junk" in w for w in scene.warnings)
+    scene, junk = scene_with_junk()
+    scene.validate()  # the control: unnamed, the degenerate triangle is dropped
+    assert len(junk.triangles) == 1 and "mesh 'junk': dropped 1 zero-area (degenerate) triangles" in scene.warnings
+
+    scene, junk = scene_with_junk()
+    junk.object_index = np.array([0, 2], np.int32)  # row 2 of a 2-row object table
+    with pytest.raises(SceneError, match=r"mesh 'junk': object index out of range \[0, 1\]: min 0, max 2"):
+        scene.validate(checked_meshes={id(junk)})
 
 
 @pytest.mark.parametrize(

@@ -294,6 +294,58 @@ def test_progressive_restart_starts_small_and_converges(changes):
     assert not session._thread.is_alive()
 
 
+def test_an_added_or_deleted_object_renders_as_a_fresh_session_does(changes, monkeypatch):
+    """After an object is added, and after another is deleted (the meshes after it move to other object rows),
+    the session's image equals bit for bit that of a fresh session of the changed scene; the preparation checked
+    the triangles of the added mesh alone (the kept meshes were checked when they came)."""
+    from monte.core import scene as core_scene
+
+    block_scene()
+    camera = vp.scene_camera_view(bpy.context.evaluated_depsgraph_get(), (40, 30))
+    validated: list[str] = []
+    validate = core_scene.Mesh.validate
+
+    def counting(mesh, *args, **kwargs):
+        validated.append(mesh.name)
+        return validate(mesh, *args, **kwargs)
+
+    monkeypatch.setattr(core_scene.Mesh, "validate", counting)
+
+    def fresh_image(depsgraph):
+        fresh = vp.ViewportSession(SETTINGS, samples=4, pixel_size=1, start_resolution=0)
+        try:
+            fresh.sync(depsgraph)
+            fresh.set_view(camera)
+            return fresh.wait(timeout=300).rgba
+        finally:
+            fresh.stop()
+
+    session = vp.ViewportSession(SETTINGS, samples=4, pixel_size=1, start_resolution=0)
+    try:
+        session.sync(bpy.context.evaluated_depsgraph_get())
+        session.set_view(camera)
+        before = session.wait(timeout=300).rgba
+        assert sorted(validated) == ["block", "floor"]
+
+        validated.clear()
+        green = bf.diffuse("green", (0.1, 0.7, 0.1))
+        depsgraph, flagged = changes(lambda: bpy_scenes.box_object("extra", (1.0, 0.0, 0.0), (1.8, 0.8, 0.8), green))
+        assert session.sync(depsgraph, flagged).meshes_read == ["extra"]
+        added = session.wait(timeout=300).rgba
+        assert validated == ["extra"]
+        assert not np.allclose(added, before, atol=0.05)  # the new box is in view
+        np.testing.assert_array_equal(added, fresh_image(depsgraph))
+
+        validated.clear()
+        depsgraph, flagged = changes(lambda: bpy.data.objects.remove(bpy.data.objects["block"]))
+        assert session.sync(depsgraph, flagged).removed == ["block"]
+        deleted = session.wait(timeout=300).rgba
+        assert validated == []
+        np.testing.assert_array_equal(deleted, fresh_image(depsgraph))
+    finally:
+        session.stop()
+
+
 def _translation(x, y, z):
     m = np.eye(4)
     m[:3, 3] = (x, y, z)
