@@ -591,10 +591,11 @@ def main(argv: list[str] | None = None) -> int:
 def run() -> None:
     """The `monte` executable (console script and `python -m monte`): main(), then the process's end.
 
-    After a command that loaded the bpy module, Monte is unregistered and, on Blender versions whose bpy
-    module crashes or hangs at interpreter exit (4.2, 4.5), the process ends here with main()'s status, once
-    every output is written (addon.headless.end_bpy_process). main() itself never ends the process, so tests
-    and scripts can call it."""
+    After a command that loaded the bpy module, Monte is unregistered and the process ends here with main()'s
+    status, once every output is written and the exit handlers ran, without the interpreter's teardown (which
+    crashes or hangs with the bpy module of 4.2 and 4.5, and costs ~0.5 s with numba's kernels loaded; where a
+    non-daemon thread still runs on 5.0 and newer, Python exits normally): addon.headless.end_bpy_process.
+    main() itself never ends the process, so tests and scripts can call it."""
     status = main()
     if "bpy" in sys.modules:
         from .addon.headless import end_bpy_process

@@ -61,17 +61,32 @@ def end_bpy_process(status: int, quick_exit: bool = False) -> None:
     unregister()
     if bpy.app.version < (5, 0, 0):
         _remove_session_temp_folder()
-        sys.stdout.flush()
-        sys.stderr.flush()
+        _flush_output()
         os._exit(int(status))
     if quick_exit and _only_daemon_threads_left():
         import atexit
 
         atexit._run_exitfuncs()
         _remove_session_temp_folder()
-        sys.stdout.flush()
-        sys.stderr.flush()
+        _flush_output()
         os._exit(int(status))
+
+
+def _flush_output() -> None:
+    """Flush Python's stdout and stderr and the C library's streams (Blender's own printf lines, e.g. "Read
+    blend", sit in a full buffer when stdout is a pipe): os._exit() flushes neither. A closed pipe is ignored."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None) if os.name != "nt" else ctypes.CDLL("ucrtbase")
+        libc.fflush(None)
+    except (OSError, AttributeError):
+        pass
 
 
 def _remove_session_temp_folder() -> None:

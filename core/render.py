@@ -446,11 +446,23 @@ class FrameImages:
 
 
 def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
-                world_to_camera: np.ndarray | None = None) -> Tile:
+                world_to_camera: np.ndarray | None = None, frame: FrameImages | None = None) -> Tile:
     """A tile's images from its film, in arrays of its own (samples: what Tile.samples reports;
     world_to_camera: the rotation that turns the denoising normal to camera space, needed for the denoising
-    features when the film keeps them)."""
-    return FrameImages(tile, aovs, film, world_to_camera).put(tile, film, samples)
+    features when the film keeps them; frame: the render's FrameImages, which hold the AOV sums of a local
+    render's films (FrameImages.add_aovs): they are copied, so the frame's running sums are left as they are)."""
+    images = FrameImages(tile, aovs, film, world_to_camera)
+    if aovs and not film.aovs:
+        if frame is None:
+            raise ValueError("tile_result: a film without AOV sums needs the frame that holds them")
+        rx, ry = frame.region[:2]
+        tx, ty, tw, th = tile
+        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
+        images.albedo[...] = frame.albedo[sl]
+        images.normal[...] = frame.normal[sl]
+        images.depth[...] = frame.depth[sl]
+        images.counts[...] = frame.counts[sl]  # the depth hits, borrowed until the tile is final
+    return images.put(tile, film, samples)
 
 
 def world_to_camera(scene: Scene) -> np.ndarray:
@@ -933,7 +945,7 @@ class _TileRender:
 
     def _tile_result(self, tile: TileRect, film: TileFilm, samples: int) -> Tile:
         rot = world_to_camera(self.scene) if self.settings.denoising_features else None
-        out = tile_result(tile, film, samples, self.settings.aovs, rot)
+        out = tile_result(tile, film, samples, self.settings.aovs, rot, self.frame)
         if self.data_tables is not None:
             out.data_passes = self.data_films[tile].images()
         return out

@@ -184,3 +184,33 @@ def test_a_pixel_outside_the_tile_is_refused_before_the_compiled_sums_touch_memo
     with pytest.raises(ValueError, match=r"out of range \[0, 2\)"):
         film.add_aovs(np.array([-1]), np.ones((1, 3)), np.ones((1, 3)), np.ones(1))
     assert film.count.tolist() == [0, 0] and not film.albedo.any()
+
+
+def test_a_tile_shown_before_it_is_final_carries_the_aovs_of_its_samples_so_far():
+    """on_tile gets each tile after every pass; its AOVs (summed in the frame, not the film) are those of the
+    samples so far: equal, bit for bit, to the final AOVs of a render that stops at that sample count (the same
+    passes over the tile), and the frame's running sums are left intact (the final images equal render_samples()
+    merged)."""
+    from monte.core import render as render_module
+
+    scene = spheres_under_sky((64, 64))
+    kwargs = dict(tile_size=32, batch_paths=2048, threads=1, aovs=True)  # 2 samples per pass over a 32x32 tile
+    shown: list = []
+
+    def keep(tile):
+        if tile.samples == 4:
+            shown.append((tile.x0, tile.y0, tile.albedo.copy(), tile.normal.copy(), tile.depth.copy()))
+
+    full = render_module.render(scene, RenderSettings(spp=8, **kwargs), on_tile=keep)
+    half = render_module.render(scene, RenderSettings(spp=4, **kwargs))
+    assert len(shown) == 4
+    for x, y, albedo, normal, depth in shown:
+        sl = (slice(y, y + 32), slice(x, x + 32))
+        assert albedo.tobytes() == half.albedo[sl].tobytes()
+        assert normal.tobytes() == half.normal[sl].tobytes()
+        assert depth.tobytes() == half.depth[sl].tobytes()
+        assert (albedo > 0).any() and (depth < 1e10).any()
+    parts = render_module.render_samples(scene, RenderSettings(spp=8, **kwargs), {ti: (0, 8) for ti in range(4)})
+    merged = render_module.merge_tile_samples(scene, RenderSettings(spp=8, **kwargs), parts)
+    for name in ("albedo", "normal", "depth"):
+        assert getattr(full, name).tobytes() == getattr(merged, name).tobytes(), name
