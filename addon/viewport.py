@@ -227,6 +227,8 @@ class SceneSync:
         self.placed: dict[tuple, np.ndarray] = {}  # prototype key -> the matrices its mesh was placed with
         # prototype key -> per instance (r, g, b, a, pass index, random id): the object data node programs read
         self.instance_info: dict[tuple, np.ndarray] = {}
+        # prototype key -> (its placed Mesh, the first object row scene() gave its instances)
+        self.row_starts: dict[tuple, tuple] = {}
         self.film = None  # core.scene.Film of the scene (Film > Transparent...), exported on each sync
         self.light_matrices: list = []
         self.lights: list = []
@@ -336,7 +338,7 @@ class SceneSync:
         return report
 
     def _drop(self, key) -> None:
-        for table in (self.prototypes, self.owners, self.meshes, self.placed, self.instance_info):
+        for table in (self.prototypes, self.owners, self.meshes, self.placed, self.instance_info, self.row_starts):
             table.pop(key, None)
 
     def scene(self, camera: Camera, name: str = "viewport") -> Scene:
@@ -351,7 +353,16 @@ class SceneSync:
             proto, placed = self.prototypes[key], self.placed[key]
             k = placed.shape[0]
             rows.append(_object_rows(placed, self.instance_info[key], proto.texspace))
-            mesh.object_index = np.repeat(np.arange(start, start + k, dtype=np.int32), proto.local.triangle_count)
+            previous_mesh, previous = self.row_starts.get(key, (None, 0))
+            if (previous_mesh is mesh and isinstance(mesh.object_index, np.ndarray)
+                    and len(mesh.object_index) == len(mesh.triangles)):
+                # rows set before (and filtered with the triangles a preparation dropped, so the prototype's
+                # count no longer fits): shifted to the instances' new first row
+                mesh.object_index = (mesh.object_index - np.int32(previous) + np.int32(start)).astype(np.int32)
+            else:
+                mesh.object_index = np.repeat(np.arange(start, start + k, dtype=np.int32),
+                                              proto.local.triangle_count)
+            self.row_starts[key] = (mesh, start)
             start += k
             meshes.append(mesh)
         extra = {} if self.film is None else {"film": self.film}

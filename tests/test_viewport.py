@@ -346,6 +346,42 @@ def test_an_added_or_deleted_object_renders_as_a_fresh_session_does(changes, mon
         session.stop()
 
 
+def test_a_mesh_with_a_dropped_triangle_renders_after_later_updates(changes):
+    """A mesh whose preparation drops a degenerate triangle keeps rendering after a material edit and an object
+    add (its instances' object rows were recomputed from the prototype's triangle count, which no longer fit the
+    validated mesh: the viewport showed a broadcast error); the image equals a fresh session's."""
+    block_scene()
+    # a quad plus a zero-area triangle (three collinear points) in one mesh
+    bf.mesh_object("sliver", [(1.0, -1.0, 0.01), (2.0, -1.0, 0.01), (2.0, 0.0, 0.01), (1.0, 0.0, 0.01),
+                              (1.2, -0.5, 0.01), (1.5, -0.5, 0.01), (1.8, -0.5, 0.01)],
+                   [(0, 1, 2, 3), (4, 5, 6)], bf.diffuse("sliver", (0.1, 0.1, 0.9)))
+    camera = vp.scene_camera_view(bpy.context.evaluated_depsgraph_get(), (40, 30))
+    session = vp.ViewportSession(SETTINGS, samples=2, pixel_size=1, start_resolution=0)
+    try:
+        session.sync(bpy.context.evaluated_depsgraph_get())
+        session.set_view(camera)
+        session.wait(timeout=300)
+        sliver = [m for m in session.sync_state.meshes.values() if "sliver" in m.name]
+        assert [len(m.triangles) for m in sliver] == [2]  # the quad's two; the zero-area triangle dropped
+        paint = bpy.data.materials["paint"].node_tree.nodes["Diffuse BSDF"]
+        session.sync(*changes(lambda: paint.inputs["Color"].__setattr__("default_value", (0.1, 0.8, 0.1, 1))))
+        session.wait(timeout=300)
+        green = bf.diffuse("green", (0.1, 0.7, 0.1))
+        depsgraph, flagged = changes(lambda: bpy_scenes.box_object("extra", (-2.0, 0.0, 0.0), (-1.5, 0.5, 0.5),
+                                                                   green))
+        session.sync(depsgraph, flagged)
+        image = session.wait(timeout=300).rgba
+    finally:
+        session.stop()
+    fresh = vp.ViewportSession(SETTINGS, samples=2, pixel_size=1, start_resolution=0)
+    try:
+        fresh.sync(depsgraph)
+        fresh.set_view(camera)
+        np.testing.assert_array_equal(image, fresh.wait(timeout=300).rgba)
+    finally:
+        fresh.stop()
+
+
 def _translation(x, y, z):
     m = np.eye(4)
     m[:3, 3] = (x, y, z)
