@@ -190,7 +190,9 @@ def load_cached_kernels(entries_only: bool = True, should_stop: Callable[[], boo
         by_name = {_dispatcher_name(d): d for d in dispatchers}
         order = [(by_name[(module, name)], sig) for module, name, sig in entries if (module, name) in by_name]
     else:
-        order = [(d, sig) for d in dispatchers for sig in applicable(d)]
+        # lazily, so a stop is seen between the kernels' cache indexes too, not after all were read
+        order = ((d, sig) for d in dispatchers if not (should_stop is not None and should_stop())
+                 for sig in applicable(d))
     loaded = 0
     for d, text in order:
         sig = applicable(d).get(text)
