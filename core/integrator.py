@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from . import bsdf as bsdf_mod
-from . import fused_path, geometry_kernels, path_kernels, transparent_shadow
+from . import fused_tracer, geometry_kernels, path_kernels, transparent_shadow
 from . import light_passes as lp_mod
 from .accel import Accelerator, Hits, MotionTriangles
 from .data_passes import DataPath
@@ -769,9 +769,9 @@ class PathTracer:
         self.mis = settings.light_sampling == "mis"
         self._catcher_copies = False  # tracing shadow catcher copies: rays see only catchers (CatcherSamples)
         self._resume: _SplitPaths | None = None  # the copies' state at their split, while _catcher_copies
-        # the fused path kernel (core.fused_path) where the scene allows it; None: the per-bounce loop below
-        self.fused_reason = fused_path.supports(self)
-        self.fused = fused_path.FusedTracer(self) if self.fused_reason is None else None
+        # the fused path kernel (core.fused_tracer) where the scene allows it; None: the per-bounce loop below
+        self.fused_reason = fused_tracer.supports(self)
+        self.fused = fused_tracer.FusedTracer(self) if self.fused_reason is None else None
 
     def _dim(self, depth: int, k: int) -> int:
         return DIM_BOUNCE_BASE + depth * DIM_STRIDE + k

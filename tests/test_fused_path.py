@@ -1,4 +1,4 @@
-"""The fused path kernel (core.fused_path): where a scene allows it, one compiled call traces each camera path to
+"""The fused path kernel (core.fused_path, dispatched by core.fused_tracer): where a scene allows it, one compiled call traces each camera path to
 its end. It reads the same random numbers per dimension and calls the same device functions as the per-bounce
 integrator, so its images must equal that integrator's up to float32 rounding (on this machine: bit for bit),
 whatever the thread count; scenes it does not support keep the per-bounce integrator, with the reason named."""
@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from monte.core import builtin_scenes
-from monte.core.fused_path import FUSED_ENV, supports
+from monte.core.fused_tracer import FUSED_ENV, supports
 from monte.core.integrator import PathTracer
 from monte.core.render import prepare_scene, render
 from monte.core.sampling import make_sampler
 
-SCENES = ("cornell", "point_in_sphere", "plane_under_world", "spheres_under_sky")
+SCENES = ("cornell", "point_in_sphere", "spheres_under_sky")
 
 
 def _scene(name, res=16):
@@ -69,6 +69,11 @@ def test_scenes_or_settings_it_does_not_support_keep_the_per_bounce_integrator(c
     tracer = _tracer(_scene("cornell"), fast_settings(spp=4, **change))
     assert supports(tracer) == reason
     assert tracer.fused is None
+
+
+def test_a_scene_lit_by_an_unsampled_world_alone_keeps_the_per_bounce_integrator(fast_settings, monkeypatch):
+    monkeypatch.setenv(FUSED_ENV, "1")
+    assert supports(_tracer(_scene("plane_under_world"), fast_settings(spp=4))) == "nothing to light-sample"
 
 
 def test_the_environment_variable_forces_the_per_bounce_integrator(fast_settings, monkeypatch):
