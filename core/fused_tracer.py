@@ -63,7 +63,10 @@ def supports(tracer) -> str | None:
 class FusedTracer:
     """The kernel's scene-level arguments, built once per PathTracer whose scene `supports` accepts."""
 
-    def __init__(self, tracer) -> None:
+    def __init__(self, tracer, shadow_epsilon: float) -> None:
+        """tracer: the PathTracer whose scene `supports` accepted; shadow_epsilon: the fraction of its length by
+        which a shadow ray stops short of the light (core.integrator.SHADOW_EPSILON)."""
+        self.shadow_epsilon = np.float32(shadow_epsilon)
         ps, s = tracer.ps, tracer.settings
         sampler = tracer.sampler
         lights = ps.lights
@@ -93,11 +96,9 @@ class FusedTracer:
 
     def trace(self, pixel_id: np.ndarray, sample_id: np.ndarray, origins: np.ndarray, directions: np.ndarray,
               tmax: np.ndarray, depth_scale: np.ndarray, t_start: np.ndarray, want_aovs: bool, stats) -> tuple:
-        """Radiance (N, 3) float32 of N camera paths and, with want_aovs, their first hits' albedo, normal and
-        depth (core.integrator.FirstHit; else None), as PathTracer.trace returns them; adds to stats' counters."""
-        from .integrator import FirstHit
-        from .integrator import SHADOW_EPSILON
-
+        """Radiance (N, 3) float32 of N camera paths and, with want_aovs, their first hits' albedo (N, 3), normal
+        (N, 3) and depth (N,) (zeros, zeros and inf where the camera ray missed; else None), as PathTracer.trace's
+        FirstHit holds them; adds to stats' counters."""
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.empty((n, 3), np.float32)
@@ -113,9 +114,9 @@ class FusedTracer:
         dn[:, 2] = 1.0
         lobes = (*self.lobes[:9], dn)
         if want_aovs:
-            first = FirstHit(np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32), np.full(n, np.inf, np.float32))
+            first = (np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32), np.full(n, np.inf, np.float32))
             aov_args = (np.ascontiguousarray(t_start, np.float32), np.ascontiguousarray(depth_scale, np.float32),
-                        self.albedo, first.albedo, first.normal, first.depth)
+                        self.albedo, *first)
         else:
             first = None
             aov_args = (np.zeros(0, np.float32), np.zeros(0, np.float32), self.albedo, np.zeros((0, 3), np.float32),
@@ -129,7 +130,7 @@ class FusedTracer:
                     np.ascontiguousarray(ps.materials.emission, np.float32), self.emitters, self.lt, self.per_point,
                     self.n_matters, self.has_emission, self.seed_key, self.set_keys, self.dim_keys, self.tables,
                     self.group_bits, int(s.max_bounces), int(s.rr_depth), np.float32(s.clamp),
-                    np.float32(SHADOW_EPSILON), words, words.view(np.uint32), words.ctypes.data, buf, radiance, counters,
+                    self.shadow_epsilon, words, words.view(np.uint32), words.ctypes.data, buf, radiance, counters,
                     *aov_args)
         stats.nonfinite += int(counters[0])
         stats.clamped += int(counters[1])

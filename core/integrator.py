@@ -771,7 +771,7 @@ class PathTracer:
         self._resume: _SplitPaths | None = None  # the copies' state at their split, while _catcher_copies
         # the fused path kernel (core.fused_tracer) where the scene allows it; None: the per-bounce loop below
         self.fused_reason = fused_tracer.supports(self)
-        self.fused = fused_tracer.FusedTracer(self) if self.fused_reason is None else None
+        self.fused = fused_tracer.FusedTracer(self, SHADOW_EPSILON) if self.fused_reason is None else None
 
     def _dim(self, depth: int, k: int) -> int:
         return DIM_BOUNCE_BASE + depth * DIM_STRIDE + k
@@ -804,9 +804,9 @@ class PathTracer:
         if (self.fused is not None and not (want_features or want_surface or self._catcher_copies)
                 and ray_time is None):
             self.stats.paths += len(origins)
-            radiance, first = self.fused.trace(pixel_id, sample_id, origins, directions, tmax, depth_scale, t_start,
-                                               want_aovs, self.stats)
-            return radiance, first, None
+            radiance, aovs = self.fused.trace(pixel_id, sample_id, origins, directions, tmax, depth_scale, t_start,
+                                              want_aovs, self.stats)
+            return radiance, None if aovs is None else FirstHit(*aovs), None
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
         first = None
