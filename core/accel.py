@@ -141,6 +141,12 @@ class Accelerator:
             self._library.release_scene(self._scene)
             self._scene = None
 
+    def count_rays(self, closest: int, shadow: int) -> None:
+        """Count rays traced outside `intersect` / `occluded` (the fused path kernel, core.fused_path)."""
+        with self._count_lock:
+            self.rays_closest += closest
+            self.rays_shadow += shadow
+
     def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | None = None,
                   time: np.ndarray | None = None) -> Hits:
         """Closest hit along each ray within (0, tmax]. origins, directions: (N, 3) float32 (unit directions).

@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from . import bsdf as bsdf_mod
-from . import geometry_kernels, path_kernels, transparent_shadow
+from . import fused_tracer, geometry_kernels, path_kernels, transparent_shadow
 from . import light_passes as lp_mod
 from .accel import Accelerator, Hits, MotionTriangles
 from .data_passes import DataPath
@@ -769,6 +769,9 @@ class PathTracer:
         self.mis = settings.light_sampling == "mis"
         self._catcher_copies = False  # tracing shadow catcher copies: rays see only catchers (CatcherSamples)
         self._resume: _SplitPaths | None = None  # the copies' state at their split, while _catcher_copies
+        # the fused path kernel (core.fused_tracer) where the scene allows it; None: the per-bounce loop below
+        self.fused_reason = fused_tracer.supports(self)
+        self.fused = fused_tracer.FusedTracer(self, SHADOW_EPSILON) if self.fused_reason is None else None
 
     def _dim(self, depth: int, k: int) -> int:
         return DIM_BOUNCE_BASE + depth * DIM_STRIDE + k
@@ -798,6 +801,12 @@ class PathTracer:
         growth per unit distance), which Bump nodes read; None: zero. ray_time: (N,) each path's time in [0, 1]
         over the shutter (motion blur; its bounces and shadow rays keep it), None for a still scene."""
         ps, s = self.ps, self.settings
+        if (self.fused is not None and not (want_features or want_surface or self._catcher_copies)
+                and ray_time is None):
+            self.stats.paths += len(origins)
+            radiance, aovs = self.fused.trace(pixel_id, sample_id, origins, directions, tmax, depth_scale, t_start,
+                                              want_aovs, self.stats)
+            return radiance, None if aovs is None else FirstHit(*aovs), None
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
         first = None

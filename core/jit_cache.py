@@ -228,13 +228,13 @@ jit_inline = numba.njit(**_OPTIONS, _nrt=False, inline="always")
 # Modules of this folder that define cached kernels (their cache index files are named after them).
 KERNEL_MODULES = ("geometry_kernels", "path_kernels", "mesh_checks", "camera", "sampling", "warps", "bsdf_kernels",
                   "world_kernels", "light_kernels", "embree", "shading/regs", "shading/evaluator",
-                  "shading/procedural", "shading/color", "ray_visibility", "film_kernels")
+                  "shading/procedural", "shading/color", "ray_visibility", "film_kernels", "fused_path")
 
 
 # Kernel modules whose kernels run only for scenes that use their feature (an environment-map world, ray
 # visibility, node programs): the precompiled cache holds them (core.precompile renders such a scene), but one
 # filled by renders alone may not; every render runs the others, so those decide whether a cache is cold.
-FEATURE_KERNEL_MODULES = ("world_kernels", "ray_visibility", "shading/regs", "shading/evaluator",
+FEATURE_KERNEL_MODULES = ("world_kernels", "ray_visibility", "shading/regs", "shading/evaluator", "fused_path",
                           "shading/procedural", "shading/color")
 
 

@@ -1,12 +1,13 @@
 """`monte perf`: where render time and memory go, measured on the built-in scenes. Prints numbers only.
 
 Sections (each a short run; all in one process, interleaved where two variants are compared):
-- stages: thread-seconds per wavefront stage (camera rays, Embree closest hits, Embree shadow rays, emission and
+- stages: thread-seconds per wavefront stage of the per-bounce integrator (camera rays, Embree closest hits, Embree shadow rays, emission and
   surface interaction, next-event estimation, BSDF sampling and compaction, film) and Embree's share of the
   worker thread-time.
 - threads: samples/s at 1, 2, ... N worker threads and the speed-up over 1 (alternating runs, best of `repeat`).
 - memory: peak NumPy allocation (tracemalloc) of a batch of paths per batch size, and MB per million paths in
-  flight (the slope).
+  flight (the slope), of the per-bounce integrator (these two sections set MONTE_FUSED=0: the fused path kernel
+  has no stages and no per-bounce arrays).
 - skip: the diffuse-only Cornell box with and without an unused glass material (features a scene does not use
   cost nothing: the times should agree within noise).
 - adaptive: the Cornell box and the spheres-under-sky scene at a fixed spp with adaptive sampling off and on,
@@ -48,9 +49,26 @@ def _settings(**kw) -> RenderSettings:
     return RenderSettings(**kw).validate()
 
 
+class _PerBounce:
+    """Within it, renders use the per-bounce integrator (MONTE_FUSED=0): the stage split and the memory of the
+    paths' arrays are that integrator's (the fused path kernel, core.fused_path, has no stages and holds a batch's
+    camera rays and radiance only)."""
+
+    def __enter__(self):
+        self._before = os.environ.get("MONTE_FUSED")
+        os.environ["MONTE_FUSED"] = "0"
+
+    def __exit__(self, *exc):
+        if self._before is None:
+            os.environ.pop("MONTE_FUSED", None)
+        else:
+            os.environ["MONTE_FUSED"] = self._before
+
+
 def stage_profile(resolution: int, spp: int, threads: int) -> dict:
     """Thread-seconds per stage of one Cornell box render."""
-    result = render(cornell_box((resolution, resolution)), _settings(spp=spp, threads=threads))
+    with _PerBounce():
+        result = render(cornell_box((resolution, resolution)), _settings(spp=spp, threads=threads))
     st = result.stats
     stages = st["stage_seconds"]
     total = sum(stages.values())
@@ -91,6 +109,8 @@ def memory_per_batch(resolution: int, spp: int, batches: list[int]) -> dict:
 
     rows = []
     render_mod._TileRender._trace_batch = measured
+    per_bounce = _PerBounce()
+    per_bounce.__enter__()
     try:
         for batch in batches:
             peaks.clear()
@@ -107,6 +127,7 @@ def memory_per_batch(resolution: int, spp: int, batches: list[int]) -> dict:
                          "bytes_per_path": peak / paths})
     finally:
         render_mod._TileRender._trace_batch = traced
+        per_bounce.__exit__(None, None, None)
     x = np.array([r["largest_batch"] for r in rows], float)
     y = np.array([r["peak_mb"] for r in rows], float)
     slope = float(np.polyfit(x / 1e6, y, 1)[0]) if len(rows) > 1 else float(y[0] / (x[0] / 1e6))

@@ -423,7 +423,8 @@ def test_adaptive_settings_are_validated():
     assert RenderSettings(adaptive_threshold=0.01).adaptive_min_samples_for(20) == 20
 
 
-def test_stats_break_time_into_stages_and_bound_batches(fast_settings):
+def test_stats_break_time_into_stages_and_bound_batches(fast_settings, monkeypatch):
+    monkeypatch.setenv("MONTE_FUSED", "0")  # the per-bounce integrator's stages (the fused kernel has none)
     result = render(scenes.cornell_box((32, 32)), fast_settings(spp=8, batch_paths=4096, threads=2))
     st = result.stats
     stages = st["stage_seconds"]

@@ -1,0 +1,298 @@
+"""The fused path kernel: one compiled call traces a batch of camera paths to their end.
+
+The per-bounce integrator (core.integrator.PathTracer.trace) runs ~15 compiled kernels per bounce with NumPy
+glue and intermediate arrays between them. For the scenes this module supports (`supports` says which: constant
+materials without node programs, mesh emitters and analytic lights, the Sobol sampler, MIS, none of the film's
+extra outputs; core.fused_tracer decides and calls it) one kernel, `trace_paths`, does the whole path per camera ray: Embree's closest hit and shadow
+ray, the emission seen (MIS-weighted), Russian roulette, next-event estimation and the BSDF sample, calling the
+same device functions (core.bsdf_kernels.eval_path / sample_path, core.light_kernels.sample_light_path /
+light_emission_path / triangle_pdf_path) with the same random numbers (the sampler's dimension sets, evaluated
+per path by `_sobol`), so the image equals the per-bounce one up to rounding.
+
+Conventions as in core.integrator: float32 rays in the camera-shifted frame; each path's radiance is summed in
+float32 in the order the per-bounce integrator adds it (emission of a vertex, then its light sample).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .bsdf_kernels import eval_path, sample_path
+from .embree import _INVALID_ID, _call_embree
+from .geometry_kernels import _valid_reflection_normal, offset_point
+from .jit_cache import jit_no_nrt as _jit
+from .light_kernels import light_emission_path, probabilities_at, sample_light_path, triangle_pdf_path
+from .sampling import _U, _U0, _U255, _S8, _S16, _S24, _mix32, _owen_rev, _reverse32, _unit_float
+from .warps import onb_f32
+
+
+_F0 = np.float32(0.0)
+_F1 = np.float32(1.0)
+_TINY = np.float32(1e-30)
+_FAR = np.float32(3e38)
+_D_VERTEX, _D_LIGHT = 1, 4  # as core.integrator: a vertex's BSDF/roulette set and its light-sample set
+
+
+@_jit
+def _sobol(p, s, seed_key, set_key, dim_keys, tables, group_bits, d):
+    """Component d of the Sobol sampler's dimension set (core.sampling._sobol_fill for one path, the same
+    float32 value)."""
+    gb = _U(group_bits)
+    gmask = _U(_U(_U(1) << gb) - _U(1))
+    hk = _mix32(_U(_mix32(_U(p ^ seed_key)) ^ set_key))
+    grp = _U(s & gmask)
+    if grp != _U0:
+        hk = _mix32(_U(hk ^ _U(grp * _U(0x9E3779B9))))
+    r = _U(_owen_rev(_reverse32(_U(s >> gb)), hk) ^ _owen_rev(_U0, hk))
+    t = tables[d]
+    lane = _U(t[0, r & _U255] ^ t[1, (r >> _S8) & _U255] ^ t[2, (r >> _S16) & _U255] ^ t[3, r >> _S24])
+    return _unit_float(_reverse32(_owen_rev(lane, _mix32(_U(hk ^ dim_keys[d])))))
+
+
+@_jit
+def _add(r0, r1, r2, v0, v1, v2, clamp, counters):
+    """core.path_kernels.accumulate for one contribution: NaN/Inf dropped (counters[0]), clamped (counters[1])."""
+    if not (math.isfinite(v0) and math.isfinite(v1) and math.isfinite(v2)):
+        counters[0] += 1
+        return r0, r1, r2
+    if clamp > 0:
+        peak = max(v0, v1, v2)
+        if peak > clamp:
+            counters[1] += 1
+            s = clamp / peak
+            v0, v1, v2 = v0 * s, v1 * s, v2 * s
+    return r0 + v0, r1 + v1, r2 + v2
+
+
+@_jit
+def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scene,
+                tri_vertices, face_normals, corner_normals, smooth, tri_magnitude, material_index, specular, lobes, multiscatter, tabs,
+                has_nondelta, has_transmission, emission, emitter_of_triangle, lt, per_point, n_matters,
+                has_emission, seed_key, set_keys, dim_keys, tables, group_bits, max_bounces, rr_depth, clamp,
+                shadow_epsilon, words, ids, address, buf, radiance, counters, t_start, depth_scale, albedo_of,
+                out_albedo, out_normal, out_depth):
+    """Trace camera path k (pixel pix[k], sample smp[k], ray origins[k] + t directions[k], t < tmax[k]) to its
+    end and write its radiance (float32) to radiance[k]. set_keys: the Sobol set key of every dimension set a
+    path reads (index = the set); see core.fused_tracer.supports for what the scene may hold. counters: [non-finite dropped,
+    clamped], added to."""
+    has_normals = corner_normals.shape[0] > 0
+    want_aovs = out_depth.shape[0] > 0
+    has_emitters = emitter_of_triangle.shape[0] > 0
+    for k in range(origins.shape[0]):
+        p_id = pix[k]
+        s_id = smp[k]
+        ox, oy, oz = origins[k, 0], origins[k, 1], origins[k, 2]
+        dx, dy, dz = directions[k, 0], directions[k, 1], directions[k, 2]
+        tm = tmax[k]
+        t0 = t1 = t2 = _F1
+        r0 = r1 = r2 = _F0
+        prev_pdf = _F0
+        prev_delta = True
+        pnx = pny = pnz = _F0
+        prev_tr = False
+        for depth in range(max_bounces + 2):
+            # ---- closest hit
+            words[0], words[1], words[2], words[3] = ox, oy, oz, 0.0
+            words[4], words[5], words[6], words[7] = dx, dy, dz, 0.0
+            words[8] = min(tm, _FAR)
+            ids[9] = _INVALID_ID
+            ids[10] = 0
+            ids[11] = 0
+            ids[17] = _INVALID_ID
+            ids[18] = _INVALID_ID
+            ids[19] = _INVALID_ID
+            _call_embree(intersect1, scene, address, 0)
+            counters[2] += 1
+            hit = ids[18] != _INVALID_ID
+            prim = np.int32(ids[17]) if hit else np.int32(-1)
+            bu = words[15] if hit else _F0
+            bv = words[16] if hit else _F0
+            t_hit = words[8] if hit else np.float32(np.inf)
+            use_mis = depth > 0
+            has_n = use_mis and n_matters
+            tr_flag = has_n and per_point and prev_tr
+            # ---- analytic lights and the world along the ray
+            if has_emission:
+                er, eg, eb = light_emission_path(
+                    np.float64(ox), np.float64(oy), np.float64(oz), np.float64(dx), np.float64(dy), np.float64(dz),
+                    np.float64(t_hit), np.float64(prev_pdf) if use_mis else 0.0, prev_delta if use_mis else False,
+                    use_mis, np.float64(pnx), np.float64(pny), np.float64(pnz), has_n, tr_flag, depth == 0,
+                    per_point, lt, buf)
+                r0, r1, r2 = _add(r0, r1, r2, t0 * np.float32(er), t1 * np.float32(eg), t2 * np.float32(eb), clamp,
+                                  counters)
+            if not hit:
+                break
+            # ---- an emissive triangle hit
+            mat = material_index[prim]
+            if has_emitters and emitter_of_triangle[prim] >= 0:
+                e = emitter_of_triangle[prim]
+                w = _F1
+                if depth > 0 and not prev_delta:
+                    cos_e = abs(dx * face_normals[prim, 0] + dy * face_normals[prim, 1] + dz * face_normals[prim, 2])
+                    pdf_l = _F0
+                    if cos_e > _F0:
+                        pl = triangle_pdf_path(e, np.float64(ox), np.float64(oy), np.float64(oz),
+                                               np.float64(np.float32(t_hit * t_hit)), np.float64(cos_e), lt)
+                        if per_point:
+                            probabilities_at(np.float64(ox), np.float64(oy), np.float64(oz), np.float64(pnx),
+                                             np.float64(pny), np.float64(pnz), n_matters, n_matters and prev_tr,
+                                             lt[0], lt[1], lt[3], lt[4], buf)
+                            unit = lt[20][e]
+                            pl *= buf[unit] if unit >= 0 else 0.0
+                        pdf_l = np.float32(pl) if math.isfinite(pl) else _F0
+                    pb = prev_pdf
+                    w = pb * pb / max(pb * pb + pdf_l * pdf_l, _TINY)
+                r0, r1, r2 = _add(r0, r1, r2, t0 * emission[mat, 0] * w, t1 * emission[mat, 1] * w,
+                                  t2 * emission[mat, 2] * w, clamp, counters)
+            if depth == 0 and want_aovs:  # the first hit's albedo, normal (as the mesh gives it) and depth
+                out_albedo[k, 0], out_albedo[k, 1], out_albedo[k, 2] = albedo_of[mat, 0], albedo_of[mat, 1], \
+                    albedo_of[mat, 2]
+                ax, ay, az = face_normals[prim, 0], face_normals[prim, 1], face_normals[prim, 2]
+                if has_normals and smooth[prim]:
+                    a0 = _F1 - bu - bv
+                    ax = corner_normals[prim, 0, 0] * a0 + corner_normals[prim, 1, 0] * bu + corner_normals[prim, 2, 0] * bv
+                    ay = corner_normals[prim, 0, 1] * a0 + corner_normals[prim, 1, 1] * bu + corner_normals[prim, 2, 1] * bv
+                    az = corner_normals[prim, 0, 2] * a0 + corner_normals[prim, 1, 2] * bu + corner_normals[prim, 2, 2] * bv
+                    alen = max(np.float32(math.sqrt(ax * ax + ay * ay + az * az)), _TINY)
+                    ax, ay, az = ax / alen, ay / alen, az / alen
+                out_normal[k, 0], out_normal[k, 1], out_normal[k, 2] = ax, ay, az
+                out_depth[k] = (t_start[k] + t_hit) * depth_scale[k]
+            if depth == max_bounces + 1:
+                break
+            # ---- Russian roulette (the 4th number of the vertex's set)
+            vertex_key = set_keys[2 + depth * 8 + _D_VERTEX]
+            if depth >= rr_depth:
+                q = min(np.float32(math.sqrt(max(max(t0, t1), t2))), _F1)
+                if not _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 3) < q:
+                    break
+                t0, t1, t2 = t0 / q, t1 / q, t2 / q
+            # ---- the surface (core.geometry_kernels.surface for flat triangles)
+            b0 = _F1 - bu - bv
+            mag = tri_magnitude[prim]
+            px = tri_vertices[prim, 0, 0] * b0 + tri_vertices[prim, 1, 0] * bu + tri_vertices[prim, 2, 0] * bv
+            py = tri_vertices[prim, 0, 1] * b0 + tri_vertices[prim, 1, 1] * bu + tri_vertices[prim, 2, 1] * bv
+            pz = tri_vertices[prim, 0, 2] * b0 + tri_vertices[prim, 1, 2] * bu + tri_vertices[prim, 2, 2] * bv
+            mag = max(mag, abs(px), abs(py), abs(pz))
+            gx, gy, gz = face_normals[prim, 0], face_normals[prim, 1], face_normals[prim, 2]
+            wox, woy, woz = -dx, -dy, -dz
+            cos_o_geo = wox * gx + woy * gy + woz * gz
+            sx, sy, sz = gx, gy, gz
+            smooth_here = has_normals and smooth[prim]
+            if smooth_here:
+                sx = (corner_normals[prim, 0, 0] * b0 + corner_normals[prim, 1, 0] * bu
+                      + corner_normals[prim, 2, 0] * bv)
+                sy = (corner_normals[prim, 0, 1] * b0 + corner_normals[prim, 1, 1] * bu
+                      + corner_normals[prim, 2, 1] * bv)
+                sz = (corner_normals[prim, 0, 2] * b0 + corner_normals[prim, 1, 2] * bu
+                      + corner_normals[prim, 2, 2] * bv)
+                slen = max(np.float32(math.sqrt(sx * sx + sy * sy + sz * sz)), _TINY)
+                sx, sy, sz = sx / slen, sy / slen, sz / slen
+            if sx * gx + sy * gy + sz * gz < _F0:
+                sx, sy, sz = -sx, -sy, -sz
+            ux, uy, uz = sx, sy, sz  # the normal the diffuse lobes keep
+            if smooth_here and specular[mat]:
+                side = _F1 if cos_o_geo >= _F0 else -_F1
+                vx, vy, vz = _valid_reflection_normal(gx * side, gy * side, gz * side, wox, woy, woz,
+                                                      sx * side, sy * side, sz * side)
+                sx, sy, sz = np.float32(vx * side), np.float32(vy * side), np.float32(vz * side)
+            tx, ty, tz, bx, by, bz = onb_f32(sx, sy, sz)
+            # the diffuse lobes' normal (core.geometry_kernels._diffuse_normal), in the row of the vertex's
+            # material of the lobes' last array (core.bsdf_kernels.diffuse_axis reads it there)
+            dn = lobes[9]
+            if ux == sx and uy == sy and uz == sz:
+                dn[mat, 0], dn[mat, 1], dn[mat, 2] = _F0, _F0, _F1
+            else:
+                ax = ux * tx + uy * ty + uz * tz
+                ay = ux * bx + uy * by + uz * bz
+                az = ux * sx + uy * sy + uz * sz
+                alen = max(np.float32(math.sqrt(ax * ax + ay * ay + az * az)), _TINY)
+                dn[mat, 0], dn[mat, 1], dn[mat, 2] = ax / alen, ay / alen, az / alen
+            lx = wox * tx + woy * ty + woz * tz
+            ly = wox * bx + woy * by + woz * bz
+            lz = wox * sx + woy * sy + woz * sz
+            flip = -_F1 if cos_o_geo < _F0 else _F1
+            nvx, nvy, nvz = sx * flip, sy * flip, sz * flip
+            back = cos_o_geo < _F0
+            sgn = -1.0 if back else 1.0
+            transmits = has_transmission[mat]
+            # ---- next-event estimation: one light sample, MIS-weighted, with a shadow ray
+            if has_nondelta[mat]:
+                light_key = set_keys[2 + depth * 8 + _D_LIGHT]
+                ua = _sobol(p_id, s_id, seed_key, light_key, dim_keys, tables, group_bits, 0)
+                ub = _sobol(p_id, s_id, seed_key, light_key, dim_keys, tables, group_bits, 1)
+                uc = _sobol(p_id, s_id, seed_key, light_key, dim_keys, tables, group_bits, 2)
+                wx, wy, wz, dist, lr, lg, lb, lpdf, ldelta = sample_light_path(
+                    np.float64(px), np.float64(py), np.float64(pz), np.float64(nvx) if n_matters else 0.0,
+                    np.float64(nvy) if n_matters else 0.0, np.float64(nvz) if n_matters else 0.0, n_matters,
+                    n_matters and per_point and transmits, np.float64(uc), np.float64(ua), np.float64(ub),
+                    per_point, lt, buf)
+                wx, wy, wz = np.float32(wx), np.float32(wy), np.float32(wz)
+                dist = np.float32(dist)
+                pl = np.float32(lpdf)
+                if pl > _F0:
+                    ix = wx * tx + wy * ty + wz * tz
+                    iy = wx * bx + wy * by + wz * bz
+                    iz = wx * sx + wy * sy + wz * sz
+                    f0, f1, f2, pb = eval_path(lobes, mat, multiscatter, tabs, np.float64(lx), np.float64(ly),
+                                               np.float64(lz) * sgn, back, np.float64(ix), np.float64(iy),
+                                               np.float64(iz) * sgn)
+                    w = _F1
+                    if not ldelta:
+                        pbf = np.float32(pb)
+                        w = pl * pl / max(pl * pl + pbf * pbf, _TINY)
+                    scale = w / max(pl, _TINY)
+                    crosses = (cos_o_geo > _F0) != (wx * gx + wy * gy + wz * gz > _F0)
+                    if crosses and not transmits:
+                        scale = _F0
+                    c0 = t0 * np.float32(f0) * np.float32(lr) * scale
+                    c1 = t1 * np.float32(f1) * np.float32(lg) * scale
+                    c2 = t2 * np.float32(f2) * np.float32(lb) * scale
+                    if max(max(max(_F0, c0), c1), c2) > _F0:
+                        sox, soy, soz = offset_point(px, py, pz, gx, gy, gz, wx, wy, wz, mag)
+                        if math.isfinite(dist):
+                            vx, vy, vz = px + wx * dist - sox, py + wy * dist - soy, pz + wz * dist - soz
+                            length = np.float32(math.sqrt(vx * vx + vy * vy + vz * vz))
+                            inv = _F1 / max(length, _TINY)
+                            vx, vy, vz = vx * inv, vy * inv, vz * inv
+                            stmax = length * (_F1 - shadow_epsilon)
+                        else:
+                            vx, vy, vz = wx, wy, wz
+                            stmax = _FAR
+                        words[0], words[1], words[2], words[3] = sox, soy, soz, 0.0
+                        words[4], words[5], words[6], words[7] = vx, vy, vz, 0.0
+                        words[8] = min(stmax, _FAR)
+                        ids[9] = _INVALID_ID
+                        ids[10] = 0
+                        ids[11] = 0
+                        _call_embree(occluded1, scene, address, 0)
+                        counters[3] += 1
+                        if not words[8] < 0.0:
+                            r0, r1, r2 = _add(r0, r1, r2, c0, c1, c2, clamp, counters)
+            # ---- the BSDF sample and the next ray (core.path_kernels.scatter)
+            u_dir0 = _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 0)
+            u_dir1 = _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 1)
+            u_lobe = _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 2)
+            qx, qy, qz, w0, w1, w2, spdf, sdelta, stransmitted, svalid = sample_path(
+                lobes, mat, multiscatter, tabs, lx, ly, lz, back, u_lobe, u_dir0, u_dir1)
+            qx, qy, qz = np.float32(qx), np.float32(qy), np.float32(qz)
+            wx = qx * tx + qy * bx + qz * sx
+            wy = qx * ty + qy * by + qz * sy
+            wz = qx * tz + qy * bz + qz * sz
+            side_o = cos_o_geo > _F0
+            side_i = wx * gx + wy * gy + wz * gz > _F0
+            if not (svalid and ((side_o != side_i) if stransmitted else (side_o == side_i))):
+                break
+            t0, t1, t2 = t0 * np.float32(w0), t1 * np.float32(w1), t2 * np.float32(w2)
+            if not max(t0, t1, t2) > _F0:
+                break
+            ox, oy, oz = offset_point(px, py, pz, gx, gy, gz, wx, wy, wz, mag)
+            length = max(np.float32(math.sqrt(wx * wx + wy * wy + wz * wz)), _TINY)
+            dx, dy, dz = wx / length, wy / length, wz / length
+            prev_pdf = np.float32(spdf)
+            prev_delta = sdelta
+            pnx, pny, pnz = nvx, nvy, nvz
+            prev_tr = transmits
+            tm = _FAR
+        radiance[k, 0], radiance[k, 1], radiance[k, 2] = r0, r1, r2

@@ -1,0 +1,138 @@
+"""Where the fused path kernel (core.fused_path) renders a scene, and its call.
+
+`supports` decides per PathTracer (a scene-level decision: the scene's features and the render settings) whether
+`trace_paths` renders the scene as the per-bounce integrator would; `FusedTracer` holds the kernel's scene-level
+arguments and calls it per batch. Kept apart from the kernel module so that edits here recompile no kernel.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from . import bsdf as bsdf_mod
+from . import microfacet as mf
+from .embree import _RAY_WORDS
+from .fused_path import trace_paths
+from .sampling import _TAG_SOBOL_SET, SobolSampler, _U, _key, _sobol_tables
+
+FUSED_ENV = "MONTE_FUSED"  # "0": always the per-bounce integrator (A/B comparisons)
+
+
+def disabled() -> bool:
+    """MONTE_FUSED=0 forces the per-bounce integrator (for A/B comparisons)."""
+    return os.environ.get(FUSED_ENV, "1").strip() == "0"
+
+
+def supports(tracer) -> str | None:
+    """None when `trace_paths` renders this tracer's scene with these settings exactly as the per-bounce
+    integrator would (its camera paths' radiance and first-hit albedo, normal and depth; PathTracer.trace checks
+    per call that no denoising feature, data pass or motion blur is asked for), else the reason it does not (the
+    first found)."""
+    ps, s = tracer.ps, tracer.settings
+    accel = tracer.accel
+    if disabled():
+        return f"{FUSED_ENV}=0"
+    if not isinstance(tracer.sampler, SobolSampler):
+        return "the sampler is not Sobol"
+    if s.light_sampling != "mis":
+        return "light sampling is not MIS"
+    if not tracer.use_nee:
+        return "nothing to light-sample"
+    if getattr(accel, "_scene", None) is None or accel.motion is not None or ps.motion is not None:
+        return "no Embree scene, or motion"
+    checks = (("node programs", ps.shading is not None), ("textured emitters", ps.textured is not None),
+              ("alpha", ps.alpha), ("shadow catcher", ps.catcher is not None),
+              ("light groups", ps.light_groups is not None), ("light linking", ps.links is not None),
+              ("shadow linking", ps.shadow_links is not None), ("light visibility", ps.light_visibility is not None),
+              ("ray visibility", bool(ps.visible_to)), ("transparent BSDF", ps.has_clear),
+              ("transparent shadows", ps.shadow_clear is not None), ("lights without shadows", ps.no_shadow is not None),
+              ("moving emitters", ps.moving_emitters is not None),
+              ("shadow terminator offset", ps.terminator_offset is not None),
+              ("light passes", bool(s.light_passes)), ("shader AOVs", bool(ps.scene.shader_aovs)),
+              ("textures", bool(getattr(ps.materials, "_texture_ids", None))),
+              ("camera backdrop", ps.scene.world.camera_color is not None
+               or ps.scene.world.camera_environment is not None))
+    for name, present in checks:
+        if present:
+            return name
+    return None
+
+
+class FusedTracer:
+    """The kernel's scene-level arguments, built once per PathTracer whose scene `supports` accepts."""
+
+    def __init__(self, tracer, shadow_epsilon: float) -> None:
+        """tracer: the PathTracer whose scene `supports` accepted; shadow_epsilon: the fraction of its length by
+        which a shadow ray stops short of the light (core.integrator.SHADOW_EPSILON)."""
+        self.shadow_epsilon = np.float32(shadow_epsilon)
+        ps, s = tracer.ps, tracer.settings
+        sampler = tracer.sampler
+        lights = ps.lights
+        lib = tracer.accel._library
+        self.intersect1, self.occluded1, self.scene = lib.intersect1, lib.occluded1, tracer.accel._scene
+        m = ps.materials.kind.shape[0]
+        lobes = ps.materials.gather(np.arange(m))
+        self.lobes = lobes.arrays()
+        self.albedo = np.ascontiguousarray(bsdf_mod.albedo(lobes), np.float32)  # (M, 3): the albedo AOV
+        self.multiscatter = ps.materials.multiscatter
+        self.specular = (np.ascontiguousarray(ps.specular, bool) if len(ps.specular)
+                         else np.zeros(m, bool))
+        self.tabs = mf.kernel_tables()
+        self.emitters = (np.ascontiguousarray(ps.emissive.emitter_of_triangle, np.int64) if ps.emissive is not None
+                         else np.zeros(0, np.int64))
+        self.lt = lights._tables
+        self.per_point = bool(lights._per_point)
+        self.n_matters = bool(lights._n_matters)
+        self.has_emission = bool(lights.has_emission)
+        dims = 2 + (s.max_bounces + 2) * 8
+        self.set_keys = np.array([_U(_key(sampler.seed, d, _TAG_SOBOL_SET)) for d in range(dims)], np.uint32)
+        self.dim_keys = np.ascontiguousarray(sampler._dim_keys, np.uint32)
+        self.seed_key = _U(sampler._seed_key)
+        self.tables = _sobol_tables()
+        self.group_bits = int(sampler._group_bits)
+        self.ps, self.settings, self.accel = ps, s, tracer.accel
+
+    def trace(self, pixel_id: np.ndarray, sample_id: np.ndarray, origins: np.ndarray, directions: np.ndarray,
+              tmax: np.ndarray, depth_scale: np.ndarray, t_start: np.ndarray, want_aovs: bool, stats) -> tuple:
+        """Radiance (N, 3) float32 of N camera paths and, with want_aovs, their first hits' albedo (N, 3), normal
+        (N, 3) and depth (N,) (zeros, zeros and inf where the camera ray missed; else None), as PathTracer.trace's
+        FirstHit holds them; adds to stats' counters."""
+        ps, s = self.ps, self.settings
+        n = len(origins)
+        radiance = np.empty((n, 3), np.float32)
+        counters = np.zeros(4, np.int64)
+        # the kernel allocates nothing (no reference counting in its loop): its scratch comes from here. A
+        # 16-byte aligned RTCRayHit (core.embree), the light kernels' per-point probabilities, and the lobes of
+        # each material with its own diffuse-normal rows (written per vertex)
+        raw = np.zeros(_RAY_WORDS, np.float32)
+        pad = ((16 - raw.ctypes.data % 16) % 16) // 4
+        words = raw[pad:pad + 32]
+        buf = np.empty(max(self.lt[1].shape[0], 1))
+        dn = np.zeros((len(self.specular), 3), np.float32)
+        dn[:, 2] = 1.0
+        lobes = (*self.lobes[:9], dn)
+        if want_aovs:
+            first = (np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32), np.full(n, np.inf, np.float32))
+            aov_args = (np.ascontiguousarray(t_start, np.float32), np.ascontiguousarray(depth_scale, np.float32),
+                        self.albedo, *first)
+        else:
+            first = None
+            aov_args = (np.zeros(0, np.float32), np.zeros(0, np.float32), self.albedo, np.zeros((0, 3), np.float32),
+                        np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
+        trace_paths(np.ascontiguousarray(pixel_id, np.uint32), np.ascontiguousarray(sample_id, np.uint32),
+                    np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(directions, np.float32),
+                    np.ascontiguousarray(tmax, np.float32), self.intersect1, self.occluded1, self.scene,
+                    ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth, ps.tri_magnitude,
+                    ps.material_index, self.specular, lobes,
+                    self.multiscatter, self.tabs, ps.has_nondelta, ps.materials.has_transmission,
+                    np.ascontiguousarray(ps.materials.emission, np.float32), self.emitters, self.lt, self.per_point,
+                    self.n_matters, self.has_emission, self.seed_key, self.set_keys, self.dim_keys, self.tables,
+                    self.group_bits, int(s.max_bounces), int(s.rr_depth), np.float32(s.clamp),
+                    self.shadow_epsilon, words, words.view(np.uint32), words.ctypes.data, buf, radiance, counters,
+                    *aov_args)
+        stats.nonfinite += int(counters[0])
+        stats.clamped += int(counters[1])
+        self.accel.count_rays(int(counters[2]), int(counters[3]))
+        return radiance, first

@@ -1,0 +1,83 @@
+"""The fused path kernel (core.fused_path, dispatched by core.fused_tracer): where a scene allows it, one compiled call traces each camera path to
+its end. It reads the same random numbers per dimension and calls the same device functions as the per-bounce
+integrator, so its images must equal that integrator's up to float32 rounding (on this machine: bit for bit),
+whatever the thread count; scenes it does not support keep the per-bounce integrator, with the reason named."""
+
+import numpy as np
+import pytest
+
+from monte.core import builtin_scenes
+from monte.core.fused_tracer import FUSED_ENV, supports
+from monte.core.integrator import PathTracer
+from monte.core.render import prepare_scene, render
+from monte.core.sampling import make_sampler
+
+SCENES = ("cornell", "point_in_sphere", "spheres_under_sky")
+
+
+def _scene(name, res=16):
+    if name == "cornell":
+        return builtin_scenes.cornell_box((res, res))
+    return getattr(builtin_scenes, name)((res, res))
+
+
+def _tracer(scene, settings):
+    ps, accel = prepare_scene(scene, settings)
+    return PathTracer(ps, accel, settings, make_sampler(settings.sampler, settings.seed, settings.spp, 4))
+
+
+def _render(scene, settings, monkeypatch, fused: bool):
+    monkeypatch.setenv(FUSED_ENV, "1" if fused else "0")
+    return render(scene, settings)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_the_fused_kernel_renders_what_the_per_bounce_integrator_does(name, fast_settings, monkeypatch):
+    settings = fast_settings(spp=8, threads=1)
+    scene = _scene(name)
+    monkeypatch.setenv(FUSED_ENV, "1")
+    assert supports(_tracer(scene, settings)) is None  # the fused kernel does render this scene
+    old = _render(scene, settings, monkeypatch, fused=False)
+    new = _render(scene, settings, monkeypatch, fused=True)
+    a, b = old.color[..., :3].astype(np.float64), new.color[..., :3].astype(np.float64)
+    # Channel means within 3 sigma of their standard error (from the film's per-pixel variance): a kernel that
+    # drew other random numbers would still pass this, so the pixels must also agree to float32 rounding.
+    se = np.sqrt(np.sum(old.variance[..., :3], axis=(0, 1))) / a.shape[0] / a.shape[1]
+    assert np.all(np.abs(a.mean(axis=(0, 1)) - b.mean(axis=(0, 1))) <= 3 * se + 1e-7)
+    np.testing.assert_allclose(b, a, rtol=1e-4, atol=1e-6)
+    assert a.mean() > 0.01  # the scene is lit: the comparison is not one of two black images
+    for aov in ("albedo", "normal", "depth"):  # the first hit's passes come from the kernel too
+        np.testing.assert_allclose(getattr(new, aov), getattr(old, aov), rtol=1e-6, atol=1e-7)
+
+
+def test_the_fused_kernel_is_bit_identical_across_thread_counts(fast_settings, monkeypatch):
+    scene = _scene("cornell", 24)
+    one = _render(scene, fast_settings(spp=8, threads=1, batch_paths=1024), monkeypatch, fused=True)
+    two = _render(scene, fast_settings(spp=8, threads=2, batch_paths=1024), monkeypatch, fused=True)
+    assert np.array_equal(one.color, two.color)
+    assert np.array_equal(one.variance, two.variance)
+
+
+@pytest.mark.parametrize("change, reason", [
+    (dict(sampler="independent"), "the sampler is not Sobol"),
+    (dict(light_sampling="bsdf"), "light sampling is not MIS"),
+    (dict(light_passes=("Diffuse Direct",)), "light passes"),
+])
+def test_scenes_or_settings_it_does_not_support_keep_the_per_bounce_integrator(change, reason, fast_settings,
+                                                                                monkeypatch):
+    monkeypatch.setenv(FUSED_ENV, "1")
+    tracer = _tracer(_scene("cornell"), fast_settings(spp=4, **change))
+    assert supports(tracer) == reason
+    assert tracer.fused is None
+
+
+def test_a_scene_lit_by_an_unsampled_world_alone_keeps_the_per_bounce_integrator(fast_settings, monkeypatch):
+    monkeypatch.setenv(FUSED_ENV, "1")
+    assert supports(_tracer(_scene("plane_under_world"), fast_settings(spp=4))) == "nothing to light-sample"
+
+
+def test_the_environment_variable_forces_the_per_bounce_integrator(fast_settings, monkeypatch):
+    monkeypatch.setenv(FUSED_ENV, "0")
+    tracer = _tracer(_scene("cornell"), fast_settings(spp=4))
+    assert supports(tracer) == f"{FUSED_ENV}=0"
+    assert tracer.fused is None
