@@ -980,6 +980,8 @@ class _TileRender:
             "embree_seconds": st.seconds_intersect + st.seconds_occluded,
             # Share of all worker thread-time (wall time x workers) spent inside Embree.
             "embree_share": (st.seconds_intersect + st.seconds_occluded) / max(elapsed * self.workers, 1e-9),
+            # the fused path kernel (core.fused_tracer) traced the paths: Embree is called inside it, untimed
+            "fused_kernel": any(t.fused is not None for t in self.tracers),
             "stage_seconds": {**st.stage_seconds(), "film": self.film_seconds},
             # the main thread's writing of the tiles' images into the frame's (beside its film sums)
             "assembly_seconds": self.assembly_seconds,

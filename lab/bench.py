@@ -54,7 +54,10 @@ def run_bench(args: argparse.Namespace) -> dict:
     print(f"  samples/s       {st['samples_per_second'] / 1e3:.1f} k")
     print(f"  rays/s          {st['rays_per_second'] / 1e6:.2f} M ({st['rays_closest']} closest, "
           f"{st['rays_shadow']} shadow)")
-    print(f"  inside Embree   {100 * st['embree_share']:.0f}% of wall time")
+    if st.get("fused_kernel"):
+        print("  inside Embree   not timed (the fused path kernel calls Embree inside it; MONTE_FUSED=0 to time it)")
+    else:
+        print(f"  inside Embree   {100 * st['embree_share']:.0f}% of wall time")
     print(f"  peak memory     {st['peak_memory_mb']:.0f} MB (process max RSS)")
     print(f"  channel means   {' '.join(f'{m:.4f}' for m in report['channel_means'])} "
           f"(Cycles: {' '.join(f'{m:.4f}' for m in REFERENCE_MEANS)})")

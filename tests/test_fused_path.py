@@ -46,6 +46,9 @@ def test_the_fused_kernel_renders_what_the_per_bounce_integrator_does(name, fast
     assert np.all(np.abs(a.mean(axis=(0, 1)) - b.mean(axis=(0, 1))) <= 3 * se + 1e-7)
     np.testing.assert_allclose(b, a, rtol=1e-4, atol=1e-6)
     assert a.mean() > 0.01  # the scene is lit: the comparison is not one of two black images
+    # the stats say which traced (the bench prints Embree's share only where it was timed)
+    assert new.stats["fused_kernel"] and not old.stats["fused_kernel"]
+    assert old.stats["embree_share"] > 0 and new.stats["embree_share"] == 0
     for aov in ("albedo", "normal", "depth"):  # the first hit's passes come from the kernel too
         np.testing.assert_allclose(getattr(new, aov), getattr(old, aov), rtol=1e-6, atol=1e-7)
 
