@@ -526,14 +526,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="benchmark the Cornell box: samples/s, rays/s, Embree share, memory, RMSE; "
                                      "--vs cycles, --samplers, --batch-sizes, --seed-table: run time against error")
     p.add_argument("--json", help="also write the numbers to this JSON file")
-    from .lab.bench_args import add_bench_arguments
+    from .lab.bench_args import add_bench_arguments, add_mc_study_arguments, add_perf_arguments
 
     add_bench_arguments(p)
     p.add_argument("--reference", help="reference EXR for RMSE (default: the bundled converged Cycles render)")
     _add_render_options(p)
     p.set_defaults(func=cmd_bench)
-
-    from .lab.perf import add_arguments as add_perf_arguments
 
     p = sub.add_parser("perf", help="where time and memory go: stage profile, thread scaling, memory per batch, "
                                     "unused-feature cost, adaptive sampling savings")
@@ -561,14 +559,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true", help="no per-case log")
     p.set_defaults(func=cmd_stress)
 
-    try:
-        from .lab.mc_study import add_arguments
-    except ImportError:  # the study module is optional at import time
-        add_arguments = None
-    if add_arguments is not None:
-        p = sub.add_parser("mc-study", help="the seed's Monte Carlo study: estimators, error, efficiency, MSE")
-        add_arguments(p)
-        p.set_defaults(func=cmd_mc_study)
+    p = sub.add_parser("mc-study", help="the seed's Monte Carlo study: estimators, error, efficiency, MSE")
+    add_mc_study_arguments(p)
+    p.set_defaults(func=cmd_mc_study)
     return parser
 
 

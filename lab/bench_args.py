@@ -1,4 +1,5 @@
-"""`monte bench` command-line options beyond the render options (argparse only: cheap to import).
+"""`monte bench` command-line options beyond the render options, and `monte perf`'s and `monte mc-study`'s
+(argparse only: cheap to import).
 
 --vs cycles (lab/bench_cycles.py, needs bpy), --vs mitsuba (lab/bench_mitsuba.py, needs bpy and mitsuba), --samplers, --batch-sizes and --seed-table
 (lab/bench_ladders.py, no bpy).
@@ -7,6 +8,7 @@
 from __future__ import annotations
 
 import argparse
+import pathlib
 
 SEED_TABLE_COUNTS = (8, 40, 200, 1000)  # samples per stratum in the seed's tables (also 5000, 25000)
 BENCH_SCENES = ("cornell", "interior", "glass", "instances", "hdri", "textured")
@@ -63,3 +65,38 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed-table", action="store_true", help="the seed's variance tables (Markdown)")
     p.add_argument("--strata-samples", type=_int_list, default=list(SEED_TABLE_COUNTS),
                    help="with --seed-table: samples per stratum (default 8,40,200,1000; the seed also 5000,25000)")
+
+
+# `monte perf` (lab/perf.py) and `monte mc-study` (lab/mc_study.py): their options here, so that building the
+# command line's parser imports neither module (NumPy, the Monte Carlo study: 0.08-0.12 s of every `monte` process
+# on the loaded 2-core machine).
+PERF_SECTIONS = ("stages", "threads", "memory", "skip", "adaptive", "nodes", "textured")
+
+
+def add_perf_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of `monte perf`."""
+    p.add_argument("--sections", nargs="*", choices=PERF_SECTIONS, help="which measurements (default: all)")
+    p.add_argument("--resolution", type=int, default=128, help="square image size (default 128)")
+    p.add_argument("--spp", type=int, default=16, help="samples per pixel per run (default 16)")
+    p.add_argument("--threads", type=int, default=0, help="most worker threads (0 = all cores)")
+    p.add_argument("--repeat", type=int, default=2, help="alternating repeats for timing comparisons")
+    p.add_argument("--adaptive-threshold", type=float, default=0.1,
+                   help="adaptive threshold to measure (default 0.1: Cornell box pixels reach it near 256 spp)")
+    p.add_argument("--adaptive-spp", type=int, default=256, help="spp of the adaptive comparison (128x128 image)")
+    p.add_argument("--node-points", type=int, default=1 << 16,
+                   help="shading points per program run in the nodes section (default 65536)")
+    p.add_argument("--memory-batches", type=int, nargs="+", default=[1 << 15, 1 << 16, 1 << 17, 1 << 18],
+                   help="batch sizes (paths) of the memory section (default 32768 65536 131072 262144)")
+    p.add_argument("--memory-resolution", type=int, default=256,
+                   help="square image size of the memory section (default 256)")
+    p.add_argument("--json", help="also write the numbers to this JSON file")
+
+
+def add_mc_study_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `monte mc-study`."""
+    parser.add_argument("-o", "--output", type=pathlib.Path, required=True,
+                        help="folder for the plots and summaries")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="random seed (default 0); every number but the timings is a function of it")
+    parser.add_argument("--quick", action="store_true",
+                        help="reduced sizes, as CI runs (well under a second of computing, plus the plots)")

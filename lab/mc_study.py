@@ -654,13 +654,7 @@ def run_mc_study(
 # --------------------------------------------------------------------------------------------
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of `monte mc-study`."""
-    parser.add_argument("-o", "--output", type=Path, required=True, help="folder for the plots and summaries")
-    parser.add_argument("--seed", type=int, default=0,
-                        help="random seed (default 0); every number but the timings is a function of it")
-    parser.add_argument("--quick", action="store_true",
-                        help="reduced sizes, as CI runs (well under a second of computing, plus the plots)")
+from .bench_args import add_mc_study_arguments as add_arguments  # noqa: E402,F401 - argparse only
 
 
 def main(args: argparse.Namespace) -> int:

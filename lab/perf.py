@@ -34,12 +34,13 @@ from ..core.builtin_scenes import cornell_box, cornell_diffuse, spheres_under_sk
 from ..core.settings import RenderSettings
 from .bench_math import efficiency
 
-SECTIONS = ("stages", "threads", "memory", "skip", "adaptive", "nodes", "textured")
+# The command's options live in bench_args (argparse only), so building `monte`'s parser imports none of this.
+from .bench_args import PERF_SECTIONS as SECTIONS, add_perf_arguments as add_arguments  # noqa: E402,F401
 
 
 def render(scene, settings: RenderSettings):
-    """core.render.render, imported on the first measurement: `monte` builds its parser from this module's
-    add_arguments, and `monte render` should not import the renderer's kernels before it needs them."""
+    """core.render.render, imported on the first measurement: `monte render` should not import the renderer's
+    kernels before it needs them."""
     from ..core.render import render as core_render
 
     return core_render(scene, settings)
@@ -231,21 +232,3 @@ def run_perf(args: argparse.Namespace) -> dict:
         with open(args.json, "w") as fh:
             json.dump(report, fh, indent=2)
     return report
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sections", nargs="*", choices=SECTIONS, help="which measurements (default: all)")
-    p.add_argument("--resolution", type=int, default=128, help="square image size (default 128)")
-    p.add_argument("--spp", type=int, default=16, help="samples per pixel per run (default 16)")
-    p.add_argument("--threads", type=int, default=0, help="most worker threads (0 = all cores)")
-    p.add_argument("--repeat", type=int, default=2, help="alternating repeats for timing comparisons")
-    p.add_argument("--adaptive-threshold", type=float, default=0.1,
-                   help="adaptive threshold to measure (default 0.1: Cornell box pixels reach it near 256 spp)")
-    p.add_argument("--adaptive-spp", type=int, default=256, help="spp of the adaptive comparison (128x128 image)")
-    p.add_argument("--node-points", type=int, default=1 << 16,
-                   help="shading points per program run in the nodes section (default 65536)")
-    p.add_argument("--memory-batches", type=int, nargs="+", default=[1 << 15, 1 << 16, 1 << 17, 1 << 18],
-                   help="batch sizes (paths) of the memory section (default 32768 65536 131072 262144)")
-    p.add_argument("--memory-resolution", type=int, default=256,
-                   help="square image size of the memory section (default 256)")
-    p.add_argument("--json", help="also write the numbers to this JSON file")
