@@ -196,3 +196,18 @@ def test_entry_kernels_list_an_export_and_a_default_render_first():
     assert entries[0][:2] == ("shading/evaluator", "_run_one")
     assert set(entries[1:1 + len(used)]) == used
     assert len(entries) > len(used) + 1  # other features' signatures follow
+
+
+def test_the_loader_warms_what_a_first_render_does_once():
+    """After the kernels, the loader thread does a first render's once-per-process Python work ahead: NumPy's
+    masked arrays (np.unique, which the export calls, imports them) and the microfacet tables."""
+    result = _python("""
+        import json, sys
+        from monte.core import microfacet, precompile
+        import monte.core.render  # noqa: F401
+        before = ["numpy.ma" in sys.modules, microfacet.kernel_tables.cache_info().currsize]
+        precompile.load_cached_kernels_in_background().join()
+        after = ["numpy.ma" in sys.modules, microfacet.kernel_tables.cache_info().currsize]
+        print("RESULT " + json.dumps({"before": before, "after": after}))
+    """)
+    assert result == {"before": [False, 0], "after": [True, 1]}
