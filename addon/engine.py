@@ -288,7 +288,10 @@ class MonteRenderEngine(bpy.types.RenderEngine):
             if self._preview_requested():
                 self._render_preview(depsgraph)
                 return
-            self._render(depsgraph)
+            from ..core.precompile import loader_paused
+
+            with loader_paused():  # the render loads what it calls; the loader goes on afterwards
+                self._render(depsgraph)
         except ExportCancelled:
             self._log("cancelled during export")
             self._write_black(depsgraph)

@@ -208,6 +208,34 @@ def load_cached_kernels(entries_only: bool = True, should_stop: Callable[[], boo
 _loader: threading.Thread | None = None
 _loader_lock = threading.Lock()
 _stop_loading = threading.Event()
+_renders = threading.Condition()  # guards _renders_running; notified when it falls or the loader is stopped
+_renders_running = 0
+
+
+@contextmanager
+def loader_paused() -> Iterator[None]:
+    """While a render runs the background loader loads nothing (it waits before its next signature): the render
+    loads the kernels it calls itself, in the order it calls them, and no other feature's signature competes with
+    it for the GIL and numba's lock. A `monte render X.blend` of the Cornell bench scene (64x64, 1 spp) calls 25 of
+    the list's 47 signatures; the loader loading the other 22 (0.28 s) beside it made the whole process 0.1-0.3 s
+    slower than no loader at all. In Blender the loader goes on after the render."""
+    global _renders_running
+    with _renders:
+        _renders_running += 1
+    try:
+        yield
+    finally:
+        with _renders:
+            _renders_running -= 1
+            _renders.notify_all()
+
+
+def _loader_should_stop() -> bool:
+    """The background loader's check before each signature: waits while a render runs; True once stopped."""
+    with _renders:
+        while _renders_running and not _stop_loading.is_set():
+            _renders.wait(0.5)
+    return _stop_loading.is_set()
 
 
 def load_cached_kernels_in_background() -> threading.Thread:
@@ -223,8 +251,8 @@ def load_cached_kernels_in_background() -> threading.Thread:
             import importlib
 
             importlib.import_module(f"{jit_cache.PACKAGE}.render")  # the rest of the renderer's modules too
-            load_cached_kernels(should_stop=_stop_loading.is_set)
-            if not _stop_loading.is_set():
+            load_cached_kernels(should_stop=_loader_should_stop)
+            if not _loader_should_stop():
                 warm_first_render()
         except Exception:  # noqa: BLE001 - only a head start
             pass
@@ -253,6 +281,8 @@ def stop_loading_kernels(timeout: float = 60.0) -> None:
     """Stop the background loader after the signature it is loading (what it has not loaded, a render loads on
     its first call) and wait for it: nothing is left loading while the process or Blender shuts down."""
     _stop_loading.set()
+    with _renders:
+        _renders.notify_all()
     with _loader_lock:
         loader = _loader
     if loader is not None:

@@ -211,3 +211,30 @@ def test_the_loader_warms_what_a_first_render_does_once():
         print("RESULT " + json.dumps({"before": before, "after": after}))
     """)
     assert result == {"before": [False, 0], "after": [True, 1]}
+
+
+def test_the_loader_waits_while_a_render_runs():
+    """While a render runs (precompile.loader_paused, which the engine's render holds) the background loader loads
+    nothing: the render loads what it calls itself, and the list's other signatures do not compete with it. It
+    goes on once the render is over; stopped during a render it ends (the end of `monte render X.blend`)."""
+    result = _python("""
+        import json
+        from monte.core import precompile
+        with precompile.loader_paused():
+            loader = precompile.load_cached_kernels_in_background()
+            loader.join(timeout=10)  # loading all of them takes ~1-2 s
+            during = [loader.is_alive(), precompile.kernel_cache_counts()["loaded"]]
+        loader.join()
+        after = precompile.kernel_cache_counts()["loaded"]
+        precompile._loader = None  # a second loader, stopped while a render runs
+        precompile._stop_loading.clear()
+        with precompile.loader_paused():
+            second = precompile.load_cached_kernels_in_background()
+            precompile.stop_loading_kernels()
+            stopped = second.is_alive()
+        print("RESULT " + json.dumps({"during": during, "after": after, "stopped_alive": stopped,
+                                      "entries": len(precompile.read_entry_kernels())}))
+    """)
+    assert result["during"] == [True, 0]
+    assert result["after"] == result["entries"] > 0
+    assert result["stopped_alive"] is False
