@@ -439,6 +439,38 @@ class FrameImages:
                 setattr(out, key, {name: frame[name][sl] for name in tile_images})
         return out
 
+    def put_one_sample(self, tile: TileRect, radiance: np.ndarray, albedo: np.ndarray | None,
+                       normal: np.ndarray | None, depth: np.ndarray | None) -> Tile:
+        """Write a tile that takes exactly one sample per pixel (pixel p's in row p of each array, float32) without
+        a film: the bits a film and put() would write (core.film_kernels add_colour, colour_images,
+        add_aovs_to_frame and finish_frame_aovs at one sample: the film's shift is the sample and its deviations 0,
+        so the colour is `sample + 0.0`; one filled variance group, so the variance is 0, which the frame's
+        zeroed image already holds; alpha 1; the AOV sums `0 + value` divided by 1, the normal made unit, depth
+        1e10 where nothing was hit) in a few NumPy passes instead of four compiled walks over a film. Only for
+        films with nothing but colour (no alpha, shadow catcher, denoising features, light passes, shader AOVs
+        or light groups): _TileRender._one_sample decides. `tests/test_render_whole_tiles.py` compares it with
+        the film's path bit for bit."""
+        rx, ry = self.region[:2]
+        tx, ty, tw, th = tile
+        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
+        zero = np.float32(0.0)  # x + 0.0 in float32: x's bits, but -0.0 becomes 0.0 (as the film's sums do)
+        color = self.color[sl]
+        color[..., :3] = (radiance + zero).reshape(th, tw, 3)
+        color[..., 3] = 1.0
+        out = Tile(tx, ty, color, self.variance[sl], samples=1)
+        if self.aovs:
+            self.albedo[sl] = (albedo + zero).reshape(th, tw, 3)
+            n = (normal + zero).astype(np.float64)
+            nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
+            length = np.sqrt(nx * nx + ny * ny + nz * nz)
+            unit = n / np.maximum(length, 1e-30)[:, None]
+            unit[~(length > 0)] = 0.0
+            self.normal[sl] = unit.astype(np.float32).reshape(th, tw, 3)
+            self.depth[sl] = np.where(np.isfinite(depth), depth + zero, np.float32(1e10)).reshape(th, tw)
+            out.albedo, out.normal, out.depth = self.albedo[sl], self.normal[sl], self.depth[sl]
+        self.counts[sl] = 1
+        return out
+
     def images(self) -> tuple:
         """(color, variance, albedo, normal, depth, sample counts, denoising features, extras): the region's images
         (AOVs None when settings.aovs is off; the features (albedo, normal in camera space) None unless the films
@@ -633,6 +665,11 @@ class _TileRender:
             self.frame = FrameImages(region, settings.aovs, self.films[self.tiles[0]] if self.tiles else None,
                                      world_to_camera(scene) if settings.denoising_features else None)
 
+        # tiles of one sample per pixel whose films would hold nothing but colour are written without a film
+        # (FrameImages.put_one_sample: the same bits)
+        self._one_sample = (self.spp == 1 and self.frame is not None and not alpha and catcher is None
+                            and not settings.light_passes and not scene.shader_aovs and not scene.light_groups
+                            and not settings.denoising_features and self.data_tables is None)
         self.workers = settings.thread_count
         self.target = batch_target(settings, self.total_paths)
         if self.adaptive:
@@ -773,6 +810,19 @@ class _TileRender:
             if not self._whole_tile(seg):
                 continue
             t0 = time.perf_counter()
+            aov = first is not None and first.albedo is not None
+            if self._one_sample and transparent is None and aov == self.frame.aovs and (first is None or (
+                    first.features is None and first.catcher is None and first.light_passes is None
+                    and first.shader_aovs is None and first.light_groups is None)):
+                # (a whole tile at 1 spp holds its pixels in order: its segment's loc is 0 .. n - 1)
+                done[k] = self.frame.put_one_sample(seg.tile, radiance[rows], first.albedo[rows] if aov else None,
+                                                    first.normal[rows] if aov else None,
+                                                    first.depth[rows] if aov else None)
+                unused = self.films.pop(seg.tile, None)  # (tile 0's, made for the frame's settings)
+                if unused is not None:
+                    unused.release()
+                done["assembly"] += time.perf_counter() - t0
+                continue
             # a film of its own (tile 0's was made before the render started, for the frame: taken, still empty)
             film = self.films.pop(seg.tile, None)
             if film is None:

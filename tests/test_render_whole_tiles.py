@@ -14,8 +14,9 @@ from monte.core.settings import RenderSettings
 OUTPUTS = ("color", "variance", "albedo", "normal", "depth", "sample_count", "denoising_albedo", "denoising_normal")
 
 
-def _render(monkeypatch, in_worker: bool, **kw):
-    """(result, tile callbacks, tiles written by the worker path, threads that wrote them)."""
+def _render(monkeypatch, in_worker: bool, sky: bool = False, **kw):
+    """(result, tile callbacks, tiles written by the worker path, threads that wrote them, tiles written without a
+    film: FrameImages.put_one_sample)."""
     job = render_module._TileRender
     if not in_worker:
         monkeypatch.setattr(job, "_whole_tile", lambda self, seg: False)
@@ -30,6 +31,14 @@ def _render(monkeypatch, in_worker: bool, **kw):
         return done
 
     monkeypatch.setattr(job, "_finish_in_worker", counted)
+    one_sample = [0]
+    put_one = render_module.FrameImages.put_one_sample
+
+    def counted_one(self, *args):
+        one_sample[0] += 1
+        return put_one(self, *args)
+
+    monkeypatch.setattr(render_module.FrameImages, "put_one_sample", counted_one)
     calls = []
 
     def on_tile(tile):
@@ -38,24 +47,28 @@ def _render(monkeypatch, in_worker: bool, **kw):
 
     settings = RenderSettings(**{**dict(spp=1, tile_size=16, threads=2, max_bounces=4, seed=5, aovs=True,
                                         batch_paths=1024), **kw})
-    result = render_module.render(scenes.cornell_box((80, 48)), settings, on_tile=on_tile)
+    scene = scenes.spheres_under_sky((80, 48)) if sky else scenes.cornell_box((80, 48))
+    result = render_module.render(scene, settings, on_tile=on_tile)
     monkeypatch.undo()
-    return result, calls, written[0], threads
+    return result, calls, written[0], threads, one_sample[0]
 
 
-@pytest.mark.parametrize("kw, whole", [
-    ({}, True),  # 1 spp: every tile (15 of 16x16) in one segment
-    ({"spp": 4}, True),  # 4 samples of 256 px in a 1024-path batch: one segment each
-    ({"spp": 8}, False),  # two passes per tile: the calling thread adds them, in order
-    ({"threads": 1}, True),  # no worker threads: the same functions on the calling thread
-    ({"denoising_features": True, "aovs": True}, True),
+@pytest.mark.parametrize("kw, whole, film_free", [
+    ({}, True, True),  # 1 spp: every tile (15 of 16x16) in one segment, and no film needed
+    ({"aovs": False}, True, True),
+    ({"spp": 4}, True, False),  # 4 samples of 256 px in a 1024-path batch: one segment each, summed in a film
+    ({"spp": 8}, False, False),  # two passes per tile: the calling thread adds them, in order
+    ({"threads": 1}, True, True),  # no worker threads: the same functions on the calling thread
+    ({"denoising_features": True}, True, False),  # the features need the film
+    ({"sky": True}, True, True),  # pixels that hit nothing: depth 1e10, normal 0
 ])
-def test_whole_tiles_written_by_workers_change_no_bit(monkeypatch, kw, whole):
-    base, base_calls, base_written, _ = _render(monkeypatch, False, **kw)
-    fast, fast_calls, fast_written, threads = _render(monkeypatch, True, **kw)
-    assert base_written == 0
+def test_whole_tiles_written_by_workers_change_no_bit(monkeypatch, kw, whole, film_free):
+    base, base_calls, base_written, _, base_one = _render(monkeypatch, False, **kw)
+    fast, fast_calls, fast_written, threads, fast_one = _render(monkeypatch, True, **kw)
+    assert base_written == 0 and base_one == 0
     tiles = 5 * 3
     assert fast_written == (tiles if whole else 0)
+    assert fast_one == (tiles if film_free else 0)
     if whole and kw.get("threads", 2) > 1:
         assert threads and threading.current_thread().name not in threads  # worker threads wrote them
     for name in OUTPUTS:
@@ -66,4 +79,6 @@ def test_whole_tiles_written_by_workers_change_no_bit(monkeypatch, kw, whole):
     assert fast_calls == base_calls  # the same tiles reported, in the same order, with the same images
     assert len(base_calls) == tiles * (2 if kw.get("spp") == 8 else 1)
     assert base.color[..., :3].mean() > 0.01
+    if kw.get("sky"):
+        assert (fast.depth == np.float32(1e10)).any() and (fast.depth < 1e9).any()
     assert int(fast.sample_count.sum()) == 80 * 48 * kw.get("spp", 1)
