@@ -361,7 +361,9 @@ class FrameImages:
         # (0 until a tile's images are written: put() writes 1e10 where nothing was hit, and every tile is put)
         self.depth = np.zeros((rh, rw), np.float32) if aovs else None
         self.counts = np.zeros((rh, rw), np.int32)
-        self._aov_scratch: tuple | None = None  # add_aovs(): float64 / int64 sums for one tile's pixels
+        # add_aovs(): float64 / int64 sums for one tile's pixels, one set per thread (worker threads write tiles
+        # that are final within their batch, core.render._TileRender._finish_in_worker)
+        self._aov_scratch = threading.local()
         self.extras: dict = {}
         if film is not None and film.catcher is not None:
             self.extras["shadow_catcher"] = np.ones((rh, rw, 3), np.float32)
@@ -391,12 +393,13 @@ class FrameImages:
         pixel = np.ascontiguousarray(pixel, np.int64).reshape(-1)
         if len(pixel) and (pixel.min() < 0 or pixel.max() >= n):
             raise ValueError(f"frame: pixel index out of range [0, {n}) for a {tw}x{th} tile")
-        if self._aov_scratch is None or len(self._aov_scratch[1]) != n:
-            self._aov_scratch = (np.zeros((n, 6)), np.zeros(n), np.zeros(n, np.int64))
+        scratch = getattr(self._aov_scratch, "buffers", None)
+        if scratch is None or len(scratch[1]) != n:
+            scratch = self._aov_scratch.buffers = (np.zeros((n, 6)), np.zeros(n), np.zeros(n, np.int64))
         f64 = lambda a: np.ascontiguousarray(a, np.float64)
         film_kernels.add_aovs_to_frame(pixel, f64(albedo), f64(normal), f64(depth).reshape(-1), ty - self.region[1],
                                        tx - self.region[0], tw, self.albedo, self.normal, self.depth, self.counts,
-                                       *self._aov_scratch)
+                                       *scratch)
 
     def put(self, tile: TileRect, film: TileFilm, samples: int = 0) -> Tile:
         """Write a tile's images from its film (and, where the film keeps no AOVs, from the AOV sums add_aovs()
@@ -434,6 +437,38 @@ class FrameImages:
                 for name, arr in tile_images.items():
                     frame[name][sl] = arr
                 setattr(out, key, {name: frame[name][sl] for name in tile_images})
+        return out
+
+    def put_one_sample(self, tile: TileRect, radiance: np.ndarray, albedo: np.ndarray | None,
+                       normal: np.ndarray | None, depth: np.ndarray | None) -> Tile:
+        """Write a tile that takes exactly one sample per pixel (pixel p's in row p of each array, float32) without
+        a film: the bits a film and put() would write (core.film_kernels add_colour, colour_images,
+        add_aovs_to_frame and finish_frame_aovs at one sample: the film's shift is the sample and its deviations 0,
+        so the colour is `sample + 0.0`; one filled variance group, so the variance is 0, which the frame's
+        zeroed image already holds; alpha 1; the AOV sums `0 + value` divided by 1, the normal made unit, depth
+        1e10 where nothing was hit) in a few NumPy passes instead of four compiled walks over a film. Only for
+        films with nothing but colour (no alpha, shadow catcher, denoising features, light passes, shader AOVs
+        or light groups): _TileRender._one_sample decides. `tests/test_render_whole_tiles.py` compares it with
+        the film's path bit for bit."""
+        rx, ry = self.region[:2]
+        tx, ty, tw, th = tile
+        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
+        zero = np.float32(0.0)  # x + 0.0 in float32: x's bits, but -0.0 becomes 0.0 (as the film's sums do)
+        color = self.color[sl]
+        color[..., :3] = (radiance + zero).reshape(th, tw, 3)
+        color[..., 3] = 1.0
+        out = Tile(tx, ty, color, self.variance[sl], samples=1)
+        if self.aovs:
+            self.albedo[sl] = (albedo + zero).reshape(th, tw, 3)
+            n = (normal + zero).astype(np.float64)
+            nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
+            length = np.sqrt(nx * nx + ny * ny + nz * nz)
+            unit = n / np.maximum(length, 1e-30)[:, None]
+            unit[~(length > 0)] = 0.0
+            self.normal[sl] = unit.astype(np.float32).reshape(th, tw, 3)
+            self.depth[sl] = np.where(np.isfinite(depth), depth + zero, np.float32(1e10)).reshape(th, tw)
+            out.albedo, out.normal, out.depth = self.albedo[sl], self.normal[sl], self.depth[sl]
+        self.counts[sl] = 1
         return out
 
     def images(self) -> tuple:
@@ -532,7 +567,7 @@ def _peak_memory_mb() -> float:
 
 
 class _LazyFilms(dict):
-    """tile -> TileFilm, each made by `make(tile)` on its first lookup."""
+    """tile -> TileFilm, each made by `make(tile)` on its first lookup (`make` itself: a film not kept here)."""
 
     def __init__(self, make: Callable[[TileRect], TileFilm]) -> None:
         super().__init__()
@@ -547,7 +582,10 @@ class _TileRender:
     """One render while its batches run: the tiles' films, the batches in flight, the counters.
 
     Batches run on `workers` threads (NumPy, numba and Embree release the GIL), at most `workers + 1` in flight,
-    and are accumulated in submission order on the calling thread: the image does not depend on timing. A batch
+    and are accumulated in submission order on the calling thread: the image does not depend on timing. A tile
+    whose samples all lie in one segment of one batch (every tile at 1 spp) is summed into a film of its own and
+    written into the frame's images by the worker thread that traced it (nothing else feeds that film, so the bits
+    are the same); the calling thread then only reports it (progress, on_tile) in submission order. A batch
     holds about `target` paths, gathered from as many tile passes as it takes (at 1 spp a 64x64 tile is only
     4096 paths, far too few to amortise NumPy's per-call cost); small images are split into at least 8 batches
     (core.schedule.batch_target) so that threads share them. None of this depends on the thread count.
@@ -604,8 +642,8 @@ class _TileRender:
         self.samples_started = np.zeros(len(self.tiles), np.int64)
         self.pixels_converged = np.zeros(len(self.tiles), np.int64)  # adaptive sampling: pixels that stopped early
         self.largest_batch = 0  # paths in the largest batch traced (memory scales with it, times the threads)
-        self.film_seconds = 0.0
-        self.assembly_seconds = 0.0  # the tiles' images written into the frame's (main thread)
+        self.film_seconds = 0.0  # film sums, on whichever thread did them (whole tiles: the workers), summed
+        self.assembly_seconds = 0.0  # the tiles' images written into the frame's, summed over the threads
         self.adaptive = settings.adaptive_threshold > 0
         self.min_samples = settings.adaptive_min_samples_for(self.spp) if self.adaptive else self.spp
         # render_samples(): only these sample ranges are taken; tiles whose range starts past 0 keep each pass's
@@ -627,6 +665,11 @@ class _TileRender:
             self.frame = FrameImages(region, settings.aovs, self.films[self.tiles[0]] if self.tiles else None,
                                      world_to_camera(scene) if settings.denoising_features else None)
 
+        # tiles of one sample per pixel whose films would hold nothing but colour are written without a film
+        # (FrameImages.put_one_sample: the same bits)
+        self._one_sample = (self.spp == 1 and self.frame is not None and not alpha and catcher is None
+                            and not settings.light_passes and not scene.shader_aovs and not scene.light_groups
+                            and not settings.denoising_features and self.data_tables is None)
         self.workers = settings.thread_count
         self.target = batch_target(settings, self.total_paths)
         if self.adaptive:
@@ -732,12 +775,65 @@ class _TileRender:
         self.largest_batch = max(self.largest_batch, self.group_paths)
         self.group_paths = 0
         if self.pool is not None:
-            job = self.pool.submit(self._trace_batch, segments)
+            job = self.pool.submit(self._run_batch, segments)
         else:  # no worker threads: the batch runs on this thread when it is finished
-            job = partial(self._trace_batch, segments)
+            job = partial(self._run_batch, segments)
         self.in_flight.append((segments, job))
         if len(self.in_flight) > (self.workers if self.pool is not None else 0):
             self._finish_one()
+
+    def _run_batch(self, segments: list[Segment]):
+        """A batch's paths (_trace_batch) and, for its segments that hold a whole tile's samples (every pixel, all
+        spp: at low spp nearly every tile), their films, summed and written into the frame's images here on the
+        worker thread (_finish_in_worker); the rest are added on the calling thread in submission order."""
+        radiance, first, transparent = self._trace_batch(segments)
+        finished = self._finish_in_worker(segments, radiance, first, transparent)
+        return radiance, first, transparent, finished
+
+    def _whole_tile(self, seg: Segment) -> bool:
+        """Whether seg holds all of its tile's samples (every pixel, samples 0 .. spp) and nothing else feeds the
+        tile's film: its film can be made, summed, written into the frame and released by itself, on any thread,
+        with the bits the calling thread would write (a tile's film depends only on its own samples, in order)."""
+        return (self.frame is not None and self.work is None and not self.adaptive and self.data_tables is None
+                and seg.last_chunk and len(seg.loc) == seg.tile[2] * seg.tile[3] * self.spp)
+
+    def _finish_in_worker(self, segments: list[Segment], radiance, first, transparent) -> dict:
+        """Write the batch's whole tiles (_whole_tile) into the frame's images from films of their own, on the
+        worker thread: the frame's tiles are disjoint, so threads write them side by side; their order does not
+        matter. Returns {segment index: the tile's images (Tile)} plus the film and assembly seconds (keys
+        "film", "assembly"), which the calling thread adds up."""
+        done: dict = {"film": 0.0, "assembly": 0.0}
+        start = 0
+        for k, seg in enumerate(segments):
+            rows = slice(start, start + len(seg.loc))
+            start = rows.stop
+            if not self._whole_tile(seg):
+                continue
+            t0 = time.perf_counter()
+            aov = first is not None and first.albedo is not None
+            if self._one_sample and transparent is None and aov == self.frame.aovs and (first is None or (
+                    first.features is None and first.catcher is None and first.light_passes is None
+                    and first.shader_aovs is None and first.light_groups is None)):
+                # (a whole tile at 1 spp holds its pixels in order: its segment's loc is 0 .. n - 1)
+                done[k] = self.frame.put_one_sample(seg.tile, radiance[rows], first.albedo[rows] if aov else None,
+                                                    first.normal[rows] if aov else None,
+                                                    first.depth[rows] if aov else None)
+                unused = self.films.pop(seg.tile, None)  # (tile 0's, made for the frame's settings)
+                if unused is not None:
+                    unused.release()
+                done["assembly"] += time.perf_counter() - t0
+                continue
+            # a film of its own (tile 0's was made before the render started, for the frame: taken, still empty)
+            film = self.films.pop(seg.tile, None)
+            if film is None:
+                film = self.films.make(seg.tile)
+            self._add_segment(film, seg, rows, radiance, first, transparent)
+            t1 = time.perf_counter()
+            done[k] = self.frame.put(seg.tile, film, self.spp)
+            film.release()
+            done["film"] += t1 - t0
+            done["assembly"] += time.perf_counter() - t1
+        return done
 
     def _trace_batch(self, segments: list[Segment]):
         """Camera rays and paths of one batch, which may span several tiles (runs on a worker thread; touches no
@@ -833,31 +929,25 @@ class _TileRender:
     def _finish_one(self, quiet: bool = False) -> None:
         """Wait for the oldest batch in flight and add it to its tiles' films (quiet: no callbacks)."""
         segments, job = self.in_flight.popleft()
-        radiance, first, transparent = job.result() if self.pool is not None else job()
+        radiance, first, transparent, finished = job.result() if self.pool is not None else job()
+        self.film_seconds += finished["film"]
+        self.assembly_seconds += finished["assembly"]
         start = 0
-        for seg in segments:
+        for k, seg in enumerate(segments):
             rows = slice(start, start + len(seg.loc))
             start = rows.stop
+            if k in finished:  # a whole tile, already in the frame (_finish_in_worker): its callbacks only
+                self.done_paths += len(seg.loc)
+                self.samples_started[seg.tile_index] = seg.sample_end
+                self.final.add(seg.tile_index)
+                if not quiet:
+                    self._progress(seg.tile_index, seg.sample_end)
+                    if self.on_tile is not None:
+                        self.on_tile(finished[k])
+                continue
             t0 = time.perf_counter()
             film = self.films[seg.tile]
-            film.add(seg.loc, radiance[rows], seg.smp, None if transparent is None else transparent[rows])
-            if first is not None and first.albedo is not None:
-                if film.aovs:
-                    film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
-                else:
-                    self.frame.add_aovs(seg.tile, seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
-            if first is not None and first.features is not None:
-                film.add_features(seg.loc, first.features.albedo[rows], first.features.normal[rows])
-            if first is not None and first.catcher is not None:
-                film.add_catcher(seg.loc, first.catcher.take(rows))
-            if self.data_tables is not None:
-                self.data_films[seg.tile].add(seg.loc, seg.smp, take_samples(first.data, rows.start, rows.stop))
-            if first is not None and first.light_passes is not None:
-                film.add_light_passes(seg.loc, first.light_passes.values[rows])
-            if first is not None and first.shader_aovs is not None:
-                film.add_shader_aovs(seg.loc, first.shader_aovs.values[rows])
-            if first is not None and first.light_groups is not None:
-                film.add_light_groups(seg.loc, first.light_groups.values[rows])
+            self._add_segment(film, seg, rows, radiance, first, transparent)
             self.film_seconds += time.perf_counter() - t0
             self.done_paths += len(seg.loc)
             if not quiet:
@@ -875,6 +965,28 @@ class _TileRender:
                         self.on_tile(tile)
                 elif self.on_tile is not None and not quiet:
                     self.on_tile(self._tile_result(seg.tile, film, seg.sample_end))
+
+    def _add_segment(self, film: TileFilm, seg: Segment, rows: slice, radiance, first, transparent) -> None:
+        """Add a segment's samples (rows of the batch's results) to its tile's film (the local render's AOV sums
+        to the frame's images, its data passes to the tile's data film)."""
+        film.add(seg.loc, radiance[rows], seg.smp, None if transparent is None else transparent[rows])
+        if first is not None and first.albedo is not None:
+            if film.aovs:
+                film.add_aovs(seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
+            else:
+                self.frame.add_aovs(seg.tile, seg.loc, first.albedo[rows], first.normal[rows], first.depth[rows])
+        if first is not None and first.features is not None:
+            film.add_features(seg.loc, first.features.albedo[rows], first.features.normal[rows])
+        if first is not None and first.catcher is not None:
+            film.add_catcher(seg.loc, first.catcher.take(rows))
+        if self.data_tables is not None:
+            self.data_films[seg.tile].add(seg.loc, seg.smp, take_samples(first.data, rows.start, rows.stop))
+        if first is not None and first.light_passes is not None:
+            film.add_light_passes(seg.loc, first.light_passes.values[rows])
+        if first is not None and first.shader_aovs is not None:
+            film.add_shader_aovs(seg.loc, first.shader_aovs.values[rows])
+        if first is not None and first.light_groups is not None:
+            film.add_light_groups(seg.loc, first.light_groups.values[rows])
 
     # ----------------------------------------------------------------------- sample ranges (render_samples)
     def _check_work(self, work: SampleRanges) -> SampleRanges:
@@ -983,7 +1095,7 @@ class _TileRender:
             # the fused path kernel (core.fused_tracer) traced the paths: Embree is called inside it, untimed
             "fused_kernel": any(t.fused is not None for t in self.tracers),
             "stage_seconds": {**st.stage_seconds(), "film": self.film_seconds},
-            # the main thread's writing of the tiles' images into the frame's (beside its film sums)
+            # the writing of the tiles' images into the frame's (beside the film sums), summed over the threads
             "assembly_seconds": self.assembly_seconds,
             "nonfinite_samples": st.nonfinite,
             "clamped_contributions": st.clamped,

@@ -75,10 +75,13 @@ def test_the_tiles_shown_as_they_land_are_the_final_images_pixels(fast_settings)
     assert result.stats["assembly_seconds"] > 0
 
 
-def test_at_one_sample_per_pixel_only_the_films_of_tiles_in_flight_exist(fast_settings, monkeypatch):
+@pytest.mark.parametrize("features", [True, False])
+def test_at_one_sample_per_pixel_only_the_films_of_tiles_in_flight_exist(fast_settings, monkeypatch, features):
     """Films are made when a tile's first samples arrive and released when its last pass lands, so a 1-spp
     render of 128 tiles (16 per batch of 1024 paths) never holds more than the batches in flight need, where
-    making every film up front held all 128 (an 8K frame's 3.2 GB of films at once)."""
+    making every film up front held all 128 (an 8K frame's 3.2 GB of films at once). Without the denoising
+    features (or alpha, light passes, ...) a 1-spp tile needs no film at all (FrameImages.put_one_sample): only
+    the one the frame reads its settings from is made."""
     import monte.core.render as render_module
 
     counts = {"made": 0, "live": 0, "peak": 0}
@@ -97,8 +100,8 @@ def test_at_one_sample_per_pixel_only_the_films_of_tiles_in_flight_exist(fast_se
     monkeypatch.setattr(render_module, "TileFilm", CountedFilm)
     threads = 2
     result = render(scenes.cornell_box((128, 64)), fast_settings(spp=1, tile_size=8, batch_paths=1024,
-                                                                 threads=threads))
-    assert counts["made"] == 128 and counts["live"] == 0
+                                                                 threads=threads, denoising_features=features))
+    assert counts["made"] == (128 if features else 1) and counts["live"] == 0
     # batches in flight (threads + 1) and the one being gathered, 16 tiles each
     assert counts["peak"] <= (threads + 2) * 16
     assert int(result.sample_count.sum()) == 128 * 64
