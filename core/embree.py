@@ -36,6 +36,7 @@ from numba import types
 from numba.extending import intrinsic
 
 from .jit_cache import jit as _jit
+from .jit_cache import jit_inline as _inline
 
 _INVALID_ID = np.uint32(0xFFFFFFFF)
 _FAR = np.float32(3e38)
@@ -93,7 +94,7 @@ def _load_ray(words, ids, origins, directions, k, tfar):
     ids[11] = 0
 
 
-@_jit
+@_inline  # as the two copies were: a call per ray would pass six arrays, each as its expanded struct
 def _intersect(intersect1, scene, words, ids, address, k, prim, u, v, t):
     """Trace the loaded ray k for its closest hit (trace_closest and trace_closest_timed): on a miss prim[k] = -1,
     u, v = 0 and t = inf; on a hit the barycentrics and t are written and True is returned (the caller writes
