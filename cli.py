@@ -158,11 +158,7 @@ def cmd_render(args: argparse.Namespace) -> int:
             return 2
         from .addon.headless import HeadlessError
 
-        if args.resolution:
-            overrides["resolution"] = args.resolution
-        if overrides.pop("denoising_features", False):
-            overrides["denoise"] = True
-            overrides["denoise_quality"] = args.denoise_quality
+        _blend_overrides(args, overrides)
         try:
             render_blend_file(args.scene, output, overrides)  # reports what it wrote
         except HeadlessError as exc:
@@ -260,6 +256,16 @@ def frame_output(output: Path, frame: int) -> Path:
     return output.with_name(f"{output.stem}_{frame:04d}{output.suffix}")
 
 
+def _blend_overrides(args: argparse.Namespace, overrides: dict) -> None:
+    """The options a .blend's render takes over its own settings (here or on a cluster): --resolution, and the
+    denoising features asked for as the denoiser at --denoise-quality."""
+    if args.resolution:
+        overrides["resolution"] = args.resolution
+    if overrides.pop("denoising_features", False):
+        overrides["denoise"] = True
+        overrides["denoise_quality"] = args.denoise_quality
+
+
 def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: Path) -> int:
     """A .blend's frames exported here (through the add-on) and rendered on a Dask cluster, each frame written
     atomically as it completes (a cancelled or failed animation keeps its finished frames)."""
@@ -274,11 +280,7 @@ def _render_blend_on_cluster(args: argparse.Namespace, overrides: dict, output: 
     if output.suffix.lower() != ".exr":
         print(f"monte render: output must be an .exr file, got {output}", file=sys.stderr)
         return 2
-    if args.resolution:
-        overrides["resolution"] = args.resolution
-    if overrides.pop("denoising_features", False):
-        overrides["denoise"] = True
-        overrides["denoise_quality"] = args.denoise_quality
+    _blend_overrides(args, overrides)
     frames = args.frames
     outputs = {f: frame_output(output, f) for f in frames} if frames is not None else {None: output}
     if args.resume:

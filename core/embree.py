@@ -36,6 +36,7 @@ from numba import types
 from numba.extending import intrinsic
 
 from .jit_cache import jit as _jit
+from .jit_cache import jit_inline as _inline
 
 _INVALID_ID = np.uint32(0xFFFFFFFF)
 _FAR = np.float32(3e38)
@@ -93,6 +94,27 @@ def _load_ray(words, ids, origins, directions, k, tfar):
     ids[11] = 0
 
 
+@_inline  # as the two copies were: a call per ray would pass six arrays, each as its expanded struct
+def _intersect(intersect1, scene, words, ids, address, k, prim, u, v, t):
+    """Trace the loaded ray k for its closest hit (trace_closest and trace_closest_timed): on a miss prim[k] = -1,
+    u, v = 0 and t = inf; on a hit the barycentrics and t are written and True is returned (the caller writes
+    prim[k], from Embree's ids[17] primID and ids[18] geomID)."""
+    ids[17] = _INVALID_ID
+    ids[18] = _INVALID_ID
+    ids[19] = _INVALID_ID
+    _call_embree(intersect1, scene, address, 0)
+    if ids[18] == _INVALID_ID:
+        prim[k] = -1
+        u[k] = 0.0
+        v[k] = 0.0
+        t[k] = np.inf
+        return False
+    u[k] = words[15]
+    v[k] = words[16]
+    t[k] = words[8]
+    return True
+
+
 @_jit
 def trace_closest(intersect1, scene, origins, directions, tmax, prim, u, v, t):
     """Closest hit of each ray within (0, tmax[k]] (tmax of length 0: unbounded). Writes prim (-1 = miss), the
@@ -101,20 +123,8 @@ def trace_closest(intersect1, scene, origins, directions, tmax, prim, u, v, t):
     bounded = len(tmax) > 0
     for k in range(origins.shape[0]):
         _load_ray(words, ids, origins, directions, k, tmax[k] if bounded else _FAR)
-        ids[17] = _INVALID_ID
-        ids[18] = _INVALID_ID
-        ids[19] = _INVALID_ID
-        _call_embree(intersect1, scene, address, 0)
-        if ids[18] == _INVALID_ID:
-            prim[k] = -1
-            u[k] = 0.0
-            v[k] = 0.0
-            t[k] = np.inf
-        else:
+        if _intersect(intersect1, scene, words, ids, address, k, prim, u, v, t):
             prim[k] = np.int32(ids[17])
-            u[k] = words[15]
-            v[k] = words[16]
-            t[k] = words[8]
 
 
 @_jit
@@ -137,20 +147,8 @@ def trace_closest_timed(intersect1, scene, origins, directions, tmax, time, orde
     for k in range(origins.shape[0]):
         _load_ray(words, ids, origins, directions, k, tmax[k] if bounded else _FAR)
         words[7] = time[k]
-        ids[17] = _INVALID_ID
-        ids[18] = _INVALID_ID
-        ids[19] = _INVALID_ID
-        _call_embree(intersect1, scene, address, 0)
-        if ids[18] == _INVALID_ID:
-            prim[k] = -1
-            u[k] = 0.0
-            v[k] = 0.0
-            t[k] = np.inf
-        else:
+        if _intersect(intersect1, scene, words, ids, address, k, prim, u, v, t):
             prim[k] = order[first[ids[18]] + ids[17]]
-            u[k] = words[15]
-            v[k] = words[16]
-            t[k] = words[8]
 
 
 @_jit

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .jit_cache import jit_inline as _inline
 from .jit_cache import jit_no_nrt as _jit
 
 
@@ -176,6 +177,37 @@ def colour_images(shift, group_dev, sample_count, prefix, squares, dev_sq, alpha
             color[y, x, 3] = np.float32(1.0)
 
 
+@_inline
+def _fold_aov_pixel(samples, albedo0, albedo1, albedo2, normal0, normal1, normal2, depth_sum, hits, y, x, albedo_out,
+                    normal_out, depth_out):
+    """One pixel's AOV sums (float64: albedo, normal, depth; `hits` finite depths, `samples` its sample count)
+    made its AOV images at row y, column x: the albedo mean, the unit mean normal (0 where the pixel saw no
+    surface) and the mean depth (1e10 where nothing was hit). aov_images and finish_frame_aovs both fold here
+    (core.film.TileFilm.aov_images' float64 operations in its order), so the film's and the frame's sums give the
+    same bits. Reads every sum before it writes, so the outputs may be the arrays the sums were read from."""
+    n = np.float64(max(np.int64(samples), 1))
+    nx = normal0 / n
+    ny = normal1 / n
+    nz = normal2 / n
+    length = np.sqrt(nx * nx + ny * ny + nz * nz)
+    albedo_out[y, x, 0] = np.float32(albedo0 / n)
+    albedo_out[y, x, 1] = np.float32(albedo1 / n)
+    albedo_out[y, x, 2] = np.float32(albedo2 / n)
+    if length > 0:
+        scale = max(length, 1e-30)
+        normal_out[y, x, 0] = np.float32(nx / scale)
+        normal_out[y, x, 1] = np.float32(ny / scale)
+        normal_out[y, x, 2] = np.float32(nz / scale)
+    else:
+        normal_out[y, x, 0] = np.float32(0.0)
+        normal_out[y, x, 1] = np.float32(0.0)
+        normal_out[y, x, 2] = np.float32(0.0)
+    if hits > 0:
+        depth_out[y, x] = np.float32(depth_sum / np.float64(max(hits, 1)))
+    else:
+        depth_out[y, x] = np.float32(1e10)
+
+
 @_jit
 def aov_images(albedo, normal, depth_sum, depth_count, sample_count, y0, x0, width, albedo_out, normal_out,
                depth_out):
@@ -184,28 +216,10 @@ def aov_images(albedo, normal, depth_sum, depth_count, sample_count, y0, x0, wid
     colour_images). The normal is unit where the pixel saw a surface (0 elsewhere); depth 1e10 where nothing was
     hit."""
     for p in range(albedo.shape[0]):
-        y, x = y0 + p // width, x0 + p % width
-        n = np.float64(max(np.int64(sample_count[p]), 1))
-        nx = np.float64(normal[p, 0]) / n
-        ny = np.float64(normal[p, 1]) / n
-        nz = np.float64(normal[p, 2]) / n
-        length = np.sqrt(nx * nx + ny * ny + nz * nz)
-        for c in range(3):
-            albedo_out[y, x, c] = np.float32(np.float64(albedo[p, c]) / n)
-        if length > 0:
-            scale = max(length, 1e-30)
-            normal_out[y, x, 0] = np.float32(nx / scale)
-            normal_out[y, x, 1] = np.float32(ny / scale)
-            normal_out[y, x, 2] = np.float32(nz / scale)
-        else:
-            normal_out[y, x, 0] = np.float32(0.0)
-            normal_out[y, x, 1] = np.float32(0.0)
-            normal_out[y, x, 2] = np.float32(0.0)
-        hits = depth_count[p]
-        if hits > 0:
-            depth_out[y, x] = np.float32(np.float64(depth_sum[p]) / np.float64(max(hits, 1)))
-        else:
-            depth_out[y, x] = np.float32(1e10)
+        _fold_aov_pixel(sample_count[p], np.float64(albedo[p, 0]), np.float64(albedo[p, 1]), np.float64(albedo[p, 2]),
+                        np.float64(normal[p, 0]), np.float64(normal[p, 1]), np.float64(normal[p, 2]),
+                        np.float64(depth_sum[p]), depth_count[p], y0 + p // width, x0 + p % width, albedo_out,
+                        normal_out, depth_out)
 
 
 @_jit
@@ -247,25 +261,7 @@ def finish_frame_aovs(sample_count, y0, x0, width, albedo, normal, depth, hits):
     samples per pixel (its film's). Leaves the tile's hits at 0 (the caller writes the sample counts there)."""
     for p in range(sample_count.shape[0]):
         y, x = y0 + p // width, x0 + p % width
-        n = np.float64(max(np.int64(sample_count[p]), 1))
-        nx = np.float64(normal[y, x, 0]) / n
-        ny = np.float64(normal[y, x, 1]) / n
-        nz = np.float64(normal[y, x, 2]) / n
-        length = np.sqrt(nx * nx + ny * ny + nz * nz)
-        for c in range(3):
-            albedo[y, x, c] = np.float32(np.float64(albedo[y, x, c]) / n)
-        if length > 0:
-            scale = max(length, 1e-30)
-            normal[y, x, 0] = np.float32(nx / scale)
-            normal[y, x, 1] = np.float32(ny / scale)
-            normal[y, x, 2] = np.float32(nz / scale)
-        else:
-            normal[y, x, 0] = np.float32(0.0)
-            normal[y, x, 1] = np.float32(0.0)
-            normal[y, x, 2] = np.float32(0.0)
-        count = hits[y, x]
-        if count > 0:
-            depth[y, x] = np.float32(np.float64(depth[y, x]) / np.float64(max(count, 1)))
-        else:
-            depth[y, x] = np.float32(1e10)
+        _fold_aov_pixel(sample_count[p], np.float64(albedo[y, x, 0]), np.float64(albedo[y, x, 1]),
+                        np.float64(albedo[y, x, 2]), np.float64(normal[y, x, 0]), np.float64(normal[y, x, 1]),
+                        np.float64(normal[y, x, 2]), np.float64(depth[y, x]), hits[y, x], y, x, albedo, normal, depth)
         hits[y, x] = 0

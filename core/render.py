@@ -388,7 +388,7 @@ class FrameImages:
         halves: the images exist anyway). The depth hits are counted in the sample-count image until the tile is
         put(), which makes the sums the AOV images (core.film_kernels.add_aovs_to_frame / finish_frame_aovs: the
         operations of the film's AOV sums and images, so the same bits). A tile's film then keeps no AOVs."""
-        tx, ty, tw, th = tile
+        tw, th = tile[2:]
         n = tw * th
         pixel = np.ascontiguousarray(pixel, np.int64).reshape(-1)
         if len(pixel) and (pixel.min() < 0 or pixel.max() >= n):
@@ -397,18 +397,24 @@ class FrameImages:
         if scratch is None or len(scratch[1]) != n:
             scratch = self._aov_scratch.buffers = (np.zeros((n, 6)), np.zeros(n), np.zeros(n, np.int64))
         f64 = lambda a: np.ascontiguousarray(a, np.float64)
-        film_kernels.add_aovs_to_frame(pixel, f64(albedo), f64(normal), f64(depth).reshape(-1), ty - self.region[1],
-                                       tx - self.region[0], tw, self.albedo, self.normal, self.depth, self.counts,
+        rows, columns = self.slice(tile)
+        film_kernels.add_aovs_to_frame(pixel, f64(albedo), f64(normal), f64(depth).reshape(-1), rows.start,
+                                       columns.start, tw, self.albedo, self.normal, self.depth, self.counts,
                                        *scratch)
+
+    def slice(self, tile: TileRect) -> tuple[slice, slice]:
+        """The (rows, columns) slices of a tile (inside the region) in the region's images."""
+        tx, ty, tw, th = tile
+        oy, ox = ty - self.region[1], tx - self.region[0]
+        return slice(oy, oy + th), slice(ox, ox + tw)
 
     def put(self, tile: TileRect, film: TileFilm, samples: int = 0) -> Tile:
         """Write a tile's images from its film (and, where the film keeps no AOVs, from the AOV sums add_aovs()
         left in the region's images); returns them as a Tile of views into the region's arrays (samples: what
         Tile.samples reports). The film is left as it is (the caller releases it)."""
-        rx, ry = self.region[:2]
         tx, ty, tw, th = tile
-        oy, ox = ty - ry, tx - rx
-        sl = (slice(oy, oy + th), slice(ox, ox + tw))
+        sl = self.slice(tile)
+        oy, ox = sl[0].start, sl[1].start  # the tile's first row and column in the region's images
         film.write_colour_images(self.color, self.variance, oy, ox)
         out = Tile(tx, ty, self.color[sl], self.variance[sl], samples=samples)
         if self.aovs:
@@ -450,9 +456,8 @@ class FrameImages:
         films with nothing but colour (no alpha, shadow catcher, denoising features, light passes, shader AOVs
         or light groups): _TileRender._one_sample decides. `tests/test_render_whole_tiles.py` compares it with
         the film's path bit for bit."""
-        rx, ry = self.region[:2]
         tx, ty, tw, th = tile
-        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
+        sl = self.slice(tile)
         zero = np.float32(0.0)  # x + 0.0 in float32: x's bits, but -0.0 becomes 0.0 (as the film's sums do)
         color = self.color[sl]
         color[..., :3] = (radiance + zero).reshape(th, tw, 3)
@@ -490,9 +495,7 @@ def tile_result(tile: TileRect, film: TileFilm, samples: int, aovs: bool,
     if aovs and not film.aovs:
         if frame is None:
             raise ValueError("tile_result: a film without AOV sums needs the frame that holds them")
-        rx, ry = frame.region[:2]
-        tx, ty, tw, th = tile
-        sl = (slice(ty - ry, ty - ry + th), slice(tx - rx, tx - rx + tw))
+        sl = frame.slice(tile)
         images.albedo[...] = frame.albedo[sl]
         images.normal[...] = frame.normal[sl]
         images.depth[...] = frame.depth[sl]

@@ -102,24 +102,36 @@ _LINEAR_SPACES = {"linear", "linear rec.709", "non-color", "raw", "linear rec.20
 def image_pixels(image, warnings: list[str] | None = None) -> np.ndarray:
     """An image's pixels as (H, W, 3) float32 linear RGB, row 0 at the TOP (Blender stores row 0 at the
     bottom). One foreach_get call; 8-bit sRGB images are converted to linear."""
+    px = _pixels_top_down(image)
+    if px.shape[2] >= 3:
+        rgb = px[..., :3]
+    else:
+        rgb = np.repeat(px[..., :1], 3, axis=2)
+    if _srgb_encoded(image, warnings):
+        rgb = srgb_to_linear(rgb)
+    return np.ascontiguousarray(rgb, dtype=np.float32)
+
+
+def _pixels_top_down(image) -> np.ndarray:
+    """An image's pixels as they are stored, (H, W, channels) float32, row 0 at the TOP (Blender stores row 0 at
+    the bottom): one foreach_get call (image_pixels and image_rgba read them so)."""
     w, h = int(image.size[0]), int(image.size[1])
     if w == 0 or h == 0:
         raise ValueError(f"image {image.name!r} has no pixels (missing file {image.filepath!r}?)")
     ch = int(image.channels)
     buf = np.empty(w * h * ch, dtype=np.float32)
     image.pixels.foreach_get(buf)
-    px = buf.reshape(h, w, ch)[::-1]
-    if ch >= 3:
-        rgb = px[..., :3]
-    else:
-        rgb = np.repeat(px[..., :1], 3, axis=2)
+    return buf.reshape(h, w, ch)[::-1]
+
+
+def _srgb_encoded(image, warnings: list[str] | None) -> bool:
+    """Whether an image's pixels are sRGB-encoded: an 8-bit image in a colour space that is not linear (one other
+    than sRGB is treated as sRGB, with a warning)."""
     space = image.colorspace_settings.name.lower()
-    if not image.is_float and space not in _LINEAR_SPACES:
-        if space != "srgb" and warnings is not None:
-            warnings.append(f"image {image.name!r}: colour space {image.colorspace_settings.name!r} is treated "
-                            "as sRGB")
-        rgb = srgb_to_linear(rgb)
-    return np.ascontiguousarray(rgb, dtype=np.float32)
+    encoded = not image.is_float and space not in _LINEAR_SPACES
+    if encoded and space != "srgb" and warnings is not None:
+        warnings.append(f"image {image.name!r}: colour space {image.colorspace_settings.name!r} is treated as sRGB")
+    return encoded
 
 
 def image_average_color(image) -> np.ndarray:
@@ -368,13 +380,8 @@ def image_rgba(image, warnings: list[str] | None = None) -> tuple[np.ndarray, bo
     images are linear as Blender holds them. As Cycles loads them, straight alpha is associated (colour times
     alpha; 8-bit images in integer arithmetic on the bytes, so the image opcode's unassociation for the Alpha
     output sees the same rounding); alpha mode None reads alpha 1. One foreach_get call."""
-    w, h = int(image.size[0]), int(image.size[1])
-    if w == 0 or h == 0:
-        raise ValueError(f"image {image.name!r} has no pixels (missing file {image.filepath!r}?)")
-    ch = int(image.channels)
-    buf = np.empty(w * h * ch, dtype=np.float32)
-    image.pixels.foreach_get(buf)
-    px = buf.reshape(h, w, ch)[::-1]
+    px = _pixels_top_down(image)
+    h, w, ch = px.shape
     rgba = np.ones((h, w, 4), np.float32)
     if ch >= 3:
         rgba[..., :3] = px[..., :3]
@@ -390,8 +397,4 @@ def image_rgba(image, warnings: list[str] | None = None) -> tuple[np.ndarray, bo
         else:
             b = np.rint(rgba * 255.0).astype(np.int32)
             rgba[..., :3] = ((b[..., :3] * b[..., 3:4]) // 255).astype(np.float32) / 255.0
-    space = image.colorspace_settings.name.lower()
-    encoded = not image.is_float and space not in _LINEAR_SPACES
-    if encoded and space != "srgb" and warnings is not None:
-        warnings.append(f"image {image.name!r}: colour space {image.colorspace_settings.name!r} is treated as sRGB")
-    return np.ascontiguousarray(rgba), encoded
+    return np.ascontiguousarray(rgba), _srgb_encoded(image, warnings)

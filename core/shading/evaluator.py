@@ -818,7 +818,8 @@ def _register_op(op, a, regs):
 def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
              tex_w, uvx, extra, dP, duv, tan, nraw):
     """Execute core opcode `op` with operand slots `a` (a[1..]) for shading point k."""
-    if _register_op(op, a, regs):
+    if _register_op(op, a, regs) or _context_op(op, a, regs, k, P, N, I, uv, has_uv, back, obj, objects, tex_pixels,
+                                                tex_offset, tex_h, tex_w, dP, duv, tan, nraw):
         return
     if op == _FRESNEL:
         n0, n1, n2 = (float(N[k, 0]), float(N[k, 1]), float(N[k, 2])) if a[3] < 0 else get3(regs, a[3])
@@ -837,8 +838,6 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         if blend != 0.5:
             f = f ** (2.0 * blend if blend < 0.5 else 0.5 / (1.0 - blend))
         setf(regs, a[2], 1.0 - f)
-    elif op == _TEXCO:
-        _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects, dP, duv)
     elif op == _GEOM:
         b, w = _bump_shift(regs, a[7], a[8])
         px, py, pz = _point(k, P, dP, b, w)
@@ -875,12 +874,6 @@ def _core_op(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         setf(regs, a[3], objects[o, OBJECT_COLOR + 3])
         setf(regs, a[4], objects[o, OBJECT_PASS_INDEX])
         setf(regs, a[5], objects[o, OBJECT_RANDOM])
-    elif op == _IMAGE:
-        _image_op(a, regs, k, N, uv, has_uv, obj, objects, tex_pixels, tex_offset, tex_h, tex_w, duv)
-    elif op == _NORMAL_MAP:
-        _normal_map(a, regs, k, N, back, obj, objects, tan, nraw)
-    elif op == _BUMP_OP:
-        _bump(a, regs, k, N, dP)
     elif op == _VTRANSFORM:
         _vector_transform(a, regs, data, k, obj, objects)
     elif op == _TANGENT:
@@ -999,6 +992,25 @@ def _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects, dP, duv):
     set3(regs, a[7], 2.0 * d * nx - I[k, 0], 2.0 * d * ny - I[k, 1], 2.0 * d * nz - I[k, 2])
 
 
+@_jit_inline
+def _context_op(op, a, regs, k, P, N, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h, tex_w, dP,
+                duv, tan, nraw):
+    """The context ops of textured materials (Texture Coordinate, Image Texture, Normal Map, Bump) for shading
+    point k, given only the arrays they read; False (nothing done) for any other op. Inlined into both
+    run_programs, which runs them straight from its loop, and _core_op (run_single's path)."""
+    if op == _TEXCO:
+        _texture_coordinate(a, regs, k, P, N, I, uv, has_uv, obj, objects, dP, duv)
+    elif op == _IMAGE:
+        _image_op(a, regs, k, N, uv, has_uv, obj, objects, tex_pixels, tex_offset, tex_h, tex_w, duv)
+    elif op == _NORMAL_MAP:
+        _normal_map(a, regs, k, N, back, obj, objects, tan, nraw)
+    elif op == _BUMP_OP:
+        _bump(a, regs, k, N, dP)
+    else:
+        return False
+    return True
+
+
 @_jit
 def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset, tex_h,
              tex_w, uvx, extra, dP, duv, tan, nraw):
@@ -1052,14 +1064,9 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
                     pass
                 # the context ops of textured materials inlined here with the arrays they read: through
                 # _core_op each call passed the whole context (two dozen arrays) twice, ~120 ns per instruction
-                elif op == _TEXCO:
-                    _texture_coordinate(a, scratch, k, P, N, I, uv, has_uv, obj, objects, dP, duv)
-                elif op == _IMAGE:
-                    _image_op(a, scratch, k, N, uv, has_uv, obj, objects, tex_pixels, tex_offset, tex_h, tex_w, duv)
-                elif op == _NORMAL_MAP:
-                    _normal_map(a, scratch, k, N, back, obj, objects, tan, nraw)
-                elif op == _BUMP_OP:
-                    _bump(a, scratch, k, N, dP)
+                elif _context_op(op, a, scratch, k, P, N, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset,
+                                 tex_h, tex_w, dP, duv, tan, nraw):
+                    pass
                 else:
                     _core_op(op, a, scratch, pdata, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels,
                              tex_offset, tex_h, tex_w, uvx, extra, dP, duv, tan, nraw)
