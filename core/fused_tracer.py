@@ -14,7 +14,7 @@ import numpy as np
 from . import bsdf as bsdf_mod
 from . import microfacet as mf
 from .embree import _RAY_WORDS
-from .fused_path import trace_paths
+from .fused_path import COUNTERS, trace_paths
 from .sampling import _TAG_SOBOL_SET, SobolSampler, _U, _key, _sobol_tables
 
 FUSED_ENV = "MONTE_FUSED"  # "0": always the per-bounce integrator (A/B comparisons)
@@ -102,7 +102,7 @@ class FusedTracer:
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.empty((n, 3), np.float32)
-        counters = np.zeros(4, np.int64)
+        counters = np.zeros(COUNTERS, np.int64)  # core.fused_path.TIMED fills the entries past the 4th
         # the kernel allocates nothing (no reference counting in its loop): its scratch comes from here. A
         # 16-byte aligned RTCRayHit (core.embree), the light kernels' per-point probabilities, and the lobes of
         # each material with its own diffuse-normal rows (written per vertex)

@@ -84,3 +84,24 @@ def test_the_environment_variable_forces_the_per_bounce_integrator(fast_settings
     tracer = _tracer(_scene("cornell"), fast_settings(spp=4))
     assert supports(tracer) == f"{FUSED_ENV}=0"
     assert tracer.fused is None
+
+
+def test_the_shipped_kernel_has_no_timing_code(fast_settings, monkeypatch):
+    """The measurement mode (core.fused_path.TIMED, lab/fused_timing.py) is compiled out of the shipped kernel: the
+    counters past the 4th, where it would add cycles, stay zero while the ray counts before them grow."""
+    from monte.core import fused_path, fused_tracer
+
+    assert fused_path.TIMED is False
+    seen = []
+    shipped = fused_tracer.trace_paths
+
+    def spy(*args):
+        shipped(*args)
+        seen.append(args[list(fused_path.trace_paths.py_func.__code__.co_varnames).index("counters")].copy())
+
+    monkeypatch.setattr(fused_tracer, "trace_paths", spy)
+    _render(_scene("cornell"), fast_settings(spp=2, threads=1), monkeypatch, fused=True)
+    assert seen and all(len(c) == fused_path.COUNTERS for c in seen)
+    total = np.sum(seen, axis=0)
+    assert total[2] > 0 and total[3] > 0  # closest-hit and shadow rays were traced and counted
+    assert not np.any(total[fused_path.TIMING_FIRST:])
