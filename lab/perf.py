@@ -14,6 +14,8 @@ Sections (each a short run; all in one process, interleaved where two variants a
   RMSE against a long render of the same scene, the time saved, and the time at equal error (efficiency ratio).
 - nodes: ns per node per shading point of the main shading nodes (Image Texture, Noise, Voronoi, Mix, Math,
   Color Ramp, Bump, Normal Map, Principled), compiled from real Blender materials (lab/perf_nodes.py; needs bpy).
+- fused (only when named): where the fused path kernel's time goes, Embree's closest hits and shadow rays against
+  the rest of a path, from a measurement copy of the kernel that reads the CPU's cycle counter (lab/fused_timing.py).
 - textured: the `textured` bench scene on one thread: CPU seconds, stages and the functions with the most own
   time under cProfile (lab/perf_textured.py; needs bpy).
 Nothing here asserts a time: machines are shared and noisy; compare ratios within one run.
@@ -34,7 +36,8 @@ from ..core.builtin_scenes import cornell_box, cornell_diffuse, spheres_under_sk
 from ..core.settings import RenderSettings
 from .bench_math import efficiency
 
-SECTIONS = ("stages", "threads", "memory", "skip", "adaptive", "nodes", "textured")
+SECTIONS = ("stages", "threads", "memory", "skip", "adaptive", "nodes", "textured", "fused")
+DEFAULT_SECTIONS = SECTIONS[:-1]  # "fused" compiles a measurement copy of the fused kernel (minutes): asked for only
 
 
 def render(scene, settings: RenderSettings):
@@ -171,7 +174,7 @@ def adaptive_saving(resolution: int, spp: int, threads: int, threshold: float, b
 
 
 def run_perf(args: argparse.Namespace) -> dict:
-    sections = args.sections or list(SECTIONS)
+    sections = args.sections or list(DEFAULT_SECTIONS)
     res, spp = args.resolution, args.spp
     threads = args.threads or (os.cpu_count() or 1)
     report: dict = {"resolution": res, "spp": spp, "threads": threads}
@@ -227,6 +230,11 @@ def run_perf(args: argparse.Namespace) -> dict:
 
             r = report["textured"] = textured_profile(res, spp, args.repeat)
             print_textured_profile(r)
+    if "fused" in sections:
+        from .fused_timing import measure, report as print_fused
+
+        r = report["fused"] = measure(res, spp, threads)
+        print_fused(r)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(report, fh, indent=2)
@@ -234,7 +242,9 @@ def run_perf(args: argparse.Namespace) -> dict:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sections", nargs="*", choices=SECTIONS, help="which measurements (default: all)")
+    p.add_argument("--sections", nargs="*", choices=SECTIONS,
+                   help="which measurements (default: all but fused, which compiles a measurement copy of the fused "
+                        "path kernel first, minutes)")
     p.add_argument("--resolution", type=int, default=128, help="square image size (default 128)")
     p.add_argument("--spp", type=int, default=16, help="samples per pixel per run (default 16)")
     p.add_argument("--threads", type=int, default=0, help="most worker threads (0 = all cores)")
