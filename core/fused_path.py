@@ -62,19 +62,34 @@ def _cycles(typingctx):
 
 
 @_jit
-def _sobol(p, s, seed_key, set_key, dim_keys, tables, group_bits, d):
-    """Component d of the Sobol sampler's dimension set (core.sampling._sobol_fill for one path, the same
-    float32 value)."""
+def _sobol_set(path_key, s, set_key, group_bits):
+    """The hash key and scrambled index of sample s in one dimension set (set_key) of the path whose key is
+    path_key = _mix32(p ^ seed_key): the part of core.sampling._sobol_fill that the set's dimensions share, so
+    that a path computes it once per set (measured: the random numbers were 16% of the kernel's path loop when
+    each dimension recomputed it)."""
     gb = _U(group_bits)
     gmask = _U(_U(_U(1) << gb) - _U(1))
-    hk = _mix32(_U(_mix32(_U(p ^ seed_key)) ^ set_key))
+    hk = _mix32(_U(path_key ^ set_key))
     grp = _U(s & gmask)
     if grp != _U0:
         hk = _mix32(_U(hk ^ _U(grp * _U(0x9E3779B9))))
     r = _U(_owen_rev(_reverse32(_U(s >> gb)), hk) ^ _owen_rev(_U0, hk))
+    return hk, r
+
+
+@_jit
+def _sobol(hk, r, dim_keys, tables, d):
+    """Component d of a dimension set whose (hk, r) `_sobol_set` gave (core.sampling._sobol_fill for one path,
+    the same float32 value)."""
     t = tables[d]
     lane = _U(t[0, r & _U255] ^ t[1, (r >> _S8) & _U255] ^ t[2, (r >> _S16) & _U255] ^ t[3, r >> _S24])
     return _unit_float(_reverse32(_owen_rev(lane, _mix32(_U(hk ^ dim_keys[d])))))
+
+
+@_jit
+def _sobol3(hk, r, dim_keys, tables):
+    """Components 0, 1 and 2 of a dimension set (a light sample's, or a BSDF sample's)."""
+    return _sobol(hk, r, dim_keys, tables, 0), _sobol(hk, r, dim_keys, tables, 1), _sobol(hk, r, dim_keys, tables, 2)
 
 
 @_jit
@@ -94,6 +109,7 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
     for k in range(origins.shape[0]):
         p_id = pix[k]
         s_id = smp[k]
+        path_key = _mix32(_U(p_id ^ seed_key))
         ox, oy, oz = origins[k, 0], origins[k, 1], origins[k, 2]
         dx, dy, dz = directions[k, 0], directions[k, 1], directions[k, 2]
         tm = tmax[k]
@@ -178,12 +194,16 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             if depth == max_bounces + 1:
                 break
             # ---- Russian roulette (the 4th number of the vertex's set)
-            vertex_key = set_keys[2 + depth * 8 + _D_VERTEX]
+            if TIMED:
+                c0_ = _cycles()
+            v_hk, v_r = _sobol_set(path_key, s_id, set_keys[2 + depth * 8 + _D_VERTEX], group_bits)
+            if TIMED:
+                counters[TIMING_FIRST + 7] += _cycles() - c0_
             if depth >= rr_depth:
                 q = min(np.float32(math.sqrt(max(max(t0, t1), t2))), _F1)
                 if TIMED:
                     c0_ = _cycles()
-                u_rr = _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 3)
+                u_rr = _sobol(v_hk, v_r, dim_keys, tables, 3)
                 if TIMED:
                     counters[TIMING_FIRST + 7] += _cycles() - c0_
                 if not u_rr < q:
@@ -237,12 +257,10 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                 counters[TIMING_FIRST + 8] += _cycles() - cs_
             # ---- next-event estimation: one light sample, MIS-weighted, with a shadow ray
             if has_nondelta[mat]:
-                light_key = set_keys[2 + depth * 8 + _D_LIGHT]
                 if TIMED:
                     c0_ = _cycles()
-                ua = _sobol(p_id, s_id, seed_key, light_key, dim_keys, tables, group_bits, 0)
-                ub = _sobol(p_id, s_id, seed_key, light_key, dim_keys, tables, group_bits, 1)
-                uc = _sobol(p_id, s_id, seed_key, light_key, dim_keys, tables, group_bits, 2)
+                l_hk, l_r = _sobol_set(path_key, s_id, set_keys[2 + depth * 8 + _D_LIGHT], group_bits)
+                ua, ub, uc = _sobol3(l_hk, l_r, dim_keys, tables)
                 if TIMED:
                     c1_ = _cycles()
                     counters[TIMING_FIRST + 7] += c1_ - c0_
@@ -301,9 +319,7 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             # ---- the BSDF sample and the next ray (core.path_kernels.scatter)
             if TIMED:
                 c0_ = _cycles()
-            u_dir0 = _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 0)
-            u_dir1 = _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 1)
-            u_lobe = _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 2)
+            u_dir0, u_dir1, u_lobe = _sobol3(v_hk, v_r, dim_keys, tables)
             if TIMED:
                 c1_ = _cycles()
                 counters[TIMING_FIRST + 7] += c1_ - c0_
