@@ -11,7 +11,9 @@ cycles become seconds by the counter's rate measured against time.perf_counter. 
 with the flag off, has none of this code.
 
 The counter reads cost some tens of cycles each and LLVM may move cheap arithmetic across them: the split is
-good to a few percent of the loop, not to the cycle.
+good to a few percent of the loop, not to the cycle. The counter counts wall cycles: on a loaded machine a
+descheduled thread charges the part it was in, so read the shares (preemption falls on each part in proportion
+to its time), not the seconds.
 """
 
 from __future__ import annotations
@@ -108,7 +110,7 @@ def report(m: dict) -> None:
     rows = list(m["parts_seconds"].items()) + [("rest (branching, MIS, film sums, ray set-up)", m["rest_seconds"])]
     for name, sec in rows:
         n = m["calls"].get(name)
-        per = f"  {1e9 * sec / n:6.0f} ns/ray" if n else ""
+        per = f"  {1e9 * sec / n:6.0f} ns/ray (wall)" if n else ""
         print(f"  {name:46s} {sec:7.2f} s  {100 * sec / loop:5.1f} %{per}")
     embree = m["parts_seconds"]["closest hit (Embree)"] + m["parts_seconds"]["shadow ray (Embree)"]
     print(f"  Embree's share of the path loop: {100 * embree / loop:.1f} %")
