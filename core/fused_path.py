@@ -26,7 +26,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .embree import _INVALID_ID, _call_embree, set_ray
-from .geometry_kernels import _valid_reflection_normal, offset_point, smooth_normal
+from .geometry_kernels import _valid_reflection_normal, offset_point, smooth_normal, smooth_surface_lift
 from .jit_cache import jit_no_nrt as _jit
 from .light_kernels import light_emission_path, probabilities_at, sample_light_path, triangle_pdf_path
 from .path_kernels import add_contribution as _add
@@ -98,11 +98,14 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                 has_nondelta, has_transmission, emission, emitter_of_triangle, lt, per_point, n_matters,
                 has_emission, seed_key, set_keys, dim_keys, tables, group_bits, max_bounces, rr_depth, clamp,
                 shadow_epsilon, words, ids, address, buf, radiance, counters, t_start, depth_scale, albedo_of,
-                out_albedo, out_normal, out_depth):
+                out_albedo, out_normal, out_depth, terminator_offset):
     """Trace camera path k (pixel pix[k], sample smp[k], ray origins[k] + t directions[k], t < tmax[k]) to its
     end and write its radiance (float32) to radiance[k]. set_keys: the Sobol set key of every dimension set a
     path reads (index = the set); see core.fused_tracer.supports for what the scene may hold. counters: [non-finite dropped,
-    clamped, closest-hit rays, shadow rays, then (TIMED only) the cycles of TIMING_PARTS], added to."""
+    clamped, closest-hit rays, shadow rays, then (TIMED only) the cycles of TIMING_PARTS], added to.
+    terminator_offset: (T,) float32, or empty where no triangle has one: the shadow terminator lift of the shadow
+    ray's origin, exactly as core.path_kernels.shadow_rays does it."""
+    use_terminator = terminator_offset.shape[0] > 0
     has_normals = corner_normals.shape[0] > 0
     want_aovs = out_depth.shape[0] > 0
     has_emitters = emitter_of_triangle.shape[0] > 0
@@ -291,13 +294,34 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                         w = pl * pl / max(pl * pl + pbf * pbf, _TINY)
                     scale = w / max(pl, _TINY)
                     crosses = (cos_o_geo > _F0) != (wx * gx + wy * gy + wz * gz > _F0)
-                    if crosses and not transmits:
+                    lift = _F0
+                    g_side = _F1
+                    if use_terminator:  # core.path_kernels.shadow_rays' shadow terminator
+                        cutoff = terminator_offset[prim]
+                        if cutoff > _F0:
+                            nl = wx * nvx + wy * nvy + wz * nvz
+                            g_side = _F1 if cos_o_geo >= _F0 else -_F1
+                            if nl < _F0:
+                                nl, g_side = -nl, -g_side
+                            gl = g_side * (wx * gx + wy * gy + wz * gz)
+                            if nl < cutoff:
+                                lift = min(max(np.float32(2.0) - (gl + nl) / cutoff, _F0), _F1)
+                            else:
+                                lift = min(max(_F1 - gl / cutoff, _F0), _F1)
+                    if crosses and not transmits and not lift > _F0:
                         scale = _F0
                     c0 = t0 * np.float32(f0) * np.float32(lr) * scale
                     c1 = t1 * np.float32(f1) * np.float32(lg) * scale
                     c2 = t2 * np.float32(f2) * np.float32(lb) * scale
                     if max(max(max(_F0, c0), c1), c2) > _F0:
-                        sox, soy, soz = offset_point(px, py, pz, gx, gy, gz, wx, wy, wz, mag)
+                        if lift > _F0:
+                            hx, hy, hz = smooth_surface_lift(prim, b0, bu, bv, gx * g_side, gy * g_side, gz * g_side,
+                                                             tri_vertices, corner_normals)
+                            sox, soy, soz = px + hx * lift, py + hy * lift, pz + hz * lift
+                            if g_side * (wx * gx + wy * gy + wz * gz) > _F0:  # leaves the face: skip it
+                                sox, soy, soz = offset_point(sox, soy, soz, gx, gy, gz, wx, wy, wz, mag)
+                        else:
+                            sox, soy, soz = offset_point(px, py, pz, gx, gy, gz, wx, wy, wz, mag)
                         if math.isfinite(dist):
                             vx, vy, vz = px + wx * dist - sox, py + wy * dist - soy, pz + wz * dist - soz
                             length = np.float32(math.sqrt(vx * vx + vy * vy + vz * vz))
