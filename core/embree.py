@@ -79,15 +79,11 @@ def _ray_buffer():
 
 
 @_jit
-def _load_ray(words, ids, origins, directions, k, tfar):
-    words[0] = origins[k, 0]
-    words[1] = origins[k, 1]
-    words[2] = origins[k, 2]
-    words[3] = 0.0
-    words[4] = directions[k, 0]
-    words[5] = directions[k, 1]
-    words[6] = directions[k, 2]
-    words[7] = 0.0
+def set_ray(words, ids, ox, oy, oz, dx, dy, dz, tfar):
+    """Load one ray into the RTCRayHit words/ids (origin o, direction d, tnear 0, time 0, tfar capped at
+    _FAR, every geometry's mask, id and flags 0); a closest-hit query also resets the hit's ids itself."""
+    words[0], words[1], words[2], words[3] = ox, oy, oz, 0.0
+    words[4], words[5], words[6], words[7] = dx, dy, dz, 0.0
     words[8] = min(tfar, _FAR)
     ids[9] = _INVALID_ID  # mask: every geometry
     ids[10] = 0
@@ -113,6 +109,12 @@ def _intersect(intersect1, scene, words, ids, address, k, prim, u, v, t):
     v[k] = words[16]
     t[k] = words[8]
     return True
+
+
+@_jit
+def _load_ray(words, ids, origins, directions, k, tfar):
+    set_ray(words, ids, origins[k, 0], origins[k, 1], origins[k, 2], directions[k, 0], directions[k, 1],
+            directions[k, 2], tfar)
 
 
 @_jit

@@ -20,10 +20,16 @@ import math
 import numpy as np
 
 from .bsdf_kernels import eval_path, sample_path
-from .embree import _INVALID_ID, _call_embree
-from .geometry_kernels import _valid_reflection_normal, offset_point
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from .embree import _INVALID_ID, _call_embree, set_ray
+from .geometry_kernels import _valid_reflection_normal, offset_point, smooth_normal, smooth_surface_lift
 from .jit_cache import jit_no_nrt as _jit
 from .light_kernels import light_emission_path, probabilities_at, sample_light_path, triangle_pdf_path
+from .path_kernels import add_contribution as _add
 from .sampling import _U, _U0, _U255, _S8, _S16, _S24, _mix32, _owen_rev, _reverse32, _unit_float
 from .warps import onb_f32
 
@@ -34,36 +40,56 @@ _TINY = np.float32(1e-30)
 _FAR = np.float32(3e38)
 _D_VERTEX, _D_LIGHT = 1, 4  # as core.integrator: a vertex's BSDF/roulette set and its light-sample set
 
+# Measurement mode (lab/fused_timing.py): with TIMED true at compile time, trace_paths adds the CPU cycles
+# (the time-stamp counter) each part of a path takes to counters[TIMING_FIRST:]. The module's kernels are
+# compiled and cached with it false: the `if TIMED:` blocks fold away and the shipped kernel pays nothing.
+TIMED = False
+TIMING_FIRST = 4
+TIMING_PARTS = ("closest hit (Embree)", "shadow ray (Embree)", "lights along the ray", "emitter hit MIS",
+                "light sample", "BSDF eval", "BSDF sample", "random numbers", "surface", "whole path loop")
+COUNTERS = TIMING_FIRST + len(TIMING_PARTS)  # the length of trace_paths' counters array
+
+
+@intrinsic
+def _cycles(typingctx):
+    """The CPU's cycle counter (LLVM's readcyclecounter: rdtsc on x86), for the measurement mode."""
+    def codegen(context, builder, signature, args):
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.IntType(64), []),
+                                            "llvm.readcyclecounter")
+        return builder.call(fn, [])
+
+    return types.int64(), codegen
+
 
 @_jit
-def _sobol(p, s, seed_key, set_key, dim_keys, tables, group_bits, d):
-    """Component d of the Sobol sampler's dimension set (core.sampling._sobol_fill for one path, the same
-    float32 value)."""
+def _sobol_set(path_key, s, set_key, group_bits):
+    """The hash key and scrambled index of sample s in one dimension set (set_key) of the path whose key is
+    path_key = _mix32(p ^ seed_key): the part of core.sampling._sobol_fill that the set's dimensions share, so
+    that a path computes it once per set (measured: the random numbers were 16% of the kernel's path loop when
+    each dimension recomputed it)."""
     gb = _U(group_bits)
     gmask = _U(_U(_U(1) << gb) - _U(1))
-    hk = _mix32(_U(_mix32(_U(p ^ seed_key)) ^ set_key))
+    hk = _mix32(_U(path_key ^ set_key))
     grp = _U(s & gmask)
     if grp != _U0:
         hk = _mix32(_U(hk ^ _U(grp * _U(0x9E3779B9))))
     r = _U(_owen_rev(_reverse32(_U(s >> gb)), hk) ^ _owen_rev(_U0, hk))
+    return hk, r
+
+
+@_jit
+def _sobol(hk, r, dim_keys, tables, d):
+    """Component d of a dimension set whose (hk, r) `_sobol_set` gave (core.sampling._sobol_fill for one path,
+    the same float32 value)."""
     t = tables[d]
     lane = _U(t[0, r & _U255] ^ t[1, (r >> _S8) & _U255] ^ t[2, (r >> _S16) & _U255] ^ t[3, r >> _S24])
     return _unit_float(_reverse32(_owen_rev(lane, _mix32(_U(hk ^ dim_keys[d])))))
 
 
 @_jit
-def _add(r0, r1, r2, v0, v1, v2, clamp, counters):
-    """core.path_kernels.accumulate for one contribution: NaN/Inf dropped (counters[0]), clamped (counters[1])."""
-    if not (math.isfinite(v0) and math.isfinite(v1) and math.isfinite(v2)):
-        counters[0] += 1
-        return r0, r1, r2
-    if clamp > 0:
-        peak = max(v0, v1, v2)
-        if peak > clamp:
-            counters[1] += 1
-            s = clamp / peak
-            v0, v1, v2 = v0 * s, v1 * s, v2 * s
-    return r0 + v0, r1 + v1, r2 + v2
+def _sobol3(hk, r, dim_keys, tables):
+    """Components 0, 1 and 2 of a dimension set (a light sample's, or a BSDF sample's)."""
+    return _sobol(hk, r, dim_keys, tables, 0), _sobol(hk, r, dim_keys, tables, 1), _sobol(hk, r, dim_keys, tables, 2)
 
 
 @_jit
@@ -72,17 +98,21 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                 has_nondelta, has_transmission, emission, emitter_of_triangle, lt, per_point, n_matters,
                 has_emission, seed_key, set_keys, dim_keys, tables, group_bits, max_bounces, rr_depth, clamp,
                 shadow_epsilon, words, ids, address, buf, radiance, counters, t_start, depth_scale, albedo_of,
-                out_albedo, out_normal, out_depth):
+                out_albedo, out_normal, out_depth, terminator_offset):
     """Trace camera path k (pixel pix[k], sample smp[k], ray origins[k] + t directions[k], t < tmax[k]) to its
     end and write its radiance (float32) to radiance[k]. set_keys: the Sobol set key of every dimension set a
     path reads (index = the set); see core.fused_tracer.supports for what the scene may hold. counters: [non-finite dropped,
-    clamped], added to."""
+    clamped, closest-hit rays, shadow rays, then (TIMED only) the cycles of TIMING_PARTS], added to.
+    terminator_offset: (T,) float32, or empty where no triangle has one: the shadow terminator lift of the shadow
+    ray's origin, exactly as core.path_kernels.shadow_rays does it."""
+    use_terminator = terminator_offset.shape[0] > 0
     has_normals = corner_normals.shape[0] > 0
     want_aovs = out_depth.shape[0] > 0
     has_emitters = emitter_of_triangle.shape[0] > 0
     for k in range(origins.shape[0]):
         p_id = pix[k]
         s_id = smp[k]
+        path_key = _mix32(_U(p_id ^ seed_key))
         ox, oy, oz = origins[k, 0], origins[k, 1], origins[k, 2]
         dx, dy, dz = directions[k, 0], directions[k, 1], directions[k, 2]
         tm = tmax[k]
@@ -92,18 +122,20 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
         prev_delta = True
         pnx = pny = pnz = _F0
         prev_tr = False
+        if TIMED:
+            cp_ = _cycles()
         for depth in range(max_bounces + 2):
             # ---- closest hit
-            words[0], words[1], words[2], words[3] = ox, oy, oz, 0.0
-            words[4], words[5], words[6], words[7] = dx, dy, dz, 0.0
-            words[8] = min(tm, _FAR)
-            ids[9] = _INVALID_ID
-            ids[10] = 0
-            ids[11] = 0
+            if TIMED:
+                c0_ = _cycles()
+            set_ray(words, ids, ox, oy, oz, dx, dy, dz, tm)
             ids[17] = _INVALID_ID
             ids[18] = _INVALID_ID
             ids[19] = _INVALID_ID
             _call_embree(intersect1, scene, address, 0)
+            if TIMED:
+                c1_ = _cycles()
+                counters[TIMING_FIRST] += c1_ - c0_
             counters[2] += 1
             hit = ids[18] != _INVALID_ID
             prim = np.int32(ids[17]) if hit else np.int32(-1)
@@ -115,11 +147,15 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             tr_flag = has_n and per_point and prev_tr
             # ---- analytic lights and the world along the ray
             if has_emission:
+                if TIMED:
+                    c0_ = _cycles()
                 er, eg, eb = light_emission_path(
                     np.float64(ox), np.float64(oy), np.float64(oz), np.float64(dx), np.float64(dy), np.float64(dz),
                     np.float64(t_hit), np.float64(prev_pdf) if use_mis else 0.0, prev_delta if use_mis else False,
                     use_mis, np.float64(pnx), np.float64(pny), np.float64(pnz), has_n, tr_flag, depth == 0,
                     per_point, lt, buf)
+                if TIMED:
+                    counters[TIMING_FIRST + 2] += _cycles() - c0_
                 r0, r1, r2 = _add(r0, r1, r2, t0 * np.float32(er), t1 * np.float32(eg), t2 * np.float32(eb), clamp,
                                   counters)
             if not hit:
@@ -133,6 +169,8 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                     cos_e = abs(dx * face_normals[prim, 0] + dy * face_normals[prim, 1] + dz * face_normals[prim, 2])
                     pdf_l = _F0
                     if cos_e > _F0:
+                        if TIMED:
+                            c0_ = _cycles()
                         pl = triangle_pdf_path(e, np.float64(ox), np.float64(oy), np.float64(oz),
                                                np.float64(np.float32(t_hit * t_hit)), np.float64(cos_e), lt)
                         if per_point:
@@ -142,6 +180,8 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                             unit = lt[20][e]
                             pl *= buf[unit] if unit >= 0 else 0.0
                         pdf_l = np.float32(pl) if math.isfinite(pl) else _F0
+                        if TIMED:
+                            counters[TIMING_FIRST + 3] += _cycles() - c0_
                     pb = prev_pdf
                     w = pb * pb / max(pb * pb + pdf_l * pdf_l, _TINY)
                 r0, r1, r2 = _add(r0, r1, r2, t0 * emission[mat, 0] * w, t1 * emission[mat, 1] * w,
@@ -151,24 +191,30 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                     albedo_of[mat, 2]
                 ax, ay, az = face_normals[prim, 0], face_normals[prim, 1], face_normals[prim, 2]
                 if has_normals and smooth[prim]:
-                    a0 = _F1 - bu - bv
-                    ax = corner_normals[prim, 0, 0] * a0 + corner_normals[prim, 1, 0] * bu + corner_normals[prim, 2, 0] * bv
-                    ay = corner_normals[prim, 0, 1] * a0 + corner_normals[prim, 1, 1] * bu + corner_normals[prim, 2, 1] * bv
-                    az = corner_normals[prim, 0, 2] * a0 + corner_normals[prim, 1, 2] * bu + corner_normals[prim, 2, 2] * bv
-                    alen = max(np.float32(math.sqrt(ax * ax + ay * ay + az * az)), _TINY)
-                    ax, ay, az = ax / alen, ay / alen, az / alen
+                    ax, ay, az = smooth_normal(corner_normals, prim, _F1 - bu - bv, bu, bv)
                 out_normal[k, 0], out_normal[k, 1], out_normal[k, 2] = ax, ay, az
                 out_depth[k] = (t_start[k] + t_hit) * depth_scale[k]
             if depth == max_bounces + 1:
                 break
             # ---- Russian roulette (the 4th number of the vertex's set)
-            vertex_key = set_keys[2 + depth * 8 + _D_VERTEX]
+            if TIMED:
+                c0_ = _cycles()
+            v_hk, v_r = _sobol_set(path_key, s_id, set_keys[2 + depth * 8 + _D_VERTEX], group_bits)
+            if TIMED:
+                counters[TIMING_FIRST + 7] += _cycles() - c0_
             if depth >= rr_depth:
                 q = min(np.float32(math.sqrt(max(max(t0, t1), t2))), _F1)
-                if not _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 3) < q:
+                if TIMED:
+                    c0_ = _cycles()
+                u_rr = _sobol(v_hk, v_r, dim_keys, tables, 3)
+                if TIMED:
+                    counters[TIMING_FIRST + 7] += _cycles() - c0_
+                if not u_rr < q:
                     break
                 t0, t1, t2 = t0 / q, t1 / q, t2 / q
             # ---- the surface (core.geometry_kernels.surface for flat triangles)
+            if TIMED:
+                cs_ = _cycles()
             b0 = _F1 - bu - bv
             mag = tri_magnitude[prim]
             px = tri_vertices[prim, 0, 0] * b0 + tri_vertices[prim, 1, 0] * bu + tri_vertices[prim, 2, 0] * bv
@@ -181,14 +227,7 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             sx, sy, sz = gx, gy, gz
             smooth_here = has_normals and smooth[prim]
             if smooth_here:
-                sx = (corner_normals[prim, 0, 0] * b0 + corner_normals[prim, 1, 0] * bu
-                      + corner_normals[prim, 2, 0] * bv)
-                sy = (corner_normals[prim, 0, 1] * b0 + corner_normals[prim, 1, 1] * bu
-                      + corner_normals[prim, 2, 1] * bv)
-                sz = (corner_normals[prim, 0, 2] * b0 + corner_normals[prim, 1, 2] * bu
-                      + corner_normals[prim, 2, 2] * bv)
-                slen = max(np.float32(math.sqrt(sx * sx + sy * sy + sz * sz)), _TINY)
-                sx, sy, sz = sx / slen, sy / slen, sz / slen
+                sx, sy, sz = smooth_normal(corner_normals, prim, b0, bu, bv)
             if sx * gx + sy * gy + sz * gz < _F0:
                 sx, sy, sz = -sx, -sy, -sz
             ux, uy, uz = sx, sy, sz  # the normal the diffuse lobes keep
@@ -217,17 +256,24 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             back = cos_o_geo < _F0
             sgn = -1.0 if back else 1.0
             transmits = has_transmission[mat]
+            if TIMED:
+                counters[TIMING_FIRST + 8] += _cycles() - cs_
             # ---- next-event estimation: one light sample, MIS-weighted, with a shadow ray
             if has_nondelta[mat]:
-                light_key = set_keys[2 + depth * 8 + _D_LIGHT]
-                ua = _sobol(p_id, s_id, seed_key, light_key, dim_keys, tables, group_bits, 0)
-                ub = _sobol(p_id, s_id, seed_key, light_key, dim_keys, tables, group_bits, 1)
-                uc = _sobol(p_id, s_id, seed_key, light_key, dim_keys, tables, group_bits, 2)
+                if TIMED:
+                    c0_ = _cycles()
+                l_hk, l_r = _sobol_set(path_key, s_id, set_keys[2 + depth * 8 + _D_LIGHT], group_bits)
+                ua, ub, uc = _sobol3(l_hk, l_r, dim_keys, tables)
+                if TIMED:
+                    c1_ = _cycles()
+                    counters[TIMING_FIRST + 7] += c1_ - c0_
                 wx, wy, wz, dist, lr, lg, lb, lpdf, ldelta = sample_light_path(
                     np.float64(px), np.float64(py), np.float64(pz), np.float64(nvx) if n_matters else 0.0,
                     np.float64(nvy) if n_matters else 0.0, np.float64(nvz) if n_matters else 0.0, n_matters,
                     n_matters and per_point and transmits, np.float64(uc), np.float64(ua), np.float64(ub),
                     per_point, lt, buf)
+                if TIMED:
+                    counters[TIMING_FIRST + 4] += _cycles() - c1_
                 wx, wy, wz = np.float32(wx), np.float32(wy), np.float32(wz)
                 dist = np.float32(dist)
                 pl = np.float32(lpdf)
@@ -235,22 +281,47 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                     ix = wx * tx + wy * ty + wz * tz
                     iy = wx * bx + wy * by + wz * bz
                     iz = wx * sx + wy * sy + wz * sz
+                    if TIMED:
+                        c0_ = _cycles()
                     f0, f1, f2, pb = eval_path(lobes, mat, multiscatter, tabs, np.float64(lx), np.float64(ly),
                                                np.float64(lz) * sgn, back, np.float64(ix), np.float64(iy),
                                                np.float64(iz) * sgn)
+                    if TIMED:
+                        counters[TIMING_FIRST + 5] += _cycles() - c0_
                     w = _F1
                     if not ldelta:
                         pbf = np.float32(pb)
                         w = pl * pl / max(pl * pl + pbf * pbf, _TINY)
                     scale = w / max(pl, _TINY)
                     crosses = (cos_o_geo > _F0) != (wx * gx + wy * gy + wz * gz > _F0)
-                    if crosses and not transmits:
+                    lift = _F0
+                    g_side = _F1
+                    if use_terminator:  # core.path_kernels.shadow_rays' shadow terminator
+                        cutoff = terminator_offset[prim]
+                        if cutoff > _F0:
+                            nl = wx * nvx + wy * nvy + wz * nvz
+                            g_side = _F1 if cos_o_geo >= _F0 else -_F1
+                            if nl < _F0:
+                                nl, g_side = -nl, -g_side
+                            gl = g_side * (wx * gx + wy * gy + wz * gz)
+                            if nl < cutoff:
+                                lift = min(max(np.float32(2.0) - (gl + nl) / cutoff, _F0), _F1)
+                            else:
+                                lift = min(max(_F1 - gl / cutoff, _F0), _F1)
+                    if crosses and not transmits and not lift > _F0:
                         scale = _F0
                     c0 = t0 * np.float32(f0) * np.float32(lr) * scale
                     c1 = t1 * np.float32(f1) * np.float32(lg) * scale
                     c2 = t2 * np.float32(f2) * np.float32(lb) * scale
                     if max(max(max(_F0, c0), c1), c2) > _F0:
-                        sox, soy, soz = offset_point(px, py, pz, gx, gy, gz, wx, wy, wz, mag)
+                        if lift > _F0:
+                            hx, hy, hz = smooth_surface_lift(prim, b0, bu, bv, gx * g_side, gy * g_side, gz * g_side,
+                                                             tri_vertices, corner_normals)
+                            sox, soy, soz = px + hx * lift, py + hy * lift, pz + hz * lift
+                            if g_side * (wx * gx + wy * gy + wz * gz) > _F0:  # leaves the face: skip it
+                                sox, soy, soz = offset_point(sox, soy, soz, gx, gy, gz, wx, wy, wz, mag)
+                        else:
+                            sox, soy, soz = offset_point(px, py, pz, gx, gy, gz, wx, wy, wz, mag)
                         if math.isfinite(dist):
                             vx, vy, vz = px + wx * dist - sox, py + wy * dist - soy, pz + wz * dist - soz
                             length = np.float32(math.sqrt(vx * vx + vy * vy + vz * vz))
@@ -260,22 +331,26 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                         else:
                             vx, vy, vz = wx, wy, wz
                             stmax = _FAR
-                        words[0], words[1], words[2], words[3] = sox, soy, soz, 0.0
-                        words[4], words[5], words[6], words[7] = vx, vy, vz, 0.0
-                        words[8] = min(stmax, _FAR)
-                        ids[9] = _INVALID_ID
-                        ids[10] = 0
-                        ids[11] = 0
+                        if TIMED:
+                            c0_ = _cycles()
+                        set_ray(words, ids, sox, soy, soz, vx, vy, vz, stmax)
                         _call_embree(occluded1, scene, address, 0)
+                        if TIMED:
+                            counters[TIMING_FIRST + 1] += _cycles() - c0_
                         counters[3] += 1
                         if not words[8] < 0.0:
                             r0, r1, r2 = _add(r0, r1, r2, c0, c1, c2, clamp, counters)
             # ---- the BSDF sample and the next ray (core.path_kernels.scatter)
-            u_dir0 = _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 0)
-            u_dir1 = _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 1)
-            u_lobe = _sobol(p_id, s_id, seed_key, vertex_key, dim_keys, tables, group_bits, 2)
+            if TIMED:
+                c0_ = _cycles()
+            u_dir0, u_dir1, u_lobe = _sobol3(v_hk, v_r, dim_keys, tables)
+            if TIMED:
+                c1_ = _cycles()
+                counters[TIMING_FIRST + 7] += c1_ - c0_
             qx, qy, qz, w0, w1, w2, spdf, sdelta, stransmitted, svalid = sample_path(
                 lobes, mat, multiscatter, tabs, lx, ly, lz, back, u_lobe, u_dir0, u_dir1)
+            if TIMED:
+                counters[TIMING_FIRST + 6] += _cycles() - c1_
             qx, qy, qz = np.float32(qx), np.float32(qy), np.float32(qz)
             wx = qx * tx + qy * bx + qz * sx
             wy = qx * ty + qy * by + qz * sy
@@ -295,4 +370,6 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             pnx, pny, pnz = nvx, nvy, nvz
             prev_tr = transmits
             tm = _FAR
+        if TIMED:
+            counters[TIMING_FIRST + 9] += _cycles() - cp_
         radiance[k, 0], radiance[k, 1], radiance[k, 2] = r0, r1, r2

@@ -14,7 +14,7 @@ import numpy as np
 from . import bsdf as bsdf_mod
 from . import microfacet as mf
 from .embree import _RAY_WORDS
-from .fused_path import trace_paths
+from .fused_path import COUNTERS, trace_paths
 from .sampling import _TAG_SOBOL_SET, SobolSampler, _U, _key, _sobol_tables
 
 FUSED_ENV = "MONTE_FUSED"  # "0": always the per-bounce integrator (A/B comparisons)
@@ -49,7 +49,6 @@ def supports(tracer) -> str | None:
               ("ray visibility", bool(ps.visible_to)), ("transparent BSDF", ps.has_clear),
               ("transparent shadows", ps.shadow_clear is not None), ("lights without shadows", ps.no_shadow is not None),
               ("moving emitters", ps.moving_emitters is not None),
-              ("shadow terminator offset", ps.terminator_offset is not None),
               ("light passes", bool(s.light_passes)), ("shader AOVs", bool(ps.scene.shader_aovs)),
               ("textures", bool(getattr(ps.materials, "_texture_ids", None))),
               ("camera backdrop", ps.scene.world.camera_color is not None
@@ -92,6 +91,8 @@ class FusedTracer:
         self.seed_key = _U(sampler._seed_key)
         self.tables = _sobol_tables()
         self.group_bits = int(sampler._group_bits)
+        self.terminator = (ps.terminator_offset if ps.terminator_offset is not None
+                           else np.zeros(0, np.float32))  # the shadow terminator offset per triangle (or none)
         self.ps, self.settings, self.accel = ps, s, tracer.accel
 
     def trace(self, pixel_id: np.ndarray, sample_id: np.ndarray, origins: np.ndarray, directions: np.ndarray,
@@ -102,7 +103,7 @@ class FusedTracer:
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.empty((n, 3), np.float32)
-        counters = np.zeros(4, np.int64)
+        counters = np.zeros(COUNTERS, np.int64)  # core.fused_path.TIMED fills the entries past the 4th
         # the kernel allocates nothing (no reference counting in its loop): its scratch comes from here. A
         # 16-byte aligned RTCRayHit (core.embree), the light kernels' per-point probabilities, and the lobes of
         # each material with its own diffuse-normal rows (written per vertex)
@@ -131,7 +132,7 @@ class FusedTracer:
                     self.n_matters, self.has_emission, self.seed_key, self.set_keys, self.dim_keys, self.tables,
                     self.group_bits, int(s.max_bounces), int(s.rr_depth), np.float32(s.clamp),
                     self.shadow_epsilon, words, words.view(np.uint32), words.ctypes.data, buf, radiance, counters,
-                    *aov_args)
+                    *aov_args, self.terminator)
         stats.nonfinite += int(counters[0])
         stats.clamped += int(counters[1])
         self.accel.count_rays(int(counters[2]), int(counters[3]))

@@ -42,6 +42,17 @@ def offset_point(px, py, pz, nx, ny, nz, wx, wy, wz, magnitude):
 
 
 @_jit
+def smooth_normal(corner_normals, t, b0, b1, b2):
+    """The unit smooth-shading normal of triangle t at barycentrics (b0, b1, b2): its corner normals
+    interpolated in float32, normalised (a zero length kept finite by a tiny floor)."""
+    sx = corner_normals[t, 0, 0] * b0 + corner_normals[t, 1, 0] * b1 + corner_normals[t, 2, 0] * b2
+    sy = corner_normals[t, 0, 1] * b0 + corner_normals[t, 1, 1] * b1 + corner_normals[t, 2, 1] * b2
+    sz = corner_normals[t, 0, 2] * b0 + corner_normals[t, 1, 2] * b1 + corner_normals[t, 2, 2] * b2
+    length = max(np.float32(math.sqrt(sx * sx + sy * sy + sz * sz)), _TINY)
+    return sx / length, sy / length, sz / length
+
+
+@_jit
 def _valid_reflection_normal(gx, gy, gz, ix, iy, iz, nx, ny, nz):
     """Cycles' ensure_valid_specular_reflection: the shading normal N (unit, on the viewer's side of the face
     normal G) tilted towards G just enough that the mirror reflection of the viewer direction I about it leaves
@@ -109,11 +120,7 @@ def surface(rows, prim, bu, bv, d, tri_vertices, face_normals, corner_normals, s
         gx, gy, gz = face_normals[t, 0], face_normals[t, 1], face_normals[t, 2]
         sx, sy, sz = gx, gy, gz
         if has_normals and smooth[t]:
-            sx = corner_normals[t, 0, 0] * b0 + corner_normals[t, 1, 0] * b1 + corner_normals[t, 2, 0] * b2
-            sy = corner_normals[t, 0, 1] * b0 + corner_normals[t, 1, 1] * b1 + corner_normals[t, 2, 1] * b2
-            sz = corner_normals[t, 0, 2] * b0 + corner_normals[t, 1, 2] * b1 + corner_normals[t, 2, 2] * b2
-            length = max(np.float32(math.sqrt(sx * sx + sy * sy + sz * sz)), _TINY)
-            sx, sy, sz = sx / length, sy / length, sz / length
+            sx, sy, sz = smooth_normal(corner_normals, t, b0, b1, b2)
         ns_raw[k, 0], ns_raw[k, 1], ns_raw[k, 2] = sx, sy, sz
         if has_uvs:
             for c in range(2):

@@ -159,17 +159,23 @@ def accumulate(radiance, rows, value, clamp, counters):
     """radiance[rows[k]] += value[k], dropping NaN/Inf rows (counters[0]) and scaling rows whose largest
     component exceeds clamp > 0 down to it (counters[1])."""
     for k in range(rows.shape[0]):
-        v0, v1, v2 = value[k, 0], value[k, 1], value[k, 2]
-        if not (math.isfinite(v0) and math.isfinite(v1) and math.isfinite(v2)):
-            counters[0] += 1
-            continue
-        if clamp > 0:
-            peak = max(v0, v1, v2)
-            if peak > clamp:
-                counters[1] += 1
-                s = clamp / peak
-                v0, v1, v2 = v0 * s, v1 * s, v2 * s
         r = rows[k]
-        radiance[r, 0] += v0
-        radiance[r, 1] += v1
-        radiance[r, 2] += v2
+        radiance[r, 0], radiance[r, 1], radiance[r, 2] = add_contribution(
+            radiance[r, 0], radiance[r, 1], radiance[r, 2], value[k, 0], value[k, 1], value[k, 2], clamp, counters)
+
+
+@_jit
+def add_contribution(r0, r1, r2, v0, v1, v2, clamp, counters):
+    """(r0 + v0, r1 + v1, r2 + v2) for one contribution v: a NaN/Inf one dropped (r returned as it is,
+    counters[0] += 1), one whose largest component exceeds clamp > 0 scaled down to it (counters[1] += 1).
+    accumulate's per-row step and the fused path kernel's (core.fused_path) per-path sum."""
+    if not (math.isfinite(v0) and math.isfinite(v1) and math.isfinite(v2)):
+        counters[0] += 1
+        return r0, r1, r2
+    if clamp > 0:
+        peak = max(v0, v1, v2)
+        if peak > clamp:
+            counters[1] += 1
+            s = clamp / peak
+            v0, v1, v2 = v0 * s, v1 * s, v2 * s
+    return r0 + v0, r1 + v1, r2 + v2

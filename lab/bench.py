@@ -55,7 +55,8 @@ def run_bench(args: argparse.Namespace) -> dict:
     print(f"  rays/s          {st['rays_per_second'] / 1e6:.2f} M ({st['rays_closest']} closest, "
           f"{st['rays_shadow']} shadow)")
     if st.get("fused_kernel"):
-        print("  inside Embree   not timed (the fused path kernel calls Embree inside it; MONTE_FUSED=0 to time it)")
+        print("  inside Embree   not timed (the fused path kernel calls Embree inside it: `monte perf --sections "
+              "fused` splits its time; MONTE_FUSED=0 times the per-bounce integrator)")
     else:
         print(f"  inside Embree   {100 * st['embree_share']:.0f}% of wall time")
     print(f"  peak memory     {st['peak_memory_mb']:.0f} MB (process max RSS)")

@@ -70,12 +70,14 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
 # `monte perf` (lab/perf.py) and `monte mc-study` (lab/mc_study.py): their options here, so that building the
 # command line's parser imports neither module (NumPy, the Monte Carlo study: 0.08-0.12 s of every `monte` process
 # on the loaded 2-core machine).
-PERF_SECTIONS = ("stages", "threads", "memory", "skip", "adaptive", "nodes", "textured")
+PERF_SECTIONS = ("stages", "threads", "memory", "skip", "adaptive", "nodes", "textured", "fused")
 
 
 def add_perf_arguments(p: argparse.ArgumentParser) -> None:
     """Options of `monte perf`."""
-    p.add_argument("--sections", nargs="*", choices=PERF_SECTIONS, help="which measurements (default: all)")
+    p.add_argument("--sections", nargs="*", choices=PERF_SECTIONS,
+                   help="which measurements (default: all but fused, which compiles a measurement copy of the fused "
+                        "path kernel first, minutes)")
     p.add_argument("--resolution", type=int, default=128, help="square image size (default 128)")
     p.add_argument("--spp", type=int, default=16, help="samples per pixel per run (default 16)")
     p.add_argument("--threads", type=int, default=0, help="most worker threads (0 = all cores)")

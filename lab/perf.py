@@ -14,6 +14,8 @@ Sections (each a short run; all in one process, interleaved where two variants a
   RMSE against a long render of the same scene, the time saved, and the time at equal error (efficiency ratio).
 - nodes: ns per node per shading point of the main shading nodes (Image Texture, Noise, Voronoi, Mix, Math,
   Color Ramp, Bump, Normal Map, Principled), compiled from real Blender materials (lab/perf_nodes.py; needs bpy).
+- fused (only when named): where the fused path kernel's time goes, Embree's closest hits and shadow rays against
+  the rest of a path, from a measurement copy of the kernel that reads the CPU's cycle counter (lab/fused_timing.py).
 - textured: the `textured` bench scene on one thread: CPU seconds, stages and the functions with the most own
   time under cProfile (lab/perf_textured.py; needs bpy).
 Nothing here asserts a time: machines are shared and noisy; compare ratios within one run.
@@ -36,6 +38,8 @@ from .bench_math import efficiency
 
 # The command's options live in bench_args (argparse only), so building `monte`'s parser imports none of this.
 from .bench_args import PERF_SECTIONS as SECTIONS, add_perf_arguments as add_arguments  # noqa: E402,F401
+
+DEFAULT_SECTIONS = SECTIONS[:-1]  # "fused" compiles a measurement copy of the fused kernel (minutes): asked for only
 
 
 def render(scene, settings: RenderSettings):
@@ -172,7 +176,7 @@ def adaptive_saving(resolution: int, spp: int, threads: int, threshold: float, b
 
 
 def run_perf(args: argparse.Namespace) -> dict:
-    sections = args.sections or list(SECTIONS)
+    sections = args.sections or list(DEFAULT_SECTIONS)
     res, spp = args.resolution, args.spp
     threads = args.threads or (os.cpu_count() or 1)
     report: dict = {"resolution": res, "spp": spp, "threads": threads}
@@ -228,6 +232,11 @@ def run_perf(args: argparse.Namespace) -> dict:
 
             r = report["textured"] = textured_profile(res, spp, args.repeat)
             print_textured_profile(r)
+    if "fused" in sections:
+        from .fused_timing import measure, report as print_fused
+
+        r = report["fused"] = measure(res, spp, threads)
+        print_fused(r)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(report, fh, indent=2)

@@ -84,3 +84,45 @@ def test_the_environment_variable_forces_the_per_bounce_integrator(fast_settings
     tracer = _tracer(_scene("cornell"), fast_settings(spp=4))
     assert supports(tracer) == f"{FUSED_ENV}=0"
     assert tracer.fused is None
+
+
+def test_the_shipped_kernel_has_no_timing_code(fast_settings, monkeypatch):
+    """The measurement mode (core.fused_path.TIMED, lab/fused_timing.py) is compiled out of the shipped kernel: the
+    counters past the 4th, where it would add cycles, stay zero while the ray counts before them grow."""
+    from monte.core import fused_path, fused_tracer
+
+    assert fused_path.TIMED is False
+    seen = []
+    shipped = fused_tracer.trace_paths
+
+    def spy(*args):
+        shipped(*args)
+        seen.append(args[list(fused_path.trace_paths.py_func.__code__.co_varnames).index("counters")].copy())
+
+    monkeypatch.setattr(fused_tracer, "trace_paths", spy)
+    _render(_scene("cornell"), fast_settings(spp=2, threads=1), monkeypatch, fused=True)
+    assert seen and all(len(c) == fused_path.COUNTERS for c in seen)
+    total = np.sum(seen, axis=0)
+    assert total[2] > 0 and total[3] > 0  # closest-hit and shadow rays were traced and counted
+    assert not np.any(total[fused_path.TIMING_FIRST:])
+
+
+def test_the_fused_kernel_applies_the_shadow_terminator_offset_as_the_per_bounce_integrator(fast_settings,
+                                                                                           monkeypatch):
+    """Blender's objects carry a shadow terminator offset (Geometry Offset, 0.1 by default), so every exported
+    scene with smooth-shaded meshes has one: the fused kernel lifts shadow-ray origins as
+    core.path_kernels.shadow_rays does, and the image equals the per-bounce integrator's."""
+    scene = _scene("spheres_under_sky", 24)
+    smooth = [m for m in scene.meshes if m.normals is not None]
+    assert smooth  # the spheres are smooth-shaded (and not only delta-scattering): the offset applies to them
+    settings = fast_settings(spp=8, threads=1)
+    plain = _render(scene, settings, monkeypatch, fused=True)
+    for m in smooth:
+        m.shadow_terminator_offset = 0.5
+    monkeypatch.setenv(FUSED_ENV, "1")
+    assert supports(_tracer(scene, settings)) is None
+    old = _render(scene, settings, monkeypatch, fused=False)
+    new = _render(scene, settings, monkeypatch, fused=True)
+    assert new.stats["fused_kernel"] and not old.stats["fused_kernel"]
+    np.testing.assert_allclose(new.color[..., :3], old.color[..., :3], rtol=1e-4, atol=1e-6)
+    assert not np.array_equal(new.color, plain.color)  # the offset changed the image: the lift ran
