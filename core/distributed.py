@@ -439,6 +439,7 @@ class _FrameJob:
             self.on_tile(shown)
 
     def cancel(self) -> None:
+        running = bool(self.pending)  # units out and not back (a finished job has none to forget)
         self.to_submit = []
         self.client.cancel(self.futures, force=True)
         # and the futures released now, not when this job is collected (a raised exception's traceback holds it
@@ -446,19 +447,22 @@ class _FrameJob:
         for future in self.futures:
             future.release()
         self.release()
-        self._forget_units()
+        if running and self.client.status == "running":  # (a lost scheduler forgot them: no call to wait on)
+            self._forget_units()
 
     def _forget_units(self, seconds: float = 5.0) -> None:
         """Cancel again, on the scheduler itself, any of this frame's units it still holds: a cancel sent while the
         units were being registered was seen to leave them running and wanted by this client (about one cancelled
-        render in ten on the loaded 2-core machine). Polls until none is left twice in a row, or `seconds`. Best
+        render in ten on the loaded 2-core machine). Polls until none is wanted twice in a row, or `seconds`. Best
         effort: a scheduler that cannot be reached keeps nothing of this frame's anyway."""
         prefix = f"monte-unit-{self.frame_key}-"
 
         def cancel_left(dask_scheduler, prefix: str, client: str) -> int:
             import inspect
 
-            keys = [k for k in dask_scheduler.tasks if isinstance(k, str) and k.startswith(prefix)]
+            # only units some client still wants (stimulus_cancel asserts that); an unwanted one is being forgotten
+            keys = [k for k, ts in dask_scheduler.tasks.items() if isinstance(k, str) and k.startswith(prefix)
+                    and ts.who_wants]
             if keys:  # (reason and msg: distributed 2024.4 and later)
                 extra = ({"reason": "Monte render cancelled", "msg": ""}
                          if "reason" in inspect.signature(dask_scheduler.stimulus_cancel).parameters else {})

@@ -840,7 +840,8 @@ class _TileRender:
 
     def _trace_batch(self, segments: list[Segment]):
         """Camera rays and paths of one batch, which may span several tiles (runs on a worker thread; touches no
-        shared mutable state but the tracer list, which is locked)."""
+        shared mutable state but the tracer list, which is locked; _finish_in_worker then writes the batch's whole
+        tiles, which no other thread touches)."""
         tracer = getattr(self.local_state, "tracer", None)
         if tracer is None:
             tracer = self.local_state.tracer = PathTracer(self.prepared, self.accel, self.settings, self.sampler)
