@@ -246,6 +246,17 @@ def bump_shadowing_terms(rows, smooth, w, local, tangent, bitangent, ns, n_view,
 
 
 @_jit
+def diffuse_lobe_weights(rows, kind, weight, diffuse, out):
+    """out[r] (zeros on entry) = weight[r] of the lobes of kind `diffuse`, for each row r in rows: the
+    diffuse-only lobe weights the bump shadowing evaluates (integrator.PathTracer._diffuse_only)."""
+    for j in range(rows.shape[0]):
+        r = rows[j]
+        for s in range(kind.shape[1]):
+            if kind[r, s] == diffuse:
+                out[r, s, 0], out[r, s, 1], out[r, s, 2] = weight[r, s, 0], weight[r, s, 1], weight[r, s, 2]
+
+
+@_jit
 def to_local(w, tangent, bitangent, normal, out):
     """World directions w (N, 3) in each row's frame: out = (w . t, w . b, w . n)."""
     for k in range(w.shape[0]):
@@ -253,6 +264,23 @@ def to_local(w, tangent, bitangent, normal, out):
         out[k, 0] = wx * tangent[k, 0] + wy * tangent[k, 1] + wz * tangent[k, 2]
         out[k, 1] = wx * bitangent[k, 0] + wy * bitangent[k, 1] + wz * bitangent[k, 2]
         out[k, 2] = wx * normal[k, 0] + wy * normal[k, 1] + wz * normal[k, 2]
+
+
+@_jit
+def shading_inputs(p, shift, ng, ns_raw, cos_o_geo, d, p_world, ng_out, n_out, i_out):
+    """What node programs read of a batch of surface points (integrator.shade_points), in one pass: the world
+    position p + shift (float32), Cycles' sd->Ng and sd->N (the face and the interpolated normal, negated where
+    cos_o_geo < 0: a back face) and I = -d. The same bits as the NumPy expressions it replaces."""
+    sx, sy, sz = shift[0], shift[1], shift[2]
+    for k in range(p.shape[0]):
+        p_world[k, 0], p_world[k, 1], p_world[k, 2] = p[k, 0] + sx, p[k, 1] + sy, p[k, 2] + sz
+        if cos_o_geo[k] < 0:
+            ng_out[k, 0], ng_out[k, 1], ng_out[k, 2] = -ng[k, 0], -ng[k, 1], -ng[k, 2]
+            n_out[k, 0], n_out[k, 1], n_out[k, 2] = -ns_raw[k, 0], -ns_raw[k, 1], -ns_raw[k, 2]
+        else:
+            ng_out[k, 0], ng_out[k, 1], ng_out[k, 2] = ng[k, 0], ng[k, 1], ng[k, 2]
+            n_out[k, 0], n_out[k, 1], n_out[k, 2] = ns_raw[k, 0], ns_raw[k, 1], ns_raw[k, 2]
+        i_out[k, 0], i_out[k, 1], i_out[k, 2] = -d[k, 0], -d[k, 1], -d[k, 2]
 
 
 # ------------------------------------------------------------------------------------------- scene set-up

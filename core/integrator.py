@@ -1480,8 +1480,8 @@ class PathTracer:
         """The lobes with every weight but the diffuse lobes' of `rows` zero, for eval_bsdf(rows=...): the other
         arrays are shared, not copied (only the rows read are filled; the zeros are calloc'd pages)."""
         weight = np.zeros(lobes.weight.shape, lobes.weight.dtype)  # (zeros_like writes every page)
-        weight[rows] = np.where((lobes.kind[rows] == bsdf_mod.KIND_CODE["diffuse"])[..., None], lobes.weight[rows],
-                                np.float32(0))
+        geometry_kernels.diffuse_lobe_weights(np.asarray(rows, np.int64), lobes.kind, lobes.weight,
+                                              bsdf_mod.KIND_CODE["diffuse"], weight)
         return replace(lobes, weight=weight)
 
     def _bump_shadowing_eval(self, f_cos, lobes, can, gc, wi_local, wi, bumped, n_paths) -> np.ndarray:
@@ -1867,11 +1867,12 @@ def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np
     if len(rows) == 0:
         return None
     back = g.cos_o_geo < 0
-    p_world = (g.p + ps.shift.astype(np.float32)).astype(np.float32)
-    # Cycles' sd->N and sd->Ng: the interpolated and the face normal, both negated on a back face (no
-    # specular-validity tilt: that belongs to the closures, not to what nodes read)
-    ng = np.where(back[:, None], -g.ng, g.ng)
-    n = np.where(back[:, None], -g.ns_raw, g.ns_raw)
+    # the world position; Cycles' sd->N and sd->Ng: the interpolated and the face normal, both negated on a back
+    # face (no specular-validity tilt: that belongs to the closures, not to what nodes read); I = -dirs
+    m = len(mat)
+    p_world, ng, n, view = (np.empty((m, 3), np.float32) for _ in range(4))
+    geometry_kernels.shading_inputs(g.p, ps.shift.astype(np.float32), g.ng, g.ns_raw, g.cos_o_geo,
+                                    np.asarray(dirs, np.float32), p_world, ng, n, view)
     obj = ps.object_of_triangle[prim]
     if ps.motion_slot is not None and bary is not None:
         sh, obj = _objects_at_hit_time(ps, sh, obj, prim, bary, g.p)
@@ -1919,7 +1920,7 @@ def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np
                     + corners[:, :, 2] * b2[:, None, None])
             extra[:, PATH_COLUMNS:] = vals.reshape(len(mat), -1)
     normal_out = np.zeros((len(mat), 3), np.float32) if sh.any_sets_normal else None
-    has_normal = sh.evaluate(rows, mat, p_world, n, ng, -np.asarray(dirs, np.float32), g.uv, back, obj, lobes,
+    has_normal = sh.evaluate(rows, mat, p_world, n, ng, view, g.uv, back, obj, lobes,
                              ps.materials.select_scale, emission, uvx, extra, dP=vec.dP, duv=vec.duv,
                              tangents=vec.tangents, mesh_normal=vec.mesh_normal, normal_out=normal_out,
                              aov_out=aov_out)

@@ -861,13 +861,15 @@ class _TileRender:
             ray_time = shutter_times(ray_time, camera.shutter_curve)
         if ray_time is not None and camera.rolling_shutter is not None:
             ray_time = rolling_shutter_times(ray_time, py, camera.resolution[1], camera.rolling_shutter)
-        if (camera.motion_matrices is not None or camera.motion_lens is not None) and ray_time is not None:
+        moving = (camera.motion_matrices is not None or camera.motion_lens is not None) and ray_time is not None
+        if moving:
             rays = moving_camera_rays(camera, raster_x, raster_y, lens_u, ray_time)
         else:
             rays = camera_rays(camera, raster_x, raster_y, lens_u)
         differentials = (None, None)
         if self.prepared.shading is not None and self.prepared.shading.needs_differentials:  # Bump nodes
-            differentials = camera_differentials(camera, raster_x, raster_y, rays, lens_u)
+            # (compiled only from camera_rays' own rays: the NumPy form serves the moving camera's)
+            differentials = camera_differentials(camera, raster_x, raster_y, rays, lens_u, compiled=not moving)
         if self.camera_offset is not None:  # prepared for another camera position (render(prepared=...))
             rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0

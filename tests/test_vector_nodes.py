@@ -117,6 +117,23 @@ def test_camera_differentials_are_the_pixel_footprint():
     assert np.allclose(dp, rays.t_start * dd, rtol=1e-3)
 
 
+@pytest.mark.parametrize("kind", ["PERSP", "ORTHO"])
+def test_compiled_camera_differentials_are_the_numpy_ones_bit_for_bit(kind):
+    # a rotated, scaled, shifted camera and jittered raster positions: the compiled pass (the render's) must
+    # give the bits of the NumPy form (two more ray batches), which the images were made with
+    rng = np.random.default_rng(3)
+    c, s = math.cos(0.7), math.sin(0.7)
+    m = np.array([[c, 0, s, 1.5], [0, 1, 0, -2.0], [-s, 0, c, 4.0], [0, 0, 0, 1]]) @ np.diag([1.3, 0.8, 2.0, 1.0])
+    cam = Camera(matrix_world=m, kind=kind, ortho_scale=3.0, resolution=(97, 61))
+    x, y = rng.uniform(0, 97, 5000), rng.uniform(0, 61, 5000)
+    rays = camera_rays(cam, x, y)
+    dp, dd = camera_differentials(cam, x, y, rays)
+    dp_np, dd_np = camera_differentials(cam, x, y, rays, compiled=False)
+    assert dp.dtype == np.float32 and dd.dtype == np.float32
+    assert np.array_equal(dp, dp_np) and np.array_equal(dd, dd_np)
+    assert np.all(dp > 0) and (np.all(dd > 0) if kind == "PERSP" else np.all(dd == 0))
+
+
 def _bump_term_reference(n, s, w):
     """Cycles' bump shadowing (closure/bsdf.h) in float64 NumPy: (g1, rejected, |the sign test's product|)."""
     cos_si, cos_sn, cos_ni = (np.einsum("ij,ij->i", a, b) for a, b in ((s, w), (s, n), (n, w)))
@@ -180,3 +197,33 @@ def test_bump_shadowing_terms_are_cycles_terms_for_both_normals_in_world_and_loc
     same = ((rows % 20) == 0) & ~grazing[rows]  # untilted and the node's normal the smooth one: no softening
     assert np.all(g1[same] > 1.0 - 1e-5)
     assert np.all(g1[grazing[rows]] < 1e-3)
+
+
+def test_shading_inputs_and_diffuse_weights_are_the_numpy_expressions():
+    """The compiled passes shade_points and the bump shadowing use give what their NumPy forms gave: the world
+    position, the normals negated on back faces, I = -d; the diffuse lobes' weights of the given rows only."""
+    from monte.core import geometry_kernels as gk
+    from monte.core.integrator import SurfaceBatch
+
+    rng = np.random.default_rng(11)
+    m = 300
+    g = SurfaceBatch.empty(m, True)
+    g.data[:] = rng.normal(size=g.data.shape).astype(np.float32)
+    d = rng.normal(size=(m, 3)).astype(np.float32)
+    shift = np.array([1e3 / 3, -7.1, 0.25], np.float32)
+    out = [np.empty((m, 3), np.float32) for _ in range(4)]
+    gk.shading_inputs(g.p, shift, g.ng, g.ns_raw, g.cos_o_geo, d, *out)
+    back = g.cos_o_geo < 0
+    assert back.any() and (~back).any()
+    for got, want in zip(out, ((g.p + shift).astype(np.float32), np.where(back[:, None], -g.ng, g.ng),
+                               np.where(back[:, None], -g.ns_raw, g.ns_raw), -d)):
+        assert np.array_equal(got, want)
+
+    kind = rng.integers(0, 4, size=(m, 4)).astype(np.int8)
+    weight = rng.random((m, 4, 3)).astype(np.float32)
+    rows = rng.permutation(m)[:120]
+    got = np.zeros_like(weight)
+    gk.diffuse_lobe_weights(rows.astype(np.int64), kind, weight, 0, got)
+    want = np.zeros_like(weight)
+    want[rows] = np.where((kind[rows] == 0)[..., None], weight[rows], np.float32(0))
+    assert np.array_equal(got, want) and got[rows].any() and not np.delete(got, rows, axis=0).any()

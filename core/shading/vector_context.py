@@ -179,13 +179,19 @@ def _tangents(ps, prim, bary):
 
 
 def camera_differentials(camera, raster_x: np.ndarray, raster_y: np.ndarray, rays,
-                         lens_u: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                         lens_u: np.ndarray | None = None, compiled: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Cycles' compact differentials of camera rays (dP, dD), (N,) float32 each: the mean length of the change of
     the ray's origin (dP) and of its unit direction (dD) when the raster position moves by one pixel in x and in
     y (differential_make_compact). Orthographic: dP = the pixel's size, dD = 0; perspective: the origin sits on
-    the near clipping plane, so dP = its distance x dD, as Cycles' camera rays."""
-    from ..camera import camera_rays
+    the near clipping plane, so dP = its distance x dD, as Cycles' camera rays. `rays` are camera_rays' rays
+    at (raster_x, raster_y); compiled: a pinhole camera's in one compiled pass (camera.pinhole_differentials,
+    the same bits as the NumPy below); False (or another camera): in NumPy, from two more ray batches."""
+    from ..camera import camera_rays, pinhole_differentials
 
+    if compiled:
+        out = pinhole_differentials(camera, raster_x, raster_y, rays)
+        if out is not None:
+            return out
     x = np.asarray(raster_x, np.float64)
     y = np.asarray(raster_y, np.float64)
     rx = camera_rays(camera, x + 1.0, y, lens_u)
