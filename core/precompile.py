@@ -418,15 +418,27 @@ def _fold_constants_once() -> None:
 
 def _bump_shadowing_once() -> None:
     """Points whose node program sets the normal (Normal Map, Bump) take Cycles' bump shadowing
-    (geometry_kernels.bump_shadowing_terms, through the integrator's helper, on a surface batch's column views):
-    compile it here, so that the first such render compiles nothing."""
-    from .integrator import SurfaceBatch, _bump_terms
+    (geometry_kernels.bump_shadowing_terms, through the integrator's helper, on a surface batch's column views,
+    and the diffuse-only lobe weights, geometry_kernels.diffuse_lobe_weights), and a Bump node's scene the
+    compiled camera-ray differentials (camera.pinhole_differentials): compile them here, so that the first such
+    render compiles nothing."""
+    from . import bsdf
+    from .camera import camera_rays, pinhole_differentials
+    from .integrator import PathTracer, SurfaceBatch, _bump_terms
+    from .scene import Camera
 
     g = SurfaceBatch.empty(1, False)
     g.data[:] = 0.0
     none = np.zeros((0, 3), np.float32)
     for local in (False, True):
         _bump_terms(g, np.zeros(0, np.int64), none, none, local)
+    lobes = bsdf.LobeBatch(kind=np.zeros((1, 1), np.int8), weight=np.zeros((1, 1, 3), np.float32),
+                           roughness=np.zeros((1, 1), np.float32), ior=np.ones((1, 1), np.float32),
+                           fresnel=np.zeros((1, 1), np.int8), select=np.ones((1, 1), np.float32))
+    PathTracer._diffuse_only(lobes, np.zeros(1, np.int64))
+    camera = Camera(matrix_world=np.eye(4), kind="PERSP", resolution=(2, 2))
+    x = y = np.array([0.5])
+    pinhole_differentials(camera, x, y, camera_rays(camera, x, y))
 
 
 def _panoramic(scene):
