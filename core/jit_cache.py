@@ -31,10 +31,32 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import warnings
 
-import numba
-from numba.core import caching
+
+def _import_numba_without_scipy_version_check() -> bool:
+    """Import numba without its import-time SciPy check: numba's __init__ imports SciPy only to refuse a SciPy
+    older than 1.0 (~0.02 s of CPU of every `monte render` process here: SciPy's package and Cython's shadow
+    module; Blender ships no SciPy). SciPy is hidden for that one import (sys.modules[name] = None makes an import
+    of it fail) and put back at once; numba's own later uses of SciPy (np.linalg and np.dot's BLAS/LAPACK lookups)
+    import it when called and keep working. Nothing is changed when numba or SciPy is already imported. Returns
+    True when numba was imported this way."""
+    if "numba" in sys.modules or "scipy" in sys.modules:
+        return False
+    sys.modules["scipy"] = None  # type: ignore[assignment]
+    try:
+        import numba  # noqa: F401
+    finally:
+        if sys.modules.get("scipy", 0) is None:
+            del sys.modules["scipy"]
+    return True
+
+
+NUMBA_IMPORTED_WITHOUT_SCIPY = _import_numba_without_scipy_version_check()
+
+import numba  # noqa: E402
+from numba.core import caching  # noqa: E402
 
 _CORE_DIR = os.path.dirname(os.path.abspath(__file__))
 KERNEL_CPU_ENV = "MONTE_KERNEL_CPU"  # "generic" (the default) or "host"
