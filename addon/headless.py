@@ -320,8 +320,13 @@ def render_blend_file(
         raise HeadlessError(f"cannot render {blend}: scene {scene.name!r} has no camera")
     _configure_output(scene, bool(clean.get("multilayer", False)))
     say(f"Monte: rendering {blend.name} (scene {scene.name!r}, frame {scene.frame_current}) to {out}")
+    from ..core.precompile import stop_loading_kernels
     from .engine import render_with_operator
 
+    # One render in this process: the background loader (paused while a render runs) would go on after it with
+    # the list's other features' kernels, which nothing here calls, until the exit stops it. Stopped now, after
+    # the signature it is loading; the render loads what it calls, as it does while the loader is paused.
+    stop_loading_kernels(wait=False)
     try:
         captured = render_with_operator(scene, on_progress)
     except RuntimeError as exc:

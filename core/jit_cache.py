@@ -31,10 +31,32 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import warnings
 
-import numba
-from numba.core import caching
+
+def _import_numba_without_scipy_version_check() -> bool:
+    """Import numba without its import-time SciPy check: numba's __init__ imports SciPy only to refuse a SciPy
+    older than 1.0 (~0.02 s of CPU of every `monte render` process here: SciPy's package and Cython's shadow
+    module; Blender ships no SciPy). SciPy is hidden for that one import (sys.modules[name] = None makes an import
+    of it fail) and put back at once; numba's own later uses of SciPy (np.linalg and np.dot's BLAS/LAPACK lookups)
+    import it when called and keep working. Nothing is changed when numba or SciPy is already imported. Returns
+    True when numba was imported this way."""
+    if "numba" in sys.modules or "scipy" in sys.modules:
+        return False
+    sys.modules["scipy"] = None  # type: ignore[assignment]
+    try:
+        import numba  # noqa: F401
+    finally:
+        if sys.modules.get("scipy", 0) is None:
+            del sys.modules["scipy"]
+    return True
+
+
+NUMBA_IMPORTED_WITHOUT_SCIPY = _import_numba_without_scipy_version_check()
+
+import numba  # noqa: E402
+from numba.core import caching  # noqa: E402
 
 _CORE_DIR = os.path.dirname(os.path.abspath(__file__))
 KERNEL_CPU_ENV = "MONTE_KERNEL_CPU"  # "generic" (the default) or "host"
@@ -117,6 +139,30 @@ def _import_numba_array_support_without_blas() -> bool:
 
 
 NUMBA_ARRAY_SUPPORT_WITHOUT_BLAS = _import_numba_array_support_without_blas()
+
+
+def _drop_numba_llvm_lock_events() -> bool:
+    """Stop numba broadcasting an event on every LLVM call. numba registers two callbacks with llvmlite's LLVM
+    lock (numba.core.base) that broadcast a "numba:llvm_lock" start and end event each time any LLVM C function
+    is called; their only listener is the timer a compile or cache load installs to record the `llvm_lock` entry
+    of the kernel's metadata["timers"] (a diagnostic; without the events that entry is absent, nothing else reads
+    it). Loading a cached kernel makes ~200 LLVM calls (parsing its library, listing its symbols): the events were
+    ~9 % of the CPU time of loading the 47 entry kernels (0.32-0.33 s against 0.35-0.36 s, 4 processes each).
+    Process-wide, like numba's own registration; other numba users in the process lose only that timer. Returns
+    True when the callbacks were found and removed."""
+    import numba.core.base  # noqa: F401 - registers the callbacks at its import
+    from llvmlite.binding import ffi
+
+    lock = getattr(getattr(ffi, "lib", None), "_lock", None)
+    callbacks = [cb for cb in getattr(lock, "_cblist", ())
+                 if getattr(cb[0], "__module__", None) == "numba.core.base"
+                 and getattr(cb[0], "__name__", None) == "enter_fn"]
+    for acquire, release in callbacks:
+        ffi.unregister_lock_callback(acquire, release)
+    return bool(callbacks)
+
+
+NUMBA_LLVM_LOCK_EVENTS_DROPPED = _drop_numba_llvm_lock_events()
 PACKAGE = __name__.rpartition(".")[0] or "core"  # "monte.core", "bl_ext.user_default.monte.core", ...
 
 

@@ -277,12 +277,15 @@ def warm_first_render() -> None:
     kernel_tables()
 
 
-def stop_loading_kernels(timeout: float = 60.0) -> None:
+def stop_loading_kernels(timeout: float = 60.0, wait: bool = True) -> None:
     """Stop the background loader after the signature it is loading (what it has not loaded, a render loads on
-    its first call) and wait for it: nothing is left loading while the process or Blender shuts down."""
+    its first call) and wait for it: nothing is left loading while the process or Blender shuts down.
+    wait=False: only ask it to stop (it ends after its current signature; a later call with wait=True joins it)."""
     _stop_loading.set()
     with _renders:
         _renders.notify_all()
+    if not wait:
+        return
     with _loader_lock:
         loader = _loader
     if loader is not None:

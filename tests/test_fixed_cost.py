@@ -238,3 +238,71 @@ def test_the_loader_waits_while_a_render_runs():
     assert result["during"] == [True, 0]
     assert result["after"] == result["entries"] > 0
     assert result["stopped_alive"] is False
+
+
+def test_numba_is_imported_without_its_scipy_check_and_scipy_still_imports():
+    """numba's __init__ imports SciPy only to refuse one older than 1.0; Monte's import of numba hides SciPy for
+    that one import: importing the renderer imports no SciPy, and SciPy imports normally afterwards."""
+    result = _python("""
+        import importlib.util, json, sys
+        from monte.core import jit_cache
+        import monte.core.render  # noqa: F401
+        after_import = "scipy" in sys.modules
+        have = importlib.util.find_spec("scipy") is not None
+        imported = None
+        if have:
+            import scipy
+            imported = scipy.__name__
+        print("RESULT " + json.dumps({"patched": jit_cache.NUMBA_IMPORTED_WITHOUT_SCIPY, "numba": "numba" in
+                                      sys.modules, "after_import": after_import, "have": have,
+                                      "imported": imported}))
+    """)
+    assert result["patched"] is True and result["numba"] is True
+    assert result["after_import"] is False
+    assert result["imported"] == ("scipy" if result["have"] else None)
+
+
+def test_a_headless_render_stops_the_loader_when_its_render_starts(tmp_path):
+    """`monte render X.blend` renders once: the loader is asked to stop as its render starts (it was paused during
+    the render and loaded other features' kernels after it, until the exit stopped it), before the add-on
+    unregisters."""
+    import pytest
+
+    pytest.importorskip("bpy")
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from plane_scene import PLANE_SCENE
+
+    blend, out = tmp_path / "plane.blend", tmp_path / "out.exr"
+    code = textwrap.dedent("""
+        import json, sys
+        import bpy
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        with_camera = True
+        # PLANE_SCENE
+        scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 12, 8, 100
+        bpy.ops.wm.save_as_mainfile(filepath=sys.argv[1])
+        from monte.addon import engine, headless
+        from monte.core import precompile
+        seen = {}
+        original = engine.render_with_operator
+
+        def render_with_operator(*args, **kwargs):
+            seen["stop_set_at_render"] = precompile._stop_loading.is_set()
+            return original(*args, **kwargs)
+
+        engine.render_with_operator = render_with_operator
+        headless.render_blend_file(sys.argv[1], sys.argv[2], {"spp": 1}, log=lambda _m: None)
+        loader = precompile._loader
+        loader.join(timeout=60)
+        seen.update(started=loader is not None, alive_after=loader.is_alive(),
+                    registered=__import__("monte.addon", fromlist=["is_registered"]).is_registered())
+        print("RESULT " + json.dumps(seen))
+    """).replace("# PLANE_SCENE\n", PLANE_SCENE)
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != jit_cache.KERNEL_CPU_ENV}
+    proc = subprocess.run([sys.executable, "-c", code, str(blend), str(out)], capture_output=True, text=True,
+                          timeout=600, env=clean)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, f"exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    result = json.loads(lines[-1][len("RESULT "):])
+    assert result == {"stop_set_at_render": True, "started": True, "alive_after": False, "registered": True}
+    assert out.is_file()

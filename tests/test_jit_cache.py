@@ -184,3 +184,32 @@ def test_loading_the_cached_kernels_ahead_leaves_nothing_for_the_first_render():
     assert result["preloaded"] == result["before"]["loaded"] > 0
     assert result["before"]["compiled"] == result["after"]["compiled"] == 0
     assert result["after"]["loaded"] == result["before"]["loaded"]  # the render found every kernel loaded
+
+
+def test_numba_llvm_lock_events_are_dropped_and_kernels_still_compile_and_load():
+    """jit_cache removes numba's per-LLVM-call event callbacks (a diagnostic timer only): none is left registered
+    with llvmlite's lock, a new function still compiles and runs, and a cached kernel still loads."""
+    code = """
+        import json
+        import numba
+        from llvmlite.binding import ffi
+        from monte.core import jit_cache, precompile
+        import monte.core.render  # noqa: F401
+        left = [cb[0].__module__ for cb in ffi.lib._lock._cblist]
+
+        @numba.njit
+        def twice(x):
+            return 2 * x
+
+        loaded = precompile.load_cached_kernels()
+        d = twice
+        value = twice(21)
+        timers = d.get_metadata(d.signatures[0]).get("timers", {})
+        print("RESULT " + json.dumps({"dropped": jit_cache.NUMBA_LLVM_LOCK_EVENTS_DROPPED, "left": left,
+                                      "value": value, "loaded": loaded, "compiler_timer": "compiler_lock" in timers,
+                                      "llvm_timer": "llvm_lock" in timers}))
+    """
+    result = _python(code)
+    assert result["dropped"] is True and "numba.core.base" not in result["left"]
+    assert result["value"] == 42 and result["loaded"] > 0
+    assert result["compiler_timer"] is True and result["llvm_timer"] is False
