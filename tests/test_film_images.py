@@ -109,9 +109,10 @@ def test_at_one_sample_per_pixel_only_the_films_of_tiles_in_flight_exist(fast_se
 
 @pytest.mark.parametrize("kind", ["sobol", "independent"])
 def test_the_compiled_sums_leave_their_scratch_zero_after_partial_passes(kind):
-    """film_kernels.add_colour clears only the scratch rows its samples wrote (as it reads them): after passes over
-    a few pixels of a tile, then an out-of-order pass that is refused, then other pixels, the thread's scratch is
-    all zero again, and a film given those samples is the bits of one filled from fresh scratch."""
+    """film_kernels.add_colour clears only the scratch rows its samples wrote when they are fewer than the tile's
+    pixels: after passes over a few pixels of a tile, then an out-of-order pass that is refused, then other
+    pixels, the thread's scratch is all zero again, and a film given those samples is the bits of one filled from
+    fresh scratch."""
     from monte.core import film as film_module
 
     rng = np.random.default_rng(3)
