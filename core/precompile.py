@@ -475,6 +475,8 @@ def _cases() -> list[tuple[str, Callable[[], object], dict]]:
         ("cornell, adaptive", lambda: builtin_scene("cornell", small),
          {"spp": 16, "adaptive_threshold": 0.05, "adaptive_min_samples": 4}),
         ("cornell, one thread", lambda: builtin_scene("cornell", small), {"threads": 1}),
+        # one sample per pixel: whole tiles written without a film (core.film_kernels.one_sample_images)
+        ("cornell, one sample", lambda: builtin_scene("cornell", small), {"spp": 1}),
         ("every-feature, light passes", every_feature_scene, {"light_passes": LIGHT_PASSES}),
     ]
     return cases

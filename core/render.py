@@ -364,6 +364,9 @@ class FrameImages:
         # add_aovs(): float64 / int64 sums for one tile's pixels, one set per thread (worker threads write tiles
         # that are final within their batch, core.render._TileRender._finish_in_worker)
         self._aov_scratch = threading.local()
+        # put_one_sample() without AOVs: empty stand-ins for its kernel's AOV arrays
+        self._no_aov1, self._no_aov2 = np.zeros(0, np.float32), np.zeros((0, 3), np.float32)
+        self._no_aov3 = np.zeros((0, 0, 3), np.float32)
         self.extras: dict = {}
         if film is not None and film.catcher is not None:
             self.extras["shadow_catcher"] = np.ones((rh, rw, 3), np.float32)
@@ -452,28 +455,25 @@ class FrameImages:
         add_aovs_to_frame and finish_frame_aovs at one sample: the film's shift is the sample and its deviations 0,
         so the colour is `sample + 0.0`; one filled variance group, so the variance is 0, which the frame's
         zeroed image already holds; alpha 1; the AOV sums `0 + value` divided by 1, the normal made unit, depth
-        1e10 where nothing was hit) in a few NumPy passes instead of four compiled walks over a film. Only for
+        1e10 where nothing was hit) in one compiled pass over the tile
+        (core.film_kernels.one_sample_images) instead of four compiled walks over a film. Only for
         films with nothing but colour (no alpha, shadow catcher, denoising features, light passes, shader AOVs
         or light groups): _TileRender._one_sample decides. `tests/test_render_whole_tiles.py` compares it with
         the film's path bit for bit."""
         tx, ty, tw, th = tile
         sl = self.slice(tile)
-        zero = np.float32(0.0)  # x + 0.0 in float32: x's bits, but -0.0 becomes 0.0 (as the film's sums do)
-        color = self.color[sl]
-        color[..., :3] = (radiance + zero).reshape(th, tw, 3)
-        color[..., 3] = 1.0
-        out = Tile(tx, ty, color, self.variance[sl], samples=1)
+        f32 = lambda a: np.ascontiguousarray(a, np.float32)
         if self.aovs:
-            self.albedo[sl] = (albedo + zero).reshape(th, tw, 3)
-            n = (normal + zero).astype(np.float64)
-            nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
-            length = np.sqrt(nx * nx + ny * ny + nz * nz)
-            unit = n / np.maximum(length, 1e-30)[:, None]
-            unit[~(length > 0)] = 0.0
-            self.normal[sl] = unit.astype(np.float32).reshape(th, tw, 3)
-            self.depth[sl] = np.where(np.isfinite(depth), depth + zero, np.float32(1e10)).reshape(th, tw)
+            aov_in = (f32(albedo), f32(normal), f32(depth).reshape(-1))
+            aov_out = (self.albedo, self.normal, self.depth)
+        else:  # (not read: arrays of the kernel's types, so that it has one signature)
+            aov_in = (self._no_aov2, self._no_aov2, self._no_aov1)
+            aov_out = (self._no_aov3, self._no_aov3, self._no_aov1.reshape(0, 0))
+        film_kernels.one_sample_images(f32(radiance), *aov_in, bool(self.aovs), sl[0].start, sl[1].start, tw,
+                                       self.color, *aov_out, self.counts)
+        out = Tile(tx, ty, self.color[sl], self.variance[sl], samples=1)
+        if self.aovs:
             out.albedo, out.normal, out.depth = self.albedo[sl], self.normal[sl], self.depth[sl]
-        self.counts[sl] = 1
         return out
 
     def images(self) -> tuple:
@@ -806,6 +806,12 @@ class _TileRender:
         matter. Returns {segment index: the tile's images (Tile)} plus the film and assembly seconds (keys
         "film", "assembly"), which the calling thread adds up."""
         done: dict = {"film": 0.0, "assembly": 0.0}
+        # without a film: the settings allow it (_one_sample, decided once per render) and, once per batch, the
+        # tracer returned nothing a film would keep beyond colour and the frame's AOVs
+        aov = first is not None and first.albedo is not None
+        one_sample = (self._one_sample and transparent is None and aov == self.frame.aovs and (first is None or (
+            first.features is None and first.catcher is None and first.light_passes is None
+            and first.shader_aovs is None and first.light_groups is None)))
         start = 0
         for k, seg in enumerate(segments):
             rows = slice(start, start + len(seg.loc))
@@ -813,10 +819,7 @@ class _TileRender:
             if not self._whole_tile(seg):
                 continue
             t0 = time.perf_counter()
-            aov = first is not None and first.albedo is not None
-            if self._one_sample and transparent is None and aov == self.frame.aovs and (first is None or (
-                    first.features is None and first.catcher is None and first.light_passes is None
-                    and first.shader_aovs is None and first.light_groups is None)):
+            if one_sample:
                 # (a whole tile at 1 spp holds its pixels in order: its segment's loc is 0 .. n - 1)
                 done[k] = self.frame.put_one_sample(seg.tile, radiance[rows], first.albedo[rows] if aov else None,
                                                     first.normal[rows] if aov else None,

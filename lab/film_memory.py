@@ -11,6 +11,9 @@
                                                          # and 8K at 1 spp, one process each, in one run
     python -m monte.lab.film_memory --table --package-root DIR   # the same for another checkout's `monte`
                                                          # (DIR holds its `monte` folder, e.g. from git archive)
+    python -m monte.lab.film_memory --table --warm --package-root DIR --repeat 2
+        # the same rows after a warm-up render in each process (no per-process first-render cost), this checkout
+        # and DIR's alternating, with each render's process CPU per sample
 
     python -m monte.lab.film_memory --storage-study      # the 52 B/px colour storage (float32 running mean and three
                                                          # group excess sums) and float16 AOV running means against
@@ -102,6 +105,55 @@ def throughput_table(threads: int, package_root: str | None, sizes=TABLE) -> lis
               f"peak RSS {row['peak_rss_mb']:7,.0f} MB, film {row['film_seconds']:.2f} s, "
               f"assembly {row['assembly_seconds']:.2f} s", flush=True)
         rows.append(row)
+    return rows
+
+
+# The table's renders in one process after a warm-up render (kernels loaded, tracers' tables built: the per-process
+# first-render cost out, as in Blender, which keeps the add-on loaded): samples/s of each render, its process CPU
+# seconds (all threads) and the process's peak RSS after it.
+_WARM_RENDERS = """
+import json, resource, sys, time
+from monte.core import builtin_scenes
+from monte.core.render import render
+from monte.core.settings import RenderSettings
+threads = int(sys.argv[1])
+sizes = [tuple(int(v) for v in a.split(",")) for a in sys.argv[2:]]
+render(builtin_scenes.cornell_box((64, 64)), RenderSettings(spp=1, threads=threads))  # the warm-up
+render(builtin_scenes.cornell_box((64, 64)), RenderSettings(spp=4, threads=threads))
+for w, h, spp in sizes:
+    c0 = time.process_time()
+    r = render(builtin_scenes.cornell_box((w, h)), RenderSettings(spp=spp, threads=threads))
+    cpu = time.process_time() - c0
+    st = r.stats
+    print(json.dumps({"width": w, "height": h, "spp": spp, "samples_per_second": st["samples_per_second"],
+                      "seconds": st["seconds"], "cpu_us_per_sample": cpu / st["samples"] * 1e6,
+                      "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}), flush=True)
+"""
+
+
+def warm_table(threads: int, package_root: str | None, repeat: int, sizes=TABLE) -> list[dict]:
+    """The throughput table measured in warm processes (_WARM_RENDERS: every row but the largest in one process,
+    the largest, whose peak RSS is reported, in one of its own), this checkout's `monte` and, with package_root,
+    that folder's alternating in one run (the order swapped every repeat); rows tagged "version"."""
+    versions = [("this", None)] + ([("other", package_root)] if package_root else [])
+    groups = [sizes[:-1], sizes[-1:]]
+    rows = []
+    for k in range(repeat):
+        for name, root in (versions if k % 2 == 0 else versions[::-1]):
+            env = dict(os.environ)
+            if root:
+                env["PYTHONPATH"] = os.pathsep.join([root, env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+            for group in groups:
+                args = [",".join(str(v) for v in size) for size in group]
+                out = subprocess.run([sys.executable, "-c", _WARM_RENDERS, str(threads), *args], env=env, check=True,
+                                     capture_output=True, text=True).stdout
+                for line in out.strip().splitlines():
+                    row = {"version": name, "repeat": k, **json.loads(line)}
+                    print(f"{name:5} #{k} {row['width']}x{row['height']} {row['spp']:4d} spp: "
+                          f"{row['samples_per_second'] / 1e3:7.0f} k samples/s, {row['seconds']:6.1f} s, CPU "
+                          f"{row['cpu_us_per_sample']:.3f} us/sample, peak RSS {row['peak_rss_mb']:7,.0f} MB",
+                          flush=True)
+                    rows.append(row)
     return rows
 
 
@@ -231,6 +283,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--table", action="store_true", help="the throughput table (see the module docstring)")
     parser.add_argument("--package-root", help="with --table or --render-films: measure the `monte` package in this "
                                                "folder")
+    parser.add_argument("--warm", action="store_true", help="with --table: after a warm-up render in each process "
+                                                             "(see warm_table)")
+    parser.add_argument("--repeat", type=int, default=1, help="with --table --warm: rounds, the order alternating")
     parser.add_argument("--json", help="with --table: write the rows to this file")
     parser.add_argument("--render-films", metavar="WIDTHxHEIGHT",
                         help="the films a render makes and its peak RSS (see the module docstring)")
@@ -246,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
         storage_study()
         return 0
     if args.table:
-        rows = throughput_table(args.threads, args.package_root)
+        rows = (warm_table(args.threads, args.package_root, args.repeat) if args.warm
+                else throughput_table(args.threads, args.package_root))
         if args.json:
             with open(args.json, "w") as f:
                 json.dump(rows, f, indent=1)

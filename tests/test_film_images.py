@@ -105,3 +105,49 @@ def test_at_one_sample_per_pixel_only_the_films_of_tiles_in_flight_exist(fast_se
     # batches in flight (threads + 1) and the one being gathered, 16 tiles each
     assert counts["peak"] <= (threads + 2) * 16
     assert int(result.sample_count.sum()) == 128 * 64
+
+
+@pytest.mark.parametrize("kind", ["sobol", "independent"])
+def test_the_compiled_sums_leave_their_scratch_zero_after_partial_passes(kind):
+    """film_kernels.add_colour clears only the scratch rows its samples wrote when they are fewer than the tile's
+    pixels: after passes over a few pixels of a tile, then an out-of-order pass that is refused, then other
+    pixels, the thread's scratch is all zero again, and a film given those samples is the bits of one filled from
+    fresh scratch."""
+    from monte.core import film as film_module
+
+    rng = np.random.default_rng(3)
+    sampler = sampling.make_sampler(kind, 0, 64, groups=sampling.VARIANCE_GROUPS)
+
+    def fill(film, passes):
+        for pix, start, count in passes:
+            smp = np.tile(np.arange(start, start + count), len(pix))
+            pix = np.repeat(pix, count)
+            film.add(pix, rng.random((len(pix), 3)).astype(np.float32) * 4, smp)
+
+    subsets = [np.array([3, 40, 41, 63]), np.arange(10, 30), np.array([0, 63])]
+    passes = [(subsets[0], 0, 5), (subsets[1], 0, 2), (subsets[0], 5, 3), (subsets[2], 0, 1)]
+    film = TileFilm(8, 8, False, sampler)
+    fill(film, passes[:2])
+    scratch = film_module._SCRATCH.buffers
+    assert not scratch.group_sum.any() and not scratch.group_samples.any() and not scratch.sums3.any()
+    refused = film.groups > 1  # (a film without variance groups cannot tell the samples' order)
+    if refused:
+        with pytest.raises(ValueError):  # samples 0.. again for pixels that have 5: refused, nothing changed
+            fill(film, [(subsets[0], 0, 2)])
+        assert not scratch.group_sum.any() and not scratch.group_samples.any()
+    fill(film, passes[2:])
+    assert not scratch.group_sum.any() and not scratch.group_samples.any() and not scratch.sums3.any()
+
+    rng = np.random.default_rng(3)  # the same samples into a film whose every call finds fresh zeroed scratch
+    fresh = TileFilm(8, 8, False, sampler)
+    for one in passes[:2]:
+        film_module._SCRATCH.buffers = None
+        fill(fresh, [one])
+    if refused:
+        rng.random((len(subsets[0]) * 2, 3))  # (the refused pass's draws)
+    for one in passes[2:]:
+        film_module._SCRATCH.buffers = None
+        fill(fresh, [one])
+    for name in ("shift", "group_dev", "sample_count") + (("dev_sq",) if film.squares else ()):
+        assert getattr(film, name).tobytes() == getattr(fresh, name).tobytes(), name
+    assert film.sample_count.sum() == 4 * 8 + 20 * 2 + 2 * 1
