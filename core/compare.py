@@ -12,7 +12,7 @@ tails are far heavier than a Gaussian's (P(|t3| > 3) = 5.8 %, P(|t3| > 5) = 1.5 
 look like disagreeing ones. For the per-pixel z-scores both renderers' variance estimates are therefore
 pooled over a 3x3 neighbourhood (noise varies slowly across most of an image): about 9 (K - 1) = 27 degrees
 of freedom for Cycles with K = 4, which brings P(|t| > 3) to 0.6 % and P(|t| > 5) to 3e-5. Monte's own
-estimate comes from its 4 variance groups (core.film): 3 degrees of freedom per pixel as well, and
+estimate comes from its 2 variance groups (core.film): 1 degree of freedom per pixel (9 pooled), and
 heavy-tailed where paths are (caustics, light seen through glass): most pixels miss the rare bright paths and
 underestimate their variance while a few overestimate it; pooling averages that too. Where the variance changes sharply (a light's edge) pooling spreads it over
 neighbours, erring by at most a factor ~2 either way on a few pixels. The image means' sigmas use the

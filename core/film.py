@@ -36,7 +36,7 @@ The sum of squared deviations serves only s^2 / n: for independent samples, and 
 groups holding samples. Under the Sobol sampler's rule (group i mod G) 2 samples already fill 2 groups, and
 with fewer there is no variance to estimate, so a film for it keeps no squares.
 
-Memory per pixel (core.memory): K 12 B, group deviation sums 48 B (G = 4), the sample count 4 B = 64 B, and
+Memory per pixel (core.memory): K 12 B, group deviation sums 24 B (G = 2), the sample count 4 B = 40 B, and
 the sum of squared deviations 12 B more where the estimate reads it (stratified, independent samples); a film made
 with aovs keeps 32 B more (float32 albedo, normal and depth sums, int32 depth count), but a render's films are
 made without: it sums the AOVs straight into the frame's AOV images with the same operations

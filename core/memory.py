@@ -10,8 +10,8 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
 - film pixels: the films alive at once, one window of tiles (core.schedule.FILM_WINDOW_PIXELS, or one tile
   where a tile is larger) when the region is larger, every pixel under a time limit (its passes go round the
   whole image); the data passes' films are all alive until the end (every pixel);
-- film (core.film, float32 storage): per pixel a float32 RGB shift (12 B), for each of the 4 variance groups a
-  float32 RGB deviation sum (4 x 12 B), an int32 sample count (4 B) (64 B); for samplers other than Sobol a
+- film (core.film, float32 storage): per pixel a float32 RGB shift (12 B), for each of the 2 variance groups a
+  float32 RGB deviation sum (2 x 12 B), an int32 sample count (4 B) (40 B); for samplers other than Sobol a
   float32 RGB sum of squared deviations (FILM_SQUARES_BYTES, 12 B; the independent sampler's film keeps one group
   and the squares: FILM_INDEPENDENT_BYTES, 40 B); the AOVs' float32 albedo, normal and depth sums are kept in
   the result's own AOV images until each tile is final, their depth hit count in its sample-count image
@@ -52,7 +52,7 @@ from .scene import Scene
 from .schedule import FILM_WINDOW_PIXELS, batch_target
 from .settings import RenderSettings
 
-FILM_BYTES = 64  # 4 variance groups (core.sampling.VARIANCE_GROUPS)
+FILM_BYTES = 40  # 2 variance groups (core.sampling.VARIANCE_GROUPS)
 FILM_SQUARES_BYTES = 12  # the sum of squared deviations: kept for all samplers but Sobol (core.film)
 FILM_INDEPENDENT_BYTES = 40  # independent samples: one group (no variance groups) and the squares
 FILM_AOV_BYTES = 32  # AOV sums in a film render_samples() hands on (a render's films keep none)

@@ -584,12 +584,14 @@ class SobolSampler(Sampler):
 
 
 SAMPLER_KINDS: tuple[str, ...] = ("independent", "stratified", "sobol")
-# Variance groups a render uses (see Sampler.variance_group and core.film): enough degrees of freedom (3) per
-# pixel for adaptive sampling (Cycles' own estimate has 1: two halves of the samples), few enough that each
-# Sobol group stays a good point set. Splitting Sobol into 4 independently scrambled sequences costs some of
-# the single scramble's quality: on a 16x16 Cornell box the mean pixel variance rose 1.29x at 16 spp and
-# 1.23x at 64 spp (2 groups: 1.14x, 1.09x; 8 groups: 2.5x at 16 spp), still 2.6-3x below independent samples.
-VARIANCE_GROUPS = 4
+# Variance groups a render uses (see Sampler.variance_group and core.film): the fewest that still give an unbiased
+# estimate of each pixel's error (the spread of independent group means; 1 degree of freedom per pixel, as Cycles'
+# own estimate from two halves of the samples), so that the image stays as close as it can to one Owen-scrambled
+# Sobol sequence per pixel. Splitting Sobol into G independently scrambled sequences costs the single scramble's
+# quality: on a 16x16 Cornell box the mean pixel variance rose 1.14x (2 groups), 1.29x (4), 2.5x (8) at 16 spp;
+# on the `instances` bench scene (256x256, against one scramble) 1.19x / 1.13x with 2 groups at 16 / 64 spp,
+# 1.43x / 1.30x with the 4 groups used before (docs/performance.md, "The instances scene: the variance groups").
+VARIANCE_GROUPS = 2
 DEFAULT_SAMPLER = "sobol"
 _SAMPLERS: dict[str, type[Sampler]] = {
     "independent": IndependentSampler,

@@ -32,15 +32,16 @@ def test_film_bytes_per_pixel_match_the_memory_estimate(aovs, features, kind):
     estimate = estimate_render_memory(scene, RenderSettings(spp=16, sampler=kind, aovs=aovs,
                                                             denoising_features=features))
     assert _film_bytes(film) == film.nbytes == estimate.film
-    colour = {"sobol": 12 + 4 * 12 + 4, "stratified": 12 + 4 * 12 + 4 + 12, "independent": 12 + 12 + 4 + 12}[kind]
+    colour = {"sobol": 12 + 2 * 12 + 4, "stratified": 12 + 2 * 12 + 4 + 12, "independent": 12 + 12 + 4 + 12}[kind]
     assert film.nbytes == (colour + (FILM_FEATURE_BYTES if features else 0)) * 16 * 8
     assert handed_on.nbytes == film.nbytes + (FILM_AOV_BYTES if aovs else 0) * 16 * 8
-    # shift, 4 group sums, the count: with the AOVs and the variance (float64 sums took 200 B per pixel with the
-    # AOVs, stored group counts and squares 120, the AOV sums in the film 96); Sobol's film keeps no squares
-    assert FILM_BYTES == 64 and FILM_AOV_BYTES == 32
+    # shift, 2 group sums, the count: with the AOVs and the variance (float64 sums took 200 B per pixel with the
+    # AOVs, stored group counts and squares 120, the AOV sums in the film 96, 4 variance groups 64); Sobol's film
+    # keeps no squares
+    assert FILM_BYTES == 40 and FILM_AOV_BYTES == 32
 
 
-def test_a_render_sums_its_aovs_in_the_frame_and_its_films_keep_64_bytes_per_pixel(monkeypatch):
+def test_a_render_sums_its_aovs_in_the_frame_and_its_films_keep_40_bytes_per_pixel(monkeypatch):
     """The films a render makes (counted as they are made) keep the colour only, with AOVs on; the AOV images are
     the bits a film's own AOV sums give: those of render_samples() (films that keep the AOVs) merged."""
     from monte.core import render as render_module
@@ -170,8 +171,9 @@ def test_group_counts_follow_from_the_sample_count_and_samples_out_of_order_are_
     film = TileFilm(2, 1, aovs=False, sampler=sampler)
     film.add(np.repeat([0, 1], [7, 3]), np.ones((10, 3)), np.concatenate([np.arange(7), np.arange(3)]))
     groups = sampler.variance_group(np.arange(7))
-    assert film.group_counts().tolist() == [np.bincount(groups, minlength=4).tolist(),
-                                            np.bincount(groups[:3], minlength=4).tolist()]
+    g = sampling.VARIANCE_GROUPS
+    assert film.group_counts().tolist() == [np.bincount(groups, minlength=g).tolist(),
+                                            np.bincount(groups[:3], minlength=g).tolist()]
     with pytest.raises(ValueError, match="each pixel's samples must arrive in order, sample 0 first"):
         film.add(np.array([1]), np.ones((1, 3)), np.array([4]))  # sample 3 skipped: sample 4 is in another group
     assert film.count.tolist() == [7, 3]

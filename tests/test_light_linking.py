@@ -88,7 +88,9 @@ def test_an_emissive_mesh_lights_only_its_receivers():
     left, right = _halves(linked.color)
     assert _halves(plain)[0].mean() > 1e-4  # the control: unlinked, the quad lights the left floor
     assert left.max() == 0.0
-    lamp = right.max(axis=-1) >= 3.9  # pixels that see the quad itself (camera rays see every emitter)
+    # pixels that see the quad itself (camera rays see every emitter; radiance 4), at least in part: the lit floor
+    # stays at or below 1 (at 8 spp no pixel need be covered by the quad alone)
+    lamp = right.max(axis=-1) > 1.5
     assert lamp.any()
     np.testing.assert_array_equal(right[~lamp], _halves(plain)[1][~lamp])
 

@@ -306,7 +306,12 @@ def test_light_path_camera_trick_lights_a_floor_as_in_cycles(tmp_path):
     mon = cc.render_monte(scene)[0]
     seen = np.all(np.abs(cyc - (0.2, 0.4, 0.6)) < 1e-3, axis=2)  # the emitter (strength 2)
     assert 0.05 < seen.mean() < 0.15
-    assert np.allclose(mon[seen], (0.2, 0.4, 0.6), atol=1e-3)
+    # inside the emitter's silhouette (its edge pixels' filter footprints reach the floor in some samples, as
+    # many as each renderer's pattern puts there): exactly the camera colour
+    inner = seen.copy()
+    inner[1:-1, 1:-1] &= seen[:-2, 1:-1] & seen[2:, 1:-1] & seen[1:-1, :-2] & seen[1:-1, 2:]
+    assert inner.mean() > 0.02
+    assert np.allclose(mon[inner], (0.2, 0.4, 0.6), atol=1e-3)
     c, mm = cyc[~seen].mean(axis=0), mon[~seen].mean(axis=0)
     print(f"\nlight path floor: Cycles {np.round(c, 4)} Monte {np.round(mm, 4)} rel {np.round(mm / c - 1, 4)}")
     assert np.all(c > 0.01)
