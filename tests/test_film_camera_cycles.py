@@ -221,7 +221,10 @@ def test_panoramic_depth_of_field_matches_cycles(tmp_path):
     cam.data.dof.focus_distance = 1.0
     scene.render.resolution_x, scene.render.resolution_y = 48, 32
     scene.render.resolution_percentage = 100
-    spp = 64
+    # 256 spp: the blur changes the room's few edges, not its means, so the control below needs the noise well
+    # under that difference (at 64 spp the sharp image failed to disagree under some sampling patterns: 0.3 %
+    # of pixels beyond 5 sigma, against 2 % here; the blurred one none).
+    spp = 256
     mon, mon_var = monte_rgba(scene, spp, 2)
     cyc, cyc_var = cycles_rgba(scene, tmp_path, spp // 2, 2)
     check("panorama depth of field", mon, mon_var, cyc, cyc_var, spp)

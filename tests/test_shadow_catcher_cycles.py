@@ -11,7 +11,8 @@ its Monte variance is taken as Cycles' per-render one at the same sample count (
 this diffuse scene agrees within a few %). Measured: matte -0.35 % colour, -0.18 % alpha; pass -0.37 %;
 approximate catcher alpha -0.08 % (transparent film), colour -0.19 % (opaque film); at most 0.5 % of pixels
 beyond 5 sigma. About 12 s on 2 cores with compiled kernels cached; the glossy catcher (reflections, colour and
-pass within 0.7 %) is `@pytest.mark.slow` (~7 s).
+pass within 1 %; its colour, a few pixels of glossy reflection, within the noise: ~15 % at 4 sigma) is
+`@pytest.mark.slow` (~7 s).
 """
 
 from __future__ import annotations
@@ -106,10 +107,10 @@ def approximate_alpha_variance(mon: np.ndarray, cyc_var: np.ndarray) -> np.ndarr
     return alpha * (1 - alpha) / SPP + cyc_var[..., 3] * CYCLES_RUNS / 2 + 1e-8
 
 
-def check(name: str, mon, mon_var, cyc, cyc_var, alpha_var=None) -> None:
+def check(name: str, mon, mon_var, cyc, cyc_var, alpha_var=None, colour_cap: float = 0.01) -> None:
     """Colour (and alpha as a grey image when alpha_var is given) agree: means within max(4 sigma, 1 %) capped
-    at 1 %, at most 1 % of pixels beyond 5 sigma."""
-    parts = [("colour", cmp.compare(mon[..., :3], mon_var, cyc[..., :3], cyc_var[..., :3], rel_cap=0.01))]
+    at colour_cap for the colour (1 % for alpha), at most 1 % of pixels beyond 5 sigma."""
+    parts = [("colour", cmp.compare(mon[..., :3], mon_var, cyc[..., :3], cyc_var[..., :3], rel_cap=colour_cap))]
     if alpha_var is not None:
         a_m, a_c = np.repeat(mon[..., 3:4], 3, axis=2), np.repeat(cyc[..., 3:4], 3, axis=2)
         parts.append(("alpha", cmp.compare(a_m, np.repeat(alpha_var[..., None], 3, axis=2), a_c,
@@ -184,8 +185,13 @@ def test_reflections_on_a_glossy_catcher_match_cycles(shadow_catcher_pass, tmp_p
     bpy.data.objects["catcher"].data.materials[0] = _glossy_ground()
     mon, mon_var, mon_shadow = monte(scene, tmp_path)
     (cyc, cyc_var), shadow = cycles(scene, tmp_path)
-    check("glossy catcher", mon, np.maximum(mon_var, cyc_var[..., :3] * CYCLES_RUNS / 2), cyc, cyc_var,
-          alpha_var=approximate_alpha_variance(mon, cyc_var))
+    # The colour here is the cube's glossy reflection in the catcher, a few pixels of sparse paths: at this
+    # sample count the noise resolves its mean only to ~15 % (4 sigma), so a 1 % cap failed on noise alone
+    # (-2.5 % at -0.7 sigma under one sampling pattern, within 1 % under another). The colour's mean is held to
+    # 4 sigma (capped at 20 %), its pixels to the z-scores; alpha and the pass keep the 1 % cap.
+    colour_var = np.maximum(mon_var, cyc_var[..., :3] * CYCLES_RUNS / 2)
+    check("glossy catcher", mon, colour_var, cyc, cyc_var, alpha_var=approximate_alpha_variance(mon, cyc_var),
+          colour_cap=0.2)
     if shadow_catcher_pass:
         cyc_shadow, cyc_shadow_var = shadow
         assert mon_shadow.max() > 1.0  # the cube's reflection is brighter than the grey world's
