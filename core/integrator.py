@@ -1870,6 +1870,8 @@ def shade_points(ps: PreparedScene, g: "SurfaceBatch", mat: np.ndarray, prim: np
     # the world position; Cycles' sd->N and sd->Ng: the interpolated and the face normal, both negated on a back
     # face (no specular-validity tilt: that belongs to the closures, not to what nodes read); I = -dirs
     m = len(mat)
+    if g.p.shape[0] != m:  # the compiled pass writes m rows, one per hit of g
+        raise ValueError(f"shade_points: {g.p.shape[0]} hits against {m} materials")
     p_world, ng, n, view = (np.empty((m, 3), np.float32) for _ in range(4))
     geometry_kernels.shading_inputs(g.p, ps.shift.astype(np.float32), g.ng, g.ns_raw, g.cos_o_geo,
                                     np.asarray(dirs, np.float32), p_world, ng, n, view)

@@ -32,6 +32,7 @@ from __future__ import annotations
 import hashlib
 import os
 import sys
+import threading
 import warnings
 
 
@@ -42,8 +43,8 @@ def _import_numba_without_scipy_version_check() -> bool:
     of it fail) and put back at once; numba's own later uses of SciPy (np.linalg and np.dot's BLAS/LAPACK lookups)
     import it when called and keep working. Nothing is changed when numba or SciPy is already imported. Returns
     True when numba was imported this way."""
-    if "numba" in sys.modules or "scipy" in sys.modules:
-        return False
+    if "numba" in sys.modules or "scipy" in sys.modules or threading.active_count() > 1:
+        return False  # (another thread could import SciPy while it is hidden: import it plainly then)
     sys.modules["scipy"] = None  # type: ignore[assignment]
     try:
         import numba  # noqa: F401
@@ -157,8 +158,12 @@ def _drop_numba_llvm_lock_events() -> bool:
     callbacks = [cb for cb in getattr(lock, "_cblist", ())
                  if getattr(cb[0], "__module__", None) == "numba.core.base"
                  and getattr(cb[0], "__name__", None) == "enter_fn"]
-    for acquire, release in callbacks:
-        ffi.unregister_lock_callback(acquire, release)
+    rlock = getattr(lock, "_lock", None)
+    if rlock is None:
+        return False
+    with rlock:  # no LLVM call in another thread is between its acquire and release callbacks meanwhile
+        for acquire, release in callbacks:
+            ffi.unregister_lock_callback(acquire, release)
     return bool(callbacks)
 
 

@@ -589,8 +589,8 @@ SAMPLER_KINDS: tuple[str, ...] = ("independent", "stratified", "sobol")
 # own estimate from two halves of the samples), so that the image stays as close as it can to one Owen-scrambled
 # Sobol sequence per pixel. Splitting Sobol into G independently scrambled sequences costs the single scramble's
 # quality: on a 16x16 Cornell box the mean pixel variance rose 1.14x (2 groups), 1.29x (4), 2.5x (8) at 16 spp;
-# on the `instances` bench scene (256x256, against one scramble) 1.19x / 1.13x with 2 groups at 16 / 64 spp,
-# 1.43x / 1.30x with the 4 groups used before (docs/performance.md, "The instances scene: the variance groups").
+# on the `instances` bench scene (256x256, against one scramble) 1.18x / 1.14x of Cycles' with 2 groups at
+# 16 / 64 spp, 1.43x / 1.32x with the 4 groups used before (docs/performance.md, "The instances scene: the variance groups").
 VARIANCE_GROUPS = 2
 DEFAULT_SAMPLER = "sobol"
 _SAMPLERS: dict[str, type[Sampler]] = {

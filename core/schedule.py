@@ -16,7 +16,7 @@ from .settings import RenderSettings
 
 MIN_BATCH = 1 << 14  # paths: below this NumPy's per-call overhead dominates a batch
 # Pixels whose films a render keeps alive at once when its tiles need several passes (core.render: the passes go
-# round one window of tiles at a time): 2^21 pixels, ~200 MB of film at 96 B/px, a 1080p frame in one window
+# round one window of tiles at a time): 2^21 pixels, ~150 MB of film at 72 B/px, a 1080p frame in one window
 # (no change there), 1/16 of an 8K frame. Not tied to the thread count: 512 tiles of 64x64 keep 16+ threads fed.
 FILM_WINDOW_PIXELS = 1 << 21
 
