@@ -63,11 +63,12 @@ def _run(command: list[str], env: dict) -> tuple[float, float]:
 
 
 def _process_env(tmp_dir: Path) -> dict:
-    """The renderers' environment: this one without PYTHONPATH, and with Python's bytecode cache on (into a
-    folder of tmp_dir unless PYTHONPYCACHEPREFIX names one), as a user's processes have it: with
-    PYTHONDONTWRITEBYTECODE set, every Monte process compiled its ~80 modules from source again (~0.3 s of CPU)
-    while bpy's own scripts ship compiled."""
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONDONTWRITEBYTECODE")}
+    """The renderers' environment: this one (its PYTHONPATH too, so that `python -m monte` runs the checkout the
+    bench runs from: without it, a checkout on PYTHONPATH benched whatever `monte` the working folder or the
+    installed package gave), with Python's bytecode cache on (into a folder of tmp_dir unless PYTHONPYCACHEPREFIX
+    names one), as a user's processes have it: with PYTHONDONTWRITEBYTECODE set, every Monte process compiled its
+    ~80 modules from source again (~0.3 s of CPU) while bpy's own scripts ship compiled."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
     env.setdefault("PYTHONPYCACHEPREFIX", str(tmp_dir / "pycache"))
     return env
 
