@@ -132,8 +132,8 @@ def test_the_compiled_sums_leave_their_scratch_zero_after_partial_passes(kind):
     assert not scratch.group_sum.any() and not scratch.group_samples.any() and not scratch.sums3.any()
     refused = film.groups > 1  # (a film without variance groups cannot tell the samples' order)
     if refused:
-        with pytest.raises(ValueError):  # samples 0.. again for pixels that have 5: refused, nothing changed
-            fill(film, [(subsets[0], 0, 2)])
+        with pytest.raises(ValueError):  # sample 0 again for pixels that have 5 (whose next sample, 5, lies in
+            fill(film, [(subsets[0], 0, 1)])  # another group under any group count): refused, nothing changed
         assert not scratch.group_sum.any() and not scratch.group_samples.any()
     fill(film, passes[2:])
     assert not scratch.group_sum.any() and not scratch.group_samples.any() and not scratch.sums3.any()
@@ -144,7 +144,7 @@ def test_the_compiled_sums_leave_their_scratch_zero_after_partial_passes(kind):
         film_module._SCRATCH.buffers = None
         fill(fresh, [one])
     if refused:
-        rng.random((len(subsets[0]) * 2, 3))  # (the refused pass's draws)
+        rng.random((len(subsets[0]) * 1, 3))  # (the refused pass's draws)
     for one in passes[2:]:
         film_module._SCRATCH.buffers = None
         fill(fresh, [one])
