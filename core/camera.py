@@ -297,6 +297,18 @@ def panorama_params(camera: Camera) -> np.ndarray:
     return params
 
 
+def _axes_and_raster(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The camera's right, up and back axes in world space, normalised (Blender camera matrices may carry scale,
+    which doesn't change the image; Cycles normalises them too), and the raster coordinates as flat float64."""
+    basis = np.asarray(camera.matrix_world, np.float64)[:3, :3]
+    right = basis[:, 0] / np.linalg.norm(basis[:, 0])
+    up = basis[:, 1] / np.linalg.norm(basis[:, 1])
+    back = basis[:, 2] / np.linalg.norm(basis[:, 2])
+    rx = np.ascontiguousarray(raster_x, np.float64).reshape(-1)
+    ry = np.ascontiguousarray(raster_y, np.float64).reshape(-1)
+    return right, up, back, rx, ry
+
+
 def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray,
                 lens_u: np.ndarray | None = None) -> CameraRays:
     """Rays through raster positions (pixels; x from the left edge, y from the TOP edge, pixel (i, j)'s centre
@@ -306,15 +318,7 @@ def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray,
     (`Camera.aperture_radius() > 0`) needs lens_u: (N, 2) uniform numbers in [0, 1), one lens point per ray;
     a pinhole camera ignores it."""
     w, h = camera.resolution
-    m = np.asarray(camera.matrix_world, np.float64)
-    basis = m[:3, :3]
-    # Camera axes in world space, normalised: Blender camera matrices may carry scale, which doesn't change
-    # the image (Cycles normalises them too).
-    right = basis[:, 0] / np.linalg.norm(basis[:, 0])
-    up = basis[:, 1] / np.linalg.norm(basis[:, 1])
-    back = basis[:, 2] / np.linalg.norm(basis[:, 2])
-    rx = np.ascontiguousarray(raster_x, np.float64).reshape(-1)
-    ry = np.ascontiguousarray(raster_y, np.float64).reshape(-1)
+    right, up, back, rx, ry = _axes_and_raster(camera, raster_x, raster_y)
     n = rx.shape[0]
     aperture = float(camera.aperture_radius())
     if aperture > 0:
@@ -354,12 +358,7 @@ def pinhole_differentials(camera: Camera, raster_x: np.ndarray, raster_y: np.nda
     if camera.kind == "PANO" or float(camera.aperture_radius()) > 0:
         return None
     w, h = camera.resolution
-    basis = np.asarray(camera.matrix_world, np.float64)[:3, :3]
-    right = basis[:, 0] / np.linalg.norm(basis[:, 0])
-    up = basis[:, 1] / np.linalg.norm(basis[:, 1])
-    back = basis[:, 2] / np.linalg.norm(basis[:, 2])
-    rx = np.ascontiguousarray(raster_x, np.float64).reshape(-1)
-    ry = np.ascontiguousarray(raster_y, np.float64).reshape(-1)
+    right, up, back, rx, ry = _axes_and_raster(camera, raster_x, raster_y)
     n = rx.shape[0]
     dp, dd = np.empty(n, np.float32), np.empty(n, np.float32)
     _pinhole_differentials(rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,

@@ -198,6 +198,22 @@ def colour_images(shift, group_dev, sample_count, prefix, squares, dev_sq, alpha
 
 
 @_inline
+def _unit_normal_pixel(nx, ny, nz, y, x, normal_out):
+    """The float64 normal (nx, ny, nz) made unit and stored as float32 at row y, column x of normal_out (0 where
+    its length is not > 0): the normal AOV's last step, for a film's sums and for a one-sample tile alike."""
+    length = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if length > 0:
+        scale = max(length, 1e-30)
+        normal_out[y, x, 0] = np.float32(nx / scale)
+        normal_out[y, x, 1] = np.float32(ny / scale)
+        normal_out[y, x, 2] = np.float32(nz / scale)
+    else:
+        normal_out[y, x, 0] = np.float32(0.0)
+        normal_out[y, x, 1] = np.float32(0.0)
+        normal_out[y, x, 2] = np.float32(0.0)
+
+
+@_inline
 def _fold_aov_pixel(samples, albedo0, albedo1, albedo2, normal0, normal1, normal2, depth_sum, hits, y, x, albedo_out,
                     normal_out, depth_out):
     """One pixel's AOV sums (float64: albedo, normal, depth; `hits` finite depths, `samples` its sample count)
@@ -209,19 +225,10 @@ def _fold_aov_pixel(samples, albedo0, albedo1, albedo2, normal0, normal1, normal
     nx = normal0 / n
     ny = normal1 / n
     nz = normal2 / n
-    length = np.sqrt(nx * nx + ny * ny + nz * nz)
     albedo_out[y, x, 0] = np.float32(albedo0 / n)
     albedo_out[y, x, 1] = np.float32(albedo1 / n)
     albedo_out[y, x, 2] = np.float32(albedo2 / n)
-    if length > 0:
-        scale = max(length, 1e-30)
-        normal_out[y, x, 0] = np.float32(nx / scale)
-        normal_out[y, x, 1] = np.float32(ny / scale)
-        normal_out[y, x, 2] = np.float32(nz / scale)
-    else:
-        normal_out[y, x, 0] = np.float32(0.0)
-        normal_out[y, x, 1] = np.float32(0.0)
-        normal_out[y, x, 2] = np.float32(0.0)
+    _unit_normal_pixel(nx, ny, nz, y, x, normal_out)
     if hits > 0:
         depth_out[y, x] = np.float32(depth_sum / np.float64(max(hits, 1)))
     else:
@@ -308,19 +315,8 @@ def one_sample_images(radiance, albedo_in, normal_in, depth_in, aovs, y0, x0, wi
         if aovs:
             for c in range(3):
                 albedo[y, x, c] = albedo_in[p, c] + zero
-            nx = np.float64(normal_in[p, 0] + zero)
-            ny = np.float64(normal_in[p, 1] + zero)
-            nz = np.float64(normal_in[p, 2] + zero)
-            length = np.sqrt(nx * nx + ny * ny + nz * nz)
-            if length > 0:
-                scale = max(length, 1e-30)
-                normal[y, x, 0] = np.float32(nx / scale)
-                normal[y, x, 1] = np.float32(ny / scale)
-                normal[y, x, 2] = np.float32(nz / scale)
-            else:
-                normal[y, x, 0] = np.float32(0.0)
-                normal[y, x, 1] = np.float32(0.0)
-                normal[y, x, 2] = np.float32(0.0)
+            _unit_normal_pixel(np.float64(normal_in[p, 0] + zero), np.float64(normal_in[p, 1] + zero),
+                               np.float64(normal_in[p, 2] + zero), y, x, normal)
             d = depth_in[p]
             if np.isfinite(d):
                 depth[y, x] = d + zero
