@@ -27,7 +27,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from ..jit_cache import jit, jit_no_nrt
+from ..jit_cache import jit_no_nrt as jit  # no function here allocates (the batch wrappers allocate in Python)
 from . import registry as R
 from .regs import set3, setf
 
@@ -36,6 +36,7 @@ _M32 = 0xFFFFFFFF
 _FLT_MAX = np.float32(3.4028234663852886e38)
 _TWO_PI = np.float32(2.0 * math.pi)
 _HALF_PI = np.float32(0.5 * math.pi)
+_I32 = ir.IntType(32)
 
 # ------------------------------------------------------------------------------------------------ enums
 NOISE_FBM, NOISE_MULTIFRACTAL, NOISE_HYBRID_MULTIFRACTAL, NOISE_RIDGED_MULTIFRACTAL, NOISE_HETERO_TERRAIN = range(5)
@@ -255,70 +256,173 @@ def _mix(a, b, t):
     return a + t * (b - a)
 
 
-@jit
-def _negate_if(v, cond):
-    return -v if cond != 0 else v
+def _lanes_i32(builder, n, values):
+    """An <n x i32> constant."""
+    return ir.Constant(ir.VectorType(_I32, n), [ir.Constant(_I32, int(v) & _M32) for v in values])
 
 
-@jit
-def _grad1(h, x):
-    h = h & 15
-    g = np.float32(1 + (h & 7))
-    return _negate_if(g, h & 8) * x
+def _splat(builder, vec_type, scalar):
+    """scalar (an LLVM value of vec_type's element type) in every lane of vec_type."""
+    undef = ir.Constant(vec_type, ir.Undefined)
+    one = builder.insert_element(undef, scalar, ir.Constant(_I32, 0))
+    return builder.shuffle_vector(one, undef, _lanes_i32(builder, vec_type.count, [0] * vec_type.count))
 
 
-@jit
-def _grad2(h, x, y):
-    h = h & 7
-    u = x if h < 4 else y
-    v = np.float32(2.0) * (y if h < 4 else x)
-    return _negate_if(u, h & 1) + _negate_if(v, h & 2)
+def _lookup3_lanes(builder, n, keys):
+    """lookup3 (hash_uint .. hash_uint4 above, same operations) of n keys at once: keys are 1-4 <n x i32>."""
+
+    def const(v):
+        return _lanes_i32(builder, n, [v] * n)
+
+    def rot(x, k):
+        return builder.or_(builder.shl(x, const(k)), builder.lshr(x, const(32 - k)))
+
+    init = const(0xDEADBEEF + (len(keys) << 2) + 13)
+    a = builder.add(init, keys[0])
+    b = builder.add(init, keys[1]) if len(keys) > 1 else init
+    c = builder.add(init, keys[2]) if len(keys) > 2 else init
+    if len(keys) == 4:  # lookup3's mix before the last key
+        a = builder.xor(builder.sub(a, c), rot(c, 4))
+        c = builder.add(c, b)
+        b = builder.xor(builder.sub(b, a), rot(a, 6))
+        a = builder.add(a, c)
+        c = builder.xor(builder.sub(c, b), rot(b, 8))
+        b = builder.add(b, a)
+        a = builder.xor(builder.sub(a, c), rot(c, 16))
+        c = builder.add(c, b)
+        b = builder.xor(builder.sub(b, a), rot(a, 19))
+        a = builder.add(a, c)
+        c = builder.xor(builder.sub(c, b), rot(b, 4))
+        b = builder.add(b, a)
+        a = builder.add(a, keys[3])
+    c = builder.sub(builder.xor(c, b), rot(b, 14))
+    a = builder.sub(builder.xor(a, c), rot(c, 11))
+    b = builder.sub(builder.xor(b, a), rot(a, 25))
+    c = builder.sub(builder.xor(c, b), rot(b, 16))
+    a = builder.sub(builder.xor(a, c), rot(c, 4))
+    b = builder.sub(builder.xor(b, a), rot(a, 14))
+    return builder.sub(builder.xor(c, b), rot(b, 24))
 
 
-@jit
-def _grad3(h, x, y, z):
-    h = h & 15
-    u = x if h < 8 else y
-    vt = x if (h == 12 or h == 14) else z
-    v = y if h < 4 else vt
-    return _negate_if(u, h & 1) + _negate_if(v, h & 2)
+def _perlin_lattice_codegen(dim):
+    """LLVM IR of Perlin noise's lattice part in dim dimensions, all 2^dim corners of the cell in one pass of
+    vector instructions (SSE2 on the generic x86-64 the kernels are compiled for), as Cycles hashes its corners in
+    SIMD. Arguments: the cell's integer corner (dim int64), the fractional position in it (dim float32) and the
+    fade weights (dim float32). Corner i has offset (i >> d) & 1 on axis d. Same operations per corner as
+    Cycles' scalar definitions, so the same bits:
+      hash: lookup3 of the corner's coordinates (uint32);
+      gradient: 1D: (1 + (h & 7)), negated if h & 8, times x;
+                2D: u = h < 4 ? x : y, v = 2 (h < 4 ? y : x);  u negated if h & 1, v if h & 2;  u + v;
+                3D: u = h < 8 ? x : y, v = h < 4 ? y : (h == 12 or 14 ? x : z);  u +- v as 2D;
+                4D: u = h < 24 ? x : y, v = h < 16 ? y : z, s = h < 8 ? z : w;  (u +- v) +- s;
+      (h masked to 4 bits in 1D and 3D, 3 in 2D, 5 in 4D; a negation is a flip of the sign bit, as -x);
+      interpolation: a + w (b - a) between corner pairs along x (weight u), then y, z, w."""
+    n = 1 << dim
+
+    def codegen(context, builder, signature, args):
+        vi = ir.VectorType(_I32, n)
+        f32t = ir.FloatType()
+        vf = ir.VectorType(f32t, n)
+
+        def const(v):
+            return _lanes_i32(builder, n, [v] * n)
+
+        cells, fracs, weights = args[:dim], args[dim:2 * dim], args[2 * dim:]
+        keys = [builder.add(_splat(builder, vi, builder.trunc(cells[d], _I32)),
+                            _lanes_i32(builder, n, [(i >> d) & 1 for i in range(n)])) for d in range(dim)]
+        h = _lookup3_lanes(builder, n, keys)
+        one = ir.Constant(f32t, 1.0)
+        # the corner offsets on each axis: f on the near side, f - 1 on the far one
+        offs = []
+        for d in range(dim):
+            near = _splat(builder, vf, fracs[d])
+            far = _splat(builder, vf, builder.fsub(fracs[d], one))
+            far_lane = builder.icmp_unsigned("!=", _lanes_i32(builder, n, [(i >> d) & 1 for i in range(n)]),
+                                             const(0))
+            offs.append(builder.select(far_lane, far, near))
+
+        def flip(v, bit, shift):  # negate v where h & bit (the bit moved to the sign)
+            sign = builder.shl(builder.and_(h, const(bit)), const(shift))
+            return builder.bitcast(builder.xor(builder.bitcast(v, vi), sign), vf)
+
+        if dim == 1:
+            hm = builder.and_(h, const(15))
+            g = builder.sitofp(builder.add(builder.and_(hm, const(7)), const(1)), vf)
+            g = builder.fmul(flip(g, 8, 28), offs[0])
+        elif dim == 2:
+            low = builder.icmp_unsigned("<", builder.and_(h, const(7)), const(4))
+            x, y = offs
+            u = builder.select(low, x, y)
+            v = builder.fmul(_splat(builder, vf, ir.Constant(f32t, 2.0)), builder.select(low, y, x))
+            g = builder.fadd(flip(u, 1, 31), flip(v, 2, 30))
+        elif dim == 3:
+            hm = builder.and_(h, const(15))
+            x, y, z = offs
+            u = builder.select(builder.icmp_unsigned("<", hm, const(8)), x, y)
+            x_or_z = builder.select(builder.or_(builder.icmp_unsigned("==", hm, const(12)),
+                                                builder.icmp_unsigned("==", hm, const(14))), x, z)
+            v = builder.select(builder.icmp_unsigned("<", hm, const(4)), y, x_or_z)
+            g = builder.fadd(flip(u, 1, 31), flip(v, 2, 30))
+        else:
+            hm = builder.and_(h, const(31))
+            x, y, z, w = offs
+            u = builder.select(builder.icmp_unsigned("<", hm, const(24)), x, y)
+            v = builder.select(builder.icmp_unsigned("<", hm, const(16)), y, z)
+            s = builder.select(builder.icmp_unsigned("<", hm, const(8)), z, w)
+            g = builder.fadd(builder.fadd(flip(u, 1, 31), flip(v, 2, 30)), flip(s, 4, 29))
+        # interpolate neighbouring lanes (offset 0 and 1 on the current axis) until one is left
+        m = n
+        for d in range(dim):
+            m //= 2
+            undef = ir.Constant(ir.VectorType(f32t, 2 * m), ir.Undefined)
+            a = builder.shuffle_vector(g, undef, _lanes_i32(builder, m, range(0, 2 * m, 2)))
+            b = builder.shuffle_vector(g, undef, _lanes_i32(builder, m, range(1, 2 * m, 2)))
+            wv = _splat(builder, ir.VectorType(f32t, m), weights[d])
+            g = builder.fadd(a, builder.fmul(wv, builder.fsub(b, a)))
+        return builder.extract_element(g, ir.Constant(_I32, 0))
+
+    return codegen
 
 
-@jit
-def _grad4(h, x, y, z, w):
-    h = h & 31
-    u = x if h < 24 else y
-    v = y if h < 16 else z
-    s = z if h < 8 else w
-    return _negate_if(u, h & 1) + _negate_if(v, h & 2) + _negate_if(s, h & 4)
+def _lattice_signature(dim):
+    return types.float32(*([types.int64] * dim + [types.float32] * (2 * dim)))
+
+
+# numba's intrinsics take a fixed argument list: one typer per dimension (cells, fractions, fade weights).
+@intrinsic
+def _perlin_lattice_1d(typingctx, x0, f0, w0):
+    return _lattice_signature(1), _perlin_lattice_codegen(1)
+
+
+@intrinsic
+def _perlin_lattice_2d(typingctx, x0, x1, f0, f1, w0, w1):
+    return _lattice_signature(2), _perlin_lattice_codegen(2)
+
+
+@intrinsic
+def _perlin_lattice_3d(typingctx, x0, x1, x2, f0, f1, f2, w0, w1, w2):
+    return _lattice_signature(3), _perlin_lattice_codegen(3)
+
+
+@intrinsic
+def _perlin_lattice_4d(typingctx, x0, x1, x2, x3, f0, f1, f2, f3, w0, w1, w2, w3):
+    return _lattice_signature(4), _perlin_lattice_codegen(4)
 
 
 @jit
 def _perlin_1d(x):
     fl = np.floor(x)
-    X = np.int64(fl)
     fx = x - fl
-    u = _fade(fx)
-    return _mix(_grad1(hash_uint(X & _M32), fx), _grad1(hash_uint((X + 1) & _M32), fx - np.float32(1.0)), u)
+    return _perlin_lattice_1d(np.int64(fl), fx, _fade(fx))
 
 
 @jit
 def _perlin_2d(x, y):
     flx = np.floor(x)
     fly = np.floor(y)
-    X = np.int64(flx)
-    Y = np.int64(fly)
     fx = x - flx
     fy = y - fly
-    u = _fade(fx)
-    v = _fade(fy)
-    one = np.float32(1.0)
-    X0, X1, Y0, Y1 = X & _M32, (X + 1) & _M32, Y & _M32, (Y + 1) & _M32
-    g0 = _grad2(hash_uint2(X0, Y0), fx, fy)
-    g1 = _grad2(hash_uint2(X1, Y0), fx - one, fy)
-    g2 = _grad2(hash_uint2(X0, Y1), fx, fy - one)
-    g3 = _grad2(hash_uint2(X1, Y1), fx - one, fy - one)
-    return _mix(_mix(g0, g1, u), _mix(g2, g3, u), v)
+    return _perlin_lattice_2d(np.int64(flx), np.int64(fly), fx, fy, _fade(fx), _fade(fy))
 
 
 @jit
@@ -326,37 +430,11 @@ def _perlin_3d(x, y, z):
     flx = np.floor(x)
     fly = np.floor(y)
     flz = np.floor(z)
-    X = np.int64(flx)
-    Y = np.int64(fly)
-    Z = np.int64(flz)
     fx = x - flx
     fy = y - fly
     fz = z - flz
-    u = _fade(fx)
-    v = _fade(fy)
-    t = _fade(fz)
-    one = np.float32(1.0)
-    X0, X1, Y0, Y1, Z0, Z1 = X & _M32, (X + 1) & _M32, Y & _M32, (Y + 1) & _M32, Z & _M32, (Z + 1) & _M32
-    fx1 = fx - one
-    fy1 = fy - one
-    fz1 = fz - one
-    a = _mix(_mix(_grad3(hash_uint3(X0, Y0, Z0), fx, fy, fz), _grad3(hash_uint3(X1, Y0, Z0), fx1, fy, fz), u),
-             _mix(_grad3(hash_uint3(X0, Y1, Z0), fx, fy1, fz), _grad3(hash_uint3(X1, Y1, Z0), fx1, fy1, fz), u), v)
-    b = _mix(_mix(_grad3(hash_uint3(X0, Y0, Z1), fx, fy, fz1), _grad3(hash_uint3(X1, Y0, Z1), fx1, fy, fz1), u),
-             _mix(_grad3(hash_uint3(X0, Y1, Z1), fx, fy1, fz1), _grad3(hash_uint3(X1, Y1, Z1), fx1, fy1, fz1), u),
-             v)
-    return _mix(a, b, t)
-
-
-@jit
-def _perlin_4d_slice(X0, X1, Y0, Y1, Z, W, fx, fy, fz, fw, u, v):
-    one = np.float32(1.0)
-    fx1 = fx - one
-    fy1 = fy - one
-    return _mix(_mix(_grad4(hash_uint4(X0, Y0, Z, W), fx, fy, fz, fw), _grad4(hash_uint4(X1, Y0, Z, W), fx1, fy, fz, fw),
-                     u),
-                _mix(_grad4(hash_uint4(X0, Y1, Z, W), fx, fy1, fz, fw),
-                     _grad4(hash_uint4(X1, Y1, Z, W), fx1, fy1, fz, fw), u), v)
+    return _perlin_lattice_3d(np.int64(flx), np.int64(fly), np.int64(flz), fx, fy, fz, _fade(fx), _fade(fy),
+                              _fade(fz))
 
 
 @jit
@@ -365,26 +443,12 @@ def _perlin_4d(x, y, z, w):
     fly = np.floor(y)
     flz = np.floor(z)
     flw = np.floor(w)
-    X = np.int64(flx)
-    Y = np.int64(fly)
-    Z = np.int64(flz)
-    W = np.int64(flw)
     fx = x - flx
     fy = y - fly
     fz = z - flz
     fw = w - flw
-    u = _fade(fx)
-    v = _fade(fy)
-    t = _fade(fz)
-    s = _fade(fw)
-    one = np.float32(1.0)
-    X0, X1, Y0, Y1 = X & _M32, (X + 1) & _M32, Y & _M32, (Y + 1) & _M32
-    Z0, Z1, W0, W1 = Z & _M32, (Z + 1) & _M32, W & _M32, (W + 1) & _M32
-    a = _mix(_perlin_4d_slice(X0, X1, Y0, Y1, Z0, W0, fx, fy, fz, fw, u, v),
-             _perlin_4d_slice(X0, X1, Y0, Y1, Z1, W0, fx, fy, fz - one, fw, u, v), t)
-    b = _mix(_perlin_4d_slice(X0, X1, Y0, Y1, Z0, W1, fx, fy, fz, fw - one, u, v),
-             _perlin_4d_slice(X0, X1, Y0, Y1, Z1, W1, fx, fy, fz - one, fw - one, u, v), t)
-    return _mix(a, b, s)
+    return _perlin_lattice_4d(np.int64(flx), np.int64(fly), np.int64(flz), np.int64(flw), fx, fy, fz, fw,
+                              _fade(fx), _fade(fy), _fade(fz), _fade(fw))
 
 
 @jit
@@ -1631,7 +1695,7 @@ OP_GABOR = R.register(R.OpSpec(
     + _ops("int", "gabor_type"), "Gabor Texture; gabor_type 2 or 3 (dimensions)")).code
 
 
-@jit_no_nrt
+@jit
 def run(op, a, regs, data):
     """One procedural-texture instruction of a shading program (see the OpSpecs above for the slots)."""
     if op == OP_NOISE:
