@@ -12,8 +12,9 @@ Sections (each a short run; all in one process, interleaved where two variants a
   cost nothing: the times should agree within noise).
 - adaptive: the Cornell box and the spheres-under-sky scene at a fixed spp with adaptive sampling off and on,
   RMSE against a long render of the same scene, the time saved, and the time at equal error (efficiency ratio).
-- nodes: ns per node per shading point of the main shading nodes (Image Texture, Noise, Voronoi, Mix, Math,
-  Color Ramp, Bump, Normal Map, Principled), compiled from real Blender materials (lab/perf_nodes.py; needs bpy).
+- nodes: ns per node per shading point of the main shading nodes (Image Texture, Noise (Color; Fac at detail 0,
+  2, 8), Voronoi, Wave, Mix, Math, Color Ramp, Bump, Normal Map, Principled), compiled from real Blender
+  materials (lab/perf_nodes.py; needs bpy).
 - fused (only when named): where the fused path kernel's time goes, Embree's closest hits and shadow rays against
   the rest of a path, from a measurement copy of the kernel that reads the CPU's cycle counter (lab/fused_timing.py).
 - textured: the `textured` bench scene on one thread: CPU seconds, stages and the functions with the most own

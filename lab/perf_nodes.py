@@ -4,11 +4,13 @@ Each node is built in a real Blender material (the add-on's compiler turns it in
 render) whose Emission colour (or, for Principled, Base Color) is the node's output, fed by the UV coordinates.
 The programs run through `core.shading.PreparedShading.evaluate` on a batch of random shading points (position,
 normal, UV, ray differentials, a tangent layer), best of `repeat` alternating runs, in thread CPU time (the
-machine may be shared). The baseline is the same
-material with the UV coordinates driving the output directly; a node's cost is (its program - the baseline) per
-point, divided by the number of copies chained in its program (several, so that cheap nodes stand out of the
-timer's noise). Noise's row reads its Color output (three fBM evaluations; Fac alone is one). Bump's row includes the two extra evaluations of its Height input (Cycles' way: the height at
-P + dP.dx and P + dP.dy), here a Separate XYZ of the coordinates. Prints numbers only: no timing is asserted.
+machine may be shared). The baseline is the same material with the UV coordinates driving the output directly;
+a node's cost is (its program - the baseline) per point, divided by the number of copies chained in its program
+(several, so that cheap nodes stand out of the timer's noise). Noise's row reads its Color output (three fBM
+evaluations of 3 octaves, Blender's default detail 2); the Noise Fac rows one fBM at detail 0, 2, 8 (1, 3, 9
+octaves of 3D Perlin noise); Wave is distorted (its distortion is a 3-octave Noise). Bump's row includes the two
+extra evaluations of its Height input (Cycles' way: the height at P + dP.dx and P + dP.dy), here a Separate XYZ of
+the coordinates. Prints numbers only: no timing is asserted.
 """
 
 from __future__ import annotations
@@ -71,6 +73,21 @@ def _image_node(image):
 def _noise(tree):
     node = tree.nodes.new("ShaderNodeTexNoise")
     node.inputs["Scale"].default_value = 3.0
+    return node
+
+
+def _noise_detail(detail: float):
+    def make(tree):
+        node = _noise(tree)
+        node.inputs["Detail"].default_value = detail
+        return node
+    return make
+
+
+def _wave(tree):
+    node = tree.nodes.new("ShaderNodeTexWave")
+    node.inputs["Scale"].default_value = 3.0
+    node.inputs["Distortion"].default_value = 2.0  # Blender's default detail 2: three octaves of distortion noise
     return node
 
 
@@ -160,7 +177,11 @@ def node_cases():
     return [
         ("Image Texture", lambda t, uv, o: _chain(t, uv, _image_node(image), "Color"), CHAIN, "uv"),
         ("Noise Texture", lambda t, uv, o: _chain(t, uv, _noise, "Color"), CHAIN, "uv"),
+        ("Noise Fac detail 0", lambda t, uv, o: _chain(t, uv, _noise_detail(0.0), "Fac"), CHAIN, "uv"),
+        ("Noise Fac detail 2", lambda t, uv, o: _chain(t, uv, _noise_detail(2.0), "Fac"), CHAIN, "uv"),
+        ("Noise Fac detail 8", lambda t, uv, o: _chain(t, uv, _noise_detail(8.0), "Fac"), CHAIN, "uv"),
         ("Voronoi Texture", lambda t, uv, o: _chain(t, uv, _voronoi, "Color"), CHAIN, "uv"),
+        ("Wave Texture", lambda t, uv, o: _chain(t, uv, _wave, "Fac"), CHAIN, "uv"),
         ("Mix (Color)", lambda t, uv, o: _chain(t, uv, _mix, "Result"), CHAIN, "uv"),
         ("Math", lambda t, uv, o: _chain(t, uv, _math, "Value"), CHAIN, "uv"),
         ("Color Ramp", lambda t, uv, o: _chain(t, uv, _ramp, "Color"), CHAIN, "uv"),

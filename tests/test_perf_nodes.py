@@ -11,7 +11,8 @@ import pytest
 
 pytest.importorskip("bpy")
 
-NODES = ("Image Texture", "Noise Texture", "Voronoi Texture", "Mix (Color)", "Math", "Color Ramp", "Bump",
+NODES = ("Image Texture", "Noise Texture", "Noise Fac detail 0", "Noise Fac detail 2", "Noise Fac detail 8",
+         "Voronoi Texture", "Wave Texture", "Mix (Color)", "Math", "Color Ramp", "Bump",
          "Normal Map", "Principled BSDF")
 
 
