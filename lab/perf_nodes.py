@@ -258,6 +258,7 @@ def node_costs(points: int = 1 << 16, repeat: int = 5) -> dict:
     for name, (_, copies, base) in runners.items():
         rows[name] = 1e9 * (best[name] - best[f"base:{base}"]) / (copies * points)
     return {"points": points, "ns_per_point": rows,
+            "program_ns_per_point": {name: 1e9 * best[name] / points for name in runners},
             "baseline_ns_per_point": {k: 1e9 * best[f"base:{k}"] / points for k in bases}}
 
 

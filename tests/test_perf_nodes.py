@@ -1,7 +1,9 @@
 """`monte perf --sections nodes`: a row per main shading node with its cost per shading point (lab/perf_nodes.py).
 
 No timing is asserted (shared machines): the section must compile each node from a real Blender material into a
-program that does per-point work, and print one positive ns figure per node."""
+program that does per-point work (a positive time per point), and print one finite ns figure per node. A node's
+figure is a difference of two timings, so a cheap node (Normal Map over its image baseline, ~10-40 ns) can come out
+negative under load: its sign is not asserted."""
 
 from __future__ import annotations
 
@@ -16,13 +18,14 @@ NODES = ("Image Texture", "Noise Texture", "Noise Fac detail 0", "Noise Fac deta
          "Normal Map", "Principled BSDF")
 
 
-def test_node_costs_have_a_positive_row_per_main_node(capsys):
+def test_node_costs_have_a_row_per_main_node(capsys):
     from monte.lab.perf_nodes import node_costs, print_node_costs
 
     r = node_costs(points=1 << 14, repeat=3)
     assert tuple(r["ns_per_point"]) == NODES
     for name, ns in r["ns_per_point"].items():
-        assert math.isfinite(ns) and ns > 0, (name, ns)
+        assert math.isfinite(ns), (name, ns)
+        assert r["program_ns_per_point"][name] > 0, name
     assert r["baseline_ns_per_point"]["uv"] > 0
     print_node_costs(r)
     lines = capsys.readouterr().out.splitlines()
@@ -30,7 +33,7 @@ def test_node_costs_have_a_positive_row_per_main_node(capsys):
     for name in NODES:
         row = [line for line in lines if line.strip().startswith(name)]
         assert len(row) == 1, name
-        assert float(row[0].split()[-2]) > 0
+        assert math.isfinite(float(row[0].split()[-2])), row
 
 
 def test_textured_profile_names_the_node_interpreter_and_accounts_for_the_render(capsys):
