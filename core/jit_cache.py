@@ -168,6 +168,61 @@ def _drop_numba_llvm_lock_events() -> bool:
 
 
 NUMBA_LLVM_LOCK_EVENTS_DROPPED = _drop_numba_llvm_lock_events()
+
+# numba versions whose Cache.load_overload was read for _load_cached_kernels_without_refresh (its code is checked too).
+_CACHE_LOAD_NUMBA_VERSIONS = ((0, 59), (0, 68))
+_CACHE_LOAD_NAMES = frozenset({"refresh", "_guard_against_spurious_io_errors", "_load_overload"})
+
+
+def _load_cached_kernels_without_refresh() -> bool:
+    """Load cached CPU kernels without numba's typing and lowering registries. numba's Cache.load_overload
+    refreshes the target context before every cached load ("to ensure it is initialized"): the first refresh of a
+    process imports ~55 numba modules of implementations (typed containers, np.random, jitclass, cffi, ...) and
+    installs every registry (~0.08 s of CPU, the largest part of a process's first kernel load; the export's
+    constant folding waits for it), each later one ~0.3 ms. A cached kernel needs none of it: its library is
+    machine code already, linked with every function it calls; the only run-time piece it takes from numba is
+    NRT (the reference-counting runtime, whose C symbols an NRT kernel's code links against), which is
+    initialized here as the refresh would. Compiling still refreshes both contexts first (numba's CompilerBase
+    does so before every compile), so a kernel compiled later in the process, Monte's or another add-on's, finds
+    the registries installed as before.
+
+    Applied only where numba's method is the one read (numba 0.59-0.68, its code calling exactly refresh,
+    _guard_against_spurious_io_errors and _load_overload), and only to Monte's kernels (those cached by
+    _PerImportNameLocator) on numba's CPU context: other packages' functions, other targets (CUDA) and other
+    numba versions keep numba's own. tests/test_jit_cache.py fails when this stops applying. Returns True
+    when installed."""
+    from numba.core import caching, cpu
+
+    if not (_CACHE_LOAD_NUMBA_VERSIONS[0] <= tuple(numba.version_info[:2]) <= _CACHE_LOAD_NUMBA_VERSIONS[1]):
+        return False
+    cache_class = getattr(caching, "Cache", None)
+    original = getattr(cache_class, "__dict__", {}).get("load_overload")
+    code = getattr(original, "__code__", None)
+    if getattr(original, "_monte_without_refresh", False):
+        return True  # installed by another import of this package (a second import name in one process)
+    if code is None or frozenset(code.co_names) != _CACHE_LOAD_NAMES or code.co_argcount != 3:
+        return False
+    from numba.core.runtime import rtsys
+
+    cpu_context = cpu.CPUContext
+
+    def load_overload(self, sig, target_context):
+        if type(target_context) is not cpu_context or not getattr(getattr(getattr(self, "_impl", None), "locator",
+                                                                          None), "_monte_kernel", False):
+            return original(self, sig, target_context)
+        rtsys.initialize(target_context)  # what the refresh did that a cached kernel needs: NRT's symbols
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
+        # (None when the `with` swallows an I/O error, as numba's)
+
+    load_overload._monte_without_refresh = True
+    load_overload._numba_original = original
+    load_overload.__doc__ = original.__doc__
+    cache_class.load_overload = load_overload
+    return True
+
+
+NUMBA_CACHE_LOADS_WITHOUT_REFRESH = _load_cached_kernels_without_refresh()
 PACKAGE = __name__.rpartition(".")[0] or "core"  # "monte.core", "bl_ext.user_default.monte.core", ...
 
 
@@ -237,6 +292,8 @@ if _InTree is not None and _CacheImpl is not None:
     class _PerImportNameLocator(_InTree):
         """numba's in-tree locator, moved into this import name's folder, for functions defined here only.
         (A folder that cannot be written falls through to numba's next locator, as with the in-tree one.)"""
+
+        _monte_kernel = True  # loaded without numba's registries: _load_cached_kernels_without_refresh
 
         def __init__(self, py_func, py_file):
             super().__init__(py_func, py_file)

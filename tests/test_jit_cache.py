@@ -213,3 +213,101 @@ def test_numba_llvm_lock_events_are_dropped_and_kernels_still_compile_and_load()
     assert result["dropped"] is True and "numba.core.base" not in result["left"]
     assert result["value"] == 42 and result["loaded"] > 0
     assert result["compiler_timer"] is True and result["llvm_timer"] is False
+
+
+_LOAD_AND_RENDER = """
+    import hashlib, json, sys
+    import numpy as np
+    from numba.core import caching
+    from numba.core.base import builtin_registry
+    from numba.core.registry import cpu_target
+    from monte.core import jit_cache
+    from monte.core.precompile import kernel_cache_counts, load_cached_kernels
+    from monte.core.builtin_scenes import builtin_scene
+    from monte.core.render import render
+    from monte.core.settings import RenderSettings
+    ctx = cpu_target.target_context
+    if REFRESH_FIRST:
+        ctx.refresh()  # numba's own first cached load did this
+    loaded = load_cached_kernels()
+    result = render(builtin_scene("cornell", (16, 16)), RenderSettings(spp=2, threads=2, seed=3))
+    image = np.concatenate([np.ravel(a).astype(np.float64) for a in (result.color, result.variance, result.albedo, result.normal) if a is not None])
+    counts = kernel_cache_counts()
+    registries_after_loading = builtin_registry in ctx._registries
+    typed_list_imported = "numba.typed.listobject" in sys.modules
+
+    import numba
+
+    @numba.njit
+    def needs_the_registries(n):  # array creation, a reduction, np.random: implementations the refresh installs
+        np.random.seed(n)
+        return np.arange(n).sum() + int(np.random.random() >= 0.0)
+
+    value = needs_the_registries(10)
+    print("RESULT " + json.dumps({
+        "applied": jit_cache.NUMBA_CACHE_LOADS_WITHOUT_REFRESH,
+        "patched": bool(getattr(caching.Cache.load_overload, "_monte_without_refresh", False)),
+        "loaded": loaded, "counts": counts, "image": hashlib.sha256(image.tobytes()).hexdigest(),
+        "registries_after_loading": registries_after_loading, "typed_list_imported": typed_list_imported,
+        "registries_after_compiling": builtin_registry in ctx._registries, "value": int(value)}))
+"""
+
+
+def test_cached_kernels_load_without_numba_registries_and_render_the_same_image():
+    """jit_cache loads Monte's cached kernels without numba's registry refresh (its first one: ~0.08 s of CPU of
+    every render process): in a fresh process the kernels load and render with no registry installed and nothing
+    compiled, the image is bit for bit the one rendered with the registries installed first (numba's way), and a
+    function compiled afterwards (array creation, np.random: implementations the registries hold) still compiles
+    and runs, the compile installing the registries itself. Fails too when the patch stops applying (a numba
+    version or method it was not read for): then re-read numba's Cache.load_overload before widening the check."""
+    ours = _python(_LOAD_AND_RENDER.replace("REFRESH_FIRST", "False"))
+    numbas = _python(_LOAD_AND_RENDER.replace("REFRESH_FIRST", "True"))
+    assert ours["applied"] is True and ours["patched"] is True, ours
+    assert ours["loaded"] > 0 and ours["counts"]["compiled"] == 0 and numbas["counts"]["compiled"] == 0
+    assert ours["registries_after_loading"] is False and ours["typed_list_imported"] is False
+    assert numbas["registries_after_loading"] is True
+    assert ours["image"] == numbas["image"]
+    assert ours["registries_after_compiling"] is True and ours["value"] == 46 == numbas["value"]
+
+
+def test_other_packages_cached_functions_keep_numbas_refresh():
+    """The loader without the refresh applies to Monte's kernels only (cached by the per-import-name locator):
+    another package's cached function, or a context other than numba's CPU one, goes through numba's method,
+    which refreshes the context first."""
+    from types import SimpleNamespace
+    from contextlib import nullcontext
+
+    from numba.core import caching
+    from numba.core.registry import cpu_target
+
+    assert jit_cache.NUMBA_CACHE_LOADS_WITHOUT_REFRESH is True
+
+    class Context:
+        refreshed = 0
+
+        def refresh(self):
+            Context.refreshed += 1
+
+    def cache(locator):
+        return SimpleNamespace(_impl=SimpleNamespace(locator=locator), _load_overload=lambda sig, ctx: ("loaded", ctx),
+                               _guard_against_spurious_io_errors=nullcontext)
+
+    load = caching.Cache.load_overload
+    other = cache(SimpleNamespace())  # another package's locator
+    context = Context()
+    assert load(other, "sig", context) == ("loaded", context) and Context.refreshed == 1
+    ours = cache(jit_cache._PerImportNameLocator.__new__(jit_cache._PerImportNameLocator))
+    assert load(ours, "sig", context) == ("loaded", context)  # not numba's CPU context: numba's way
+    assert Context.refreshed == 2
+    refreshes = []
+    ctx = cpu_target.target_context
+    original_refresh = ctx.refresh
+    ctx.refresh = lambda: refreshes.append(1)
+    try:
+        assert load(ours, "sig", ctx) == ("loaded", ctx)  # Monte's kernel on the CPU context: no refresh
+        assert refreshes == []
+        load(other, "sig", ctx)
+        assert refreshes == [1]
+    finally:
+        del ctx.refresh
+        assert ctx.refresh == original_refresh
