@@ -139,7 +139,35 @@ def _import_numba_array_support_without_blas() -> bool:
     return True
 
 
-NUMBA_ARRAY_SUPPORT_WITHOUT_BLAS = _import_numba_array_support_without_blas()
+def _defer_numba_array_support_to_first_compile() -> bool:
+    """Import numba's array support (_import_numba_array_support_without_blas) when numba first installs its
+    registries, not at Monte's import: a process that only loads cached kernels never needs it (they load
+    without the registries: _load_cached_kernels_without_refresh), and its import was ~0.025 s of CPU of every
+    `monte render` process. numba installs its registries in CPUContext.refresh, through
+    load_additional_registries, which imports numba.np.arraymath among ~55 modules (and with it SciPy's linear
+    algebra, the lookup this avoids): that method is wrapped to import arraymath without the lookup first. Where
+    the method is not numba's own function (another version or package replaced it) arraymath is imported now,
+    as before. Returns True when numba's array support is (or will be) imported without the BLAS lookup."""
+    from numba.core import cpu
+
+    original = cpu.CPUContext.__dict__.get("load_additional_registries")
+    if getattr(original, "_monte_array_support_first", False):
+        return True  # wrapped by another import of this package
+    if "numba.np.arraymath" in sys.modules or getattr(original, "__module__", None) != "numba.core.cpu":
+        return _import_numba_array_support_without_blas()
+
+    def load_additional_registries(self):
+        _import_numba_array_support_without_blas()  # no-op once imported (a dict lookup)
+        return original(self)
+
+    load_additional_registries._monte_array_support_first = True
+    load_additional_registries._numba_original = original
+    load_additional_registries.__doc__ = original.__doc__
+    cpu.CPUContext.load_additional_registries = load_additional_registries
+    return True
+
+
+NUMBA_ARRAY_SUPPORT_WITHOUT_BLAS = _defer_numba_array_support_to_first_compile()
 
 
 def _drop_numba_llvm_lock_events() -> bool:
