@@ -311,3 +311,31 @@ def test_other_packages_cached_functions_keep_numbas_refresh():
     finally:
         del ctx.refresh
         assert ctx.refresh == original_refresh
+
+
+def test_the_kernel_modules_digest_is_taken_once_per_module_import():
+    """numba stamps each kernel as it is defined; the kernel modules' digest (17 files' stats) is taken once per
+    import of a kernel module, not once per kernel (~340), and every kernel's stamp is still its own file's
+    contents and the digest of all kernel modules. A stamp made outside an import checks the files again."""
+    result = _python("""
+        import json
+        from monte.core import jit_cache
+        calls = []
+        original = jit_cache.sources_digest
+        jit_cache.sources_digest = lambda *a, **k: calls.append(1) or original(*a, **k)
+        import monte.core.render, monte.core.shading.evaluator  # noqa: E401,F401
+        from monte.core import precompile
+        during_import = len(calls)
+        stamps = [d._cache._cache_file._source_stamp for d in precompile._dispatchers()]
+        files = [d.py_func.__code__.co_filename for d in precompile._dispatchers()]
+        locator = jit_cache._PerImportNameLocator.from_function(precompile._dispatchers()[0].py_func, files[0])
+        before = len(calls)
+        locator.get_source_stamp()
+        print("RESULT " + json.dumps({
+            "during_import": during_import, "before": before, "after": len(calls), "kernels": len(stamps),
+            "right": sum(s == ["sha256", jit_cache.file_digest(f), original()] or
+                         s == ("sha256", jit_cache.file_digest(f), original()) for s, f in zip(stamps, files))}))
+    """)
+    assert result["kernels"] > 200 and result["right"] == result["kernels"]
+    assert 0 < result["during_import"] <= len(jit_cache.KERNEL_MODULES)
+    assert result["after"] == result["before"] + 1
