@@ -218,23 +218,28 @@ def test_numba_llvm_lock_events_are_dropped_and_kernels_still_compile_and_load()
 _LOAD_AND_RENDER = """
     import hashlib, json, sys
     import numpy as np
-    from numba.core import caching
+    from numba.core import caching, codegen
     from numba.core.base import builtin_registry
     from numba.core.registry import cpu_target
-    from monte.core import jit_cache
+    from monte.core import jit_cache, sampling
     from monte.core.precompile import kernel_cache_counts, load_cached_kernels
     from monte.core.builtin_scenes import builtin_scene
     from monte.core.render import render
     from monte.core.settings import RenderSettings
     ctx = cpu_target.target_context
-    if REFRESH_FIRST:
-        ctx.refresh()  # numba's own first cached load did this
     loaded = load_cached_kernels()
     result = render(builtin_scene("cornell", (16, 16)), RenderSettings(spp=2, threads=2, seed=3))
-    image = np.concatenate([np.ravel(a).astype(np.float64) for a in (result.color, result.variance, result.albedo, result.normal) if a is not None])
+    image = np.concatenate([np.ravel(a).astype(np.float64) for a in (result.color, result.variance, result.albedo,
+                                                                      result.normal) if a is not None])
     counts = kernel_cache_counts()
     registries_after_loading = builtin_registry in ctx._registries
     typed_list_imported = "numba.typed.listobject" in sys.modules
+    mix = sampling._mix32
+    mix_library = mix.overloads[mix.signatures[0]].library
+    pending = sum(jit_cache._PENDING_BITCODE in d.overloads[s].library.__dict__
+                  for d in [mix] + [v for v in vars(sampling).values() if hasattr(v, "overloads")]
+                  for s in d.signatures)
+    mix_pending = jit_cache._PENDING_BITCODE in mix_library.__dict__
 
     import numba
 
@@ -243,31 +248,44 @@ _LOAD_AND_RENDER = """
         np.random.seed(n)
         return np.arange(n).sum() + int(np.random.random() >= 0.0)
 
+    @numba.njit
+    def calls_a_loaded_kernel(x):  # links the loaded library: its bitcode is parsed now
+        return mix(x)
+
     value = needs_the_registries(10)
+    mixed = int(calls_a_loaded_kernel(np.uint32(12345))), int(mix(np.uint32(12345)))
     print("RESULT " + json.dumps({
-        "applied": jit_cache.NUMBA_CACHE_LOADS_WITHOUT_REFRESH,
+        "applied": jit_cache.NUMBA_CACHE_LOADS_WITHOUT_REFRESH, "parse_later": jit_cache.NUMBA_CACHE_LOADS_PARSE_LATER,
         "patched": bool(getattr(caching.Cache.load_overload, "_monte_without_refresh", False)),
         "loaded": loaded, "counts": counts, "image": hashlib.sha256(image.tobytes()).hexdigest(),
         "registries_after_loading": registries_after_loading, "typed_list_imported": typed_list_imported,
-        "registries_after_compiling": builtin_registry in ctx._registries, "value": int(value)}))
+        "pending": pending, "mix_pending": mix_pending,
+        "mix_parsed_after": jit_cache._PENDING_BITCODE not in mix_library.__dict__
+                            and mix_library._shared_module is not None,
+        "registries_after_compiling": builtin_registry in ctx._registries, "value": int(value), "mixed": mixed}))
 """
 
 
-def test_cached_kernels_load_without_numba_registries_and_render_the_same_image():
+def test_cached_kernels_load_without_registries_or_bitcode_and_render_the_same_image():
     """jit_cache loads Monte's cached kernels without numba's registry refresh (its first one: ~0.08 s of CPU of
-    every render process): in a fresh process the kernels load and render with no registry installed and nothing
-    compiled, the image is bit for bit the one rendered with the registries installed first (numba's way), and a
-    function compiled afterwards (array creation, np.random: implementations the registries hold) still compiles
-    and runs, the compile installing the registries itself. Fails too when the patch stops applying (a numba
-    version or method it was not read for): then re-read numba's Cache.load_overload before widening the check."""
-    ours = _python(_LOAD_AND_RENDER.replace("REFRESH_FIRST", "False"))
-    numbas = _python(_LOAD_AND_RENDER.replace("REFRESH_FIRST", "True"))
-    assert ours["applied"] is True and ours["patched"] is True, ours
+    every render process) and leaves each library's bitcode unparsed until something links it (~60 % of a
+    load). In a fresh process the kernels load and render with no registry installed, nothing compiled and the
+    bitcode pending, and the image is bit for bit the one numba's own loading gives (MONTE_PLAIN_NUMBA_LOADS=1).
+    A function compiled afterwards (array creation, np.random: implementations the registries hold) still
+    compiles and runs, and one calling a loaded kernel links it (its bitcode parsed then) and computes the same.
+    Fails too when the patches stop applying (a numba version or method they were not read for): then re-read
+    numba's Cache.load_overload and CPUCodeLibrary._unserialize before widening the checks."""
+    ours = _python(_LOAD_AND_RENDER)
+    numbas = _python(_LOAD_AND_RENDER, MONTE_PLAIN_NUMBA_LOADS="1")
+    assert ours["applied"] is True and ours["patched"] is True and ours["parse_later"] is True, ours
+    assert numbas["applied"] is False and numbas["parse_later"] is False
     assert ours["loaded"] > 0 and ours["counts"]["compiled"] == 0 and numbas["counts"]["compiled"] == 0
     assert ours["registries_after_loading"] is False and ours["typed_list_imported"] is False
     assert numbas["registries_after_loading"] is True
+    assert ours["pending"] > 0 and ours["mix_pending"] is True and numbas["pending"] == 0
     assert ours["image"] == numbas["image"]
     assert ours["registries_after_compiling"] is True and ours["value"] == 46 == numbas["value"]
+    assert ours["mix_parsed_after"] is True and ours["mixed"][0] == ours["mixed"][1] == numbas["mixed"][0]
 
 
 def test_other_packages_cached_functions_keep_numbas_refresh():
@@ -339,3 +357,28 @@ def test_the_kernel_modules_digest_is_taken_once_per_module_import():
     assert result["kernels"] > 200 and result["right"] == result["kernels"]
     assert 0 < result["during_import"] <= len(jit_cache.KERNEL_MODULES)
     assert result["after"] == result["before"] + 1
+
+
+def test_a_symbol_of_an_unparsed_library_is_still_found():
+    """numba's engine answers "is this symbol defined" for every loaded library: a name that only a library
+    whose bitcode is still pending defines is found (the pending libraries are parsed before a "no")."""
+    result = _python("""
+        import json
+        import llvmlite.binding as ll
+        from monte.core import jit_cache, precompile, sampling
+        precompile.load_cached_kernels()
+        d = sampling._mix32
+        library = d.overloads[d.signatures[0]].library
+        engine = library._codegen._engine
+        pending = jit_cache._PENDING_BITCODE in library.__dict__
+        module = ll.parse_bitcode(library.__dict__[jit_cache._PENDING_BITCODE])
+        names = [f.name for f in module.functions if not f.is_declaration and f.name.startswith("_ZN")]
+        known_before = [n in engine._defined_symbols for n in names]
+        found = [engine.is_symbol_defined(n) for n in names]
+        print("RESULT " + json.dumps({"pending": pending, "names": len(names), "known_before": known_before,
+                                      "found": found, "parsed": jit_cache._PENDING_BITCODE not in library.__dict__,
+                                      "missing": engine.is_symbol_defined("no_such_symbol_in_any_library")}))
+    """)
+    assert result["pending"] is True and result["names"] > 0
+    assert not all(result["known_before"])
+    assert all(result["found"]) and result["parsed"] is True and result["missing"] is False
