@@ -34,6 +34,7 @@ import os
 import sys
 import threading
 import warnings
+import weakref
 
 
 def _import_numba_without_scipy_version_check() -> bool:
@@ -139,7 +140,35 @@ def _import_numba_array_support_without_blas() -> bool:
     return True
 
 
-NUMBA_ARRAY_SUPPORT_WITHOUT_BLAS = _import_numba_array_support_without_blas()
+def _defer_numba_array_support_to_first_compile() -> bool:
+    """Import numba's array support (_import_numba_array_support_without_blas) when numba first installs its
+    registries, not at Monte's import: a process that only loads cached kernels never needs it (they load
+    without the registries: _load_cached_kernels_without_refresh), and its import was ~0.025 s of CPU of every
+    `monte render` process. numba installs its registries in CPUContext.refresh, through
+    load_additional_registries, which imports numba.np.arraymath among ~55 modules (and with it SciPy's linear
+    algebra, the lookup this avoids): that method is wrapped to import arraymath without the lookup first. Where
+    the method is not numba's own function (another version or package replaced it) arraymath is imported now,
+    as before. Returns True when numba's array support is (or will be) imported without the BLAS lookup."""
+    from numba.core import cpu
+
+    original = cpu.CPUContext.__dict__.get("load_additional_registries")
+    if getattr(original, "_monte_array_support_first", False):
+        return True  # wrapped by another import of this package
+    if "numba.np.arraymath" in sys.modules or getattr(original, "__module__", None) != "numba.core.cpu":
+        return _import_numba_array_support_without_blas()
+
+    def load_additional_registries(self):
+        _import_numba_array_support_without_blas()  # no-op once imported (a dict lookup)
+        return original(self)
+
+    load_additional_registries._monte_array_support_first = True
+    load_additional_registries._numba_original = original
+    load_additional_registries.__doc__ = original.__doc__
+    cpu.CPUContext.load_additional_registries = load_additional_registries
+    return True
+
+
+NUMBA_ARRAY_SUPPORT_WITHOUT_BLAS = _defer_numba_array_support_to_first_compile()
 
 
 def _drop_numba_llvm_lock_events() -> bool:
@@ -168,6 +197,173 @@ def _drop_numba_llvm_lock_events() -> bool:
 
 
 NUMBA_LLVM_LOCK_EVENTS_DROPPED = _drop_numba_llvm_lock_events()
+
+# Set (to anything but 0) to load cached kernels numba's own way (the registries refreshed, every library's
+# bitcode parsed at once): the fallback should a numba version misbehave with the two patches below.
+PLAIN_NUMBA_LOADS_ENV = "MONTE_PLAIN_NUMBA_LOADS"
+# numba versions whose Cache.load_overload was read for _load_cached_kernels_without_refresh (its code is checked too).
+_CACHE_LOAD_NUMBA_VERSIONS = ((0, 59), (0, 68))
+_CACHE_LOAD_NAMES = frozenset({"refresh", "_guard_against_spurious_io_errors", "_load_overload"})
+
+
+def _load_cached_kernels_without_refresh() -> bool:
+    """Load cached CPU kernels without numba's typing and lowering registries. numba's Cache.load_overload
+    refreshes the target context before every cached load ("to ensure it is initialized"): the first refresh of a
+    process imports ~55 numba modules of implementations (typed containers, np.random, jitclass, cffi, ...) and
+    installs every registry (~0.08 s of CPU, the largest part of a process's first kernel load; the export's
+    constant folding waits for it), each later one ~0.3 ms. A cached kernel needs none of it: its library is
+    machine code already, linked with every function it calls; the only run-time piece it takes from numba is
+    NRT (the reference-counting runtime, whose C symbols an NRT kernel's code links against), which is
+    initialized here as the refresh would. Compiling still refreshes both contexts first (numba's CompilerBase
+    does so before every compile), so a kernel compiled later in the process, Monte's or another add-on's, finds
+    the registries installed as before.
+
+    Applied only where numba's method is the one read (numba 0.59-0.68, its code calling exactly refresh,
+    _guard_against_spurious_io_errors and _load_overload), and only to Monte's kernels (those cached by
+    _PerImportNameLocator) on numba's CPU context: other packages' functions, other targets (CUDA) and other
+    numba versions keep numba's own; MONTE_PLAIN_NUMBA_LOADS=1 turns it off. tests/test_jit_cache.py fails when
+    this stops applying. Returns True when installed."""
+    from numba.core import caching, cpu
+
+    if os.environ.get(PLAIN_NUMBA_LOADS_ENV, "").strip() not in ("", "0"):
+        return False
+    if not (_CACHE_LOAD_NUMBA_VERSIONS[0] <= tuple(numba.version_info[:2]) <= _CACHE_LOAD_NUMBA_VERSIONS[1]):
+        return False
+    cache_class = getattr(caching, "Cache", None)
+    original = getattr(cache_class, "__dict__", {}).get("load_overload")
+    code = getattr(original, "__code__", None)
+    if getattr(original, "_monte_without_refresh", False):
+        return True  # installed by another import of this package (a second import name in one process)
+    if code is None or frozenset(code.co_names) != _CACHE_LOAD_NAMES or code.co_argcount != 3:
+        return False
+    from numba.core.runtime import rtsys
+
+    cpu_context = cpu.CPUContext
+
+    def load_overload(self, sig, target_context):
+        if type(target_context) is not cpu_context or not getattr(getattr(getattr(self, "_impl", None), "locator",
+                                                                          None), "_monte_kernel", False):
+            return original(self, sig, target_context)
+        rtsys.initialize(target_context)  # what the refresh did that a cached kernel needs: NRT's symbols
+        _LAZY.active = True  # this thread's libraries rebuilt now may leave their bitcode unparsed
+        try:
+            with self._guard_against_spurious_io_errors():
+                return self._load_overload(sig, target_context)
+            # (None when the `with` swallows an I/O error, as numba's)
+        finally:
+            _LAZY.active = False
+
+    load_overload._monte_without_refresh = True
+    load_overload._numba_original = original
+    load_overload.__doc__ = original.__doc__
+    cache_class.load_overload = load_overload
+    return True
+
+
+NUMBA_CACHE_LOADS_WITHOUT_REFRESH = _load_cached_kernels_without_refresh()
+
+
+class _ParsedWhenRead(property):
+    """JITCodeLibrary._shared_module as installed by _parse_bitcode_when_needed."""
+
+    _monte = True
+
+
+_LAZY = threading.local()  # .active: a Monte kernel's cached load is under way on this thread
+_PENDING_BITCODE = "_monte_pending_bitcode"  # a library's attribute: its bitcode, not parsed yet
+
+
+def _parse_bitcode_when_needed() -> bool:
+    """Leave a cached kernel's LLVM bitcode unparsed until something needs it. numba's cache holds each kernel as
+    its object code (what runs) and its optimized LLVM bitcode; loading parses the bitcode (~40 % of a load) and
+    lists the symbols it defines (~7 %), but only two things ever use that module: linking the kernel into a
+    function compiled later (a compile in the process that calls it) and answering "is this symbol defined"
+    for names the library defines. The object code is loaded as before (numba hands it to LLVM's JIT for the
+    library's empty final module), so the kernel runs the same machine code. Loading the 51 entry signatures in
+    a fresh process: 0.25 -> 0.095 s of CPU.
+
+    Only for libraries rebuilt while a Monte kernel loads from the cache (the `load_overload` above) on numba's
+    JIT libraries: `JITCodeLibrary._shared_module` becomes a property that parses the kept bitcode (and lists
+    its symbols) the first time it is read; numba's engine parses every pending library before it answers "not
+    defined"; the one name a load asks for at once, the kernel's Python wrapper (numba's CPUContext.get_executable
+    takes its address), is the name numba compiled the library for, so it is recorded as defined without the
+    parse. Guarded: the numba versions of _load_cached_kernels_without_refresh, numba's methods' code checked,
+    nothing installed unless every piece is as read. Returns True when installed."""
+    from numba.core import codegen, cpu
+
+    library_class, engine_class = getattr(codegen, "JITCodeLibrary", None), getattr(codegen, "JitEngine", None)
+    unserialize = getattr(codegen, "CPUCodeLibrary", object).__dict__.get("_unserialize")
+    get_executable = cpu.CPUContext.__dict__.get("get_executable")
+    is_defined = getattr(engine_class, "__dict__", {}).get("is_symbol_defined")
+    if library_class is None or engine_class is None or unserialize is None or get_executable is None:
+        return False
+    if isinstance(library_class.__dict__.get("_shared_module"), property):
+        return bool(getattr(library_class.__dict__["_shared_module"], "_monte", False))
+    names = set(getattr(getattr(getattr(unserialize, "__func__", None), "__code__", None), "co_names", ()))
+    if not {"parse_bitcode", "_set_compiled_object", "_load_defined_symbols", "_shared_module",
+            "_finalize_final_module", "enable_object_caching"} <= names or is_defined is None:
+        return False
+    original_unserialize = unserialize.__func__
+    import llvmlite.binding as ll
+
+    lock = threading.RLock()
+
+    def materialize(library) -> None:
+        with lock:
+            data = library.__dict__.pop(_PENDING_BITCODE, None)
+            if data is not None:
+                module = ll.parse_bitcode(data)
+                library.__dict__["_shared_module"] = module
+                library._codegen._engine._load_defined_symbols(module)
+
+    def shared_module(self):
+        if _PENDING_BITCODE in self.__dict__:
+            materialize(self)
+        return self.__dict__.get("_shared_module")
+
+    def set_shared_module(self, value):
+        self.__dict__["_shared_module"] = value
+
+    def lazy_unserialize(cls, cg, state):
+        name, kind, data = state
+        if kind != "object" or not getattr(_LAZY, "active", False) or cls is not library_class:
+            return original_unserialize(cls, cg, state)
+        self = cg.create_library(name)
+        object_code, shared_bitcode = data
+        self.enable_object_caching()
+        self._set_compiled_object(object_code)
+        self.__dict__["_shared_module"] = None
+        self.__dict__[_PENDING_BITCODE] = shared_bitcode
+        with lock:
+            cg._engine.__dict__.setdefault("_monte_pending", weakref.WeakSet()).add(self)
+        self._finalize_final_module()
+        return self
+
+    def lazy_is_symbol_defined(self, name):
+        if name in self._defined_symbols:
+            return True
+        pending = self.__dict__.get("_monte_pending")
+        if pending:
+            with lock:
+                for library in list(pending):
+                    materialize(library)
+                pending.clear()
+        return name in self._defined_symbols
+
+    def executable(self, library, fndesc, env):
+        if _PENDING_BITCODE in getattr(library, "__dict__", {}):
+            library._codegen._engine._defined_symbols.add(fndesc.llvm_cpython_wrapper_name)
+        return get_executable(self, library, fndesc, env)
+
+    library_class._shared_module = _ParsedWhenRead(shared_module, set_shared_module)
+    library_class._unserialize = classmethod(lazy_unserialize)
+    engine_class.is_symbol_defined = lazy_is_symbol_defined
+    executable.__doc__ = get_executable.__doc__
+    cpu.CPUContext.get_executable = executable
+    return True
+
+
+NUMBA_CACHE_LOADS_PARSE_LATER = NUMBA_CACHE_LOADS_WITHOUT_REFRESH and _parse_bitcode_when_needed()
 PACKAGE = __name__.rpartition(".")[0] or "core"  # "monte.core", "bl_ext.user_default.monte.core", ...
 
 
@@ -232,22 +428,48 @@ _CacheImpl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl
 
 _WRITABLE: set[str] = set()  # cache folders this process found writable
 
+# (the import's module spec, the module file's digest, sources_digest()) of the last kernel stamped
+_LAST_STAMP: list = [None]
+
+
+def _import_underway(module_name: str | None):
+    """The spec of module `module_name` while Python is executing its import (or reload), else None: one object
+    per import, so a digest kept for it is never reused by a later import of the module."""
+    module = sys.modules.get(module_name) if module_name else None
+    spec = getattr(module, "__spec__", None)
+    return spec if getattr(spec, "_initializing", False) else None
+
 if _InTree is not None and _CacheImpl is not None:
 
     class _PerImportNameLocator(_InTree):
         """numba's in-tree locator, moved into this import name's folder, for functions defined here only.
         (A folder that cannot be written falls through to numba's next locator, as with the in-tree one.)"""
 
+        _monte_kernel = True  # loaded without numba's registries: _load_cached_kernels_without_refresh
+
         def __init__(self, py_func, py_file):
             super().__init__(py_func, py_file)
             self._cache_path = cache_dir()
+            self._module_name = getattr(py_func, "__module__", None)
 
         def get_source_stamp(self):
             """The contents of the function's own file and of every kernel module: numba checks only the file a
             function is defined in, but kernels call (and inline) functions of other kernel modules (core.warps
             from the light and BSDF kernels, core.geometry_kernels from core.path_kernels), whose edits must
-            recompile them too. Contents, not numba's file times: see the module's docstring."""
-            return "sha256", file_digest(self._py_file), sources_digest()
+            recompile them too. Contents, not numba's file times: see the module's docstring.
+
+            numba asks once per kernel, as each is defined; the kernel modules' digest is taken once per import of
+            a module (_import_underway) and reused for the module's further kernels (~340 kernels, each checking
+            the stat of the 17 modules: ~0.01 s of CPU of every process's import)."""
+            own = file_digest(self._py_file)
+            underway = _import_underway(self._module_name)
+            last = _LAST_STAMP[0]
+            if underway is not None and last is not None and last[0] is underway and last[1] == own:
+                return "sha256", own, last[2]
+            digest = sources_digest()
+            if underway is not None:
+                _LAST_STAMP[0] = (underway, own, digest)
+            return "sha256", own, digest
 
         def ensure_cache_path(self):
             """numba's check (create the folder, write a temporary file in it), once per process instead of

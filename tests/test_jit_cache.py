@@ -213,3 +213,172 @@ def test_numba_llvm_lock_events_are_dropped_and_kernels_still_compile_and_load()
     assert result["dropped"] is True and "numba.core.base" not in result["left"]
     assert result["value"] == 42 and result["loaded"] > 0
     assert result["compiler_timer"] is True and result["llvm_timer"] is False
+
+
+_LOAD_AND_RENDER = """
+    import hashlib, json, sys
+    import numpy as np
+    from numba.core import caching, codegen
+    from numba.core.base import builtin_registry
+    from numba.core.registry import cpu_target
+    from monte.core import jit_cache, sampling
+    from monte.core.precompile import kernel_cache_counts, load_cached_kernels
+    from monte.core.builtin_scenes import builtin_scene
+    from monte.core.render import render
+    from monte.core.settings import RenderSettings
+    ctx = cpu_target.target_context
+    loaded = load_cached_kernels()
+    result = render(builtin_scene("cornell", (16, 16)), RenderSettings(spp=2, threads=2, seed=3))
+    image = np.concatenate([np.ravel(a).astype(np.float64) for a in (result.color, result.variance, result.albedo,
+                                                                      result.normal) if a is not None])
+    counts = kernel_cache_counts()
+    registries_after_loading = builtin_registry in ctx._registries
+    typed_list_imported = "numba.typed.listobject" in sys.modules
+    mix = sampling._mix32
+    mix_library = mix.overloads[mix.signatures[0]].library
+    pending = sum(jit_cache._PENDING_BITCODE in d.overloads[s].library.__dict__
+                  for d in [mix] + [v for v in vars(sampling).values() if hasattr(v, "overloads")]
+                  for s in d.signatures)
+    mix_pending = jit_cache._PENDING_BITCODE in mix_library.__dict__
+
+    import numba
+
+    @numba.njit
+    def needs_the_registries(n):  # array creation, a reduction, np.random: implementations the refresh installs
+        np.random.seed(n)
+        return np.arange(n).sum() + int(np.random.random() >= 0.0)
+
+    @numba.njit
+    def calls_a_loaded_kernel(x):  # links the loaded library: its bitcode is parsed now
+        return mix(x)
+
+    value = needs_the_registries(10)
+    mixed = int(calls_a_loaded_kernel(np.uint32(12345))), int(mix(np.uint32(12345)))
+    print("RESULT " + json.dumps({
+        "applied": jit_cache.NUMBA_CACHE_LOADS_WITHOUT_REFRESH, "parse_later": jit_cache.NUMBA_CACHE_LOADS_PARSE_LATER,
+        "patched": bool(getattr(caching.Cache.load_overload, "_monte_without_refresh", False)),
+        "loaded": loaded, "counts": counts, "image": hashlib.sha256(image.tobytes()).hexdigest(),
+        "registries_after_loading": registries_after_loading, "typed_list_imported": typed_list_imported,
+        "pending": pending, "mix_pending": mix_pending,
+        "mix_parsed_after": jit_cache._PENDING_BITCODE not in mix_library.__dict__
+                            and mix_library._shared_module is not None,
+        "registries_after_compiling": builtin_registry in ctx._registries, "value": int(value), "mixed": mixed}))
+"""
+
+
+def test_cached_kernels_load_without_registries_or_bitcode_and_render_the_same_image():
+    """jit_cache loads Monte's cached kernels without numba's registry refresh (its first one: ~0.08 s of CPU of
+    every render process) and leaves each library's bitcode unparsed until something links it (~60 % of a
+    load). In a fresh process the kernels load and render with no registry installed, nothing compiled and the
+    bitcode pending, and the image is bit for bit the one numba's own loading gives (MONTE_PLAIN_NUMBA_LOADS=1).
+    A function compiled afterwards (array creation, np.random: implementations the registries hold) still
+    compiles and runs, and one calling a loaded kernel links it (its bitcode parsed then) and computes the same.
+    Fails too when the patches stop applying (a numba version or method they were not read for): then re-read
+    numba's Cache.load_overload and CPUCodeLibrary._unserialize before widening the checks."""
+    ours = _python(_LOAD_AND_RENDER)
+    numbas = _python(_LOAD_AND_RENDER, MONTE_PLAIN_NUMBA_LOADS="1")
+    assert ours["applied"] is True and ours["patched"] is True and ours["parse_later"] is True, ours
+    assert numbas["applied"] is False and numbas["parse_later"] is False
+    assert ours["loaded"] > 0 and ours["counts"]["compiled"] == 0 and numbas["counts"]["compiled"] == 0
+    assert ours["registries_after_loading"] is False and ours["typed_list_imported"] is False
+    assert numbas["registries_after_loading"] is True
+    assert ours["pending"] > 0 and ours["mix_pending"] is True and numbas["pending"] == 0
+    assert ours["image"] == numbas["image"]
+    assert ours["registries_after_compiling"] is True and ours["value"] == 46 == numbas["value"]
+    assert ours["mix_parsed_after"] is True and ours["mixed"][0] == ours["mixed"][1] == numbas["mixed"][0]
+
+
+def test_other_packages_cached_functions_keep_numbas_refresh():
+    """The loader without the refresh applies to Monte's kernels only (cached by the per-import-name locator):
+    another package's cached function, or a context other than numba's CPU one, goes through numba's method,
+    which refreshes the context first."""
+    from types import SimpleNamespace
+    from contextlib import nullcontext
+
+    from numba.core import caching
+    from numba.core.registry import cpu_target
+
+    assert jit_cache.NUMBA_CACHE_LOADS_WITHOUT_REFRESH is True
+
+    class Context:
+        refreshed = 0
+
+        def refresh(self):
+            Context.refreshed += 1
+
+    def cache(locator):
+        return SimpleNamespace(_impl=SimpleNamespace(locator=locator), _load_overload=lambda sig, ctx: ("loaded", ctx),
+                               _guard_against_spurious_io_errors=nullcontext)
+
+    load = caching.Cache.load_overload
+    other = cache(SimpleNamespace())  # another package's locator
+    context = Context()
+    assert load(other, "sig", context) == ("loaded", context) and Context.refreshed == 1
+    ours = cache(jit_cache._PerImportNameLocator.__new__(jit_cache._PerImportNameLocator))
+    assert load(ours, "sig", context) == ("loaded", context)  # not numba's CPU context: numba's way
+    assert Context.refreshed == 2
+    refreshes = []
+    ctx = cpu_target.target_context
+    original_refresh = ctx.refresh
+    ctx.refresh = lambda: refreshes.append(1)
+    try:
+        assert load(ours, "sig", ctx) == ("loaded", ctx)  # Monte's kernel on the CPU context: no refresh
+        assert refreshes == []
+        load(other, "sig", ctx)
+        assert refreshes == [1]
+    finally:
+        del ctx.refresh
+        assert ctx.refresh == original_refresh
+
+
+def test_the_kernel_modules_digest_is_taken_once_per_module_import():
+    """numba stamps each kernel as it is defined; the kernel modules' digest (17 files' stats) is taken once per
+    import of a kernel module, not once per kernel (~340), and every kernel's stamp is still its own file's
+    contents and the digest of all kernel modules. A stamp made outside an import checks the files again."""
+    result = _python("""
+        import json
+        from monte.core import jit_cache
+        calls = []
+        original = jit_cache.sources_digest
+        jit_cache.sources_digest = lambda *a, **k: calls.append(1) or original(*a, **k)
+        import monte.core.render, monte.core.shading.evaluator  # noqa: E401,F401
+        from monte.core import precompile
+        during_import = len(calls)
+        stamps = [d._cache._cache_file._source_stamp for d in precompile._dispatchers()]
+        files = [d.py_func.__code__.co_filename for d in precompile._dispatchers()]
+        locator = jit_cache._PerImportNameLocator.from_function(precompile._dispatchers()[0].py_func, files[0])
+        before = len(calls)
+        locator.get_source_stamp()
+        print("RESULT " + json.dumps({
+            "during_import": during_import, "before": before, "after": len(calls), "kernels": len(stamps),
+            "right": sum(s == ["sha256", jit_cache.file_digest(f), original()] or
+                         s == ("sha256", jit_cache.file_digest(f), original()) for s, f in zip(stamps, files))}))
+    """)
+    assert result["kernels"] > 200 and result["right"] == result["kernels"]
+    assert 0 < result["during_import"] <= len(jit_cache.KERNEL_MODULES)
+    assert result["after"] == result["before"] + 1
+
+
+def test_a_symbol_of_an_unparsed_library_is_still_found():
+    """numba's engine answers "is this symbol defined" for every loaded library: a name that only a library
+    whose bitcode is still pending defines is found (the pending libraries are parsed before a "no")."""
+    result = _python("""
+        import json
+        import llvmlite.binding as ll
+        from monte.core import jit_cache, precompile, sampling
+        precompile.load_cached_kernels()
+        d = sampling._mix32
+        library = d.overloads[d.signatures[0]].library
+        engine = library._codegen._engine
+        pending = jit_cache._PENDING_BITCODE in library.__dict__
+        module = ll.parse_bitcode(library.__dict__[jit_cache._PENDING_BITCODE])
+        names = [f.name for f in module.functions if not f.is_declaration and f.name.startswith("_ZN")]
+        known_before = [n in engine._defined_symbols for n in names]
+        found = [engine.is_symbol_defined(n) for n in names]
+        print("RESULT " + json.dumps({"pending": pending, "names": len(names), "known_before": known_before,
+                                      "found": found, "parsed": jit_cache._PENDING_BITCODE not in library.__dict__,
+                                      "missing": engine.is_symbol_defined("no_such_symbol_in_any_library")}))
+    """)
+    assert result["pending"] is True and result["names"] > 0
+    assert not all(result["known_before"])
+    assert all(result["found"]) and result["parsed"] is True and result["missing"] is False
