@@ -183,7 +183,6 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
         if TIMED:
             cp_ = _cycles()
         for depth in range(max_bounces + 2):
-            killed = False  # (node programs) ended by the roulette at the camera hit after its albedo is shaded
             # ---- closest hit
             if TIMED:
                 c0_ = _cycles()
@@ -269,11 +268,7 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                 if TIMED:
                     counters[TIMING_FIRST + 7] += _cycles() - c0_
                 if not u_rr < q:
-                    if programs is None:
-                        break
-                    if not (depth == 0 and want_aovs):
-                        break
-                    killed = True
+                    break
                 t0, t1, t2 = t0 / q, t1 / q, t2 / q
             # ---- the surface (core.geometry_kernels.surface for flat triangles)
             if TIMED:
@@ -299,12 +294,10 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                                   dz, cos_o_geo < _F0)
                     shade_lobes = programs[37]
                     row = 0
-                    if depth == 0 and want_aovs:
+                    if depth == 0 and want_aovs:  # (the roulette keeps every camera hit: its throughput is 1)
                         alb = programs[38]
                         albedo_batch(shade_lobes, multiscatter, tabs, alb, False, alb)
                         out_albedo[k, 0], out_albedo[k, 1], out_albedo[k, 2] = alb[0, 0], alb[0, 1], alb[0, 2]
-                if killed:
-                    break
             if sx * gx + sy * gy + sz * gz < _F0:
                 sx, sy, sz = -sx, -sy, -sz
             ux, uy, uz = sx, sy, sz  # the normal the diffuse lobes keep

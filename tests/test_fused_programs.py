@@ -72,8 +72,9 @@ def test_node_programs_in_the_fused_kernel_are_bit_identical_across_thread_count
     assert np.array_equal(one.albedo, two.albedo)
 
 
-def test_the_russian_roulette_at_the_camera_hit_keeps_the_shaded_albedo(fast_settings, monkeypatch):
-    """rr_depth 0: a path may end at its first hit, after the albedo pass took that hit's program-shaded lobes."""
+def test_the_russian_roulette_from_the_camera_hit_on_keeps_the_images_equal(fast_settings, monkeypatch):
+    """rr_depth 0: the roulette runs at every vertex (at the camera hit it keeps every path, whose throughput is
+    1: the albedo pass, written there from the program-shaded lobes, is never cut short)."""
     scene = fused_program_scene((16, 12))
     settings = fast_settings(spp=4, threads=1, rr_depth=0)
     old = _render(scene, settings, monkeypatch, fused=False)
