@@ -411,10 +411,11 @@ def node_feature_scene(resolution: tuple[int, int] = (12, 8)):
 
 def fused_program_scene(resolution: tuple[int, int] = (12, 8)):
     """A tiny scene whose node programs the fused path kernel evaluates per vertex (core.fused_tracer
-    .program_reason: no normal, Bump, Light Path, emission...): an Image Texture on the base colour, Noise into a
-    Color Ramp driving the specular F0, roughness from the Object Info Random and the texture, Texture Coordinate
-    Object / Generated, on smooth spheres (one glossy-over-diffuse, one glass-coated) and a UV-mapped floor. Its
-    render compiles trace_paths' node-program signature (tests/test_fused_programs.py renders it both ways)."""
+    .program_reason: no normal, Bump, Light Path, emission...): on a UV-mapped floor (Principled-like glossy over
+    diffuse) and two smooth balls (two objects of one glossy + diffuse material), an Image Texture on the base
+    colour, Noise (of the Object coordinates) into a Color Ramp driving the specular F0 or colour, roughness from
+    the Object Info Random and the texture, the Generated coordinates, Fresnel and Geometry Incoming. Its render
+    compiles trace_paths' node-program signature (tests/test_fused_programs.py renders it both ways)."""
     from .builtin_scenes import icosphere, quad
     from .scene import Camera, Lobe, Material, PointLight, Scene, Texture, World
     from .shading.procedural import pack_flags
@@ -436,7 +437,11 @@ def fused_program_scene(resolution: tuple[int, int] = (12, 8)):
             ("mix", {"out": 8, "factor": 1, "a": 3, "b": 5})]
     regs = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5, 4.0, 2.0, 0.5, 2.0, 0.0, 1.0]
     floor = _program(code, regs, 2, {(0, BIND_F0): 5, (0, BIND_ROUGHNESS): 7, (1, BIND_WEIGHT): 8})
-    ball = _program(code, regs, 2, {(0, BIND_ROUGHNESS): 7, (1, BIND_WEIGHT): 5})
+    # the balls' glossy colour: Fresnel (IOR 1.45, register 17) mixing the ramp into the Geometry's Incoming
+    ball = _program(code + [("fresnel", {"out": 16, "ior": 17}), ("geometry", {"incoming": 18}),
+                            ("mix", {"out": 19, "factor": 16, "a": 5, "b": 18})],
+                    regs + [0.0, 1.45, 0.0, 0.0], 2, {(0, BIND_WEIGHT): 19, (0, BIND_ROUGHNESS): 7,
+                                                     (1, BIND_WEIGHT): 5})
     for p in (floor, ball):
         p.data = np.asarray(ramp, np.float32)
     materials = [
