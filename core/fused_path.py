@@ -2,12 +2,13 @@
 
 The per-bounce integrator (core.integrator.PathTracer.trace) runs ~15 compiled kernels per bounce with NumPy
 glue and intermediate arrays between them. For the scenes this module supports (`supports` says which: constant
-materials without node programs, mesh emitters and analytic lights, the Sobol sampler, MIS, none of the film's
-extra outputs; core.fused_tracer decides and calls it) one kernel, `trace_paths`, does the whole path per camera ray: Embree's closest hit and shadow
-ray, the emission seen (MIS-weighted), Russian roulette, next-event estimation and the BSDF sample, calling the
-same device functions (core.bsdf_kernels.eval_path / sample_path, core.light_kernels.sample_light_path /
-light_emission_path / triangle_pdf_path) with the same random numbers (the sampler's dimension sets, evaluated
-per path by `_sobol`), so the image equals the per-bounce one up to rounding.
+materials, or node programs that set lobe parameters but no normal, mesh emitters and analytic lights, the Sobol
+sampler, MIS, none of the film's extra outputs; core.fused_tracer decides and calls it) one kernel,
+`trace_paths`, does the whole path per camera ray: Embree's closest hit and shadow ray, the emission seen
+(MIS-weighted), Russian roulette, the vertex's node program (core.shading.evaluator.run_point), next-event
+estimation and the BSDF sample, calling the same device functions (core.bsdf_kernels.eval_path / sample_path,
+core.light_kernels.sample_light_path / light_emission_path / triangle_pdf_path) with the same random numbers (the
+sampler's dimension sets, evaluated per path by `_sobol`), so the image equals the per-bounce one up to rounding.
 
 Conventions as in core.integrator: float32 rays in the camera-shifted frame; each path's radiance is summed in
 float32 in the order the per-bounce integrator adds it (emission of a vertex, then its light sample).
@@ -19,7 +20,7 @@ import math
 
 import numpy as np
 
-from .bsdf_kernels import eval_path, sample_path
+from .bsdf_kernels import albedo_batch, eval_path, sample_path
 from llvmlite import ir
 from numba import types
 from numba.core import cgutils
@@ -27,10 +28,12 @@ from numba.extending import intrinsic
 
 from .embree import _INVALID_ID, _call_embree, set_ray
 from .geometry_kernels import _valid_reflection_normal, offset_point, smooth_normal, smooth_surface_lift
+from .jit_cache import jit_inline as _jit_inline
 from .jit_cache import jit_no_nrt as _jit
 from .light_kernels import light_emission_path, probabilities_at, sample_light_path, triangle_pdf_path
 from .path_kernels import add_contribution as _add
 from .sampling import _U, _U0, _U255, _S8, _S16, _S24, _mix32, _owen_rev, _reverse32, _unit_float
+from .shading.evaluator import run_point
 from .warps import onb_f32
 
 
@@ -48,6 +51,14 @@ TIMING_FIRST = 4
 TIMING_PARTS = ("closest hit (Embree)", "shadow ray (Embree)", "lights along the ray", "emitter hit MIS",
                 "light sample", "BSDF eval", "BSDF sample", "random numbers", "surface", "whole path loop")
 COUNTERS = TIMING_FIRST + len(TIMING_PARTS)  # the length of trace_paths' counters array
+
+# trace_paths' `programs` argument (node programs, core.fused_tracer.FusedTracer.trace builds it): the packed
+# programs of core.shading.PreparedShading, what the vertex needs to build their context, and 1-row scratches
+PROGRAM_FIELDS = ("needs_program", "prog_of_mat", "code", "code_start", "regs0", "reg_start", "data", "data_start",
+                  "bind", "emit_reg", "normal_reg", "tex_pixels", "tex_offset", "tex_h", "tex_w", "objects",
+                  "object_of_triangle", "tri_uvs", "shift", "P", "N", "Ng", "I", "uv", "back", "obj", "uvx", "extra",
+                  "dP", "duv", "tan", "scratch", "select_scale", "emission", "normal_out", "has_normal", "aov_out",
+                  "lobes", "albedo")
 
 
 @intrinsic
@@ -92,19 +103,66 @@ def _sobol3(hk, r, dim_keys, tables):
     return _sobol(hk, r, dim_keys, tables, 0), _sobol(hk, r, dim_keys, tables, 1), _sobol(hk, r, dim_keys, tables, 2)
 
 
+@_jit_inline
+def _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, nx, ny, nz, gx, gy, gz, dx, dy, dz,
+                  backface):
+    """Run material mat's node program at a surface vertex into the 1-row lobes of `programs` (PROGRAM_FIELDS,
+    "lobes"): row mat of the material lobes, then the program (core.shading.evaluator.run_point) with the
+    context core.integrator.shade_points builds: the world position, N (the interpolated normal, nx..) and Ng
+    (the face normal) negated on a back face, I = -d, the active UV map (core.geometry_kernels.surface's
+    interpolation), the object row. Differentials, tangents, UV Map and Light Path values read zeros: the scenes
+    whose programs read them are not fused (core.fused_tracer.supports)."""
+    (needs, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg, normal_reg,
+     tex_pixels, tex_offset, tex_h, tex_w, objects, obj_of_tri, tri_uvs, shift, P, N, Ng, I, uv, side, obj, uvx,
+     extra, dP, duv, tan, scratch, t_scale, emission, normal_out, has_normal, aov_out, vl, alb) = programs
+    for l in range(lobes[0].shape[1]):
+        vl[0][0, l] = lobes[0][mat, l]
+        vl[2][0, l] = lobes[2][mat, l]
+        vl[3][0, l] = lobes[3][mat, l]
+        vl[4][0, l] = lobes[4][mat, l]
+        vl[5][0, l] = lobes[5][mat, l]
+        vl[7][0, l] = lobes[7][mat, l]
+        for c in range(3):
+            vl[1][0, l, c] = lobes[1][mat, l, c]
+            vl[6][0, l, c] = lobes[6][mat, l, c]
+            vl[8][0, l, 0, c] = lobes[8][mat, l, 0, c]
+            vl[8][0, l, 1, c] = lobes[8][mat, l, 1, c]
+    P[0, 0], P[0, 1], P[0, 2] = px + shift[0], py + shift[1], pz + shift[2]
+    if backface:
+        N[0, 0], N[0, 1], N[0, 2] = -nx, -ny, -nz
+        Ng[0, 0], Ng[0, 1], Ng[0, 2] = -gx, -gy, -gz
+    else:
+        N[0, 0], N[0, 1], N[0, 2] = nx, ny, nz
+        Ng[0, 0], Ng[0, 1], Ng[0, 2] = gx, gy, gz
+    I[0, 0], I[0, 1], I[0, 2] = -dx, -dy, -dz
+    has_uv = tri_uvs.shape[0] > 0
+    if has_uv:
+        for c in range(2):
+            uv[0, c] = tri_uvs[prim, 0, c] * b0 + tri_uvs[prim, 1, c] * bu + tri_uvs[prim, 2, c] * bv
+    side[0] = backface
+    obj[0] = obj_of_tri[prim]
+    run_point(0, mat, (prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg,
+                       normal_reg, tex_pixels, tex_offset, tex_h, tex_w),
+              (P, N, Ng, I, uv, has_uv, side, obj, objects, uvx, extra, dP, duv, tan, N, scratch),
+              (vl[0], vl[1], vl[2], vl[3], vl[6], vl[8], vl[5], t_scale), (emission, normal_out, has_normal, aov_out))
+
+
 @_jit
 def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scene,
                 tri_vertices, face_normals, corner_normals, smooth, tri_magnitude, material_index, specular, lobes, multiscatter, tabs,
                 has_nondelta, has_transmission, emission, emitter_of_triangle, lt, per_point, n_matters,
                 has_emission, seed_key, set_keys, dim_keys, tables, group_bits, max_bounces, rr_depth, clamp,
                 shadow_epsilon, words, ids, address, buf, radiance, counters, t_start, depth_scale, albedo_of,
-                out_albedo, out_normal, out_depth, terminator_offset):
+                out_albedo, out_normal, out_depth, terminator_offset, programs):
     """Trace camera path k (pixel pix[k], sample smp[k], ray origins[k] + t directions[k], t < tmax[k]) to its
     end and write its radiance (float32) to radiance[k]. set_keys: the Sobol set key of every dimension set a
     path reads (index = the set); see core.fused_tracer.supports for what the scene may hold. counters: [non-finite dropped,
     clamped, closest-hit rays, shadow rays, then (TIMED only) the cycles of TIMING_PARTS], added to.
     terminator_offset: (T,) float32, or empty where no triangle has one: the shadow terminator lift of the shadow
-    ray's origin, exactly as core.path_kernels.shadow_rays does it."""
+    ray's origin, exactly as core.path_kernels.shadow_rays does it. programs: None (no node programs: this code
+    compiles without their blocks), or the tuple PROGRAM_FIELDS names: a vertex whose material has a program
+    shades and samples a 1-row copy of its lobes that the program rewrote (`_shade_vertex`), and the first hit's
+    albedo comes from it."""
     use_terminator = terminator_offset.shape[0] > 0
     has_normals = corner_normals.shape[0] > 0
     want_aovs = out_depth.shape[0] > 0
@@ -228,6 +286,18 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             smooth_here = has_normals and smooth[prim]
             if smooth_here:
                 sx, sy, sz = smooth_normal(corner_normals, prim, b0, bu, bv)
+            shade_lobes = lobes  # the lobes and row the vertex shades with: its material's, or its program's 1-row copy
+            row = mat
+            if programs is not None:
+                if programs[0][mat]:
+                    _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, sx, sy, sz, gx, gy, gz, dx, dy,
+                                  dz, cos_o_geo < _F0)
+                    shade_lobes = programs[37]
+                    row = 0
+                    if depth == 0 and want_aovs:  # (the roulette keeps every camera hit: its throughput is 1)
+                        alb = programs[38]
+                        albedo_batch(shade_lobes, multiscatter, tabs, alb, False, alb)
+                        out_albedo[k, 0], out_albedo[k, 1], out_albedo[k, 2] = alb[0, 0], alb[0, 1], alb[0, 2]
             if sx * gx + sy * gy + sz * gz < _F0:
                 sx, sy, sz = -sx, -sy, -sz
             ux, uy, uz = sx, sy, sz  # the normal the diffuse lobes keep
@@ -239,15 +309,15 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             tx, ty, tz, bx, by, bz = onb_f32(sx, sy, sz)
             # the diffuse lobes' normal (core.geometry_kernels._diffuse_normal), in the row of the vertex's
             # material of the lobes' last array (core.bsdf_kernels.diffuse_axis reads it there)
-            dn = lobes[9]
+            dn = shade_lobes[9]
             if ux == sx and uy == sy and uz == sz:
-                dn[mat, 0], dn[mat, 1], dn[mat, 2] = _F0, _F0, _F1
+                dn[row, 0], dn[row, 1], dn[row, 2] = _F0, _F0, _F1
             else:
                 ax = ux * tx + uy * ty + uz * tz
                 ay = ux * bx + uy * by + uz * bz
                 az = ux * sx + uy * sy + uz * sz
                 alen = max(np.float32(math.sqrt(ax * ax + ay * ay + az * az)), _TINY)
-                dn[mat, 0], dn[mat, 1], dn[mat, 2] = ax / alen, ay / alen, az / alen
+                dn[row, 0], dn[row, 1], dn[row, 2] = ax / alen, ay / alen, az / alen
             lx = wox * tx + woy * ty + woz * tz
             ly = wox * bx + woy * by + woz * bz
             lz = wox * sx + woy * sy + woz * sz
@@ -283,7 +353,7 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                     iz = wx * sx + wy * sy + wz * sz
                     if TIMED:
                         c0_ = _cycles()
-                    f0, f1, f2, pb = eval_path(lobes, mat, multiscatter, tabs, np.float64(lx), np.float64(ly),
+                    f0, f1, f2, pb = eval_path(shade_lobes, row, multiscatter, tabs, np.float64(lx), np.float64(ly),
                                                np.float64(lz) * sgn, back, np.float64(ix), np.float64(iy),
                                                np.float64(iz) * sgn)
                     if TIMED:
@@ -348,7 +418,7 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                 c1_ = _cycles()
                 counters[TIMING_FIRST + 7] += c1_ - c0_
             qx, qy, qz, w0, w1, w2, spdf, sdelta, stransmitted, svalid = sample_path(
-                lobes, mat, multiscatter, tabs, lx, ly, lz, back, u_lobe, u_dir0, u_dir1)
+                shade_lobes, row, multiscatter, tabs, lx, ly, lz, back, u_lobe, u_dir0, u_dir1)
             if TIMED:
                 counters[TIMING_FIRST + 6] += _cycles() - c1_
             qx, qy, qz = np.float32(qx), np.float32(qy), np.float32(qz)

@@ -42,7 +42,10 @@ def supports(tracer) -> str | None:
         return "nothing to light-sample"
     if getattr(accel, "_scene", None) is None or accel.motion is not None or ps.motion is not None:
         return "no Embree scene, or motion"
-    checks = (("node programs", ps.shading is not None), ("textured emitters", ps.textured is not None),
+    programs = program_reason(ps)
+    if programs is not None:
+        return programs
+    checks = (("textured emitters", ps.textured is not None),
               ("alpha", ps.alpha), ("shadow catcher", ps.catcher is not None),
               ("light groups", ps.light_groups is not None), ("light linking", ps.links is not None),
               ("shadow linking", ps.shadow_links is not None), ("light visibility", ps.light_visibility is not None),
@@ -53,6 +56,31 @@ def supports(tracer) -> str | None:
               ("textures", bool(getattr(ps.materials, "_texture_ids", None))),
               ("camera backdrop", ps.scene.world.camera_color is not None
                or ps.scene.world.camera_environment is not None))
+    for name, present in checks:
+        if present:
+            return name
+    return None
+
+
+def program_reason(ps) -> str | None:
+    """None when the scene has no node programs or only programs the fused kernel evaluates per vertex (stage 1:
+    programs that read the shading point, its normals, view, active UV map and object, and set lobe parameters),
+    else why not: a program that sets the normal (Normal Map, Bump: the shading frame is rebuilt and bump
+    shadowing applies), reads ray differentials (Bump), tangents (Normal Map, Tangent), a named UV map (UV Map),
+    the path state (Light Path) or attributes (Attribute), emits (textured emitters) or writes shader AOVs."""
+    sh = ps.shading
+    if sh is None:
+        return None
+    needs = ps.vector_needs
+    checks = (("node programs that set the normal", sh.any_sets_normal),
+              ("node programs with Bump nodes", sh.needs_differentials
+               or (needs is not None and bool(needs.differentials.any()))),
+              ("node programs reading tangents", needs is not None and bool(needs.tangents.any())),
+              ("node programs reading a named UV map", needs is not None and bool(needs.uv_layers.any())),
+              ("node programs reading the light path", sh.uses_light_path),
+              ("node programs reading attributes", sh.uses_attributes),
+              ("node programs with emission", sh.any_emits),
+              ("node programs writing shader AOVs", sh.writes_aovs))
     for name, present in checks:
         if present:
             return name
@@ -94,6 +122,27 @@ class FusedTracer:
         self.terminator = (ps.terminator_offset if ps.terminator_offset is not None
                            else np.zeros(0, np.float32))  # the shadow terminator offset per triangle (or none)
         self.ps, self.settings, self.accel = ps, s, tracer.accel
+        sh = ps.shading
+        self.program_tables = None if sh is None else (
+            np.ascontiguousarray(sh.needs_program, np.bool_), sh.prog_of_mat, sh.code, sh.code_start, sh.regs0,
+            sh.reg_start, sh.data, sh.data_start, sh.bind, sh.emit_reg, sh.normal_reg, *sh.texture_pack,
+            sh.objects, np.ascontiguousarray(ps.object_of_triangle, np.int32),
+            np.ascontiguousarray(ps.kernel_uvs, np.float32), np.ascontiguousarray(ps.shift, np.float32))
+        self.max_registers = 0 if sh is None else sh.max_registers
+
+    def _programs(self) -> tuple | None:
+        """trace_paths' `programs` argument (core.fused_path.PROGRAM_FIELDS): the scene's program tables and this
+        call's 1-row scratches (each call its own: batches may be traced on several threads at once)."""
+        if self.program_tables is None:
+            return None
+        f3 = lambda: np.zeros((1, 3), np.float32)  # noqa: E731
+        vl = tuple(np.ascontiguousarray(a[:1]).copy() for a in self.lobes[:9]) + (np.zeros((1, 3), np.float32),)
+        return (*self.program_tables, f3(), f3(), f3(), f3(), np.zeros((1, 2), np.float32), np.zeros(1, np.bool_),
+                np.zeros(1, np.int32), np.zeros((1, 0, 3, 2), np.float32), np.zeros((1, 0), np.float32),
+                np.zeros((1, 2, 3), np.float32), np.zeros((1, 2, 2), np.float32), np.zeros((1, 0, 4), np.float32),
+                np.empty((self.max_registers, 3), np.float32),
+                np.ascontiguousarray(self.ps.materials.select_scale, np.float32), f3(), f3(), np.zeros(1, np.bool_),
+                np.zeros((0, 1, 4), np.float32), vl, f3())
 
     def trace(self, pixel_id: np.ndarray, sample_id: np.ndarray, origins: np.ndarray, directions: np.ndarray,
               tmax: np.ndarray, depth_scale: np.ndarray, t_start: np.ndarray, want_aovs: bool, stats) -> tuple:
@@ -132,7 +181,7 @@ class FusedTracer:
                     self.n_matters, self.has_emission, self.seed_key, self.set_keys, self.dim_keys, self.tables,
                     self.group_bits, int(s.max_bounces), int(s.rr_depth), np.float32(s.clamp),
                     self.shadow_epsilon, words, words.view(np.uint32), words.ctypes.data, buf, radiance, counters,
-                    *aov_args, self.terminator)
+                    *aov_args, self.terminator, self._programs())
         stats.nonfinite += int(counters[0])
         stats.clamped += int(counters[1])
         self.accel.count_rays(int(counters[2]), int(counters[3]))

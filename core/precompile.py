@@ -409,6 +409,71 @@ def node_feature_scene(resolution: tuple[int, int] = (12, 8)):
                  textures=[Texture("ramp", texels)], name="node-features")
 
 
+def fused_program_scene(resolution: tuple[int, int] = (12, 8)):
+    """A tiny scene whose node programs the fused path kernel evaluates per vertex (core.fused_tracer
+    .program_reason: no normal, Bump, Light Path, emission...): on a UV-mapped floor (Principled-like glossy over
+    diffuse) and two smooth balls (two objects of one glossy + diffuse material), an Image Texture on the base
+    colour, Noise (of the Object coordinates) into a Color Ramp driving the specular F0 or colour, roughness from
+    the Object Info Random and the texture, the Generated coordinates, Fresnel and Geometry Incoming. Its render
+    compiles trace_paths' node-program signature (tests/test_fused_programs.py renders it both ways)."""
+    from .builtin_scenes import icosphere, quad
+    from .scene import Camera, Lobe, Material, PointLight, Scene, Texture, World
+    from .shading.procedural import pack_flags
+    from .shading.program import (BIND_F0, BIND_ROUGHNESS, BIND_WEIGHT, OBJECT_BOX_MIN, OBJECT_BOX_SIZE,
+                                  OBJECT_INVERSE, OBJECT_LOCATION, OBJECT_RANDOM, identity_object_row)
+
+    grey = np.full(3, 0.6)
+    # registers: 0 uv, 1 generated, 2 object, 3 image colour, 4 noise fac, 5 ramp colour, 6 random,
+    # 7 roughness, 8 base colour, 9 0.5, 10 scale 4, 11 detail 2, 12 roughness 0.5, 13 lacunarity 2, 14 0, 15 1
+    ramp = [0.1, 0.2, 0.8, 1.0, 0.9, 0.5, 0.1, 1.0, 0.2, 0.9, 0.3, 1.0]
+    noise = {"fac": 4, "vector": 2, "w": 14, "scale": 10, "detail": 11, "roughness": 12, "lacunarity": 13,
+             "offset": 14, "gain": 15, "distortion": 14, "flags": pack_flags(3, 0, 1)}
+    code = [("texture_coordinate", {"uv": 0, "generated": 1, "object": 2}),
+            ("image", {"color": 3, "vector": 0, "texture": 0}),
+            ("tex_noise", noise),
+            ("color_ramp", {"color": 5, "fac": 4, "table": 0, "rows": 3, "interpolate": 1}),
+            ("object_info", {"random": 6}),
+            ("mix", {"out": 7, "factor": 6, "a": 9, "b": 3}),
+            ("mix", {"out": 8, "factor": 1, "a": 3, "b": 5})]
+    regs = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5, 4.0, 2.0, 0.5, 2.0, 0.0, 1.0]
+    floor = _program(code, regs, 2, {(0, BIND_F0): 5, (0, BIND_ROUGHNESS): 7, (1, BIND_WEIGHT): 8})
+    # the balls' glossy colour: Fresnel (IOR 1.45, register 17) mixing the ramp into the Geometry's Incoming
+    ball = _program(code + [("fresnel", {"out": 16, "ior": 17}), ("geometry", {"incoming": 18}),
+                            ("mix", {"out": 19, "factor": 16, "a": 5, "b": 18})],
+                    regs + [0.0, 1.45, 0.0, 0.0], 2, {(0, BIND_WEIGHT): 19, (0, BIND_ROUGHNESS): 7,
+                                                     (1, BIND_WEIGHT): 5})
+    for p in (floor, ball):
+        p.data = np.asarray(ramp, np.float32)
+    materials = [
+        Material("floor", [Lobe("glossy", np.ones(3), roughness=0.3, fresnel="generalized_schlick",
+                                f0=np.full(3, 0.04)), Lobe("diffuse", grey, under=0)], program=floor),
+        Material("ball", [Lobe("glossy", np.ones(3), roughness=0.2, fresnel="dielectric"),
+                          Lobe("diffuse", grey)], program=ball),
+        Material("grey", [Lobe("diffuse", grey)]),
+    ]
+    ground = quad("ground", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], 0)
+    ground.uvs = np.array([[(0, 0), (1, 0), (1, 1)], [(0, 0), (1, 1), (0, 1)]], np.float64)
+    meshes = [ground, icosphere("ball-a", (-0.6, 0.0, 0.4), 0.4, 1), icosphere("ball-b", (0.6, 0.0, 0.4), 0.4, 1),
+              icosphere("plain", (0.0, 0.8, 0.3), 0.3, 2)]
+    objects = []  # the balls as objects (Object Info Random, Texture Coordinate Object and Generated)
+    for i, (center, random) in enumerate((((-0.6, 0.0, 0.4), 0.25), ((0.6, 0.0, 0.4), 0.8))):
+        row = identity_object_row()
+        row[OBJECT_INVERSE + 3], row[OBJECT_INVERSE + 7], row[OBJECT_INVERSE + 11] = -np.asarray(center)
+        row[OBJECT_LOCATION:OBJECT_LOCATION + 3] = center
+        row[OBJECT_RANDOM] = random
+        row[OBJECT_BOX_MIN:OBJECT_BOX_MIN + 3] = -0.4
+        row[OBJECT_BOX_SIZE:OBJECT_BOX_SIZE + 3] = 0.8
+        objects.append(row)
+        meshes[1 + i].object_index = i
+    texels = np.linspace(0.2, 0.9, 4 * 4 * 3, dtype=np.float32).reshape(4, 4, 3)
+    camera = Camera.look_at((0.0, -4.0, 1.5), (0.0, 0.0, 0.3), horizontal_fov=math.radians(60.0),
+                            resolution=resolution)
+    return Scene(camera=camera, meshes=meshes, materials=materials,
+                 lights=[PointLight("point", np.array((0.0, -1.0, 2.0)), np.full(3, 30.0))],
+                 world=World(np.array((0.2, 0.25, 0.3))), textures=[Texture("ramp", texels)], name="fused-programs",
+                 objects=np.asarray(objects, np.float32))
+
+
 def _fold_constants_once() -> None:
     """The add-on's node compiler folds constant subgraphs at export through evaluator.run_single (its own
     kernel): compile it here too, so that exporting a node material compiles nothing."""
@@ -462,6 +527,8 @@ def _cases() -> list[tuple[str, Callable[[], object], dict]]:
         ("every-feature", every_feature_scene, {}),
         ("every-feature, no AOVs", every_feature_scene, {"aovs": False}),
         ("node programs, environment map, ray visibility", node_feature_scene, {}),
+        ("node programs in the fused kernel", fused_program_scene, {}),
+        ("node programs in the fused kernel, no AOVs", fused_program_scene, {"aovs": False}),
         ("spheres-sky, panoramic camera", lambda: _panoramic(builtin_scene("spheres-sky", small)), {}),
         ("cornell, stratified, tent", lambda: builtin_scene("cornell", small),
          {"sampler": "stratified", "filter_type": "tent", "filter_width": 2.0}),

@@ -1025,6 +1025,98 @@ def _execute(op, a, regs, data, k, P, N, Ng, I, uv, has_uv, back, obj, objects, 
         procedural.run(op, a, regs, data)
 
 
+@_jit_inline
+def run_point(k, m, prog, ctx, lob, out):
+    """Evaluate the program of material m at shading point k (row k of the per-point arrays; see run_programs):
+    the body of run_programs' loop, also inlined into the fused path kernel (core.fused_path), which runs it on
+    1-row arrays (k = 0) at each surface vertex. run_programs' arguments in four tuples (a call of more than 30
+    arguments compiles to CALL_FUNCTION_EX, which numba cannot inline): prog = (prog_of_mat .. tex_w), ctx =
+    (P .. scratch), lob = (kind .. t_scale), out = (emission, normal_out, has_normal, aov_out)."""
+    (prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg, normal_reg, tex_pixels,
+     tex_offset, tex_h, tex_w) = prog
+    P, N, Ng, I, uv, has_uv, back, obj, objects, uvx, extra, dP, duv, tan, nraw, scratch = ctx
+    kind, weight, rough, ior, f0, tint, select, t_scale = lob
+    emission, normal_out, has_normal, aov_out = out
+    p = prog_of_mat[m]
+    if p < 0:
+        return
+    r0, r1 = reg_start[p], reg_start[p + 1]
+    for r in range(r1 - r0):
+        scratch[r, 0] = regs0[r0 + r, 0]
+        scratch[r, 1] = regs0[r0 + r, 1]
+        scratch[r, 2] = regs0[r0 + r, 2]
+    pdata = data[data_start[p]:data_start[p + 1]]
+    for i in range(code_start[p], code_start[p + 1]):
+        a = code[i]
+        if a[0] == _AOV_OUT:
+            if aov_out.shape[0] > 0:
+                for c in range(3):
+                    aov_out[k, a[2], c] += scratch[a[1], c]
+                aov_out[k, a[2], 3] += _F32_1
+            continue
+        op = a[0]
+        # the families straight from here (not through _execute): register-only ops take 3-4 arguments,
+        # only the ops that read the shading context get its arrays
+        if op < _COLOR_BASE:
+            if _register_op(op, a, scratch):
+                pass
+            # the context ops of textured materials inlined here with the arrays they read: through
+            # _core_op each call passed the whole context (two dozen arrays) twice, ~120 ns per instruction
+            elif _context_op(op, a, scratch, k, P, N, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset,
+                             tex_h, tex_w, dP, duv, tan, nraw):
+                pass
+            else:
+                _core_op(op, a, scratch, pdata, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels,
+                         tex_offset, tex_h, tex_w, uvx, extra, dP, duv, tan, nraw)
+        elif op < _PROC_BASE:
+            color.run(op, a, scratch, pdata)
+        else:
+            procedural.run(op, a, scratch, pdata)
+    L = bind.shape[1]
+    changed = False
+    for l in range(L):
+        if kind[k, l] < 0:
+            continue
+        b = bind[p, l, BIND_WEIGHT]
+        if b >= 0:
+            changed = True
+            for c in range(3):
+                wv = scratch[b, c]
+                weight[k, l, c] = wv if wv > _F32_0 else _F32_0
+        b = bind[p, l, BIND_ROUGHNESS]
+        if b >= 0:
+            rv = min(max(scratch[b, 0], _F32_0), _F32_1)
+            if not rv > _SINGULAR:
+                rv = _F32_0
+            rough[k, l] = rv
+        b = bind[p, l, BIND_IOR]
+        if b >= 0:
+            iv = scratch[b, 0]
+            ior[k, l] = iv if iv > np.float32(1e-5) else np.float32(1e-5)
+        b = bind[p, l, BIND_F0]
+        if b >= 0:
+            for c in range(3):
+                f0[k, l, c] = min(max(scratch[b, c], _F32_0), _F32_1)
+        for t in range(2):
+            b = bind[p, l, BIND_TINT_R + t]
+            if b >= 0:
+                changed = True
+                for c in range(3):
+                    tv = scratch[b, c]
+                    tint[k, l, t, c] = tv if tv > _F32_0 else _F32_0
+    if changed:
+        bk._select_row(kind, weight, t_scale, m, k, select)
+    e = emit_reg[p]
+    if e >= 0:  # not clamped: Cycles renders a negative emission colour as negative radiance
+        for c in range(3):
+            emission[k, c] = scratch[e, c]
+    nr = normal_reg[p]
+    if nr >= 0:
+        has_normal[k] = True
+        for c in range(3):
+            normal_out[k, c] = scratch[nr, c]
+
+
 @_jit
 def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg,
                  normal_reg, tex_pixels, tex_offset, tex_h, tex_w, P, N, Ng, I, uv, has_uv, back, obj, objects, uvx,
@@ -1036,87 +1128,14 @@ def run_programs(rows, mat, prog_of_mat, code, code_start, regs0, reg_start, dat
     has_normal[k] = True. aov_out (N, K, 4): each aov_output instruction adds its value and a count of 1 to
     aov_out[k, aov]; with no rows (0, K, 4) the instructions write nothing. scratch (R_max, 3) float32 is the
     register file."""
+    prog = (prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg, normal_reg,
+            tex_pixels, tex_offset, tex_h, tex_w)
+    ctx = (P, N, Ng, I, uv, has_uv, back, obj, objects, uvx, extra, dP, duv, tan, nraw, scratch)
+    lob = (kind, weight, rough, ior, f0, tint, select, t_scale)
+    out = (emission, normal_out, has_normal, aov_out)
     for j in range(rows.shape[0]):
         k = rows[j]
-        m = mat[k]
-        p = prog_of_mat[m]
-        if p < 0:
-            continue
-        r0, r1 = reg_start[p], reg_start[p + 1]
-        for r in range(r1 - r0):
-            scratch[r, 0] = regs0[r0 + r, 0]
-            scratch[r, 1] = regs0[r0 + r, 1]
-            scratch[r, 2] = regs0[r0 + r, 2]
-        pdata = data[data_start[p]:data_start[p + 1]]
-        for i in range(code_start[p], code_start[p + 1]):
-            a = code[i]
-            if a[0] == _AOV_OUT:
-                if aov_out.shape[0] > 0:
-                    for c in range(3):
-                        aov_out[k, a[2], c] += scratch[a[1], c]
-                    aov_out[k, a[2], 3] += _F32_1
-                continue
-            op = a[0]
-            # the families straight from here (not through _execute): register-only ops take 3-4 arguments,
-            # only the ops that read the shading context get its arrays
-            if op < _COLOR_BASE:
-                if _register_op(op, a, scratch):
-                    pass
-                # the context ops of textured materials inlined here with the arrays they read: through
-                # _core_op each call passed the whole context (two dozen arrays) twice, ~120 ns per instruction
-                elif _context_op(op, a, scratch, k, P, N, I, uv, has_uv, back, obj, objects, tex_pixels, tex_offset,
-                                 tex_h, tex_w, dP, duv, tan, nraw):
-                    pass
-                else:
-                    _core_op(op, a, scratch, pdata, k, P, N, Ng, I, uv, has_uv, back, obj, objects, tex_pixels,
-                             tex_offset, tex_h, tex_w, uvx, extra, dP, duv, tan, nraw)
-            elif op < _PROC_BASE:
-                color.run(op, a, scratch, pdata)
-            else:
-                procedural.run(op, a, scratch, pdata)
-        L = bind.shape[1]
-        changed = False
-        for l in range(L):
-            if kind[k, l] < 0:
-                continue
-            b = bind[p, l, BIND_WEIGHT]
-            if b >= 0:
-                changed = True
-                for c in range(3):
-                    wv = scratch[b, c]
-                    weight[k, l, c] = wv if wv > _F32_0 else _F32_0
-            b = bind[p, l, BIND_ROUGHNESS]
-            if b >= 0:
-                rv = min(max(scratch[b, 0], _F32_0), _F32_1)
-                if not rv > _SINGULAR:
-                    rv = _F32_0
-                rough[k, l] = rv
-            b = bind[p, l, BIND_IOR]
-            if b >= 0:
-                iv = scratch[b, 0]
-                ior[k, l] = iv if iv > np.float32(1e-5) else np.float32(1e-5)
-            b = bind[p, l, BIND_F0]
-            if b >= 0:
-                for c in range(3):
-                    f0[k, l, c] = min(max(scratch[b, c], _F32_0), _F32_1)
-            for t in range(2):
-                b = bind[p, l, BIND_TINT_R + t]
-                if b >= 0:
-                    changed = True
-                    for c in range(3):
-                        tv = scratch[b, c]
-                        tint[k, l, t, c] = tv if tv > _F32_0 else _F32_0
-        if changed:
-            bk._select_row(kind, weight, t_scale, m, k, select)
-        e = emit_reg[p]
-        if e >= 0:  # not clamped: Cycles renders a negative emission colour as negative radiance
-            for c in range(3):
-                emission[k, c] = scratch[e, c]
-        nr = normal_reg[p]
-        if nr >= 0:
-            has_normal[k] = True
-            for c in range(3):
-                normal_out[k, c] = scratch[nr, c]
+        run_point(k, mat[k], prog, ctx, lob, out)
 
 
 # ----------------------------------------------------------------------------------------------- Python face
