@@ -28,7 +28,7 @@ import numpy as np
 SCENES_VERSION = 1
 # glass 2: the cube and the slab lifted 1 mm off the floor (coplanar faces made the image depend on how each
 # renderer breaks ties between coincident surfaces: Monte 0.22, Cycles 0.06 in red under the cube's top face).
-SCENE_VERSIONS = {"glass": 2}
+SCENE_VERSIONS = {"glass": 2, "textured": 2}  # textured 2: the crate colour 8-bit sRGB (a float sRGB image changed on reload)
 
 
 def scene_version(name: str) -> int:
@@ -417,13 +417,18 @@ def hdri(resolution=(256, 256)):
     return scene
 
 
-def _image(name: str, pixels, colorspace: str):
-    """A packed float image from (H, W, 4) pixels (row 0 at the bottom, as Blender stores them)."""
+def _image(name: str, pixels, colorspace: str, float_buffer: bool = True):
+    """A packed image from (H, W, 4) pixels (row 0 at the bottom, as Blender stores them): float (packed as
+    OpenEXR) or 8-bit (packed as PNG). Both read back from a saved .blend as they were made (what the whole-process
+    bench renders), as long as a float image is Non-Color: a float sRGB image is kept linear in memory but read
+    back through the sRGB transform, so a colour image is 8-bit sRGB, as users' colour textures are."""
     import numpy as np
 
     h, w = pixels.shape[:2]
-    img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=True)
+    img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=float_buffer)
     img.colorspace_settings.name = colorspace
+    if float_buffer:
+        img.file_format = "OPEN_EXR"
     img.pixels.foreach_set(np.ascontiguousarray(pixels, np.float32).ravel())
     img.pack()
     return img
@@ -448,7 +453,7 @@ def _crate_images(size: int = 64):
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
     nmap = np.ones((size, size, 4), np.float32)
     nmap[..., :3] = 0.5 * n + 0.5
-    return (_image("crate-colour", colour, "sRGB"), _image("crate-roughness", rough, "Non-Color"),
+    return (_image("crate-colour", colour, "sRGB", float_buffer=False), _image("crate-roughness", rough, "Non-Color"),
             _image("crate-normal", nmap, "Non-Color"))
 
 
