@@ -160,6 +160,8 @@ def _validate_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
             fields[SETTING_FIELDS[prop]] = clean[key]
     if "adaptive_threshold" in clean:
         fields["adaptive_threshold"] = clean["adaptive_threshold"]
+    if "variance" in clean and not isinstance(clean["variance"], bool):
+        raise ValueError(f"override variance must be True or False, got {clean['variance']!r}")
     RenderSettings().replace(**fields).validate()
     return clean
 
