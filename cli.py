@@ -134,6 +134,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         return 2
     overrides = _settings_from(args)
     output = Path(args.output)
+    # --variance: the per-pixel error estimate (core.settings.RenderSettings.error_estimate) and its variance.*
+    # channels; without it one Sobol sequence per pixel (~12 % less noise), unless adaptive sampling needs it
+    variance = bool(args.variance) or float(overrides.get("adaptive_threshold") or 0.0) > 0
     is_blend = args.scene.endswith(".blend") or Path(args.scene).suffix == ".blend"
     if (args.frames is not None or args.resume) and not (args.dask and is_blend):
         print("monte render: --frames and --resume render a .blend's frames on a cluster (with --dask); "
@@ -181,7 +184,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     scene = builtin_scene(args.scene, args.resolution)
     if args.passes:
         overrides["data_passes"] = args.passes
-    settings = RenderSettings(**overrides).validate()
+    settings = RenderSettings(**overrides, error_estimate=variance).validate()
     if output.suffix.lower() != ".exr":
         print(f"monte render: output must be an .exr file, got {output}", file=sys.stderr)
         return 2
@@ -257,10 +260,12 @@ def frame_output(output: Path, frame: int) -> Path:
 
 
 def _blend_overrides(args: argparse.Namespace, overrides: dict) -> None:
-    """The options a .blend's render takes over its own settings (here or on a cluster): --resolution, and the
-    denoising features asked for as the denoiser at --denoise-quality."""
+    """The options a .blend's render takes over its own settings (here or on a cluster): --resolution,
+    --variance, and the denoising features asked for as the denoiser at --denoise-quality."""
     if args.resolution:
         overrides["resolution"] = args.resolution
+    if getattr(args, "variance", False):
+        overrides["variance"] = True
     if overrides.pop("denoising_features", False):
         overrides["denoise"] = True
         overrides["denoise_quality"] = args.denoise_quality
@@ -510,6 +515,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --dask and a .blend: frames A-B or A,B,C, each written as OUTPUT_####.exr when done")
     p.add_argument("--resume", action="store_true",
                    help="with --frames: skip frames whose output file exists")
+    p.add_argument("--variance", action="store_true",
+                   help="also estimate each pixel's error and write it as variance.R/G/B (2 independently scrambled "
+                        "sequences per pixel: the image is ~12%% noisier at the same samples; adaptive sampling "
+                        "keeps the estimate anyway; a .blend's view layer with the Variance pass ticked too)")
     p.add_argument("--passes", type=_data_passes, default=(),
                    help="built-in scenes: Cycles' data passes to add to the EXR, comma-separated: mist, position, "
                         "uv, object_index, material_index, crypto_object, crypto_material, crypto_asset (a .blend "

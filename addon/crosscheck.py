@@ -158,12 +158,21 @@ def _render(scene, what: str) -> list:
 
 def render_monte(scene) -> tuple[np.ndarray, np.ndarray]:
     """Render the scene with Monte as F12 does: (colour (H, W, 3), variance of each pixel's mean (H, W, 3)),
-    row 0 at the top. scene.monte and scene.render must already hold the wanted settings."""
+    row 0 at the top. scene.monte and scene.render must already hold the wanted settings; the rendered view
+    layer's Variance pass is ticked for the render (the engine then keeps the error estimate,
+    core.settings.RenderSettings.error_estimate) and restored after it."""
     scene.render.engine = "MONTE"
-    captured = _render(scene, "Monte")
+    o = _Overrides()
+    o.set(_render_layer(scene).monte, "use_pass_variance", True)
+    try:
+        captured = _render(scene, "Monte")
+    finally:
+        o.restore()
     if not captured:
         raise CrosscheckError(f"Monte produced no image for scene {scene.name!r}")
     result = captured[0][1]
+    if result.variance is None:
+        raise CrosscheckError("Monte's render kept no error estimate (its variance): the comparison needs it")
     return (np.asarray(result.color, np.float64)[..., :3].copy(),
             np.asarray(result.variance, np.float64)[..., :3].copy())
 

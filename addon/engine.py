@@ -329,7 +329,8 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         settings = render_settings(scene, {"aovs": any(p in passes for p in ("Depth", "Normal", "Albedo")),
                                            "data_passes": data_passes(view_layer, scene),
                                            "cryptomatte_levels": 2 * cryptomatte_layers(view_layer),
-                                           "light_passes": requested_light_passes(passes)})
+                                           "light_passes": requested_light_passes(passes),
+                                           "error_estimate": "Variance" in passes})
         for name in unsupported_passes(view_layer):
             self.report({"WARNING"}, f"Monte: the {name} pass (view layer {view_layer.name!r}) is not produced "
                         "by Monte; it is left out of the render result")

@@ -30,7 +30,7 @@ from .data_passes import DataFilm
 from .film import CatcherOutput, TileFilm
 from .render import (CancelCallback, RenderResult, SampleRanges, TileCallback, TileSamples, fold_tile_part,
                      merge_data_tables, merge_tile_samples, render_samples, tile_result, world_to_camera)
-from .sampling import VARIANCE_GROUPS, make_sampler
+from .sampling import make_sampler
 from .scene import Scene
 from .schedule import TileRect, pass_bounds, tiles
 from .settings import RenderSettings
@@ -422,11 +422,11 @@ class _FrameJob:
             if sum(p.sample_end - p.sample_start for p in parts) != spp:
                 continue
             tile = self.tile_list[ti]
-            sampler = make_sampler(self.settings.sampler, self.settings.seed, max(spp, 1), groups=VARIANCE_GROUPS)
+            sampler = make_sampler(self.settings.sampler, self.settings.seed, max(spp, 1), groups=self.settings.variance_groups)
             film = TileFilm(tile[2], tile[3], self.settings.aovs, sampler, self.settings.denoising_features,
                             alpha=self.scene.has_alpha, catcher=CatcherOutput.of(self.scene),
                             light_passes=self.settings.light_passes, shader_aovs=self.scene.shader_aovs,
-                            light_groups=self.scene.light_groups)
+                            light_groups=self.scene.light_groups, error_estimate=self.settings.error_estimate)
             tables = merge_data_tables(self.settings, parts)
             data_film = DataFilm(tile[2], tile[3], tables) if tables is not None else None
             for p in parts:

@@ -18,6 +18,12 @@ G' - 1 degrees of freedom per pixel, but summed over many pixels (an image or re
 With fewer than 2 groups holding samples (the first block of 4 stratified samples) it falls back to s^2 / n,
 which overstates the error there rather than claiming none.
 
+Only a render that reads the estimate keeps the groups (core.settings.RenderSettings.error_estimate: the
+variance pass, adaptive sampling, the Cycles cross-checks): each group is a 1/G-size point set, which costs the
+image itself noise (2 groups: 1.14-1.18x the variance per sample of one Sobol sequence on the `instances` bench
+scene). A film made without the estimate sums one group (sample i is point i of the pixel's single scramble, as
+Cycles) and no squares: 28 B per pixel, and variance_of_mean() / active_pixels() refuse.
+
 Storage: float32, shifted. Each pixel keeps a shift K (per channel, float32: the mean of its first pass of
 samples) and float32 sums of the samples' deviations from K: per variance group, and their squares. Every
 pass of samples (one add() call per pixel and pass) is first summed exactly enough in float64, then folded
@@ -145,18 +151,25 @@ class TileFilm:
 
     def __init__(self, width: int, height: int, aovs: bool, sampler: Sampler | None = None,
                  features: bool = False, alpha: bool = False, catcher: CatcherOutput | None = None,
-                 light_passes: tuple[str, ...] = (), shader_aovs=(), light_groups=()) -> None:
+                 light_passes: tuple[str, ...] = (), shader_aovs=(), light_groups=(),
+                 error_estimate: bool = True) -> None:
         """features: keep the denoising features' sums; alpha: keep each pixel's summed transparency
         (core.scene.Film); without it alpha is 1; catcher: keep the shadow catcher's sums and form Combined
         from them (see the module docstring), None without a shadow catcher; light_passes: the light passes asked
         for (the film keeps the sums of all of core.light_passes.LIGHT_PASSES when any is asked for: Direct and
         Indirect need their Color); shader_aovs: core.scene.Scene.shader_aovs, (name, kind) pairs, whose sums
         (core.shader_aovs.AovPath.values, 16 B per AOV and pixel) the film keeps; light_groups:
-        core.scene.Scene.light_groups, whose float32 RGB sums (core.light_groups, 12 B per group and pixel) it keeps."""
+        core.scene.Scene.light_groups, whose float32 RGB sums (core.light_groups, 12 B per group and pixel) it keeps;
+        error_estimate: keep what the estimate of each pixel's error needs (core.settings.RenderSettings.
+        error_estimate); without it the film keeps one group and no squares (the sampler's groups are not read:
+        give it a sampler with groups=1, whose values are the ones a render without the estimate takes) and
+        variance_of_mean() and active_pixels() refuse."""
         self.width, self.height = width, height
         n = width * height
+        self.error_estimate = bool(error_estimate)
         # Independent samples need no groups: s^2 / n is exact for them and has the most degrees of freedom.
-        self._sampler = sampler if sampler is not None and not sampler.iid and sampler.groups > 1 else None
+        self._sampler = sampler if (error_estimate and sampler is not None and not sampler.iid
+                                    and sampler.groups > 1) else None
         self.groups = self._sampler.groups if self._sampler is not None else 1
         self.shift = np.zeros((n, 3), np.float32)
         self.group_dev = np.zeros((n, self.groups, 3), np.float32)
@@ -165,7 +178,8 @@ class TileFilm:
         self._group_prefix = (_group_prefix_counts(self._sampler, self.groups),)
         # s^2 / n is read only while fewer than 2 groups hold samples: never past 1 sample when 2 fill 2 groups
         prefix = self._group_prefix[0]
-        self.squares = self.groups == 1 or np.count_nonzero(prefix[min(2, len(prefix) - 1)]) < 2
+        self.squares = self.error_estimate and (self.groups == 1
+                                                or np.count_nonzero(prefix[min(2, len(prefix) - 1)]) < 2)
         if self.squares:
             self.dev_sq = np.zeros((n, 3), np.float32)
         self.aovs = aovs
@@ -568,7 +582,10 @@ class TileFilm:
 
     def _variance_of_mean(self) -> np.ndarray:
         """(n, 3) estimated variance of each pixel's mean (see the module docstring); 0 with fewer than 2
-        samples."""
+        samples. ValueError for a film without the error estimate (its sums cannot give it)."""
+        if not self.error_estimate:
+            raise ValueError("this film keeps no error estimate (RenderSettings.error_estimate is off): the variance "
+                             "of its pixels' means is unknown")
         n = self.count.astype(np.float64)[:, None]
         group_dev = self.group_dev.astype(np.float64)
         total = group_dev.sum(axis=1)  # deviations from K: the variance does not see K
@@ -589,14 +606,26 @@ class TileFilm:
             var = np.where(filled >= 2, grouped, var)
         return np.maximum(var, 0.0)
 
-    def write_colour_images(self, color: np.ndarray, variance: np.ndarray, y0: int, x0: int) -> None:
+    def write_colour_images(self, color: np.ndarray, variance: np.ndarray | None, y0: int, x0: int) -> None:
         """Write combined_rgba() and variance_of_mean() into color (H, W, 4) and variance (H, W, 3) float32
         (C-contiguous) at rows y0.., columns x0..: the same bits, compiled where there is no shadow catcher
-        (core.film_kernels.colour_images; one pass over the tile instead of some forty float64 passes)."""
+        (core.film_kernels.colour_images; one pass over the tile instead of some forty float64 passes).
+        variance None: the colour only (a film without the error estimate has none to write)."""
+        if variance is not None and not self.error_estimate:
+            raise ValueError("this film keeps no error estimate: pass variance=None")
         if self.catcher is not None:
             color[y0:y0 + self.height, x0:x0 + self.width] = self.combined_rgba()
-            variance[y0:y0 + self.height, x0:x0 + self.width] = self.variance_of_mean()
+            if variance is not None:
+                variance[y0:y0 + self.height, x0:x0 + self.width] = self.variance_of_mean()
             return
+        if variance is None:  # the kernel writes a variance too: into the tile's own arrays, its colour copied
+            tile_color = np.empty((self.height, self.width, 4), np.float32)
+            self._colour_kernel(tile_color, np.empty((self.height, self.width, 3), np.float32), 0, 0)
+            color[y0:y0 + self.height, x0:x0 + self.width] = tile_color
+            return
+        self._colour_kernel(color, variance, y0, x0)
+
+    def _colour_kernel(self, color: np.ndarray, variance: np.ndarray, y0: int, x0: int) -> None:
         film_kernels.colour_images(self.shift, self.group_dev, self.sample_count, self._group_prefix[0],
                                    self.squares, self.dev_sq if self.squares else _NO_SQUARES, self.alpha,
                                    self.transparent_sum if self.alpha else _NO_ALPHA, y0, x0, self.width,

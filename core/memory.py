@@ -13,7 +13,9 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
 - film (core.film, float32 storage): per pixel a float32 RGB shift (12 B), for each of the 2 variance groups a
   float32 RGB deviation sum (2 x 12 B), an int32 sample count (4 B) (40 B); for samplers other than Sobol a
   float32 RGB sum of squared deviations (FILM_SQUARES_BYTES, 12 B; the independent sampler's film keeps one group
-  and the squares: FILM_INDEPENDENT_BYTES, 40 B); the AOVs' float32 albedo, normal and depth sums are kept in
+  and the squares: FILM_INDEPENDENT_BYTES, 40 B); without an error estimate (RenderSettings.error_estimate off)
+  one group and no squares for every sampler: K, one deviation sum and the count (FILM_NO_ESTIMATE_BYTES, 28 B),
+  and the result keeps no variance image (12 B less); the AOVs' float32 albedo, normal and depth sums are kept in
   the result's own AOV images until each tile is final, their depth hit count in its sample-count image
   (core.render.FrameImages.add_aovs), so they add nothing to a render's films (render_samples()' films, which are
   handed on, keep them: FILM_AOV_BYTES, 32 B); with the denoising
@@ -24,7 +26,8 @@ The estimate (bytes), measured on this renderer (see docs/stress.md for the cali
   16 B per colour AOV, 4 B per value AOV); with light groups (Scene.light_groups) a float32 RGB sum per group
   (12 B, and 12 B in the result). Each pass is summed in float64 over the batch's samples
   (counted in the path batch) before it is folded in;
-- result: the assembled float32 colour RGBA (16 B), variance (12 B), int32 sample count (4 B); with AOVs
+- result: the assembled float32 colour RGBA (16 B), variance (12 B; none without an error estimate), int32
+  sample count (4 B); with AOVs
   albedo, normal (24 B) and depth (4 B); with the denoising features their albedo and normal (24 B); 12 B per
   light pass asked for;
 - data passes (core.data_passes), each requested one: per pixel a sample count (8 B) and film / result bytes of
@@ -55,12 +58,14 @@ from .settings import RenderSettings
 FILM_BYTES = 40  # 2 variance groups (core.sampling.VARIANCE_GROUPS)
 FILM_SQUARES_BYTES = 12  # the sum of squared deviations: kept for all samplers but Sobol (core.film)
 FILM_INDEPENDENT_BYTES = 40  # independent samples: one group (no variance groups) and the squares
+FILM_NO_ESTIMATE_BYTES = 28  # settings.error_estimate off: one group, no squares, for every sampler
 FILM_AOV_BYTES = 32  # AOV sums in a film render_samples() hands on (a render's films keep none)
 FILM_LIGHT_PASS_BYTES = 132  # float32 RGB sums of the 11 light passes (core.light_passes)
 RESULT_LIGHT_PASS_BYTES = 12  # per light pass asked for: float32 RGB
 FILM_SHADER_AOV_BYTES = 16  # per shader AOV: float32 RGB sum and write count (core.shader_aovs)
 LIGHT_GROUP_BYTES = 12  # per light group, in the film and in the result: float32 RGB (core.light_groups)
 RESULT_BYTES = 32
+RESULT_VARIANCE_BYTES = 12  # of RESULT_BYTES: the variance image (none without an error estimate)
 RESULT_AOV_BYTES = 28
 FILM_FEATURE_BYTES = 24
 RESULT_FEATURE_BYTES = 24
@@ -111,13 +116,16 @@ def estimate_render_memory(scene: Scene, settings: RenderSettings, pixels: int |
     features = bool(settings.denoising_features)
     colour = {"sobol": FILM_BYTES, "stratified": FILM_BYTES + FILM_SQUARES_BYTES}.get(settings.sampler,
                                                                                      FILM_INDEPENDENT_BYTES)
+    if not getattr(settings, "error_estimate", True):
+        colour = FILM_NO_ESTIMATE_BYTES
     light = bool(getattr(settings, "light_passes", ()))
     # the tiles' films alive at once (core.render: one window of tiles at a time, but round all under a time limit)
     film_pixels = pixels if settings.time_limit > 0 else min(pixels, max(FILM_WINDOW_PIXELS,
                                                                          int(settings.tile_size) ** 2))
     film = film_pixels * (colour + (FILM_FEATURE_BYTES if features else 0)
                           + (FILM_LIGHT_PASS_BYTES if light else 0))
-    result = pixels * (RESULT_BYTES + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0)
+    result = pixels * (RESULT_BYTES - (0 if getattr(settings, "error_estimate", True) else RESULT_VARIANCE_BYTES)
+                       + (RESULT_AOV_BYTES if aovs else 0) + (RESULT_FEATURE_BYTES if features else 0)
                        + RESULT_LIGHT_PASS_BYTES * len(getattr(settings, "light_passes", ())))
     aov_list = list(getattr(scene, "shader_aovs", ()))
     film += film_pixels * FILM_SHADER_AOV_BYTES * len(aov_list)

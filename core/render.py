@@ -35,7 +35,7 @@ from .jit_cache import compile_cache_is_cold
 from .light_groups import LightGroupSamples, pass_name
 from .light_passes import LightPassSamples
 from .memory import check_render_memory
-from .sampling import VARIANCE_GROUPS, make_sampler
+from .sampling import make_sampler
 from .scene import Scene
 from .schedule import (FILM_WINDOW_PIXELS, Segment, TileRect, adaptive_batch_target, batch_target, pass_bounds,
                        pass_segments, sample_passes, tiles)
@@ -55,7 +55,8 @@ class Tile:
 
     color: (h, w, 4) RGBA float32 linear radiance, premultiplied by alpha: alpha is 1 where surfaces or an
     opaque world were seen, lower where the pixel's samples escaped to the world under Film > Transparent or
-    met a holdout (core.scene.Film, Material.holdout), which add no colour. variance: (h, w, 3) variance of each pixel's mean.
+    met a holdout (core.scene.Film, Material.holdout), which add no colour. variance: (h, w, 3) variance of each pixel's mean
+    (its unbiased estimate), None when settings.error_estimate is off (no render of those settings has one).
     albedo, normal: (h, w, 3) first-hit AOVs (normal in world space); depth: (h, w) distance along the camera
     axis to the first hit (Blender's Z pass; 1e10 where nothing was hit). samples: samples taken per pixel.
     denoising_albedo, denoising_normal: (h, w, 3) Cycles' Denoising Albedo and Denoising Normal passes (normal in
@@ -71,7 +72,7 @@ class Tile:
     x0: int
     y0: int
     color: np.ndarray
-    variance: np.ndarray
+    variance: np.ndarray | None
     albedo: np.ndarray | None = None
     normal: np.ndarray | None = None
     depth: np.ndarray | None = None
@@ -122,7 +123,7 @@ class RenderResult:
     """The full frame (same arrays as Tile, whole image), statistics and what went wrong on the way."""
 
     color: np.ndarray
-    variance: np.ndarray
+    variance: np.ndarray | None  # None without settings.error_estimate
     albedo: np.ndarray | None
     normal: np.ndarray | None
     depth: np.ndarray | None
@@ -261,12 +262,13 @@ def merge_tile_samples(scene: Scene, settings: RenderSettings, parts: list[TileS
     width, height = scene.camera.resolution
     region = (0, 0, width, height) if region is None else tuple(int(v) for v in region)
     tile_list = tiles(*region, settings.tile_size)
-    sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
+    sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=settings.variance_groups)
 
     def make_film(t: TileRect) -> TileFilm:
         return TileFilm(t[2], t[3], settings.aovs, sampler, settings.denoising_features, alpha=scene.has_alpha,
                         catcher=CatcherOutput.of(scene), light_passes=settings.light_passes,
-                        shader_aovs=scene.shader_aovs, light_groups=scene.light_groups)
+                        shader_aovs=scene.shader_aovs, light_groups=scene.light_groups,
+                        error_estimate=settings.error_estimate)
 
     tables = merge_data_tables(settings, parts)
     data_films = [DataFilm(t[2], t[3], tables) for t in tile_list] if tables is not None else None
@@ -355,7 +357,8 @@ class FrameImages:
         self.region, self.aovs = region, aovs
         rx, ry, rw, rh = region
         self.color = np.zeros((rh, rw, 4), np.float32)
-        self.variance = np.zeros((rh, rw, 3), np.float32)
+        # none without the error estimate (core.settings.RenderSettings.error_estimate): Tile / RenderResult.variance None
+        self.variance = np.zeros((rh, rw, 3), np.float32) if film is None or film.error_estimate else None
         self.albedo = np.zeros((rh, rw, 3), np.float32) if aovs else None
         self.normal = np.zeros((rh, rw, 3), np.float32) if aovs else None
         # (0 until a tile's images are written: put() writes 1e10 where nothing was hit, and every tile is put)
@@ -419,7 +422,7 @@ class FrameImages:
         sl = self.slice(tile)
         oy, ox = sl[0].start, sl[1].start  # the tile's first row and column in the region's images
         film.write_colour_images(self.color, self.variance, oy, ox)
-        out = Tile(tx, ty, self.color[sl], self.variance[sl], samples=samples)
+        out = Tile(tx, ty, self.color[sl], self._variance(sl), samples=samples)
         if self.aovs:
             if film.aovs:
                 film.write_aov_images(self.albedo, self.normal, self.depth, oy, ox)
@@ -471,10 +474,13 @@ class FrameImages:
             aov_out = (self._no_aov3, self._no_aov3, self._no_aov1.reshape(0, 0))
         film_kernels.one_sample_images(f32(radiance), *aov_in, bool(self.aovs), sl[0].start, sl[1].start, tw,
                                        self.color, *aov_out, self.counts)
-        out = Tile(tx, ty, self.color[sl], self.variance[sl], samples=1)
+        out = Tile(tx, ty, self.color[sl], self._variance(sl), samples=1)
         if self.aovs:
             out.albedo, out.normal, out.depth = self.albedo[sl], self.normal[sl], self.depth[sl]
         return out
+
+    def _variance(self, sl: tuple[slice, slice]) -> np.ndarray | None:
+        return None if self.variance is None else self.variance[sl]
 
     def images(self) -> tuple:
         """(color, variance, albedo, normal, depth, sample counts, denoising features, extras): the region's images
@@ -607,7 +613,7 @@ class _TileRender:
         self.motion = (prepared.motion is not None or scene.camera.motion_matrices is not None
                        or scene.camera.motion_lens is not None)
         self.on_tile, self.on_progress, self.should_cancel = on_tile, on_progress, should_cancel
-        self.sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=VARIANCE_GROUPS)
+        self.sampler = make_sampler(settings.sampler, settings.seed, max(settings.spp, 1), groups=settings.variance_groups)
         self.pixel_filter = PixelFilter(settings.filter_type, settings.filter_width)
         rx, ry, rw, rh = region
         self.tiles = tiles(rx, ry, rw, rh, settings.tile_size)
@@ -627,7 +633,8 @@ class _TileRender:
                                                    settings.denoising_features, alpha=alpha, catcher=catcher,
                                                    light_passes=settings.light_passes,
                                                    shader_aovs=scene.shader_aovs,
-                                                   light_groups=scene.light_groups))
+                                                   light_groups=scene.light_groups,
+                                                   error_estimate=settings.error_estimate))
         # Cycles' data passes (core.data_passes); render_samples() hands their sums on beside the films'
         self.data_tables = None
         self.data_films: dict = {}

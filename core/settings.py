@@ -58,6 +58,14 @@ class RenderSettings:
     path that arrives at a surface through a Transparent BSDF meets Russian roulette only once it has made more
     than this + 1 transparent bounces (Cycles' transparent_min_bounce); any other path once its bounces (passes
     through Transparent BSDFs not counted) reach rr_depth.
+    error_estimate: keep an unbiased estimate of each pixel's error (RenderResult.variance: the Variance pass,
+    `monte render --variance`). It needs the pixel's samples split into core.sampling.VARIANCE_GROUPS (2)
+    independently scrambled Sobol sequences, whose spread measures the error; each is a half-size point set, so the
+    image itself is noisier: on the `instances` bench scene 1.14-1.18x the variance per sample of one sequence (the
+    MSE a render pays at equal samples; docs/performance.md), and the film keeps 12 B more per pixel. Off: one
+    Owen-scrambled Sobol sequence per pixel (as Cycles), and RenderResult.variance is None. Adaptive sampling reads
+    the estimate: a threshold > 0 with error_estimate False is refused (validate()). Core's default keeps it (core
+    users read result.variance); the add-on and `monte render` turn it on only where something reads it.
     """
 
     spp: int = 64
@@ -82,6 +90,7 @@ class RenderSettings:
     light_passes: tuple[str, ...] = ()
     transparent_max_bounces: int = 8
     transparent_min_bounces: int = 0
+    error_estimate: bool = True
 
     def validate(self) -> "RenderSettings":
         """Raise ValueError naming the setting for absurd values (NaN, Inf and non-numbers included)."""
@@ -142,6 +151,11 @@ class RenderSettings:
         from .light_passes import check_names
 
         check_names(self.light_passes)
+        if not isinstance(self.error_estimate, bool):
+            raise ValueError(f"error_estimate must be True or False, got {self.error_estimate!r}")
+        if self.adaptive_threshold > 0 and not self.error_estimate:
+            raise ValueError("adaptive sampling (adaptive threshold > 0) reads each pixel's error estimate: "
+                             "set error_estimate=True")
         if not (0 <= self.seed < 2**32):
             raise ValueError(f"seed must be in [0, 2^32), got {self.seed}")
         return self
@@ -151,6 +165,14 @@ class RenderSettings:
         if self.adaptive_min_samples > 0:
             return min(int(self.adaptive_min_samples), spp)
         return min(max(16, math.ceil(4 / math.sqrt(self.adaptive_threshold))), spp)
+
+    @property
+    def variance_groups(self) -> int:
+        """The variance groups a render with these settings keeps per pixel (core.sampling.Sampler.variance_group):
+        core.sampling.VARIANCE_GROUPS with an error estimate, else 1 (one scrambled sequence per pixel)."""
+        from .sampling import VARIANCE_GROUPS
+
+        return VARIANCE_GROUPS if self.error_estimate else 1
 
     @property
     def thread_count(self) -> int:

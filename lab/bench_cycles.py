@@ -94,7 +94,9 @@ def render_cycles(scene, spp: int, seed: int, threads: int, max_bounces: int, ti
 def monte_settings(spp: int, seed: int, threads: int, max_bounces: int, time_limit: float = 0.0,
                    filter_type: str = "blackman-harris", filter_width: float = 1.5, **extra) -> RenderSettings:
     """Monte's settings matching addon.crosscheck.configure_cycles as the bench calls it: Blackman-Harris 1.5 px
-    (unless given), no clamp, no AOV passes."""
+    (unless given), no clamp, no AOV passes, no per-pixel error estimate (nothing the bench reads: one Sobol
+    sequence per pixel, as Cycles and as a `monte render` without --variance; error_estimate=True gives 2)."""
+    extra.setdefault("error_estimate", False)
     return RenderSettings(spp=int(spp), seed=int(seed), threads=int(threads), max_bounces=int(max_bounces),
                           filter_type=filter_type, filter_width=filter_width, clamp=0.0, time_limit=time_limit,
                           aovs=False, **extra).validate()

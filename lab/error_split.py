@@ -83,6 +83,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--max-bounces", type=int, default=16)
     p.add_argument("--reference-dir", required=True, help="the bench's reference cache (monte bench --vs cycles)")
+    p.add_argument("--error-estimate", action="store_true",
+                   help="render Monte with the per-pixel error estimate (2 variance groups, as the Variance pass "
+                        "does); default: one Sobol sequence per pixel, as a render that reads no variance")
     args = p.parse_args(argv)
     found = sorted(glob.glob(f"{args.reference_dir}/{args.scene}-{args.resolution}x{args.resolution}-*.exr"))
     if not found:
@@ -100,11 +103,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         boxes[mesh.name] = (v.min(axis=0), v.max(axis=0))
     regions = {"all": np.ones(position.shape[:2], bool), **regions_by_box(position, boxes)}
     seeds = range(1, args.seeds + 1)
-    monte = [render(core_scene, monte_settings(args.spp, s, args.threads, args.max_bounces)).color for s in seeds]
+    monte = [render(core_scene, monte_settings(args.spp, s, args.threads, args.max_bounces,
+                                               error_estimate=args.error_estimate)).color for s in seeds]
     cycles = [render_cycles(scene, args.spp, s, args.threads, args.max_bounces)[0] for s in seeds]
     m = split_error(monte, ref.image, ref.own_mse, regions)
     c = split_error(cycles, ref.image, ref.own_mse, regions)
-    print(f"{args.scene} {args.resolution}x{args.resolution}, {args.spp} spp, {args.seeds} seeds each")
+    print(f"{args.scene} {args.resolution}x{args.resolution}, {args.spp} spp, {args.seeds} seeds each; Monte "
+          f"{'with' if args.error_estimate else 'without'} the error estimate")
     print(f"{'region':12s} {'pixels':>6s} {'var Monte':>10s} {'var Cycles':>10s} {'ratio':>6s} "
           f"{'bias2 Monte':>11s} {'bias2 Cycles':>12s}")
     for name in m:

@@ -64,6 +64,39 @@ def test_only_requested_passes_are_declared(tmp_path):
     assert {k.split(".")[1] for k in ch} == {"Combined"}
 
 
+def test_the_error_estimate_is_kept_only_for_the_variance_pass_or_adaptive_sampling():
+    # The Variance pass and adaptive sampling read each pixel's error estimate (2 variance groups); any other
+    # render takes one Sobol sequence per pixel (core.settings.RenderSettings.error_estimate).
+    from monte.addon.properties import render_settings
+    from monte.core.render import render as core_render
+
+    scene = bf.cornell_box((16, 12))
+    scene.monte.samples = 8
+    vl = scene.view_layers[0]
+    vl.monte.use_pass_variance = False
+    scene.monte.use_adaptive_sampling = False
+    plain = engine_mod.render_with_operator(scene)[0][1]
+    assert plain.variance is None
+    assert render_settings(scene).error_estimate is False
+    vl.monte.use_pass_variance = True
+    with_pass = engine_mod.render_with_operator(scene)[0][1]
+    assert with_pass.variance is not None and with_pass.variance.shape == (12, 16, 3)
+    assert np.all(with_pass.variance >= 0) and with_pass.variance.max() > 0
+    assert not np.array_equal(plain.color, with_pass.color)  # other sample sequences
+    # the same images as core renders of the exported scene with each setting
+    core_scene, _ = engine_mod.export_scene(bpy.context.evaluated_depsgraph_get())
+    base = render_settings(scene, {"aovs": False, "threads": 1})
+    for setting, result in ((False, plain), (True, with_pass)):
+        again = core_render(core_scene, base.replace(error_estimate=setting, threads=int(scene.render.threads)))
+        assert np.array_equal(again.color, result.color), setting
+    # adaptive sampling turns the estimate on, with or without the pass
+    vl.monte.use_pass_variance = False
+    scene.monte.use_adaptive_sampling = True
+    assert render_settings(scene).error_estimate is True
+    adaptive = engine_mod.render_with_operator(scene)[0][1]
+    assert adaptive.variance is not None
+
+
 def test_resolution_percentage_and_border(tmp_path):
     scene = bf.plane_under_world(resolution=(40, 30))
     scene.monte.samples = 4
@@ -197,8 +230,13 @@ def test_headless_render_blend_file(tmp_path):
     assert np.allclose(img, 1.0, atol=1e-5)
     # Monte's channel layout, as `monte render` writes for built-in scenes
     channels = read_exr(out)
-    assert {"R", "G", "B", "A", "variance.R", "albedo.G", "normal.Z", "Z"} <= set(channels)
+    assert {"R", "G", "B", "A", "albedo.G", "normal.Z", "Z"} <= set(channels)
     assert np.allclose(channels["Z"], 1.0, atol=1e-4) and np.allclose(channels["albedo.R"], 0.5, atol=1e-4)
+    assert "variance.R" not in channels  # only when asked: the override (`monte render --variance`)
+    render_blend_file(blend, out, {"spp": 8, "seed": 7, "variance": True}, log=lambda _m: None)
+    channels = read_exr(out)
+    assert {"variance.R", "variance.G", "variance.B"} <= set(channels)
+    assert np.all(np.stack([channels[f"variance.{c}"] for c in "RGB"]) < 1e-10)  # the zero-variance estimator
     # The overrides were for that run only: the file on disk is untouched.
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     assert bpy.context.scene.monte.samples == 16 and bpy.context.scene.monte.filter_type == "box"
@@ -207,7 +245,7 @@ def test_headless_render_blend_file(tmp_path):
     bpy.context.scene.render.use_border = bpy.context.scene.render.use_crop_to_border = True
     bpy.context.scene.render.border_max_x = 0.5
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    render_blend_file(blend, out, {"spp": 2, "multilayer": True}, log=lambda _m: None)
+    render_blend_file(blend, out, {"spp": 2, "multilayer": True, "variance": True}, log=lambda _m: None)
     layers = bf.read_exr_layers(out)
     assert {"ViewLayer.Combined.R", "ViewLayer.Depth.Z", "ViewLayer.Albedo.R", "ViewLayer.Variance.R"} <= set(layers)
     assert layers["ViewLayer.Combined.R"].shape == (10, 6)

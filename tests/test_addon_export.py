@@ -666,7 +666,9 @@ def test_properties_defaults_match_render_settings(scene):
     defaults = RenderSettings()
     for prop, field in SETTING_FIELDS.items():
         assert getattr(scene.monte, prop) == pytest.approx(getattr(defaults, field)), prop
-    assert render_settings(scene) == defaults
+    # but the error estimate: core keeps it by default, the add-on only for the Variance pass or adaptive sampling
+    assert render_settings(scene) == defaults.replace(error_estimate=False)
+    assert render_settings(scene, {"error_estimate": True}) == defaults
     scene.monte.seed, scene.monte.use_animated_seed = 5, True
     scene.frame_set(12)
     assert render_settings(scene).seed == 17

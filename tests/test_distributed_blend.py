@@ -44,14 +44,16 @@ def animated_blend(tmp_path):
 def test_frames_on_a_cluster_equal_the_core_render_of_each_frame(animated_blend, tmp_path):
     out = tmp_path / "frames" / "shot.exr"
     out.parent.mkdir()
-    assert main(["render", str(animated_blend), "-o", str(out), "--dask", "local:2", "--frames", "1-2"]
-                + OPTIONS) == 0
+    assert main(["render", str(animated_blend), "-o", str(out), "--dask", "local:2", "--frames", "1-2",
+                 "--variance"] + OPTIONS) == 0
     assert sorted(p.name for p in out.parent.iterdir()) == ["shot_0001.exr", "shot_0002.exr"]
-    overrides = {"spp": 8, "seed": 3, "batch_paths": 1024, "tile_size": 16, "resolution": (24, 16)}
+    overrides = {"spp": 8, "seed": 3, "batch_paths": 1024, "tile_size": 16, "resolution": (24, 16),
+                 "variance": True}
     colors = []
     for frame, scene, settings, region, _size, _cropped in export_blend_frames(animated_blend, overrides, [1, 2],
                                                                              log=lambda _m: None):
         assert region is None
+        assert settings.error_estimate  # --variance: the 2 variance groups, on the cluster as here
         local = render(scene, settings)
         written = read_exr(out.parent / f"shot_{frame:04d}.exr")
         assert np.array_equal(written["R"], local.color[..., 0]) and np.array_equal(written["B"], local.color[..., 2])
@@ -65,7 +67,7 @@ def test_frames_on_a_cluster_equal_the_core_render_of_each_frame(animated_blend,
     second = (out.parent / "shot_0002.exr").read_bytes()
     (out.parent / "shot_0002.exr").unlink()
     assert main(["render", str(animated_blend), "-o", str(out), "--dask", "local:2", "--frames", "1,2",
-                 "--resume"] + OPTIONS) == 0
+                 "--resume", "--variance"] + OPTIONS) == 0
     assert (out.parent / "shot_0001.exr").stat().st_mtime_ns == first
     assert (out.parent / "shot_0002.exr").read_bytes() == second
 
@@ -166,6 +168,7 @@ def test_a_render_region_sends_out_only_its_tiles_and_equals_the_local_region_re
     assert np.array_equal(written["Mist.Z"][4:12, 6:18], local.data_passes["Mist"][..., 0])
     from_blender = read_exr(tmp_path / "local.exr")
     common = set(written) & set(from_blender)
-    assert {"R", "A", "variance.R", "Mist.Z", "CryptoObject00.R", "CryptoObject00.G"} <= common
+    assert {"R", "A", "Mist.Z", "CryptoObject00.R", "CryptoObject00.G"} <= common
+    assert not item.settings.error_estimate and "variance.R" not in set(written) | set(from_blender)  # no --variance
     for name in common:
         assert np.array_equal(written[name], from_blender[name]), name

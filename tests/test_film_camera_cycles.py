@@ -37,6 +37,7 @@ def monte_rgba(scene, spp: int, bounces: int) -> tuple[np.ndarray, np.ndarray]:
     scene.render.engine = "MONTE"
     m = scene.monte
     m.samples, m.max_bounces, m.seed, m.threads = spp, bounces, 1, 2
+    scene.view_layers[0].monte.use_pass_variance = True  # the comparison reads Monte's error estimate
     result = render_with_operator(scene)[0][1]
     return np.asarray(result.color, np.float64), np.asarray(result.variance, np.float64)
 

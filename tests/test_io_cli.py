@@ -75,7 +75,7 @@ def test_png_preview_is_a_valid_png(tmp_path):
 def test_cli_renders_a_builtin_scene(tmp_path, capsys):
     out = tmp_path / "c.exr"
     code = cli.main(["render", "furnace", "-o", str(out), "--spp", "16", "--resolution", "8x6", "--quiet",
-                     "--filter", "box", "--filter-width", "1", "--max-bounces", "0"])
+                     "--filter", "box", "--filter-width", "1", "--max-bounces", "0", "--variance"])
     assert code == 0
     rgb = exr.read_rgb(out)
     assert rgb.shape == (6, 8, 3)
@@ -90,6 +90,14 @@ def test_cli_renders_a_builtin_scene(tmp_path, capsys):
         assert np.any(np.abs(mean - wrong * 1.5) > 4 * sigma), (wrong, mean, sigma)
     assert (tmp_path / "c.png").is_file()
     assert "wrote" in capsys.readouterr().out
+    # without --variance: one Sobol sequence per pixel, and no variance channels (the image is another one)
+    plain = tmp_path / "plain.exr"
+    assert cli.main(["render", "furnace", "-o", str(plain), "--spp", "16", "--resolution", "8x6", "--quiet",
+                     "--filter", "box", "--filter-width", "1", "--max-bounces", "0", "--no-png"]) == 0
+    plain_channels = exr.read_exr(plain)
+    assert set(plain_channels) == set(channels) - {"variance.R", "variance.G", "variance.B"}
+    assert not np.array_equal(plain_channels["R"], channels["R"])
+    assert np.all(np.abs(exr.read_rgb(plain).reshape(-1, 3).mean(axis=0) - 1.5) <= 4 * sigma)
 
 
 def test_cli_list_and_errors(tmp_path, capsys):

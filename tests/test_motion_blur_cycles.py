@@ -88,6 +88,7 @@ def monte_image(scene) -> tuple[np.ndarray, np.ndarray]:
     scene.render.engine = "MONTE"
     m = scene.monte
     m.samples, m.max_bounces, m.seed, m.threads = SPP, BOUNCES, 1, 2
+    scene.view_layers[0].monte.use_pass_variance = True  # the comparison reads Monte's error estimate
     result = render_with_operator(scene)[0][1]
     return np.asarray(result.color, np.float64)[..., :3], np.asarray(result.variance, np.float64)
 

@@ -69,6 +69,7 @@ def monte(scene, tmp_path):
     scene.render.engine = "MONTE"
     m = scene.monte
     m.samples, m.max_bounces, m.seed, m.threads = SPP, BOUNCES, 1, 2
+    scene.view_layers[0].monte.use_pass_variance = True  # the comparison reads Monte's error estimate
     result = render_with_operator(scene)[0][1]
     rgba = np.asarray(result.color, np.float64)
     saved = bf.save_render_exr(scene, tmp_path / "monte.exr")
