@@ -135,7 +135,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     overrides = _settings_from(args)
     output = Path(args.output)
     # --variance: the per-pixel error estimate (core.settings.RenderSettings.error_estimate) and its variance.*
-    # channels; without it one Sobol sequence per pixel (~12 % less noise), unless adaptive sampling needs it
+    # channels; without it one Sobol sequence per pixel (~15 % less variance), unless adaptive sampling needs it
     variance = bool(args.variance) or float(overrides.get("adaptive_threshold") or 0.0) > 0
     is_blend = args.scene.endswith(".blend") or Path(args.scene).suffix == ".blend"
     if (args.frames is not None or args.resume) and not (args.dask and is_blend):
@@ -517,7 +517,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --frames: skip frames whose output file exists")
     p.add_argument("--variance", action="store_true",
                    help="also estimate each pixel's error and write it as variance.R/G/B (2 independently scrambled "
-                        "sequences per pixel: the image is ~12%% noisier at the same samples; adaptive sampling "
+                        "sequences per pixel: the image's variance is ~15%% higher at the same samples; adaptive sampling "
                         "keeps the estimate anyway; a .blend's view layer with the Variance pass ticked too)")
     p.add_argument("--passes", type=_data_passes, default=(),
                    help="built-in scenes: Cycles' data passes to add to the EXR, comma-separated: mist, position, "

@@ -163,6 +163,9 @@ def render_monte(scene) -> tuple[np.ndarray, np.ndarray]:
     core.settings.RenderSettings.error_estimate) and restored after it."""
     scene.render.engine = "MONTE"
     o = _Overrides()
+    for layer in scene.view_layers:  # every layer that may render first (captured[0]), not only the one compared
+        if layer.use:
+            o.set(layer.monte, "use_pass_variance", True)
     o.set(_render_layer(scene).monte, "use_pass_variance", True)
     try:
         captured = _render(scene, "Monte")

@@ -35,7 +35,7 @@ _OTHER_KEYS = {
     "denoise": "denoise with Open Image Denoise (True/False; the scene's Denoise setting)",
     "denoise_quality": "Open Image Denoise's quality: high, balanced or fast",
     "variance": "also estimate each pixel's error and write it (variance.R/G/B; the Variance pass): 2 "
-                "variance groups per pixel, ~12 % more noise at the same samples (True/False, default False "
+                "variance groups per pixel, ~15 % more variance at the same samples (True/False, default False "
                 "unless the view layer ticks the Variance pass)",
     "multilayer": "write Blender's multilayer EXR (every view layer and pass, after compositing) instead of "
                   "Monte's channel layout",
@@ -208,7 +208,7 @@ def _configure_output(scene, multilayer: bool, variance: bool = False) -> None:
     for layer in scene.view_layers:  # every pass Monte has: Monte's layout carries them all
         layer.use_pass_z = layer.use_pass_normal = True
         layer.monte.use_pass_albedo = True
-        # but the Variance pass only when asked (or ticked): its estimate costs the image ~12 % more noise
+        # but the Variance pass only when asked (or ticked): its estimate costs the image ~15 % more variance
         layer.monte.use_pass_variance = layer.monte.use_pass_variance or variance
     if not multilayer:
         return

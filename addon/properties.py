@@ -199,8 +199,8 @@ class MonteViewLayerSettings(bpy.types.PropertyGroup):
     )
     use_pass_variance: BoolProperty(
         name="Variance", description="Estimated variance of each pixel's mean (noise map). Its estimate splits "
-        "each pixel's samples into 2 independently scrambled sequences, which makes the image itself about "
-        "12 % noisier at the same samples", default=False,
+        "each pixel's samples into 2 independently scrambled sequences, which makes the image's variance about "
+        "15 % higher at the same samples", default=False,
         update=_passes_changed,
     )
 
@@ -220,7 +220,7 @@ def render_settings(scene, overrides=None) -> RenderSettings:
     if cycles is not None and hasattr(cycles, "min_transparent_bounces"):
         values["transparent_min_bounces"] = int(cycles.min_transparent_bounces)
     values.update(overrides or {})
-    # The per-pixel error estimate (core's 2 variance groups: ~12-14 % more noise at equal samples) only where
+    # The per-pixel error estimate (core's 2 variance groups: ~14-18 % more variance at equal samples) only where
     # something reads it: adaptive sampling here, the Variance pass where the caller asks (engine: the passes).
     values["error_estimate"] = bool(values.get("error_estimate", False)) or values["adaptive_threshold"] > 0
     return RenderSettings(**{**_field_defaults(), **values}).validate()

@@ -451,7 +451,8 @@ class ViewportSession:
         # The viewport shows Combined alone: no pass beside it is computed (the data passes, the light passes, the
         # denoising features; its scene lists no shader AOV and no light group, see SceneSync.scene).
         self.settings = settings.replace(aovs=False, denoising_features=False, data_passes=(), light_passes=(),
-                                         time_limit=0.0, adaptive_threshold=0.0).validate()
+                                         time_limit=0.0, adaptive_threshold=0.0,
+                                         error_estimate=False).validate()  # nothing reads it: one scramble
         self.samples = int(samples)
         self.pixel_size = max(1, int(pixel_size))
         self.start_resolution = max(0, int(start_resolution))

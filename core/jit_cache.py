@@ -309,12 +309,15 @@ def _parse_bitcode_when_needed() -> bool:
     lock = threading.RLock()
 
     def materialize(library) -> None:
+        # The pending bitcode goes only once the module is in place, so that a reader on another thread either
+        # waits here or finds the module (never None), and a parse that raises leaves it pending, raising again.
         with lock:
-            data = library.__dict__.pop(_PENDING_BITCODE, None)
+            data = library.__dict__.get(_PENDING_BITCODE)
             if data is not None:
                 module = ll.parse_bitcode(data)
                 library.__dict__["_shared_module"] = module
                 library._codegen._engine._load_defined_symbols(module)
+                del library.__dict__[_PENDING_BITCODE]
 
     def shared_module(self):
         if _PENDING_BITCODE in self.__dict__:

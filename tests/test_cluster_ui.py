@@ -179,6 +179,7 @@ def test_a_render_region_goes_to_the_cluster_alone_and_equals_the_local_region(s
     """Render Region x 0.25-0.75 of 24x16: pixels 6-18, 4 of the frame's 6 tiles of 8x8 (8+4 wide, 2 rows), one
     unit each; the region's image is the local region render's bit for bit."""
     scene = small_cornell()
+    scene.view_layers[0].monte.use_pass_variance = True  # the error estimate's groups cross the cluster too
     scene.render.use_border = True
     scene.render.border_min_x, scene.render.border_max_x = 0.25, 0.75
     (_, local, local_region, _), = render_with_operator(scene)
@@ -187,6 +188,7 @@ def test_a_render_region_goes_to_the_cluster_alone_and_equals_the_local_region(s
     (_, remote, region, _), = render_with_operator(scene)
     assert region == local_region == (6, 0, 12, 16) and remote.color.shape == (16, 12, 4)
     assert remote.stats["units"] == 4 and remote.stats["region"] == [6, 0, 12, 16]
+    assert local.variance is not None and remote.variance is not None
     for name in ("color", "variance", "sample_count"):
         assert np.array_equal(getattr(remote, name), getattr(local, name)), name
     assert local.color[..., :3].max() > 0

@@ -700,3 +700,12 @@ def test_preview_stops_when_the_user_moves_on(tmp_path):
 
 def test_engine_declares_previews():
     assert engine_mod.MonteRenderEngine.bl_use_preview is True
+
+
+def test_viewport_session_keeps_no_error_estimate():
+    """The viewport draws Combined alone, so nothing reads the per-pixel error estimate: one Sobol scramble per
+    pixel even where the scene's settings (adaptive sampling, which the viewport turns off) asked for it."""
+    asked = SETTINGS.replace(adaptive_threshold=0.01, error_estimate=True)
+    session = vp.ViewportSession(asked, samples=4, pixel_size=1, start_resolution=0)
+    assert session.settings.error_estimate is False and session.settings.adaptive_threshold == 0.0
+    assert session.settings.variance_groups == 1
