@@ -2,8 +2,8 @@
 
 The per-bounce integrator (core.integrator.PathTracer.trace) runs ~15 compiled kernels per bounce with NumPy
 glue and intermediate arrays between them. For the scenes this module supports (`supports` says which: constant
-materials, or node programs that set lobe parameters but no normal, mesh emitters and analytic lights, the Sobol
-sampler, MIS, none of the film's extra outputs; core.fused_tracer decides and calls it) one kernel,
+materials, or node programs that set lobe parameters and the normal but hold no Bump, mesh emitters and analytic
+lights, the Sobol sampler, MIS, none of the film's extra outputs; core.fused_tracer decides and calls it) one kernel,
 `trace_paths`, does the whole path per camera ray: Embree's closest hit and shadow ray, the emission seen
 (MIS-weighted), Russian roulette, the vertex's node program (core.shading.evaluator.run_point), next-event
 estimation and the BSDF sample, calling the same device functions (core.bsdf_kernels.eval_path / sample_path,
@@ -425,9 +425,9 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                             d_lobes = (shade_lobes[0], programs[42], shade_lobes[2], shade_lobes[3], shade_lobes[4],
                                        shade_lobes[5], shade_lobes[6], shade_lobes[7], shade_lobes[8],
                                        shade_lobes[9])
-                            e0, e1, e2, _pd = eval_path(d_lobes, 0, multiscatter, tabs, np.float64(lx), np.float64(ly),
-                                                        np.float64(lz) * sgn, back, np.float64(ix), np.float64(iy),
-                                                      np.float64(iz) * sgn)
+                            e0, e1, e2, _pd = eval_path(d_lobes, 0, multiscatter, tabs, np.float64(lx),
+                                                        np.float64(ly), np.float64(lz) * sgn, back, np.float64(ix),
+                                                        np.float64(iy), np.float64(iz) * sgn)
                             fc0 = _bump_adjust(fc0, np.float32(e0), g1, rej, rej_d)
                             fc1 = _bump_adjust(fc1, np.float32(e1), g1, rej, rej_d)
                             fc2 = _bump_adjust(fc2, np.float32(e2), g1, rej, rej_d)
@@ -503,14 +503,15 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                     wlx = tx * qx + bx * qy + sx * qz
                     wly = ty * qx + by * qy + sy * qz
                     wlz = tz * qx + bz * qy + sz * qz
-                    g1, _rej, rej_d = bump_terms_point(tx, ty, tz, bx, by, bz, sx, sy, sz, nvx, nvy, nvz, dn[row, 0],
-                                                    dn[row, 1], dn[row, 2], cos_o_geo, programs[20][0, 0],
-                                                    programs[20][0, 1], programs[20][0, 2], wlx, wly, wlz)
+                    g1, _rej, rej_d = bump_terms_point(tx, ty, tz, bx, by, bz, sx, sy, sz, nvx, nvy, nvz,
+                                                       dn[row, 0], dn[row, 1], dn[row, 2], cos_o_geo,
+                                                       programs[20][0, 0], programs[20][0, 1], programs[20][0, 2],
+                                                       wlx, wly, wlz)
                     d_lobes = (shade_lobes[0], programs[42], shade_lobes[2], shade_lobes[3], shade_lobes[4],
                                shade_lobes[5], shade_lobes[6], shade_lobes[7], shade_lobes[8], shade_lobes[9])
                     e0, e1, e2, _pd = eval_path(d_lobes, 0, multiscatter, tabs, np.float64(lx), np.float64(ly),
                                                 np.float64(lz) * sgn, back, np.float64(qx), np.float64(qy),
-                                              np.float64(qz) * sgn)
+                                                np.float64(qz) * sgn)
                     keep = 1.0 if rej_d else 1.0 - g1
                     pdf_f = max(np.float32(spdf), np.float32(1e-30))
                     sw0 = _loss(sw0, keep, np.float32(e0), pdf_f)
