@@ -2,8 +2,8 @@
 
 The per-bounce integrator (core.integrator.PathTracer.trace) runs ~15 compiled kernels per bounce with NumPy
 glue and intermediate arrays between them. For the scenes this module supports (`supports` says which: constant
-materials, or node programs that set lobe parameters but no normal, mesh emitters and analytic lights, the Sobol
-sampler, MIS, none of the film's extra outputs; core.fused_tracer decides and calls it) one kernel,
+materials, or node programs that set lobe parameters and the normal but hold no Bump, mesh emitters and analytic
+lights, the Sobol sampler, MIS, none of the film's extra outputs; core.fused_tracer decides and calls it) one kernel,
 `trace_paths`, does the whole path per camera ray: Embree's closest hit and shadow ray, the emission seen
 (MIS-weighted), Russian roulette, the vertex's node program (core.shading.evaluator.run_point), next-event
 estimation and the BSDF sample, calling the same device functions (core.bsdf_kernels.eval_path / sample_path,
@@ -27,7 +27,8 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .embree import _INVALID_ID, _call_embree, set_ray
-from .geometry_kernels import _valid_reflection_normal, offset_point, smooth_normal, smooth_surface_lift
+from .geometry_kernels import (_valid_reflection_normal, bump_terms_point, offset_point, reframe_point,
+                               smooth_normal, smooth_surface_lift)
 from .jit_cache import jit_inline as _jit_inline
 from .jit_cache import jit_no_nrt as _jit
 from .light_kernels import light_emission_path, probabilities_at, sample_light_path, triangle_pdf_path
@@ -42,6 +43,7 @@ _F1 = np.float32(1.0)
 _TINY = np.float32(1e-30)
 _FAR = np.float32(3e38)
 _D_VERTEX, _D_LIGHT = 1, 4  # as core.integrator: a vertex's BSDF/roulette set and its light-sample set
+_DIFFUSE = 0  # core.bsdf.KIND_CODE["diffuse"]: the lobes the bump shadowing softens
 
 # Measurement mode (lab/fused_timing.py): with TIMED true at compile time, trace_paths adds the CPU cycles
 # (the time-stamp counter) each part of a path takes to counters[TIMING_FIRST:]. The module's kernels are
@@ -58,7 +60,7 @@ PROGRAM_FIELDS = ("needs_program", "prog_of_mat", "code", "code_start", "regs0",
                   "bind", "emit_reg", "normal_reg", "tex_pixels", "tex_offset", "tex_h", "tex_w", "objects",
                   "object_of_triangle", "tri_uvs", "shift", "P", "N", "Ng", "I", "uv", "back", "obj", "uvx", "extra",
                   "dP", "duv", "tan", "scratch", "select_scale", "emission", "normal_out", "has_normal", "aov_out",
-                  "lobes", "albedo")
+                  "lobes", "albedo", "tangent_layers", "needs_tangents", "nraw", "diffuse_weight")
 
 
 @intrinsic
@@ -105,16 +107,19 @@ def _sobol3(hk, r, dim_keys, tables):
 
 @_jit_inline
 def _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, nx, ny, nz, gx, gy, gz, dx, dy, dz,
-                  backface):
+                  backface, face_normals, corner_normals, smooth):
     """Run material mat's node program at a surface vertex into the 1-row lobes of `programs` (PROGRAM_FIELDS,
     "lobes"): row mat of the material lobes, then the program (core.shading.evaluator.run_point) with the
     context core.integrator.shade_points builds: the world position, N (the interpolated normal, nx..) and Ng
     (the face normal) negated on a back face, I = -d, the active UV map (core.geometry_kernels.surface's
-    interpolation), the object row. Differentials, tangents, UV Map and Light Path values read zeros: the scenes
-    whose programs read them are not fused (core.fused_tracer.supports)."""
+    interpolation), the object row, and where the material's program reads them (needs_tangents) the tangent
+    layers and the unnormalised mesh normal (core.shading.vector_context._tangents: float64, then float32).
+    Differentials, UV Map and Light Path values read zeros: the scenes whose programs read them are not fused
+    (core.fused_tracer.supports)."""
     (needs, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg, normal_reg,
      tex_pixels, tex_offset, tex_h, tex_w, objects, obj_of_tri, tri_uvs, shift, P, N, Ng, I, uv, side, obj, uvx,
-     extra, dP, duv, tan, scratch, t_scale, emission, normal_out, has_normal, aov_out, vl, alb) = programs
+     extra, dP, duv, tan, scratch, t_scale, emission, normal_out, has_normal, aov_out, vl, alb, tangent_layers,
+     needs_tangents, nraw, _diffuse_weight) = programs
     for l in range(lobes[0].shape[1]):
         vl[0][0, l] = lobes[0][mat, l]
         vl[2][0, l] = lobes[2][mat, l]
@@ -141,10 +146,46 @@ def _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, nx, ny, nz
             uv[0, c] = tri_uvs[prim, 0, c] * b0 + tri_uvs[prim, 1, c] * bu + tri_uvs[prim, 2, c] * bv
     side[0] = backface
     obj[0] = obj_of_tri[prim]
+    if tangent_layers.shape[0] == 0:  # no tangent layers: the mesh normal is N (core.shading.evaluator.evaluate)
+        nraw[0, 0], nraw[0, 1], nraw[0, 2] = N[0, 0], N[0, 1], N[0, 2]
+    elif needs_tangents[mat]:
+        f1 = np.float64(bu)
+        f2 = np.float64(bv)
+        f0 = 1.0 - f1 - f2
+        for j in range(tangent_layers.shape[1]):
+            for c in range(4):
+                tan[0, j, c] = np.float32(tangent_layers[prim, j, 0, c] * f0 + tangent_layers[prim, j, 1, c] * f1
+                                          + tangent_layers[prim, j, 2, c] * f2)
+        if corner_normals.shape[0] > 0 and smooth[prim]:
+            for c in range(3):
+                nraw[0, c] = np.float32(np.float64(corner_normals[prim, 0, c]) * f0
+                                        + np.float64(corner_normals[prim, 1, c]) * f1
+                                        + np.float64(corner_normals[prim, 2, c]) * f2)
+        else:
+            for c in range(3):
+                nraw[0, c] = face_normals[prim, c]
+    has_normal[0] = False
     run_point(0, mat, (prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg,
                        normal_reg, tex_pixels, tex_offset, tex_h, tex_w),
-              (P, N, Ng, I, uv, has_uv, side, obj, objects, uvx, extra, dP, duv, tan, N, scratch),
+              (P, N, Ng, I, uv, has_uv, side, obj, objects, uvx, extra, dP, duv, tan, nraw, scratch),
               (vl[0], vl[1], vl[2], vl[3], vl[6], vl[8], vl[5], t_scale), (emission, normal_out, has_normal, aov_out))
+
+
+@_jit
+def _bump_adjust(f, f_d, g1, reject, reject_d):
+    """One channel of f cos after the bump shadowing (PathTracer._bump_shadowing_eval's NumPy promotion: the
+    float32 difference, plus float64 g1 f_d, rounded to float32, clamped at 0)."""
+    a = _F0 if reject else f - f_d
+    v = np.float32(np.float64(a) + (0.0 if reject_d else g1 * np.float64(f_d)))
+    return v if not v < _F0 else _F0
+
+
+@_jit
+def _loss(w, keep, f_d, pdf):
+    """One channel of a BSDF sample's weight after the diffuse lobes' bump shadowing loss (PathTracer
+    ._bump_shadowing_sampled: keep f_d / pdf in float64, rounded to float32, subtracted, clamped at 0)."""
+    v = w - np.float32(keep * np.float64(f_d) / np.float64(pdf))
+    return v if not v < _F0 else _F0
 
 
 @_jit
@@ -291,7 +332,7 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             if programs is not None:
                 if programs[0][mat]:
                     _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, sx, sy, sz, gx, gy, gz, dx, dy,
-                                  dz, cos_o_geo < _F0)
+                                  dz, cos_o_geo < _F0, face_normals, corner_normals, smooth)
                     shade_lobes = programs[37]
                     row = 0
                     if depth == 0 and want_aovs:  # (the roulette keeps every camera hit: its throughput is 1)
@@ -323,6 +364,24 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             lz = wox * sx + woy * sy + woz * sz
             flip = -_F1 if cos_o_geo < _F0 else _F1
             nvx, nvy, nvz = sx * flip, sy * flip, sz * flip
+            bumped = False  # the program set the normal: the frame rebuilt around it, and Cycles' bump shadowing
+            if programs is not None:
+                if programs[0][mat] and programs[35][0]:
+                    bumped = True
+                    nrm = programs[34]
+                    ok, rsx, rsy, rsz, rtx, rty, rtz, rbx, rby, rbz, rlx, rly, rlz, rvx, rvy, rvz, d0, d1, d2 = \
+                        reframe_point(nrm[0, 0], nrm[0, 1], nrm[0, 2], dx, dy, dz, gx, gy, gz, cos_o_geo,
+                                      specular[mat])
+                    if ok:  # (core.geometry_kernels.reframe: a zero or non-finite normal keeps the frame)
+                        sx, sy, sz, tx, ty, tz, bx, by, bz = rsx, rsy, rsz, rtx, rty, rtz, rbx, rby, rbz
+                        lx, ly, lz, nvx, nvy, nvz = rlx, rly, rlz, rvx, rvy, rvz
+                        dn[row, 0], dn[row, 1], dn[row, 2] = d0, d1, d2
+                    # the diffuse-only lobe weights the bump shadowing evaluates (PathTracer._diffuse_only)
+                    wd = programs[42]
+                    for l in range(wd.shape[1]):
+                        dif = shade_lobes[0][row, l] == _DIFFUSE
+                        for c in range(3):
+                            wd[0, l, c] = shade_lobes[1][row, l, c] if dif else _F0
             back = cos_o_geo < _F0
             sgn = -1.0 if back else 1.0
             transmits = has_transmission[mat]
@@ -356,6 +415,22 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                     f0, f1, f2, pb = eval_path(shade_lobes, row, multiscatter, tabs, np.float64(lx), np.float64(ly),
                                                np.float64(lz) * sgn, back, np.float64(ix), np.float64(iy),
                                                np.float64(iz) * sgn)
+                    fc0, fc1, fc2 = np.float32(f0), np.float32(f1), np.float32(f2)
+                    if programs is not None:
+                        if bumped:  # core.integrator.PathTracer._bump_shadowing_eval, its float32/float64 steps
+                            g1, rej, rej_d = bump_terms_point(tx, ty, tz, bx, by, bz, sx, sy, sz, nvx, nvy, nvz,
+                                                              dn[row, 0], dn[row, 1], dn[row, 2], cos_o_geo,
+                                                              programs[20][0, 0], programs[20][0, 1],
+                                                              programs[20][0, 2], wx, wy, wz)
+                            d_lobes = (shade_lobes[0], programs[42], shade_lobes[2], shade_lobes[3], shade_lobes[4],
+                                       shade_lobes[5], shade_lobes[6], shade_lobes[7], shade_lobes[8],
+                                       shade_lobes[9])
+                            e0, e1, e2, _pd = eval_path(d_lobes, 0, multiscatter, tabs, np.float64(lx),
+                                                        np.float64(ly), np.float64(lz) * sgn, back, np.float64(ix),
+                                                        np.float64(iy), np.float64(iz) * sgn)
+                            fc0 = _bump_adjust(fc0, np.float32(e0), g1, rej, rej_d)
+                            fc1 = _bump_adjust(fc1, np.float32(e1), g1, rej, rej_d)
+                            fc2 = _bump_adjust(fc2, np.float32(e2), g1, rej, rej_d)
                     if TIMED:
                         counters[TIMING_FIRST + 5] += _cycles() - c0_
                     w = _F1
@@ -380,9 +455,9 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                                 lift = min(max(_F1 - gl / cutoff, _F0), _F1)
                     if crosses and not transmits and not lift > _F0:
                         scale = _F0
-                    c0 = t0 * np.float32(f0) * np.float32(lr) * scale
-                    c1 = t1 * np.float32(f1) * np.float32(lg) * scale
-                    c2 = t2 * np.float32(f2) * np.float32(lb) * scale
+                    c0 = t0 * fc0 * np.float32(lr) * scale
+                    c1 = t1 * fc1 * np.float32(lg) * scale
+                    c2 = t2 * fc2 * np.float32(lb) * scale
                     if max(max(max(_F0, c0), c1), c2) > _F0:
                         if lift > _F0:
                             hx, hy, hz = smooth_surface_lift(prim, b0, bu, bv, gx * g_side, gy * g_side, gz * g_side,
@@ -422,6 +497,26 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             if TIMED:
                 counters[TIMING_FIRST + 6] += _cycles() - c1_
             qx, qy, qz = np.float32(qx), np.float32(qy), np.float32(qz)
+            sw0, sw1, sw2 = np.float32(w0), np.float32(w1), np.float32(w2)
+            if programs is not None:
+                if bumped and svalid and not sdelta:  # PathTracer._bump_shadowing_sampled
+                    wlx = tx * qx + bx * qy + sx * qz
+                    wly = ty * qx + by * qy + sy * qz
+                    wlz = tz * qx + bz * qy + sz * qz
+                    g1, _rej, rej_d = bump_terms_point(tx, ty, tz, bx, by, bz, sx, sy, sz, nvx, nvy, nvz,
+                                                       dn[row, 0], dn[row, 1], dn[row, 2], cos_o_geo,
+                                                       programs[20][0, 0], programs[20][0, 1], programs[20][0, 2],
+                                                       wlx, wly, wlz)
+                    d_lobes = (shade_lobes[0], programs[42], shade_lobes[2], shade_lobes[3], shade_lobes[4],
+                               shade_lobes[5], shade_lobes[6], shade_lobes[7], shade_lobes[8], shade_lobes[9])
+                    e0, e1, e2, _pd = eval_path(d_lobes, 0, multiscatter, tabs, np.float64(lx), np.float64(ly),
+                                                np.float64(lz) * sgn, back, np.float64(qx), np.float64(qy),
+                                                np.float64(qz) * sgn)
+                    keep = 1.0 if rej_d else 1.0 - g1
+                    pdf_f = max(np.float32(spdf), np.float32(1e-30))
+                    sw0 = _loss(sw0, keep, np.float32(e0), pdf_f)
+                    sw1 = _loss(sw1, keep, np.float32(e1), pdf_f)
+                    sw2 = _loss(sw2, keep, np.float32(e2), pdf_f)
             wx = qx * tx + qy * bx + qz * sx
             wy = qx * ty + qy * by + qz * sy
             wz = qx * tz + qy * bz + qz * sz
@@ -429,7 +524,7 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             side_i = wx * gx + wy * gy + wz * gz > _F0
             if not (svalid and ((side_o != side_i) if stransmitted else (side_o == side_i))):
                 break
-            t0, t1, t2 = t0 * np.float32(w0), t1 * np.float32(w1), t2 * np.float32(w2)
+            t0, t1, t2 = t0 * sw0, t1 * sw1, t2 * sw2
             if not max(t0, t1, t2) > _F0:
                 break
             ox, oy, oz = offset_point(px, py, pz, gx, gy, gz, wx, wy, wz, mag)

@@ -63,19 +63,17 @@ def supports(tracer) -> str | None:
 
 
 def program_reason(ps) -> str | None:
-    """None when the scene has no node programs or only programs the fused kernel evaluates per vertex (stage 1:
-    programs that read the shading point, its normals, view, active UV map and object, and set lobe parameters),
-    else why not: a program that sets the normal (Normal Map, Bump: the shading frame is rebuilt and bump
-    shadowing applies), reads ray differentials (Bump), tangents (Normal Map, Tangent), a named UV map (UV Map),
-    the path state (Light Path) or attributes (Attribute), emits (textured emitters) or writes shader AOVs."""
+    """None when the scene has no node programs or only programs the fused kernel evaluates per vertex (programs
+    that read the shading point, its normals, view, tangents, active UV map and object, and set lobe parameters
+    and the shading normal: Normal Map, Tangent; the kernel rebuilds the frame and applies the bump shadowing),
+    else why not: a program that reads ray differentials (Bump), a named UV map (UV Map), the path state (Light
+    Path) or attributes (Attribute), emits (textured emitters) or writes shader AOVs."""
     sh = ps.shading
     if sh is None:
         return None
     needs = ps.vector_needs
-    checks = (("node programs that set the normal", sh.any_sets_normal),
-              ("node programs with Bump nodes", sh.needs_differentials
+    checks = (("node programs with Bump nodes", sh.needs_differentials
                or (needs is not None and bool(needs.differentials.any()))),
-              ("node programs reading tangents", needs is not None and bool(needs.tangents.any())),
               ("node programs reading a named UV map", needs is not None and bool(needs.uv_layers.any())),
               ("node programs reading the light path", sh.uses_light_path),
               ("node programs reading attributes", sh.uses_attributes),
@@ -128,6 +126,12 @@ class FusedTracer:
             sh.reg_start, sh.data, sh.data_start, sh.bind, sh.emit_reg, sh.normal_reg, *sh.texture_pack,
             sh.objects, np.ascontiguousarray(ps.object_of_triangle, np.int32),
             np.ascontiguousarray(ps.kernel_uvs, np.float32), np.ascontiguousarray(ps.shift, np.float32))
+        # the tangent layers Normal Map nodes read (none: an empty table) and which materials' programs read them
+        self.tangent_layers = (np.zeros((0, 0, 3, 4), np.float32) if ps.tangent_layers is None
+                               else np.ascontiguousarray(ps.tangent_layers, np.float32))
+        needs = ps.vector_needs
+        self.needs_tangents = (np.ones(m, np.bool_) if needs is None
+                               else np.ascontiguousarray(needs.tangents, np.bool_))
         self.max_registers = 0 if sh is None else sh.max_registers
 
     def _programs(self) -> tuple | None:
@@ -139,10 +143,12 @@ class FusedTracer:
         vl = tuple(np.ascontiguousarray(a[:1]).copy() for a in self.lobes[:9]) + (np.zeros((1, 3), np.float32),)
         return (*self.program_tables, f3(), f3(), f3(), f3(), np.zeros((1, 2), np.float32), np.zeros(1, np.bool_),
                 np.zeros(1, np.int32), np.zeros((1, 0, 3, 2), np.float32), np.zeros((1, 0), np.float32),
-                np.zeros((1, 2, 3), np.float32), np.zeros((1, 2, 2), np.float32), np.zeros((1, 0, 4), np.float32),
+                np.zeros((1, 2, 3), np.float32), np.zeros((1, 2, 2), np.float32),
+                np.zeros((1, self.tangent_layers.shape[1], 4), np.float32),
                 np.empty((self.max_registers, 3), np.float32),
                 np.ascontiguousarray(self.ps.materials.select_scale, np.float32), f3(), f3(), np.zeros(1, np.bool_),
-                np.zeros((0, 1, 4), np.float32), vl, f3())
+                np.zeros((0, 1, 4), np.float32), vl, f3(), self.tangent_layers, self.needs_tangents, f3(),
+                np.zeros(self.lobes[1][:1].shape, np.float32))
 
     def trace(self, pixel_id: np.ndarray, sample_id: np.ndarray, origins: np.ndarray, directions: np.ndarray,
               tmax: np.ndarray, depth_scale: np.ndarray, t_start: np.ndarray, want_aovs: bool, stats) -> tuple:

@@ -158,43 +158,63 @@ def reframe(rows, normal, d, ng, cos_o_geo, correct, ns, tangent, bitangent, wo,
     normal, untilted, for the diffuse lobes: see `surface`); a zero or non-finite normal keeps the point's frame."""
     for j in range(rows.shape[0]):
         k = rows[j]
-        nx, ny, nz = normal[k, 0], normal[k, 1], normal[k, 2]
-        length = math.sqrt(nx * nx + ny * ny + nz * nz)
-        if not (length > 0.0 and math.isfinite(length)):
+        ok, sx, sy, sz, tx, ty, tz, bx, by, bz, lx, ly, lz, vx, vy, vz, d0, d1, d2 = reframe_point(
+            normal[k, 0], normal[k, 1], normal[k, 2], d[k, 0], d[k, 1], d[k, 2], ng[k, 0], ng[k, 1], ng[k, 2],
+            cos_o_geo[k], correct[k])
+        if not ok:
             continue
-        nx, ny, nz = nx / length, ny / length, nz / length
-        side = _F1 if cos_o_geo[k] >= _F0 else -_F1
-        ox, oy, oz = -d[k, 0], -d[k, 1], -d[k, 2]
-        ux, uy, uz = np.float32(nx * side), np.float32(ny * side), np.float32(nz * side)
-        if correct[k]:
-            bx, by, bz = _valid_reflection_normal(ng[k, 0] * side, ng[k, 1] * side, ng[k, 2] * side, ox, oy, oz,
-                                                  nx, ny, nz)
-            nx, ny, nz = bx, by, bz
-        vx, vy, vz = np.float32(nx), np.float32(ny), np.float32(nz)
         n_view[k, 0], n_view[k, 1], n_view[k, 2] = vx, vy, vz
-        sx, sy, sz = vx * side, vy * side, vz * side
         ns[k, 0], ns[k, 1], ns[k, 2] = sx, sy, sz
-        tx, ty, tz, bx2, by2, bz2 = onb_f32(sx, sy, sz)
         tangent[k, 0], tangent[k, 1], tangent[k, 2] = tx, ty, tz
-        bitangent[k, 0], bitangent[k, 1], bitangent[k, 2] = bx2, by2, bz2
-        wo[k, 0] = ox * tx + oy * ty + oz * tz
-        wo[k, 1] = ox * bx2 + oy * by2 + oz * bz2
-        wo[k, 2] = ox * sx + oy * sy + oz * sz
-        _diffuse_normal(dn, k, ux, uy, uz, sx, sy, sz, tx, ty, tz, bx2, by2, bz2)
+        bitangent[k, 0], bitangent[k, 1], bitangent[k, 2] = bx, by, bz
+        wo[k, 0], wo[k, 1], wo[k, 2] = lx, ly, lz
+        dn[k, 0], dn[k, 1], dn[k, 2] = d0, d1, d2
+
+
+@_jit
+def reframe_point(nx, ny, nz, dx, dy, dz, gx, gy, gz, cos_o_geo, correct):
+    """`reframe` at one point (the fused path kernel calls it per vertex, `reframe` per row: the same bits): the
+    node-set normal n (world space, the viewer's side), the incoming direction d, the face normal g, cos_o_geo =
+    -d . g, correct: the specular tilt. Returns (ok, ns (3), tangent (3), bitangent (3), wo (3), n_view (3), dn
+    (3)); ok false (the rest zeros) where n is zero or not finite: the point keeps its frame."""
+    length = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if not (length > 0.0 and math.isfinite(length)):
+        return (False, _F0, _F0, _F0, _F0, _F0, _F0, _F0, _F0, _F0, _F0, _F0, _F0, _F0, _F0, _F0, _F0, _F0,
+                _F0)
+    nx, ny, nz = nx / length, ny / length, nz / length
+    side = _F1 if cos_o_geo >= _F0 else -_F1
+    ox, oy, oz = -dx, -dy, -dz
+    ux, uy, uz = np.float32(nx * side), np.float32(ny * side), np.float32(nz * side)
+    if correct:
+        bx, by, bz = _valid_reflection_normal(gx * side, gy * side, gz * side, ox, oy, oz, nx, ny, nz)
+        nx, ny, nz = bx, by, bz
+    vx, vy, vz = np.float32(nx), np.float32(ny), np.float32(nz)
+    sx, sy, sz = vx * side, vy * side, vz * side
+    tx, ty, tz, bx2, by2, bz2 = onb_f32(sx, sy, sz)
+    lx = ox * tx + oy * ty + oz * tz
+    ly = ox * bx2 + oy * by2 + oz * bz2
+    lz = ox * sx + oy * sy + oz * sz
+    d0, d1, d2 = _diffuse_normal_point(ux, uy, uz, sx, sy, sz, tx, ty, tz, bx2, by2, bz2)
+    return True, sx, sy, sz, tx, ty, tz, bx2, by2, bz2, lx, ly, lz, vx, vy, vz, d0, d1, d2
 
 
 @_jit
 def _diffuse_normal(dn, k, ux, uy, uz, sx, sy, sz, tx, ty, tz, bx, by, bz):
     """Row k of dn: the untilted normal u in the frame (t, b, s) of the tilted one, (0, 0, 1) exactly where
     the tilt left the normal as it was (so that the diffuse lobes compute what they did without one)."""
+    dn[k, 0], dn[k, 1], dn[k, 2] = _diffuse_normal_point(ux, uy, uz, sx, sy, sz, tx, ty, tz, bx, by, bz)
+
+
+@_jit
+def _diffuse_normal_point(ux, uy, uz, sx, sy, sz, tx, ty, tz, bx, by, bz):
+    """`_diffuse_normal`'s row as three values."""
     if ux == sx and uy == sy and uz == sz:
-        dn[k, 0], dn[k, 1], dn[k, 2] = _F0, _F0, _F1
-        return
+        return _F0, _F0, _F1
     x = ux * tx + uy * ty + uz * tz
     y = ux * bx + uy * by + uz * bz
     z = ux * sx + uy * sy + uz * sz
     length = max(np.float32(math.sqrt(x * x + y * y + z * z)), _TINY)
-    dn[k, 0], dn[k, 1], dn[k, 2] = x / length, y / length, z / length
+    return x / length, y / length, z / length
 
 
 @_jit
@@ -235,14 +255,24 @@ def bump_shadowing_terms(rows, smooth, w, local, tangent, bitangent, ns, n_view,
         wx, wy, wz = w[j, 0], w[j, 1], w[j, 2]
         if local:
             wx, wy, wz = tx * wx + bx * wy + zx * wz, ty * wx + by * wy + zy * wz, tz * wx + bz * wy + zz * wz
-        sx, sy, sz = smooth[j, 0], smooth[j, 1], smooth[j, 2]
-        _, reject[j] = _bump_term(n_view[k, 0], n_view[k, 1], n_view[k, 2], sx, sy, sz, wx, wy, wz)
-        ux = tx * dn[k, 0] + bx * dn[k, 1] + zx * dn[k, 2]
-        uy = ty * dn[k, 0] + by * dn[k, 1] + zy * dn[k, 2]
-        uz = tz * dn[k, 0] + bz * dn[k, 1] + zz * dn[k, 2]
-        if cos_o_geo[k] < _F0:
-            ux, uy, uz = -ux, -uy, -uz
-        g1[j], reject_d[j] = _bump_term(ux, uy, uz, sx, sy, sz, wx, wy, wz)
+        g1[j], reject[j], reject_d[j] = bump_terms_point(
+            tx, ty, tz, bx, by, bz, zx, zy, zz, n_view[k, 0], n_view[k, 1], n_view[k, 2], dn[k, 0], dn[k, 1],
+            dn[k, 2], cos_o_geo[k], smooth[j, 0], smooth[j, 1], smooth[j, 2], wx, wy, wz)
+
+
+@_jit
+def bump_terms_point(tx, ty, tz, bx, by, bz, zx, zy, zz, vx, vy, vz, d0, d1, d2, cos_o_geo, sx, sy, sz, wx, wy, wz):
+    """`bump_shadowing_terms` at one point (the fused path kernel calls it per vertex: the same bits): the frame
+    (t, b, z = ns), its normal n_view v, the diffuse normal dn d in it, cos_o_geo, the smooth normal s and the
+    world direction w. Returns (g1, reject, reject_d)."""
+    _, reject = _bump_term(vx, vy, vz, sx, sy, sz, wx, wy, wz)
+    ux = tx * d0 + bx * d1 + zx * d2
+    uy = ty * d0 + by * d1 + zy * d2
+    uz = tz * d0 + bz * d1 + zz * d2
+    if cos_o_geo < _F0:
+        ux, uy, uz = -ux, -uy, -uz
+    g1, reject_d = _bump_term(ux, uy, uz, sx, sy, sz, wx, wy, wz)
+    return g1, reject, reject_d
 
 
 @_jit

@@ -1,16 +1,20 @@
-"""Node programs in the fused path kernel (core.fused_path, stage 1): a scene whose programs set lobe parameters
-from the shading point (Image Texture, Noise, Color Ramp, Object Info, Texture Coordinate, Mix) is rendered by
-one compiled call per batch that evaluates each vertex's program (core.shading.evaluator.run_point, the body the
-per-bounce integrator's run_programs loops over) on the same inputs, so its image and first-hit passes equal the
-per-bounce integrator's bit for bit; programs that need what the kernel does not carry yet keep the per-bounce
-integrator, with the reason named."""
+"""Node programs in the fused path kernel (core.fused_path): a scene whose programs set lobe parameters from the
+shading point (Image Texture, Noise, Color Ramp, Object Info, Texture Coordinate, Mix), and one whose programs
+set the shading normal (Normal Map in tangent, object and world space: the frame rebuilt, the bump shadowing) are
+rendered by one compiled call per batch that evaluates each vertex's program (core.shading.evaluator.run_point,
+the body the per-bounce integrator's run_programs loops over) on the same inputs, so their images and first-hit
+passes equal the per-bounce integrator's bit for bit; programs that need what the kernel does not carry yet
+(Bump, ...) keep the per-bounce integrator, with the reason named."""
+
+import math
+
 
 import numpy as np
 import pytest
 
 from monte.core.fused_tracer import FUSED_ENV, supports
 from monte.core.integrator import PathTracer
-from monte.core.precompile import fused_program_scene
+from monte.core.precompile import _program, fused_program_scene
 from monte.core.render import prepare_scene, render
 from monte.core.sampling import make_sampler
 from monte.core.shading import registry as R
@@ -107,15 +111,11 @@ def _with(program, *rows, registers: int = 0):
 # each edit of the floor's program (registers 0-15, see fused_program_scene; 16+ are added; and of the scene)
 # and the reason supports gives
 EDITS = {
-    "normal": (lambda p, scene: setattr(p, "normal", 2), "node programs that set the normal"),
     "bump": (lambda p, scene: _with(p, _inst("bump", normal=16, strength=15, distance=15, height=4, height_dx=4,
                                       height_dy=4, filter_width=15), registers=1),
              "node programs with Bump nodes"),
-    "tangent": (lambda p, scene: _with(p, _inst("tangent", out=16), registers=1), "node programs reading tangents"),
     "light path": (lambda p, scene: _with(p, _inst("light_path", is_camera=16), registers=1),
                    "node programs reading the light path"),
-    "normal map": (lambda p, scene: _with(p, _inst("normal_map", normal=16, color=3, strength=15), registers=1),
-                   "node programs reading tangents"),
     "uv map": (lambda p, scene: _with(p, _inst("uv_layer", out=16), registers=1),
                "node programs reading a named UV map"),
     "attribute": (lambda p, scene: _with(p, _inst("attribute", fac=16), registers=1),
@@ -127,6 +127,25 @@ EDITS = {
 }
 
 
+# edits the fused kernel evaluates since stage 2 (programs that set the normal, read tangents)
+FUSED_EDITS = {
+    "normal": lambda p: setattr(p, "normal", 2),
+    "tangent": lambda p: _with(p, _inst("tangent", out=16), registers=1),
+    "normal map": lambda p: (_with(p, _inst("normal_map", normal=16, color=3, strength=15), registers=1),
+                             setattr(p, "normal", 16)),
+}
+
+
+@pytest.mark.parametrize("edit", list(FUSED_EDITS))
+def test_programs_that_set_the_normal_or_read_tangents_are_fused(edit, fast_settings, monkeypatch):
+    scene = fused_program_scene()
+    FUSED_EDITS[edit](scene.materials[0].program)
+    monkeypatch.setenv(FUSED_ENV, "1")
+    tracer = _tracer(scene, fast_settings(spp=2))
+    assert supports(tracer) is None
+    assert tracer.fused is not None
+
+
 @pytest.mark.parametrize("edit", list(EDITS))
 def test_node_programs_the_fused_kernel_does_not_evaluate_keep_the_per_bounce_integrator(edit, fast_settings,
                                                                                         monkeypatch):
@@ -136,4 +155,105 @@ def test_node_programs_the_fused_kernel_does_not_evaluate_keep_the_per_bounce_in
     monkeypatch.setenv(FUSED_ENV, "1")
     tracer = _tracer(scene, fast_settings(spp=2))
     assert supports(tracer) == reason
+    assert tracer.fused is None
+
+
+def normal_mapped_scene(resolution: tuple[int, int] = (32, 24), specular_floor: bool = True):
+    """Normal Map nodes in the three spaces on smooth meshes, seen at a grazing 20 degrees (the case of
+    tests/test_vector_nodes_cycles.py that exposed the diffuse lobes' normal): a Principled-like floor (glossy
+    over diffuse: the specular tilt of the mapped normal is active where the viewer is below it) with a
+    tangent-space map leaning ~58 degrees towards +x (its colour varying with the UV u), smooth corner normals
+    that differ from the face's (the mesh normal the map reads is their interpolation) and one tangent layer;
+    a glossy + diffuse ball (an object) with an object-space map, and a diffuse ball with a world-space one.
+    specular_floor False: the floor is diffuse only (no tilt)."""
+    from monte.core.builtin_scenes import icosphere, quad
+    from monte.core.scene import Camera, Lobe, Material, PointLight, Scene, World
+    from monte.core.shading.program import OBJECT_INVERSE, OBJECT_LOCATION, identity_object_row
+
+    grey = np.full(3, 0.7)
+    # floor: 0 uv, 1 colour a, 2 colour b, 3 colour, 4 normal, 5 strength 1
+    floor = _program([("texture_coordinate", {"uv": 0}), ("mix", {"out": 3, "factor": 0, "a": 1, "b": 2}),
+                      ("normal_map", {"normal": 4, "color": 3, "strength": 5, "space": 0, "layer": 0})],
+                     [0.0, (0.92, 0.5, 0.76), (0.3, 0.62, 0.9), 0.0, 0.0, 1.0], 2 if specular_floor else 1, {})
+    floor.normal = 4
+    ball = _program([("normal_map", {"normal": 1, "color": 0, "strength": 2, "space": 1})],
+                    [(0.75, 0.4, 0.8), 0.0, 1.0], 2, {})
+    ball.normal = 1
+    matte = _program([("normal_map", {"normal": 1, "color": 0, "strength": 2, "space": 2})],
+                     [(0.3, 0.7, 0.85), 0.0, 0.8], 1, {})
+    matte.normal = 1
+    floor_lobes = ([Lobe("glossy", np.ones(3), roughness=0.5, fresnel="generalized_schlick", f0=np.full(3, 0.04)),
+                    Lobe("diffuse", grey, under=0)] if specular_floor else [Lobe("diffuse", grey)])
+    materials = [Material("floor", floor_lobes, program=floor),
+                 Material("ball", [Lobe("glossy", np.ones(3), roughness=0.3, fresnel="dielectric"),
+                                   Lobe("diffuse", grey)], program=ball),
+                 Material("matte", [Lobe("diffuse", grey)], program=matte)]
+    s = 6.0
+    ground = quad("ground", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], 0)
+    ground.uvs = np.array([[(0, 0), (1, 0), (1, 1)], [(0, 0), (1, 1), (0, 1)]], np.float64)
+    corner = np.array([(0.15, 0.0, 1.0), (0.0, 0.1, 1.0), (-0.1, 0.05, 1.0), (0.05, -0.1, 1.0)])
+    corner /= np.linalg.norm(corner, axis=1)[:, None]
+    ground.normals = corner[[[0, 1, 2], [0, 2, 3]]]
+    ground.tangent_layers = {"": np.tile(np.array([1.0, 0.0, 0.0, 1.0]), (2, 3, 1))}
+    meshes = [ground, icosphere("ball", (0.8, -0.6, 0.5), 0.5, 1), icosphere("matte", (1.2, 0.9, 0.4), 0.4, 2)]
+    row = identity_object_row()  # the ball, turned 90 degrees about z: its object space is not the world's
+    row[OBJECT_INVERSE:OBJECT_INVERSE + 12] = [0, 1, 0, 0.6, -1, 0, 0, 0.8, 0, 0, 1, -0.5]
+    row[OBJECT_LOCATION:OBJECT_LOCATION + 3] = (0.8, -0.6, 0.5)
+    meshes[1].object_index = 0
+    camera = Camera.look_at((-5.0, 0.0, 1.8), (0.0, 0.0, 0.0), horizontal_fov=math.radians(40.0),
+                            resolution=resolution)
+    return Scene(camera=camera, meshes=meshes, materials=materials, tangent_layer_names=[""],
+                 lights=[PointLight("point", np.array((0.5, -1.0, 3.0)), np.full(3, 60.0))],
+                 world=World(np.array((0.05, 0.05, 0.05))), name="fused-normal-maps",
+                 objects=np.asarray([row], np.float32))
+
+
+@pytest.mark.parametrize("specular_floor", [True, False])
+def test_normal_mapped_programs_render_in_the_fused_kernel_as_per_bounce(specular_floor, fast_settings,
+                                                                         monkeypatch):
+    """The frame rebuilt around the mapped normal (core.geometry_kernels.reframe_point, the specular tilt where
+    the material has glossy lobes), the diffuse lobes' untilted normal, the tangents and mesh normal the map
+    reads, and the bump shadowing of light samples and BSDF samples: the same bits as the per-bounce integrator."""
+    scene = normal_mapped_scene(specular_floor=specular_floor)
+    settings = fast_settings(spp=8, threads=1)
+    monkeypatch.setenv(FUSED_ENV, "1")
+    tracer = _tracer(scene, settings)
+    assert supports(tracer) is None
+    assert tracer.ps.specular[0] == specular_floor
+    old = _render(scene, settings, monkeypatch, fused=False)
+    new = _render(scene, settings, monkeypatch, fused=True)
+    assert new.stats["fused_kernel"] and not old.stats["fused_kernel"]
+    assert np.array_equal(new.color, old.color)
+    assert np.array_equal(new.variance, old.variance)
+    for aov in ("albedo", "normal", "depth"):
+        assert np.array_equal(getattr(new, aov), getattr(old, aov)), aov
+    assert old.color[..., :3].mean() > 0.01
+    # the maps matter: without them (the smooth normals) the fused image is another one
+    plain = normal_mapped_scene(specular_floor=specular_floor)
+    for m in plain.materials:
+        m.program.normal = -1
+    flat = _render(plain, settings, monkeypatch, fused=True)
+    assert flat.stats["fused_kernel"]
+    assert not np.allclose(flat.color, new.color, rtol=1e-2)
+
+
+def test_normal_mapped_programs_in_the_fused_kernel_are_bit_identical_across_thread_counts(fast_settings,
+                                                                                          monkeypatch):
+    scene = normal_mapped_scene((32, 32))
+    one = _render(scene, fast_settings(spp=8, threads=1, batch_paths=1024), monkeypatch, fused=True)
+    two = _render(scene, fast_settings(spp=8, threads=2, batch_paths=1024), monkeypatch, fused=True)
+    assert one.stats["fused_kernel"]
+    assert np.array_equal(one.color, two.color)
+    assert np.array_equal(one.variance, two.variance)
+
+
+def test_bump_keeps_the_per_bounce_integrator_in_a_normal_mapped_scene(fast_settings, monkeypatch):
+    """Stage 3 (ray differentials) is not in the kernel: a Bump node anywhere keeps the scene per-bounce."""
+    scene = normal_mapped_scene()
+    _with(scene.materials[2].program, _inst("bump", normal=3, strength=2, distance=2, height=2, height_dx=2,
+                                            height_dy=2, filter_width=2), registers=1)
+    scene.materials[2].program.normal = 3
+    monkeypatch.setenv(FUSED_ENV, "1")
+    tracer = _tracer(scene, fast_settings(spp=2))
+    assert supports(tracer) == "node programs with Bump nodes"
     assert tracer.fused is None
