@@ -212,7 +212,17 @@ def test_a_worker_killed_mid_render_loses_nothing(cluster, reference):
     result = render_on_cluster(scene, settings, client, units=units, on_progress=kill_once)
     assert killed
     _assert_same_images(result, reference)
-    client.wait_for_workers(2, timeout=60)  # the nanny restarts it: later tests see 2 workers again
+    # The nanny restarts it: later tests must see 2 live workers. wait_for_workers alone can return while the
+    # scheduler still lists the killed one (the units may all finish on the other before it notices), and the next
+    # test's broadcast then reached the dead worker (CommClosedError); so wait until it is gone and 2 answer.
+    deadline = time.monotonic() + 120
+    while True:
+        alive = client.run(os.getpid, on_error="ignore")
+        listed = client.scheduler_info(n_workers=-1)["workers"]
+        if len(alive) == 2 == len(listed) and victim not in alive.values():
+            break
+        assert time.monotonic() < deadline, f"the cluster did not get back to 2 live workers: {alive}, {list(listed)}"
+        time.sleep(0.2)
 
 
 def test_workers_with_another_monte_are_refused(cluster):
