@@ -370,16 +370,19 @@ def test_bump_mapped_programs_in_the_fused_kernel_are_bit_identical_across_threa
     assert np.array_equal(one.albedo, two.albedo)
 
 
-@pytest.mark.parametrize("kind", ["ORTHO", "PANO"])
+@pytest.mark.parametrize("kind", ["ORTHO", "PANO", "LENS"])
 def test_bump_mapped_programs_through_other_cameras_render_fused_as_per_bounce(kind, fast_settings, monkeypatch):
     """The kernel takes whatever differentials the camera rays carry (an orthographic camera's: a constant
-    footprint, no spread; a panoramic camera's, computed in NumPy, with its dead rays): the same image as the
-    per-bounce integrator."""
+    footprint, no spread; a panoramic camera's and a thin lens's (depth of field), computed in NumPy, the
+    panoramic one with dead rays): the same image as the per-bounce integrator."""
     scene = bump_mapped_scene((24, 16))
-    scene.camera.kind = kind
+    if kind == "LENS":
+        scene.camera.use_dof, scene.camera.aperture_fstop, scene.camera.focus_distance = True, 0.5, 4.0
+    else:
+        scene.camera.kind = kind
     if kind == "ORTHO":
         scene.camera.ortho_scale = 5.0
-    else:
+    elif kind == "PANO":
         scene.camera.panorama_type = "FISHEYE_EQUIDISTANT"
     settings = fast_settings(spp=4, threads=1)
     old = _render(scene, settings, monkeypatch, fused=False)
