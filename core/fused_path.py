@@ -2,7 +2,7 @@
 
 The per-bounce integrator (core.integrator.PathTracer.trace) runs ~15 compiled kernels per bounce with NumPy
 glue and intermediate arrays between them. For the scenes this module supports (`supports` says which: constant
-materials, or node programs that set lobe parameters and the normal but hold no Bump, mesh emitters and analytic
+materials, or node programs that set lobe parameters and the normal (Normal Map, Bump), mesh emitters and analytic
 lights, the Sobol sampler, MIS, none of the film's extra outputs; core.fused_tracer decides and calls it) one kernel,
 `trace_paths`, does the whole path per camera ray: Embree's closest hit and shadow ray, the emission seen
 (MIS-weighted), Russian roulette, the vertex's node program (core.shading.evaluator.run_point), next-event
@@ -27,8 +27,8 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .embree import _INVALID_ID, _call_embree, set_ray
-from .geometry_kernels import (_valid_reflection_normal, bump_terms_point, offset_point, reframe_point,
-                               smooth_normal, smooth_surface_lift)
+from .geometry_kernels import (_valid_reflection_normal, bump_terms_point, differentials_point, offset_point,
+                               reframe_point, smooth_normal, smooth_surface_lift)
 from .jit_cache import jit_inline as _jit_inline
 from .jit_cache import jit_no_nrt as _jit
 from .light_kernels import light_emission_path, probabilities_at, sample_light_path, triangle_pdf_path
@@ -60,7 +60,8 @@ PROGRAM_FIELDS = ("needs_program", "prog_of_mat", "code", "code_start", "regs0",
                   "bind", "emit_reg", "normal_reg", "tex_pixels", "tex_offset", "tex_h", "tex_w", "objects",
                   "object_of_triangle", "tri_uvs", "shift", "P", "N", "Ng", "I", "uv", "back", "obj", "uvx", "extra",
                   "dP", "duv", "tan", "scratch", "select_scale", "emission", "normal_out", "has_normal", "aov_out",
-                  "lobes", "albedo", "tangent_layers", "needs_tangents", "nraw", "diffuse_weight")
+                  "lobes", "albedo", "tangent_layers", "needs_tangents", "nraw", "diffuse_weight",
+                  "needs_differentials", "db", "ray_dp", "ray_dd")
 
 
 @intrinsic
@@ -107,19 +108,21 @@ def _sobol3(hk, r, dim_keys, tables):
 
 @_jit_inline
 def _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, nx, ny, nz, gx, gy, gz, dx, dy, dz,
-                  backface, face_normals, corner_normals, smooth):
+                  backface, face_normals, corner_normals, smooth, tri_vertices, hit_dp):
     """Run material mat's node program at a surface vertex into the 1-row lobes of `programs` (PROGRAM_FIELDS,
     "lobes"): row mat of the material lobes, then the program (core.shading.evaluator.run_point) with the
     context core.integrator.shade_points builds: the world position, N (the interpolated normal, nx..) and Ng
     (the face normal) negated on a back face, I = -d, the active UV map (core.geometry_kernels.surface's
     interpolation), the object row, and where the material's program reads them (needs_tangents) the tangent
-    layers and the unnormalised mesh normal (core.shading.vector_context._tangents: float64, then float32).
-    Differentials, UV Map and Light Path values read zeros: the scenes whose programs read them are not fused
+    layers and the unnormalised mesh normal (core.shading.vector_context._tangents: float64, then float32), and
+    where it reads ray differentials (needs_differentials: a Bump node) dP, and the active UV map's duv, of the
+    hit's footprint hit_dp (core.geometry_kernels.differentials_point, as the per-bounce vector_context).
+    UV Map and Light Path values read zeros: the scenes whose programs read them are not fused
     (core.fused_tracer.supports)."""
     (needs, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg, normal_reg,
      tex_pixels, tex_offset, tex_h, tex_w, objects, obj_of_tri, tri_uvs, shift, P, N, Ng, I, uv, side, obj, uvx,
      extra, dP, duv, tan, scratch, t_scale, emission, normal_out, has_normal, aov_out, vl, alb, tangent_layers,
-     needs_tangents, nraw, _diffuse_weight) = programs
+     needs_tangents, nraw, _diffuse_weight, needs_differentials, db, _ray_dp, _ray_dd) = programs
     for l in range(lobes[0].shape[1]):
         vl[0][0, l] = lobes[0][mat, l]
         vl[2][0, l] = lobes[2][mat, l]
@@ -164,6 +167,14 @@ def _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, nx, ny, nz
         else:
             for c in range(3):
                 nraw[0, c] = face_normals[prim, c]
+    if needs_differentials[mat]:
+        differentials_point(tri_vertices, tri_uvs, prim, Ng[0, 0], Ng[0, 1], Ng[0, 2], hit_dp, 0, dP, db, duv)
+    else:  # (vector_context: the points whose program reads no differentials get zeros)
+        for j in range(2):
+            for c in range(3):
+                dP[0, j, c] = _F0
+            for c in range(2):
+                duv[0, j, c] = _F0
     has_normal[0] = False
     run_point(0, mat, (prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg,
                        normal_reg, tex_pixels, tex_offset, tex_h, tex_w),
@@ -221,6 +232,13 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
         prev_delta = True
         pnx = pny = pnz = _F0
         prev_tr = False
+        # the path's ray differential, compact as core.integrator keeps it (Bump nodes read it): the footprint
+        # fp (Cycles' dP) and its spread per unit distance fd (dD); at a hit fp + t fd (float32), which the
+        # bounce ray keeps with the camera ray's fd
+        fp = fd = _F0
+        if programs is not None:
+            if programs[45].shape[0] > 0:
+                fp, fd = programs[45][k], programs[46][k]
         if TIMED:
             cp_ = _cycles()
         for depth in range(max_bounces + 2):
@@ -259,6 +277,8 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                                   counters)
             if not hit:
                 break
+            if programs is not None:
+                fp = fp + t_hit * fd
             # ---- an emissive triangle hit
             mat = material_index[prim]
             if has_emitters and emitter_of_triangle[prim] >= 0:
@@ -332,7 +352,7 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             if programs is not None:
                 if programs[0][mat]:
                     _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, sx, sy, sz, gx, gy, gz, dx, dy,
-                                  dz, cos_o_geo < _F0, face_normals, corner_normals, smooth)
+                                  dz, cos_o_geo < _F0, face_normals, corner_normals, smooth, tri_vertices, fp)
                     shade_lobes = programs[37]
                     row = 0
                     if depth == 0 and want_aovs:  # (the roulette keeps every camera hit: its throughput is 1)

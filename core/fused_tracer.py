@@ -64,17 +64,15 @@ def supports(tracer) -> str | None:
 
 def program_reason(ps) -> str | None:
     """None when the scene has no node programs or only programs the fused kernel evaluates per vertex (programs
-    that read the shading point, its normals, view, tangents, active UV map and object, and set lobe parameters
-    and the shading normal: Normal Map, Tangent; the kernel rebuilds the frame and applies the bump shadowing),
-    else why not: a program that reads ray differentials (Bump), a named UV map (UV Map), the path state (Light
-    Path) or attributes (Attribute), emits (textured emitters) or writes shader AOVs."""
+    that read the shading point, its normals, view, tangents, active UV map, object and ray differentials, and
+    set lobe parameters and the shading normal: Normal Map, Tangent, Bump; the kernel rebuilds the frame and
+    applies the bump shadowing), else why not: a program that reads a named UV map (UV Map), the path state
+    (Light Path) or attributes (Attribute), emits (textured emitters) or writes shader AOVs."""
     sh = ps.shading
     if sh is None:
         return None
     needs = ps.vector_needs
-    checks = (("node programs with Bump nodes", sh.needs_differentials
-               or (needs is not None and bool(needs.differentials.any()))),
-              ("node programs reading a named UV map", needs is not None and bool(needs.uv_layers.any())),
+    checks = (("node programs reading a named UV map", needs is not None and bool(needs.uv_layers.any())),
               ("node programs reading the light path", sh.uses_light_path),
               ("node programs reading attributes", sh.uses_attributes),
               ("node programs with emission", sh.any_emits),
@@ -132,11 +130,17 @@ class FusedTracer:
         needs = ps.vector_needs
         self.needs_tangents = (np.ones(m, np.bool_) if needs is None
                                else np.ascontiguousarray(needs.tangents, np.bool_))
+        # the materials whose programs read ray differentials (Bump): none where no program has a Bump node (the
+        # per-bounce integrator then keeps no differentials: every point reads zeros)
+        self.needs_differentials = (np.zeros(m, np.bool_) if sh is None or not sh.needs_differentials
+                                    else np.ones(m, np.bool_) if needs is None
+                                    else np.ascontiguousarray(needs.differentials, np.bool_))
         self.max_registers = 0 if sh is None else sh.max_registers
 
-    def _programs(self) -> tuple | None:
-        """trace_paths' `programs` argument (core.fused_path.PROGRAM_FIELDS): the scene's program tables and this
-        call's 1-row scratches (each call its own: batches may be traced on several threads at once)."""
+    def _programs(self, ray_dp: np.ndarray | None, ray_dd: np.ndarray | None) -> tuple | None:
+        """trace_paths' `programs` argument (core.fused_path.PROGRAM_FIELDS): the scene's program tables, this
+        call's 1-row scratches (each call its own: batches may be traced on several threads at once) and the
+        camera rays' differentials (none: empty, the paths' footprints are zero)."""
         if self.program_tables is None:
             return None
         f3 = lambda: np.zeros((1, 3), np.float32)  # noqa: E731
@@ -148,13 +152,18 @@ class FusedTracer:
                 np.empty((self.max_registers, 3), np.float32),
                 np.ascontiguousarray(self.ps.materials.select_scale, np.float32), f3(), f3(), np.zeros(1, np.bool_),
                 np.zeros((0, 1, 4), np.float32), vl, f3(), self.tangent_layers, self.needs_tangents, f3(),
-                np.zeros(self.lobes[1][:1].shape, np.float32))
+                np.zeros(self.lobes[1][:1].shape, np.float32), self.needs_differentials,
+                np.zeros((1, 2, 2), np.float32),
+                np.zeros(0, np.float32) if ray_dp is None else np.ascontiguousarray(ray_dp, np.float32),
+                np.zeros(0, np.float32) if ray_dd is None else np.ascontiguousarray(ray_dd, np.float32))
 
     def trace(self, pixel_id: np.ndarray, sample_id: np.ndarray, origins: np.ndarray, directions: np.ndarray,
-              tmax: np.ndarray, depth_scale: np.ndarray, t_start: np.ndarray, want_aovs: bool, stats) -> tuple:
+              tmax: np.ndarray, depth_scale: np.ndarray, t_start: np.ndarray, want_aovs: bool, stats,
+              ray_dp: np.ndarray | None = None, ray_dd: np.ndarray | None = None) -> tuple:
         """Radiance (N, 3) float32 of N camera paths and, with want_aovs, their first hits' albedo (N, 3), normal
         (N, 3) and depth (N,) (zeros, zeros and inf where the camera ray missed; else None), as PathTracer.trace's
-        FirstHit holds them; adds to stats' counters."""
+        FirstHit holds them; adds to stats' counters. ray_dp, ray_dd (N,) float32: the camera rays' compact
+        differentials as PathTracer.trace takes them (None: zero), which Bump nodes read."""
         ps, s = self.ps, self.settings
         n = len(origins)
         radiance = np.empty((n, 3), np.float32)
@@ -187,7 +196,7 @@ class FusedTracer:
                     self.n_matters, self.has_emission, self.seed_key, self.set_keys, self.dim_keys, self.tables,
                     self.group_bits, int(s.max_bounces), int(s.rr_depth), np.float32(s.clamp),
                     self.shadow_epsilon, words, words.view(np.uint32), words.ctypes.data, buf, radiance, counters,
-                    *aov_args, self.terminator, self._programs())
+                    *aov_args, self.terminator, self._programs(ray_dp, ray_dd))
         stats.nonfinite += int(counters[0])
         stats.clamped += int(counters[1])
         self.accel.count_rays(int(counters[2]), int(counters[3]))

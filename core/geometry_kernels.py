@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from .jit_cache import jit as _jit
+from .jit_cache import jit_inline as _jit_inline
 from .warps import onb_f32
 
 
@@ -398,3 +399,69 @@ def smooth_surface_lift(t, w0, w1, w2, gx, gy, gz, tri_vertices, corner_normals)
     else:
         h = min(-env, h * np.float32(0.5))
     return nx * h, ny * h, nz * h
+
+
+@_jit_inline
+def differentials_point(tri_vertices, tri_uvs, prim, ngx, ngy, ngz, dp, k, dP, db, duv):
+    """Row k of core.shading.vector_context.VectorContext's dP (N, 2, 3), db (N, 2, 2) and, where tri_uvs is not
+    empty, duv (N, 2, 2) (float32) of a hit on triangle prim with viewer-side true normal ng and footprint dp
+    (Cycles' compact sd->dP): dP.dx, dP.dy = dp along the two unit tangents of Cycles' make_orthonormals (a along
+    (1, 1, 1) x n, or (-1, 1, 1) x n when n lies along (1, 1, 1); b = n x a), the barycentric derivatives
+    (b1, b2) that move the point by them within the triangle (the normal equations of the edges e1, e2) and the
+    active UV map's change along them. Float64 inside, in one written order (each dot product (x + y) + z), so
+    the per-bounce batch (`differentials`) and the fused kernel (core.fused_path) give the same bits."""
+    x, y, z = np.float64(ngx), np.float64(ngy), np.float64(ngz)
+    ax = z - y
+    if x == y and x == z:
+        ay, az = x + z, -y - x
+    else:
+        ay, az = x - z, y - x
+    alen = max(math.sqrt(ax * ax + ay * ay + az * az), 1e-300)
+    ax, ay, az = ax / alen, ay / alen, az / alen
+    bx = y * az - z * ay
+    by = z * ax - x * az
+    bz = x * ay - y * ax
+    size = np.float64(dp)
+    d0x, d0y, d0z = ax * size, ay * size, az * size
+    d1x, d1y, d1z = bx * size, by * size, bz * size
+    vx, vy, vz = (np.float64(tri_vertices[prim, 0, 0]), np.float64(tri_vertices[prim, 0, 1]),
+                  np.float64(tri_vertices[prim, 0, 2]))
+    e1x = np.float64(tri_vertices[prim, 1, 0]) - vx
+    e1y = np.float64(tri_vertices[prim, 1, 1]) - vy
+    e1z = np.float64(tri_vertices[prim, 1, 2]) - vz
+    e2x = np.float64(tri_vertices[prim, 2, 0]) - vx
+    e2y = np.float64(tri_vertices[prim, 2, 1]) - vy
+    e2z = np.float64(tri_vertices[prim, 2, 2]) - vz
+    a11 = e1x * e1x + e1y * e1y + e1z * e1z
+    a12 = e1x * e2x + e1y * e2y + e1z * e2z
+    a22 = e2x * e2x + e2y * e2y + e2z * e2z
+    det = a11 * a22 - a12 * a12
+    inv = 1.0 / det if det != 0.0 else 0.0
+    r10 = e1x * d0x + e1y * d0y + e1z * d0z
+    r20 = e2x * d0x + e2y * d0y + e2z * d0z
+    r11 = e1x * d1x + e1y * d1y + e1z * d1z
+    r21 = e2x * d1x + e2y * d1y + e2z * d1z
+    b00 = (a22 * r10 - a12 * r20) * inv
+    b01 = (a11 * r20 - a12 * r10) * inv
+    b10 = (a22 * r11 - a12 * r21) * inv
+    b11 = (a11 * r21 - a12 * r11) * inv
+    dP[k, 0, 0], dP[k, 0, 1], dP[k, 0, 2] = np.float32(d0x), np.float32(d0y), np.float32(d0z)
+    dP[k, 1, 0], dP[k, 1, 1], dP[k, 1, 2] = np.float32(d1x), np.float32(d1y), np.float32(d1z)
+    db[k, 0, 0], db[k, 0, 1] = np.float32(b00), np.float32(b01)
+    db[k, 1, 0], db[k, 1, 1] = np.float32(b10), np.float32(b11)
+    if tri_uvs.shape[0] > 0:
+        for c in range(2):
+            u0 = np.float64(tri_uvs[prim, 0, c])
+            u1 = np.float64(tri_uvs[prim, 1, c]) - u0
+            u2 = np.float64(tri_uvs[prim, 2, c]) - u0
+            duv[k, 0, c] = np.float32(u1 * b00 + u2 * b01)
+            duv[k, 1, c] = np.float32(u1 * b10 + u2 * b11)
+
+
+@_jit
+def differentials(prim, ng, dp, tri_vertices, tri_uvs, dP, db, duv):
+    """`differentials_point` for every row k of hits on triangles prim (N,) with viewer-side true normals ng
+    (N, 3) float32 and footprints dp (N,) float32, into dP (N, 2, 3), db (N, 2, 2) and duv (N, 2, 2) (float32;
+    duv untouched where tri_uvs is empty)."""
+    for k in range(prim.shape[0]):
+        differentials_point(tri_vertices, tri_uvs, prim[k], ng[k, 0], ng[k, 1], ng[k, 2], dp[k], k, dP, db, duv)

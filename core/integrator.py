@@ -805,7 +805,7 @@ class PathTracer:
                 and ray_time is None):
             self.stats.paths += len(origins)
             radiance, aovs = self.fused.trace(pixel_id, sample_id, origins, directions, tmax, depth_scale, t_start,
-                                              want_aovs, self.stats)
+                                              want_aovs, self.stats, ray_dp, ray_dd)
             return radiance, None if aovs is None else FirstHit(*aovs), None
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)

@@ -488,10 +488,12 @@ def _bump_shadowing_once() -> None:
     """Points whose node program sets the normal (Normal Map, Bump) take Cycles' bump shadowing
     (geometry_kernels.bump_shadowing_terms, through the integrator's helper, on a surface batch's column views,
     and the diffuse-only lobe weights, geometry_kernels.diffuse_lobe_weights), and a Bump node's scene the
-    compiled camera-ray differentials (camera.pinhole_differentials): compile them here, so that the first such
+    compiled camera-ray differentials (camera.pinhole_differentials) and, where the per-bounce integrator renders
+    it, the per-point differentials (geometry_kernels.differentials): compile them here, so that the first such
     render compiles nothing."""
     from . import bsdf
     from .camera import camera_rays, pinhole_differentials
+    from .geometry_kernels import differentials
     from .integrator import PathTracer, SurfaceBatch, _bump_terms
     from .scene import Camera
 
@@ -507,6 +509,11 @@ def _bump_shadowing_once() -> None:
     camera = Camera(matrix_world=np.eye(4), kind="PERSP", resolution=(2, 2))
     x = y = np.array([0.5])
     pinhole_differentials(camera, x, y, camera_rays(camera, x, y))
+    # the per-bounce integrator's per-point ray differentials (shading.vector_context._differentials)
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)
+    differentials(np.zeros(1, np.int64), np.array([[0, 0, 1]], np.float32), np.ones(1, np.float32), tri,
+                  np.zeros((1, 3, 2), np.float32), np.empty((1, 2, 3), np.float32), np.empty((1, 2, 2), np.float32),
+                  np.empty((1, 2, 2), np.float32))
 
 
 def _panoramic(scene):

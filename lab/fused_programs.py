@@ -1,14 +1,14 @@
 """Node programs in the fused path kernel: render CPU of a program scene fused against per-bounce (needs bpy).
 
-The scene is the `textured` bench scene (lab.bpy_scenes.textured) exported through the add-on, with what the
-fused kernel does not evaluate yet taken out of its programs: --stage 2 (default) the ball's Bump (its
-instructions dropped and no normal bound; the ball's Noise heights still run, unused; the crate keeps its
-Normal Map), --stage 1 also the crate's Normal Map, so every material is one core.fused_tracer.program_reason
-accepts. Each repeat renders it once per integrator, interleaved, on one
+The scene is the `textured` bench scene (lab.bpy_scenes.textured) exported through the add-on: --stage 3
+(default) as it is (the ball's Bump reads ray differentials), or with what earlier stages of the fused kernel did
+not evaluate taken out of its programs: --stage 2 the ball's Bump (its instructions dropped and no normal bound;
+the ball's Noise heights still run, unused; the crate keeps its Normal Map), --stage 1 also the crate's Normal
+Map. Each repeat renders it once per integrator, interleaved, on one
 worker thread in this warm process (one untimed render of each first loads the kernels); printed: each
 render's process CPU seconds and the per-bounce / fused ratio of the medians. Prints numbers only.
 
-    python -m monte.lab.fused_programs [--resolution 256] [--spp 64] [--repeat 3] [--stage 2]
+    python -m monte.lab.fused_programs [--resolution 256] [--spp 64] [--repeat 3] [--stage 3]
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ import numpy as np
 
 
 def stage1_textured(resolution: int, stage: int = 1):
-    """The exported `textured` scene without its normal-setting nodes (stage 1) or without its Bump (stage 2;
-    see the module docstring)."""
+    """The exported `textured` scene without its normal-setting nodes (stage 1), without its Bump (stage 2) or
+    whole (stage 3; see the module docstring)."""
     import bpy
 
     from ..addon.export import export_scene
@@ -34,7 +34,7 @@ def stage1_textured(resolution: int, stage: int = 1):
     scene.render.engine = "MONTE"
     core_scene, _ = export_scene(bpy.context.evaluated_depsgraph_get())
     dropped = (R.OP_BUMP, R.OP_NORMAL_MAP, R.OP_TANGENT) if stage == 1 else (R.OP_BUMP,)
-    for m in core_scene.materials:
+    for m in core_scene.materials if stage < 3 else ():
         p = getattr(m, "program", None)
         if p is None:
             continue
@@ -50,7 +50,7 @@ def main(argv=None) -> int:
     ap.add_argument("--resolution", type=int, default=256)
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--stage", type=int, choices=(1, 2), default=2)
+    ap.add_argument("--stage", type=int, choices=(1, 2, 3), default=3)
     args = ap.parse_args(argv)
     from ..core.fused_tracer import FUSED_ENV
     from ..core.render import render

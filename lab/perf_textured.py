@@ -7,11 +7,16 @@ one worker thread under cProfile. Printed: the render's process CPU seconds with
 kernel's time counts as its Python caller's: `evaluate` is the node-program interpreter, `sample` of lights.py
 the light-sampling kernel, and so on). The profiler roughly doubles the per-call Python overhead, so read its
 column as shares. Prints numbers only: no timing is asserted.
+
+It profiles the per-bounce integrator (MONTE_FUSED=0 while it renders), whose stages and kernels the profile can
+tell apart: the scene's default renderer, the fused path kernel (core.fused_path), is one compiled call per
+batch (`python -m monte.lab.fused_programs` times the two against each other).
 """
 
 from __future__ import annotations
 
 import cProfile
+import os
 import pstats
 import time
 
@@ -31,9 +36,24 @@ def _scene(resolution: int):
 
 
 def textured_profile(resolution: int, spp: int, repeat: int, top: int = TOP) -> dict:
-    """CPU seconds, stage seconds and the top functions by own time of a 1-thread render of `textured`."""
+    """CPU seconds, stage seconds and the top functions by own time of a 1-thread per-bounce render of
+    `textured`."""
+    from ..core.fused_tracer import FUSED_ENV
     from ..core.render import render
     from ..core.settings import RenderSettings
+
+    before = os.environ.get(FUSED_ENV)
+    os.environ[FUSED_ENV] = "0"
+    try:
+        return _profile(render, RenderSettings, resolution, spp, repeat, top)
+    finally:
+        if before is None:
+            os.environ.pop(FUSED_ENV, None)
+        else:
+            os.environ[FUSED_ENV] = before
+
+
+def _profile(render, RenderSettings, resolution: int, spp: int, repeat: int, top: int) -> dict:
 
     scene = _scene(resolution)
     settings = RenderSettings(spp=spp, threads=1, seed=1, aovs=False).validate()

@@ -27,6 +27,28 @@ def test_bench_scenes_export(name, triangles, instances, lights):
     assert core_scene.warnings == []
 
 
+def test_the_textured_bench_scene_renders_in_the_fused_kernel():
+    """Its floor (Noise into a Color Ramp), crate (Image Textures, Normal Map) and ball (Noise into Bump: ray
+    differentials) are all node programs the fused path kernel evaluates (core.fused_tracer.supports)."""
+    from monte.addon.export import export_scene
+    from monte.core.fused_tracer import supports
+    from monte.core.integrator import PathTracer
+    from monte.core.render import prepare_scene
+    from monte.core.sampling import make_sampler
+    from monte.core.settings import RenderSettings
+    from monte.lab import bpy_scenes
+
+    bpy_scenes.build("textured", (24, 16))
+    core_scene, _stats = export_scene(bpy.context.evaluated_depsgraph_get())
+    settings = RenderSettings(spp=4, threads=1).validate()
+    ps, accel = prepare_scene(core_scene, settings)
+    tracer = PathTracer(ps, accel, settings, make_sampler(settings.sampler, settings.seed, settings.spp, 4))
+    assert ps.shading is not None and ps.shading.needs_differentials  # the ball's Bump
+    assert ps.vector_needs.tangents.any()  # the crate's Normal Map
+    assert supports(tracer) is None and tracer.fused is not None
+    bpy_scenes.reset()
+
+
 @pytest.mark.parametrize("name", ["textured", "hdri"])
 def test_bench_scene_images_survive_a_saved_blend(name, tmp_path):
     """`--whole-process` renders the bench scene saved as a .blend against a reference rendered in memory: every

@@ -3,8 +3,9 @@ shading point (Image Texture, Noise, Color Ramp, Object Info, Texture Coordinate
 set the shading normal (Normal Map in tangent, object and world space: the frame rebuilt, the bump shadowing) are
 rendered by one compiled call per batch that evaluates each vertex's program (core.shading.evaluator.run_point,
 the body the per-bounce integrator's run_programs loops over) on the same inputs, so their images and first-hit
-passes equal the per-bounce integrator's bit for bit; programs that need what the kernel does not carry yet
-(Bump, ...) keep the per-bounce integrator, with the reason named."""
+passes equal the per-bounce integrator's bit for bit; so does one whose Bump nodes read the ray differentials
+each path carries (stage 3); programs that need what the kernel does not carry yet (UV Map, Light Path, ...)
+keep the per-bounce integrator, with the reason named."""
 
 import math
 
@@ -111,9 +112,6 @@ def _with(program, *rows, registers: int = 0):
 # each edit of the floor's program (registers 0-15, see fused_program_scene; 16+ are added; and of the scene)
 # and the reason supports gives
 EDITS = {
-    "bump": (lambda p, scene: _with(p, _inst("bump", normal=16, strength=15, distance=15, height=4, height_dx=4,
-                                      height_dy=4, filter_width=15), registers=1),
-             "node programs with Bump nodes"),
     "light path": (lambda p, scene: _with(p, _inst("light_path", is_camera=16), registers=1),
                    "node programs reading the light path"),
     "uv map": (lambda p, scene: _with(p, _inst("uv_layer", out=16), registers=1),
@@ -127,8 +125,10 @@ EDITS = {
 }
 
 
-# edits the fused kernel evaluates since stage 2 (programs that set the normal, read tangents)
+# edits the fused kernel evaluates since stage 2 (programs that set the normal, read tangents) and stage 3 (Bump)
 FUSED_EDITS = {
+    "bump": lambda p: (_with(p, _inst("bump", normal=16, strength=15, distance=15, height=4, height_dx=4,
+                                      height_dy=4, filter_width=15), registers=1), setattr(p, "normal", 16)),
     "normal": lambda p: setattr(p, "normal", 2),
     "tangent": lambda p: _with(p, _inst("tangent", out=16), registers=1),
     "normal map": lambda p: (_with(p, _inst("normal_map", normal=16, color=3, strength=15), registers=1),
@@ -247,13 +247,146 @@ def test_normal_mapped_programs_in_the_fused_kernel_are_bit_identical_across_thr
     assert np.array_equal(one.variance, two.variance)
 
 
-def test_bump_keeps_the_per_bounce_integrator_in_a_normal_mapped_scene(fast_settings, monkeypatch):
-    """Stage 3 (ray differentials) is not in the kernel: a Bump node anywhere keeps the scene per-bounce."""
-    scene = normal_mapped_scene()
-    _with(scene.materials[2].program, _inst("bump", normal=3, strength=2, distance=2, height=2, height_dx=2,
-                                            height_dy=2, filter_width=2), registers=1)
-    scene.materials[2].program.normal = 3
+def bump_mapped_scene(resolution: tuple[int, int] = (32, 24)):
+    """Bump nodes (stage 3: ray differentials): a smooth Principled-like ball (glossy over diffuse) whose normal a
+    Bump of Noise heights sets (the Noise of the Object coordinates at the point and shifted along dP.dx / dP.dy by
+    the filter width: the Height subgraph's bump copies), a UV-mapped floor with those bumps chained into an
+    inverted Bump of Image Texture heights (the image read at the UV map shifted by the bump offsets: duv), and a
+    grey ball without a program."""
+    from monte.core.builtin_scenes import icosphere, quad
+    from monte.core.scene import Camera, Lobe, Material, PointLight, Scene, Texture, World
+    from monte.core.shading.procedural import pack_flags
+    from monte.core.shading.program import BIND_ROUGHNESS
+
+    grey = np.full(3, 0.6)
+    # registers: 0-2 object coordinates at P, P + w dP.dx, P + w dP.dy; 3-5 their noise; 6 the bumped normal;
+    # 7-9 the image at the UV map and shifted; 10 the chained normal; 11 strength 0.8, 12 distance 0.3,
+    # 13 filter width 0.5, 14 scale 4, 15 detail 2, 16 roughness 0.5, 17 lacunarity 2, 18 0, 19 1, 20 distance 0.05
+    noise = {"w": 18, "scale": 14, "detail": 15, "roughness": 16, "lacunarity": 17, "offset": 18, "gain": 19,
+             "distortion": 18, "flags": pack_flags(3, 0, 1)}
+    code = [("texture_coordinate", {"object": 0}),
+            ("texture_coordinate", {"object": 1, "bump": 1, "bump_width": 13}),
+            ("texture_coordinate", {"object": 2, "bump": 2, "bump_width": 13}),
+            ("tex_noise", {**noise, "fac": 3, "vector": 0}),
+            ("tex_noise", {**noise, "fac": 4, "vector": 1}),
+            ("tex_noise", {**noise, "fac": 5, "vector": 2}),
+            ("bump", {"normal": 6, "strength": 11, "distance": 12, "height": 3, "height_dx": 4, "height_dy": 5,
+                      "filter_width": 13})]
+    chained = code + [("image", {"color": 7, "texture": 0}),
+                      ("image", {"color": 8, "texture": 0, "bump": 1, "bump_width": 13}),
+                      ("image", {"color": 9, "texture": 0, "bump": 2, "bump_width": 13}),
+                      ("bump", {"normal": 10, "strength": 19, "distance": 20, "height": 7, "height_dx": 8,
+                                "height_dy": 9, "filter_width": 13, "normal_in": 6, "invert": 1})]
+    regs = [0.0] * 11 + [0.8, 0.3, 0.5, 4.0, 2.0, 0.5, 2.0, 0.0, 1.0, 0.05]
+    ball = _program(code, regs, 2, {(0, BIND_ROUGHNESS): 3})
+    ball.normal = 6
+    floor = _program(chained, regs, 2, {})
+    floor.normal = 10
+    materials = [
+        Material("floor", [Lobe("glossy", np.ones(3), roughness=0.4, fresnel="generalized_schlick",
+                                f0=np.full(3, 0.04)), Lobe("diffuse", grey, under=0)], program=floor),
+        Material("ball", [Lobe("glossy", np.ones(3), roughness=0.3, fresnel="dielectric"),
+                          Lobe("diffuse", np.array((0.8, 0.3, 0.2)))], program=ball),
+        Material("grey", [Lobe("diffuse", grey)]),
+    ]
+    ground = quad("ground", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], 0)
+    ground.uvs = np.array([[(0, 0), (8, 0), (8, 8)], [(0, 0), (8, 8), (0, 8)]], np.float64)
+    meshes = [ground, icosphere("ball", (-0.4, 0.0, 0.6), 0.6, 1), icosphere("plain", (0.9, 0.6, 0.35), 0.35, 2)]
+    texels = np.random.default_rng(5).uniform(0.0, 1.0, (8, 8, 3)).astype(np.float32)
+    camera = Camera.look_at((0.0, -4.0, 1.8), (0.0, 0.0, 0.4), horizontal_fov=math.radians(50.0),
+                            resolution=resolution)
+    return Scene(camera=camera, meshes=meshes, materials=materials,
+                 lights=[PointLight("point", np.array((1.0, -1.5, 3.0)), np.full(3, 40.0))],
+                 world=World(np.array((0.1, 0.12, 0.15))), textures=[Texture("heights", texels)], name="fused-bumps")
+
+
+def test_bump_mapped_programs_render_in_the_fused_kernel_as_per_bounce(fast_settings, monkeypatch):
+    """Stage 3: each path carries its ray differential (footprint and spread, float32, as the per-bounce
+    integrator), each vertex spreads it along the surface (core.geometry_kernels.differentials_point, the function
+    the per-bounce vector_context calls) into dP and the UV map's duv, which the Bump nodes and their shifted
+    Height inputs (Texture Coordinate, Image Texture) read: the same bits as the per-bounce integrator, chained and
+    inverted bumps included, with the bump shadowing of the normal they set."""
+    scene = bump_mapped_scene()
+    settings = fast_settings(spp=8, threads=1)
     monkeypatch.setenv(FUSED_ENV, "1")
-    tracer = _tracer(scene, fast_settings(spp=2))
-    assert supports(tracer) == "node programs with Bump nodes"
-    assert tracer.fused is None
+    tracer = _tracer(scene, settings)
+    assert supports(tracer) is None
+    assert tracer.ps.shading.needs_differentials
+    assert list(tracer.fused.needs_differentials) == [True, True, False]
+    old = _render(scene, settings, monkeypatch, fused=False)
+    new = _render(scene, settings, monkeypatch, fused=True)
+    assert new.stats["fused_kernel"] and not old.stats["fused_kernel"]
+    assert np.array_equal(new.color, old.color)
+    assert np.array_equal(new.variance, old.variance)
+    for aov in ("albedo", "normal", "depth"):
+        assert np.array_equal(getattr(new, aov), getattr(old, aov)), aov
+    assert old.color[..., :3].mean() > 0.01
+    # the bumps matter: without the normal they set the image is another one
+    plain = bump_mapped_scene()
+    for m in plain.materials[:2]:
+        m.program.normal = -1
+    flat = _render(plain, settings, monkeypatch, fused=True)
+    assert flat.stats["fused_kernel"]
+    assert not np.allclose(flat.color, new.color, rtol=1e-2)
+
+
+def test_the_fused_kernel_reads_the_ray_differentials(fast_settings, monkeypatch):
+    """The differentials reach the Bump nodes: with the camera rays' differentials zero (every footprint zero: no
+    height difference, the Bump keeps the normal) the image changes, in both integrators alike; with them twice
+    as wide (the shifted heights further apart) it changes too."""
+    from monte.core import render as render_mod
+
+    scene = bump_mapped_scene((24, 16))
+    settings = fast_settings(spp=4, threads=1)
+    real = _render(scene, settings, monkeypatch, fused=True)
+    original = render_mod.camera_differentials
+
+    def scaled(factor):
+        def differentials(*args, **kwargs):
+            dp, dd = original(*args, **kwargs)
+            return dp * np.float32(factor), dd * np.float32(factor)
+        return differentials
+
+    out = {}
+    for factor in (0.0, 2.0):
+        monkeypatch.setattr(render_mod, "camera_differentials", scaled(factor))
+        fused = _render(scene, settings, monkeypatch, fused=True)
+        per_bounce = _render(scene, settings, monkeypatch, fused=False)
+        assert fused.stats["fused_kernel"] and not per_bounce.stats["fused_kernel"]
+        assert np.array_equal(fused.color, per_bounce.color), factor
+        assert not np.allclose(fused.color, real.color, rtol=1e-3), factor
+        out[factor] = fused.color
+    assert not np.allclose(out[0.0], out[2.0], rtol=1e-3)
+
+
+def test_bump_mapped_programs_in_the_fused_kernel_are_bit_identical_across_thread_counts(fast_settings,
+                                                                                        monkeypatch):
+    scene = bump_mapped_scene((32, 32))
+    one = _render(scene, fast_settings(spp=8, threads=1, batch_paths=1024), monkeypatch, fused=True)
+    two = _render(scene, fast_settings(spp=8, threads=2, batch_paths=1024), monkeypatch, fused=True)
+    assert one.stats["fused_kernel"]
+    assert np.array_equal(one.color, two.color)
+    assert np.array_equal(one.variance, two.variance)
+    assert np.array_equal(one.albedo, two.albedo)
+
+
+@pytest.mark.parametrize("kind", ["ORTHO", "PANO", "LENS"])
+def test_bump_mapped_programs_through_other_cameras_render_fused_as_per_bounce(kind, fast_settings, monkeypatch):
+    """The kernel takes whatever differentials the camera rays carry (an orthographic camera's: a constant
+    footprint, no spread; a panoramic camera's and a thin lens's (depth of field), computed in NumPy, the
+    panoramic one with dead rays): the same image as the per-bounce integrator."""
+    scene = bump_mapped_scene((24, 16))
+    if kind == "LENS":
+        scene.camera.use_dof, scene.camera.aperture_fstop, scene.camera.focus_distance = True, 0.5, 4.0
+    else:
+        scene.camera.kind = kind
+    if kind == "ORTHO":
+        scene.camera.ortho_scale = 5.0
+    elif kind == "PANO":
+        scene.camera.panorama_type = "FISHEYE_EQUIDISTANT"
+    settings = fast_settings(spp=4, threads=1)
+    old = _render(scene, settings, monkeypatch, fused=False)
+    new = _render(scene, settings, monkeypatch, fused=True)
+    assert new.stats["fused_kernel"] and not old.stats["fused_kernel"]
+    assert np.array_equal(new.color, old.color)
+    assert old.color[..., :3].mean() > 0.005

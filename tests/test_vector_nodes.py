@@ -103,6 +103,65 @@ def test_orthonormals_are_cycles_make_orthonormals():
     assert np.allclose(a[-1], _unit([0, 2 / math.sqrt(3), -2 / math.sqrt(3)]))
 
 
+def _numpy_differentials(tri_vertices, uvs, prim, ng_view, dp):
+    """The per-bounce differentials as NumPy computed them before the compiled per-point function
+    (core.geometry_kernels.differentials_point) took over: einsum dot products, whose summation order is NumPy's."""
+    ta, tb = orthonormals(ng_view)
+    size = np.asarray(dp, np.float64)[:, None]
+    d = np.stack([ta * size, tb * size], axis=1)
+    v = tri_vertices[prim].astype(np.float64)
+    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+    a11, a12, a22 = (np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e1, e2),
+                     np.einsum("ij,ij->i", e2, e2))
+    det = a11 * a22 - a12 * a12
+    inv = np.where(det != 0, 1.0 / np.where(det != 0, det, 1.0), 0.0)
+    db = np.empty((len(prim), 2, 2))
+    for j in range(2):
+        r1, r2 = np.einsum("ij,ij->i", e1, d[:, j]), np.einsum("ij,ij->i", e2, d[:, j])
+        db[:, j, 0] = (a22 * r1 - a12 * r2) * inv
+        db[:, j, 1] = (a11 * r2 - a12 * r1) * inv
+    c = uvs[prim].astype(np.float64)
+    u1, u2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+    duv = u1[:, None] * db[:, :, 0, None] + u2[:, None] * db[:, :, 1, None]
+    return d.astype(np.float32), db.astype(np.float32), duv.astype(np.float32)
+
+
+def test_compiled_differentials_match_numpy():
+    """The per-bounce ray differentials (vector_context._differentials, now one compiled function per point that
+    the fused kernel shares) equal the NumPy statement of them up to float32 rounding, on random triangles and
+    normals, with the (1, 1, 1) normal and a degenerate triangle (no barycentric derivative)."""
+    from types import SimpleNamespace
+
+    from monte.core.shading.vector_context import _differentials
+
+    rng = np.random.default_rng(11)
+    t = 64
+    tri = rng.normal(size=(t, 3, 3)).astype(np.float32) * 3
+    tri[-1, 2] = tri[-1, 1]  # degenerate
+    uvs = rng.uniform(size=(t, 3, 2)).astype(np.float32)
+    n = 400
+    prim = rng.integers(0, t, n)
+    prim[:3] = t - 1
+    ng = rng.normal(size=(n, 3))
+    ng /= np.linalg.norm(ng, axis=1, keepdims=True)
+    ng[3] = 1 / math.sqrt(3)
+    ng = ng.astype(np.float32)
+    dp = rng.uniform(1e-3, 0.1, n).astype(np.float32)
+    ps = SimpleNamespace(tri_vertices=tri, uvs=uvs)
+    got = _differentials(ps, prim, None, ng, dp, True)
+    want = _numpy_differentials(tri, uvs, prim, ng, dp)
+    for g, w in zip(got, want):
+        assert g.dtype == np.float32 and g.shape == w.shape
+        assert np.allclose(g, w, rtol=1e-6, atol=1e-7 * float(np.abs(w).max()))
+    assert np.array_equal(got[1][prim == t - 1], np.zeros((int(np.sum(prim == t - 1)), 2, 2), np.float32))
+    assert np.abs(got[1]).max() > 0 and np.abs(got[2]).max() > 0
+    # the footprint scales dP: along two unit tangents of the normal, orthogonal to it
+    assert np.allclose(np.linalg.norm(got[0], axis=2), dp[:, None], rtol=1e-5)
+    assert np.allclose(np.einsum("nij,nj->ni", got[0], ng), 0, atol=1e-6)
+    # no UV map: no duv
+    assert _differentials(SimpleNamespace(tri_vertices=tri, uvs=None), prim, None, ng, dp, True)[2] is None
+
+
 def test_camera_differentials_are_the_pixel_footprint():
     ortho = Camera(matrix_world=np.eye(4), kind="ORTHO", ortho_scale=2.0, resolution=(40, 20))
     x, y = np.array([3.5, 20.0]), np.array([7.5, 10.0])

@@ -5,7 +5,9 @@ Cycles keeps a ray's differential in compact form, one footprint size dP per sha
 (differential_transfer_compact: the ray's dP plus distance x its dD); where a node needs vectors it spreads that
 size along two orthonormal tangents of the viewer-side true normal Ng (differential_from_compact, with the
 tangents of make_orthonormals). A mesh attribute's derivative follows from the barycentric derivatives that move
-the point by those vectors within its triangle (differential_dudv). Plain NumPy over a batch of points.
+the point by those vectors within its triangle (differential_dudv). NumPy over a batch of points, but for the
+differentials: one compiled function per point (core.geometry_kernels.differentials_point), shared with the fused
+path kernel.
 """
 
 from __future__ import annotations
@@ -136,30 +138,21 @@ def vector_context(ps, prim: np.ndarray, bary, ng_view: np.ndarray, dp: np.ndarr
 
 
 def _differentials(ps, prim, bary, ng_view, dp, has_uv):
-    """(dP (N, 2, 3), db (N, 2, 2), duv (N, 2, 2) or None) float32 of VectorContext for these points."""
-    b1 = np.asarray(bary[0], np.float64)
-    ta, tb = orthonormals(ng_view)
-    size = np.asarray(dp, np.float64)[:, None]
-    d = np.stack([ta * size, tb * size], axis=1)  # (N, 2, 3)
-    v = ps.tri_vertices[prim].astype(np.float64)
-    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
-    a11 = np.einsum("ij,ij->i", e1, e1)
-    a12 = np.einsum("ij,ij->i", e1, e2)
-    a22 = np.einsum("ij,ij->i", e2, e2)
-    det = a11 * a22 - a12 * a12
-    inv = np.where(det != 0, 1.0 / np.where(det != 0, det, 1.0), 0.0)
-    db = np.empty((len(b1), 2, 2))
-    for j in range(2):
-        r1 = np.einsum("ij,ij->i", e1, d[:, j])
-        r2 = np.einsum("ij,ij->i", e2, d[:, j])
-        db[:, j, 0] = (a22 * r1 - a12 * r2) * inv
-        db[:, j, 1] = (a11 * r2 - a12 * r1) * inv
-    duv = None
-    if has_uv and ps.uvs is not None:
-        c = ps.uvs[prim].astype(np.float64)  # (N, 3, 2)
-        u1, u2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
-        duv = (u1[:, None] * db[:, :, 0, None] + u2[:, None] * db[:, :, 1, None]).astype(np.float32)
-    return d.astype(np.float32), db.astype(np.float32), duv
+    """(dP (N, 2, 3), db (N, 2, 2), duv (N, 2, 2) or None) float32 of VectorContext for these points: the
+    compiled per-point function (core.geometry_kernels.differentials_point) that the fused path kernel calls
+    too, so both give the same bits (orthonormals above is its NumPy statement of the tangents)."""
+    from ..geometry_kernels import differentials
+
+    n = len(prim)
+    dP, db = np.empty((n, 2, 3), np.float32), np.empty((n, 2, 2), np.float32)
+    with_uv = has_uv and ps.uvs is not None
+    duv = np.empty((n, 2, 2), np.float32) if with_uv else np.empty((0, 2, 2), np.float32)
+    uvs = ps.uvs if with_uv else np.zeros((0, 3, 2), np.float32)
+    differentials(np.ascontiguousarray(prim, np.int64), np.ascontiguousarray(ng_view, np.float32),
+                  np.ascontiguousarray(dp, np.float32), np.ascontiguousarray(ps.tri_vertices, np.float32),
+                  np.ascontiguousarray(uvs, np.float32),
+                  dP, db, duv)
+    return dP, db, (duv if with_uv else None)
 
 
 def _tangents(ps, prim, bary):
