@@ -3,6 +3,9 @@ its end. It reads the same random numbers per dimension and calls the same devic
 integrator, so its images must equal that integrator's up to float32 rounding (on this machine: bit for bit),
 whatever the thread count; scenes it does not support keep the per-bounce integrator, with the reason named."""
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -11,6 +14,9 @@ from monte.core.fused_tracer import FUSED_ENV, supports
 from monte.core.integrator import PathTracer
 from monte.core.render import prepare_scene, render
 from monte.core.sampling import make_sampler
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fused_compare import assert_fused_bit_identical_across_thread_counts  # noqa: E402
 
 SCENES = ("cornell", "point_in_sphere", "spheres_under_sky")
 
@@ -55,10 +61,7 @@ def test_the_fused_kernel_renders_what_the_per_bounce_integrator_does(name, fast
 
 def test_the_fused_kernel_is_bit_identical_across_thread_counts(fast_settings, monkeypatch):
     scene = _scene("cornell", 24)
-    one = _render(scene, fast_settings(spp=8, threads=1, batch_paths=1024), monkeypatch, fused=True)
-    two = _render(scene, fast_settings(spp=8, threads=2, batch_paths=1024), monkeypatch, fused=True)
-    assert np.array_equal(one.color, two.color)
-    assert np.array_equal(one.variance, two.variance)
+    assert_fused_bit_identical_across_thread_counts(scene, fast_settings, monkeypatch)
 
 
 @pytest.mark.parametrize("change, reason", [

@@ -8,7 +8,8 @@ each path carries (stage 3); programs that need what the kernel does not carry y
 keep the per-bounce integrator, with the reason named."""
 
 import math
-
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,10 +17,14 @@ import pytest
 from monte.core.fused_tracer import FUSED_ENV, supports
 from monte.core.integrator import PathTracer
 from monte.core.precompile import _program, fused_program_scene
-from monte.core.render import prepare_scene, render
+from monte.core.render import prepare_scene
 from monte.core.sampling import make_sampler
 from monte.core.shading import registry as R
 from monte.core.shading.program import WIDTH
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fused_compare import (assert_fused_bit_identical_across_thread_counts,  # noqa: E402
+                           assert_fused_equals_per_bounce, render_with as _render)
 
 
 def _tracer(scene, settings):
@@ -27,25 +32,14 @@ def _tracer(scene, settings):
     return PathTracer(ps, accel, settings, make_sampler(settings.sampler, settings.seed, settings.spp, 4))
 
 
-def _render(scene, settings, monkeypatch, fused: bool):
-    monkeypatch.setenv(FUSED_ENV, "1" if fused else "0")
-    return render(scene, settings)
-
-
 def test_the_fused_kernel_evaluates_node_programs_as_the_per_bounce_integrator(fast_settings, monkeypatch):
     scene = fused_program_scene((32, 24))
     settings = fast_settings(spp=8, threads=1)
     monkeypatch.setenv(FUSED_ENV, "1")
     assert supports(_tracer(scene, settings)) is None  # the fused kernel renders this scene
-    old = _render(scene, settings, monkeypatch, fused=False)
-    new = _render(scene, settings, monkeypatch, fused=True)
-    assert new.stats["fused_kernel"] and not old.stats["fused_kernel"]
     # same random numbers, same device functions, same program inputs: the same bits (as the constant-material
     # scenes of tests/test_fused_path.py)
-    assert np.array_equal(new.color, old.color)
-    assert np.array_equal(new.variance, old.variance)
-    for aov in ("albedo", "normal", "depth"):
-        assert np.array_equal(getattr(new, aov), getattr(old, aov)), aov
+    old, new = assert_fused_equals_per_bounce(scene, settings, monkeypatch)
     assert old.color[..., :3].mean() > 0.01  # lit: not two black images
     # the programs ran: the floor's and the balls' albedo vary per pixel (the constant materials' would not), and
     # the two balls (same material, other objects: Object Info Random, Object coordinates) differ
@@ -69,12 +63,7 @@ def test_without_its_programs_the_scene_renders_another_image(fast_settings, mon
 
 def test_node_programs_in_the_fused_kernel_are_bit_identical_across_thread_counts(fast_settings, monkeypatch):
     scene = fused_program_scene((32, 32))  # 8 batches of 1024 paths, traced on one thread or two
-    one = _render(scene, fast_settings(spp=8, threads=1, batch_paths=1024), monkeypatch, fused=True)
-    two = _render(scene, fast_settings(spp=8, threads=2, batch_paths=1024), monkeypatch, fused=True)
-    assert one.stats["fused_kernel"]
-    assert np.array_equal(one.color, two.color)
-    assert np.array_equal(one.variance, two.variance)
-    assert np.array_equal(one.albedo, two.albedo)
+    assert_fused_bit_identical_across_thread_counts(scene, fast_settings, monkeypatch)
 
 
 def test_the_russian_roulette_from_the_camera_hit_on_keeps_the_images_equal(fast_settings, monkeypatch):
@@ -82,11 +71,7 @@ def test_the_russian_roulette_from_the_camera_hit_on_keeps_the_images_equal(fast
     1: the albedo pass, written there from the program-shaded lobes, is never cut short)."""
     scene = fused_program_scene((16, 12))
     settings = fast_settings(spp=4, threads=1, rr_depth=0)
-    old = _render(scene, settings, monkeypatch, fused=False)
-    new = _render(scene, settings, monkeypatch, fused=True)
-    assert new.stats["fused_kernel"]
-    assert np.array_equal(new.color, old.color)
-    assert np.array_equal(new.albedo, old.albedo)
+    assert_fused_equals_per_bounce(scene, settings, monkeypatch)
 
 
 def _inst(opname, **operands):
@@ -220,13 +205,7 @@ def test_normal_mapped_programs_render_in_the_fused_kernel_as_per_bounce(specula
     tracer = _tracer(scene, settings)
     assert supports(tracer) is None
     assert tracer.ps.specular[0] == specular_floor
-    old = _render(scene, settings, monkeypatch, fused=False)
-    new = _render(scene, settings, monkeypatch, fused=True)
-    assert new.stats["fused_kernel"] and not old.stats["fused_kernel"]
-    assert np.array_equal(new.color, old.color)
-    assert np.array_equal(new.variance, old.variance)
-    for aov in ("albedo", "normal", "depth"):
-        assert np.array_equal(getattr(new, aov), getattr(old, aov)), aov
+    old, new = assert_fused_equals_per_bounce(scene, settings, monkeypatch)
     assert old.color[..., :3].mean() > 0.01
     # the maps matter: without them (the smooth normals) the fused image is another one
     plain = normal_mapped_scene(specular_floor=specular_floor)
@@ -240,11 +219,7 @@ def test_normal_mapped_programs_render_in_the_fused_kernel_as_per_bounce(specula
 def test_normal_mapped_programs_in_the_fused_kernel_are_bit_identical_across_thread_counts(fast_settings,
                                                                                           monkeypatch):
     scene = normal_mapped_scene((32, 32))
-    one = _render(scene, fast_settings(spp=8, threads=1, batch_paths=1024), monkeypatch, fused=True)
-    two = _render(scene, fast_settings(spp=8, threads=2, batch_paths=1024), monkeypatch, fused=True)
-    assert one.stats["fused_kernel"]
-    assert np.array_equal(one.color, two.color)
-    assert np.array_equal(one.variance, two.variance)
+    assert_fused_bit_identical_across_thread_counts(scene, fast_settings, monkeypatch)
 
 
 def bump_mapped_scene(resolution: tuple[int, int] = (32, 24)):
@@ -313,13 +288,7 @@ def test_bump_mapped_programs_render_in_the_fused_kernel_as_per_bounce(fast_sett
     assert supports(tracer) is None
     assert tracer.ps.shading.needs_differentials
     assert list(tracer.fused.needs_differentials) == [True, True, False]
-    old = _render(scene, settings, monkeypatch, fused=False)
-    new = _render(scene, settings, monkeypatch, fused=True)
-    assert new.stats["fused_kernel"] and not old.stats["fused_kernel"]
-    assert np.array_equal(new.color, old.color)
-    assert np.array_equal(new.variance, old.variance)
-    for aov in ("albedo", "normal", "depth"):
-        assert np.array_equal(getattr(new, aov), getattr(old, aov)), aov
+    old, new = assert_fused_equals_per_bounce(scene, settings, monkeypatch)
     assert old.color[..., :3].mean() > 0.01
     # the bumps matter: without the normal they set the image is another one
     plain = bump_mapped_scene()
@@ -362,12 +331,7 @@ def test_the_fused_kernel_reads_the_ray_differentials(fast_settings, monkeypatch
 def test_bump_mapped_programs_in_the_fused_kernel_are_bit_identical_across_thread_counts(fast_settings,
                                                                                         monkeypatch):
     scene = bump_mapped_scene((32, 32))
-    one = _render(scene, fast_settings(spp=8, threads=1, batch_paths=1024), monkeypatch, fused=True)
-    two = _render(scene, fast_settings(spp=8, threads=2, batch_paths=1024), monkeypatch, fused=True)
-    assert one.stats["fused_kernel"]
-    assert np.array_equal(one.color, two.color)
-    assert np.array_equal(one.variance, two.variance)
-    assert np.array_equal(one.albedo, two.albedo)
+    assert_fused_bit_identical_across_thread_counts(scene, fast_settings, monkeypatch)
 
 
 @pytest.mark.parametrize("kind", ["ORTHO", "PANO", "LENS"])
@@ -385,8 +349,5 @@ def test_bump_mapped_programs_through_other_cameras_render_fused_as_per_bounce(k
     elif kind == "PANO":
         scene.camera.panorama_type = "FISHEYE_EQUIDISTANT"
     settings = fast_settings(spp=4, threads=1)
-    old = _render(scene, settings, monkeypatch, fused=False)
-    new = _render(scene, settings, monkeypatch, fused=True)
-    assert new.stats["fused_kernel"] and not old.stats["fused_kernel"]
-    assert np.array_equal(new.color, old.color)
+    old, _ = assert_fused_equals_per_bounce(scene, settings, monkeypatch)
     assert old.color[..., :3].mean() > 0.005

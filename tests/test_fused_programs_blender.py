@@ -17,9 +17,9 @@ bpy = pytest.importorskip("bpy")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import blender_fixtures as bf  # noqa: E402
 
+from fused_compare import (assert_fused_bit_identical_across_thread_counts,  # noqa: E402
+                           assert_fused_equals_per_bounce)
 from monte.addon.export import export_scene  # noqa: E402
-from monte.core.fused_tracer import FUSED_ENV  # noqa: E402
-from monte.core.render import render  # noqa: E402
 
 pytestmark = pytest.mark.blender
 
@@ -147,25 +147,13 @@ def blender_program_scene(resolution=(40, 30)):
     return scene
 
 
-def _render_both(core_scene, settings, monkeypatch):
-    out = {}
-    for fused in (False, True):
-        monkeypatch.setenv(FUSED_ENV, "1" if fused else "0")
-        out[fused] = render(core_scene, settings)
-    return out[False], out[True]
-
-
 def test_exported_node_programs_render_in_the_fused_kernel_as_per_bounce(fast_settings, monkeypatch):
     blender_program_scene()
     core_scene, _ = export_scene(bpy.context.evaluated_depsgraph_get())
     names = {m.name for m in core_scene.materials if m.program is not None}
     assert {"walls", "transformed", "boxed", "no-uv", "instanced"} <= names  # all five are node programs
-    old, new = _render_both(core_scene, fast_settings(spp=8, threads=1, max_bounces=4), monkeypatch)
-    assert new.stats["fused_kernel"] and not old.stats["fused_kernel"]
-    assert np.array_equal(new.color, old.color)
-    assert np.array_equal(new.variance, old.variance)
-    for aov in ("albedo", "normal", "depth"):
-        assert np.array_equal(getattr(new, aov), getattr(old, aov)), aov
+    old, new = assert_fused_equals_per_bounce(core_scene, fast_settings(spp=8, threads=1, max_bounces=4),
+                                              monkeypatch)
     # the programs ran: many distinct albedos (the constant floor alone would give one)
     hit = np.isfinite(new.depth.reshape(-1))
     assert len(np.unique(new.albedo.reshape(-1, 3)[hit].round(4), axis=0)) > 50
@@ -176,9 +164,4 @@ def test_exported_node_programs_in_the_fused_kernel_are_bit_identical_across_thr
                                                                                          monkeypatch):
     blender_program_scene((32, 32))
     core_scene, _ = export_scene(bpy.context.evaluated_depsgraph_get())
-    monkeypatch.setenv(FUSED_ENV, "1")
-    one = render(core_scene, fast_settings(spp=4, threads=1, batch_paths=1024, max_bounces=4))
-    two = render(core_scene, fast_settings(spp=4, threads=2, batch_paths=1024, max_bounces=4))
-    assert one.stats["fused_kernel"]
-    assert np.array_equal(one.color, two.color)
-    assert np.array_equal(one.albedo, two.albedo)
+    assert_fused_bit_identical_across_thread_counts(core_scene, fast_settings, monkeypatch, spp=4, max_bounces=4)
