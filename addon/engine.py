@@ -215,13 +215,6 @@ progress_listeners: list = []
 # the scene through its render depsgraph (render subdivision levels, the render's motion-blur subframes) and hands
 # it over, (core scene, export stats), rendering nothing itself.
 export_listeners: list = []
-# A process that renders once and exits (`monte render X.blend`: addon/headless.py render_blend_file sets it): the
-# background kernel loader (core.precompile) is not paused while the scene exports and is prepared, so it loads
-# the entry list's kernels (in the order a render first calls them) beside that work, much of it in the shadow of
-# Embree's BVH build, which releases the GIL; the render's first poll, right before it queues its first sample
-# batch, stops it (after the signature it is loading), so no other feature's kernel competes with the tracing.
-# In Blender (False) the loader waits while any render runs, export included, and goes on afterwards.
-single_render_process = False
 # Callbacks for each finished view layer: (view_layer_name, core RenderResult, region, (width, height)),
 # region = (x0, y0 from the top, w, h) or None; used by the headless entry point to write Monte's EXR layout.
 result_listeners: list = []
@@ -273,15 +266,6 @@ class MonteRenderEngine(bpy.types.RenderEngine):
         """Polled between sample batches (and during export). Tests replace this to simulate Esc."""
         return bool(self.test_break())
 
-    def _render_poll(self) -> bool:
-        """core.render's poll before each sample batch it queues (it polls nowhere else): Esc, and in a process that
-        renders once (single_render_process), the kernel loader stopped as the first batch is queued."""
-        if single_render_process:
-            from ..core.precompile import stop_loading_kernels
-
-            stop_loading_kernels(wait=False)
-        return self._cancel_requested()
-
     def _preview_requested(self) -> bool:
         """Blender renders a material/light/world preview. Tests replace this to render a preview-like scene
         through the preview path (the bpy module cannot start Blender's preview jobs without a window)."""
@@ -306,11 +290,8 @@ class MonteRenderEngine(bpy.types.RenderEngine):
                 return
             from ..core.precompile import loader_paused
 
-            if single_render_process:  # the loader goes on through the export; _render_poll stops it
+            with loader_paused():  # the render loads what it calls; the loader goes on afterwards
                 self._render(depsgraph)
-            else:
-                with loader_paused():  # the render loads what it calls; the loader goes on afterwards
-                    self._render(depsgraph)
         except ExportCancelled:
             self._log("cancelled during export")
             self._write_black(depsgraph)
@@ -373,7 +354,7 @@ class MonteRenderEngine(bpy.types.RenderEngine):
                 return
         else:
             result = core_render(core_scene, settings, region=region, on_tile=on_tile, on_progress=self._progress,
-                                 should_cancel=self._render_poll, log=self._log)
+                                 should_cancel=self._cancel_requested, log=self._log)
         if scene.monte.use_denoising:
             self._denoise(result, scene.monte.denoising_quality)
         for w in result.warnings:  # what the render found (e.g. data passes behind transparent surfaces)

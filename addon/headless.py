@@ -315,19 +315,6 @@ def render_blend_file(
     except OutputError as exc:
         raise HeadlessError(str(exc)) from exc
 
-    from . import engine
-
-    # One render here: the kernel loader (started as the add-on registers) is not paused while the scene exports
-    # and is prepared, and stops as the render queues its first batch (engine.single_render_process)
-    engine.single_render_process = True
-    try:
-        _open_and_render(blend, out, clean, say, on_progress)
-    finally:
-        engine.single_render_process = False
-
-
-def _open_and_render(blend: Path, out: Path, clean: dict[str, Any], say: Callable[[str], None],
-                     on_progress: Callable[[Any], None] | None) -> None:
     open_blend(blend)
     scene = bpy.context.scene
     if "scene" in clean:
@@ -344,14 +331,14 @@ def _open_and_render(blend: Path, out: Path, clean: dict[str, Any], say: Callabl
     from ..core.precompile import stop_loading_kernels
     from .engine import render_with_operator
 
+    # One render in this process: the background loader (paused while a render runs) would go on after it with
+    # the list's other features' kernels, which nothing here calls, until the exit stops it. Stopped now, after
+    # the signature it is loading; the render loads what it calls, as it does while the loader is paused.
+    stop_loading_kernels(wait=False)
     try:
         captured = render_with_operator(scene, on_progress)
     except RuntimeError as exc:
         raise HeadlessError(f"rendering {blend} failed: {exc}") from exc
-    finally:
-        # One render in this process: the render's first batch stopped the loader; a render that never queued
-        # one (no view layer, an error) stops it here, not after the list's other features' kernels
-        stop_loading_kernels(wait=False)
     if clean.get("multilayer"):
         _save_blender_multilayer(bpy, scene, blend, out)
     else:
