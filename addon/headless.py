@@ -37,6 +37,9 @@ _OTHER_KEYS = {
     "variance": "also estimate each pixel's error and write it (variance.R/G/B; the Variance pass): 2 "
                 "variance groups per pixel, ~15 % more variance at the same samples (True/False, default False "
                 "unless the view layer ticks the Variance pass)",
+    "file_passes": "write the passes the view layers tick, not every pass Monte has: Z, normal and albedo "
+                   "(computed together) only where the view layer ticks one of them (True/False, default False; "
+                   "the image itself is the same bits)",
     "multilayer": "write Blender's multilayer EXR (every view layer and pass, after compositing) instead of "
                   "Monte's channel layout",
 }
@@ -160,8 +163,9 @@ def _validate_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
             fields[SETTING_FIELDS[prop]] = clean[key]
     if "adaptive_threshold" in clean:
         fields["adaptive_threshold"] = clean["adaptive_threshold"]
-    if "variance" in clean and not isinstance(clean["variance"], bool):
-        raise ValueError(f"override variance must be True or False, got {clean['variance']!r}")
+    for key in ("variance", "file_passes"):
+        if key in clean and not isinstance(clean[key], bool):
+            raise ValueError(f"override {key} must be True or False, got {clean[key]!r}")
     RenderSettings().replace(**fields).validate()
     return clean
 
@@ -204,10 +208,11 @@ def _apply_overrides(bpy, scene, overrides: dict[str, Any]) -> None:
         scene.frame_set(int(overrides["frame"]))
 
 
-def _configure_output(scene, multilayer: bool, variance: bool = False) -> None:
-    for layer in scene.view_layers:  # every pass Monte has: Monte's layout carries them all
-        layer.use_pass_z = layer.use_pass_normal = True
-        layer.monte.use_pass_albedo = True
+def _configure_output(scene, multilayer: bool, variance: bool = False, file_passes: bool = False) -> None:
+    for layer in scene.view_layers:
+        if not file_passes:  # every pass Monte has: Monte's layout carries them all
+            layer.use_pass_z = layer.use_pass_normal = True
+            layer.monte.use_pass_albedo = True
         # but the Variance pass only when asked (or ticked): its estimate costs the image ~15 % more variance
         layer.monte.use_pass_variance = layer.monte.use_pass_variance or variance
     if not multilayer:
@@ -294,8 +299,9 @@ def render_blend_file(
 
     overrides: Monte settings for this run (spp, seed, sampler, filter/filter_type, filter_width, max_bounces,
     rr_depth, clamp, threads, batch_paths, tile_size, time_limit, light_sampling) and resolution,
-    resolution_percentage, frame, camera, scene, variance, multilayer; None values are ignored. The Monte layout
-    holds variance.R/G/B only with variance=True or where the view layer ticks the Variance pass.
+    resolution_percentage, frame, camera, scene, variance, file_passes, multilayer; None values are ignored. The
+    Monte layout holds variance.R/G/B only with variance=True or where the view layer ticks the Variance pass, and
+    Z, normal.* and albedo.* always, unless file_passes=True (then only where the view layer ticks one of them).
     on_progress: called with core.render.Progress after every sample batch (e.g. a progress bar).
     Raises FileNotFoundError / HeadlessError naming the file, ValueError for bad overrides.
     """
@@ -326,7 +332,8 @@ def render_blend_file(
     _apply_overrides(bpy, scene, clean)
     if scene.camera is None:
         raise HeadlessError(f"cannot render {blend}: scene {scene.name!r} has no camera")
-    _configure_output(scene, bool(clean.get("multilayer", False)), bool(clean.get("variance", False)))
+    _configure_output(scene, bool(clean.get("multilayer", False)), bool(clean.get("variance", False)),
+                      bool(clean.get("file_passes", False)))
     say(f"Monte: rendering {blend.name} (scene {scene.name!r}, frame {scene.frame_current}) to {out}")
     from ..core.precompile import stop_loading_kernels
     from .engine import render_with_operator
@@ -398,7 +405,7 @@ def export_blend_frames(blend_path: str | os.PathLike, overrides: dict[str, Any]
     blend = Path(blend_path).expanduser().resolve()
     _check_blend(blend)
     clean = _validate_overrides(dict(overrides or {}))
-    for key in ("scene", "multilayer"):
+    for key in ("scene", "multilayer", "file_passes"):
         if key in clean:
             raise ValueError(f"override {key} does not apply to a scene exported for a cluster render")
     open_blend(blend)

@@ -2,8 +2,9 @@
 
 For each scene (a bench scene from bpy_scenes, or a user's .blend), the scene is saved to a temporary .blend
 and rendered, after one untimed run of each, alternately by two fresh processes: `python -m monte render
-X.blend -o m.exr --spp N ...` and a plain bpy process doing what `blender -b X.blend -E CYCLES -f 1` does (open the file, render with Cycles,
-write a 32-bit EXR). The time is the process's wall time, start to exit: the Python and bpy imports, opening
+X.blend -o m.exr --file-passes --spp N ...` and a plain bpy process doing what `blender -b X.blend -E CYCLES -f 1`
+does (open the file, render with Cycles, write a 32-bit EXR); both render and write the passes the file's view
+layer ticks (the bench scenes: the image alone). The time is the process's wall time, start to exit: the Python and bpy imports, opening
 the file, Monte's kernel loading and export or Cycles' sync, the render and writing the image, everything the
 render-call bench (lab/bench_cycles.py) leaves out. Settings as that bench's: the same samples, seed, bounce
 limit, Blackman-Harris 1.5 px filter and threads, Cycles without denoising, adaptive sampling or clamping.
@@ -101,7 +102,11 @@ def bench_scene_whole_process(spec: str, *, cache: ReferenceCache, spp: int = 64
         env = _process_env(tmp_dir)
         blend, monte_out, cycles_out = tmp_dir / f"{name}.blend", tmp_dir / "monte.exr", tmp_dir / "cycles.exr"
         _save_for_cycles(scene, blend, spp, seed, threads, max_bounces, cycles_out)
+        # --file-passes: the passes the file's view layer ticks (the bench scenes: the image alone), as Cycles'
+        # process renders and writes them; without it Monte's layout adds Z, normal and albedo, which cost the
+        # render 5-10 % of its CPU and which Cycles' process neither computes nor writes
         monte_cmd = [sys.executable, "-m", "monte", "render", str(blend), "-o", str(monte_out), "--no-png", "-q",
+                     "--file-passes",
                      "--spp", str(spp), "--seed", str(seed), "--threads", str(threads), "--max-bounces",
                      str(max_bounces), "--filter", "blackman-harris", "--filter-width", "1.5", "--clamp", "0"]
         cycles_cmd = [sys.executable, "-c", _CYCLES_PROCESS, str(blend), str(cycles_out)]

@@ -251,6 +251,37 @@ def test_headless_render_blend_file(tmp_path):
     assert layers["ViewLayer.Combined.R"].shape == (10, 6)
 
 
+def test_headless_file_passes_writes_only_what_the_view_layer_ticks_and_the_same_image(tmp_path):
+    """file_passes (`monte render X.blend --file-passes`): Z, normal and albedo are neither forced on nor computed
+    unless the view layer ticks them; the image is the same bits as the default render's, which carries them all."""
+    scene = bf.plane_under_world(albedo=0.5, world=2.0, resolution=(12, 10))
+    for layer in scene.view_layers:
+        layer.use_pass_z = layer.use_pass_normal = False
+        layer.monte.use_pass_albedo = False
+    blend = tmp_path / "plane.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    from monte.core.exr import read_exr
+
+    settings = {"spp": 4, "seed": 3, "max_bounces": 3}
+    every, only = tmp_path / "every.exr", tmp_path / "only.exr"
+    render_blend_file(blend, every, settings, log=lambda _m: None)
+    render_blend_file(blend, only, {**settings, "file_passes": True}, log=lambda _m: None)
+    every_channels, only_channels = read_exr(every), read_exr(only)
+    assert {"Z", "albedo.R", "normal.Z"} <= set(every_channels)
+    assert sorted(only_channels) == ["A", "B", "G", "R"]
+    for c in "RGBA":
+        assert np.array_equal(only_channels[c], every_channels[c])
+    # a ticked pass is still written (the core computes Z, normal and albedo together: all three come with it)
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    bpy.context.scene.view_layers[0].use_pass_z = True
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    render_blend_file(blend, only, {**settings, "file_passes": True}, log=lambda _m: None)
+    only_channels = read_exr(only)
+    assert "Z" in only_channels and np.array_equal(only_channels["Z"], every_channels["Z"])
+    with pytest.raises(ValueError, match="file_passes must be True or False"):
+        render_blend_file(blend, only, {"file_passes": "yes"}, log=lambda _m: None)
+
+
 def test_headless_errors_name_the_file_and_never_clobber_output(tmp_path):
     out = tmp_path / "keep.exr"
     out.write_bytes(b"previous image")

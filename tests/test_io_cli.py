@@ -107,6 +107,8 @@ def test_cli_list_and_errors(tmp_path, capsys):
     assert "unknown built-in scene 'nosuchscene'" in capsys.readouterr().err
     assert cli.main(["render", "furnace", "-o", str(tmp_path / "x.exr"), "--spp", "-3"]) == 1
     assert "samples per pixel" in capsys.readouterr().err
+    assert cli.main(["render", "furnace", "-o", str(tmp_path / "x.exr"), "--file-passes"]) == 2
+    assert "--file-passes is for a .blend" in capsys.readouterr().err
     assert not (tmp_path / "x.exr").exists()
 
 
