@@ -410,17 +410,19 @@ def eval_bsdf(lobes: LobeBatch, wo: np.ndarray, wi: np.ndarray, rows: np.ndarray
     return f, pdf
 
 
-def sample_bsdf(lobes: LobeBatch, wo: np.ndarray, u_lobe: np.ndarray, u: np.ndarray,
+def sample_bsdf(lobes: LobeBatch, wo: np.ndarray, u_event: np.ndarray, u: np.ndarray,
                 back: np.ndarray | None = None) -> BsdfSample:
-    """Sample wi for each hit: pick a lobe with `select` (u_lobe), sample it (u (N, 2)); the remainder of u_lobe
-    picks reflection vs refraction for glass. back: optional (N,) bool, wo is behind the surface by its geometric
-    normal (default wo.z < 0). See the module docstring for the side and weight conventions."""
+    """Sample wi for each hit: u[:, 0] picks a lobe with `select` and, rescaled within the chosen lobe's
+    interval, samples its direction with u[:, 1] (core.bsdf_kernels.sample_path: each lobe's directions keep the
+    pair's stratification); u_event (N,) picks reflection vs refraction for glass. back: optional (N,) bool, wo is
+    behind the surface by its geometric normal (default wo.z < 0). See the module docstring for the side and
+    weight conventions."""
     n = len(lobes)
     wo = _f32_rows(wo, 3)
-    u_lobe = np.ascontiguousarray(np.asarray(u_lobe, dtype=F32).reshape(-1))
+    u_event = np.ascontiguousarray(np.asarray(u_event, dtype=F32).reshape(-1))
     u = _f32_rows(u, 2)
-    if not (wo.shape[0] == u_lobe.shape[0] == u.shape[0] == n):
-        raise ValueError(f"sample_bsdf: {n} hits, wo {wo.shape[0]}, u_lobe {u_lobe.shape[0]}, u {u.shape[0]} rows")
+    if not (wo.shape[0] == u_event.shape[0] == u.shape[0] == n):
+        raise ValueError(f"sample_bsdf: {n} hits, wo {wo.shape[0]}, u_event {u_event.shape[0]}, u {u.shape[0]} rows")
     side = _back_side(back, wo, "sample_bsdf")
     wi = np.empty((n, 3), F32)
     weight = np.empty((n, 3), F32)
@@ -428,7 +430,7 @@ def sample_bsdf(lobes: LobeBatch, wo: np.ndarray, u_lobe: np.ndarray, u: np.ndar
     delta = np.empty(n, bool)
     transmitted = np.empty(n, bool)
     valid = np.empty(n, bool)
-    bk.sample_batch(lobes.arrays(), lobes.multiscatter, mf.kernel_tables(), wo, side, u_lobe, u, wi, weight, pdf,
+    bk.sample_batch(lobes.arrays(), lobes.multiscatter, mf.kernel_tables(), wo, side, u_event, u, wi, weight, pdf,
                     delta, transmitted, valid)
     return BsdfSample(wi=wi, weight=weight, pdf=pdf, delta=delta, transmitted=transmitted, valid=valid)
 

@@ -598,9 +598,13 @@ def _choose_lobe(kind, select, row, u_lobe):
 
 
 @_inline
-def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, back, u_lobe, u1, u2):
-    """Sample wi for hit `row` seen from wo (local frame, unflipped): pick a lobe with `select` (u_lobe), sample
-    it with (u1, u2), the remainder of u_lobe choosing reflection vs refraction for glass.
+def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, back, u_event, u1, u2):
+    """Sample wi for hit `row` seen from wo (local frame, unflipped): pick a lobe with `select` by u1, rescale u1
+    within the chosen lobe's interval and sample its direction with (u1 rescaled, u2); u_event chooses reflection
+    vs refraction for glass. (The lobe choice takes the direction's own number, as Cycles 3.x did, so each lobe's
+    directions keep the 2-D stratification of (u1, u2): picked with a third number, the samples that land in one
+    lobe's interval are a coarsely stratified subset of the pairs, and a multi-lobe material's variance per sample
+    fell more slowly with the sample count. A single-lobe material gets u1 unchanged.)
     back: wo is on the -z side of the surface as the geometric normal decides it (core.bsdf: the lobes act in
     the frame flipped to that side even where wo is below the shading normal there).
     Returns (wix, wiy, wiz, weight0, weight1, weight2, pdf, delta, transmitted, valid); wi is rounded to float32
@@ -610,7 +614,7 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, back, u_lobe, u1,
     ox = np.float64(wox)
     oy = np.float64(woy)
     oz = np.float64(woz) * s  # < 0: wo below the shading normal on the geometric side it is on
-    c, sel_c, u_rem = _choose_lobe(kind, select, row, u_lobe)
+    c, sel_c, u1 = _choose_lobe(kind, select, row, u1)
     k = kind[row, c] if c >= 0 else EMPTY
     if k == EMPTY:
         return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, False, False
@@ -649,7 +653,7 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, back, u_lobe, u1,
                 R0, R1, R2, T0, T1, T2 = glass_fresnel(lobes, row, c, cos_oh, eta)
                 pr = _reflect_probability(R0, R1, R2, T0, T1, T2)
                 ok = ok and pr >= 0.0
-                reflect = u_rem < pr
+                reflect = u_event < pr
                 p_event = pr if reflect else 1.0 - pr
                 if ok and p_event > 0.0:
                     inv_ev = 1.0 / p_event
@@ -662,7 +666,7 @@ def sample_path(lobes, row, multiscatter, tabs, wox, woy, woz, back, u_lobe, u1,
                     x, y, z = c2 * hx - ox, c2 * hy - oy, c2 * hz - oz
             elif k == GLASS:
                 F = fresnel_dielectric(cos_oh, eta)
-                reflect = u_rem < F
+                reflect = u_event < F
                 p_event = F if reflect else 1.0 - F
                 if reflect:
                     c2 = 2.0 * cos_oh
@@ -731,11 +735,11 @@ def eval_batch(lobes, rows, use_rows, multiscatter, tabs, wo, wi, back, f_out, p
 
 
 @_jit
-def sample_batch(lobes, multiscatter, tabs, wo, back, u_lobe, u, wi, weight, pdf, delta, transmitted, valid):
+def sample_batch(lobes, multiscatter, tabs, wo, back, u_event, u, wi, weight, pdf, delta, transmitted, valid):
     """sample_path for every hit; back (n,): the geometric side of each wo."""
     for k in range(wo.shape[0]):
         x, y, z, w0, w1, w2, p, d, t, v = sample_path(lobes, k, multiscatter, tabs, wo[k, 0], wo[k, 1], wo[k, 2],
-                                                      back[k], u_lobe[k], u[k, 0], u[k, 1])
+                                                      back[k], u_event[k], u[k, 0], u[k, 1])
         wi[k, 0] = x
         wi[k, 1] = y
         wi[k, 2] = z

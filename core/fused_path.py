@@ -508,12 +508,12 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             # ---- the BSDF sample and the next ray (core.path_kernels.scatter)
             if TIMED:
                 c0_ = _cycles()
-            u_dir0, u_dir1, u_lobe = _sobol3(v_hk, v_r, dim_keys, tables)
+            u_dir0, u_dir1, u_event = _sobol3(v_hk, v_r, dim_keys, tables)
             if TIMED:
                 c1_ = _cycles()
                 counters[TIMING_FIRST + 7] += c1_ - c0_
             qx, qy, qz, w0, w1, w2, spdf, sdelta, stransmitted, svalid = sample_path(
-                shade_lobes, row, multiscatter, tabs, lx, ly, lz, back, u_lobe, u_dir0, u_dir1)
+                shade_lobes, row, multiscatter, tabs, lx, ly, lz, back, u_event, u_dir0, u_dir1)
             if TIMED:
                 counters[TIMING_FIRST + 6] += _cycles() - c1_
             qx, qy, qz = np.float32(qx), np.float32(qy), np.float32(qz)

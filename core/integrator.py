@@ -50,7 +50,8 @@ DIM_LENS = 1
 DIM_BOUNCE_BASE = 2
 DIM_STRIDE = 8
 DIM_TIME = 0x7FFF0000
-# Two sampler calls per bounce: a 4-D set for the vertex (BSDF direction in the stratified pair, lobe choice third,
+# Two sampler calls per bounce: a 4-D set for the vertex (BSDF direction in the stratified pair, whose first number
+# also picks the lobe (rescaled within it: core.bsdf_kernels.sample_path), glass reflection vs refraction third,
 # Russian roulette fourth) and a 3-D set for the light (point in the pair, which light third).
 _D_VERTEX, _D_LIGHT = 1, 4
 
@@ -1220,9 +1221,12 @@ class PathTracer:
             # numbers depend only on pixel, sample and dimension: drawing them again here for the survivors gives
             # the values drawn before the roulette without holding them through the vertex.
             u_vertex = self.sampler.get_4d(pix, smp, self._dim(depth, _D_VERTEX))
-            u_dir, u_lobe = np.ascontiguousarray(u_vertex[:, :2]), np.ascontiguousarray(u_vertex[:, 2])
+            # the direction's first number picks the lobe (core.bsdf_kernels.sample_path); the set's third picks
+            # glass reflection vs refraction
+            u_dir, u_event = np.ascontiguousarray(u_vertex[:, :2]), np.ascontiguousarray(u_vertex[:, 2])
+            u_lobe = np.ascontiguousarray(u_vertex[:, 0])
             u_vertex = None
-            bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_lobe, u_dir, back=g.cos_o_geo < 0)
+            bs = bsdf_mod.sample_bsdf(lobes, g.wo, u_event, u_dir, back=g.cos_o_geo < 0)
             if bumped is not None:
                 self._bump_shadowing_sampled(bs, lobes, g, bumped)
             if alpha:  # idx is unique among live paths: the flag of each sample that goes on
@@ -1253,7 +1257,7 @@ class PathTracer:
                 state = path_state[idx]
                 next_path_state(lobes.arrays(), u_lobe, bs.transmitted, state)
                 path_state[idx] = state
-            lobes = u_dir = u_lobe = state = None  # read by nothing below: not held while the next rays are written
+            lobes = u_dir = u_lobe = u_event = state = None  # read by nothing below: not held while the next rays are written
             m = len(idx)
             old_pdf, old_delta, old_normal, old_transmits = prev_pdf, prev_delta, prev_normal, prev_transmits
             o, d = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)

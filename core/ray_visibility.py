@@ -6,7 +6,8 @@ Transparent BSDF (a refraction lobe of IOR 1 and roughness 0) stays the kind it 
 ray, as Cycles' transparent bounces keep the ray's visibility).
 
 Which lobe a BSDF sample came from is the choice core.bsdf_kernels.sample_path makes from the same lobe-selection
-number, so `bounce_kinds` repeats that choice exactly. Only scenes where some mesh hides from one of these kinds
+number (the first of the two direction numbers given to core.bsdf.sample_bsdf, u[:, 0]), so `bounce_kinds`
+repeats that choice exactly. Only scenes where some mesh hides from one of these kinds
 pay for it (the integrator asks only then).
 """
 
@@ -41,7 +42,7 @@ def _bounce_kinds(kind, select, rough, ior, u_lobe, transmitted, out):
 def bounce_kinds(lobe_arrays: tuple, u_lobe: np.ndarray, transmitted: np.ndarray, kinds: np.ndarray) -> None:
     """Update `kinds` (N,) int8, each path's current ray kind, to the kind of the ray each BSDF sample starts
     (see the module docstring), from the lobe arrays (core.bsdf.LobeBatch.arrays()), the lobe-selection numbers
-    given to sample_bsdf and its `transmitted` flags."""
+    (u[:, 0] given to sample_bsdf) and its `transmitted` flags."""
     _bounce_kinds(lobe_arrays[0], lobe_arrays[5], lobe_arrays[2], lobe_arrays[3],
                   np.ascontiguousarray(u_lobe, np.float32), np.ascontiguousarray(transmitted, bool), kinds)
 

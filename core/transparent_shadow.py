@@ -102,7 +102,7 @@ def trace(tracer, occluders: tuple[Accelerator, np.ndarray | None], origin: np.n
 
 def clear_passes(lobes: LobeBatch, u_lobe: np.ndarray, transmitted: np.ndarray) -> np.ndarray:
     """(N,) bool: the BSDF samples (drawn by core.bsdf.sample_bsdf from `lobes` with lobe-selection numbers
-    `u_lobe`, `transmitted` their flags) that went straight on through a Transparent BSDF lobe. The lobe choice
+    `u_lobe`, the u[:, 0] it was given; `transmitted` their flags) that went straight on through a Transparent BSDF lobe. The lobe choice
     is repeated exactly by core.ray_visibility.bounce_kinds, which leaves such samples' ray kind unchanged."""
     untouched = np.int8(127)  # no ray kind has this code
     kinds = np.full(len(u_lobe), untouched, np.int8)

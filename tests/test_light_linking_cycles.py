@@ -159,16 +159,16 @@ def lamp_behind_card_scene(camera_off: bool):
     return scene
 
 
-def monte(scene):
+def monte(scene, spp: int = SPP):
     m = scene.monte
-    m.samples, m.max_bounces, m.seed, m.threads = SPP, BOUNCES, 1, 2
+    m.samples, m.max_bounces, m.seed, m.threads = spp, BOUNCES, 1, 2
     return cc.render_monte(scene)
 
 
-def cycles(scene, tmp_path):
+def cycles(scene, tmp_path, spp: int = SPP):
     runs = []
     for seed in range(1, CYCLES_RUNS + 1):
-        cc.configure_cycles(scene, SPP // 2, BOUNCES, threads=2, seed=seed)
+        cc.configure_cycles(scene, spp // 2, BOUNCES, threads=2, seed=seed)
         runs.append(cc.render_cycles(scene, tmp_path)[0])
     return cmp.runs_mean_and_variance(np.stack(runs))
 
@@ -177,16 +177,18 @@ def comparison(mon, mon_var, cyc, cyc_var) -> cmp.Comparison:
     return cmp.compare(mon, mon_var, cyc, cyc_var, rel_cap=0.01)
 
 
-def check(name: str, build, tmp_path, control=False) -> None:
+def check(name: str, build, tmp_path, control=False, spp: int = SPP) -> None:
     scene = build(True)
-    mon, mon_var = monte(scene)
-    cyc, cyc_var = cycles(scene, tmp_path)
+    mon, mon_var = monte(scene, spp)
+    cyc, cyc_var = cycles(scene, tmp_path, spp)
     c = comparison(mon, mon_var, cyc, cyc_var)
+    # the 1 % cap must be above what the noise resolves, or the noise alone could fail the check
+    assert np.all(c.resolvable <= 0.01), f"{name}: the noise resolves only {np.round(100 * c.resolvable, 2)} %"
     ok, reasons = c.verdict()
     print(f"\n{name}: Monte {np.round(c.mean_a, 4)} Cycles {np.round(c.mean_b, 4)} "
           f"rel {np.round(100 * c.relative_difference, 2)} % z {c.z_stats()}")
     assert ok, f"{name}: {reasons}"
-    plain, plain_var = monte(build(control))  # control: linking (the flag) ignored
+    plain, plain_var = monte(build(control), spp)  # control: linking (the flag) ignored
     c = comparison(plain, plain_var, cyc, cyc_var)
     print(f"{name} without it (control): rel {np.round(100 * c.relative_difference, 2)} %")
     assert not c.verdict()[0], f"{name}: the unlinked scene passes the same check (a control that cannot fail)"
@@ -207,7 +209,8 @@ def test_emissive_mesh_blocker_collection_matches_cycles(tmp_path):
 @pytest.mark.parametrize("flag", ["visible_diffuse", "visible_glossy",
                                   pytest.param("visible_camera", marks=pytest.mark.slow)])
 def test_light_ray_visibility_matches_cycles(flag, tmp_path):
-    check(f"light {flag}", lambda on: visibility_scene(flag if on else None), tmp_path, control=False)
+    # 1024 samples: the glossy quad's noise at 64 resolved only ~3.4 % of the mean, over the 1 % cap
+    check(f"light {flag}", lambda on: visibility_scene(flag if on else None), tmp_path, control=False, spp=1024)
 
 
 def test_collections_become_light_sets_as_blenders_manual_states():
@@ -244,7 +247,7 @@ def test_collections_become_light_sets_as_blenders_manual_states():
 
 
 def test_light_transmission_visibility_matches_cycles(tmp_path):
-    check("light visible_transmission", transmission_scene, tmp_path, control=False)
+    check("light visible_transmission", transmission_scene, tmp_path, control=False, spp=512)  # noise: see above
 
 
 def test_light_hidden_from_the_camera_stays_hidden_through_a_transparent_card(tmp_path):
