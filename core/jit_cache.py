@@ -159,7 +159,9 @@ def _defer_numba_array_support_to_first_compile() -> bool:
 
     def load_additional_registries(self):
         _import_numba_array_support_without_blas()  # no-op once imported (a dict lookup)
-        return original(self)
+        result = original(self)
+        _complete_deferred_environments()  # (defined below; a list check once nothing is pending)
+        return result
 
     load_additional_registries._monte_array_support_first = True
     load_additional_registries._numba_original = original
@@ -367,6 +369,84 @@ def _parse_bitcode_when_needed() -> bool:
 
 
 NUMBA_CACHE_LOADS_PARSE_LATER = NUMBA_CACHE_LOADS_WITHOUT_REFRESH and _parse_bitcode_when_needed()
+
+# numba's _rebuild_env as read for _rebuild_numba_environments_without_import (its code is checked too).
+_REBUILD_ENV_NAMES = frozenset({"Environment", "__dict__", "_memo", "consts", "env_name", "import_module",
+                                "importlib", "lookup_environment"})
+# Environments of numba's own modules rebuilt without importing the module: (environment, module name).
+_DEFERRED_ENVIRONMENTS: list = []
+
+
+def _rebuild_numba_environments_without_import() -> bool:
+    """Rebuild the environments of numba's own implementations in a cached kernel without importing their
+    modules. A cached kernel's data holds the Environment (the globals dict and constants) of every function
+    compiled into it, numba's helpers included: np.empty's allocation helper refers to numba.np.arrayobj, an
+    integer power to numba.cpython.numbers. numba's _rebuild_env imports the module to take its __dict__ as the
+    environment's globals, and importing those two (with charseq, unicode, listobj, ... behind arrayobj) was
+    0.03-0.07 s of every `monte render` process (the first load of `_sobol_fill`), for a dict nothing reads:
+    a function compiled in nopython mode, numba's helpers all, reads only its environment's constants (the
+    globals serve object mode's LOAD_GLOBAL). So while a Monte kernel loads from the cache
+    (_load_cached_kernels_without_refresh), an environment whose module is one of numba's own and not imported
+    yet gets a globals dict holding only the module's name (what pickling it again and numba's `can_cache` read)
+    and its constants as numba's; the module's globals are copied in when numba installs its registries (the
+    first compile of the process imports those modules: _complete_deferred_environments). Other modules (Monte's
+    kernels' own, other packages') and environments rebuilt outside a Monte kernel's load go numba's way.
+    Guarded by the numba versions of _load_cached_kernels_without_refresh and _rebuild_env's code. Returns True
+    when installed."""
+    from numba.core import environment
+
+    original = environment.__dict__.get("_rebuild_env")
+    if getattr(original, "_monte_without_import", False):
+        return True
+    code = getattr(original, "__code__", None)
+    if (code is None or frozenset(code.co_names) != _REBUILD_ENV_NAMES or code.co_argcount != 3
+            or not isinstance(getattr(environment, "Environment", None), type)):
+        return False
+    env_class = environment.Environment
+
+    def _rebuild_env(modname, consts, env_name):
+        if (not getattr(_LAZY, "active", False) or not isinstance(modname, str) or modname in sys.modules
+                or not modname.startswith("numba.")):
+            return original(modname, consts, env_name)
+        env = environment.lookup_environment(env_name)
+        if env is not None:
+            return env
+        env = env_class({"__name__": modname})
+        env.consts[:] = consts
+        env.env_name = env_name
+        env_class._memo[env_name] = env
+        with _DEFERRED_LOCK:
+            _DEFERRED_ENVIRONMENTS.append((weakref.ref(env), modname))
+        return env
+
+    _rebuild_env._monte_without_import = True
+    _rebuild_env._numba_original = original
+    _rebuild_env.__doc__ = original.__doc__
+    environment._rebuild_env = _rebuild_env
+    return True
+
+
+_DEFERRED_LOCK = threading.Lock()
+
+
+def _complete_deferred_environments() -> None:
+    """Copy each deferred environment's module globals in (importing the module: numba's registries import
+    them all anyway), so that the environments look as numba's own rebuild made them. Called when numba
+    installs its registries (the first compile of the process)."""
+    with _DEFERRED_LOCK:
+        pending = list(_DEFERRED_ENVIRONMENTS)
+        _DEFERRED_ENVIRONMENTS.clear()
+    import importlib
+
+    for ref, modname in pending:
+        env = ref()
+        if env is not None:
+            module = importlib.import_module(modname)
+            for key, value in vars(module).items():
+                env.globals.setdefault(key, value)
+
+
+NUMBA_ENVIRONMENTS_WITHOUT_IMPORT = NUMBA_CACHE_LOADS_WITHOUT_REFRESH and _rebuild_numba_environments_without_import()
 PACKAGE = __name__.rpartition(".")[0] or "core"  # "monte.core", "bl_ext.user_default.monte.core", ...
 
 
