@@ -447,6 +447,96 @@ def _complete_deferred_environments() -> None:
 
 
 NUMBA_ENVIRONMENTS_WITHOUT_IMPORT = NUMBA_CACHE_LOADS_WITHOUT_REFRESH and _rebuild_numba_environments_without_import()
+
+NRT_CACHE_PREFIX = "nrt-"  # the cached NRT module's file in cache_dir(): nrt-<key>.bin
+_NRT_COMPILE_NAMES = frozenset({"create_nrt_module", "add_ir_module", "finalize"})
+
+
+def _nrt_cache_key(ctx) -> str:
+    """What NRT's compiled module depends on: numba's and llvmlite's versions, numba's NRT module source, the
+    code generator (target triple, CPU name and features) and the calling convention (its abort function)."""
+    import llvmlite
+    from numba.core.runtime import nrtdynmod
+
+    h = hashlib.sha256(repr((numba.__version__, llvmlite.__version__, ctx.codegen().magic_tuple(),
+                             type(ctx.call_conv).__qualname__)).encode())
+    h.update(file_digest(nrtdynmod.__file__).encode())
+    return h.hexdigest()[:24]
+
+
+def _cache_nrt_module() -> bool:
+    """Keep NRT's compiled module (numba's reference-counting runtime: atomic increments, incref/decref, the
+    unresolved-symbol abort) beside the kernels, as numba keeps a kernel: its object code and bitcode. numba
+    builds that module with LLVM in every process, on the first kernel load (rtsys.initialize): 0.01-0.02 s of
+    CPU of every `monte render` process, spent before the export's first kernel. The cached module loads as
+    numba loads a cached kernel (CPUCodeLibrary's unserialize: the object code run, the bitcode kept for
+    linking into later compiles), so the runtime is the same machine code; the C helpers' symbols are still
+    registered by numba's own initialize. Keyed by _nrt_cache_key (numba and llvmlite versions, numba's NRT
+    source, the CPU); a missing, unreadable or foreign file means numba's compile, whose result is then written
+    (when the folder is writable). Only for numba's CPU context on the numba versions of
+    _load_cached_kernels_without_refresh with compile_nrt_functions's code as read; MONTE_PLAIN_NUMBA_LOADS=1
+    turns it off. Returns True when installed."""
+    from numba.core import cpu
+    from numba.core.runtime import nrt, nrtdynmod
+
+    original = nrtdynmod.__dict__.get("compile_nrt_functions")
+    if getattr(original, "_monte_cached", False):
+        return True
+    code = getattr(original, "__code__", None)
+    if code is None or frozenset(code.co_names) != _NRT_COMPILE_NAMES or code.co_argcount != 1:
+        return False
+    if getattr(getattr(nrt, "nrtdynmod", None), "compile_nrt_functions", None) is not original:
+        return False
+    import pickle
+
+    def compile_nrt_functions(ctx):
+        if type(ctx) is not cpu.CPUContext:
+            return original(ctx)
+        try:
+            path = os.path.join(cache_dir(), f"{NRT_CACHE_PREFIX}{_nrt_cache_key(ctx)}.bin")
+        except Exception:  # noqa: BLE001 - numba's own way
+            return original(ctx)
+        codegen = ctx.codegen()
+        try:
+            with open(path, "rb") as fh:
+                name, object_code, bitcode = pickle.load(fh)
+            if not (isinstance(object_code, bytes) and isinstance(bitcode, bytes)):
+                raise ValueError(path)
+        except Exception:  # noqa: BLE001 - absent, unreadable or foreign: compile it
+            pass
+        else:
+            try:
+                return codegen.unserialize_library((name, "object", (object_code, bitcode)))
+            except Exception:  # noqa: BLE001
+                pass
+        ir_mod, library = nrtdynmod.create_nrt_module(ctx)
+        library.enable_object_caching()  # (records the object code LLVM emits; the code itself is the same)
+        library.add_ir_module(ir_mod)
+        library.finalize()
+        tmp = None
+        try:
+            state = library.serialize_using_object_code()
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            tmp = f"{path}.{os.getpid()}.{threading.get_ident()}.tmp"
+            with open(tmp, "wb") as fh:
+                pickle.dump((state[0], *state[2]), fh, protocol=pickle.HIGHEST_PROTOCOL)
+            os.replace(tmp, path)
+        except Exception:  # noqa: BLE001 - a read-only folder: compiled again next time
+            try:
+                if tmp is not None:
+                    os.unlink(tmp)
+            except OSError:
+                pass
+        return library
+
+    compile_nrt_functions._monte_cached = True
+    compile_nrt_functions._numba_original = original
+    compile_nrt_functions.__doc__ = original.__doc__
+    nrtdynmod.compile_nrt_functions = compile_nrt_functions
+    return True
+
+
+NUMBA_NRT_MODULE_CACHED = NUMBA_CACHE_LOADS_WITHOUT_REFRESH and _cache_nrt_module()
 PACKAGE = __name__.rpartition(".")[0] or "core"  # "monte.core", "bl_ext.user_default.monte.core", ...
 
 

@@ -396,3 +396,67 @@ def test_a_symbol_of_an_unparsed_library_is_still_found():
     assert result["pending"] is True and result["names"] > 0
     assert not all(result["known_before"])
     assert all(result["found"]) and result["parsed"] is True and result["missing"] is False
+
+
+_NRT_MODULE = """
+    import hashlib, json, os, sys
+    import numpy as np
+    from numba.core.registry import cpu_target
+    from numba.core.runtime import nrtdynmod, rtsys
+    from monte.core import jit_cache
+    ctx = cpu_target.target_context
+    path = os.path.join(jit_cache.cache_dir(), f"{jit_cache.NRT_CACHE_PREFIX}{jit_cache._nrt_cache_key(ctx)}.bin")
+    if sys.argv[-1] == "corrupt":
+        with open(path, "wb") as fh:
+            fh.write(b"not a cached module")
+    built = []
+    create = nrtdynmod.create_nrt_module
+    nrtdynmod.create_nrt_module = lambda c: built.append(1) or create(c)
+    from monte.core.builtin_scenes import builtin_scene
+    from monte.core.precompile import load_cached_kernels
+    from monte.core.render import render
+    from monte.core.settings import RenderSettings
+    load_cached_kernels()
+    result = render(builtin_scene("cornell", (16, 16)), RenderSettings(spp=2, threads=2, seed=3))
+    import numba
+
+    @numba.njit
+    def allocates(n):  # NRT: allocation, incref/decref of the arrays
+        a = np.arange(n)
+        b = a[::2].copy()
+        return (a.sum(), b.sum(), b)
+
+    total, half, kept = allocates(10)
+    abort = rtsys.library.get_pointer_to_function("nrt_unresolved_abort")
+    with open(path, "rb") as fh:
+        valid = fh.read(2) == b"\\x80\\x05"  # a pickle (what the cache writes), not the stand-in
+    print("RESULT " + json.dumps({"cached": jit_cache.NUMBA_NRT_MODULE_CACHED, "built": len(built),
+                                  "image": hashlib.sha256(np.ascontiguousarray(result.color).tobytes()).hexdigest(),
+                                  "values": [int(total), int(half), kept.tolist()], "abort": abort != 0,
+                                  "valid": valid}))
+"""
+
+
+def test_nrt_module_is_cached_and_a_bad_file_is_compiled_again():
+    """NRT's module (numba's runtime, compiled with LLVM in every process: 0.01-0.02 s) is kept in the kernel
+    cache: a process with the file builds nothing; one whose file is unreadable compiles it numba's way and
+    writes it again; numba's own loading (MONTE_PLAIN_NUMBA_LOADS=1) always builds it. The image, a function
+    compiled afterwards that allocates and refcounts arrays, and the runtime's abort symbol are the same."""
+    def run(*args, **env):
+        code = textwrap.dedent(_NRT_MODULE)
+        clean = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != jit_cache.KERNEL_CPU_ENV}
+        proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=900,
+                              env={**clean, **env})
+        lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+        assert proc.returncode == 0 and lines, f"exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+        return json.loads(lines[-1][len("RESULT "):])
+
+    rebuilt = run("corrupt")
+    cached = run()
+    numbas = run(MONTE_PLAIN_NUMBA_LOADS="1")
+    assert rebuilt["cached"] is True and rebuilt["built"] == 1 and rebuilt["valid"] is True
+    assert cached["cached"] is True and cached["built"] == 0
+    assert numbas["cached"] is False and numbas["built"] == 1
+    for result in (rebuilt, cached):
+        assert result["image"] == numbas["image"] and result["values"] == numbas["values"] == [45, 20, [0, 2, 4, 6, 8]]
+        assert result["abort"] is True
