@@ -37,22 +37,60 @@ import warnings
 import weakref
 
 
+class _YamlOnUse:
+    """numba.core.config's `yaml` where numba was imported without YAML (_import_numba_without_scipy_version_check):
+    YAML is imported when numba first reads a `.numba_config.yaml`."""
+
+    def __getattr__(self, name):
+        import yaml
+
+        return getattr(yaml, name)
+
+
 def _import_numba_without_scipy_version_check() -> bool:
     """Import numba without its import-time SciPy check: numba's __init__ imports SciPy only to refuse a SciPy
     older than 1.0 (~0.02 s of CPU of every `monte render` process here: SciPy's package and Cython's shadow
     module; Blender ships no SciPy). SciPy is hidden for that one import (sys.modules[name] = None makes an import
     of it fail) and put back at once; numba's own later uses of SciPy (np.linalg and np.dot's BLAS/LAPACK lookups)
-    import it when called and keep working. Nothing is changed when numba or SciPy is already imported. Returns
-    True when numba was imported this way."""
+    import it when called and keep working. Nothing is changed when numba or SciPy is already imported.
+
+    YAML too, where no `.numba_config.yaml` is in the working folder: numba's config imports PyYAML at its import
+    only to read that file when there is one (0.006-0.01 s of CPU where PyYAML is installed: the venv, not
+    Blender). numba's config then gets YAML on first use (_YamlOnUse) and still reads a config file that
+    appears later (numba checks for it before each compile). Returns True when numba was imported this way."""
     if "numba" in sys.modules or "scipy" in sys.modules or threading.active_count() > 1:
         return False  # (another thread could import SciPy while it is hidden: import it plainly then)
-    sys.modules["scipy"] = None  # type: ignore[assignment]
+    hidden = ["scipy"]
+    if "yaml" not in sys.modules and not os.path.exists(".numba_config.yaml"):
+        hidden.append("yaml")
+    for name in hidden:
+        sys.modules[name] = None  # type: ignore[assignment]
     try:
         import numba  # noqa: F401
     finally:
-        if sys.modules.get("scipy", 0) is None:
-            del sys.modules["scipy"]
+        for name in hidden:
+            if name in sys.modules and sys.modules[name] is None:
+                del sys.modules[name]
+    if "yaml" in hidden:
+        _defer_yaml_of_numba_config()
     return True
+
+
+def _defer_yaml_of_numba_config() -> None:
+    """numba's config, imported with YAML hidden, found none: give it YAML to import on first use where PyYAML is
+    installed (so that a `.numba_config.yaml` is read as numba would), else leave numba's "no YAML" as it is."""
+    from importlib.util import find_spec
+
+    config = sys.modules.get("numba.core.config")
+    if config is None or getattr(config, "_HAVE_YAML", True) or "yaml" in vars(config):
+        return
+    try:
+        have = find_spec("yaml") is not None
+    except (ImportError, ValueError):
+        have = False
+    if have:
+        config.yaml = _YamlOnUse()
+        config._HAVE_YAML = True
 
 
 NUMBA_IMPORTED_WITHOUT_SCIPY = _import_numba_without_scipy_version_check()

@@ -16,10 +16,13 @@ from monte.core import jit_cache, precompile
 HEAVY = ("numba", "llvmlite", "dask", "distributed", "OpenEXR", "bpy", "scipy")
 
 
-def _python(code: str) -> dict:
+def _python(code: str, cwd=None) -> dict:
     clean = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != jit_cache.KERNEL_CPU_ENV}
+    if cwd is not None:  # (the package must stay importable from another folder)
+        clean["PYTHONPATH"] = os.pathsep.join([os.path.dirname(os.path.dirname(os.path.abspath(jit_cache.__file__)))]
+                                              + [p for p in clean.get("PYTHONPATH", "").split(os.pathsep) if p])
     proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
-                          timeout=600, env=clean)
+                          timeout=600, env=clean, cwd=cwd)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
     assert proc.returncode == 0 and lines, f"exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
     return json.loads(lines[-1][len("RESULT "):])
@@ -265,6 +268,37 @@ def test_numba_is_imported_without_its_scipy_check_and_scipy_still_imports():
     assert result["patched"] is True and result["numba"] is True
     assert result["after_import"] is False
     assert result["imported"] == ("scipy" if result["have"] else None)
+
+
+_YAML_CONFIG = """
+    import json, os, sys
+    from monte.core import jit_cache
+    import numba
+    from numba.core import config
+    at_import = "yaml" in sys.modules, config.BOUNDSCHECK
+    with open(".numba_config.yaml", "w") as fh:
+        fh.write("boundscheck: 1\\n")
+    config.reload_config()  # (numba's compiler does this before each compile)
+    print("RESULT " + json.dumps({"patched": jit_cache.NUMBA_IMPORTED_WITHOUT_SCIPY, "at_import": at_import,
+                                  "after": ["yaml" in sys.modules, config.BOUNDSCHECK]}))
+"""
+
+
+def test_numba_is_imported_without_yaml_and_still_reads_its_config_file(tmp_path):
+    """numba's config imports PyYAML only to read a `.numba_config.yaml`: without one in the working folder,
+    Monte's import of numba imports no YAML, and a config file written later is still read (YAML imported then).
+    With the file there at import, numba imports YAML and reads it as always."""
+    import pytest
+
+    pytest.importorskip("yaml")
+    (tmp_path / "a").mkdir()
+    without = _python(_YAML_CONFIG, cwd=tmp_path / "a")
+    assert without["patched"] is True
+    assert without["at_import"] == [False, None] and without["after"] == [True, 1]
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / ".numba_config.yaml").write_text("boundscheck: 1\n")
+    with_file = _python(_YAML_CONFIG, cwd=tmp_path / "b")
+    assert with_file["at_import"] == [True, 1] and with_file["after"] == [True, 1]
 
 
 def test_a_headless_render_stops_the_loader_when_its_render_starts(tmp_path):
