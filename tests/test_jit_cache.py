@@ -460,3 +460,43 @@ def test_nrt_module_is_cached_and_a_bad_file_is_compiled_again():
     for result in (rebuilt, cached):
         assert result["image"] == numbas["image"] and result["values"] == numbas["values"] == [45, 20, [0, 2, 4, 6, 8]]
         assert result["abort"] is True
+
+
+def test_numba_extensions_initialize_at_the_first_compile_not_at_a_cached_kernels_call(tmp_path):
+    """numba runs the installed `numba_extensions` entry points before a dispatcher's first compile-or-load;
+    Monte's cached kernels load and render without that scan, and an extension is still initialized before
+    the first compile (here a cfunc, which no dispatcher hook covers: the registries' refresh runs it) or the
+    first call of another package's function, once."""
+    dist = tmp_path / "monte_fake_numba_ext-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: monte-fake-numba-ext\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[numba_extensions]\ninit = monte_fake_numba_ext:init\n")
+    (tmp_path / "monte_fake_numba_ext.py").write_text("CALLS = []\n\ndef init():\n    CALLS.append(1)\n")
+    code = """
+        import json, sys
+        import numba
+        from monte.core import jit_cache
+        from monte.core.builtin_scenes import builtin_scene
+        from monte.core.precompile import load_cached_kernels
+        from monte.core.render import render
+        from monte.core.settings import RenderSettings
+        load_cached_kernels()
+        render(builtin_scene("cornell", (16, 16)), RenderSettings(spp=1, threads=2, seed=3))
+        after_render = len(sys.modules["monte_fake_numba_ext"].CALLS) if "monte_fake_numba_ext" in sys.modules else 0
+        if sys.argv[-1] == "cfunc":
+            value = numba.cfunc("int64(int64)")(lambda x: x + 1).ctypes(41)
+        else:
+            value = numba.njit(lambda x: x + 1)(41)
+        numba.njit(lambda x: x + 2)(40)
+        print("RESULT " + json.dumps({"deferred": jit_cache.NUMBA_EXTENSIONS_DEFERRED, "after_render": after_render,
+                                      "after": len(sys.modules["monte_fake_numba_ext"].CALLS), "value": value}))
+    """
+    path = os.pathsep.join([str(tmp_path)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
+    for how in ("cfunc", "njit"):
+        clean = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != jit_cache.KERNEL_CPU_ENV}
+        proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code), how], capture_output=True, text=True,
+                              timeout=900, env={**clean, "PYTHONPATH": path})
+        lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+        assert proc.returncode == 0 and lines, f"{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+        result = json.loads(lines[-1][len("RESULT "):])
+        assert result == {"deferred": True, "after_render": 0, "after": 1, "value": 42}, (how, result)

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core import sky as sky_model
 from ...core.scene import Mist, World
 from ...core.world import EnvironmentMap
 from .material import follow_link, image_average_color, image_pixels, node_tree, socket_value
@@ -306,6 +305,8 @@ def _sky(world, tex, warnings: list[str]):
                                 or tuple(mapping.scale) != (1, 1, 1)):
         warnings.append(f"world {name!r}: Sky Texture {tex.name!r} texture mapping (its own Mapping panel) is "
                         "ignored")
+    from ...core import sky as sky_model  # here, not at import: a render without a sky world never needs it
+
     sun_light = None
     if kind in ("PREETHAM", "HOSEK_WILKIE"):
         sun = np.array(tex.sun_direction[:3], np.float64)
