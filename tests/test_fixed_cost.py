@@ -345,3 +345,52 @@ def test_a_headless_render_stops_the_loader_when_its_render_starts(tmp_path):
     result = json.loads(lines[-1][len("RESULT "):])
     assert result == {"stop_set_at_render": True, "started": True, "alive_after": False, "registered": True}
     assert out.is_file()
+
+
+def test_a_headless_render_imports_nothing_it_does_not_use(tmp_path):
+    """`monte render X.blend` of a scene without a sky world (the plane scene): numba's NumPy-array and number
+    implementations (numba.np.arrayobj, numba.cpython.numbers: named by the cached kernels' environments, 0.02-0.06
+    s), PyYAML, SciPy, numba's registries (numba.typed's list implementation) and core.sky stay unimported; the
+    image is written."""
+    import pytest
+
+    pytest.importorskip("bpy")
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from plane_scene import PLANE_SCENE
+
+    blend, out = tmp_path / "plane.blend", tmp_path / "out.exr"
+    save = textwrap.dedent("""
+        import sys
+        import bpy
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        with_camera = True
+        # PLANE_SCENE
+        scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 12, 8, 100
+        bpy.ops.wm.save_as_mainfile(filepath=sys.argv[1])
+    """).replace("# PLANE_SCENE\n", PLANE_SCENE)
+    render = textwrap.dedent("""
+        import json, os, sys
+        WATCH = ("numba.np.arrayobj", "numba.cpython.numbers", "yaml", "scipy", "numba.typed.listobject",
+                 "monte.core.sky")
+        real_exit = os._exit
+
+        def exit_(status):
+            print("RESULT " + json.dumps({"status": status, "imported": [m for m in WATCH if m in sys.modules],
+                                          "numba": "numba" in sys.modules}))
+            sys.stdout.flush()
+            real_exit(status)
+
+        os._exit = exit_
+        sys.argv = ["monte", "render", sys.argv[1], "-o", sys.argv[2], "--no-png", "-q", "--spp", "1"]
+        from monte import cli
+        cli.run()
+    """)
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != jit_cache.KERNEL_CPU_ENV}
+    for code in (save, render):
+        proc = subprocess.run([sys.executable, "-c", code, str(blend), str(out)], capture_output=True, text=True,
+                              timeout=600, env=clean, cwd=tmp_path)
+        assert proc.returncode == 0, f"exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert lines, proc.stdout[-3000:]
+    assert json.loads(lines[-1][len("RESULT "):]) == {"status": 0, "imported": [], "numba": True}
+    assert out.is_file()
