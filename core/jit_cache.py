@@ -493,12 +493,16 @@ _NRT_COMPILE_NAMES = frozenset({"create_nrt_module", "add_ir_module", "finalize"
 
 def _nrt_cache_key(ctx) -> str:
     """What NRT's compiled module depends on: numba's and llvmlite's versions, numba's NRT module source, the
-    code generator (target triple, CPU name and features) and the calling convention (its abort function)."""
+    code generator (target triple, CPU name and features), the calling convention (its abort function), and the
+    numba settings its IR and optimization read (NRT debugging and atomicity, word size, optimization level)."""
     import llvmlite
+    from numba.core import config
     from numba.core.runtime import nrtdynmod
 
     h = hashlib.sha256(repr((numba.__version__, llvmlite.__version__, ctx.codegen().magic_tuple(),
-                             type(ctx.call_conv).__qualname__)).encode())
+                             type(ctx.call_conv).__qualname__, config.DEBUG_NRT,
+                             getattr(nrtdynmod, "print_nrt_stack", None), getattr(nrtdynmod, "_disable_atomicity", None),
+                             config.MACHINE_BITS, str(config.OPT))).encode())
     h.update(file_digest(nrtdynmod.__file__).encode())
     return h.hexdigest()[:24]
 

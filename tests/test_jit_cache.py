@@ -500,3 +500,24 @@ def test_numba_extensions_initialize_at_the_first_compile_not_at_a_cached_kernel
         assert proc.returncode == 0 and lines, f"{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
         result = json.loads(lines[-1][len("RESULT "):])
         assert result == {"deferred": True, "after_render": 0, "after": 1, "value": 42}, (how, result)
+
+
+def test_the_nrt_module_key_follows_what_its_code_depends_on(monkeypatch):
+    """The cached NRT module's key changes with the numba settings its IR or optimization reads (NRT debugging,
+    the optimization level) and with the CPU numba compiles for."""
+    from numba.core import config
+    from numba.core.registry import cpu_target
+
+    ctx = cpu_target.target_context
+    key = jit_cache._nrt_cache_key(ctx)
+    assert jit_cache._nrt_cache_key(ctx) == key
+    monkeypatch.setattr(config, "DEBUG_NRT", not config.DEBUG_NRT)
+    debug = jit_cache._nrt_cache_key(ctx)
+    monkeypatch.undo()
+    monkeypatch.setattr(config, "OPT", 0)
+    opt = jit_cache._nrt_cache_key(ctx)
+    monkeypatch.undo()
+    codegen = ctx.codegen()
+    monkeypatch.setattr(type(codegen), "magic_tuple", lambda self: ("x86_64-unknown-linux-gnu", "znver4", "+avx512f"))
+    cpu = jit_cache._nrt_cache_key(ctx)
+    assert len({key, debug, opt, cpu}) == 4
