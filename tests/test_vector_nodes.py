@@ -148,7 +148,7 @@ def test_compiled_differentials_match_numpy():
     ng = ng.astype(np.float32)
     dp = rng.uniform(1e-3, 0.1, n).astype(np.float32)
     ps = SimpleNamespace(tri_vertices=tri, uvs=uvs)
-    got = _differentials(ps, prim, None, ng, dp, True)
+    got = _differentials(ps, prim, ng, dp, True)
     want = _numpy_differentials(tri, uvs, prim, ng, dp)
     for g, w in zip(got, want):
         assert g.dtype == np.float32 and g.shape == w.shape
@@ -159,7 +159,7 @@ def test_compiled_differentials_match_numpy():
     assert np.allclose(np.linalg.norm(got[0], axis=2), dp[:, None], rtol=1e-5)
     assert np.allclose(np.einsum("nij,nj->ni", got[0], ng), 0, atol=1e-6)
     # no UV map: no duv
-    assert _differentials(SimpleNamespace(tri_vertices=tri, uvs=None), prim, None, ng, dp, True)[2] is None
+    assert _differentials(SimpleNamespace(tri_vertices=tri, uvs=None), prim, ng, dp, True)[2] is None
 
 
 def test_camera_differentials_are_the_pixel_footprint():

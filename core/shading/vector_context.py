@@ -117,7 +117,6 @@ def vector_context(ps, prim: np.ndarray, bary, ng_view: np.ndarray, dp: np.ndarr
         rows = _subset(wants_differentials, n)
         if rows is None or len(rows):
             d, db, duv = _differentials(ps, prim if rows is None else prim[rows],
-                                        bary if rows is None else (np.asarray(bary[0])[rows], np.asarray(bary[1])[rows]),
                                         ng_view if rows is None else ng_view[rows],
                                         dp if rows is None else np.asarray(dp)[rows], has_uv)
             out.dP, out.db = _scatter(d, rows, n), _scatter(db, rows, n)
@@ -137,7 +136,7 @@ def vector_context(ps, prim: np.ndarray, bary, ng_view: np.ndarray, dp: np.ndarr
     return out
 
 
-def _differentials(ps, prim, bary, ng_view, dp, has_uv):
+def _differentials(ps, prim, ng_view, dp, has_uv):
     """(dP (N, 2, 3), db (N, 2, 2), duv (N, 2, 2) or None) float32 of VectorContext for these points: the
     compiled per-point function (core.geometry_kernels.differentials_point) that the fused path kernel calls
     too, so both give the same bits (orthonormals above is its NumPy statement of the tangents)."""
