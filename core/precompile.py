@@ -251,9 +251,9 @@ def load_cached_kernels_in_background() -> threading.Thread:
             import importlib
 
             importlib.import_module(f"{jit_cache.PACKAGE}.render")  # the rest of the renderer's modules too
-            load_cached_kernels(should_stop=_loader_should_stop)
-            if not _loader_should_stop():
+            if not _stop_loading.is_set():  # before the kernels: a render needs all of it, the list's tail not
                 warm_first_render()
+            load_cached_kernels(should_stop=_loader_should_stop)
         except Exception:  # noqa: BLE001 - only a head start
             pass
 
@@ -267,14 +267,21 @@ def load_cached_kernels_in_background() -> threading.Thread:
 
 def warm_first_render() -> None:
     """What a process's first render does once on the Python side besides loading kernels, done ahead by the
-    loader thread after the kernels: NumPy's masked arrays (`np.unique`, which the export calls, imports
-    numpy.ma on its first call: 0.04 s) and the microfacet tables the BSDF kernels take (read from their .npz
-    once per process: 0.03 s). Both are cached for the process, so a render that comes first does the same."""
+    loader thread before the kernels (every render needs all of it, whereas the kernel list's tail serves only
+    some features; it runs even while a render holds loader_paused, which only holds back kernel signatures):
+    NumPy's masked arrays (`np.unique`, which the export calls, imports numpy.ma on its first call: 0.014-0.04 s),
+    the microfacet tables the BSDF kernels take (read from their .npz once per process: 0.002-0.03 s) and the
+    Embree library (core.embree.load: embreex's import, which loads it and its TBB, and the device: ~0.008 s,
+    paid by the first render even after the loader had finished every kernel). All are cached for the process,
+    so a render that comes first does the same; one that comes during it waits for what is in flight (Python's
+    import lock, core.embree's lock) instead of doing it twice."""
     import numpy.ma  # noqa: F401
 
+    from . import embree
     from .microfacet import kernel_tables
 
     kernel_tables()
+    embree.load()
 
 
 def stop_loading_kernels(timeout: float = 60.0, wait: bool = True) -> None:

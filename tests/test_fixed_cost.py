@@ -207,31 +207,37 @@ def test_entry_kernels_list_an_export_and_a_default_render_first():
 
 
 def test_the_loader_warms_what_a_first_render_does_once():
-    """After the kernels, the loader thread does a first render's once-per-process Python work ahead: NumPy's
-    masked arrays (np.unique, which the export calls, imports them) and the microfacet tables."""
+    """The loader thread does a first render's once-per-process Python work ahead: NumPy's masked arrays
+    (np.unique, which the export calls, imports them), the microfacet tables and the Embree library (embreex's
+    import and the device, which a first render paid even after the loader had loaded every kernel)."""
     result = _python("""
         import json, sys
-        from monte.core import microfacet, precompile
+        from monte.core import embree, microfacet, precompile
         import monte.core.render  # noqa: F401
-        before = ["numpy.ma" in sys.modules, microfacet.kernel_tables.cache_info().currsize]
+
+        def state():
+            return ["numpy.ma" in sys.modules, microfacet.kernel_tables.cache_info().currsize,
+                    "embreex" in sys.modules, embree._library is not None]
+        before = state()
         precompile.load_cached_kernels_in_background().join()
-        after = ["numpy.ma" in sys.modules, microfacet.kernel_tables.cache_info().currsize]
-        print("RESULT " + json.dumps({"before": before, "after": after}))
+        print("RESULT " + json.dumps({"before": before, "after": state()}))
     """)
-    assert result == {"before": [False, 0], "after": [True, 1]}
+    assert result == {"before": [False, 0, False, False], "after": [True, 1, True, True]}
 
 
 def test_the_loader_waits_while_a_render_runs():
     """While a render runs (precompile.loader_paused, which the engine's render holds) the background loader loads
     nothing: the render loads what it calls itself, and the list's other signatures do not compete with it. It
-    goes on once the render is over; stopped during a render it ends (the end of `monte render X.blend`)."""
+    goes on once the render is over; stopped during a render it ends (the end of `monte render X.blend`). The
+    once-per-process work a render needs whatever it calls (warm_first_render) comes first and is not held back."""
     result = _python("""
-        import json
-        from monte.core import precompile
+        import json, sys
+        from monte.core import embree, precompile
         with precompile.loader_paused():
             loader = precompile.load_cached_kernels_in_background()
             loader.join(timeout=10)  # loading all of them takes ~1-2 s
-            during = [loader.is_alive(), precompile.kernel_cache_counts()["loaded"]]
+            during = [loader.is_alive(), precompile.kernel_cache_counts()["loaded"],
+                      "numpy.ma" in sys.modules, embree._library is not None]
         loader.join()
         after = precompile.kernel_cache_counts()["loaded"]
         precompile._loader = None  # a second loader, stopped while a render runs
@@ -243,7 +249,7 @@ def test_the_loader_waits_while_a_render_runs():
         print("RESULT " + json.dumps({"during": during, "after": after, "stopped_alive": stopped,
                                       "entries": len(precompile.read_entry_kernels())}))
     """)
-    assert result["during"] == [True, 0]
+    assert result["during"] == [True, 0, True, True]
     assert result["after"] == result["entries"] > 0
     assert result["stopped_alive"] is False
 
