@@ -1,11 +1,12 @@
 """Where the fused path kernel's time goes: Embree's closest hits and shadow rays against the rest of a path.
 
-    python -m monte.lab.fused_timing [--resolution 256] [--spp 16] [--threads 1]
+    python -m monte.lab.fused_timing [--resolution 256] [--spp 16] [--threads 1] [--scene cornell|textured]
 
 Compiles a measurement copy of core.fused_path.trace_paths with the module's TIMED flag on (not cached; about
 as long as the shipped kernel's compile, minutes), which reads the CPU's cycle counter around each part of a
 path and sums the cycles per part in its counters array (core.fused_path.TIMING_PARTS), renders the Cornell box
-with it (the image is the shipped kernel's: the flag adds reads of the counter and nothing else), and prints each
+(--scene textured: the node-program bench scene lab.bpy_scenes.textured, which needs bpy; its programs are the
+"node program" part) with it (the image is the shipped kernel's: the flag adds reads of the counter and nothing else), and prints each
 part's share of the kernel's path loop, its nanoseconds per call where it has a call count, and the rest. The
 cycles become seconds by the counter's rate measured against time.perf_counter. The shipped kernel, compiled
 with the flag off, has none of this code.
@@ -106,7 +107,8 @@ def measure(resolution: int, spp: int, threads: int, compile_only: bool = False,
     parts = {name: totals[first + i] / rate for i, name in enumerate(fused_path.TIMING_PARTS)}
     loop = parts.pop("whole path loop")
     calls = {"closest hit (Embree)": int(totals[2]), "shadow ray (Embree)": int(totals[3])}
-    return {"scene": scene_name, "render_cpu": render_cpu, "resolution": resolution, "spp": spp, "threads": threads, "seconds": result.stats["seconds"],
+    return {"scene": scene_name, "render_cpu": render_cpu, "resolution": resolution, "spp": spp, "threads": threads,
+            "seconds": result.stats["seconds"],
             "cycles_per_second": rate, "loop_seconds": loop, "parts_seconds": parts,
             "rest_seconds": loop - sum(parts.values()), "calls": calls, "compile_seconds": compile_seconds}
 
@@ -114,7 +116,8 @@ def measure(resolution: int, spp: int, threads: int, compile_only: bool = False,
 def report(m: dict) -> None:
     loop = m["loop_seconds"]
     print(f"{m['scene']} {m['resolution']}x{m['resolution']}, {m['spp']} spp, {m['threads']} thread(s): render "
-          f"{m['seconds']:.2f} s ({m['render_cpu']:.2f} CPU s), path loop {loop:.2f} thread-s (counter {m['cycles_per_second'] / 1e9:.2f} GHz)")
+          f"{m['seconds']:.2f} s ({m['render_cpu']:.2f} CPU s), path loop {loop:.2f} thread-s "
+          f"(counter {m['cycles_per_second'] / 1e9:.2f} GHz)")
     rows = list(m["parts_seconds"].items()) + [("rest (branching, MIS, film sums, ray set-up)", m["rest_seconds"])]
     for name, sec in rows:
         n = m["calls"].get(name)
