@@ -258,8 +258,11 @@ class TileFilm:
             slot = pixel * self.groups + group
         if self.alpha and transparent is None:
             raise ValueError("this film keeps alpha: pass the samples' transparency")
-        r = np.ascontiguousarray(radiance, np.float64)
         if self._capture is None:  # compiled: the same sums and fold as below, in one pass (core.film_kernels)
+            # float32 radiance (the integrators') goes in as it is: the kernel reads each value as float64, the
+            # same values as a float64 copy's (4 M samples: ~75 ms and 100 MB less per 256x256 64-spp render)
+            r = (radiance if isinstance(radiance, np.ndarray) and radiance.dtype == np.float32
+                 and radiance.ndim == 2 and radiance.flags.c_contiguous else np.ascontiguousarray(radiance, np.float64))
             group = group if self.groups > 1 else np.zeros(len(pixel), np.int64)
             scratch = _scratch(n, self.groups)
             bad = film_kernels.add_colour(pixel, np.ascontiguousarray(group), r, self._group_prefix[0],
@@ -272,6 +275,7 @@ class TileFilm:
                 film_kernels.add_sums1(pixel, np.ascontiguousarray(transparent, np.float64), False,
                                        self.transparent_sum, scratch.counts32, scratch.sums1, scratch.counts)
             return
+        r = np.ascontiguousarray(radiance, np.float64)
         slots = n * self.groups
         count = np.bincount(pixel, minlength=n)
         group_sum = np.empty((n, self.groups, 3), np.float64)

@@ -21,16 +21,17 @@ from .jit_cache import jit_no_nrt as _jit
 @_jit
 def add_colour(pixel, group, radiance, prefix, squares, shift, group_dev, sample_count, dev_sq, group_sum,
                group_samples, pass_sq):
-    """Fold samples (pixel (N,) int64 tile-local, group (N,) int64 variance group, radiance (N, 3) float64) into
-    the film's shift (n, 3), group_dev (n, G, 3), sample_count (n,) and, when `squares`, dev_sq (n, 3) (float32,
-    int32): core.film.TileFilm.add then _fold. Scratch: group_sum (n, G, 3) float64, group_samples (n, G) int64,
+    """Fold samples (pixel (N,) int64 tile-local, group (N,) int64 variance group, radiance (N, 3) float64, or
+    float32 read as float64: the same values, without a converted copy) into the film's shift (n, 3), group_dev
+    (n, G, 3), sample_count (n,) and, when `squares`, dev_sq (n, 3) (float32, int32): core.film.TileFilm.add then
+    _fold. Scratch: group_sum (n, G, 3) float64, group_samples (n, G) int64,
     pass_sq (n, 3) float64 (or (0, 3) without squares), all zero, and zero again on return. Returns -1, or the
     first pixel whose samples do not continue its earlier ones (then nothing is changed)."""
     n, G = group_sum.shape[0], group_sum.shape[1]
     for i in range(pixel.shape[0]):
         p, g = pixel[i], group[i]
         for c in range(3):
-            group_sum[p, g, c] += radiance[i, c]
+            group_sum[p, g, c] += np.float64(radiance[i, c])
         group_samples[p, g] += 1
     for p in range(n):  # every pixel's samples must continue where its earlier ones ended
         count = 0
@@ -56,7 +57,7 @@ def add_colour(pixel, group, radiance, prefix, squares, shift, group_dev, sample
                 total = group_sum[p, 0, c]
                 for g in range(1, G):
                     total += group_sum[p, g, c]
-                dev = radiance[i, c] - total / max(count, 1)
+                dev = np.float64(radiance[i, c]) - total / max(count, 1)
                 pass_sq[p, c] += dev * dev
     for p in range(n):
         count = 0

@@ -51,7 +51,8 @@ _DIFFUSE = 0  # core.bsdf.KIND_CODE["diffuse"]: the lobes the bump shadowing sof
 TIMED = False
 TIMING_FIRST = 4
 TIMING_PARTS = ("closest hit (Embree)", "shadow ray (Embree)", "lights along the ray", "emitter hit MIS",
-                "light sample", "BSDF eval", "BSDF sample", "random numbers", "surface", "whole path loop")
+                "light sample", "BSDF eval", "BSDF sample", "random numbers", "surface", "node program",
+                "bump shadowing of the BSDF sample", "whole path loop")
 COUNTERS = TIMING_FIRST + len(TIMING_PARTS)  # the length of trace_paths' counters array
 
 # trace_paths' `programs` argument (node programs, core.fused_tracer.FusedTracer.trace builds it): the packed
@@ -351,8 +352,14 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             row = mat
             if programs is not None:
                 if programs[0][mat]:
+                    if TIMED:
+                        c0_ = _cycles()
                     _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, sx, sy, sz, gx, gy, gz, dx, dy,
                                   dz, cos_o_geo < _F0, face_normals, corner_normals, smooth, tri_vertices, fp)
+                    if TIMED:  # (taken out of the surface's part below)
+                        c1_ = _cycles()
+                        counters[TIMING_FIRST + 9] += c1_ - c0_
+                        cs_ += c1_ - c0_
                     shade_lobes = programs[37]
                     row = 0
                     if depth == 0 and want_aovs:  # (the roulette keeps every camera hit: its throughput is 1)
@@ -520,6 +527,8 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             sw0, sw1, sw2 = np.float32(w0), np.float32(w1), np.float32(w2)
             if programs is not None:
                 if bumped and svalid and not sdelta:  # PathTracer._bump_shadowing_sampled
+                    if TIMED:
+                        c0_ = _cycles()
                     wlx = tx * qx + bx * qy + sx * qz
                     wly = ty * qx + by * qy + sy * qz
                     wlz = tz * qx + bz * qy + sz * qz
@@ -537,6 +546,8 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                     sw0 = _loss(sw0, keep, np.float32(e0), pdf_f)
                     sw1 = _loss(sw1, keep, np.float32(e1), pdf_f)
                     sw2 = _loss(sw2, keep, np.float32(e2), pdf_f)
+                    if TIMED:
+                        counters[TIMING_FIRST + 10] += _cycles() - c0_
             wx = qx * tx + qy * bx + qz * sx
             wy = qx * ty + qy * by + qz * sy
             wz = qx * tz + qy * bz + qz * sz
@@ -556,5 +567,5 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             prev_tr = transmits
             tm = _FAR
         if TIMED:
-            counters[TIMING_FIRST + 9] += _cycles() - cp_
+            counters[TIMING_FIRST + 11] += _cycles() - cp_
         radiance[k, 0], radiance[k, 1], radiance[k, 2] = r0, r1, r2

@@ -1,11 +1,12 @@
 """Where the fused path kernel's time goes: Embree's closest hits and shadow rays against the rest of a path.
 
-    python -m monte.lab.fused_timing [--resolution 256] [--spp 16] [--threads 1]
+    python -m monte.lab.fused_timing [--resolution 256] [--spp 16] [--threads 1] [--scene cornell|textured]
 
 Compiles a measurement copy of core.fused_path.trace_paths with the module's TIMED flag on (not cached; about
 as long as the shipped kernel's compile, minutes), which reads the CPU's cycle counter around each part of a
 path and sums the cycles per part in its counters array (core.fused_path.TIMING_PARTS), renders the Cornell box
-with it (the image is the shipped kernel's: the flag adds reads of the counter and nothing else), and prints each
+(--scene textured: the node-program bench scene lab.bpy_scenes.textured, which needs bpy; its programs are the
+"node program" part) with it (the image is the shipped kernel's: the flag adds reads of the counter and nothing else), and prints each
 part's share of the kernel's path loop, its nanoseconds per call where it has a call count, and the rest. The
 cycles become seconds by the counter's rate measured against time.perf_counter. The shipped kernel, compiled
 with the flag off, has none of this code.
@@ -58,8 +59,9 @@ def cycles_per_second() -> float:
     return (c1 - c0) / (t1 - t0)
 
 
-def measure(resolution: int, spp: int, threads: int, compile_only: bool = False) -> dict:
-    """Render the Cornell box with the timed kernel; the cycles per part, summed over all worker threads."""
+def measure(resolution: int, spp: int, threads: int, compile_only: bool = False, scene_name: str = "cornell") -> dict:
+    """Render the Cornell box (or, scene_name "textured", the node-program bench scene lab.bpy_scenes.textured,
+    which needs bpy) with the timed kernel; the cycles per part, summed over all worker threads."""
     from ..core import fused_tracer
     from ..core.builtin_scenes import cornell_box
     from ..core.render import render
@@ -76,37 +78,46 @@ def measure(resolution: int, spp: int, threads: int, compile_only: bool = False)
         with lock:
             totals[:] += args[position]
 
-    scene = cornell_box((resolution, resolution))
+    if scene_name == "textured":
+        from .fused_programs import stage1_textured
+
+        scene = stage1_textured(resolution, 3)
+    else:
+        scene = cornell_box((resolution, resolution))
     shipped = fused_tracer.trace_paths
     fused_tracer.trace_paths = traced
     try:
         fused_path.TIMED = True
         try:
-            render(scene, RenderSettings(spp=1, threads=1).validate())  # compiles the timed copy
+            render(scene, RenderSettings(spp=1, threads=1, aovs=False).validate())  # compiles the timed copy
         finally:
             fused_path.TIMED = False
         compile_seconds = time.perf_counter() - t0
         if compile_only:
             return {"compile_seconds": compile_seconds}
         totals[:] = 0
-        result = render(scene, RenderSettings(spp=spp, threads=threads).validate())
+        t1 = time.process_time()
+        result = render(scene, RenderSettings(spp=spp, threads=threads, aovs=False).validate())
+        render_cpu = time.process_time() - t1
     finally:
         fused_tracer.trace_paths = shipped
-    assert result.stats.get("fused_kernel"), "the fused kernel did not render the Cornell box"
+    assert result.stats.get("fused_kernel"), f"the fused kernel did not render {scene_name}"
     rate = cycles_per_second()
     first = fused_path.TIMING_FIRST
     parts = {name: totals[first + i] / rate for i, name in enumerate(fused_path.TIMING_PARTS)}
     loop = parts.pop("whole path loop")
     calls = {"closest hit (Embree)": int(totals[2]), "shadow ray (Embree)": int(totals[3])}
-    return {"resolution": resolution, "spp": spp, "threads": threads, "seconds": result.stats["seconds"],
+    return {"scene": scene_name, "render_cpu": render_cpu, "resolution": resolution, "spp": spp, "threads": threads,
+            "seconds": result.stats["seconds"],
             "cycles_per_second": rate, "loop_seconds": loop, "parts_seconds": parts,
             "rest_seconds": loop - sum(parts.values()), "calls": calls, "compile_seconds": compile_seconds}
 
 
 def report(m: dict) -> None:
     loop = m["loop_seconds"]
-    print(f"Cornell box {m['resolution']}x{m['resolution']}, {m['spp']} spp, {m['threads']} thread(s): render "
-          f"{m['seconds']:.2f} s, path loop {loop:.2f} thread-s (counter {m['cycles_per_second'] / 1e9:.2f} GHz)")
+    print(f"{m['scene']} {m['resolution']}x{m['resolution']}, {m['spp']} spp, {m['threads']} thread(s): render "
+          f"{m['seconds']:.2f} s ({m['render_cpu']:.2f} CPU s), path loop {loop:.2f} thread-s "
+          f"(counter {m['cycles_per_second'] / 1e9:.2f} GHz)")
     rows = list(m["parts_seconds"].items()) + [("rest (branching, MIS, film sums, ray set-up)", m["rest_seconds"])]
     for name, sec in rows:
         n = m["calls"].get(name)
@@ -121,8 +132,9 @@ def main(argv=None) -> int:
     ap.add_argument("--resolution", type=int, default=256)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--scene", choices=("cornell", "textured"), default="cornell")
     a = ap.parse_args(argv)
-    report(measure(a.resolution, a.spp, a.threads))
+    report(measure(a.resolution, a.spp, a.threads, scene_name=a.scene))
     return 0
 
 

@@ -51,6 +51,7 @@ _NORMAL_MAP, _BUMP_OP, _VTRANSFORM, _TANGENT = R.OP_NORMAL_MAP, R.OP_BUMP, R.OP_
 _SPEC, _GLASSF0, _SQRTSAT, _OMS = R.OP_SPECULAR_LAYER, R.OP_GLASS_F0, R.OP_SQRT_SATURATE, R.OP_ONE_MINUS_SATURATE
 _AOV_OUT = R.OP_AOV_OUTPUT  # run by run_programs itself (it writes a pass, not a register); a no-op elsewhere
 _COLOR_BASE, _PROC_BASE = R.COLOR_BASE, R.PROCEDURAL_BASE
+_NOISE = procedural.OP_NOISE
 _SINGULAR = np.float32(mf.SINGULAR_ROUGHNESS)
 _F32_0 = np.float32(0.0)
 _F32_1 = np.float32(1.0)
@@ -1070,6 +1071,8 @@ def run_point(k, m, prog, ctx, lob, out):
                          tex_offset, tex_h, tex_w, uvx, extra, dP, duv, tan, nraw)
         elif op < _PROC_BASE:
             color.run(op, a, scratch, pdata)
+        elif op == _NOISE:  # the commonest texture, outside procedural.run's many-texture body (noise_op)
+            procedural.noise_op(a, scratch)
         else:
             procedural.run(op, a, scratch, pdata)
     L = bind.shape[1]
