@@ -461,6 +461,10 @@ def _rebuild_numba_environments_without_import() -> bool:
     _rebuild_env._monte_without_import = True
     _rebuild_env._numba_original = original
     _rebuild_env.__doc__ = original.__doc__
+    # Environment.__reduce__ names the module's _rebuild_env: every compile that saves a kernel pickles it, and a
+    # closure would be pickled by value (with this module's thread-local state, which cannot be). Named as
+    # numba's own, it pickles by reference, as numba's did, and unpickles to whichever one the module holds.
+    _rebuild_env.__module__, _rebuild_env.__qualname__ = original.__module__, original.__qualname__
     environment._rebuild_env = _rebuild_env
     return True
 

@@ -521,3 +521,34 @@ def test_the_nrt_module_key_follows_what_its_code_depends_on(monkeypatch):
     monkeypatch.setattr(type(codegen), "magic_tuple", lambda self: ("x86_64-unknown-linux-gnu", "znver4", "+avx512f"))
     cpu = jit_cache._nrt_cache_key(ctx)
     assert len({key, debug, opt, cpu}) == 4
+
+
+def test_a_function_compiled_with_the_patches_in_place_saves_its_cache_and_reloads(tmp_path):
+    """Every compile that saves a kernel pickles its Environment, which names numba's `_rebuild_env`: with
+    Monte's version of it installed (environments rebuilt without importing numba's modules) the pickle must
+    still name a function by reference, not a closure by value (its thread-local state cannot be pickled: a cold
+    `precompile` failed on its first saved kernel). A cached function compiled and saved in one process loads
+    in the next and gives the same value."""
+    (tmp_path / "cached_mod.py").write_text(textwrap.dedent("""
+        import numba
+        import numpy as np
+
+        @numba.njit(cache=True)
+        def summed(n):
+            return np.arange(n).sum() * 2
+    """))
+    code = f"""
+        import json, sys
+        sys.path.insert(0, {str(tmp_path)!r})
+        from monte.core import jit_cache
+        import cached_mod
+        value = int(cached_mod.summed(10))
+        hits = cached_mod.summed.stats.cache_hits
+        print("RESULT " + json.dumps({{"installed": jit_cache.NUMBA_ENVIRONMENTS_WITHOUT_IMPORT, "value": value,
+                                       "hits": sum(hits.values())}}))
+    """
+    first = _python(code)
+    assert first["installed"] is True and first["value"] == 90 and first["hits"] == 0
+    assert any(p.suffix == ".nbc" for p in (tmp_path / "__pycache__").iterdir())
+    second = _python(code)
+    assert second["value"] == 90 and second["hits"] == 1
