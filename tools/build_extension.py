@@ -12,7 +12,7 @@ e.g. dask and distributed for the cluster render) go into every platform's zip; 
 reused). The zips are made by Blender's
 own extension builder, shipped inside the `bpy` wheel (bpy/<ver>/scripts/addons_core/bl_pkg/cli/
 blender_ext.py), with plain Python: no Blender binary needed. Each zip is then checked to hold only the
-add-on (the package __init__.py, core/, addon/, the manifest, LICENSE and its wheels).
+add-on (the package __init__.py, core/, addon/, the manifest, LICENSE, its wheels and its bytecode).
 
 The zip for the platform the build runs on also carries the compiled render kernels (numba's cache, built by
 core/precompile.py under the name Blender imports the extension as, bl_ext.user_default.monte, for a generic
@@ -20,14 +20,16 @@ CPU and keyed by the sources' contents), so the first render after installing do
 interpreter's Python, and for each --kernel-python interpreter (e.g. a Python 3.11 environment with the
 manifest's numba, for Blender 4.2 - 5.0). Zips for other platforms compile on their first render.
 
-Every zip also carries the add-on's Python bytecode (core/__pycache__/render.cpython-313.pyc beside
-core/render.py, ...) for each Python the manifest's wheels are for (3.11: Blender 4.2 - 5.0, 3.13: Blender 5.3),
-compiled by an interpreter of that version (this one, a --kernel-python, a --bytecode-python, or pythonX.Y found
-as tools/find_python.sh finds it; a version with none found is skipped, with a note): so the first start after
-installing does not compile the add-on (0.4-0.5 s of a cold start). They are hash-based pycs (PEP 552), since
-unzipping gives the sources new times: "checked" ones (the default) are used while the source's hash matches
-them, so a user who edits an installed source runs the edit; "unchecked" ones are used without reading the
-source at all, edits included (--pyc unchecked-hash; measured no faster, see docs/performance.md).
+Every zip also carries Python bytecode, for each Python the manifest's wheels are for (3.11: Blender 4.2 - 5.0,
+3.13: Blender 5.3), compiled by an interpreter of that version (this one, a --kernel-python, a --bytecode-python,
+or pythonX.Y as tools/find_python.sh finds it; a version with none found is skipped, with a note): the add-on's
+(core/__pycache__/render.cpython-313.pyc beside core/render.py, ...) and, inside the wheels, that of the wheels
+a render imports (RENDER_WHEELS). Blender unpacks wheels without compiling them, so without it the first process
+after installing compiles ~190 modules of numba, llvmlite and PyYAML as it imports them (0.4-0.5 s of its
+start-up on a quiet 2-core machine; docs/performance.md). They are hash-based pycs (PEP 552), since unzipping
+gives the sources new times: "checked" ones (the default), used while the source's hash matches them, so a user
+who edits an installed source runs the edit; --pyc unchecked-hash ships ones used without reading the source,
+edits ignored (measured no faster).
 """
 
 from __future__ import annotations
@@ -446,7 +448,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-kernel-cache", action="store_true",
                         help="ship no compiled kernels (the first render after installing compiles them)")
     parser.add_argument("--pyc", choices=[*PYC_MODES, "none"], default="checked-hash",
-                        help="the add-on's Python bytecode shipped for each Python of the manifest: checked-hash "
+                        help="the Python bytecode shipped (the add-on's, the render wheels') for each Python of the "
+                             "manifest: checked-hash "
                              "(default: used while the source is unchanged), unchecked-hash (used even after the "
                              "source is edited) or none (compiled on the first start after installing)")
     parser.add_argument("--bytecode-python", action="append", default=[], metavar="PYTHON",
