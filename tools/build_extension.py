@@ -74,7 +74,7 @@ PYC_MODES = {"checked-hash": "CHECKED_HASH", "unchecked-hash": "UNCHECKED_HASH"}
 # The wheels a render imports (numba reads its config with PyYAML): their bytecode ships too. The cluster
 # render's (dask, distributed, ...) would add ~25 MB of bytecode to the zip for a feature that starts processes
 # anyway: they compile on its first use.
-RENDER_WHEELS = ("numba", "llvmlite", "pyyaml", "embreex", "openexr")
+RENDER_WHEELS = ("numba", "llvmlite", "pyyaml", "embreex")  # (openexr's one module, Imath.py, is top-level)
 
 
 class BuildError(RuntimeError):
@@ -393,12 +393,17 @@ def add_wheel_bytecode(src: Path, interpreters: dict[str, str], mode: str) -> No
                 infos = zf.infolist()
                 members = {i.filename for i in infos}
                 zf.extractall(root)
-            files = sorted(p for p in root.rglob("*.py") if ".data" not in p.relative_to(root).parts[0])
+            # in the wheel's packages only: a top-level module's __pycache__ (openexr's Imath.py) would be a
+            # top-level folder of site-packages that no wheel's RECORD owns, which Blender's wheel manager prunes
+            files = sorted(p for p in root.rglob("*.py") if len(p.relative_to(root).parts) > 1
+                           and not p.relative_to(root).parts[0].endswith(".data"))
             added = []
             for py in pythons:
                 result = _run_compile(py, root, files, mode, strict=False)
                 added += [Path(c).relative_to(root).as_posix() for c in result["written"]]
             added = [a for a in added if a not in members]
+            if not added:
+                continue
             rewritten = wheel.with_suffix(".tmp")
             with zipfile.ZipFile(wheel) as zin, zipfile.ZipFile(rewritten, "w", zipfile.ZIP_DEFLATED) as zout:
                 for info in infos:
