@@ -426,8 +426,8 @@ def check_zip(path: Path, manifest: dict, pyc_tags: list[str] = ()) -> None:
     bytecode = {f"{n.rpartition('/')[0] + '/' if '/' in n else ''}__pycache__/{n.rpartition('/')[2][:-3]}.{tag}.pyc"
                 for n in sources for tag in pyc_tags}
     junk = [n for n in names if (n.endswith(".pyc") and n not in bytecode) or ("__pycache__" in n and not (
-        n in bytecode or n.startswith(KERNEL_CACHE_DIR + "/") and n.endswith((".nbi", ".nbc",
-                                                                                "/entry-kernels.json"))))]
+        n in bytecode or n.startswith(KERNEL_CACHE_DIR + "/") and (n.endswith((".nbi", ".nbc", "/entry-kernels.json"))
+                                                    or n.rpartition("/")[2].startswith("nrt-") and n.endswith(".bin"))))]
     if junk:
         raise BuildError(f"{path.name} holds compiled Python files that are not the add-on's: {junk[:5]}")
     missing = sorted(bytecode - set(names))
