@@ -4,12 +4,14 @@ BLENDER_USER_RESOURCES must be set before bpy is first imported and this process
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import platform
 import subprocess
 import sys
 import textwrap
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -134,14 +136,28 @@ def built_zip(tmp_path_factory):
     return zips[0]
 
 
+def _bytecode_pythons() -> list[str]:
+    """The Python versions the build compiled the add-on's bytecode for: those of the manifest it found an
+    interpreter of (as tools/build_extension.py finds them)."""
+    spec = importlib.util.spec_from_file_location("build_extension", ROOT / "tools" / "build_extension.py")
+    build = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(build)
+    versions = build.manifest_pythons(build.load_manifest(), [_THIS_PLATFORM])
+    return sorted(build.find_interpreters(versions, [sys.executable]))
+
+
+def _pyc_name(source: str, tag: str) -> str:
+    folder, _, name = source.rpartition("/")
+    return f"{folder + '/' if folder else ''}__pycache__/{name[:-3]}.{tag}.pyc"
+
+
 def test_zip_holds_only_the_add_on(built_zip):
-    import zipfile
 
     names = zipfile.ZipFile(built_zip).namelist()
     tops = {n.split("/", 1)[0] for n in names}
-    assert tops == {"__init__.py", "blender_manifest.toml", "LICENSE", "core", "addon", "wheels"}
+    assert tops == {"__init__.py", "__pycache__", "blender_manifest.toml", "LICENSE", "core", "addon", "wheels"}
     # The compiled kernels for this Python, built under the name Blender imports the extension as: an index
-    # per kernel module (and no Python bytecode anywhere).
+    # per kernel module.
     cache = "core/__pycache__/numba-bl_ext.user_default.monte.core/"
     tag = f"py{sys.version_info[0]}{sys.version_info[1]}"
     from monte.core.jit_cache import KERNEL_MODULES
@@ -151,8 +167,26 @@ def test_zip_holds_only_the_add_on(built_zip):
         name = module.rpartition("/")[2]
         assert any(n.startswith(f"{cache}{name}.") and n.endswith(f".{tag}.nbi") for n in names), module
     assert any(n.startswith(cache) and n.endswith(".nbc") for n in names)
-    assert not any(n.endswith(".pyc") for n in names)
-    assert all(n.startswith(cache) for n in names if "__pycache__" in n)
+    # numba's runtime module (NRT) compiled for the same generic CPU, so the first process builds nothing with LLVM
+    assert any(n.startswith(f"{cache}nrt-") and n.endswith(".bin") for n in names)
+    # The add-on's bytecode beside every source, for this Python and each other Python of the manifest the build
+    # found (Blender 4.2 - 5.0's 3.11, 5.3's 3.13), and nothing else in a __pycache__ folder.
+    tags = {f"cpython-{v.replace('.', '')}" for v in _bytecode_pythons()}
+    assert sys.implementation.cache_tag in tags
+    sources = [n for n in names if n.endswith(".py") and not n.startswith("wheels/")]
+    assert len(sources) > 50 and "core/render.py" in sources and "__init__.py" in sources
+    pycs = {_pyc_name(n, tag) for n in sources for tag in tags}
+    assert pycs <= set(names), sorted(pycs - set(names))[:5]
+    assert all(n.startswith(cache) or n in pycs for n in names if "__pycache__" in n)
+    with zipfile.ZipFile(built_zip) as zf:
+        for n in sources:  # checked-hash pycs (PEP 552) of the sources shipped: an edited source wins
+            for tag in tags:
+                header = zf.read(_pyc_name(n, tag))[:16]
+                assert int.from_bytes(header[4:8], "little") == 0b11, (n, tag)  # hash-based, checked
+            # this Python's: of the source shipped (the hash is keyed by the Python version that wrote it)
+            header = zf.read(_pyc_name(n, sys.implementation.cache_tag))[:16]
+            assert header[:4] == importlib.util.MAGIC_NUMBER
+            assert header[8:16] == importlib.util.source_hash(zf.read(n)), n
     wheels = sorted(Path(n).name for n in names if n.endswith(".whl"))
     # Each compiled dependency for both Pythons Blender bundles: cp311 (Blender 4.2 - 5.0) and cp313 (Blender
     # 5.3); the cluster render's stable-ABI wheels once (cp311 and newer) and its pure-Python ones once.
@@ -207,3 +241,68 @@ def test_zip_installs_enables_and_renders(built_zip, tmp_path):
     common = (ROOT / "requirements" / "common.txt").read_text().splitlines()
     pinned = next(line.split("==")[1].strip() for line in common if line.startswith("distributed=="))
     assert version == pinned and where.startswith(str(user)), result["distributed_import"]
+
+
+# Imports the unpacked extension as Blender names it, with the render's wheels (unpacked as Blender unpacks
+# them) first on the path, and lists the sources Python compiled (none where the shipped bytecode served).
+_IMPORT = textwrap.dedent("""
+    import importlib, importlib._bootstrap_external as be, json, pkgutil, sys
+    root = sys.argv[1]
+    sys.path[:0] = [root, root + "/site"]
+    compiled = []
+    source_to_code = be.SourceLoader.source_to_code
+    def counting(self, data, path, *args, **kwargs):
+        compiled.append(path)
+        return source_to_code(self, data, path, *args, **kwargs)
+    be.SourceLoader.source_to_code = counting
+    import numba, llvmlite, yaml
+    core = importlib.import_module("bl_ext.user_default.monte.core")
+    modules = [m.name for m in pkgutil.walk_packages(core.__path__, core.__name__ + ".")]
+    for name in modules:
+        importlib.import_module(name)
+    mine = sorted(p[len(root) + 1:] for p in compiled if p.startswith(root) and "/bl_ext/user_default/monte/" in p)
+    wheels = sorted({p[len(root) + 6:].split("/")[0] for p in compiled if p.startswith(root + "/site/")})
+    print("RESULT " + json.dumps({"modules": len(modules), "numba": numba.__file__, "compiled": mine,
+                                  "wheels_compiled": wheels,
+                                  "edited": getattr(sys.modules["bl_ext.user_default.monte.core.camera"],
+                                                    "MONTE_EDITED", None)}))
+""")
+
+
+def test_shipped_bytecode_serves_and_an_edited_source_wins(built_zip, tmp_path):
+    """The extension's bytecode, and that of the wheels a render imports, is what Python uses after unpacking
+    (no module of them compiled, as in the first process after installing), and a source edited after
+    installing is compiled and run, not its stale bytecode (checked-hash pycs)."""
+    ext = tmp_path / "bl_ext" / "user_default" / "monte"
+    site = tmp_path / "site"
+    tag = f"cp{sys.version_info[0]}{sys.version_info[1]}"
+    with zipfile.ZipFile(built_zip) as zf:
+        zf.extractall(ext, [n for n in zf.namelist() if not n.startswith("wheels/")])
+        for n in zf.namelist():  # the render's wheels for this Python, unpacked file by file (zip times: new)
+            w = Path(n).name
+            if n.startswith("wheels/") and w.split("-")[0] in ("numba", "llvmlite", "pyyaml") and \
+                    w.split("-")[2] == tag:
+                zf.extract(n, tmp_path / "whl")
+                with zipfile.ZipFile(tmp_path / "whl" / n) as wheel:
+                    wheel.extractall(site)
+    for pkg in (tmp_path / "bl_ext", tmp_path / "bl_ext" / "user_default"):
+        (pkg / "__init__.py").write_text("")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "NUMBA_"))}
+
+    def run() -> dict:
+        proc = subprocess.run([sys.executable, "-c", _IMPORT, str(tmp_path)], capture_output=True, text=True,
+                              env=env, timeout=600)
+        lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+        assert proc.returncode == 0 and lines, f"exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+        return json.loads(lines[-1][len("RESULT "):])
+
+    first = run()
+    assert first["numba"].startswith(str(site)), first["numba"]
+    assert first["modules"] > 30
+    assert first["compiled"] == [] and first["wheels_compiled"] == [], first
+    assert first["edited"] is None
+    camera = ext / "core" / "camera.py"
+    camera.write_text(camera.read_text() + "\nMONTE_EDITED = 1\n")
+    edited = run()
+    assert edited["edited"] == 1
+    assert edited["compiled"] == ["bl_ext/user_default/monte/core/camera.py"], edited

@@ -12,19 +12,31 @@ e.g. dask and distributed for the cluster render) go into every platform's zip; 
 reused). The zips are made by Blender's
 own extension builder, shipped inside the `bpy` wheel (bpy/<ver>/scripts/addons_core/bl_pkg/cli/
 blender_ext.py), with plain Python: no Blender binary needed. Each zip is then checked to hold only the
-add-on (the package __init__.py, core/, addon/, the manifest, LICENSE and its wheels).
+add-on (the package __init__.py, core/, addon/, the manifest, LICENSE, its wheels and its bytecode).
 
 The zip for the platform the build runs on also carries the compiled render kernels (numba's cache, built by
 core/precompile.py under the name Blender imports the extension as, bl_ext.user_default.monte, for a generic
 CPU and keyed by the sources' contents), so the first render after installing does not compile: for this
 interpreter's Python, and for each --kernel-python interpreter (e.g. a Python 3.11 environment with the
 manifest's numba, for Blender 4.2 - 5.0). Zips for other platforms compile on their first render.
+
+Every zip also carries Python bytecode, for each Python the manifest's wheels are for (3.11: Blender 4.2 - 5.0,
+3.13: Blender 5.3), compiled by an interpreter of that version (this one, a --kernel-python, a --bytecode-python,
+or pythonX.Y as tools/find_python.sh finds it; a version with none found is skipped, with a note): the add-on's
+(core/__pycache__/render.cpython-313.pyc beside core/render.py, ...) and, inside the wheels, that of the wheels
+a render imports (RENDER_WHEELS). Blender unpacks wheels without compiling them, so without it the first process
+after installing compiles ~190 modules of numba, llvmlite and PyYAML as it imports them (0.4-0.5 s of its
+start-up on a quiet 2-core machine; docs/performance.md). They are hash-based pycs (PEP 552), since unzipping
+gives the sources new times: "checked" ones (the default), used while the source's hash matches them, so a user
+who edits an installed source runs the edit; --pyc unchecked-hash ships ones used without reading the source,
+edits ignored (measured no faster).
 """
 
 from __future__ import annotations
 
 import argparse
 import glob
+import json
 import importlib.util
 import os
 import re
@@ -52,7 +64,17 @@ PIP_PLATFORMS = {
 BLENDER_PACKAGE = "bl_ext.user_default.monte"
 KERNEL_CACHE_DIR = f"core/__pycache__/numba-{BLENDER_PACKAGE}.core"
 # Top-level entries a built zip may hold.
-ALLOWED_TOP = {"__init__.py", "blender_manifest.toml", "LICENSE", "core", "addon", "wheels"}  # the GPL travels with the code
+# (the GPL travels with the code; __pycache__ holds the bytecode of __init__.py)
+ALLOWED_TOP = {"__init__.py", "__pycache__", "blender_manifest.toml", "LICENSE", "core", "addon", "wheels"}
+
+
+# Where the add-on's Python sources are: the package's __init__.py and these folders (what the zip ships).
+PY_SOURCES = ("__init__.py", "core", "addon")
+PYC_MODES = {"checked-hash": "CHECKED_HASH", "unchecked-hash": "UNCHECKED_HASH"}
+# The wheels a render imports (numba reads its config with PyYAML): their bytecode ships too. The cluster
+# render's (dask, distributed, ...) would add ~25 MB of bytecode to the zip for a feature that starts processes
+# anyway: they compile on its first use.
+RENDER_WHEELS = ("numba", "llvmlite", "pyyaml", "embreex")  # (openexr's one module, Imath.py, is top-level)
 
 
 class BuildError(RuntimeError):
@@ -198,7 +220,8 @@ def stage_subset(manifest: dict, platforms: list[str], stage: Path) -> Path:
     """A copy of the source tree whose manifest lists only `platforms` and their wheels (Blender's builder
     wants every listed wheel on disk, and one platform's build should not need the others' wheels), placed
     where it imports as BLENDER_PACKAGE (stage/bl_ext/user_default/monte) for building the kernel cache. The
-    copy's manifest lets __pycache__ folders in (they hold only that cache: no .pyc is written there)."""
+    copy's manifest lets __pycache__ folders and .pyc files in (they hold only that cache and the bytecode
+    compile_bytecode writes: the kernel build writes no .pyc)."""
     (stage / "bl_ext" / "user_default").mkdir(parents=True)
     for pkg in (stage / "bl_ext", stage / "bl_ext" / "user_default"):
         (pkg / "__init__.py").write_text("")
@@ -215,8 +238,10 @@ def stage_subset(manifest: dict, platforms: list[str], stage: Path) -> Path:
     text, n2 = re.subn(r"(?ms)^wheels\s*=\s*\[.*?\]", "wheels = [" + ", ".join(f'"{w}"' for w in wheels) + "]",
                        text, count=1)
     text, n3 = re.subn(r'(?m)^\s*"__pycache__/",\n', "", text, count=1)
-    if n1 != 1 or n2 != 1 or n3 != 1:
-        raise BuildError("could not rewrite platforms, wheels and __pycache__/ in a copy of blender_manifest.toml")
+    text, n4 = re.subn(r'(?m)^\s*"\*\.pyc",\n', "", text, count=1)
+    if n1 != 1 or n2 != 1 or n3 != 1 or n4 != 1:
+        raise BuildError("could not rewrite platforms, wheels, __pycache__/ and *.pyc in a copy of "
+                         "blender_manifest.toml")
     (src / "blender_manifest.toml").write_text(text)
     return src
 
@@ -252,7 +277,144 @@ def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str) ->
     return True
 
 
-def check_zip(path: Path, manifest: dict) -> None:
+def manifest_pythons(manifest: dict, platforms: list[str]) -> list[str]:
+    """The Python versions ("3.11", "3.13") the manifest bundles compiled wheels for on `platforms`."""
+    return sorted({python for (platform, python) in wheel_requirements(manifest.get("wheels", []))
+                   if platform in platforms and python not in ("abi3", "any")}, key=lambda v: int(v.split(".")[1]))
+
+
+def python_version(python: str) -> str | None:
+    """"3.13" for an interpreter that runs, None otherwise."""
+    try:
+        proc = subprocess.run([python, "-c", "import sys; print('%d.%d' % sys.version_info[:2])"],
+                              capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return proc.stdout.strip() if proc.returncode == 0 else None
+
+
+def find_interpreters(versions: list[str], candidates: list[str]) -> dict[str, str]:
+    """{version: interpreter} for each of `versions`: the first of `candidates` of that version, else pythonX.Y
+    as tools/find_python.sh finds it (PATH, then pyenv's versions), else shutil.which("pythonX.Y")."""
+    found: dict[str, str] = {}
+    for python in candidates:
+        v = python_version(python)
+        if v in versions and v not in found:
+            found[v] = python
+    for v in versions:
+        if v in found:
+            continue
+        finder = ROOT / "tools" / "find_python.sh"
+        bash = shutil.which("bash")
+        if bash and finder.is_file():
+            proc = subprocess.run([bash, str(finder), v], capture_output=True, text=True)
+            if proc.returncode == 0 and proc.stdout.strip():
+                found[v] = proc.stdout.strip()
+                continue
+        which = shutil.which(f"python{v}")
+        if which and python_version(which) == v:
+            found[v] = which
+    return found
+
+
+def py_sources(src: Path) -> list[Path]:
+    """The add-on's .py files in the staged copy `src` (those the zip ships), sorted."""
+    files = []
+    for entry in PY_SOURCES:
+        path = src / entry
+        files += [path] if path.is_file() else sorted(p for p in path.rglob("*.py") if "__pycache__" not in p.parts)
+    return files
+
+
+# Run by each interpreter: compile the listed files into __pycache__ beside them as hash-based pycs, the name
+# stored in the code (co_filename; Python replaces it by the real path on import) relative to the package.
+_COMPILE = """
+import importlib.util, json, py_compile, sys
+root, mode, strict, files = sys.argv[1], sys.argv[2], sys.argv[3] == "1", sys.argv[4:]
+written, failed = [], []
+for f in files:
+    cfile = importlib.util.cache_from_source(f)
+    try:
+        py_compile.compile(f, cfile=cfile, dfile=f[len(root) + 1:], doraise=True,
+                           invalidation_mode=getattr(py_compile.PycInvalidationMode, mode))
+    except (py_compile.PyCompileError, SyntaxError, ValueError, UnicodeDecodeError) as exc:
+        if strict:
+            raise
+        failed.append(f)  # a wheel's file that is not Python of this version (a template, a test for Python 2)
+        continue
+    written.append(cfile)
+print(json.dumps({"tag": sys.implementation.cache_tag, "written": written, "failed": failed}))
+"""
+
+
+def _run_compile(python: str, root: Path, files: list[Path], mode: str, strict: bool) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
+    proc = subprocess.run([python, "-I", "-c", _COMPILE, str(root), PYC_MODES[mode], "1" if strict else "0",
+                           *map(str, files)], capture_output=True, text=True, env=env)
+    if proc.returncode != 0:
+        raise BuildError(f"compiling bytecode with {python} failed:\n{proc.stderr[-3000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def compile_bytecode(src: Path, interpreters: dict[str, str], mode: str) -> list[str]:
+    """Compile the add-on's sources in `src` with each interpreter ({version: python}) as `mode` hash-based
+    pycs; returns the cache tags written ("cpython-311", ...)."""
+    files = py_sources(src)
+    tags = []
+    for version, python in sorted(interpreters.items()):
+        result = _run_compile(python, src.parent, files, mode, strict=True)
+        missing = [f for f in files if not (f.parent / "__pycache__" / f"{f.stem}.{result['tag']}.pyc").is_file()]
+        if missing:
+            raise BuildError(f"{python} wrote no {result['tag']} bytecode for {missing[:3]}")
+        tags.append(result["tag"])
+        log(f"bytecode: {len(files)} modules compiled for Python {version} ({python}, {mode} pycs)")
+    return tags
+
+
+def add_wheel_bytecode(src: Path, interpreters: dict[str, str], mode: str) -> None:
+    """Add bytecode to the RENDER_WHEELS in src/wheels (rewritten in place, same names): Blender unpacks a wheel's files
+    as they are and writes no bytecode, so without this the first process after installing compiles numba's,
+    llvmlite's and the others' modules as it imports them (~190 modules for a render). A version-specific wheel
+    gets its Python's bytecode, a stable-ABI or pure-Python one every found Python's; RECORD is left as it was
+    (pip, too, installs bytecode it does not list there)."""
+    import zipfile
+
+    for wheel in sorted((src / "wheels").glob("*.whl")):
+        name, _, python, _ = wheel_tags(wheel.name)
+        if name.lower() not in RENDER_WHEELS:
+            continue
+        versions = sorted(interpreters) if python in ("abi3", "any") else [python]
+        pythons = [interpreters[v] for v in versions if v in interpreters]
+        if not pythons:
+            continue
+        with tempfile.TemporaryDirectory(prefix="monte-wheel-") as tmp:
+            root = Path(tmp)
+            with zipfile.ZipFile(wheel) as zf:
+                infos = zf.infolist()
+                members = {i.filename for i in infos}
+                zf.extractall(root)
+            # in the wheel's packages only: a top-level module's __pycache__ (openexr's Imath.py) would be a
+            # top-level folder of site-packages that no wheel's RECORD owns, which Blender's wheel manager prunes
+            files = sorted(p for p in root.rglob("*.py") if len(p.relative_to(root).parts) > 1
+                           and not p.relative_to(root).parts[0].endswith(".data"))
+            added = []
+            for py in pythons:
+                result = _run_compile(py, root, files, mode, strict=False)
+                added += [Path(c).relative_to(root).as_posix() for c in result["written"]]
+            added = [a for a in added if a not in members]
+            if not added:
+                continue
+            rewritten = wheel.with_suffix(".tmp")
+            with zipfile.ZipFile(wheel) as zin, zipfile.ZipFile(rewritten, "w", zipfile.ZIP_DEFLATED) as zout:
+                for info in infos:
+                    zout.writestr(info, zin.read(info))
+                for name in sorted(added):
+                    zout.write(root / name, name)
+            os.replace(rewritten, wheel)
+        log(f"bytecode: {wheel.name}: {len(added)} pycs added ({', '.join(versions)})")
+
+
+def check_zip(path: Path, manifest: dict, pyc_tags: list[str] = ()) -> None:
     with zipfile.ZipFile(path) as zf:
         names = zf.namelist()
     tops = {n.split("/", 1)[0] for n in names}
@@ -260,10 +422,17 @@ def check_zip(path: Path, manifest: dict) -> None:
     if unexpected:
         raise BuildError(f"{path.name} holds files the add-on does not need: {', '.join(unexpected)} "
                          "(extend [build] paths_exclude_pattern in blender_manifest.toml)")
-    junk = [n for n in names if n.endswith(".pyc") or ("__pycache__" in n and not (
-        n.startswith(KERNEL_CACHE_DIR + "/") and n.endswith((".nbi", ".nbc", "/entry-kernels.json"))))]
+    sources = {n for n in names if n.endswith(".py") and not n.startswith("wheels/")}
+    bytecode = {f"{n.rpartition('/')[0] + '/' if '/' in n else ''}__pycache__/{n.rpartition('/')[2][:-3]}.{tag}.pyc"
+                for n in sources for tag in pyc_tags}
+    junk = [n for n in names if (n.endswith(".pyc") and n not in bytecode) or ("__pycache__" in n and not (
+        n in bytecode or n.startswith(KERNEL_CACHE_DIR + "/") and (n.endswith((".nbi", ".nbc", "/entry-kernels.json"))
+                                                    or n.rpartition("/")[2].startswith("nrt-") and n.endswith(".bin"))))]
     if junk:
-        raise BuildError(f"{path.name} holds compiled Python files: {junk[:5]}")
+        raise BuildError(f"{path.name} holds compiled Python files that are not the add-on's: {junk[:5]}")
+    missing = sorted(bytecode - set(names))
+    if missing:
+        raise BuildError(f"{path.name} lacks the add-on's bytecode: {missing[:5]}")
     for required in ("__init__.py", "blender_manifest.toml", "core/render.py", "addon/engine.py"):
         if required not in names:
             raise BuildError(f"{path.name} lacks {required}")
@@ -283,6 +452,14 @@ def main(argv: list[str] | None = None) -> int:
                              "3.11 with the manifest's numba, for Blender 4.2 - 5.0)")
     parser.add_argument("--no-kernel-cache", action="store_true",
                         help="ship no compiled kernels (the first render after installing compiles them)")
+    parser.add_argument("--pyc", choices=[*PYC_MODES, "none"], default="checked-hash",
+                        help="the Python bytecode shipped (the add-on's, the render wheels') for each Python of the "
+                             "manifest: checked-hash "
+                             "(default: used while the source is unchanged), unchecked-hash (used even after the "
+                             "source is edited) or none (compiled on the first start after installing)")
+    parser.add_argument("--bytecode-python", action="append", default=[], metavar="PYTHON",
+                        help="an interpreter to compile the add-on's bytecode with (repeatable; by default this "
+                             "one, the --kernel-python ones, and pythonX.Y found on PATH or in pyenv)")
     args = parser.parse_args(argv)
 
     try:
@@ -310,6 +487,7 @@ def main(argv: list[str] | None = None) -> int:
         else:  # the kernel cache is for this machine's platform: its zip is built from its own staged copy
             others = [p for p in platforms if p not in cache_platforms]
             groups = [(g, g == cache_platforms) for g in (cache_platforms, others) if g]
+        pyc_tags: dict[tuple[str, ...], list[str]] = {}
         for group, with_cache in groups:
             with tempfile.TemporaryDirectory(prefix="monte-ext-") as tmp:
                 source = stage_subset(manifest, group, Path(tmp))
@@ -318,6 +496,20 @@ def main(argv: list[str] | None = None) -> int:
                                  for py in [sys.executable, *args.kernel_python]]
                     if not any(built_for):
                         log("kernel cache: none built; the first render after installing compiles the kernels")
+                if args.pyc != "none":  # after the kernel cache: its build writes no .pyc, this writes only them
+                    versions = manifest_pythons(manifest, group)
+                    interpreters = find_interpreters(
+                        versions, [*args.bytecode_python, sys.executable, *args.kernel_python])
+                    for v in versions:
+                        if v not in interpreters:
+                            log(f"bytecode: no Python {v} found (--bytecode-python): its Blenders compile the "
+                                "add-on on their first start")
+                    tags = compile_bytecode(source, interpreters, args.pyc)
+                    add_wheel_bytecode(source, interpreters, args.pyc)
+                    for p in group:
+                        pyc_tags[(p,)] = tags
+                    if args.single:
+                        pyc_tags[("single",)] = tags
                 log(run_blender_ext(tool, "validate", str(source)).splitlines()[-1])
                 build_args = ["build", "--source-dir", str(source), "--output-dir", str(out_dir)]
                 if not args.single:
@@ -328,7 +520,9 @@ def main(argv: list[str] | None = None) -> int:
         if not built:
             raise BuildError(f"the builder wrote no zip into {out_dir}")
         for p in built:
-            check_zip(p, manifest)
+            tags = pyc_tags.get(("single",)) or next(
+                (t for (plat,), t in pyc_tags.items() if p.name.endswith(f"-{plat.replace('-', '_')}.zip")), [])
+            check_zip(p, manifest, tags)
             log(f"built {p} ({p.stat().st_size / 1e6:.1f} MB)")
     except BuildError as exc:
         print(f"build_extension: error: {exc}", file=sys.stderr)
