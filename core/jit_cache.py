@@ -47,6 +47,17 @@ class _YamlOnUse:
         return getattr(yaml, name)
 
 
+def _install_patch(owner, name: str, replacement, original, flag: str) -> bool:
+    """Put `replacement` where numba had `original` (owner.name), marked with `flag` (a later call of the same
+    installer finds it in place) and keeping numba's function as `_numba_original`, its docstring as its own.
+    Returns True."""
+    setattr(replacement, flag, True)
+    replacement._numba_original = original
+    replacement.__doc__ = original.__doc__
+    setattr(owner, name, replacement)
+    return True
+
+
 def _import_numba_without_scipy_version_check() -> bool:
     """Import numba without its import-time SciPy check: numba's __init__ imports SciPy only to refuse a SciPy
     older than 1.0 (~0.02 s of CPU of every `monte render` process here: SciPy's package and Cython's shadow
@@ -202,11 +213,8 @@ def _defer_numba_array_support_to_first_compile() -> bool:
         _complete_deferred_environments()  # (defined below; a list check once nothing is pending)
         return result
 
-    load_additional_registries._monte_array_support_first = True
-    load_additional_registries._numba_original = original
-    load_additional_registries.__doc__ = original.__doc__
-    cpu.CPUContext.load_additional_registries = load_additional_registries
-    return True
+    return _install_patch(cpu.CPUContext, "load_additional_registries", load_additional_registries, original,
+                          "_monte_array_support_first")
 
 
 NUMBA_ARRAY_SUPPORT_WITHOUT_BLAS = _defer_numba_array_support_to_first_compile()
@@ -294,11 +302,7 @@ def _load_cached_kernels_without_refresh() -> bool:
         finally:
             _LAZY.active = False
 
-    load_overload._monte_without_refresh = True
-    load_overload._numba_original = original
-    load_overload.__doc__ = original.__doc__
-    cache_class.load_overload = load_overload
-    return True
+    return _install_patch(cache_class, "load_overload", load_overload, original, "_monte_without_refresh")
 
 
 NUMBA_CACHE_LOADS_WITHOUT_REFRESH = _load_cached_kernels_without_refresh()
@@ -458,15 +462,11 @@ def _rebuild_numba_environments_without_import() -> bool:
             _DEFERRED_ENVIRONMENTS.append((weakref.ref(env), modname))
         return env
 
-    _rebuild_env._monte_without_import = True
-    _rebuild_env._numba_original = original
-    _rebuild_env.__doc__ = original.__doc__
     # Environment.__reduce__ names the module's _rebuild_env: every compile that saves a kernel pickles it, and a
     # closure would be pickled by value (with this module's thread-local state, which cannot be). Named as
     # numba's own, it pickles by reference, as numba's did, and unpickles to whichever one the module holds.
     _rebuild_env.__module__, _rebuild_env.__qualname__ = original.__module__, original.__qualname__
-    environment._rebuild_env = _rebuild_env
-    return True
+    return _install_patch(environment, "_rebuild_env", _rebuild_env, original, "_monte_without_import")
 
 
 _DEFERRED_LOCK = threading.Lock()
@@ -576,11 +576,7 @@ def _cache_nrt_module() -> bool:
                 pass
         return library
 
-    compile_nrt_functions._monte_cached = True
-    compile_nrt_functions._numba_original = original
-    compile_nrt_functions.__doc__ = original.__doc__
-    nrtdynmod.compile_nrt_functions = compile_nrt_functions
-    return True
+    return _install_patch(nrtdynmod, "compile_nrt_functions", compile_nrt_functions, original, "_monte_cached")
 
 
 NUMBA_NRT_MODULE_CACHED = NUMBA_CACHE_LOADS_WITHOUT_REFRESH and _cache_nrt_module()
@@ -621,11 +617,8 @@ def _defer_numba_extensions_past_cached_kernels() -> bool:
             return  # a Monte kernel: loaded from the cache, or compiled (the refresh runs the scan first)
         return original(self)
 
-    _compilation_chain_init_hook._monte_deferred = True
-    _compilation_chain_init_hook._numba_original = original
-    _compilation_chain_init_hook.__doc__ = original.__doc__
-    base._compilation_chain_init_hook = _compilation_chain_init_hook
-    return True
+    return _install_patch(base, "_compilation_chain_init_hook", _compilation_chain_init_hook, original,
+                          "_monte_deferred")
 
 
 NUMBA_EXTENSIONS_DEFERRED = NUMBA_CACHE_LOADS_WITHOUT_REFRESH and _defer_numba_extensions_past_cached_kernels()
