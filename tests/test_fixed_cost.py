@@ -307,6 +307,20 @@ def test_numba_is_imported_without_yaml_and_still_reads_its_config_file(tmp_path
     assert with_file["at_import"] == [True, 1] and with_file["after"] == [True, 1]
 
 
+def _save_plane_blend(plane_scene: str) -> str:
+    """A script that builds the plane scene (tests/plane_scene.py's PLANE_SCENE, with a camera) at 12x8 pixels
+    and saves it as the .blend file named by its first argument."""
+    return textwrap.dedent("""
+        import sys
+        import bpy
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        with_camera = True
+        # PLANE_SCENE
+        scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 12, 8, 100
+        bpy.ops.wm.save_as_mainfile(filepath=sys.argv[1])
+    """).replace("# PLANE_SCENE\n", plane_scene)
+
+
 def test_a_headless_render_stops_the_loader_when_its_render_starts(tmp_path):
     """`monte render X.blend` renders once: the loader is asked to stop as its render starts (it was paused during
     the render and loaded other features' kernels after it, until the exit stopped it), before the add-on
@@ -318,14 +332,8 @@ def test_a_headless_render_stops_the_loader_when_its_render_starts(tmp_path):
     from plane_scene import PLANE_SCENE
 
     blend, out = tmp_path / "plane.blend", tmp_path / "out.exr"
-    code = textwrap.dedent("""
-        import json, sys
-        import bpy
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-        with_camera = True
-        # PLANE_SCENE
-        scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 12, 8, 100
-        bpy.ops.wm.save_as_mainfile(filepath=sys.argv[1])
+    code = _save_plane_blend(PLANE_SCENE) + textwrap.dedent("""
+        import json
         from monte.addon import engine, headless
         from monte.core import precompile
         seen = {}
@@ -342,7 +350,7 @@ def test_a_headless_render_stops_the_loader_when_its_render_starts(tmp_path):
         seen.update(started=loader is not None, alive_after=loader.is_alive(),
                     registered=__import__("monte.addon", fromlist=["is_registered"]).is_registered())
         print("RESULT " + json.dumps(seen))
-    """).replace("# PLANE_SCENE\n", PLANE_SCENE)
+    """)
     clean = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != jit_cache.KERNEL_CPU_ENV}
     proc = subprocess.run([sys.executable, "-c", code, str(blend), str(out)], capture_output=True, text=True,
                           timeout=600, env=clean)
@@ -365,15 +373,7 @@ def test_a_headless_render_imports_nothing_it_does_not_use(tmp_path):
     from plane_scene import PLANE_SCENE
 
     blend, out = tmp_path / "plane.blend", tmp_path / "out.exr"
-    save = textwrap.dedent("""
-        import sys
-        import bpy
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-        with_camera = True
-        # PLANE_SCENE
-        scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 12, 8, 100
-        bpy.ops.wm.save_as_mainfile(filepath=sys.argv[1])
-    """).replace("# PLANE_SCENE\n", PLANE_SCENE)
+    save = _save_plane_blend(PLANE_SCENE)
     render = textwrap.dedent("""
         import json, os, sys
         WATCH = ("numba.np.arrayobj", "numba.cpython.numbers", "yaml", "scipy", "numba.typed.listobject",
