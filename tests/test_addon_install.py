@@ -4,6 +4,7 @@ BLENDER_USER_RESOURCES must be set before bpy is first imported and this process
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import json
 import os
@@ -136,19 +137,25 @@ def built_zip(tmp_path_factory):
     return zips[0]
 
 
-def _bytecode_pythons() -> list[str]:
-    """The Python versions the build compiled the add-on's bytecode for: those of the manifest it found an
-    interpreter of (as tools/build_extension.py finds them)."""
+@functools.cache
+def _build_module():
+    """tools/build_extension.py, loaded once (it is a script, not a package module)."""
     spec = importlib.util.spec_from_file_location("build_extension", ROOT / "tools" / "build_extension.py")
     build = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(build)
+    return build
+
+
+def _bytecode_pythons() -> list[str]:
+    """The Python versions the build compiled the add-on's bytecode for: those of the manifest it found an
+    interpreter of (as tools/build_extension.py finds them)."""
+    build = _build_module()
     versions = build.manifest_pythons(build.load_manifest(), [_THIS_PLATFORM])
     return sorted(build.find_interpreters(versions, [sys.executable]))
 
 
 def _pyc_name(source: str, tag: str) -> str:
-    folder, _, name = source.rpartition("/")
-    return f"{folder + '/' if folder else ''}__pycache__/{name[:-3]}.{tag}.pyc"
+    return _build_module().pyc_name(source, tag)
 
 
 def test_zip_holds_only_the_add_on(built_zip):

@@ -414,6 +414,14 @@ def add_wheel_bytecode(src: Path, interpreters: dict[str, str], mode: str) -> No
         log(f"bytecode: {wheel.name}: {len(added)} pycs added ({', '.join(versions)})")
 
 
+def pyc_name(source: str, tag: str) -> str:
+    """The zip member that holds the bytecode of the zip member `source` ("core/render.py", "/"-separated) for
+    the interpreter cache tag `tag` ("cpython-313"): core/__pycache__/render.cpython-313.pyc, as Python looks
+    for it."""
+    folder, _, name = source.rpartition("/")
+    return f"{folder + '/' if folder else ''}__pycache__/{name[:-3]}.{tag}.pyc"
+
+
 def check_zip(path: Path, manifest: dict, pyc_tags: list[str] = ()) -> None:
     with zipfile.ZipFile(path) as zf:
         names = zf.namelist()
@@ -423,8 +431,7 @@ def check_zip(path: Path, manifest: dict, pyc_tags: list[str] = ()) -> None:
         raise BuildError(f"{path.name} holds files the add-on does not need: {', '.join(unexpected)} "
                          "(extend [build] paths_exclude_pattern in blender_manifest.toml)")
     sources = {n for n in names if n.endswith(".py") and not n.startswith("wheels/")}
-    bytecode = {f"{n.rpartition('/')[0] + '/' if '/' in n else ''}__pycache__/{n.rpartition('/')[2][:-3]}.{tag}.pyc"
-                for n in sources for tag in pyc_tags}
+    bytecode = {pyc_name(n, tag) for n in sources for tag in pyc_tags}
     junk = [n for n in names if (n.endswith(".pyc") and n not in bytecode) or ("__pycache__" in n and not (
         n in bytecode or n.startswith(KERNEL_CACHE_DIR + "/") and (n.endswith((".nbi", ".nbc", "/entry-kernels.json"))
                                                     or n.rpartition("/")[2].startswith("nrt-") and n.endswith(".bin"))))]
@@ -487,7 +494,7 @@ def main(argv: list[str] | None = None) -> int:
         else:  # the kernel cache is for this machine's platform: its zip is built from its own staged copy
             others = [p for p in platforms if p not in cache_platforms]
             groups = [(g, g == cache_platforms) for g in (cache_platforms, others) if g]
-        pyc_tags: dict[tuple[str, ...], list[str]] = {}
+        pyc_tags: dict[str, list[str]] = {}  # platform -> the cache tags its zip's bytecode was compiled for
         for group, with_cache in groups:
             with tempfile.TemporaryDirectory(prefix="monte-ext-") as tmp:
                 source = stage_subset(manifest, group, Path(tmp))
@@ -507,9 +514,7 @@ def main(argv: list[str] | None = None) -> int:
                     tags = compile_bytecode(source, interpreters, args.pyc)
                     add_wheel_bytecode(source, interpreters, args.pyc)
                     for p in group:
-                        pyc_tags[(p,)] = tags
-                    if args.single:
-                        pyc_tags[("single",)] = tags
+                        pyc_tags[p] = tags
                 log(run_blender_ext(tool, "validate", str(source)).splitlines()[-1])
                 build_args = ["build", "--source-dir", str(source), "--output-dir", str(out_dir)]
                 if not args.single:
@@ -520,8 +525,9 @@ def main(argv: list[str] | None = None) -> int:
         if not built:
             raise BuildError(f"the builder wrote no zip into {out_dir}")
         for p in built:
-            tags = pyc_tags.get(("single",)) or next(
-                (t for (plat,), t in pyc_tags.items() if p.name.endswith(f"-{plat.replace('-', '_')}.zip")), [])
+            # --single builds one zip for every platform, all compiled alike; --split-platforms one per platform
+            tags = next((t for plat, t in pyc_tags.items()
+                         if args.single or p.name.endswith(f"-{plat.replace('-', '_')}.zip")), [])
             check_zip(p, manifest, tags)
             log(f"built {p} ({p.stat().st_size / 1e6:.1f} MB)")
     except BuildError as exc:
