@@ -123,9 +123,9 @@ class ProgressBar:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from .core.builtin_scenes import BUILTIN_SCENES
-
     if args.list:
+        from .core.builtin_scenes import BUILTIN_SCENES
+
         for name, (_, description) in BUILTIN_SCENES.items():
             print(f"{name:18s} {description}")
         return 0

@@ -364,8 +364,8 @@ def test_a_headless_render_stops_the_loader_when_its_render_starts(tmp_path):
 def test_a_headless_render_imports_nothing_it_does_not_use(tmp_path):
     """`monte render X.blend` of a scene without a sky world (the plane scene): numba's NumPy-array and number
     implementations (numba.np.arrayobj, numba.cpython.numbers: named by the cached kernels' environments, 0.02-0.06
-    s), PyYAML, SciPy, numba's registries (numba.typed's list implementation) and core.sky stay unimported; the
-    image is written."""
+    s), PyYAML, SciPy, numba's registries (numba.typed's list implementation), core.sky, the built-in scenes and
+    the lab's command-line options (other subcommands') stay unimported; the image is written."""
     import pytest
 
     pytest.importorskip("bpy")
@@ -377,7 +377,7 @@ def test_a_headless_render_imports_nothing_it_does_not_use(tmp_path):
     render = textwrap.dedent("""
         import json, os, sys
         WATCH = ("numba.np.arrayobj", "numba.cpython.numbers", "yaml", "scipy", "numba.typed.listobject",
-                 "monte.core.sky")
+                 "monte.core.sky", "monte.core.builtin_scenes", "monte.lab.bench_args")
         real_exit = os._exit
 
         def exit_(status):
