@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import textwrap
@@ -58,7 +57,8 @@ def kernel_module():
         path.unlink()
         for entry in Path(jit_cache.cache_dir()).glob(f"{MODULE}.*"):
             entry.unlink()
-        shutil.rmtree(CORE / "__pycache__" / f"{MODULE}.cpython", ignore_errors=True)
+        for entry in (CORE / "__pycache__").glob(f"{MODULE}.*.pyc"):
+            entry.unlink()
 
 
 CALL = f"""
