@@ -686,7 +686,7 @@ _CacheImpl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl
 
 _WRITABLE: set[str] = set()  # cache folders this process found writable
 
-# (the import's module spec, the module file's digest, sources_digest()) of the last kernel stamped
+# (the import's module spec, the module's file, the stamp) of the last kernel stamped
 _LAST_STAMP: list = [None]
 
 
@@ -696,6 +696,20 @@ def _import_underway(module_name: str | None):
     module = sys.modules.get(module_name) if module_name else None
     spec = getattr(module, "__spec__", None)
     return spec if getattr(spec, "_initializing", False) else None
+
+
+def _kernel_source_stamp(py_file: str, module_name: str | None) -> tuple[str, str, str]:
+    """A Monte kernel's cache stamp (_PerImportNameLocator.get_source_stamp): its own file's digest and every
+    kernel module's (sources_digest), the latter taken once per import of a module (_import_underway)."""
+    underway = _import_underway(module_name)
+    last = _LAST_STAMP[0]
+    if underway is not None and last is not None and last[0] is underway and last[1] == py_file:
+        return last[2]  # (the module's file as read for its first kernel, in this import)
+    stamp = "sha256", file_digest(py_file), sources_digest()
+    if underway is not None:
+        _LAST_STAMP[0] = (underway, py_file, stamp)
+    return stamp
+
 
 if _InTree is not None and _CacheImpl is not None:
 
@@ -719,15 +733,7 @@ if _InTree is not None and _CacheImpl is not None:
             numba asks once per kernel, as each is defined; the kernel modules' digest is taken once per import of
             a module (_import_underway) and reused for the module's further kernels (~340 kernels, each checking
             the stat of the 17 modules: ~0.01 s of CPU of every process's import)."""
-            own = file_digest(self._py_file)
-            underway = _import_underway(self._module_name)
-            last = _LAST_STAMP[0]
-            if underway is not None and last is not None and last[0] is underway and last[1] == own:
-                return "sha256", own, last[2]
-            digest = sources_digest()
-            if underway is not None:
-                _LAST_STAMP[0] = (underway, own, digest)
-            return "sha256", own, digest
+            return _kernel_source_stamp(self._py_file, self._module_name)
 
         def ensure_cache_path(self):
             """numba's check (create the folder, write a temporary file in it), once per process instead of
@@ -752,9 +758,172 @@ if _InTree is not None and _CacheImpl is not None:
 _OPTIONS = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 # The options every kernel is compiled with, part of the cache key (edits elsewhere in this file are not).
 OPTIONS_KEY = repr(sorted(_OPTIONS.items())) + "; no NRT; inline always"
-jit = numba.njit(**_OPTIONS)
-jit_no_nrt = numba.njit(**_OPTIONS, _nrt=False)
-jit_inline = numba.njit(**_OPTIONS, _nrt=False, inline="always")
+
+
+class _CacheOnUse:
+    """A Monte kernel's numba cache (FunctionCache), made the first time anything asks it for something: the
+    kernel's first call (numba loads or compiles it through its cache), the background loader reading its
+    index, a test. numba makes it when the kernel is defined (Dispatcher.enable_caching): ~0.05 ms per kernel
+    (the locator search with its file checks, path work, the index file's names), ~0.015 s of every process's
+    import for ~350 kernels, of which a 1-spp render calls ~15. The stamp its index is checked against is taken
+    when the kernel is defined, as numba's is, so a kernel module edited between the import and the first call
+    does not file the imported code under the edited sources' stamp. Module-level (nothing of it is pickled: a
+    dispatcher pickles its function and options, never its cache). See _defer_kernel_caches."""
+
+    __slots__ = ("_dispatcher", "_stamp", "__weakref__")
+
+    def __init__(self, dispatcher, stamp) -> None:
+        self._dispatcher = weakref.ref(dispatcher)
+        self._stamp = stamp
+
+    def _made(self):
+        dispatcher = self._dispatcher()
+        if dispatcher is None:
+            raise ReferenceError("the kernel of this cache is gone")
+        with _CACHES_MADE:
+            cache = dispatcher.__dict__.get("_cache")
+            if cache is self or cache is None:
+                cache = caching.FunctionCache(dispatcher.py_func)
+                if type(getattr(cache._impl, "locator", None)) is _PerImportNameLocator:
+                    cache._cache_file._source_stamp = self._stamp  # (the sources as they were when defined)
+                dispatcher._cache = cache
+        return cache
+
+    def __getattr__(self, name):
+        return getattr(self._made(), name)
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} of {self._dispatcher()!r}>"
+
+
+_CACHES_MADE = threading.Lock()
+# numba's code read for _defer_kernel_caches (names its functions use).
+_ENABLE_CACHING_NAMES = frozenset({"FunctionCache", "_cache", "py_func"})
+_CACHE_INIT_NAMES = frozenset({"_impl", "_impl_class", "locator", "get_source_stamp", "IndexDataCacheFile",
+                               "_cache_file", "_cache_path", "get_cache_path", "filename_base", "enable"})
+
+
+def _kernel_caches_deferrable() -> bool:
+    """Whether numba is as read for _defer_kernel_caches: numba 0.59-0.68 (_CACHE_LOAD_NUMBA_VERSIONS), its
+    Dispatcher.enable_caching making a FunctionCache of the function, the cache taking its locator's stamp into
+    its index file's `_source_stamp`, Monte's locator among numba's, and MONTE_PLAIN_NUMBA_LOADS unset."""
+    from numba.core import dispatcher
+
+    if os.environ.get(PLAIN_NUMBA_LOADS_ENV, "").strip() not in ("", "0"):
+        return False
+    if not (_CACHE_LOAD_NUMBA_VERSIONS[0] <= tuple(numba.version_info[:2]) <= _CACHE_LOAD_NUMBA_VERSIONS[1]):
+        return False
+    if "_PerImportNameLocator" not in globals() or _PerImportNameLocator not in _CacheImpl._locator_classes:
+        return False
+    enable = getattr(getattr(dispatcher, "Dispatcher", None), "__dict__", {}).get("enable_caching")
+    cache_init = getattr(getattr(caching, "Cache", None), "__dict__", {}).get("__init__")
+    index_init = getattr(getattr(caching, "IndexDataCacheFile", None), "__dict__", {}).get("__init__")
+    return (getattr(enable, "__code__", None) is not None
+            and frozenset(enable.__code__.co_names) == _ENABLE_CACHING_NAMES
+            and getattr(dispatcher, "FunctionCache", None) is caching.FunctionCache
+            and getattr(cache_init, "__code__", None) is not None
+            and _CACHE_INIT_NAMES <= frozenset(cache_init.__code__.co_names)
+            and "_source_stamp" in getattr(getattr(index_init, "__code__", None), "co_names", ()))
+
+
+KERNEL_CACHES_DEFERRED = _kernel_caches_deferrable()
+
+
+_SIGNATURE_CHECKED: list = []  # [True] once _signature agreed with inspect.signature, [False] if it did not
+
+
+def _signature(func):
+    """inspect.signature(func) for a plain function of positional-or-keyword parameters (every kernel's), built
+    from its code object, defaults and annotations without inspect's per-parameter checks (the kind's enum
+    lookup, the name's checks): ~6 us against ~25 us per kernel, 0.002 s against 0.008-0.01 s for the ~350 of
+    an import. Any other shape of function (keyword-only or positional-only parameters, *args, **kwargs), a
+    Parameter of another layout, a wrapper (`__wrapped__`: inspect follows it), or a first result that differs
+    from inspect's goes to inspect.signature."""
+    import inspect
+
+    code = func.__code__
+    if (_SIGNATURE_CHECKED == [False] or code.co_kwonlyargcount or code.co_posonlyargcount
+            or "__wrapped__" in func.__dict__
+            or code.co_flags & (inspect.CO_VARARGS | inspect.CO_VARKEYWORDS)
+            or getattr(inspect.Parameter, "__slots__", None) != ("_name", "_kind", "_default", "_annotation")):
+        return inspect.signature(func)
+    empty, kind = inspect.Parameter.empty, inspect.Parameter.POSITIONAL_OR_KEYWORD
+    names = code.co_varnames[:code.co_argcount]
+    annotations = func.__annotations__
+    defaults = func.__defaults__ or ()
+    first_default = len(names) - len(defaults)
+    parameters = []
+    for i, name in enumerate(names):
+        parameter = object.__new__(inspect.Parameter)
+        parameter._name, parameter._kind = name, kind
+        parameter._default = defaults[i - first_default] if i >= first_default else empty
+        parameter._annotation = annotations.get(name, empty)
+        parameters.append(parameter)
+    signature = inspect.Signature(parameters, return_annotation=annotations.get("return", empty),
+                                  __validate_parameters__=False)
+    if not _SIGNATURE_CHECKED:  # the first kernel of the process: the same as inspect's, or inspect's from now
+        _SIGNATURE_CHECKED.append(signature == inspect.signature(func))  # (names, kinds, defaults, annotations)
+        if not _SIGNATURE_CHECKED[0]:
+            return inspect.signature(func)
+    return signature
+
+
+_KERNEL_FILES: dict[str, bool] = {}  # (a function's file) -> whether Monte's locator caches its functions
+
+
+def _is_kernel_file(path: str) -> bool:
+    """Whether functions of the file `path` are cached by Monte's locator (_PerImportNameLocator.from_function:
+    an existing file of core/ or of a package of it); asked once per file and process."""
+    known = _KERNEL_FILES.get(path)
+    if known is None:
+        folder = os.path.dirname(os.path.abspath(path))
+        known = _KERNEL_FILES[path] = ((folder == _CORE_DIR or os.path.dirname(folder) == _CORE_DIR)
+                                       and os.path.exists(path))
+    return known
+
+
+def _defer_kernel_caches(**options):
+    """A decorator defining a cached kernel as numba.njit(**options) does, with two pieces of numba's work per
+    kernel left to when they are needed (every process defines ~350 kernels at import; a 1-spp render calls
+    ~15):
+
+    - the kernel's disk cache (numba's FunctionCache: its locator search, file checks and index names) is made
+      on first use (_CacheOnUse), its stamp taken now;
+    - the function's signature is taken once, not twice (numba takes it for the dispatcher and again for the
+      dispatcher's compiler), and built from the code object (_signature): it is kept as the function's
+      `__signature__`, which inspect.signature returns as it is (the same parameters, names and defaults).
+
+    Together ~0.02 s of CPU of every process's import (numbers in docs/performance.md, "round eleven"). Only
+    where numba is as read (_kernel_caches_deferrable), for functions Monte's locator caches (defined in core/
+    or a package of it, the cache folder found writable by an earlier kernel of the process) and with numba's
+    cache folder settings unset (NUMBA_CACHE_DIR, NUMBA_CACHE_LOCATOR_CLASSES); otherwise, and with
+    MONTE_PLAIN_NUMBA_LOADS=1, numba's own decorator (the cache made at once)."""
+    from numba.core import config
+
+    plain = numba.njit(**options)
+    uncached = numba.njit(**{key: value for key, value in options.items() if key != "cache"})
+
+    def decorate(func):
+        code = getattr(func, "__code__", None)
+        if (not KERNEL_CACHES_DEFERRED or not options.get("cache") or code is None or config.DISABLE_JIT
+                or config.CACHE_DIR or getattr(config, "CACHE_LOCATOR_CLASSES", "")
+                or cache_dir() not in _WRITABLE or "__signature__" in getattr(func, "__dict__", {})):
+            return plain(func)
+        if not _is_kernel_file(code.co_filename):
+            return plain(func)
+        func.__signature__ = _signature(func)
+        stamp = _kernel_source_stamp(code.co_filename, getattr(func, "__module__", None))
+        dispatcher = uncached(func)
+        dispatcher._cache = _CacheOnUse(dispatcher, stamp)
+        return dispatcher
+
+    decorate.__doc__ = f"numba.njit({', '.join(f'{k}={v!r}' for k, v in options.items())}), its cache made on use"
+    return decorate
+
+
+jit = _defer_kernel_caches(**_OPTIONS)
+jit_no_nrt = _defer_kernel_caches(**_OPTIONS, _nrt=False)
+jit_inline = _defer_kernel_caches(**_OPTIONS, _nrt=False, inline="always")
 
 # Modules of this folder that define cached kernels (their cache index files are named after them).
 KERNEL_MODULES = ("geometry_kernels", "path_kernels", "mesh_checks", "camera", "sampling", "warps", "bsdf_kernels",

@@ -253,7 +253,8 @@ def load_cached_kernels_in_background() -> threading.Thread:
             importlib.import_module(f"{jit_cache.PACKAGE}.render")  # the rest of the renderer's modules too
             if not _stop_loading.is_set():  # before the kernels: a render needs all of it, the list's tail not
                 warm_first_render()
-            load_cached_kernels(should_stop=_loader_should_stop)
+            if not _stop_loading.is_set():  # (stopped during the warm-up: `monte render`'s render started then;
+                load_cached_kernels(should_stop=_loader_should_stop)  # reading the list etc. was ~3 ms of CPU)
         except Exception:  # noqa: BLE001 - only a head start
             pass
 

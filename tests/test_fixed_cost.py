@@ -254,6 +254,34 @@ def test_the_loader_waits_while_a_render_runs():
     assert result["stopped_alive"] is False
 
 
+def test_a_loader_stopped_during_its_warm_up_reads_no_kernel_list():
+    """A loader stopped while it warms up (a `monte render X.blend` whose render started then) ends without
+    reading the entry list, listing the dispatchers or reading their cache indexes (~3 ms of CPU beside the
+    export); one not stopped goes on to the kernels."""
+    result = _python("""
+        import json
+        from monte.core import precompile
+        calls = []
+        warm = precompile.warm_first_render
+        precompile.load_cached_kernels = lambda **k: calls.append("kernels") or 0
+
+        def warm_then_stop():
+            warm()
+            calls.append("warm")
+            precompile.stop_loading_kernels(wait=False)  # as `monte render` does when its render starts
+
+        precompile.warm_first_render = warm_then_stop
+        precompile.load_cached_kernels_in_background().join()
+        stopped = list(calls)
+        precompile._loader, calls[:] = None, []
+        precompile._stop_loading.clear()
+        precompile.warm_first_render = lambda: calls.append("warm")
+        precompile.load_cached_kernels_in_background().join()
+        print("RESULT " + json.dumps({"stopped": stopped, "not_stopped": calls}))
+    """)
+    assert result == {"stopped": ["warm"], "not_stopped": ["warm", "kernels"]}
+
+
 def test_numba_is_imported_without_its_scipy_check_and_scipy_still_imports():
     """numba's __init__ imports SciPy only to refuse one older than 1.0; Monte's import of numba hides SciPy for
     that one import: importing the renderer imports no SciPy, and SciPy imports normally afterwards."""
@@ -364,8 +392,8 @@ def test_a_headless_render_stops_the_loader_when_its_render_starts(tmp_path):
 def test_a_headless_render_imports_nothing_it_does_not_use(tmp_path):
     """`monte render X.blend` of a scene without a sky world (the plane scene): numba's NumPy-array and number
     implementations (numba.np.arrayobj, numba.cpython.numbers: named by the cached kernels' environments, 0.02-0.06
-    s), PyYAML, SciPy, numba's registries (numba.typed's list implementation) and core.sky stay unimported; the
-    image is written."""
+    s), PyYAML, SciPy, numba's registries (numba.typed's list implementation), core.sky, the built-in scenes and
+    the lab's command-line options (other subcommands') stay unimported; the image is written."""
     import pytest
 
     pytest.importorskip("bpy")
@@ -377,7 +405,7 @@ def test_a_headless_render_imports_nothing_it_does_not_use(tmp_path):
     render = textwrap.dedent("""
         import json, os, sys
         WATCH = ("numba.np.arrayobj", "numba.cpython.numbers", "yaml", "scipy", "numba.typed.listobject",
-                 "monte.core.sky")
+                 "monte.core.sky", "monte.core.builtin_scenes", "monte.lab.bench_args")
         real_exit = os._exit
 
         def exit_(status):

@@ -162,3 +162,25 @@ def test_cornell_box_renders_the_same_at_any_scale_and_far_from_the_origin(fast_
     m, c = metrics.channel_means(moved.color), metrics.channel_means(canonical.color)
     sigma = metrics.channel_mean_sigma(canonical.variance)
     assert np.all(np.abs(m - c) < 4 * sigma + 1e-3), (m, c)
+
+
+def test_a_subcommands_arguments_are_built_when_it_is_used(capsys):
+    """Each subcommand's arguments are added when that subcommand parses or prints its help (a `monte render`
+    process built every subcommand's before, the lab's options too): parsing `render` builds render's alone,
+    and every other subcommand still parses and prints its help with its own options."""
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    args = parser.parse_args(["render", "scene.blend", "-o", "out.exr", "--spp", "1"])
+    assert args.func is cli.cmd_render and args.spp == 1 and args.output == "out.exr"
+    built = {name for name, p in sub.choices.items() if p.add_arguments is None}
+    assert built == {"render"}
+    assert any("--max-bounces" in a.option_strings for a in sub.choices["render"]._actions)
+    assert not any("--reference" in a.option_strings for a in sub.choices["bench"]._actions)
+
+    args = parser.parse_args(["crosscheck", "x.blend", "-o", "out", "--spp", "4"])
+    assert args.func is cli.cmd_crosscheck and args.spp == 4
+    with pytest.raises(SystemExit):
+        parser.parse_args(["bench", "--help"])
+    assert "--reference" in capsys.readouterr().out
+    assert "stress" in parser.format_help() and sub.choices["stress"].add_arguments is not None
+    assert "--quick" in sub.choices["stress"].format_help()
