@@ -35,6 +35,7 @@ MAX_ENTRIES = 512  # texts kept; past it the oldest go (each edit of a dataclass
 _lock = threading.Lock()
 _table: dict[str, object] | None = None  # text -> code, read on first use
 _stats = {"hits": 0, "compiled": 0, "written": 0}
+_unwritable: list[bool] = []  # [True] once writing the table failed in this process
 
 
 def _ours(globals_: object) -> bool:
@@ -61,7 +62,7 @@ def _read() -> dict[str, object]:
 
 def _write(table: dict[str, object]) -> None:
     """The table, replacing the file whole (a reader sees the old file or the new one, never a part)."""
-    if sys.dont_write_bytecode:
+    if sys.dont_write_bytecode or _unwritable:
         return
     tmp = f"{_FILE}.{os.getpid()}.{threading.get_ident()}.tmp"
     try:
@@ -71,6 +72,7 @@ def _write(table: dict[str, object]) -> None:
         os.replace(tmp, _FILE)
         _stats["written"] += 1
     except OSError:  # a read-only install: the classes are compiled each time, as without the table
+        _unwritable.append(True)  # (not tried again in this process)
         try:
             os.remove(tmp)
         except OSError:

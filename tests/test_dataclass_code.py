@@ -44,6 +44,7 @@ _PROBE = """
                 classes[f"{name}.{cls.__qualname__}"] = methods
     settings = monte.core.settings.RenderSettings(spp=3)
     print("RESULT " + json.dumps({"classes": classes, "stats": dataclass_code.stats(),
+                                  "write_failures": len(dataclass_code._unwritable),
                                   "installed": vars(dataclasses).get("exec") is dataclass_code._exec,
                                   "repr": repr(settings), "eq": settings == monte.core.settings.RenderSettings(spp=3)},
                                  default=repr))
@@ -116,3 +117,12 @@ def test_only_monte_packages_are_served():
     assert ours({"__name__": root}) and ours({"__name__": root + ".core.settings"})
     assert not ours({"__name__": root + "x.core"}) and not ours({"__name__": "numba.core"})
     assert not ours({}) and not ours(None) and not ours({"__name__": 3})
+
+
+def test_a_table_that_cannot_be_written_is_tried_once(tmp_path):
+    folder = tmp_path / "not-a-folder"
+    folder.write_text("a file where the table's folder would be")
+    result = _probe(folder / "dataclass-code.bin")  # every write fails: compiled as without the table
+    assert result["installed"] and result["stats"]["compiled"] >= 20 and result["stats"]["written"] == 0
+    assert result["write_failures"] == 1  # the first failure stops the process's further tries
+    assert result["eq"] is True
