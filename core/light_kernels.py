@@ -231,6 +231,7 @@ _INV_PI = 1.0 / math.pi
 _INV_4PI = 1.0 / (4.0 * math.pi)
 _RECT_MIN_SOLID_ANGLE = 1e-9  # below this a rectangle's solid angle is unreliable even in float64: sample by area
 MIN_SPHERICAL_OMEGA = 1e-6  # sr: below this a spherical triangle is numerically flat; sample by area instead
+_TWO_PI_SA = 2.0 * math.pi
 
 
 @_jit
@@ -271,32 +272,39 @@ def _mis_power(pdf_a, pdf_b):
 # ------------------------------------------------------------------ emissive triangles sampled by solid angle
 @_jit
 def _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz):
-    """Solid angle (sr) of a triangle with corners a, b, c relative to the viewer (Van Oosterom-Strackee)."""
+    """Solid angle (sr) of a triangle with corners a, b, c relative to the viewer (Van Oosterom-Strackee), and the
+    corners' distances |a|, |b|, |c| (the spherical sampler's normalisations)."""
     la = math.sqrt(ax * ax + ay * ay + az * az)
     lb = math.sqrt(bx * bx + by * by + bz * bz)
     lc = math.sqrt(cx * cx + cy * cy + cz * cz)
     num = abs(ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx))
     den = la * lb * lc + (ax * bx + ay * by + az * bz) * lc + (ax * cx + ay * cy + az * cz) * lb \
         + (bx * cx + by * cy + bz * cz) * la
-    return (2.0 * math.atan2(num, den)) % (2.0 * math.pi)
+    # 2 atan2 lies in [0, 2 pi] (num >= 0); the one value outside [0, 2 pi), a viewer on the triangle itself, is 0
+    # (what `% (2 pi)` gave, without its floor and sign fix-ups)
+    omega = 2.0 * math.atan2(num, den)
+    if not omega < _TWO_PI_SA:
+        omega -= _TWO_PI_SA
+    return omega, la, lb, lc
 
 
 @_inline
 def _near_triangle(px, py, pz, t, v0, e1, e2, normal, edge2):
     """Corners of triangle t relative to p (float64), and its solid angle if it is sampled by solid angle
-    there (Cycles' rule: longest edge longer than the distance to its plane), else 0."""
+    there (Cycles' rule: longest edge longer than the distance to its plane), else 0; then the corners' distances
+    from p where the solid angle is computed (else 0)."""
     ax = np.float64(v0[0, t]) - px
     ay = np.float64(v0[1, t]) - py
     az = np.float64(v0[2, t]) - pz
     bx, by, bz = ax + e1[0, t], ay + e1[1, t], az + e1[2, t]
     cx, cy, cz = ax + e2[0, t], ay + e2[1, t], az + e2[2, t]
     plane = abs(normal[0, t] * ax + normal[1, t] * ay + normal[2, t] * az)
-    omega = 0.0
+    omega = la = lb = lc = 0.0
     if edge2[t] > plane * plane:
-        omega = _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz)
+        omega, la, lb, lc = _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz)
         if omega <= MIN_SPHERICAL_OMEGA:
             omega = 0.0
-    return ax, ay, az, bx, by, bz, cx, cy, cz, omega
+    return ax, ay, az, bx, by, bz, cx, cy, cz, omega, la, lb, lc
 
 
 @_jit
@@ -308,37 +316,29 @@ def _unit3(x, y, z):
 
 
 @_jit
-def _cross3(ax, ay, az, bx, by, bz):
-    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-
-
-@_jit
-def _angle_between(x1, y1, z1, x2, y2, z2):
-    """Angle between unit vectors, accurate near 0 and pi."""
-    if x1 * x2 + y1 * y2 + z1 * z2 < 0.0:
-        s = math.sqrt((x1 + x2) ** 2 + (y1 + y2) ** 2 + (z1 + z2) ** 2) / 2.0
-        return math.pi - 2.0 * math.asin(min(s, 1.0))
-    s = math.sqrt((x2 - x1) ** 2 + (y2 - y1) ** 2 + (z2 - z1) ** 2) / 2.0
-    return 2.0 * math.asin(min(s, 1.0))
-
-
-@_jit
-def _spherical_triangle_direction(ax, ay, az, bx, by, bz, cx, cy, cz, u0, u1):
+def _spherical_triangle_direction(ax, ay, az, bx, by, bz, cx, cy, cz, la, lb, lc, omega, u0, u1):
     """A direction uniform in the solid angle of the triangle with corners a, b, c relative to the viewer (Arvo
-    1995, "Stratified sampling of spherical triangles", as pbrt-v4 writes it)."""
-    ax, ay, az = _unit3(ax, ay, az)
-    bx, by, bz = _unit3(bx, by, bz)
-    cx, cy, cz = _unit3(cx, cy, cz)
-    abx, aby, abz = _unit3(*_cross3(ax, ay, az, bx, by, bz))
-    bcx, bcy, bcz = _unit3(*_cross3(bx, by, bz, cx, cy, cz))
-    cax, cay, caz = _unit3(*_cross3(cx, cy, cz, ax, ay, az))
-    alpha = _angle_between(abx, aby, abz, -cax, -cay, -caz)
-    beta = _angle_between(bcx, bcy, bcz, -abx, -aby, -abz)
-    gamma = _angle_between(cax, cay, caz, -bcx, -bcy, -bcz)
-    a_pi = math.pi + u0 * (alpha + beta + gamma - math.pi)  # sub-triangle area plus pi
-    cos_alpha, sin_alpha = math.cos(alpha), math.sin(alpha)
-    sin_phi = math.sin(a_pi) * cos_alpha - math.cos(a_pi) * sin_alpha
-    cos_phi = math.cos(a_pi) * cos_alpha + math.sin(a_pi) * sin_alpha
+    1995, "Stratified sampling of spherical triangles", as pbrt-v4 writes it), given the corners' distances la,
+    lb, lc and the solid angle omega (as _solid_angle computes them).
+
+    Arvo's sub-triangle area is u0 * omega, the triangle's area alpha + beta + gamma - pi being its solid angle:
+    so only the interior angle alpha at a is needed, and only through its cosine and sine, which are the dot and
+    the length of the cross product of the unit edge-plane normals n_ab = a x b / |a x b| and -n_ca: with |a| = 1,
+    (a x b) x (c x a) = -det(a, b, c) a, so sin(alpha) = |det(a, b, c)| / (|a x b| |c x a|). And Arvo's
+    sin/cos(pi + u0 omega) are -sin/-cos(u0 omega)."""
+    ia, ib, ic = 1.0 / la, 1.0 / lb, 1.0 / lc
+    ax, ay, az = ax * ia, ay * ia, az * ia
+    bx, by, bz = bx * ib, by * ib, bz * ib
+    cx, cy, cz = cx * ic, cy * ic, cz * ic
+    abx, aby, abz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx  # a x b
+    cax, cay, caz = cy * az - cz * ay, cz * ax - cx * az, cx * ay - cy * ax  # c x a
+    inv = 1.0 / math.sqrt((abx * abx + aby * aby + abz * abz) * (cax * cax + cay * cay + caz * caz))
+    cos_alpha = -(abx * cax + aby * cay + abz * caz) * inv
+    sin_alpha = abs(abx * cx + aby * cy + abz * cz) * inv
+    area = u0 * omega  # the sub-triangle's area
+    s_a, c_a = math.sin(area), math.cos(area)
+    sin_phi = c_a * sin_alpha - s_a * cos_alpha
+    cos_phi = -(c_a * cos_alpha + s_a * sin_alpha)
     k1 = cos_phi + cos_alpha
     k2 = sin_phi - sin_alpha * (ax * bx + ay * by + az * bz)
     den = (k2 * sin_phi + k1 * cos_phi) * sin_alpha
@@ -348,9 +348,9 @@ def _spherical_triangle_direction(ax, ay, az, bx, by, bz, cx, cy, cz, u0, u1):
     ca = cx * ax + cy * ay + cz * az
     qx, qy, qz = _unit3(cx - ca * ax, cy - ca * ay, cz - ca * az)
     px, py, pz = cos_bp * ax + sin_bp * qx, cos_bp * ay + sin_bp * qy, cos_bp * az + sin_bp * qz  # c'
-    cos_t = 1.0 - u1 * (1.0 - (px * bx + py * by + pz * bz))
-    sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
     pb = px * bx + py * by + pz * bz
+    cos_t = 1.0 - u1 * (1.0 - pb)
+    sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
     rx, ry, rz = _unit3(px - pb * bx, py - pb * by, pz - pb * bz)
     return cos_t * bx + sin_t * rx, cos_t * by + sin_t * ry, cos_t * bz + sin_t * rz
 
@@ -362,11 +362,12 @@ def _sample_triangle(px, py, pz, t, u0, u1, lt):
     Returns (wi, dist, radiance, pdf given the unit), pdf 0 for no contribution."""
     t_v0, t_e1, t_e2, t_n, t_L, t_pdf_area, t_sel, t_edge2 = lt[9], lt[10], lt[11], lt[12], lt[13], lt[14], \
         lt[15], lt[16]
-    ax, ay, az, bx, by, bz, cx, cy, cz, omega = _near_triangle(px, py, pz, t, t_v0, t_e1, t_e2, t_n, t_edge2)
+    ax, ay, az, bx, by, bz, cx, cy, cz, omega, la, lb, lc = _near_triangle(px, py, pz, t, t_v0, t_e1, t_e2, t_n,
+                                                                           t_edge2)
     nx, ny, nz = np.float64(t_n[0, t]), np.float64(t_n[1, t]), np.float64(t_n[2, t])
     rr, rg, rb = np.float64(t_L[0, t]), np.float64(t_L[1, t]), np.float64(t_L[2, t])
     if omega > 0.0:
-        wx, wy, wz = _spherical_triangle_direction(ax, ay, az, bx, by, bz, cx, cy, cz, u0, u1)
+        wx, wy, wz = _spherical_triangle_direction(ax, ay, az, bx, by, bz, cx, cy, cz, la, lb, lc, omega, u0, u1)
         # distance to the plane: (n . (v0 - p)) / (n . w), v0 - p = the unnormalised corner a
         den = nx * wx + ny * wy + nz * wz
         d = (nx * ax + ny * ay + nz * az) / den if den != 0.0 else 0.0

@@ -1141,6 +1141,39 @@ def test_near_triangles_are_sampled_by_solid_angle_without_fireflies():
     assert_close(f.mean(), f.std() / math.sqrt(N), expected)
 
 
+def test_spherical_triangle_sampler_is_arvos_map():
+    """The solid-angle sampler of near triangles (given the solid angle and corner distances that the near test
+    computed) is Arvo's map, checked by its two defining properties in float64: u0 picks the corner c' on arc ac
+    whose sub-triangle (a, b, c') has solid angle u0 x omega (measured independently, Van Oosterom-Strackee), and
+    u1 picks the point on arc bc' with 1 - cos(angle to b) = u1 (1 - cos(angle from b to c'))."""
+    from monte.core.light_kernels import _solid_angle, _spherical_triangle_direction
+    rng = np.random.default_rng(11)
+    for _ in range(300):
+        a, b, c = rng.normal(size=(3, 3)) + rng.normal(size=3) * rng.uniform(0, 3)
+        omega, la, lb, lc = _solid_angle(*a, *b, *c)
+        np.testing.assert_allclose([la, lb, lc], np.linalg.norm([a, b, c], axis=1), rtol=1e-15)
+        if omega < 1e-3:
+            continue
+        u0 = rng.uniform(0.02, 1.0)
+        c1 = np.array(_spherical_triangle_direction(*a, *b, *c, la, lb, lc, omega, u0, 1.0))
+        assert math.isclose(np.linalg.norm(c1), 1.0, abs_tol=1e-12)
+        # c' lies on the great circle through a and c, between them
+        assert abs(np.dot(c1, np.cross(a, c))) < 1e-9 * np.linalg.norm(np.cross(a, c))
+        ua, uc = a / la, c / lc
+        assert np.dot(c1, ua) >= np.dot(uc, ua) - 1e-9 and np.dot(c1, uc) >= np.dot(ua, uc) - 1e-9
+        assert math.isclose(_solid_angle(*a, *b, *c1)[0], u0 * omega, rel_tol=1e-7, abs_tol=1e-9)
+        u1 = rng.uniform()
+        w = np.array(_spherical_triangle_direction(*a, *b, *c, la, lb, lc, omega, u0, u1))
+        ub = b / lb
+        assert math.isclose(1.0 - np.dot(w, ub), u1 * (1.0 - np.dot(c1, ub)), rel_tol=1e-6, abs_tol=1e-12)
+        assert abs(np.dot(w, np.cross(ub, c1))) < 1e-9  # on arc b c'
+    # u0 = 1 is corner c itself: the whole triangle
+    a, b, c = np.array([0.3, -0.2, 1.0]), np.array([-0.4, 0.1, 0.9]), np.array([0.1, 0.5, 1.2])
+    omega, la, lb, lc = _solid_angle(*a, *b, *c)
+    np.testing.assert_allclose(_spherical_triangle_direction(*a, *b, *c, la, lb, lc, omega, 1.0, 1.0), c / lc,
+                               atol=1e-9)
+
+
 
 # ------------------------------------------------------------------------------------ chi-square of sampling
 # Each light kind alone, sampled from one shading point: the directions `sample` draws, binned on the light
