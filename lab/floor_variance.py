@@ -16,7 +16,8 @@ while a renderer's error falls as 1/N). Regions: the floor, split by what it see
 the floor's 95th percentile, from a direct-only Monte render), `shadow` (under 5 % of it), `penumbra` (between),
 `near` (within `--near` m of the crate's or the ball's footprint on the floor); and the crate, the ball, the whole
 image. No reference needed: variance only. `--objects flat` unlinks the crate's and the ball's Normal Map / Bump,
-`--objects matte` gives them a Diffuse BSDF instead of their Principled BSDF (the same colour and normal inputs);
+`--objects matte` gives them a Diffuse BSDF instead of their Principled BSDF (the same colour and normal inputs),
+`--objects metal` Metallic 1 (one specular lobe);
 `--save DIR` writes the per-pixel variance maps and the region masks (npz). Numbers only. The findings:
 docs/performance.md, "The floor's excess at 256 spp: the objects' glossy reflections".
 """
@@ -67,12 +68,15 @@ def floor_regions(position: np.ndarray, direct: np.ndarray, floor: np.ndarray,
 
 def edit_material(material, how: str) -> None:
     """The `--objects` variants on a bench material whose output is a Principled BSDF: "as-is" leaves it, "flat"
-    unlinks its Normal input, "matte" puts a Diffuse BSDF with the same Color (Base Color) and Normal inputs in its
-    place (one diffuse lobe: no lobe choice)."""
+    unlinks its Normal input, "metal" sets its Metallic to 1, "matte" puts a Diffuse BSDF with the same Color (Base
+    Color) and Normal inputs in its place (one diffuse lobe: no lobe choice)."""
     if how == "as-is":
         return
     tree = material.node_tree
     principled = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    if how == "metal":
+        principled.inputs["Metallic"].default_value = 1.0
+        return
     if how == "flat":
         for link in list(principled.inputs["Normal"].links):
             tree.links.remove(link)
@@ -105,9 +109,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--configs", default="b0,b1,full,norr", help="comma-separated variants: full, norr, bN")
     p.add_argument("--near", type=float, default=0.5, help="metres from an object's footprint that count as near")
-    p.add_argument("--objects", default="as-is", choices=("as-is", "flat", "matte"),
+    p.add_argument("--objects", default="as-is", choices=("as-is", "flat", "matte", "metal"),
                    help="the crate's and the ball's materials: as built; flat: their Normal Map / Bump unlinked; "
-                        "matte: a Diffuse BSDF (same colour and normal inputs) instead of the Principled BSDF")
+                        "matte: a Diffuse BSDF (same colour and normal inputs) instead of the Principled BSDF; "
+                        "metal: the Principled BSDF with Metallic 1 (one specular lobe, no lobe choice)")
     p.add_argument("--save", default="", help="folder for the per-pixel variance maps (npz)")
     args = p.parse_args(argv)
     counts = [int(x) for x in args.spp.split(",")]
