@@ -17,7 +17,8 @@ the floor's 95th percentile, from a direct-only Monte render), `shadow` (under 5
 `near` (within `--near` m of the crate's or the ball's footprint on the floor); and the crate, the ball, the whole
 image. No reference needed: variance only. `--objects flat` unlinks the crate's and the ball's Normal Map / Bump,
 `--objects matte` gives them a Diffuse BSDF instead of their Principled BSDF (the same colour and normal inputs),
-`--objects metal` Metallic 1 (one specular lobe);
+`--objects metal` Metallic 1 (one specular lobe); `--glossy-select F` scales Monte's lobe-choice estimate of every
+glossy lobe by F (a diagnostic);
 `--save DIR` writes the per-pixel variance maps and the region masks (npz). Numbers only. The findings:
 docs/performance.md, "The floor's excess at 256 spp: the objects' glossy reflections".
 """
@@ -64,6 +65,20 @@ def floor_regions(position: np.ndarray, direct: np.ndarray, floor: np.ndarray,
         dist = np.minimum(dist, np.hypot(d[..., 0], d[..., 1]))
     return {"floor": floor, "lit": lit, "penumbra": floor & ~lit & ~shadow, "shadow": shadow,
             "near": floor & (dist < near), "far": floor & (dist >= near)}
+
+
+def scale_glossy_selection(factor: float) -> None:
+    """Make Monte's lobe choice (for the rest of this process) pick glossy lobes as if their albedo estimate were
+    `factor` x what core.bsdf estimates: a diagnostic of the choice probabilities, unbiased by construction."""
+    from ..core import bsdf
+
+    original = bsdf._lobe_select_scale
+
+    def scaled(kind, fresnel, ior, f0, layer, tint=None):
+        s = original(kind, fresnel, ior, f0, layer, tint)
+        return s * factor if kind == bsdf.GLOSSY else s
+
+    bsdf._lobe_select_scale = scaled
 
 
 def edit_material(material, how: str) -> None:
@@ -113,11 +128,16 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="the crate's and the ball's materials: as built; flat: their Normal Map / Bump unlinked; "
                         "matte: a Diffuse BSDF (same colour and normal inputs) instead of the Principled BSDF; "
                         "metal: the Principled BSDF with Metallic 1 (one specular lobe, no lobe choice)")
+    p.add_argument("--glossy-select", type=float, default=1.0,
+                   help="Monte only, a diagnostic: scale every glossy lobe's lobe-choice estimate by this factor "
+                        "(core.bsdf._lobe_select_scale; unbiased: the choice shapes the variance, not the mean)")
     p.add_argument("--save", default="", help="folder for the per-pixel variance maps (npz)")
     args = p.parse_args(argv)
     counts = [int(x) for x in args.spp.split(",")]
     configs = [(c, *variant(c)) for c in args.configs.split(",")]
 
+    if args.glossy_select != 1.0:
+        scale_glossy_selection(args.glossy_select)
     scene = bpy_scenes.build("textured", (args.resolution, args.resolution))
     for name in ("crate", "ball"):
         edit_material(bpy.data.materials[name], args.objects)
