@@ -255,6 +255,15 @@ _CACHE_LOAD_NUMBA_VERSIONS = ((0, 59), (0, 68))
 _CACHE_LOAD_NAMES = frozenset({"refresh", "_guard_against_spurious_io_errors", "_load_overload"})
 
 
+def _numba_patchable() -> bool:
+    """The two conditions every patch of numba's internals here shares: MONTE_PLAIN_NUMBA_LOADS unset (or 0) and
+    numba within the versions whose code was read (_CACHE_LOAD_NUMBA_VERSIONS). Each patch checks numba's code
+    itself too."""
+    if os.environ.get(PLAIN_NUMBA_LOADS_ENV, "").strip() not in ("", "0"):
+        return False
+    return _CACHE_LOAD_NUMBA_VERSIONS[0] <= tuple(numba.version_info[:2]) <= _CACHE_LOAD_NUMBA_VERSIONS[1]
+
+
 def _load_cached_kernels_without_refresh() -> bool:
     """Load cached CPU kernels without numba's typing and lowering registries. numba's Cache.load_overload
     refreshes the target context before every cached load ("to ensure it is initialized"): the first refresh of a
@@ -274,9 +283,7 @@ def _load_cached_kernels_without_refresh() -> bool:
     this stops applying. Returns True when installed."""
     from numba.core import caching, cpu
 
-    if os.environ.get(PLAIN_NUMBA_LOADS_ENV, "").strip() not in ("", "0"):
-        return False
-    if not (_CACHE_LOAD_NUMBA_VERSIONS[0] <= tuple(numba.version_info[:2]) <= _CACHE_LOAD_NUMBA_VERSIONS[1]):
+    if not _numba_patchable():
         return False
     cache_class = getattr(caching, "Cache", None)
     original = getattr(cache_class, "__dict__", {}).get("load_overload")
@@ -809,9 +816,7 @@ def _kernel_caches_deferrable() -> bool:
     its index file's `_source_stamp`, Monte's locator among numba's, and MONTE_PLAIN_NUMBA_LOADS unset."""
     from numba.core import dispatcher
 
-    if os.environ.get(PLAIN_NUMBA_LOADS_ENV, "").strip() not in ("", "0"):
-        return False
-    if not (_CACHE_LOAD_NUMBA_VERSIONS[0] <= tuple(numba.version_info[:2]) <= _CACHE_LOAD_NUMBA_VERSIONS[1]):
+    if not _numba_patchable():
         return False
     if "_PerImportNameLocator" not in globals() or _PerImportNameLocator not in _CacheImpl._locator_classes:
         return False

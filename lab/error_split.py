@@ -18,21 +18,28 @@ from typing import Sequence
 import numpy as np
 
 
+def pixel_variance(images: Sequence[np.ndarray]) -> np.ndarray:
+    """(H, W) variance of one image across K >= 2 renders ((H, W, >= 3) each, different seeds; ddof 1), averaged
+    over the RGB channels."""
+    stack = np.stack([np.asarray(i, np.float64)[..., :3] for i in images])
+    if len(stack) < 2:
+        raise ValueError(f"a variance needs at least 2 images (seeds), got {len(stack)}")
+    return stack.var(axis=0, ddof=1).mean(axis=-1)
+
+
 def split_error(images: Sequence[np.ndarray], reference: np.ndarray, reference_mse: float,
                 regions: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
     """Per region (name -> (H, W) bool mask): `variance`, the mean over its pixels and channels of the variance of
     one image across `images` (K >= 2 renders with different seeds, (H, W, >= 3)), and `bias2`, the squared error
     of their mean against `reference` minus the part of it the noise explains (variance / K, and the reference's
     own per-pixel mse): an unbiased estimate of the squared bias, which may come out slightly negative."""
-    stack = np.stack([np.asarray(i, np.float64)[..., :3] for i in images])
-    k = len(stack)
-    if k < 2:
-        raise ValueError(f"split_error needs at least 2 images (seeds) to estimate the variance, got {k}")
+    variance = pixel_variance(images)
+    k = len(images)
     ref = np.asarray(reference, np.float64)[..., :3]
-    if stack.shape[1:] != ref.shape:
-        raise ValueError(f"images are {stack.shape[1:3]}, the reference {ref.shape[:2]}")
-    variance = stack.var(axis=0, ddof=1).mean(axis=-1)
-    bias2 = ((stack.mean(axis=0) - ref) ** 2).mean(axis=-1) - variance / k - reference_mse
+    if variance.shape != ref.shape[:2]:
+        raise ValueError(f"images are {variance.shape}, the reference {ref.shape[:2]}")
+    stack_mean = np.mean([np.asarray(i, np.float64)[..., :3] for i in images], axis=0)
+    bias2 = ((stack_mean - ref) ** 2).mean(axis=-1) - variance / k - reference_mse
     out = {}
     for name, mask in regions.items():
         mask = np.asarray(mask, bool)

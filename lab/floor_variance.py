@@ -43,14 +43,6 @@ def variant(name: str) -> tuple[int, bool]:
     raise ValueError(f"unknown variant {name!r}: full, norr or bN (every bounce limit N)")
 
 
-def pixel_variance(images: Sequence[np.ndarray]) -> np.ndarray:
-    """(H, W) variance of one image across K >= 2 renders (ddof 1), averaged over the RGB channels."""
-    stack = np.stack([np.asarray(i, np.float64)[..., :3] for i in images])
-    if len(stack) < 2:
-        raise ValueError("need at least 2 renders (seeds) for a variance")
-    return stack.var(axis=0, ddof=1).mean(axis=-1)
-
-
 def floor_regions(position: np.ndarray, direct: np.ndarray, floor: np.ndarray,
                   footprints: Sequence[tuple[np.ndarray, np.ndarray]], near: float) -> dict[str, np.ndarray]:
     """Split the floor mask (H, W) by its direct light (H, W, 3: lit / penumbra / shadow, against the floor's 95th
@@ -114,7 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ..core.render import render
     from . import bpy_scenes
     from .bench_cycles import monte_settings, render_cycles
-    from .error_split import regions_by_box
+    from .error_split import pixel_variance, regions_by_box
 
     p = argparse.ArgumentParser(prog="python -m monte.lab.floor_variance", description=__doc__.split("\n\n")[0])
     p.add_argument("--resolution", type=int, default=256)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monte.lab.error_split import regions_by_box, split_error
+from monte.lab.error_split import pixel_variance, regions_by_box, split_error
 
 H, W, K = 64, 64, 400
 
@@ -67,3 +67,17 @@ def test_regions_by_box_gives_a_pixel_to_the_smallest_box_and_misses_to_the_back
     assert r["floor"].tolist() == [[True, False, False], [False, False, True]]
     assert r["cube"].tolist() == [[False, True, False], [False, False, False]]
     assert r["background"].tolist() == [[False, False, True], [True, True, False]]
+
+
+def test_pixel_variance_is_the_unbiased_variance_across_renders_averaged_over_channels():
+    rng = np.random.default_rng(5)
+    sigma = np.array([0.1, 0.2, 0.3])  # per channel: the mean over channels of sigma^2 is 0.14 / 3
+    images = [0.5 + sigma * rng.standard_normal((32, 32, 3)) for _ in range(200)]
+    v = pixel_variance(images)
+    assert v.shape == (32, 32)
+    # 1024 pixels x 199 degrees of freedom: the mean is within ~0.5 % of the truth (3 % allowed)
+    assert v.mean() == pytest.approx((sigma**2).mean(), rel=0.03)
+    two = [np.zeros((2, 2, 3)), np.ones((2, 2, 3))]  # ddof 1: (0 - 0.5)^2 + (1 - 0.5)^2 over 1
+    assert np.allclose(pixel_variance(two), 0.5)
+    with pytest.raises(ValueError, match="a variance needs at least 2 images"):
+        pixel_variance(two[:1])

@@ -1,12 +1,12 @@
-"""lab.floor_variance's arithmetic: the variant names, the per-pixel variance across renders, and the floor's split
-by direct light and by distance to the objects' footprints, on synthetic inputs. No bpy, no render."""
+"""lab.floor_variance's arithmetic: the variant names and the floor's split by direct light and by distance to the
+objects' footprints, on synthetic inputs (its per-pixel variance is lab.error_split's). No bpy, no render."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from monte.lab.floor_variance import floor_regions, pixel_variance, variant
+from monte.lab.floor_variance import floor_regions, variant
 
 
 def test_variant_names():
@@ -17,20 +17,6 @@ def test_variant_names():
     for bad in ("b", "bx", "rr", "16"):
         with pytest.raises(ValueError):
             variant(bad)
-
-
-def test_pixel_variance_is_the_unbiased_variance_across_renders_averaged_over_channels():
-    rng = np.random.default_rng(5)
-    sigma = np.array([0.1, 0.2, 0.3])  # per channel: the mean over channels of sigma^2 is 0.14 / 3
-    images = [0.5 + sigma * rng.standard_normal((32, 32, 3)) for _ in range(200)]
-    v = pixel_variance(images)
-    assert v.shape == (32, 32)
-    # 1024 pixels x 199 degrees of freedom: the mean is within ~0.5 % of the truth (3 % allowed)
-    assert v.mean() == pytest.approx((sigma**2).mean(), rel=0.03)
-    two = [np.zeros((2, 2, 3)), np.ones((2, 2, 3))]  # ddof 1: (0 - 0.5)^2 + (1 - 0.5)^2 over 1
-    assert np.allclose(pixel_variance(two), 0.5)
-    with pytest.raises(ValueError):
-        pixel_variance(two[:1])
 
 
 def test_floor_regions_split_by_direct_light_and_distance():
