@@ -15,6 +15,9 @@ The counter reads cost some tens of cycles each and LLVM may move cheap arithmet
 good to a few percent of the loop, not to the cycle. The counter counts wall cycles: on a loaded machine a
 descheduled thread charges the part it was in, so read the shares (preemption falls on each part in proportion
 to its time), not the seconds.
+The reads are not free either: on the Cornell box they roughly double the time of the parts that are not Embree
+(docs/performance.md, "The path loop's glue, round one"); lab/fused_sampling.py samples the shipped kernel with
+Linux perf instead, without a copy.
 """
 
 from __future__ import annotations

@@ -15,6 +15,8 @@ Sections (each a short run; all in one process, interleaved where two variants a
 - nodes: ns per node per shading point of the main shading nodes (Image Texture, Noise (Color; Fac at detail 0,
   2, 8), Voronoi, Wave, Mix, Math, Color Ramp, Bump, Normal Map, Principled), compiled from real Blender
   materials (lab/perf_nodes.py; needs bpy).
+- sampled: where the shipped fused path kernel's CPU goes on the Cornell box (Embree, the compiled kernel, libm),
+  sampled by Linux `perf` (cpu-clock) without an instrumented copy (lab/fused_sampling.py; needs the perf tool).
 - fused (only when named): where the fused path kernel's time goes, Embree's closest hits and shadow rays against
   the rest of a path, from a measurement copy of the kernel that reads the CPU's cycle counter (lab/fused_timing.py).
 - textured: the `textured` bench scene on one thread: CPU seconds, stages and the functions with the most own
@@ -233,6 +235,20 @@ def run_perf(args: argparse.Namespace) -> dict:
 
             r = report["textured"] = textured_profile(res, spp, args.repeat)
             print_textured_profile(r)
+    if "sampled" in sections:
+        import shutil
+
+        if shutil.which("perf") is None:
+            print("Sampled split of the fused kernel skipped: needs the Linux perf tool")
+        else:
+            from .fused_sampling import measure as sample_fused, report as print_sampled
+
+            try:
+                r = report["sampled"] = sample_fused(res, spp, max(threads, 1))
+            except (OSError, RuntimeError) as e:  # perf refused (perf_event_paranoid), or the child failed
+                print(f"Sampled split of the fused kernel skipped: {e}")
+            else:
+                print_sampled(r)
     if "fused" in sections:
         from .fused_timing import measure, report as print_fused
 
