@@ -29,6 +29,7 @@ so a cache built on one machine loads on every other: see `kernel_cpu()`.
 
 from __future__ import annotations
 
+import copy as copy_module
 import hashlib
 import os
 import sys
@@ -189,6 +190,177 @@ def _import_numba_array_support_without_blas() -> bool:
     return True
 
 
+_FRESH_CALLEE = threading.local()  # .active: inline_ir is inlining an IR that inline_function has just built
+_INLINE_FUNCTION_NAMES = frozenset({"run_untyped_passes", "__code__", "co_freevars", "inline_ir"})
+_inline_patch_state: list[bool] = []  # [installed?] once decided
+
+
+class _CopyUnlessFresh:
+    """numba.core.inline_closurecall's `copy` module, whose deepcopy returns its argument while inline_ir inlines
+    a callee IR that nobody else holds (_FRESH_CALLEE.active); everything else is the copy module's."""
+
+    def __init__(self, module) -> None:
+        self._module = module
+
+    def __getattr__(self, name: str):
+        return getattr(self._module, name)
+
+    def deepcopy(self, x, memo=None):
+        if getattr(_FRESH_CALLEE, "active", False):
+            return x
+        return self._module.deepcopy(x, memo)
+
+
+def _inline_fresh_callees_without_copies() -> bool:
+    """Inline Monte's `jit_inline` device functions (numba's inline="always") without numba deep-copying each
+    callee's IR twice per call site. numba's InlineWorker.inline_function builds the callee's IR afresh from its
+    bytecode (run_untyped_passes) and hands it to inline_ir, which deep-copies it block by block before mutating
+    it, and deep-copies the copy again to return an unmutated original, which the only caller of inline_function
+    (the untyped InlineInlinables pass) discards. Neither copy protects anything there: nothing else holds that
+    IR. The copies were ~45 % of the fused path kernel's cold compile (cProfile: 64 s of 140 s in `deepcopy`, for
+    118 inlined calls). inline_ir called directly (typed overload inlining, whose IR is cached and reused) keeps
+    both copies. The inlined IR is the same either way, and so is the compiled code (checked by
+    tests/test_jit_cache.py). Installed on numba's first compile in the process (the registries' first load,
+    _defer_numba_array_support_to_first_compile: where another package compiled first, numba's own inliner
+    stays) so a process that only loads cached kernels never imports numba's inliner; only on the numba
+    versions whose code was read, with inline_function's code as read; MONTE_PLAIN_NUMBA_LOADS=1 leaves numba's
+    own. Returns True when installed."""
+    if _inline_patch_state:
+        return _inline_patch_state[0]
+    installed = False
+    if _numba_patchable():
+        from numba.core import inline_closurecall
+
+        worker = getattr(inline_closurecall, "InlineWorker", None)
+        original = getattr(worker, "__dict__", {}).get("inline_function")
+        code = getattr(original, "__code__", None)
+        if getattr(original, "_monte_fresh_callee", False):
+            installed = True  # installed by another import of this package
+        elif (code is not None and frozenset(code.co_names) == _INLINE_FUNCTION_NAMES
+                and getattr(inline_closurecall, "copy", None) is copy_module):
+
+            def inline_function(self, caller_ir, block, i, function, arg_typs=None):
+                callee_ir = self.run_untyped_passes(function)
+                _FRESH_CALLEE.active = True
+                try:
+                    return self.inline_ir(caller_ir, block, i, callee_ir, function.__code__.co_freevars,
+                                          arg_typs=arg_typs)
+                finally:
+                    _FRESH_CALLEE.active = False
+
+            inline_closurecall.copy = _CopyUnlessFresh(copy_module)
+            installed = _install_patch(worker, "inline_function", inline_function, original, "_monte_fresh_callee")
+        _live_maps_as_bits()
+    _inline_patch_state.append(installed)
+    return installed
+
+
+# The names numba's compute_live_map (numba 0.68) and its nested functions use, as read for _live_map_as_bits.
+_LIVE_MAP_NAMES = frozenset({"topo_order", "defaultdict", "set", "keys", "tuple", "values", "len", "successors",
+                             "predecessors", "reversed"})
+
+
+def _code_names(code) -> frozenset:
+    """The global and attribute names a code object and the functions nested in it use."""
+    names = set(code.co_names)
+    for const in code.co_consts:
+        if hasattr(const, "co_names"):
+            names |= _code_names(const)
+    return frozenset(names)
+
+
+def _live_map_as_bits(cfg, blocks, var_use_map, var_def_map):
+    """numba.core.analysis.compute_live_map (the variables live at the entry of each block) with each block's
+    sets of variable names held as the bits of one Python int: the same two fixed points over the same block
+    order (definitions reaching each block's entry, forward; liveness, backward), where numba unions sets of
+    names. On the fused path kernel's IR (~650 blocks, thousands of variables after inlining) the set unions of
+    the reaching definitions were the largest single cost of its cold compile (numba computes the map after
+    every pass that changes the IR). The result is the least fixed point of the same monotone equations, so the
+    same sets (checked against numba's on every map of a kernel's compile in tests/test_jit_cache.py)."""
+    topo_order = cfg.topo_order()
+    bits: dict = {}
+    names: list = []
+
+    def mask(vars_) -> int:
+        m = 0
+        for name in vars_:
+            b = bits.get(name)
+            if b is None:
+                b = bits[name] = 1 << len(names)
+                names.append(name)
+            m |= b
+        return m
+
+    defs: dict = {}
+    uses = {offset: mask(var_use_map[offset]) for offset in blocks.keys()}
+
+    def defs_of(offset) -> int:
+        m = defs.get(offset)
+        if m is None:
+            m = defs[offset] = mask(var_def_map[offset])
+        return m
+
+    reach: dict = {}
+    changed = True
+    while changed:
+        changed = False
+        for offset in topo_order:
+            here = reach.get(offset, 0)
+            now = here | defs_of(offset) | (uses[offset] if offset in uses else mask(var_use_map[offset]))
+            if now != here:
+                reach[offset] = now
+                changed = True
+            for out_blk, _ in cfg.successors(offset):
+                before = reach.get(out_blk, 0)
+                after = before | now
+                if after != before:
+                    reach[out_blk] = after
+                    changed = True
+    live = dict(uses)
+    changed = True
+    while changed:
+        changed = False
+        for offset in reversed(topo_order):
+            live_vars = live[offset]
+            for inc_blk, _ in cfg.predecessors(offset):
+                before = live[inc_blk]
+                after = before | (live_vars & reach.get(inc_blk, 0) & ~defs_of(inc_blk))
+                if after != before:
+                    live[inc_blk] = after
+                    changed = True
+                    if inc_blk == offset:
+                        live_vars = after
+
+    def names_of(m: int) -> set:
+        out = set()
+        while m:
+            low = m & -m
+            out.add(names[low.bit_length() - 1])
+            m ^= low
+        return out
+
+    return {offset: names_of(m) for offset, m in live.items()}
+
+
+def _live_maps_as_bits() -> bool:
+    """Install _live_map_as_bits as numba's compute_live_map (numba.core.analysis's, which the IR post-processor
+    calls after every IR-changing pass, and ir_utils' copy, which dead-code removal calls), where numba's
+    function is the one read (its code calling exactly what was read). Installed with the inliner patch, on
+    numba's first compile. Returns True when installed."""
+    from numba.core import analysis, ir_utils
+
+    original = analysis.__dict__.get("compute_live_map")
+    if getattr(original, "_monte_bits", False):
+        return True
+    code = getattr(original, "__code__", None)
+    if code is None or _code_names(code) != _LIVE_MAP_NAMES or code.co_argcount != 4 or \
+            getattr(ir_utils, "compute_live_map", None) is not original:
+        return False
+    _install_patch(analysis, "compute_live_map", _live_map_as_bits, original, "_monte_bits")
+    ir_utils.compute_live_map = _live_map_as_bits
+    return True
+
+
 def _defer_numba_array_support_to_first_compile() -> bool:
     """Import numba's array support (_import_numba_array_support_without_blas) when numba first installs its
     registries, not at Monte's import: a process that only loads cached kernels never needs it (they load
@@ -208,6 +380,7 @@ def _defer_numba_array_support_to_first_compile() -> bool:
 
     def load_additional_registries(self):
         _import_numba_array_support_without_blas()  # no-op once imported (a dict lookup)
+        _inline_fresh_callees_without_copies()  # (a flag check once installed)
         _initialize_numba_extensions()  # (numba's first dispatcher call would have; a flag check once done)
         result = original(self)
         _complete_deferred_environments()  # (defined below; a list check once nothing is pending)

@@ -552,3 +552,136 @@ def test_a_function_compiled_with_the_patches_in_place_saves_its_cache_and_reloa
     assert any(p.suffix == ".nbc" for p in (tmp_path / "__pycache__").iterdir())
     second = _python(code)
     assert second["value"] == 90 and second["hits"] == 1
+
+
+def _numbas_live_map():
+    from numba.core import analysis
+
+    live_map = analysis.compute_live_map
+    return getattr(live_map, "_numba_original", live_map)
+
+
+def _loops_and_branches(a, n):
+    total = 0.0
+    i = 0
+    while i < n:
+        if a[i] > 0:
+            for j in range(i):
+                if j == 3:
+                    continue
+                total += a[j]
+                if total > 100:
+                    break
+        else:
+            k = i
+            while k > 0:
+                k -= 2
+            total -= k
+        i += 1
+    x = total if n else -1.0
+    return x
+
+
+def _straight_line(a):
+    b = a + 1
+    c = b * 2
+    return c - a
+
+
+def _self_loop(n):
+    while n > 0:
+        n -= 1
+    return n
+
+
+@pytest.mark.parametrize("func", [_loops_and_branches, _straight_line, _self_loop])
+def test_the_live_map_as_bits_is_numbas(func):
+    """The live map numba's post-processor computes after every IR-changing pass, from bit masks
+    (jit_cache._live_map_as_bits), is numba's own set for set on every block, for IR with loops, nested loops,
+    break, continue, a self-loop and straight-line code."""
+    from numba.core import analysis
+    from numba.core.compiler import run_frontend
+
+    func_ir = run_frontend(func)
+    cfg = analysis.compute_cfg_from_blocks(func_ir.blocks)
+    usedefs = analysis.compute_use_defs(func_ir.blocks)
+    expected = _numbas_live_map()(cfg, func_ir.blocks, usedefs.usemap, usedefs.defmap)
+    got = jit_cache._live_map_as_bits(cfg, func_ir.blocks, usedefs.usemap, usedefs.defmap)
+    assert got == expected
+    assert len(expected) == 1 if func is _straight_line else any(expected.values())  # loops carry live variables
+
+
+_INLINED_KERNELS = """
+    import numba
+    import numpy as np
+
+    @numba.njit(inline="always")
+    def _weight(a, i, scale):
+        w = 0.0
+        for k in range(i):
+            if a[k] > scale:
+                w += a[k] * scale
+            else:
+                w -= 1.0
+        return w
+
+    @numba.njit(inline="always")
+    def _pair(a, i):
+        return _weight(a, i, 0.5) + _weight(a, i + 1, 0.25)
+
+    @numba.njit
+    def kernel(a, out):
+        for i in range(a.shape[0] - 1):
+            out[i] = _pair(a, i) if a[i] > 0 else _weight(a, i, 2.0)
+        return out.sum()
+"""
+
+
+def test_the_compile_patches_install_on_the_first_compile_and_change_no_code(tmp_path):
+    """numba's inlining of inline="always" device functions without the two deep copies of each fresh callee IR,
+    and its live map from bit masks (jit_cache._inline_fresh_callees_without_copies), are installed by the first
+    compile of a process and not before; a kernel with nested inlined device functions, loops and branches
+    compiles to the same LLVM IR, and gives the same value, with them and without them."""
+    (tmp_path / "inlined_mod.py").write_text(textwrap.dedent(_INLINED_KERNELS))
+    code = f"""
+        import hashlib, json, sys
+        sys.path.insert(0, {str(tmp_path)!r})
+        from monte.core import jit_cache
+        before = "numba.core.inline_closurecall" in sys.modules and bool(jit_cache._inline_patch_state)
+        if sys.argv[1] == "off":
+            jit_cache._inline_patch_state.append(False)
+        import numpy as np
+        import inlined_mod
+        a = np.linspace(-1.0, 3.0, 40)
+        value = float(inlined_mod.kernel(a, np.zeros(40)))
+        from numba.core import analysis, inline_closurecall
+        (cres,) = inlined_mod.kernel.overloads.values()
+        print("RESULT " + json.dumps({{
+            "before": before, "state": jit_cache._inline_patch_state, "value": value,
+            "llvm": hashlib.sha256(cres.library.get_llvm_str().encode()).hexdigest(),
+            "bits": analysis.compute_live_map is jit_cache._live_map_as_bits,
+            "fresh": bool(getattr(inline_closurecall.InlineWorker.inline_function, "_monte_fresh_callee", False))}}))
+    """
+    on = _python(code.replace("sys.argv[1]", "'on'"))
+    off = _python(code.replace("sys.argv[1]", "'off'"))
+    assert on["before"] is False and on["state"] == [True] and on["bits"] and on["fresh"]
+    assert off["state"] == [False] and not off["bits"] and not off["fresh"]
+    assert on["llvm"] == off["llvm"] and on["value"] == off["value"]
+
+
+def test_a_copy_outside_a_fresh_inline_is_still_deep():
+    """inline_ir called directly (numba's typed inlining of overloads, whose IR is cached and reused) keeps its
+    deep copies: the stand-in copies unless inline_function marked the callee fresh."""
+    from numba.core import ir
+
+    jit_cache._inline_fresh_callees_without_copies()
+    from numba.core import inline_closurecall
+
+    block = ir.Block(ir.Scope(None, ir.Loc("f", 1)), ir.Loc("f", 1))
+    copied = inline_closurecall.copy.deepcopy(block)
+    assert copied is not block and isinstance(copied, ir.Block)
+    jit_cache._FRESH_CALLEE.active = True
+    try:
+        assert inline_closurecall.copy.deepcopy(block) is block
+    finally:
+        jit_cache._FRESH_CALLEE.active = False
