@@ -224,7 +224,8 @@ def _inline_fresh_callees_without_copies() -> bool:
     _defer_numba_array_support_to_first_compile: where another package compiled first, numba's own inliner
     stays) so a process that only loads cached kernels never imports numba's inliner; only on the numba
     versions whose code was read, with inline_function's code as read; MONTE_PLAIN_NUMBA_LOADS=1 leaves numba's
-    own. Returns True when installed."""
+    own. The two other cuts of the cold compile are installed beside it, each on its own check of numba's code
+    (_live_maps_as_bits, _ssa_rewrites_only_where_named). Returns True when this one is installed."""
     if _inline_patch_state:
         return _inline_patch_state[0]
     installed = False
@@ -251,6 +252,7 @@ def _inline_fresh_callees_without_copies() -> bool:
             inline_closurecall.copy = _CopyUnlessFresh(copy_module)
             installed = _install_patch(worker, "inline_function", inline_function, original, "_monte_fresh_callee")
         _live_maps_as_bits()
+        _ssa_rewrites_only_where_named()
     _inline_patch_state.append(installed)
     return installed
 
@@ -359,6 +361,74 @@ def _live_maps_as_bits() -> bool:
     _install_patch(analysis, "compute_live_map", _live_map_as_bits, original, "_monte_bits")
     ir_utils.compute_live_map = _live_map_as_bits
     return True
+
+
+_SSA_OCCURRENCES = threading.local()  # .labels: {variable name: labels of the blocks naming it} during _run_ssa
+_RUN_SSA_NAMES = frozenset({"CompilerError", "_CacheListVars", "_find_defs_violators", "_fix_ssa_vars", "_fresh_vars",
+                            "_iterated_domfronts", "_lazy_pformat", "_logger", "compute_cfg_from_blocks", "debug",
+                            "errors"})
+_BLOCK_REWRITE_NAMES = frozenset({"Block", "_logger", "_run_ssa_block_pass", "append", "body", "debug", "ir", "items",
+                                  "loc", "scope"})
+
+
+def _ssa_rewrites_only_where_named() -> bool:
+    """Let numba's SSA reconstruction rewrite only the blocks that name the variable it is fixing. numba's
+    _run_ssa fixes one variable with several definitions at a time, and for each it rewrites every statement of
+    every block twice (fresh names for its definitions, then each use tied to its reaching definition): ~324
+    variables x ~26,000 statements in the fused path kernel's IR after inlining, where a variable is named in a
+    handful of blocks. A statement that does not name the variable comes back from both rewrites as it is, with
+    nothing else changed, so a block naming it nowhere becomes a new block holding the same statements, as numba
+    would make it, without the per-statement work. Which blocks name which variable is listed once per _run_ssa
+    (every statement's list_vars, a superset of what the two rewrites read); fixing one variable never makes
+    another appear in a block (its new names are fresh, its phi nodes name only its own versions). The blocks
+    that name it are rewritten by numba's own code, in numba's order, so the IR is the same. Installed with the
+    inliner patch, on numba's first compile, where numba's two functions are the ones read. Returns True when
+    installed."""
+    from numba.core import ir, ssa
+
+    run_ssa = ssa.__dict__.get("_run_ssa")
+    rewrite = ssa.__dict__.get("_run_block_rewrite")
+    if getattr(run_ssa, "_monte_named_blocks", False):
+        return True
+    handlers = (getattr(ssa, "_FreshVarHandler", None), getattr(ssa, "_FixSSAVars", None))
+    if (getattr(run_ssa, "__code__", None) is None or getattr(rewrite, "__code__", None) is None or None in handlers
+            or frozenset(run_ssa.__code__.co_names) != _RUN_SSA_NAMES
+            or frozenset(rewrite.__code__.co_names) != _BLOCK_REWRITE_NAMES):
+        return False
+
+    def naming_blocks(blocks) -> dict:
+        labels: dict = {}
+        for label, block in blocks.items():
+            for stmt in block.body:
+                for var in stmt.list_vars():
+                    labels.setdefault(var.name, set()).add(label)
+        return labels
+
+    def _run_ssa(blocks):
+        outer = getattr(_SSA_OCCURRENCES, "labels", None)
+        _SSA_OCCURRENCES.labels = naming_blocks(blocks) if blocks else None
+        try:
+            return run_ssa(blocks)
+        finally:
+            _SSA_OCCURRENCES.labels = outer
+
+    def _run_block_rewrite(blocks, states, handler):
+        occurrences = getattr(_SSA_OCCURRENCES, "labels", None)
+        if occurrences is None or type(handler) not in handlers:
+            return rewrite(blocks, states, handler)
+        named = occurrences.get(states["varname"], ())
+        newblocks = {}
+        for label, block in blocks.items():
+            if label in named:
+                newblocks.update(rewrite({label: block}, states, handler))
+            else:
+                same = ir.Block(scope=block.scope, loc=block.loc)
+                same.body = list(block.body)
+                newblocks[label] = same
+        return newblocks
+
+    _install_patch(ssa, "_run_block_rewrite", _run_block_rewrite, rewrite, "_monte_named_blocks")
+    return _install_patch(ssa, "_run_ssa", _run_ssa, run_ssa, "_monte_named_blocks")
 
 
 def _defer_numba_array_support_to_first_compile() -> bool:

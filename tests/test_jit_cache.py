@@ -639,8 +639,9 @@ _INLINED_KERNELS = """
 
 def test_the_compile_patches_install_on_the_first_compile_and_change_no_code(tmp_path):
     """numba's inlining of inline="always" device functions without the two deep copies of each fresh callee IR,
-    and its live map from bit masks (jit_cache._inline_fresh_callees_without_copies), are installed by the first
-    compile of a process and not before; a kernel with nested inlined device functions, loops and branches
+    its live map from bit masks and its SSA reconstruction rewriting only the blocks that name the variable
+    (jit_cache._inline_fresh_callees_without_copies) are installed by the first compile of a process and not
+    before; a kernel with nested inlined device functions, loops, branches and variables defined more than once
     compiles to the same LLVM IR, and gives the same value, with them and without them."""
     (tmp_path / "inlined_mod.py").write_text(textwrap.dedent(_INLINED_KERNELS))
     code = f"""
@@ -654,18 +655,19 @@ def test_the_compile_patches_install_on_the_first_compile_and_change_no_code(tmp
         import inlined_mod
         a = np.linspace(-1.0, 3.0, 40)
         value = float(inlined_mod.kernel(a, np.zeros(40)))
-        from numba.core import analysis, inline_closurecall
+        from numba.core import analysis, inline_closurecall, ssa
         (cres,) = inlined_mod.kernel.overloads.values()
         print("RESULT " + json.dumps({{
             "before": before, "state": jit_cache._inline_patch_state, "value": value,
             "llvm": hashlib.sha256(cres.library.get_llvm_str().encode()).hexdigest(),
             "bits": analysis.compute_live_map is jit_cache._live_map_as_bits,
-            "fresh": bool(getattr(inline_closurecall.InlineWorker.inline_function, "_monte_fresh_callee", False))}}))
+            "fresh": bool(getattr(inline_closurecall.InlineWorker.inline_function, "_monte_fresh_callee", False)),
+            "ssa": bool(getattr(ssa._run_ssa, "_monte_named_blocks", False))}}))
     """
     on = _python(code.replace("sys.argv[1]", "'on'"))
     off = _python(code.replace("sys.argv[1]", "'off'"))
-    assert on["before"] is False and on["state"] == [True] and on["bits"] and on["fresh"]
-    assert off["state"] == [False] and not off["bits"] and not off["fresh"]
+    assert on["before"] is False and on["state"] == [True] and on["bits"] and on["fresh"] and on["ssa"]
+    assert off["state"] == [False] and not off["bits"] and not off["fresh"] and not off["ssa"]
     assert on["llvm"] == off["llvm"] and on["value"] == off["value"]
 
 
