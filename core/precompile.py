@@ -596,7 +596,7 @@ def precompile_kernels(log: Callable[[str], None] | None = None) -> dict[str, in
 
 def main() -> int:
     print(f"Monte: compiling the render kernels for a {jit_cache.KERNEL_CPU} CPU into {jit_cache.cache_dir()} "
-          "(cached: the first time takes about four minutes of CPU)", flush=True)
+          "(cached: the first time takes about three to four minutes of CPU)", flush=True)
     counts = precompile_kernels(log=lambda m: print(m, flush=True))
     print(f"Monte: {counts['compiled']} kernel signatures compiled, {counts['loaded']} loaded from the cache, "
           f"{counts['used']} of {counts['kernels']} kernels used, {counts['seconds']:.1f} s", flush=True)
