@@ -124,7 +124,7 @@ def built_zip(tmp_path_factory):
     if _THIS_PLATFORM is None:
         pytest.skip(f"no Monte extension build for {platform.system()} {platform.machine()}")
     out = tmp_path_factory.mktemp("dist")
-    # (the build compiles every kernel, feature kernels included: ~5 minutes of CPU, far more wall time on a
+    # (the build compiles every kernel, feature kernels included: ~3-4 minutes of CPU, far more wall time on a
     # loaded machine)
     proc = subprocess.run([sys.executable, str(ROOT / "tools" / "build_extension.py"), "--platform", _THIS_PLATFORM,
                            "--output-dir", str(out)], capture_output=True, text=True, timeout=1800)
