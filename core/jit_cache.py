@@ -29,7 +29,9 @@ so a cache built on one machine loads on every other: see `kernel_cpu()`.
 
 from __future__ import annotations
 
+import contextlib
 import copy as copy_module
+import errno
 import hashlib
 import os
 import sys
@@ -1019,7 +1021,8 @@ class _CacheOnUse:
     import for ~350 kernels, of which a 1-spp render calls ~15. The stamp its index is checked against is taken
     when the kernel is defined, as numba's is, so a kernel module edited between the import and the first call
     does not file the imported code under the edited sources' stamp. Module-level (nothing of it is pickled: a
-    dispatcher pickles its function and options, never its cache). See _defer_kernel_caches."""
+    dispatcher pickles its function and options, never its cache). Its saves take the cache folder's lock
+    (_OneSaveAtATime). See _defer_kernel_caches."""
 
     __slots__ = ("_dispatcher", "_stamp", "__weakref__")
 
@@ -1037,6 +1040,8 @@ class _CacheOnUse:
                 cache = caching.FunctionCache(dispatcher.py_func)
                 if type(getattr(cache._impl, "locator", None)) is _PerImportNameLocator:
                     cache._cache_file._source_stamp = self._stamp  # (the sources as they were when defined)
+                    if type(cache._cache_file) is caching.IndexDataCacheFile:
+                        cache._cache_file.__class__ = _OneSaveAtATime
                 dispatcher._cache = cache
         return cache
 
@@ -1048,6 +1053,67 @@ class _CacheOnUse:
 
 
 _CACHES_MADE = threading.Lock()
+
+
+@contextlib.contextmanager
+def file_lock(path: str):
+    """An exclusive lock between processes on the file `path` (created if missing, left in place), held while the
+    block runs; the operating system drops it when the process ends, however it ends. Yields True when locked;
+    where the file cannot be created or locked (a read-only folder, a file system without locks) the block runs
+    unlocked and it yields False. Not re-entrant: a second `with` on the same path in one process waits for the
+    first to end, even on the same thread."""
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError:
+        yield False
+        return
+    locked = False
+    try:
+        try:
+            if os.name == "nt":
+                import msvcrt
+
+                while True:
+                    try:
+                        msvcrt.locking(fd, msvcrt.LK_LOCK, 1)  # (gives up after ~10 s: then ask again)
+                        break
+                    except OSError as exc:
+                        if exc.errno not in (errno.EDEADLK, getattr(errno, "EDEADLOCK", errno.EDEADLK),
+                                             errno.EACCES):
+                            raise
+            else:
+                import fcntl
+
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            locked = True
+        except OSError:
+            pass
+        yield locked
+    finally:
+        if locked and os.name == "nt":
+            import msvcrt
+
+            try:
+                os.lseek(fd, 0, os.SEEK_SET)
+                msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
+            except OSError:
+                pass
+        os.close(fd)  # (drops a flock)
+
+
+SAVE_LOCK_NAME = "save.lock"  # in cache_dir(): held while a kernel's index and data files are written
+
+
+class _OneSaveAtATime(caching.IndexDataCacheFile):
+    """numba's index and data files of one kernel, saved by one process at a time. numba's save reads the index,
+    takes the first data file name it does not list and writes both: two processes saving two signatures of one
+    kernel at once (two renders compiling, the parallel precompile) could take the same name, and the index would
+    then file one signature's machine code under the other's. Under the cache folder's lock (SAVE_LOCK_NAME) each
+    save reads the index the other one wrote. Loads take no lock: numba replaces each file whole."""
+
+    def save(self, key, data):
+        with file_lock(os.path.join(self._cache_path, SAVE_LOCK_NAME)):
+            super().save(key, data)
 # numba's code read for _defer_kernel_caches (names its functions use).
 _ENABLE_CACHING_NAMES = frozenset({"FunctionCache", "_cache", "py_func"})
 _CACHE_INIT_NAMES = frozenset({"_impl", "_impl_class", "locator", "get_source_stamp", "IndexDataCacheFile",
@@ -1131,6 +1197,18 @@ def _is_kernel_file(path: str) -> bool:
     return known
 
 
+def _saving_one_at_a_time(dispatcher):
+    """dispatcher, its numba cache made now (the first kernel of a process: it finds the cache folder writable)
+    saving under the folder's lock as a deferred one does (_OneSaveAtATime), where the deferral applies at all
+    (KERNEL_CACHES_DEFERRED) and the cache is Monte's."""
+    cache = dispatcher.__dict__.get("_cache")
+    locator = getattr(getattr(cache, "_impl", None), "locator", None)
+    if (KERNEL_CACHES_DEFERRED and type(locator) is _PerImportNameLocator
+            and type(getattr(cache, "_cache_file", None)) is caching.IndexDataCacheFile):
+        cache._cache_file.__class__ = _OneSaveAtATime
+    return dispatcher
+
+
 def _defer_kernel_caches(**options):
     """A decorator defining a cached kernel as numba.njit(**options) does, with two pieces of numba's work per
     kernel left to when they are needed (every process defines ~350 kernels at import; a 1-spp render calls
@@ -1157,7 +1235,7 @@ def _defer_kernel_caches(**options):
         if (not KERNEL_CACHES_DEFERRED or not options.get("cache") or code is None or config.DISABLE_JIT
                 or config.CACHE_DIR or getattr(config, "CACHE_LOCATOR_CLASSES", "")
                 or cache_dir() not in _WRITABLE or "__signature__" in getattr(func, "__dict__", {})):
-            return plain(func)
+            return _saving_one_at_a_time(plain(func))
         if not _is_kernel_file(code.co_filename):
             return plain(func)
         func.__signature__ = _signature(func)
