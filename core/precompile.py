@@ -10,7 +10,10 @@ by the extension's install test (a node material under an environment map: nothi
 writes each kernel it compiles into the on-disk cache (core/jit_cache.py), so a later process loads them all.
 
 Run by `make setup` (`python -m monte.core.precompile`) for a checkout and by tools/build_extension.py, under
-Blender's import name, for the extension zip. `kernel_cache_counts()` says what this process compiled and what
+Blender's import name, for the extension zip. `main()` runs the work in worker processes, one per CPU core up to
+two (MONTE_PRECOMPILE_JOBS sets how many): each takes the next case no other has taken, and a kernel signature
+that one worker is compiling another waits for and then loads from the cache, so nothing compiles twice (a cold
+precompile on 2 cores: 104 s instead of ~200 s). `kernel_cache_counts()` says what this process compiled and what
 it loaded from the cache (the tests check that a process using a built cache compiled nothing).
 
 The cache holds every kernel numba compiled, device functions included (~330 signatures), but a render calls
@@ -23,6 +26,7 @@ hundreds of device functions nobody calls.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -564,28 +568,38 @@ def _cases() -> list[tuple[str, Callable[[], object], dict]]:
     return cases
 
 
+def _tasks() -> list[tuple[str, Callable[[], object]]]:
+    """The precompile's work as (name, run) pieces in its serial order: the node compiler's constant folding
+    first (as the add-on's export folds constants before its render), each case's render (a few pixels, 2
+    samples), the bump-shadowing kernels last."""
+    from .render import render
+    from .settings import RenderSettings
+
+    def rendering(build, overrides):
+        def run():
+            settings = RenderSettings(**{"spp": 2, "seed": 1, "threads": 2, "tile_size": 8, **overrides})
+            render(build(), settings.validate())
+        return run
+
+    return ([("node constant folding", _fold_constants_once)]
+            + [(name, rendering(build, overrides)) for name, build, overrides in _cases()]
+            + [("bump shadowing", _bump_shadowing_once)])
+
+
 def precompile_kernels(log: Callable[[str], None] | None = None) -> dict[str, int]:
     """Render every warm-up case (a few pixels, 2 samples each), compiling and caching each kernel the cache
     does not hold yet, and write the entry kernels they called from Python (ENTRY_KERNELS_FILE) when this
     process had run no kernel before (else the list is left as it is); returns kernel_cache_counts(), the number
     of entry signatures (None when not listed) and the seconds it took."""
-    from .render import render
-    from .settings import RenderSettings
-
     say = log or (lambda m: None)
     t0 = time.perf_counter()
     entries: dict = {}
     # A kernel this process already ran is called without being seen: the list would miss it; keep the one there.
     fresh = not any(d.signatures for d in _dispatchers())
     with _recording_entry_calls(entries):
-        _fold_constants_once()  # first, as the add-on's export folds constants before its render
-        say("  node constant folding")
-        for name, build, overrides in _cases():
-            settings = RenderSettings(**{"spp": 2, "seed": 1, "threads": 2, "tile_size": 8, **overrides})
-            render(build(), settings.validate())
+        for name, run in _tasks():
+            run()
             say(f"  {name}")
-        _bump_shadowing_once()
-        say("  bump shadowing")
     if fresh:
         write_entry_kernels(entries)
     counts = kernel_cache_counts()
@@ -594,20 +608,165 @@ def precompile_kernels(log: Callable[[str], None] | None = None) -> dict[str, in
     return counts
 
 
+# The parallel precompile: worker processes share the task list, each claiming the next unclaimed task, and a
+# signature that one is compiling the others wait for and then load from the cache instead of compiling it again.
+# The two kinds of the fused path kernel (with and without node programs) are the two largest compiles (about a
+# third of the whole): their tasks go first, so that two workers start one each.
+_FIRST_TASKS = ("node programs in the fused kernel", "cornell")
+JOBS_ENV = "MONTE_PRECOMPILE_JOBS"  # how many worker processes (default: up to 2, one per CPU core)
+_MAX_DEFAULT_JOBS = 2  # measured: 2 workers on 2 cores, each at most ~1.1 GB resident while it compiles
+
+
+def _parallel_order(tasks: list) -> list:
+    first = [task for name in _FIRST_TASKS for task in tasks if task[0] == name]
+    return first + [task for task in tasks if task not in first]
+
+
+@contextmanager
+def _compiles_one_process_at_a_time(lock_dir: str) -> Iterator[None]:
+    """While it lasts, a Monte kernel's signature that this process does not hold yet is loaded or compiled under
+    a lock file of lock_dir named after the kernel and signature: a process that finds another compiling it waits,
+    and then numba loads the other's result from the cache. Taken under numba's compiler lock (re-entrant, held by
+    numba's compile anyway), so this process's threads take the file locks one at a time and in numba's order;
+    between processes a wait cannot go round in a circle, since a kernel waits only for the device functions it
+    calls, which never call it back."""
+    from numba.core import sigutils
+    from numba.core.compiler_lock import global_compiler_lock
+    from numba.core.dispatcher import Dispatcher
+
+    original = Dispatcher.compile
+    prefix = jit_cache.PACKAGE + "."
+
+    def compile(self, sig):
+        module = getattr(self.py_func, "__module__", None) or ""
+        if not module.startswith(prefix):
+            return original(self, sig)
+        args, _ = sigutils.normalize_signature(sig)
+        if tuple(args) in self.overloads:
+            return original(self, sig)
+        name = hashlib.sha256(f"{module}.{self.py_func.__qualname__}{tuple(args)}".encode()).hexdigest()[:32]
+        with global_compiler_lock, jit_cache.file_lock(os.path.join(lock_dir, f"{name}.lock")):
+            return original(self, sig)
+
+    Dispatcher.compile = compile
+    try:
+        yield
+    finally:
+        Dispatcher.compile = original
+
+
+def _claim(lock_dir: str, index: int) -> bool:
+    """True for the one process that creates task `index`'s claim file in lock_dir."""
+    try:
+        os.close(os.open(os.path.join(lock_dir, f"task-{index}.claimed"), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        return False
+    return True
+
+
+def precompile_worker(lock_dir: str, worker: int) -> int:
+    """One worker process of the parallel precompile: runs each task of _parallel_order(_tasks()) that it claims
+    first, with its compiles coordinated with the other workers' (_compiles_one_process_at_a_time); prints what
+    it did and, last, its kernel_cache_counts() as JSON. Returns 0."""
+    t0 = time.perf_counter()
+    with _compiles_one_process_at_a_time(lock_dir):
+        for index, (name, run) in enumerate(_parallel_order(_tasks())):
+            if _claim(lock_dir, index):
+                started = time.perf_counter()
+                run()
+                print(f"  {name} (worker {worker}, {time.perf_counter() - started:.1f} s)", flush=True)
+    counts = kernel_cache_counts()
+    counts["seconds"] = time.perf_counter() - t0
+    print(json.dumps(counts), flush=True)
+    return 0
+
+
+def precompile_jobs() -> int:
+    """How many worker processes the precompile runs: MONTE_PRECOMPILE_JOBS when set (1: one process, no workers),
+    else one per CPU core up to 2; 1 where numba's cache saves are not locked (MONTE_PLAIN_NUMBA_LOADS=1 or a numba
+    this package was not read for: see core/jit_cache.py), where parallel compiles could corrupt its index."""
+    if not jit_cache.KERNEL_CACHES_DEFERRED:
+        return 1
+    text = os.environ.get(JOBS_ENV, "").strip()
+    if text:
+        try:
+            jobs = int(text)
+        except ValueError:
+            raise SystemExit(f"Monte: {JOBS_ENV}={text!r} is not a whole number of processes") from None
+        if jobs < 1:
+            raise SystemExit(f"Monte: {JOBS_ENV}={text!r} must be at least 1")
+        return jobs
+    return max(1, min(os.cpu_count() or 1, _MAX_DEFAULT_JOBS))
+
+
+def _python_here(code: str) -> list[str]:
+    """A command running `code` in a new interpreter with this process's module path (the package may be
+    importable only through it: the extension build imports it under Blender's name)."""
+    return [sys.executable, "-c", f"import sys; sys.path[:0] = {sys.path!r}; {code}"]
+
+
+def _precompile_in_parallel(jobs: int) -> dict | None:
+    """Run `jobs` precompile workers; their output passes through. Returns the summed counts (with the wall
+    seconds), or None when a worker failed (its output says why)."""
+    import subprocess
+    import tempfile
+
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="monte-precompile-") as lock_dir:
+        procs = [subprocess.Popen(_python_here(f"from {jit_cache.PACKAGE}.precompile import precompile_worker; "
+                                               f"sys.exit(precompile_worker({lock_dir!r}, {worker}))"),
+                                  stdout=subprocess.PIPE, text=True) for worker in range(jobs)]
+        totals: dict = {}
+        failed = False
+        def relay(proc) -> None:
+            for line in proc.stdout:
+                if line.startswith("{"):
+                    try:
+                        for key, value in json.loads(line).items():
+                            if key in ("compiled", "loaded"):
+                                totals[key] = totals.get(key, 0) + value
+                        continue
+                    except ValueError:
+                        pass
+                print(line, end="", flush=True)
+
+        relays = [threading.Thread(target=relay, args=(proc,), daemon=True) for proc in procs]
+        for thread in relays:
+            thread.start()
+        for proc, thread in zip(procs, relays):
+            failed |= proc.wait() != 0
+            thread.join()
+    if failed:
+        return None
+    totals["seconds"] = time.perf_counter() - t0
+    return totals
+
+
 def main() -> int:
+    jobs = precompile_jobs()
     print(f"Monte: compiling the render kernels for a {jit_cache.KERNEL_CPU} CPU into {jit_cache.cache_dir()} "
-          "(cached: the first time takes about three to four minutes of CPU)", flush=True)
-    counts = precompile_kernels(log=lambda m: print(m, flush=True))
-    print(f"Monte: {counts['compiled']} kernel signatures compiled, {counts['loaded']} loaded from the cache, "
-          f"{counts['used']} of {counts['kernels']} kernels used, {counts['seconds']:.1f} s", flush=True)
-    if counts["compiled"]:
+          f"(cached: the first time takes about three to four minutes of CPU"
+          f"{f', in {jobs} processes' if jobs > 1 else ''})", flush=True)
+    if jobs > 1:
+        counts = _precompile_in_parallel(jobs)
+        if counts is None:
+            print("Monte: a precompile worker failed (see above)", flush=True)
+            return 1
+        print(f"Monte: {counts.get('compiled', 0)} kernel signatures compiled, {counts.get('loaded', 0)} loaded from "
+              f"the cache, by {jobs} processes in {counts['seconds']:.1f} s", flush=True)
+    else:
+        counts = precompile_kernels(log=lambda m: print(m, flush=True))
+        print(f"Monte: {counts['compiled']} kernel signatures compiled, {counts['loaded']} loaded from the cache, "
+              f"{counts['used']} of {counts['kernels']} kernels used, {counts['seconds']:.1f} s", flush=True)
+    if jobs > 1 or counts["compiled"]:
         # A kernel compiled first as another's device function, then called from Python, was not seen being
         # called (numba had it already): list the entry kernels from a process that finds them all cached.
+        # (The workers list none: each ran only some of the cases.)
         import subprocess
 
-        code = (f"import sys; sys.path[:0] = {sys.path!r}; from {jit_cache.PACKAGE}.precompile import "
-                "precompile_kernels; print(precompile_kernels()['entry_signatures'])")
-        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        proc = subprocess.run(_python_here(f"from {jit_cache.PACKAGE}.precompile import precompile_kernels; "
+                                           "print(precompile_kernels()['entry_signatures'])"),
+                              capture_output=True, text=True)
         if proc.returncode != 0:
             print(f"Monte: listing the entry kernels failed:\n{proc.stderr[-2000:]}", flush=True)
             return 1
