@@ -274,6 +274,9 @@ def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str) ->
         raise BuildError(f"compiling the kernel cache with {python} failed:\n{proc.stdout[-3000:]}\n"
                          f"{proc.stderr[-3000:]}")
     log(f"kernel cache: {proc.stdout.strip().splitlines()[-1]}")
+    # The lock file its saves took (core/jit_cache.py: SAVE_LOCK_NAME) is not part of the cache; the staged copy
+    # is this build's alone, so nothing else holds it now.
+    (src / KERNEL_CACHE_DIR / "save.lock").unlink(missing_ok=True)
     return True
 
 
