@@ -52,11 +52,13 @@ class _YamlOnUse:
 
 def _install_patch(owner, name: str, replacement, original, flag: str) -> bool:
     """Put `replacement` where numba had `original` (owner.name), marked with `flag` (a later call of the same
-    installer finds it in place) and keeping numba's function as `_numba_original`, its docstring as its own.
+    installer finds it in place) and keeping numba's function as `_numba_original`, and numba's docstring where
+    the replacement has none of its own (a module-level replacement keeps the one saying how it differs).
     Returns True."""
     setattr(replacement, flag, True)
     replacement._numba_original = original
-    replacement.__doc__ = original.__doc__
+    if not replacement.__doc__:
+        replacement.__doc__ = original.__doc__
     setattr(owner, name, replacement)
     return True
 

@@ -661,12 +661,14 @@ def test_the_compile_patches_install_on_the_first_compile_and_change_no_code(tmp
             "before": before, "state": jit_cache._inline_patch_state, "value": value,
             "llvm": hashlib.sha256(cres.library.get_llvm_str().encode()).hexdigest(),
             "bits": analysis.compute_live_map is jit_cache._live_map_as_bits,
+            "bits_doc": (jit_cache._live_map_as_bits.__doc__ or "").split(" (")[0],
             "fresh": bool(getattr(inline_closurecall.InlineWorker.inline_function, "_monte_fresh_callee", False)),
             "ssa": bool(getattr(ssa._run_ssa, "_monte_named_blocks", False))}}))
     """
     on = _python(code.replace("sys.argv[1]", "'on'"))
     off = _python(code.replace("sys.argv[1]", "'off'"))
     assert on["before"] is False and on["state"] == [True] and on["bits"] and on["fresh"] and on["ssa"]
+    assert on["bits_doc"] == "numba.core.analysis.compute_live_map"  # its own docstring, not numba's, once installed
     assert off["state"] == [False] and not off["bits"] and not off["fresh"] and not off["ssa"]
     assert on["llvm"] == off["llvm"] and on["value"] == off["value"]
 
