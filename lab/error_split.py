@@ -18,13 +18,18 @@ from typing import Sequence
 import numpy as np
 
 
-def pixel_variance(images: Sequence[np.ndarray]) -> np.ndarray:
-    """(H, W) variance of one image across K >= 2 renders ((H, W, >= 3) each, different seeds; ddof 1), averaged
-    over the RGB channels."""
+def _rgb_stack(images: Sequence[np.ndarray]) -> np.ndarray:
+    """(K, H, W, 3) float64: the renders' RGB, K >= 2."""
     stack = np.stack([np.asarray(i, np.float64)[..., :3] for i in images])
     if len(stack) < 2:
         raise ValueError(f"a variance needs at least 2 images (seeds), got {len(stack)}")
-    return stack.var(axis=0, ddof=1).mean(axis=-1)
+    return stack
+
+
+def pixel_variance(images: Sequence[np.ndarray]) -> np.ndarray:
+    """(H, W) variance of one image across K >= 2 renders ((H, W, >= 3) each, different seeds; ddof 1), averaged
+    over the RGB channels."""
+    return _rgb_stack(images).var(axis=0, ddof=1).mean(axis=-1)
 
 
 def split_error(images: Sequence[np.ndarray], reference: np.ndarray, reference_mse: float,
@@ -33,12 +38,13 @@ def split_error(images: Sequence[np.ndarray], reference: np.ndarray, reference_m
     one image across `images` (K >= 2 renders with different seeds, (H, W, >= 3)), and `bias2`, the squared error
     of their mean against `reference` minus the part of it the noise explains (variance / K, and the reference's
     own per-pixel mse): an unbiased estimate of the squared bias, which may come out slightly negative."""
-    variance = pixel_variance(images)
-    k = len(images)
+    stack = _rgb_stack(images)  # (converted once: the variance and the mean both read it)
+    variance = stack.var(axis=0, ddof=1).mean(axis=-1)
+    k = len(stack)
     ref = np.asarray(reference, np.float64)[..., :3]
     if variance.shape != ref.shape[:2]:
         raise ValueError(f"images are {variance.shape}, the reference {ref.shape[:2]}")
-    stack_mean = np.mean([np.asarray(i, np.float64)[..., :3] for i in images], axis=0)
+    stack_mean = stack.mean(axis=0)
     bias2 = ((stack_mean - ref) ** 2).mean(axis=-1) - variance / k - reference_mse
     out = {}
     for name, mask in regions.items():

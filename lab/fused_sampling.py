@@ -122,7 +122,7 @@ def child(resolution: int, spp: int, threads: int, out_path: str) -> None:
 def measure(resolution: int = 256, spp: int = 16, threads: int = 1, frequency: int = 2000) -> dict:
     perf = shutil.which("perf")
     if perf is None:
-        raise RuntimeError("fused_sampling needs the `perf` tool")
+        raise RuntimeError("needs the Linux perf tool, which is not on PATH")
     with tempfile.TemporaryDirectory() as tmp:
         data, log = os.path.join(tmp, "perf.data"), os.path.join(tmp, "windows.json")
         cmd = [perf, "record", "-q", "-e", "cpu-clock", "-F", str(frequency), "-k", "CLOCK_MONOTONIC", "-o", data,
