@@ -16,7 +16,9 @@ import pytest
 
 from monte.core import jit_cache, precompile
 
-CORE = Path(jit_cache.__file__).parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from throwaway_kernels import throwaway_kernel_module  # noqa: E402
+
 MODULE = "_test_parallel_precompile_kernel"  # a throwaway kernel module in core/ (Monte's locator caches only there)
 
 
@@ -155,16 +157,8 @@ COMPILER = f"""
 
 @pytest.fixture
 def kernel_module():
-    path = CORE / f"{MODULE}.py"
-    path.write_text(KERNELS)
-    try:
+    with throwaway_kernel_module(MODULE, KERNELS) as path:
         yield path
-    finally:
-        path.unlink()
-        for entry in Path(jit_cache.cache_dir()).glob(f"{MODULE}.*"):
-            entry.unlink()
-        for entry in (CORE / "__pycache__").glob(f"{MODULE}.*.pyc"):
-            entry.unlink()
 
 
 def test_two_processes_needing_one_new_signature_compile_it_once(kernel_module, tmp_path):
