@@ -716,28 +716,28 @@ def _precompile_in_parallel(jobs: int) -> dict | None:
         procs = [subprocess.Popen(_python_here(f"from {jit_cache.PACKAGE}.precompile import precompile_worker; "
                                                f"sys.exit(precompile_worker({lock_dir!r}, {worker}))"),
                                   stdout=subprocess.PIPE, text=True) for worker in range(jobs)]
-        totals: dict = {}
-        failed = False
-        def relay(proc) -> None:
+        counts: list[dict] = [{} for _ in procs]  # each worker's closing counts, filled by its own relay thread
+
+        def relay(proc, into: dict) -> None:
             for line in proc.stdout:
                 if line.startswith("{"):
                     try:
-                        for key, value in json.loads(line).items():
-                            if key in ("compiled", "loaded"):
-                                totals[key] = totals.get(key, 0) + value
+                        into.update(json.loads(line))
                         continue
                     except ValueError:
                         pass
                 print(line, end="", flush=True)
 
-        relays = [threading.Thread(target=relay, args=(proc,), daemon=True) for proc in procs]
+        relays = [threading.Thread(target=relay, args=(proc, into), daemon=True) for proc, into in zip(procs, counts)]
         for thread in relays:
             thread.start()
+        failed = False
         for proc, thread in zip(procs, relays):
             failed |= proc.wait() != 0
             thread.join()
     if failed:
         return None
+    totals = {key: sum(c.get(key, 0) for c in counts) for key in ("compiled", "loaded")}
     totals["seconds"] = time.perf_counter() - t0
     return totals
 

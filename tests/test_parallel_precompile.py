@@ -207,3 +207,19 @@ def test_precompile_jobs_refuses_a_bad_value(monkeypatch, value, message):
     monkeypatch.setenv(precompile.JOBS_ENV, value)
     with pytest.raises(SystemExit, match=f"MONTE_PRECOMPILE_JOBS='{value}' {message}"):
         precompile.precompile_jobs()
+
+
+def test_the_precompile_in_two_workers_runs_each_task_once_and_lists_the_entries():
+    """`python -m monte.core.precompile` with 2 workers on the built cache: every task runs in exactly one worker,
+    nothing compiles (all loaded), and the entry-kernel list is written by the listing process, the same list."""
+    if not jit_cache.KERNEL_CACHES_DEFERRED:
+        pytest.skip("one process where numba's saves are not locked")
+    before = precompile.read_entry_kernels()
+    proc = _start("import runpy; runpy.run_module('monte.core.precompile', run_name='__main__')",
+                  **{precompile.JOBS_ENV: "2"})
+    out, err = proc.communicate(timeout=900)
+    assert proc.returncode == 0, f"{out[-3000:]}\n{err[-3000:]}"
+    ran = [line.strip().rsplit(" (worker ", 1)[0] for line in out.splitlines() if " (worker " in line]
+    assert sorted(ran) == sorted(name for name, _ in precompile._tasks())
+    assert "in 2 processes" in out and "Monte: 0 kernel signatures compiled" in out and "by 2 processes" in out
+    assert precompile.read_entry_kernels() == before and before
