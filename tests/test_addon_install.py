@@ -208,6 +208,24 @@ def test_zip_holds_only_the_add_on(built_zip):
     assert not any(n.startswith(("tests/", "tools/", ".venv", "dist/")) for n in names)
 
 
+def test_a_second_build_ships_the_kernels_the_first_one_kept(built_zip, tmp_path):
+    """The fixture's build kept the kernels it compiled in build/kernel-cache/ (or took ones an earlier build had
+    kept): a second build of the same sources copies them instead of compiling, and its zip's kernel cache is the
+    first one's, file for file and byte for byte."""
+    proc = subprocess.run([sys.executable, str(ROOT / "tools" / "build_extension.py"), "--platform", _THIS_PLATFORM,
+                           "--output-dir", str(tmp_path)], capture_output=True, text=True, timeout=1800)
+    assert proc.returncode == 0, f"{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    assert "the one an earlier build compiled for these sources" in proc.stdout
+    assert "kernel cache: compiling" not in proc.stdout
+    (second,) = tmp_path.glob(f"monte-*-{_THIS_PLATFORM.replace('-', '_')}.zip")
+    cache = "core/__pycache__/numba-bl_ext.user_default.monte.core/"
+    with zipfile.ZipFile(built_zip) as first_zip, zipfile.ZipFile(second) as second_zip:
+        first = {n: first_zip.read(n) for n in first_zip.namelist() if n.startswith(cache)}
+        again = {n: second_zip.read(n) for n in second_zip.namelist() if n.startswith(cache)}
+    assert len(first) > 300 and first.keys() == again.keys()
+    assert [n for n in first if first[n] != again[n]] == []
+
+
 def test_zip_installs_enables_and_renders(built_zip, tmp_path):
     user = tmp_path / "user"
     out = tmp_path / "out"

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import hashlib
 import json
 import importlib.util
 import os
@@ -246,10 +247,60 @@ def stage_subset(manifest: dict, platforms: list[str], stage: Path) -> Path:
     return src
 
 
-def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str) -> bool:
+KERNEL_BUILDS = ROOT / "build" / "kernel-cache"  # earlier builds' compiled kernels, one folder per kernel_build_key
+KEPT_KERNEL_BUILDS = 6  # the most recent ones kept
+
+
+def kernel_build_key(python: str, root: Path, env: dict) -> str | None:
+    """What a built kernel cache depends on, as one hex digest: the interpreter's full version, its numba's and
+    llvmlite's, the kernel CPU (generic for a build), the platform, and the kernel sources' digest with the
+    numba options (core.jit_cache.sources_digest: numba's own cache key). None when the probe fails."""
+    code = (f"import sys; sys.path.insert(0, {str(root)!r}); import llvmlite, numba, platform; "
+            f"from {BLENDER_PACKAGE}.core import jit_cache; print(sys.version, numba.__version__, "
+            "llvmlite.__version__, jit_cache.KERNEL_CPU, platform.system(), platform.machine(), "
+            "jit_cache.sources_digest(), sep='\\n')")
+    proc = subprocess.run([python, "-c", code], capture_output=True, text=True, env=env, cwd=root)
+    if proc.returncode != 0:
+        return None
+    return hashlib.sha256(proc.stdout.encode()).hexdigest()[:24]
+
+
+def _files(folder: Path) -> dict[str, tuple[int, int]]:
+    """{name: (size, mtime_ns)} of the plain files in folder (none when it does not exist)."""
+    if not folder.is_dir():
+        return {}
+    return {p.name: (p.stat().st_size, p.stat().st_mtime_ns) for p in folder.iterdir() if p.is_file()}
+
+
+def keep_kernel_build(cache: Path, names: list[str], key: str) -> None:
+    """Copy the files `names` of the built cache folder into KERNEL_BUILDS/key (whole: written beside and renamed
+    into place), then remove all but the KEPT_KERNEL_BUILDS most recent kept folders. A failure to keep costs
+    only the next build's time: it is logged, never raised."""
+    tmp = KERNEL_BUILDS / f".{key}.{os.getpid()}.tmp"
+    try:
+        tmp.mkdir(parents=True)
+        for name in names:
+            shutil.copy2(cache / name, tmp / name)
+        try:
+            os.replace(tmp, KERNEL_BUILDS / key)
+        except OSError:  # kept meanwhile by another build
+            shutil.rmtree(tmp, ignore_errors=True)
+        kept = sorted((p for p in KERNEL_BUILDS.iterdir() if p.is_dir() and not p.name.startswith(".")),
+                      key=lambda p: p.stat().st_mtime, reverse=True)
+        for old in kept[KEPT_KERNEL_BUILDS:]:
+            shutil.rmtree(old, ignore_errors=True)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        log(f"kernel cache: not kept for later builds ({exc})")
+
+
+def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str, reuse: bool = True) -> bool:
     """Compile every render kernel of the staged copy `src` with `python` into src/KERNEL_CACHE_DIR (for a
     generic CPU). Skipped, with a note, when that Python's numba is not the one the manifest bundles for it
-    (the cache would not match the numba Blender installs). Returns whether a cache was built."""
+    (the cache would not match the numba Blender installs). With `reuse`, a cache an earlier build compiled for
+    the same key (kernel_build_key: the same sources, interpreter, numba and llvmlite) is copied from
+    KERNEL_BUILDS instead of compiling again, and what this build compiles is kept there. Returns whether a
+    cache was built."""
     probe = subprocess.run([python, "-c", "import sys, numba; "
                             "print(f'{sys.version_info[0]}.{sys.version_info[1]}', numba.__version__)"],
                            capture_output=True, text=True)
@@ -266,6 +317,14 @@ def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str) ->
            if not k.startswith("NUMBA_") and k not in ("MONTE_KERNEL_CPU", "PYTHONPATH")}
     env["PYTHONDONTWRITEBYTECODE"] = "1"  # the cache folders ship: no .pyc in them
     root = src.parent.parent.parent
+    cache = src / KERNEL_CACHE_DIR
+    key = kernel_build_key(python, root, env) if reuse else None
+    if key is not None and (KERNEL_BUILDS / key / "entry-kernels.json").is_file():
+        shutil.copytree(KERNEL_BUILDS / key, cache, dirs_exist_ok=True)
+        log(f"kernel cache: Python {py_version}: the one an earlier build compiled for these sources, numba "
+            f"{numba_version} and this interpreter ({KERNEL_BUILDS / key}; --recompile-kernels compiles anew)")
+        return True
+    before = _files(cache)
     code = (f"import sys; sys.path.insert(0, {str(root)!r}); "
             f"from {BLENDER_PACKAGE}.core.precompile import main; sys.exit(main())")
     log(f"kernel cache: compiling for Python {py_version} (numba {numba_version}) ...")
@@ -276,7 +335,11 @@ def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str) ->
     log(f"kernel cache: {proc.stdout.strip().splitlines()[-1]}")
     # The lock file its saves took (core/jit_cache.py: SAVE_LOCK_NAME) is not part of the cache; the staged copy
     # is this build's alone, so nothing else holds it now.
-    (src / KERNEL_CACHE_DIR / "save.lock").unlink(missing_ok=True)
+    (cache / "save.lock").unlink(missing_ok=True)
+    if key is not None:  # what this compile wrote (an earlier interpreter's files in the folder are not its),
+        after = _files(cache)  # and NRT's module, which it may have loaded from an earlier interpreter's compile
+        keep_kernel_build(cache, sorted(n for n, stat in after.items()
+                                        if before.get(n) != stat or n.startswith("nrt-")), key)
     return True
 
 
@@ -462,6 +525,9 @@ def main(argv: list[str] | None = None) -> int:
                              "3.11 with the manifest's numba, for Blender 4.2 - 5.0)")
     parser.add_argument("--no-kernel-cache", action="store_true",
                         help="ship no compiled kernels (the first render after installing compiles them)")
+    parser.add_argument("--recompile-kernels", action="store_true",
+                        help="compile the shipped kernels even where an earlier build kept a cache for the same "
+                             "sources, interpreter and numba (build/kernel-cache/)")
     parser.add_argument("--pyc", choices=[*PYC_MODES, "none"], default="checked-hash",
                         help="the Python bytecode shipped (the add-on's, the render wheels') for each Python of the "
                              "manifest: checked-hash "
@@ -502,7 +568,7 @@ def main(argv: list[str] | None = None) -> int:
             with tempfile.TemporaryDirectory(prefix="monte-ext-") as tmp:
                 source = stage_subset(manifest, group, Path(tmp))
                 if with_cache:
-                    built_for = [build_kernel_cache(source, py, manifest, host)
+                    built_for = [build_kernel_cache(source, py, manifest, host, reuse=not args.recompile_kernels)
                                  for py in [sys.executable, *args.kernel_python]]
                     if not any(built_for):
                         log("kernel cache: none built; the first render after installing compiles the kernels")
