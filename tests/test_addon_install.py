@@ -226,6 +226,27 @@ def test_a_second_build_ships_the_kernels_the_first_one_kept(built_zip, tmp_path
     assert [n for n in first if first[n] != again[n]] == []
 
 
+def test_kept_kernel_builds_are_replaced_whole_and_only_the_newest_stay(tmp_path, monkeypatch):
+    """keep_kernel_build: a key kept again (--recompile-kernels) holds the new files only, nothing half-written
+    or set aside is left, and past KEPT_KERNEL_BUILDS keys the least recently kept go."""
+    build = _build_module()
+    monkeypatch.setattr(build, "KERNEL_BUILDS", tmp_path / "kept")
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    (cache / "a.nbi").write_bytes(b"first")
+    (cache / "b.nbc").write_bytes(b"other")
+    build.keep_kernel_build(cache, ["a.nbi", "b.nbc"], "k0")
+    (cache / "a.nbi").write_bytes(b"second")
+    build.keep_kernel_build(cache, ["a.nbi"], "k0")
+    assert sorted(p.name for p in (tmp_path / "kept").iterdir()) == ["k0"]
+    assert [(p.name, p.read_bytes()) for p in (tmp_path / "kept" / "k0").iterdir()] == [("a.nbi", b"second")]
+    for i in range(1, build.KEPT_KERNEL_BUILDS + 2):
+        os.utime(tmp_path / "kept" / f"k{i - 1}", (i, i))  # (each earlier than the next)
+        build.keep_kernel_build(cache, ["a.nbi"], f"k{i}")
+    kept = sorted(int(p.name[1:]) for p in (tmp_path / "kept").iterdir())
+    assert kept == list(range(2, build.KEPT_KERNEL_BUILDS + 2))
+
+
 def test_zip_installs_enables_and_renders(built_zip, tmp_path):
     user = tmp_path / "user"
     out = tmp_path / "out"

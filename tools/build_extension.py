@@ -274,22 +274,24 @@ def _files(folder: Path) -> dict[str, tuple[int, int]]:
 
 def keep_kernel_build(cache: Path, names: list[str], key: str) -> None:
     """Copy the files `names` of the built cache folder into KERNEL_BUILDS/key (whole: written beside and renamed
-    into place), then remove all but the KEPT_KERNEL_BUILDS most recent kept folders. A failure to keep costs
-    only the next build's time: it is logged, never raised."""
+    into place, replacing one kept before under that key), then remove all but the KEPT_KERNEL_BUILDS most
+    recently kept or used folders. A failure to keep costs only the next build's time: it is logged, never
+    raised."""
     tmp = KERNEL_BUILDS / f".{key}.{os.getpid()}.tmp"
+    old_copy = KERNEL_BUILDS / f".{key}.{os.getpid()}.old"
     try:
         tmp.mkdir(parents=True)
         for name in names:
             shutil.copy2(cache / name, tmp / name)
-        try:
-            os.replace(tmp, KERNEL_BUILDS / key)
-        except OSError:  # kept meanwhile by another build
-            shutil.rmtree(tmp, ignore_errors=True)
+        if (KERNEL_BUILDS / key).exists():  # (--recompile-kernels): the new compile replaces it
+            os.replace(KERNEL_BUILDS / key, old_copy)
+        os.replace(tmp, KERNEL_BUILDS / key)
+        shutil.rmtree(old_copy, ignore_errors=True)
         kept = sorted((p for p in KERNEL_BUILDS.iterdir() if p.is_dir() and not p.name.startswith(".")),
                       key=lambda p: p.stat().st_mtime, reverse=True)
         for old in kept[KEPT_KERNEL_BUILDS:]:
             shutil.rmtree(old, ignore_errors=True)
-    except OSError as exc:
+    except OSError as exc:  # (a build keeping the same key at the same moment, a read-only checkout, ...)
         shutil.rmtree(tmp, ignore_errors=True)
         log(f"kernel cache: not kept for later builds ({exc})")
 
@@ -299,7 +301,7 @@ def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str, re
     generic CPU). Skipped, with a note, when that Python's numba is not the one the manifest bundles for it
     (the cache would not match the numba Blender installs). With `reuse`, a cache an earlier build compiled for
     the same key (kernel_build_key: the same sources, interpreter, numba and llvmlite) is copied from
-    KERNEL_BUILDS instead of compiling again, and what this build compiles is kept there. Returns whether a
+    KERNEL_BUILDS instead of compiling again; what a build compiles is kept there either way. Returns whether a
     cache was built."""
     probe = subprocess.run([python, "-c", "import sys, numba; "
                             "print(f'{sys.version_info[0]}.{sys.version_info[1]}', numba.__version__)"],
@@ -318,9 +320,10 @@ def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str, re
     env["PYTHONDONTWRITEBYTECODE"] = "1"  # the cache folders ship: no .pyc in them
     root = src.parent.parent.parent
     cache = src / KERNEL_CACHE_DIR
-    key = kernel_build_key(python, root, env) if reuse else None
-    if key is not None and (KERNEL_BUILDS / key / "entry-kernels.json").is_file():
+    key = kernel_build_key(python, root, env)
+    if reuse and key is not None and (KERNEL_BUILDS / key / "entry-kernels.json").is_file():
         shutil.copytree(KERNEL_BUILDS / key, cache, dirs_exist_ok=True)
+        os.utime(KERNEL_BUILDS / key)  # (recently used: kept the longest)
         log(f"kernel cache: Python {py_version}: the one an earlier build compiled for these sources, numba "
             f"{numba_version} and this interpreter ({KERNEL_BUILDS / key}; --recompile-kernels compiles anew)")
         return True
