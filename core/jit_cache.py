@@ -1042,8 +1042,7 @@ class _CacheOnUse:
                 cache = caching.FunctionCache(dispatcher.py_func)
                 if type(getattr(cache._impl, "locator", None)) is _PerImportNameLocator:
                     cache._cache_file._source_stamp = self._stamp  # (the sources as they were when defined)
-                    if type(cache._cache_file) is caching.IndexDataCacheFile:
-                        cache._cache_file.__class__ = _OneSaveAtATime
+                    _save_under_lock(cache)
                 dispatcher._cache = cache
         return cache
 
@@ -1116,6 +1115,14 @@ class _OneSaveAtATime(caching.IndexDataCacheFile):
     def save(self, key, data):
         with file_lock(os.path.join(self._cache_path, SAVE_LOCK_NAME)):
             super().save(key, data)
+
+
+def _save_under_lock(cache) -> None:
+    """A Monte kernel's numba cache (FunctionCache) made to save under its folder's lock (_OneSaveAtATime)."""
+    if type(getattr(cache, "_cache_file", None)) is caching.IndexDataCacheFile:
+        cache._cache_file.__class__ = _OneSaveAtATime
+
+
 # numba's code read for _defer_kernel_caches (names its functions use).
 _ENABLE_CACHING_NAMES = frozenset({"FunctionCache", "_cache", "py_func"})
 _CACHE_INIT_NAMES = frozenset({"_impl", "_impl_class", "locator", "get_source_stamp", "IndexDataCacheFile",
@@ -1205,9 +1212,8 @@ def _saving_one_at_a_time(dispatcher):
     (KERNEL_CACHES_DEFERRED) and the cache is Monte's."""
     cache = dispatcher.__dict__.get("_cache")
     locator = getattr(getattr(cache, "_impl", None), "locator", None)
-    if (KERNEL_CACHES_DEFERRED and type(locator) is _PerImportNameLocator
-            and type(getattr(cache, "_cache_file", None)) is caching.IndexDataCacheFile):
-        cache._cache_file.__class__ = _OneSaveAtATime
+    if KERNEL_CACHES_DEFERRED and type(locator) is _PerImportNameLocator:
+        _save_under_lock(cache)
     return dispatcher
 
 
