@@ -38,7 +38,7 @@ from .memory import check_render_memory
 from .sampling import make_sampler
 from .scene import Scene
 from .schedule import (FILM_WINDOW_PIXELS, Segment, TileRect, adaptive_batch_target, batch_target, pass_bounds,
-                       pass_segments, sample_passes, tiles)
+                       pass_segments, sample_passes, tail_target, tiles)
 
 SampleRanges = dict[int, tuple[int, int]]  # tile index -> samples [start, end) to take of it
 from .settings import RenderSettings
@@ -590,14 +590,17 @@ class _LazyFilms(dict):
 class _TileRender:
     """One render while its batches run: the tiles' films, the batches in flight, the counters.
 
-    Batches run on `workers` threads (NumPy, numba and Embree release the GIL), at most `workers + 1` in flight,
-    and are accumulated in submission order on the calling thread: the image does not depend on timing. A tile
+    Batches run on `workers` threads (NumPy, numba and Embree release the GIL), about `workers + 1` batches' paths
+    in flight (the last, smaller batches of core.schedule.tail_target more of them), and are accumulated in
+    submission order on the calling thread: the image does not depend on timing. A tile
     whose samples all lie in one segment of one batch (every tile at 1 spp) is summed into a film of its own and
     written into the frame's images by the worker thread that traced it (nothing else feeds that film, so the bits
     are the same); the calling thread then only reports it (progress, on_tile) in submission order. A batch
     holds about `target` paths, gathered from as many tile passes as it takes (at 1 spp a 64x64 tile is only
     4096 paths, far too few to amortise NumPy's per-call cost); small images are split into at least 8 batches
-    (core.schedule.batch_target) so that threads share them. None of this depends on the thread count.
+    (core.schedule.batch_target) so that threads share them, and the last ones shrink so that the threads finish
+    together (core.schedule.tail_target, which alone depends on the thread count: it cuts a tile's pass at pixel
+    boundaries, which changes no sum). The image depends on none of this.
     """
 
     def __init__(self, scene: Scene, settings: RenderSettings, prepared: PreparedScene, accel: Accelerator,
@@ -686,6 +689,7 @@ class _TileRender:
             self.target = adaptive_batch_target(self.target, rw * rh, self.min_samples)
         self.pool: ThreadPoolExecutor | None = None
         self.in_flight: deque = deque()  # (segments, job)
+        self.in_flight_paths = 0  # their paths
         self.group: list[Segment] = []  # segments of the batch being gathered
         self.group_paths = 0
         self.tracers: list[PathTracer] = []  # one per worker thread
@@ -700,6 +704,9 @@ class _TileRender:
             # One window of tiles at a time (their films alone alive when tiles need several passes), except
             # under a time limit, where every pass goes round the whole image so that it sharpens evenly.
             window = FILM_WINDOW_PIXELS if self.settings.time_limit <= 0 else 0
+            # the paths still to hand out, for the shrinking last batches (tail_target); adaptive sampling's
+            # passes skip converged pixels, so their count is not known ahead: its batches keep their size
+            left = None if self.adaptive or self.pool is None else self._paths_to_trace(window)
             for ti, tile, first_sample, count in sample_passes(self.tiles, self.spp, self.settings,
                                                                self.min_samples, window):
                 if self.work is not None and not self._in_work(ti, first_sample, count):
@@ -709,13 +716,17 @@ class _TileRender:
                     pixels = self._unconverged_pixels(ti, tile, first_sample, count)
                     if len(pixels) == 0:
                         continue
-                for seg in pass_segments(ti, tile, pixels, first_sample, count, self.target):
+                target = self.target
+                if left is not None:
+                    target = tail_target(self.target, left + self.group_paths, self.workers)
+                    left -= len(pixels) * count
+                for seg in pass_segments(ti, tile, pixels, first_sample, count, target):
                     if self._stop_requested():
                         self.cancelled = True
                         break
                     self.group.append(seg)
                     self.group_paths += len(seg.loc)
-                    if self.group_paths >= self.target:
+                    if self.group_paths >= target:
                         self._submit()
                 if self.cancelled:
                     break
@@ -729,6 +740,13 @@ class _TileRender:
                 for _, job in self.in_flight:
                     job.cancel()
                 self.pool.shutdown(wait=True)
+
+    def _paths_to_trace(self, window: int) -> int:
+        """Paths of every pass the run will queue (the sample ranges' alone under render_samples())."""
+        return sum(tile[2] * tile[3] * count
+                   for ti, tile, first_sample, count in sample_passes(self.tiles, self.spp, self.settings,
+                                                                      self.min_samples, window)
+                   if self.work is None or self._in_work(ti, first_sample, count))
 
     def _unconverged_pixels(self, ti: int, tile: TileRect, first_sample: int, count: int) -> np.ndarray:
         """Adaptive sampling: the tile's pixels still above the noise threshold, once its earlier samples are all
@@ -764,7 +782,8 @@ class _TileRender:
         while self.in_flight:
             job = self.in_flight[0][-1]
             if self.pool is not None and job.cancel():
-                self.in_flight.popleft()
+                segments, _ = self.in_flight.popleft()
+                self.in_flight_paths -= sum(len(seg.loc) for seg in segments)
             else:
                 self._finish_one(quiet=True)
 
@@ -778,18 +797,26 @@ class _TileRender:
 
     # ------------------------------------------------------------------------------------------- batches
     def _submit(self) -> None:
-        """Queue the gathered segments as one batch; beyond `workers` batches in flight, finish the oldest."""
+        """Queue the gathered segments as one batch; beyond `workers` batches in flight that hold more than
+        `workers` full batches' paths, finish the oldest. (The paths bound lets the small last batches of
+        tail_target queue up behind a large one still running: a thread that is done with its own takes the
+        next instead of waiting for the calling thread, which waits for the oldest. Queued batches hold only
+        their pixel and sample indices; the threads trace one at a time each, so the paths alive are bounded as
+        before.)"""
         if not self.group:
             return
         segments, self.group = self.group, []
         self.largest_batch = max(self.largest_batch, self.group_paths)
+        self.in_flight_paths += self.group_paths
         self.group_paths = 0
         if self.pool is not None:
             job = self.pool.submit(self._run_batch, segments)
         else:  # no worker threads: the batch runs on this thread when it is finished
             job = partial(self._run_batch, segments)
         self.in_flight.append((segments, job))
-        if len(self.in_flight) > (self.workers if self.pool is not None else 0):
+        if self.pool is None:
+            self._finish_one()
+        elif len(self.in_flight) > self.workers and self.in_flight_paths > self.workers * self.target:
             self._finish_one()
 
     def _run_batch(self, segments: list[Segment]):
@@ -945,6 +972,7 @@ class _TileRender:
     def _finish_one(self, quiet: bool = False) -> None:
         """Wait for the oldest batch in flight and add it to its tiles' films (quiet: no callbacks)."""
         segments, job = self.in_flight.popleft()
+        self.in_flight_paths -= sum(len(seg.loc) for seg in segments)
         radiance, first, transparent, finished = job.result() if self.pool is not None else job()
         self.film_seconds += finished["film"]
         self.assembly_seconds += finished["assembly"]

@@ -35,6 +35,22 @@ def batch_target(settings: RenderSettings, total_paths: int) -> int:
     return max(1, min(settings.batch_paths, max(MIN_BATCH, -(-total_paths // 8))))
 
 
+def tail_target(target: int, paths_left: int, workers: int) -> int:
+    """Paths per batch for the next tile pass, while `paths_left` paths (that pass's included) are still to be
+    handed to `workers` threads: `target` as long as that fills every thread twice over; then the remainder in
+    2 x workers pieces, never below MIN_BATCH paths (nor above target). Batches of one size can cost very
+    different times (a tile of sky beside one of textured floor: 0.05 s against 0.7 s on the bench's `textured`),
+    and with the last ones whole a thread could finish alone for most of a batch's time; the shrinking tail
+    ends the threads together instead. One worker gets `target`: nothing runs beside it to wait for.
+
+    Batches are cut at pixel boundaries within a pass (pass_segments), so where they fall never changes an
+    image; only how many threads there are decides the cut."""
+    if workers <= 1:
+        return target
+    share = -(-paths_left // (2 * workers))
+    return max(min(target, share), min(target, MIN_BATCH))
+
+
 def adaptive_batch_target(target: int, region_pixels: int, min_samples: int) -> int:
     """With adaptive sampling a pass's convergence test waits for the tile's previous pass: keep each pass in
     >= 8 batches so that the threads still share it."""
@@ -125,8 +141,10 @@ def pass_bounds(tile_list: list[TileRect], spp: int, settings: RenderSettings) -
 def pass_segments(ti: int, tile: TileRect, pixels: np.ndarray, first_sample: int, count: int, target: int
                   ) -> Iterator[Segment]:
     """One tile's pass over `pixels` (tile-local indices), samples [first_sample, first_sample + count), cut
-    into segments of about `target` paths (made one at a time: a cancelled render stops making them)."""
-    pix_chunk = max(1, target // count)
+    into as few segments of at most about `target` paths as it takes, of equal pixel counts (made one at a time:
+    a cancelled render stops making them)."""
+    pieces = max(1, -(-len(pixels) // max(1, target // count)))
+    pix_chunk = max(1, -(-len(pixels) // pieces))
     chunks = [pixels[c0:c0 + pix_chunk] for c0 in range(0, len(pixels), pix_chunk)]
     for k, chunk in enumerate(chunks):
         yield Segment(ti, tile, np.repeat(chunk, count),
