@@ -70,7 +70,8 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
 # `monte perf` (lab/perf.py) and `monte mc-study` (lab/mc_study.py): their options here, so that building the
 # command line's parser imports neither module (NumPy, the Monte Carlo study: 0.08-0.12 s of every `monte` process
 # on the loaded 2-core machine).
-PERF_SECTIONS = ("stages", "threads", "memory", "skip", "adaptive", "nodes", "textured", "sampled", "fused")
+PERF_SECTIONS = ("stages", "threads", "balance", "memory", "skip", "adaptive", "nodes", "textured", "sampled",
+                 "fused")
 
 
 def add_perf_arguments(p: argparse.ArgumentParser) -> None:

@@ -5,6 +5,8 @@ Sections (each a short run; all in one process, interleaved where two variants a
   surface interaction, next-event estimation, BSDF sampling and compaction, film) and Embree's share of the
   worker thread-time.
 - threads: samples/s at 1, 2, ... N worker threads and the speed-up over 1 (alternating runs, best of `repeat`).
+- balance: how evenly the batches keep the threads busy, the last batches shrinking or not: measured on this
+  machine's threads and projected to 2-64 threads from a per-pixel cost map (lab/schedule_balance.py).
 - memory: peak NumPy allocation (tracemalloc) of a batch of paths per batch size, and MB per million paths in
   flight (the slope), of the per-bounce integrator (these two sections set MONTE_FUSED=0: the fused path kernel
   has no stages and no per-bounce arrays).
@@ -194,6 +196,11 @@ def run_perf(args: argparse.Namespace) -> dict:
         r = report["threads"] = thread_scaling(res, spp, threads, args.repeat)
         print("Thread scaling (best of %d): " % args.repeat + ", ".join(
             f"{n}: {v / 1e3:.0f} k/s ({r['speedup'][n]:.2f}x)" for n, v in r["samples_per_second"].items()))
+    if "balance" in sections:
+        from .schedule_balance import balance, print_balance
+
+        report["balance"] = balance(res, spp, threads, max(args.repeat, 3))
+        print_balance(report["balance"], res, spp)
     if "memory" in sections:
         r = report["memory"] = memory_per_batch(args.memory_resolution, 1, args.memory_batches)
         print("Peak NumPy memory of a batch by its size: " + ", ".join(

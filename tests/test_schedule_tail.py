@@ -89,3 +89,60 @@ def test_shrinking_batches_over_several_passes_and_at_one_sample(monkeypatch, kw
         assert getattr(whole, name).tobytes() == getattr(cut, name).tobytes(), name
     assert cut_calls == whole_calls
     np.testing.assert_array_equal(cut.sample_count, kw["spp"])
+# ------------------------------------------------------------------ lab.schedule_balance (monte perf --sections balance)
+@pytest.mark.parametrize("tile_size, threads", [(32, 2), (64, 2), (64, 4), (32, 1)])
+def test_the_balance_plan_cuts_the_batches_the_render_cuts(monkeypatch, tile_size, threads):
+    from monte.lab.schedule_balance import plan
+
+    settings = RenderSettings(spp=16, tile_size=tile_size, threads=threads, max_bounces=4, seed=5, aovs=False)
+    recorded = []
+    run_batch = render_module._TileRender._run_batch
+
+    def record(self, segments):
+        recorded.append(sorted((seg.tile, tuple(seg.loc[::seg.sample_end - int(seg.smp[0])])) for seg in segments))
+        return run_batch(self, segments)
+
+    monkeypatch.setattr(render_module._TileRender, "_run_batch", record)
+    render_module.render(scenes.cornell_box((128, 128)), settings)
+    planned = [sorted((t, tuple(loc)) for t, loc, count in batch)
+               for batch in plan((128, 128), settings, threads, tail=True)]
+    assert sorted(recorded) == sorted(planned)
+    whole = plan((128, 128), settings, threads, tail=False)
+    assert [sum(len(loc) * count for _, loc, count in b) for b in whole] == [32768] * 8
+
+
+def test_list_scheduling_and_the_projected_efficiency():
+    from monte.lab.schedule_balance import list_schedule, projected_efficiency
+
+    assert list_schedule([3, 1, 1, 1], 2) == 3
+    assert list_schedule([1, 1, 1, 3], 2) == 4  # the large batch last: one thread ends alone
+    assert list_schedule([2.0] * 8, 4) == 4.0
+    # 256x256 at 16 spp in 64x64 tiles: 8 batches of 131,072 paths (two tile passes of 65,536 each)
+    settings = RenderSettings(spp=16, tile_size=64, threads=2)
+    uniform = np.full((256, 256), 1e-6)
+    out = projected_efficiency(uniform, settings, (1, 2, 3))
+    assert out["1"]["tail"] == pytest.approx(1.0) and out["1"]["whole"] == pytest.approx(1.0)
+    assert out["2"]["tail"] == pytest.approx(1.0) and out["2"]["whole"] == pytest.approx(1.0)
+    # 8 equal batches on 3 threads take 3 rounds for 8/3 batches' work; the tail's 16 batches (the last ones
+    # of 16,384 paths, 1/64 of the frame) end within one of those: 64/66
+    assert out["3"]["whole"] == pytest.approx(8 / 9)
+    assert out["3"]["tail"] == pytest.approx(64 / 66)
+    assert (out["3"]["batches_tail"], out["3"]["batches_whole"]) == (16, 8)
+    # a frame whose last tile costs 16x the others': the whole batches leave the other thread idle
+    skewed = uniform.copy()
+    skewed[192:, 192:] *= 16
+    out = projected_efficiency(skewed, settings, (2,))
+    assert out["2"]["tail"] > out["2"]["whole"]
+
+
+def test_the_balance_section_prints_its_numbers(capsys):
+    from monte.lab.schedule_balance import balance, print_balance
+
+    report = balance(32, 2, 2, 1, scenes=("cornell",), project=(2, 16))
+    print_balance(report, 32, 2)
+    r = report["cornell"]
+    assert set(r["projected"]) == {"2", "16"} and r["threads"] == 2
+    assert all(0 < v[k] <= 1 for v in r["projected"].values() for k in ("tail", "whole"))
+    assert len(r["measured"]["tail"]["wall"]) == len(r["measured"]["whole"]["idle"]) == 1
+    assert r["cpu_seconds"] > 0
+    assert "cornell: projected parallel efficiency" in capsys.readouterr().out
