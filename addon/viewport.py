@@ -609,7 +609,8 @@ class ViewportSession:
         scene.validate(checked_meshes=self._checked_meshes.keys())
         # Holding the meshes keeps their ids from being reused by new ones while they are trusted.
         self._checked_meshes = {id(mesh): mesh for mesh in scene.meshes}
-        prepared = PreparedScene.build(scene, sample_world=self.settings.light_sampling == "light")
+        prepared = PreparedScene.build(scene, sample_world=self.settings.light_sampling == "light",
+                                       threads=self.settings.thread_count)
         if accel is None:
             accel = Accelerator(prepared.vertices, prepared.triangles, motion=prepared.motion)
         return prepared, accel

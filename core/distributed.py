@@ -126,7 +126,8 @@ def _prepared_for(frame_key: str, scene: Scene, settings: RenderSettings):
             _PREPARED.move_to_end(frame_key)
             return _PREPARED[frame_key]
         scene.validate()  # also puts its arrays in the forms PreparedScene expects
-        prepared = PreparedScene.build(scene, sample_world=settings.light_sampling == "light")
+        prepared = PreparedScene.build(scene, sample_world=settings.light_sampling == "light",
+                                       threads=settings.thread_count)
         entry = (prepared, Accelerator(prepared.vertices, prepared.triangles, motion=prepared.motion))
         _PREPARED[frame_key] = entry
         while len(_PREPARED) > _PREPARED_KEEP:

@@ -217,9 +217,10 @@ class PreparedScene:
         return self.uvs if self.uvs is not None else np.zeros((0, 3, 2), np.float32)
 
     @classmethod
-    def build(cls, scene: Scene, sample_world: bool = False) -> "PreparedScene":
+    def build(cls, scene: Scene, sample_world: bool = False, threads: int = 1) -> "PreparedScene":
         """sample_world: whether light sampling may pick the (uniform) world, see LightSampler; only the
-        light-sampling-only estimator needs it (it counts no emission that BSDF sampling finds)."""
+        light-sampling-only estimator needs it (it counts no emission that BSDF sampling finds). threads: how many
+        threads may share the preparation's parallel parts (a world map's importance grid)."""
         shift = scene.camera.position.copy()
         verts, tris, mats, normals, uvs, smooth, objs, seen_by, terminator, layers = ([], [], [], [], [], [], [], [],
                                                                               [], [])
@@ -325,7 +326,7 @@ class PreparedScene:
             radius = float(np.linalg.norm(hi - lo) / 2) or 1.0
         else:
             radius = 1.0
-        lights = LightSampler(scene, shift, emissive, radius, sample_world=sample_world)
+        lights = LightSampler(scene, shift, emissive, radius, sample_world=sample_world, threads=threads)
         has_nondelta = np.array(
             [any(lobe.kind == "diffuse" or lobe.roughness > 0 for lobe in m.lobes) for m in scene.materials], bool
         )
@@ -346,7 +347,7 @@ class PreparedScene:
         features["ray_visibility"] = sorted(visible_to)
         no_shadow = NoShadowLights.build(scene.lights, shift)
         features["lights_without_shadow"] = no_shadow is not None
-        links = LightLinks.build(scene, shift, emissive, radius, sample_world, link_rows)
+        links = LightLinks.build(scene, shift, emissive, radius, sample_world, link_rows, threads)
         shadow_links = ShadowLinks.build(scene.lights, shift, shadow_rows, emissive, vertices, triangles)
         features["light_linking"] = 0 if links is None else len(links.samplers)
         features["shadow_linking"] = 0 if shadow_links is None else len(shadow_links.sets)

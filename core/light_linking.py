@@ -80,9 +80,9 @@ class LightLinks:
 
     @classmethod
     def build(cls, scene, shift, emissive: EmissiveTriangles | None, radius: float, sample_world: bool,
-              mesh_rows: list[tuple[int, int, int]]) -> "LightLinks | None":
+              mesh_rows: list[tuple[int, int, int]], threads: int = 1) -> "LightLinks | None":
         """mesh_rows: per mesh with triangles, in the prepared order, (triangle count, light_sets mask, its own
-        receiver_set as an emitter). None when no emitter has a receiver set."""
+        receiver_set as an emitter). None when no emitter has a receiver set. threads: as LightSampler's."""
         receiver_of_triangle = np.concatenate([np.full(t, r, np.int64) for t, _, r in mesh_rows]) \
             if mesh_rows else np.zeros(0, np.int64)
         emitter_sets = set()
@@ -108,7 +108,7 @@ class LightLinks:
             if emissive is not None:
                 keep = np.isin(receiver_of_triangle[emissive.triangle_id], list(receives))
                 tris, index = _emissive_subset(emissive, keep)
-            samplers.append(LightSampler(part, shift, tris, radius, sample_world=sample_world))
+            samplers.append(LightSampler(part, shift, tris, radius, sample_world=sample_world, threads=threads))
             maps.append(index)
         class_of_triangle = np.concatenate(classes) if classes else np.zeros(0, np.int32)
         return cls(class_of_triangle, samplers, maps)

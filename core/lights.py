@@ -528,10 +528,11 @@ class LightSampler:
     then finds it alone, with MIS weight 1, and `intersect` still returns it. A uniform world's
     light samples (cosine-distributed about n) only duplicate a diffuse BSDF's own samples while taking
     selections, and shadow rays, from the other lights.
-    Work scales with N times the number of analytic lights in `intersect`, and with N in `sample`."""
+    Work scales with N times the number of analytic lights in `intersect`, and with N in `sample`. threads: how
+    many threads fill an environment map's importance grid (core.world.importance_luminance)."""
 
     def __init__(self, scene: Scene, shift: np.ndarray, emissive_triangles: EmissiveTriangles | None,
-                 scene_radius: float, sample_world: bool = True):
+                 scene_radius: float, sample_world: bool = True, threads: int = 1):
         shift = np.asarray(shift, dtype=np.float64).reshape(3)
         R = float(scene_radius) if np.isfinite(scene_radius) and scene_radius > 0 else 1.0
         self.shift = shift
@@ -552,7 +553,8 @@ class LightSampler:
         self._portals = portal_table(scene.world.portals, shift)  # world sampling through them (core.world)
         if len(self._portals):
             sample_world = True  # Cycles samples a world with portals whatever its variation
-        self.environment = EnvironmentDistribution(env if env is not None and not scene.world.is_black else None)
+        self.environment = EnvironmentDistribution(env if env is not None and not scene.world.is_black else None,
+                                                   threads)
         self.has_environment = self.environment.mean_luminance > 0
         if env is not None:
             wc = np.zeros(3)  # the map replaces the uniform colour

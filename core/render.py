@@ -547,7 +547,8 @@ def _check_inputs(scene: Scene, settings: RenderSettings, region, say, camera_on
 def _prepare(scene: Scene, settings: RenderSettings, say) -> tuple[PreparedScene, Accelerator, float]:
     """The scene flattened for rendering and its ray-casting structure; (prepared, accel, seconds taken)."""
     t0 = time.perf_counter()
-    prepared = PreparedScene.build(scene, sample_world=settings.light_sampling == "light")
+    prepared = PreparedScene.build(scene, sample_world=settings.light_sampling == "light",
+                                   threads=settings.thread_count)
     # Parallelism is across batches (see _TileRender), so each Embree call runs on the worker that makes it.
     accel = Accelerator(prepared.vertices, prepared.triangles, motion=prepared.motion)
     t_prepare = time.perf_counter() - t0

@@ -182,12 +182,14 @@ def radiance_batch(pix, par, d, out):
 
 
 @_jit
-def importance_grid(pix, par, Wr, Hr, k, out):
-    """out (Hr, Wr): luminance of the map world averaged over k x k points spread evenly inside each cell of an
-    equirectangular grid over world directions (row 0 at the bottom); k = 1 is Cycles' background map (the cell
-    centre)."""
+def importance_grid(pix, par, Wr, Hr, k, row0, out):
+    """out (rows, Wr): rows row0 .. row0 + rows of the luminance of the map world averaged over k x k points spread
+    evenly inside each cell of an equirectangular grid of Hr x Wr cells over world directions (row 0 at the
+    bottom); k = 1 is Cycles' background map (the cell centre). Each cell depends on nothing else, so threads may
+    fill disjoint rows at once (the kernel releases the GIL)."""
     inv = 1.0 / (k * k)
-    for i in range(Hr):
+    for row in range(out.shape[0]):
+        i = row0 + row
         for j in range(Wr):
             acc = 0.0
             for a in range(k):
@@ -196,7 +198,7 @@ def importance_grid(pix, par, Wr, Hr, k, out):
                     x, y, z, _ = equirect_direction((j + (b + 0.5) / k) / Wr, v)
                     r, g, bb = env_radiance(pix, par, x, y, z)
                     acc += 0.2126 * r + 0.7152 * g + 0.0722 * bb
-            out[i, j] = acc * inv
+            out[row, j] = acc * inv
 
 
 @_jit

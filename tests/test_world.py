@@ -223,3 +223,35 @@ def test_map_memory_is_counted():
     scene.world = World(environment=EnvironmentMap(np.ones((256, 512, 3), np.float32), map_resolution=128))
     after = estimate_render_memory(scene, RenderSettings(spp=1)).scene
     assert after - before == 256 * 512 * 12 + 2 * 8 * 128 * 64
+
+
+@pytest.mark.parametrize("projection, map_resolution", [("EQUIRECTANGULAR", 0), ("MIRROR_BALL", 200)])
+def test_importance_grid_shared_by_threads_is_the_same_bits(projection, map_resolution):
+    """The importance grid's rows split between threads (core.world.importance_luminance): every table the same
+    bits as one thread's, for any count (more threads than GRID_ROWS_PER_THREAD allows: fewer parts)."""
+    from monte.core.world import GRID_ROWS_PER_THREAD
+
+    env = EnvironmentMap(_sun_map(256, 128, seed=3), projection=projection, map_resolution=map_resolution)
+    env.validate([])
+    one = EnvironmentDistribution(env)
+    assert env.importance_resolution[1] >= 3 * GRID_ROWS_PER_THREAD  # so 2 and 3 threads do split it
+    for threads in (2, 3, 64):
+        many = EnvironmentDistribution(env, threads=threads)
+        assert many.mean_luminance == one.mean_luminance
+        for a, b in zip(one.tables, many.tables):
+            assert a.tobytes() == b.tobytes()
+
+
+def test_importance_grid_rows_from_row0():
+    """importance_grid(..., row0, out) fills out's rows as rows row0.. of the whole grid."""
+    from monte.core import world_kernels
+    from monte.core.world import importance_luminance
+
+    env = EnvironmentMap(_sun_map(64, 32, seed=4))
+    env.validate([])
+    pix, par = EnvironmentDistribution(env).tables[:2]
+    whole = importance_luminance(pix, par, 64, 32, 2)
+    part = np.full((5, 64), np.nan)
+    world_kernels.importance_grid(pix, par, 64, 32, 2, 20, part)
+    assert part.tobytes() == whole[20:25].tobytes()
+    assert np.all(whole > 0)
