@@ -6,11 +6,7 @@ deferral does not apply."""
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import pytest
@@ -18,7 +14,7 @@ import pytest
 from monte.core import jit_cache
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from throwaway_kernels import throwaway_kernel_module  # noqa: E402
+from throwaway_kernels import child_result, python_child, throwaway_kernel_module  # noqa: E402
 
 MODULE = "_test_deferred_kernel_cache"  # a throwaway kernel module in core/ (Monte's locator caches only there)
 
@@ -40,13 +36,7 @@ def never_called(a, b):
 
 
 def _python(code: str, **env) -> dict:
-    clean = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != jit_cache.KERNEL_CPU_ENV
-             and k != jit_cache.PLAIN_NUMBA_LOADS_ENV}
-    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
-                          timeout=900, env={**clean, **env})
-    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
-    assert proc.returncode == 0 and lines, f"exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
-    return json.loads(lines[-1][len("RESULT "):])
+    return child_result(python_child(code, **env))
 
 
 @pytest.fixture

@@ -5,7 +5,6 @@ signature compiled by one process while another that needs it waits and loads it
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -17,23 +16,10 @@ import pytest
 from monte.core import jit_cache, precompile
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from throwaway_kernels import throwaway_kernel_module  # noqa: E402
+from throwaway_kernels import (child_result as _result, python_child as _start,  # noqa: E402
+                              throwaway_kernel_module)
 
 MODULE = "_test_parallel_precompile_kernel"  # a throwaway kernel module in core/ (Monte's locator caches only there)
-
-
-def _start(code: str, **env) -> subprocess.Popen:
-    clean = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != jit_cache.KERNEL_CPU_ENV
-             and k != jit_cache.PLAIN_NUMBA_LOADS_ENV}
-    return subprocess.Popen([sys.executable, "-c", textwrap.dedent(code)], stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**clean, **env})
-
-
-def _result(proc: subprocess.Popen) -> dict:
-    out, err = proc.communicate(timeout=900)
-    lines = [ln for ln in out.splitlines() if ln.startswith("RESULT ")]
-    assert proc.returncode == 0 and lines, f"exit {proc.returncode}\n{out[-3000:]}\n{err[-3000:]}"
-    return json.loads(lines[-1][len("RESULT "):])
 
 
 @pytest.mark.skipif(os.name == "nt", reason="checks the lock with fcntl")
