@@ -725,6 +725,8 @@ class _TileRender:
                     if self._stop_requested():
                         self.cancelled = True
                         break
+                    if self.group_paths + len(seg.loc) > target:  # it would overfill the batch: the batch goes
+                        self._submit()  # first (a tail piece joins no other; no batch passes the target)
                     self.group.append(seg)
                     self.group_paths += len(seg.loc)
                     if self.group_paths >= target:

@@ -15,6 +15,10 @@ import numpy as np
 from .settings import RenderSettings
 
 MIN_BATCH = 1 << 14  # paths: below this NumPy's per-call overhead dominates a batch
+# tail_target's pieces per thread of the work left: 4 kept 94-99 % of 16 threads busy in the projections of
+# lab/schedule_balance on the bench scenes, where 2 left 73-98 % (docs/performance.md, "Threads that finish
+# together"); more pieces only add batches
+TAIL_PIECES = 4
 # Pixels whose films a render keeps alive at once when its tiles need several passes (core.render: the passes go
 # round one window of tiles at a time): 2^21 pixels, ~150 MB of film at 72 B/px, a 1080p frame in one window
 # (no change there), 1/16 of an 8K frame. Not tied to the thread count: 512 tiles of 64x64 keep 16+ threads fed.
@@ -37,17 +41,18 @@ def batch_target(settings: RenderSettings, total_paths: int) -> int:
 
 def tail_target(target: int, paths_left: int, workers: int) -> int:
     """Paths per batch for the next tile pass, while `paths_left` paths (that pass's included) are still to be
-    handed to `workers` threads: `target` as long as that fills every thread twice over; then the remainder in
-    2 x workers pieces, never below MIN_BATCH paths (nor above target). Batches of one size can cost very
-    different times (a tile of sky beside one of textured floor: 0.05 s against 0.7 s on the bench's `textured`),
-    and with the last ones whole a thread could finish alone for most of a batch's time; the shrinking tail
-    ends the threads together instead. One worker gets `target`: nothing runs beside it to wait for.
+    handed to `workers` threads: `target` as long as that fills every thread TAIL_PIECES times over; then the
+    remainder in TAIL_PIECES x workers pieces, never below MIN_BATCH paths (nor above target). Batches of one
+    size can cost very different times (a tile of sky beside one of textured floor: 0.05 s against 0.7 s on the
+    bench's `textured`), and with the last ones whole a thread could finish alone for most of a batch's time;
+    the shrinking tail ends the threads together instead. One worker gets `target`: nothing runs beside it to
+    wait for.
 
     Batches are cut at pixel boundaries within a pass (pass_segments), so where they fall never changes an
     image; only how many threads there are decides the cut."""
     if workers <= 1:
         return target
-    share = -(-paths_left // (2 * workers))
+    share = -(-paths_left // (TAIL_PIECES * workers))
     return max(min(target, share), min(target, MIN_BATCH))
 
 

@@ -3,7 +3,8 @@ shrinking last batches (core.schedule.tail_target), measured here and projected 
 machine has.
 
 - **Cost map.** One render on one thread, in 16x16 tiles of one batch each (every batch one tile's samples),
-  gives each pixel's CPU seconds per sample (the batch's thread time spread over its paths).
+  after an untimed one, gives each pixel's CPU seconds per sample (the batch's thread time spread over its
+  paths).
 - **Projection.** For each thread count, the batches a render with the default tiles and batch size hands out
   (`plan`: the same cuts as core.render's pass loop, tail or not), each costed from the map, run in order by
   threads that each take the next batch when free (list scheduling, as the pool does). Printed: the parallel
@@ -72,10 +73,12 @@ def _batches_timed(out: list) -> Iterator[None]:
 
 def cost_map(scene: Scene, settings: RenderSettings) -> np.ndarray:
     """(height, width) CPU seconds per sample of each pixel, from one render on one thread in COST_TILE-pixel
-    tiles whose batches hold one tile each."""
+    tiles whose batches hold one tile each, after one untimed render (a process's first batch of a scene also
+    loads, or compiles, the kernels it calls: that is no cost of its pixels)."""
     w, h = scene.camera.resolution
     fine = replace(settings, threads=1, tile_size=COST_TILE,
                    batch_paths=max(1024, COST_TILE * COST_TILE * settings.spp))
+    render_module.render(scene, fine)
     batches: list = []
     with _batches_timed(batches):
         render_module.render(scene, fine)
@@ -104,6 +107,9 @@ def plan(resolution: tuple[int, int], settings: RenderSettings, workers: int, ta
         here = tail_target(target, left + gathered, workers) if tail and workers > 1 else target
         left -= len(pixels) * count
         for seg in pass_segments(ti, tile, pixels, first_sample, count, here):
+            if gathered + len(seg.loc) > here and group:
+                batches.append(group)
+                group, gathered = [], 0
             group.append((seg.tile, seg.loc[::count], count))
             gathered += len(seg.loc)
             if gathered >= here:
