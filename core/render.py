@@ -725,8 +725,8 @@ class _TileRender:
                     if self._stop_requested():
                         self.cancelled = True
                         break
-                    if self.group_paths + len(seg.loc) > target:  # it would overfill the batch: the batch goes
-                        self._submit()  # first (a tail piece joins no other; no batch passes the target)
+                    if target < self.target and self.group_paths + len(seg.loc) > target:
+                        self._submit()  # a tail piece would overfill the batch: the batch goes first, alone
                     self.group.append(seg)
                     self.group_paths += len(seg.loc)
                     if self.group_paths >= target:

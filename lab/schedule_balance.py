@@ -107,7 +107,7 @@ def plan(resolution: tuple[int, int], settings: RenderSettings, workers: int, ta
         here = tail_target(target, left + gathered, workers) if tail and workers > 1 else target
         left -= len(pixels) * count
         for seg in pass_segments(ti, tile, pixels, first_sample, count, here):
-            if gathered + len(seg.loc) > here and group:
+            if here < target and gathered + len(seg.loc) > here and group:
                 batches.append(group)
                 group, gathered = [], 0
             group.append((seg.tile, seg.loc[::count], count))
