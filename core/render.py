@@ -785,8 +785,7 @@ class _TileRender:
         while self.in_flight:
             job = self.in_flight[0][-1]
             if self.pool is not None and job.cancel():
-                segments, _ = self.in_flight.popleft()
-                self.in_flight_paths -= sum(len(seg.loc) for seg in segments)
+                self._pop_oldest()
             else:
                 self._finish_one(quiet=True)
 
@@ -821,6 +820,12 @@ class _TileRender:
             self._finish_one()
         elif len(self.in_flight) > self.workers and self.in_flight_paths > self.workers * self.target:
             self._finish_one()
+
+    def _pop_oldest(self) -> tuple[list[Segment], object]:
+        """The oldest batch in flight (segments, job), taken off the queue and its paths off the count."""
+        segments, job = self.in_flight.popleft()
+        self.in_flight_paths -= sum(len(seg.loc) for seg in segments)
+        return segments, job
 
     def _run_batch(self, segments: list[Segment]):
         """A batch's paths (_trace_batch) and, for its segments that hold a whole tile's samples (every pixel, all
@@ -974,8 +979,7 @@ class _TileRender:
 
     def _finish_one(self, quiet: bool = False) -> None:
         """Wait for the oldest batch in flight and add it to its tiles' films (quiet: no callbacks)."""
-        segments, job = self.in_flight.popleft()
-        self.in_flight_paths -= sum(len(seg.loc) for seg in segments)
+        segments, job = self._pop_oldest()
         radiance, first, transparent, finished = job.result() if self.pool is not None else job()
         self.film_seconds += finished["film"]
         self.assembly_seconds += finished["assembly"]

@@ -15,9 +15,10 @@ import numpy as np
 from .settings import RenderSettings
 
 MIN_BATCH = 1 << 14  # paths: below this NumPy's per-call overhead dominates a batch
-# tail_target's pieces per thread of the work left: 4 kept 94-99 % of 16 threads busy in the projections of
-# lab/schedule_balance on the bench scenes, where 2 left 73-98 % (docs/performance.md, "Threads that finish
-# together"); more pieces only add batches
+# tail_target's pieces per thread of the work left: 4 kept 88-99 % of 16 threads busy in the projections of
+# lab/schedule_balance (eight scenes and sizes), 2 kept 87-98 % and did worse on 2 threads (73-98 % while tail
+# pieces could still regroup into one batch); 8 only added batches (docs/performance.md, "Threads that finish
+# together")
 TAIL_PIECES = 4
 # Pixels whose films a render keeps alive at once when its tiles need several passes (core.render: the passes go
 # round one window of tiles at a time): 2^21 pixels, ~150 MB of film at 72 B/px, a 1080p frame in one window
