@@ -32,6 +32,26 @@ class CameraRays:
 
 
 
+@dataclass
+class DeferredFootprints:
+    """The compact ray differentials (Bump nodes read them) of a batch of pinhole camera rays, not computed yet:
+    the fused path kernel computes a path's (pinhole_footprint) only when the path reaches a material that reads
+    them, and `compute` gives every ray's. raster (N, 2) float64: the rays' raster positions; params: the camera
+    (pinhole_params). Valid for the rays camera_rays made at those positions, before any origin shift."""
+
+    raster: np.ndarray
+    params: np.ndarray
+
+    def compute(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(dp, dd) (N,) float32 of the rays (origins, directions (N, 3) float32): pinhole_differentials' values."""
+        n = self.raster.shape[0]
+        dp, dd = np.empty(n, np.float32), np.empty(n, np.float32)
+        _pinhole_differentials(np.ascontiguousarray(self.raster[:, 0]), np.ascontiguousarray(self.raster[:, 1]),
+                               self.params, np.ascontiguousarray(origins, np.float32),
+                               np.ascontiguousarray(directions, np.float32), dp, dd)
+        return dp, dd
+
+
 @jit
 def aperture_point(u0, u1, blades, rotation, inv_ratio):
     """A uniform point of the unit aperture (Cycles' conventions): the unit disk, or for blades >= 3 the regular
@@ -54,21 +74,22 @@ def aperture_point(u0, u1, blades, rotation, inv_ratio):
 
 
 @jit_inline
-def _pinhole_ray(rx, ry, width, height, frame, right, up, back, ortho, clip_start, clip_end):
-    """One ray of _camera_rays in float64: (ox, oy, oz, dx, dy, dz, tmax, depth scale, t_start)."""
-    xmin, xmax, ymin, ymax = frame[0], frame[1], frame[2], frame[3]
+def _pinhole_ray_scalars(rx, ry, width, height, xmin, xmax, ymin, ymax, r0, r1, r2, u0, u1, u2, b0, b1, b2, ortho,
+                         clip_start, clip_end):
+    """One ray of _camera_rays in float64: (ox, oy, oz, dx, dy, dz, tmax, depth scale, t_start); the camera's
+    right, up and back axes as their components (r, u, b)."""
     x = xmin + (rx / width) * (xmax - xmin)
     y = ymax - (ry / height) * (ymax - ymin)
     if ortho:
-        dx, dy, dz = -back[0], -back[1], -back[2]
-        ox = x * right[0] + y * up[0] + clip_start * dx
-        oy = x * right[1] + y * up[1] + clip_start * dy
-        oz = x * right[2] + y * up[2] + clip_start * dz
+        dx, dy, dz = -b0, -b1, -b2
+        ox = x * r0 + y * u0 + clip_start * dx
+        oy = x * r1 + y * u1 + clip_start * dy
+        oz = x * r2 + y * u2 + clip_start * dz
         tm, scale, t0 = clip_end - clip_start, 1.0, clip_start
     else:
-        lx = x * right[0] + y * up[0] - back[0]
-        ly = x * right[1] + y * up[1] - back[1]
-        lz = x * right[2] + y * up[2] - back[2]
+        lx = x * r0 + y * u0 - b0
+        ly = x * r1 + y * u1 - b1
+        lz = x * r2 + y * u2 - b2
         length = math.sqrt(lx * lx + ly * ly + lz * lz)
         dx, dy, dz = lx / length, ly / length, lz / length
         scale = 1.0 / length  # cos of the angle between the ray and the view axis
@@ -76,6 +97,14 @@ def _pinhole_ray(rx, ry, width, height, frame, right, up, back, ortho, clip_star
         ox, oy, oz = dx * t0, dy * t0, dz * t0
         tm = clip_end / scale - t0
     return ox, oy, oz, dx, dy, dz, tm, scale, t0
+
+
+@jit_inline
+def _pinhole_ray(rx, ry, width, height, frame, right, up, back, ortho, clip_start, clip_end):
+    """One ray of _camera_rays in float64: (ox, oy, oz, dx, dy, dz, tmax, depth scale, t_start)."""
+    return _pinhole_ray_scalars(rx, ry, width, height, frame[0], frame[1], frame[2], frame[3], right[0], right[1],
+                                right[2], up[0], up[1], up[2], back[0], back[1], back[2], ortho, clip_start,
+                                clip_end)
 
 
 @jit
@@ -104,22 +133,51 @@ def _offset_length(ax, ay, az, bx, by, bz):
     return math.sqrt(x * x + y * y + z * z)
 
 
+# pinhole_params' layout: one float64 vector that the compiled kernels read a perspective or orthographic camera
+# (without depth of field) from
+PINHOLE_PARAMS = 18  # width, height, frame (xmin, xmax, ymin, ymax), right, up, back (3 each), ortho, clip start, end
+
+
+def pinhole_params(camera: Camera) -> np.ndarray | None:
+    """(PINHOLE_PARAMS,) float64: the camera as pinhole_footprint reads it (resolution in pixels, the image frame,
+    the unit right, up and back axes in world space, 1.0 for orthographic, the clipping distances); None for a
+    camera that is not a pinhole (panoramic, or depth of field)."""
+    if camera.kind == "PANO" or float(camera.aperture_radius()) > 0:
+        return None
+    w, h = camera.resolution
+    right, up, back, _, _ = _axes_and_raster(camera, np.zeros(0), np.zeros(0))
+    return np.concatenate([[float(w), float(h)], np.asarray(camera.frame(), np.float64), right, up, back,
+                           [1.0 if camera.kind == "ORTHO" else 0.0, float(camera.clip_start),
+                            float(camera.clip_end)]]).astype(np.float64)
+
+
+@jit_inline
+def _pinhole_ray_params(rx, ry, p):
+    """_pinhole_ray of the camera pinhole_params describes (the same arithmetic)."""
+    return _pinhole_ray_scalars(rx, ry, p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10], p[11],
+                                p[12], p[13], p[14], p[15] != 0.0, p[16], p[17])
+
+
+@jit_inline
+def pinhole_footprint(rx, ry, p, ox, oy, oz, dx, dy, dz):
+    """Cycles' compact camera-ray differentials (dP, dD) as float32 (see shading.vector_context
+    .camera_differentials) of the ray that _camera_rays wrote for raster position (rx, ry) (origin o, direction d,
+    float32), for the camera p (pinhole_params): from the rays one pixel over in x and in y, each rounded to
+    float32 as _camera_rays stores it. The fused path kernel calls it for the paths that reach a Bump node."""
+    ax, ay, az, adx, ady, adz, _, _, _ = _pinhole_ray_params(rx + 1.0, ry, p)
+    bx, by, bz, bdx, bdy, bdz, _, _, _ = _pinhole_ray_params(rx, ry + 1.0, p)
+    dp = np.float32(0.5 * (_offset_length(ax, ay, az, ox, oy, oz) + _offset_length(bx, by, bz, ox, oy, oz)))
+    dd = np.float32(0.5 * (_offset_length(adx, ady, adz, dx, dy, dz) + _offset_length(bdx, bdy, bdz, dx, dy, dz)))
+    return dp, dd
+
+
 @jit
-def _pinhole_differentials(raster_x, raster_y, width, height, frame, right, up, back, ortho, clip_start,
-                           clip_end, origins, directions, dp, dd):
-    """Cycles' compact camera-ray differentials (see shading.vector_context.camera_differentials) of the rays
-    _camera_rays wrote (origins, directions float32), from the rays one pixel over in x and in y, each rounded
-    to float32 as _camera_rays stores it: the same arithmetic, bit for bit, without the two extra ray batches."""
+def _pinhole_differentials(raster_x, raster_y, p, origins, directions, dp, dd):
+    """pinhole_footprint of every ray _camera_rays wrote (origins, directions float32) at raster positions
+    (raster_x, raster_y), for the camera p (pinhole_params)."""
     for k in range(raster_x.shape[0]):
-        ox, oy, oz, dx, dy, dz = (origins[k, 0], origins[k, 1], origins[k, 2], directions[k, 0], directions[k, 1],
-                                  directions[k, 2])
-        ax, ay, az, adx, ady, adz, _, _, _ = _pinhole_ray(raster_x[k] + 1.0, raster_y[k], width, height, frame,
-                                                          right, up, back, ortho, clip_start, clip_end)
-        bx, by, bz, bdx, bdy, bdz, _, _, _ = _pinhole_ray(raster_x[k], raster_y[k] + 1.0, width, height, frame,
-                                                          right, up, back, ortho, clip_start, clip_end)
-        dp[k] = np.float32(0.5 * (_offset_length(ax, ay, az, ox, oy, oz) + _offset_length(bx, by, bz, ox, oy, oz)))
-        dd[k] = np.float32(0.5 * (_offset_length(adx, ady, adz, dx, dy, dz)
-                                  + _offset_length(bdx, bdy, bdz, dx, dy, dz)))
+        dp[k], dd[k] = pinhole_footprint(raster_x[k], raster_y[k], p, origins[k, 0], origins[k, 1], origins[k, 2],
+                                         directions[k, 0], directions[k, 1], directions[k, 2])
 
 
 @jit
@@ -355,14 +413,13 @@ def pinhole_differentials(camera: Camera, raster_x: np.ndarray, raster_y: np.nda
                           rays: CameraRays) -> tuple[np.ndarray, np.ndarray] | None:
     """shading.vector_context.camera_differentials of a perspective or orthographic camera without depth of
     field, compiled (the same bits); None for any other camera (panoramic, or a lens), which that computes."""
-    if camera.kind == "PANO" or float(camera.aperture_radius()) > 0:
+    p = pinhole_params(camera)
+    if p is None:
         return None
-    w, h = camera.resolution
-    right, up, back, rx, ry = _axes_and_raster(camera, raster_x, raster_y)
+    rx = np.ascontiguousarray(raster_x, np.float64).reshape(-1)
+    ry = np.ascontiguousarray(raster_y, np.float64).reshape(-1)
     n = rx.shape[0]
     dp, dd = np.empty(n, np.float32), np.empty(n, np.float32)
-    _pinhole_differentials(rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
-                           camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end),
-                           np.ascontiguousarray(rays.origins, np.float32),
+    _pinhole_differentials(rx, ry, p, np.ascontiguousarray(rays.origins, np.float32),
                            np.ascontiguousarray(rays.directions, np.float32), dp, dd)
     return dp, dd

@@ -26,6 +26,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from .camera import pinhole_footprint
 from .embree import _INVALID_ID, _call_embree, set_ray
 from .geometry_kernels import (_valid_reflection_normal, bump_terms_point, differentials_point, offset_point,
                                reframe_point, smooth_normal, smooth_surface_lift)
@@ -62,7 +63,7 @@ PROGRAM_FIELDS = ("needs_program", "prog_of_mat", "code", "code_start", "regs0",
                   "object_of_triangle", "tri_uvs", "shift", "P", "N", "Ng", "I", "uv", "back", "obj", "uvx", "extra",
                   "dP", "duv", "tan", "scratch", "select_scale", "emission", "normal_out", "has_normal", "aov_out",
                   "lobes", "albedo", "tangent_layers", "needs_tangents", "nraw", "diffuse_weight",
-                  "needs_differentials", "db", "ray_dp", "ray_dd")
+                  "needs_differentials", "db", "ray_dp", "ray_dd", "ray_raster", "pinhole", "hit_distances")
 
 
 @intrinsic
@@ -123,7 +124,8 @@ def _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, nx, ny, nz
     (needs, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg, normal_reg,
      tex_pixels, tex_offset, tex_h, tex_w, objects, obj_of_tri, tri_uvs, shift, P, N, Ng, I, uv, side, obj, uvx,
      extra, dP, duv, tan, scratch, t_scale, emission, normal_out, has_normal, aov_out, vl, alb, tangent_layers,
-     needs_tangents, nraw, _diffuse_weight, needs_differentials, db, _ray_dp, _ray_dd) = programs
+     needs_tangents, nraw, _diffuse_weight, needs_differentials, db, _ray_dp, _ray_dd, _raster, _pinhole,
+     _hit_t) = programs
     for l in range(lobes[0].shape[1]):
         vl[0][0, l] = lobes[0][mat, l]
         vl[2][0, l] = lobes[2][mat, l]
@@ -237,9 +239,15 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
         # fp (Cycles' dP) and its spread per unit distance fd (dD); at a hit fp + t fd (float32), which the
         # bounce ray keeps with the camera ray's fd
         fp = fd = _F0
+        # deferred (a pinhole camera's, core.camera.DeferredFootprints): computed at the path's first vertex that
+        # reads them, from the camera ray, then carried along its hit distances so far (nt of them) as above
+        deferred = False
+        nt = 0
         if programs is not None:
             if programs[45].shape[0] > 0:
                 fp, fd = programs[45][k], programs[46][k]
+            elif programs[48].shape[0] > 0:
+                deferred = True
         if TIMED:
             cp_ = _cycles()
         for depth in range(max_bounces + 2):
@@ -279,7 +287,11 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
             if not hit:
                 break
             if programs is not None:
-                fp = fp + t_hit * fd
+                if deferred:
+                    programs[49][nt] = t_hit
+                    nt += 1
+                else:
+                    fp = fp + t_hit * fd
             # ---- an emissive triangle hit
             mat = material_index[prim]
             if has_emitters and emitter_of_triangle[prim] >= 0:
@@ -354,6 +366,13 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                 if programs[0][mat]:
                     if TIMED:
                         c0_ = _cycles()
+                    if deferred and programs[43][mat]:
+                        fp, fd = pinhole_footprint(programs[47][k, 0], programs[47][k, 1], programs[48],
+                                                   origins[k, 0], origins[k, 1], origins[k, 2], directions[k, 0],
+                                                   directions[k, 1], directions[k, 2])
+                        for j in range(nt):
+                            fp = fp + programs[49][j] * fd
+                        deferred = False
                     _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, sx, sy, sz, gx, gy, gz, dx, dy,
                                   dz, cos_o_geo < _F0, face_normals, corner_normals, smooth, tri_vertices, fp)
                     if TIMED:  # (taken out of the surface's part below)

@@ -23,6 +23,7 @@ from . import bsdf as bsdf_mod
 from . import fused_tracer, geometry_kernels, path_kernels, transparent_shadow
 from . import light_passes as lp_mod
 from .accel import Accelerator, Hits, MotionTriangles
+from .camera import DeferredFootprints
 from .data_passes import DataPath
 from .light_groups import LightGroups, LightGroupSamples, emission_shares
 from .light_linking import LightLinks, ShadowLinks
@@ -793,6 +794,7 @@ class PathTracer:
         ray_dp: np.ndarray | None = None,
         ray_dd: np.ndarray | None = None,
         ray_time: np.ndarray | None = None,
+        footprints: DeferredFootprints | None = None,
     ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
         """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs; want_features adds the
         denoising features, FirstHit.features; a scene with a shadow catcher adds FirstHit.catcher) and their
@@ -801,14 +803,17 @@ class PathTracer:
         paths are the shadow catcher copies of paths that split (the camera ray arguments are theirs). ray_dp, ray_dd (N,) float32: the camera
         rays' compact differentials (Cycles' ray dP and dD: the spread of a pixel's footprint at the origin and its
         growth per unit distance), which Bump nodes read; None: zero. ray_time: (N,) each path's time in [0, 1]
-        over the shutter (motion blur; its bounces and shadow rays keep it), None for a still scene."""
+        over the shutter (motion blur; its bounces and shadow rays keep it), None for a still scene. footprints:
+        ray_dp and ray_dd not computed yet (a pinhole camera's rays, as camera_rays made them), in their place."""
         ps, s = self.ps, self.settings
         if (self.fused is not None and not (want_features or want_surface or self._catcher_copies)
                 and ray_time is None):
             self.stats.paths += len(origins)
             radiance, aovs = self.fused.trace(pixel_id, sample_id, origins, directions, tmax, depth_scale, t_start,
-                                              want_aovs, self.stats, ray_dp, ray_dd)
+                                              want_aovs, self.stats, ray_dp, ray_dd, footprints)
             return radiance, None if aovs is None else FirstHit(*aovs), None
+        if footprints is not None:  # this loop reads every path's
+            ray_dp, ray_dd = footprints.compute(origins, directions)
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
         first = None

@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from .accel import Accelerator
-from .camera import camera_rays
+from .camera import DeferredFootprints, camera_rays, pinhole_params
 from .data_passes import DataFilm, DataTables, manifests, take_samples
 from .data_passes import assemble as assemble_data
 from . import film_kernels
@@ -912,9 +912,16 @@ class _TileRender:
         else:
             rays = camera_rays(camera, raster_x, raster_y, lens_u)
         differentials = (None, None)
+        footprints = None
         if self.prepared.shading is not None and self.prepared.shading.needs_differentials:  # Bump nodes
-            # (compiled only from camera_rays' own rays: the NumPy form serves the moving camera's)
-            differentials = camera_differentials(camera, raster_x, raster_y, rays, lens_u, compiled=not moving)
+            params = None if moving or self.camera_offset is not None else pinhole_params(camera)
+            if params is not None:
+                # a pinhole camera's: computed where a path first reads them (the fused kernel), most never do
+                raster = np.empty((len(raster_x), 2))
+                raster[:, 0], raster[:, 1] = raster_x, raster_y
+                footprints = DeferredFootprints(raster, params)
+            else:  # (compiled only from camera_rays' own rays: the NumPy form serves the moving camera's)
+                differentials = camera_differentials(camera, raster_x, raster_y, rays, lens_u, compiled=not moving)
         if self.camera_offset is not None:  # prepared for another camera position (render(prepared=...))
             rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
@@ -930,7 +937,7 @@ class _TileRender:
             take = camera_arrays.pop
             out = tracer.trace(take(0), take(0), take(0), take(0), take(0), take(0), take(0), self.settings.aovs,
                                self.settings.denoising_features, self.data_tables is not None, differentials[0],
-                               differentials[1], ray_time)  # (no *args: a call with them keeps its arguments)
+                               differentials[1], ray_time, footprints)  # (no *args: a call keeps those)
         if self.data_tables is not None:
             first = out[1]
             first.data = self.data_tables.samples(first.surface)

@@ -309,6 +309,8 @@ def test_the_fused_kernel_reads_the_ray_differentials(fast_settings, monkeypatch
     settings = fast_settings(spp=4, threads=1)
     real = _render(scene, settings, monkeypatch, fused=True)
     original = render_mod.camera_differentials
+    # the differentials computed for every ray up front, as other cameras' are (not deferred: scaled below)
+    monkeypatch.setattr(render_mod, "pinhole_params", lambda camera: None)
 
     def scaled(factor):
         def differentials(*args, **kwargs):
@@ -326,6 +328,47 @@ def test_the_fused_kernel_reads_the_ray_differentials(fast_settings, monkeypatch
         assert not np.allclose(fused.color, real.color, rtol=1e-3), factor
         out[factor] = fused.color
     assert not np.allclose(out[0.0], out[2.0], rtol=1e-3)
+
+
+@pytest.mark.parametrize("kind", ["PERSP", "ORTHO"])
+def test_a_pinhole_cameras_differentials_computed_where_a_path_reads_them_are_the_same_bits(kind, fast_settings,
+                                                                                          monkeypatch):
+    """A pinhole camera's ray differentials are deferred (core.camera.DeferredFootprints): the fused kernel
+    computes a path's only when it reaches a material with a Bump node, from its camera ray, and carries them over
+    the hit distances so far (paths that meet the bump-free third material first, then a bumped one). The image
+    is the one whose differentials were computed for every ray before the kernel ran, compiled or in NumPy."""
+    from monte.core import render as render_mod
+    from monte.core.camera import DeferredFootprints
+
+    scene = bump_mapped_scene((24, 16))
+    if kind == "ORTHO":
+        scene.camera.kind, scene.camera.ortho_scale = "ORTHO", 5.0
+    settings = fast_settings(spp=8, threads=1, max_bounces=6)
+    made = []
+    real_init = DeferredFootprints.__init__
+
+    def counted(self, *args):
+        made.append(1)
+        real_init(self, *args)
+
+    monkeypatch.setattr(DeferredFootprints, "__init__", counted)
+    original = render_mod.camera_differentials
+
+    def refused(*args, **kwargs):
+        raise AssertionError("a pinhole camera's differentials were computed up front")
+
+    monkeypatch.setattr(render_mod, "camera_differentials", refused)
+    deferred = _render(scene, settings, monkeypatch, fused=True)
+    assert deferred.stats["fused_kernel"] and made
+    monkeypatch.setattr(render_mod, "pinhole_params", lambda camera: None)
+    for compiled in (True, False):
+        monkeypatch.setattr(render_mod, "camera_differentials",
+                            lambda *a, _c=compiled, **k: original(*a, **{**k, "compiled": _c and k["compiled"]}))
+        up_front = _render(scene, settings, monkeypatch, fused=True)
+        assert up_front.stats["fused_kernel"]
+        assert np.array_equal(deferred.color, up_front.color), compiled
+        assert np.array_equal(deferred.albedo, up_front.albedo), compiled
+    assert deferred.color[..., :3].mean() > 0.01
 
 
 def test_bump_mapped_programs_in_the_fused_kernel_are_bit_identical_across_thread_counts(fast_settings,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from monte.core.scene import Camera
-from monte.core.camera import camera_rays
+from monte.core.camera import DeferredFootprints, camera_rays, pinhole_params
 from monte.core.shading import evaluator as ev
 from monte.core.shading import registry as R
 from monte.core.shading.program import WIDTH, ShadingProgram
@@ -190,7 +190,23 @@ def test_compiled_camera_differentials_are_the_numpy_ones_bit_for_bit(kind):
     dp_np, dd_np = camera_differentials(cam, x, y, rays, compiled=False)
     assert dp.dtype == np.float32 and dd.dtype == np.float32
     assert np.array_equal(dp, dp_np) and np.array_equal(dd, dd_np)
+    # deferred (the fused kernel computes a path's where it reads them, with the same per-ray function)
+    deferred = DeferredFootprints(np.stack([x, y], axis=1), pinhole_params(cam))
+    dp_d, dd_d = deferred.compute(rays.origins, rays.directions)
+    assert np.array_equal(dp_d, dp_np) and np.array_equal(dd_d, dd_np)
     assert np.all(dp > 0) and (np.all(dd > 0) if kind == "PERSP" else np.all(dd == 0))
+
+
+def test_only_a_pinhole_camera_has_deferred_differentials():
+    # panoramic rays and a thin lens's need their neighbours' lens points: computed up front, in NumPy
+    persp = Camera(matrix_world=np.eye(4), kind="PERSP", resolution=(64, 48))
+    p = pinhole_params(persp)
+    assert p.shape == (18,) and p.dtype == np.float64 and tuple(p[:2]) == (64.0, 48.0) and p[15] == 0.0
+    assert pinhole_params(Camera(matrix_world=np.eye(4), kind="ORTHO", resolution=(8, 8)))[15] == 1.0
+    assert pinhole_params(Camera(matrix_world=np.eye(4), kind="PANO", resolution=(8, 8))) is None
+    lens = Camera(matrix_world=np.eye(4), kind="PERSP", resolution=(8, 8), use_dof=True, aperture_fstop=1.0,
+                  focus_distance=2.0)
+    assert lens.aperture_radius() > 0 and pinhole_params(lens) is None
 
 
 def _bump_term_reference(n, s, w):
