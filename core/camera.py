@@ -33,22 +33,36 @@ class CameraRays:
 
 
 @dataclass
-class DeferredFootprints:
-    """The compact ray differentials (Bump nodes read them) of a batch of pinhole camera rays, not computed yet:
-    the fused path kernel computes a path's (pinhole_footprint) only when the path reaches a material that reads
-    them, and `compute` gives every ray's. raster (N, 2) float64: the rays' raster positions; params: the camera
-    (pinhole_params). Valid for the rays camera_rays made at those positions, before any origin shift."""
+class PinholeRays:
+    """A batch of a pinhole camera's rays (perspective or orthographic, no depth of field), not made yet: the fused
+    path kernel makes each path's ray from its raster position as camera_rays would (the same bits), and its ray
+    differentials only if the path reaches a material that reads them (Bump nodes); `rays` and `footprints` make
+    them all. raster_x, raster_y (N,) float64: raster positions (camera_rays' convention); params: the camera
+    (pinhole_params). The rays are the camera's, before any origin shift."""
 
-    raster: np.ndarray
+    raster_x: np.ndarray
+    raster_y: np.ndarray
     params: np.ndarray
 
-    def compute(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(dp, dd) (N,) float32 of the rays (origins, directions (N, 3) float32): pinhole_differentials' values."""
-        n = self.raster.shape[0]
+    def __len__(self) -> int:
+        return self.raster_x.shape[0]
+
+    def rays(self) -> CameraRays:
+        """camera_rays' rays at these raster positions."""
+        n = len(self)
+        rays = CameraRays(np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
+                          np.empty(n, np.float32), np.empty(n, np.float32))
+        _camera_rays(self.raster_x, self.raster_y, self.params, rays.origins, rays.directions, rays.tmax,
+                     rays.depth_scale, rays.t_start)
+        return rays
+
+    def footprints(self, rays: CameraRays) -> tuple[np.ndarray, np.ndarray]:
+        """(dp, dd) (N,) float32 of `rays` (self.rays()): pinhole_differentials' values."""
+        n = len(self)
         dp, dd = np.empty(n, np.float32), np.empty(n, np.float32)
-        _pinhole_differentials(np.ascontiguousarray(self.raster[:, 0]), np.ascontiguousarray(self.raster[:, 1]),
-                               self.params, np.ascontiguousarray(origins, np.float32),
-                               np.ascontiguousarray(directions, np.float32), dp, dd)
+        _pinhole_differentials(self.raster_x, self.raster_y, self.params,
+                               np.ascontiguousarray(rays.origins, np.float32),
+                               np.ascontiguousarray(rays.directions, np.float32), dp, dd)
         return dp, dd
 
 
@@ -76,8 +90,10 @@ def aperture_point(u0, u1, blades, rotation, inv_ratio):
 @jit_inline
 def _pinhole_ray_scalars(rx, ry, width, height, xmin, xmax, ymin, ymax, r0, r1, r2, u0, u1, u2, b0, b1, b2, ortho,
                          clip_start, clip_end):
-    """One ray of _camera_rays in float64: (ox, oy, oz, dx, dy, dz, tmax, depth scale, t_start); the camera's
-    right, up and back axes as their components (r, u, b)."""
+    """One pinhole camera ray in float64: (ox, oy, oz, dx, dy, dz, tmax, depth scale, t_start). frame (xmin, xmax,
+    ymin, ymax): the image on the plane at distance 1 (perspective) or in world units (orthographic); the camera's
+    unit right, up and back axes as their components (r, u, b); the ray starts at clip_start and ends at
+    clip_end."""
     x = xmin + (rx / width) * (xmax - xmin)
     y = ymax - (ry / height) * (ymax - ymin)
     if ortho:
@@ -99,24 +115,12 @@ def _pinhole_ray_scalars(rx, ry, width, height, xmin, xmax, ymin, ymax, r0, r1, 
     return ox, oy, oz, dx, dy, dz, tm, scale, t0
 
 
-@jit_inline
-def _pinhole_ray(rx, ry, width, height, frame, right, up, back, ortho, clip_start, clip_end):
-    """One ray of _camera_rays in float64: (ox, oy, oz, dx, dy, dz, tmax, depth scale, t_start)."""
-    return _pinhole_ray_scalars(rx, ry, width, height, frame[0], frame[1], frame[2], frame[3], right[0], right[1],
-                                right[2], up[0], up[1], up[2], back[0], back[1], back[2], ortho, clip_start,
-                                clip_end)
-
-
 @jit
-def _camera_rays(raster_x, raster_y, width, height, frame, right, up, back, ortho, clip_start, clip_end,
-                 origins, directions, tmax, depth_scale, t_start):
-    """Camera rays through raster positions (see camera_rays), in float64, written as float32.
-
-    frame: (xmin, xmax, ymin, ymax) of the image on the plane at distance 1 (perspective) or in world units
-    (orthographic); right, up, back: the camera's unit axes; rays start at clip_start and end at clip_end."""
+def _camera_rays(raster_x, raster_y, p, origins, directions, tmax, depth_scale, t_start):
+    """Camera rays through raster positions (see camera_rays) of the camera p (pinhole_params), in float64, written
+    as float32."""
     for k in range(raster_x.shape[0]):
-        ox, oy, oz, dx, dy, dz, tm, scale, t0 = _pinhole_ray(raster_x[k], raster_y[k], width, height, frame, right,
-                                                             up, back, ortho, clip_start, clip_end)
+        ox, oy, oz, dx, dy, dz, tm, scale, t0 = pinhole_ray(raster_x[k], raster_y[k], p)
         origins[k, 0], origins[k, 1], origins[k, 2] = ox, oy, oz
         directions[k, 0], directions[k, 1], directions[k, 2] = dx, dy, dz
         tmax[k] = min(tm, 3e38)
@@ -152,8 +156,9 @@ def pinhole_params(camera: Camera) -> np.ndarray | None:
 
 
 @jit_inline
-def _pinhole_ray_params(rx, ry, p):
-    """_pinhole_ray of the camera pinhole_params describes (the same arithmetic)."""
+def pinhole_ray(rx, ry, p):
+    """One ray of the camera p (pinhole_params) through raster position (rx, ry), in float64: _pinhole_ray_scalars'
+    (ox, oy, oz, dx, dy, dz, tmax, depth scale, t_start)."""
     return _pinhole_ray_scalars(rx, ry, p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10], p[11],
                                 p[12], p[13], p[14], p[15] != 0.0, p[16], p[17])
 
@@ -164,8 +169,8 @@ def pinhole_footprint(rx, ry, p, ox, oy, oz, dx, dy, dz):
     .camera_differentials) of the ray that _camera_rays wrote for raster position (rx, ry) (origin o, direction d,
     float32), for the camera p (pinhole_params): from the rays one pixel over in x and in y, each rounded to
     float32 as _camera_rays stores it. The fused path kernel calls it for the paths that reach a Bump node."""
-    ax, ay, az, adx, ady, adz, _, _, _ = _pinhole_ray_params(rx + 1.0, ry, p)
-    bx, by, bz, bdx, bdy, bdz, _, _, _ = _pinhole_ray_params(rx, ry + 1.0, p)
+    ax, ay, az, adx, ady, adz, _, _, _ = pinhole_ray(rx + 1.0, ry, p)
+    bx, by, bz, bdx, bdy, bdz, _, _, _ = pinhole_ray(rx, ry + 1.0, p)
     dp = np.float32(0.5 * (_offset_length(ax, ay, az, ox, oy, oz) + _offset_length(bx, by, bz, ox, oy, oz)))
     dd = np.float32(0.5 * (_offset_length(adx, ady, adz, dx, dy, dz) + _offset_length(bdx, bdy, bdz, dx, dy, dz)))
     return dp, dd
@@ -184,8 +189,8 @@ def _pinhole_differentials(raster_x, raster_y, p, origins, directions, dp, dd):
 def _lens_camera_rays(raster_x, raster_y, width, height, frame, right, up, back, ortho, clip_start, clip_end,
                       lens_u, aperture, focus, blades, rotation, inv_ratio,
                       origins, directions, tmax, depth_scale, t_start):
-    """Camera rays through a thin lens (see _camera_rays for the shared arguments): aperture is the lens radius,
-    focus the distance of the plane in focus along the view axis, lens_u (N, 2) the lens samples (see
+    """Camera rays through a thin lens (see _pinhole_ray_scalars for the shared arguments): aperture is the lens
+    radius, focus the distance of the plane in focus along the view axis, lens_u (N, 2) the lens samples (see
     aperture_point). A kernel of its own so that the pinhole camera's loop stays as lean as it was."""
     xmin, xmax, ymin, ymax = frame[0], frame[1], frame[2], frame[3]
     for k in range(raster_x.shape[0]):
@@ -398,14 +403,14 @@ def camera_rays(camera: Camera, raster_x: np.ndarray, raster_y: np.ndarray,
         if rays.alive.all():
             rays.alive = None
         return rays
-    common = (rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
-              camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end))
     outputs = (rays.origins, rays.directions, rays.tmax, rays.depth_scale, rays.t_start)
     if aperture > 0:
-        _lens_camera_rays(*common, lens, aperture, float(camera.focus_distance), int(camera.aperture_blades),
-                          float(camera.aperture_rotation), 1.0 / float(camera.aperture_ratio), *outputs)
+        _lens_camera_rays(rx, ry, float(w), float(h), np.asarray(camera.frame(), np.float64), right, up, back,
+                          camera.kind == "ORTHO", float(camera.clip_start), float(camera.clip_end), lens, aperture,
+                          float(camera.focus_distance), int(camera.aperture_blades), float(camera.aperture_rotation),
+                          1.0 / float(camera.aperture_ratio), *outputs)
     else:
-        _camera_rays(*common, *outputs)
+        _camera_rays(rx, ry, pinhole_params(camera), *outputs)
     return rays
 
 

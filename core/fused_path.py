@@ -26,7 +26,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .camera import pinhole_footprint
+from .camera import pinhole_footprint, pinhole_ray
 from .embree import _INVALID_ID, _call_embree, set_ray
 from .geometry_kernels import (_valid_reflection_normal, bump_terms_point, differentials_point, offset_point,
                                reframe_point, smooth_normal, smooth_surface_lift)
@@ -63,7 +63,7 @@ PROGRAM_FIELDS = ("needs_program", "prog_of_mat", "code", "code_start", "regs0",
                   "object_of_triangle", "tri_uvs", "shift", "P", "N", "Ng", "I", "uv", "back", "obj", "uvx", "extra",
                   "dP", "duv", "tan", "scratch", "select_scale", "emission", "normal_out", "has_normal", "aov_out",
                   "lobes", "albedo", "tangent_layers", "needs_tangents", "nraw", "diffuse_weight",
-                  "needs_differentials", "db", "ray_dp", "ray_dd", "ray_raster", "pinhole", "hit_distances")
+                  "needs_differentials", "db", "ray_dp", "ray_dd", "hit_distances")
 
 
 @intrinsic
@@ -124,8 +124,7 @@ def _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, nx, ny, nz
     (needs, prog_of_mat, code, code_start, regs0, reg_start, data, data_start, bind, emit_reg, normal_reg,
      tex_pixels, tex_offset, tex_h, tex_w, objects, obj_of_tri, tri_uvs, shift, P, N, Ng, I, uv, side, obj, uvx,
      extra, dP, duv, tan, scratch, t_scale, emission, normal_out, has_normal, aov_out, vl, alb, tangent_layers,
-     needs_tangents, nraw, _diffuse_weight, needs_differentials, db, _ray_dp, _ray_dd, _raster, _pinhole,
-     _hit_t) = programs
+     needs_tangents, nraw, _diffuse_weight, needs_differentials, db, _ray_dp, _ray_dd, _hit_t) = programs
     for l in range(lobes[0].shape[1]):
         vl[0][0, l] = lobes[0][mat, l]
         vl[2][0, l] = lobes[2][mat, l]
@@ -203,14 +202,17 @@ def _loss(w, keep, f_d, pdf):
 
 
 @_jit
-def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scene,
+def trace_paths(pix, smp, origins, directions, tmax, raster_x, raster_y, pinhole, intersect1, occluded1, scene,
                 tri_vertices, face_normals, corner_normals, smooth, tri_magnitude, material_index, specular, lobes, multiscatter, tabs,
                 has_nondelta, has_transmission, emission, emitter_of_triangle, lt, per_point, n_matters,
                 has_emission, seed_key, set_keys, dim_keys, tables, group_bits, max_bounces, rr_depth, clamp,
                 shadow_epsilon, words, ids, address, buf, radiance, counters, t_start, depth_scale, albedo_of,
                 out_albedo, out_normal, out_depth, terminator_offset, programs):
     """Trace camera path k (pixel pix[k], sample smp[k], ray origins[k] + t directions[k], t < tmax[k]) to its
-    end and write its radiance (float32) to radiance[k]. set_keys: the Sobol set key of every dimension set a
+    end and write its radiance (float32) to radiance[k]. Or, where `pinhole` holds a camera (core.camera
+    .pinhole_params; else it is empty), the kernel makes path k's camera ray itself, at raster position
+    (raster_x[k], raster_y[k]) as core.camera.camera_rays would (origins, directions, tmax, t_start and
+    depth_scale are then empty). set_keys: the Sobol set key of every dimension set a
     path reads (index = the set); see core.fused_tracer.supports for what the scene may hold. counters: [non-finite dropped,
     clamped, closest-hit rays, shadow rays, then (TIMED only) the cycles of TIMING_PARTS], added to.
     terminator_offset: (T,) float32, or empty where no triangle has one: the shadow terminator lift of the shadow
@@ -222,13 +224,24 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
     has_normals = corner_normals.shape[0] > 0
     want_aovs = out_depth.shape[0] > 0
     has_emitters = emitter_of_triangle.shape[0] > 0
-    for k in range(origins.shape[0]):
+    make_rays = pinhole.shape[0] > 0
+    for k in range(pix.shape[0]):
         p_id = pix[k]
         s_id = smp[k]
         path_key = _mix32(_U(p_id ^ seed_key))
-        ox, oy, oz = origins[k, 0], origins[k, 1], origins[k, 2]
-        dx, dy, dz = directions[k, 0], directions[k, 1], directions[k, 2]
-        tm = tmax[k]
+        if make_rays:  # (float64, rounded to float32 as camera_rays stores its rays)
+            ox_, oy_, oz_, dx_, dy_, dz_, tm_, scale_, t0_ = pinhole_ray(raster_x[k], raster_y[k], pinhole)
+            ox, oy, oz = np.float32(ox_), np.float32(oy_), np.float32(oz_)
+            dx, dy, dz = np.float32(dx_), np.float32(dy_), np.float32(dz_)
+            tm = np.float32(min(tm_, 3e38))
+            cam_t0, cam_scale = np.float32(t0_), np.float32(scale_)
+        else:
+            ox, oy, oz = origins[k, 0], origins[k, 1], origins[k, 2]
+            dx, dy, dz = directions[k, 0], directions[k, 1], directions[k, 2]
+            tm = tmax[k]
+            cam_t0 = t_start[k] if want_aovs else _F0
+            cam_scale = depth_scale[k] if want_aovs else _F0
+        cox, coy, coz, cdx, cdy, cdz = ox, oy, oz, dx, dy, dz  # the camera ray
         t0 = t1 = t2 = _F1
         r0 = r1 = r2 = _F0
         prev_pdf = _F0
@@ -239,14 +252,14 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
         # fp (Cycles' dP) and its spread per unit distance fd (dD); at a hit fp + t fd (float32), which the
         # bounce ray keeps with the camera ray's fd
         fp = fd = _F0
-        # deferred (a pinhole camera's, core.camera.DeferredFootprints): computed at the path's first vertex that
-        # reads them, from the camera ray, then carried along its hit distances so far (nt of them) as above
+        # A pinhole camera's are deferred (core.camera.PinholeRays): computed at the path's first vertex that
+        # reads them, from its camera ray, then carried over its hit distances so far (nt of them) as above.
         deferred = False
         nt = 0
         if programs is not None:
             if programs[45].shape[0] > 0:
                 fp, fd = programs[45][k], programs[46][k]
-            elif programs[48].shape[0] > 0:
+            elif programs[47].shape[0] > 0:
                 deferred = True
         if TIMED:
             cp_ = _cycles()
@@ -288,7 +301,7 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                 break
             if programs is not None:
                 if deferred:
-                    programs[49][nt] = t_hit
+                    programs[47][nt] = t_hit
                     nt += 1
                 else:
                     fp = fp + t_hit * fd
@@ -325,7 +338,7 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                 if has_normals and smooth[prim]:
                     ax, ay, az = smooth_normal(corner_normals, prim, _F1 - bu - bv, bu, bv)
                 out_normal[k, 0], out_normal[k, 1], out_normal[k, 2] = ax, ay, az
-                out_depth[k] = (t_start[k] + t_hit) * depth_scale[k]
+                out_depth[k] = (cam_t0 + t_hit) * cam_scale
             if depth == max_bounces + 1:
                 break
             # ---- Russian roulette (the 4th number of the vertex's set)
@@ -367,11 +380,9 @@ def trace_paths(pix, smp, origins, directions, tmax, intersect1, occluded1, scen
                     if TIMED:
                         c0_ = _cycles()
                     if deferred and programs[43][mat]:
-                        fp, fd = pinhole_footprint(programs[47][k, 0], programs[47][k, 1], programs[48],
-                                                   origins[k, 0], origins[k, 1], origins[k, 2], directions[k, 0],
-                                                   directions[k, 1], directions[k, 2])
+                        fp, fd = pinhole_footprint(raster_x[k], raster_y[k], pinhole, cox, coy, coz, cdx, cdy, cdz)
                         for j in range(nt):
-                            fp = fp + programs[49][j] * fd
+                            fp = fp + programs[47][j] * fd
                         deferred = False
                     _shade_vertex(programs, lobes, mat, prim, b0, bu, bv, px, py, pz, sx, sy, sz, gx, gy, gz, dx, dy,
                                   dz, cos_o_geo < _F0, face_normals, corner_normals, smooth, tri_vertices, fp)

@@ -13,7 +13,7 @@ import numpy as np
 
 from . import bsdf as bsdf_mod
 from . import microfacet as mf
-from .camera import DeferredFootprints
+from .camera import PinholeRays
 from .embree import _RAY_WORDS
 from .fused_path import COUNTERS, trace_paths
 from .sampling import _TAG_SOBOL_SET, SobolSampler, _U, _key, _sobol_tables
@@ -138,13 +138,12 @@ class FusedTracer:
                                     else np.ascontiguousarray(needs.differentials, np.bool_))
         self.max_registers = 0 if sh is None else sh.max_registers
 
-    def _programs(self, ray_dp: np.ndarray | None, ray_dd: np.ndarray | None,
-                  footprints: DeferredFootprints | None = None) -> tuple | None:
+    def _programs(self, ray_dp: np.ndarray | None, ray_dd: np.ndarray | None, deferred: bool) -> tuple | None:
         """trace_paths' `programs` argument (core.fused_path.PROGRAM_FIELDS): the scene's program tables, this
         call's 1-row scratches (each call its own: batches may be traced on several threads at once) and the
-        camera rays' differentials: computed (ray_dp, ray_dd), or deferred to the paths that read them
-        (footprints: their raster positions, the camera and a scratch of a path's hit distances), or neither (all
-        empty: the paths' footprints are zero)."""
+        camera rays' differentials: computed (ray_dp, ray_dd), or deferred to the paths that read them (a pinhole
+        camera's rays, which the kernel makes: a scratch for a path's hit distances), or neither (all empty: the
+        paths' footprints are zero)."""
         if self.program_tables is None:
             return None
         f3 = lambda: np.zeros((1, 3), np.float32)  # noqa: E731
@@ -160,21 +159,26 @@ class FusedTracer:
                 np.zeros((1, 2, 2), np.float32),
                 np.zeros(0, np.float32) if ray_dp is None else np.ascontiguousarray(ray_dp, np.float32),
                 np.zeros(0, np.float32) if ray_dd is None else np.ascontiguousarray(ray_dd, np.float32),
-                np.zeros((0, 2)) if footprints is None else np.ascontiguousarray(footprints.raster, np.float64),
-                np.zeros(0) if footprints is None else np.ascontiguousarray(footprints.params, np.float64),
-                np.zeros(int(self.settings.max_bounces) + 2, np.float32))
+                np.zeros(int(self.settings.max_bounces) + 2 if deferred else 0, np.float32))
 
-    def trace(self, pixel_id: np.ndarray, sample_id: np.ndarray, origins: np.ndarray, directions: np.ndarray,
-              tmax: np.ndarray, depth_scale: np.ndarray, t_start: np.ndarray, want_aovs: bool, stats,
-              ray_dp: np.ndarray | None = None, ray_dd: np.ndarray | None = None,
-              footprints: DeferredFootprints | None = None) -> tuple:
+    def trace(self, pixel_id: np.ndarray, sample_id: np.ndarray, origins: np.ndarray | None,
+              directions: np.ndarray | None, tmax: np.ndarray | None, depth_scale: np.ndarray | None,
+              t_start: np.ndarray | None, want_aovs: bool, stats, ray_dp: np.ndarray | None = None,
+              ray_dd: np.ndarray | None = None, camera: PinholeRays | None = None) -> tuple:
         """Radiance (N, 3) float32 of N camera paths and, with want_aovs, their first hits' albedo (N, 3), normal
         (N, 3) and depth (N,) (zeros, zeros and inf where the camera ray missed; else None), as PathTracer.trace's
         FirstHit holds them; adds to stats' counters. ray_dp, ray_dd (N,) float32: the camera rays' compact
-        differentials as PathTracer.trace takes them (None: zero), which Bump nodes read; or footprints, the same
-        deferred to the paths that reach a Bump node."""
+        differentials as PathTracer.trace takes them (None: zero), which Bump nodes read. camera: a pinhole camera's
+        rays not made yet, in place of the five camera ray arrays (None each): the kernel makes each path's, and
+        its differentials where the path reaches a Bump node."""
         ps, s = self.ps, self.settings
-        n = len(origins)
+        n = len(pixel_id)
+        if camera is not None:
+            origins = directions = np.zeros((0, 3), np.float32)
+            tmax = depth_scale = t_start = np.zeros(0, np.float32)
+            raster_x, raster_y, pinhole = camera.raster_x, camera.raster_y, camera.params
+        else:
+            raster_x = raster_y = pinhole = np.zeros(0)
         radiance = np.empty((n, 3), np.float32)
         counters = np.zeros(COUNTERS, np.int64)  # core.fused_path.TIMED fills the entries past the 4th
         # the kernel allocates nothing (no reference counting in its loop): its scratch comes from here. A
@@ -197,7 +201,9 @@ class FusedTracer:
                         np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
         trace_paths(np.ascontiguousarray(pixel_id, np.uint32), np.ascontiguousarray(sample_id, np.uint32),
                     np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(directions, np.float32),
-                    np.ascontiguousarray(tmax, np.float32), self.intersect1, self.occluded1, self.scene,
+                    np.ascontiguousarray(tmax, np.float32), np.ascontiguousarray(raster_x, np.float64),
+                    np.ascontiguousarray(raster_y, np.float64), np.ascontiguousarray(pinhole, np.float64),
+                    self.intersect1, self.occluded1, self.scene,
                     ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth, ps.tri_magnitude,
                     ps.material_index, self.specular, lobes,
                     self.multiscatter, self.tabs, ps.has_nondelta, ps.materials.has_transmission,
@@ -205,7 +211,8 @@ class FusedTracer:
                     self.n_matters, self.has_emission, self.seed_key, self.set_keys, self.dim_keys, self.tables,
                     self.group_bits, int(s.max_bounces), int(s.rr_depth), np.float32(s.clamp),
                     self.shadow_epsilon, words, words.view(np.uint32), words.ctypes.data, buf, radiance, counters,
-                    *aov_args, self.terminator, self._programs(ray_dp, ray_dd, footprints))
+                    *aov_args, self.terminator, self._programs(ray_dp, ray_dd, camera is not None and ray_dp is None
+                                                                   and bool(self.needs_differentials.any())))
         stats.nonfinite += int(counters[0])
         stats.clamped += int(counters[1])
         self.accel.count_rays(int(counters[2]), int(counters[3]))

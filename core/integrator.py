@@ -23,7 +23,7 @@ from . import bsdf as bsdf_mod
 from . import fused_tracer, geometry_kernels, path_kernels, transparent_shadow
 from . import light_passes as lp_mod
 from .accel import Accelerator, Hits, MotionTriangles
-from .camera import DeferredFootprints
+from .camera import PinholeRays
 from .data_passes import DataPath
 from .light_groups import LightGroups, LightGroupSamples, emission_shares
 from .light_linking import LightLinks, ShadowLinks
@@ -783,18 +783,18 @@ class PathTracer:
         self,
         pixel_id: np.ndarray,
         sample_id: np.ndarray,
-        origins: np.ndarray,
-        directions: np.ndarray,
-        tmax: np.ndarray,
-        depth_scale: np.ndarray,
-        t_start: np.ndarray,
+        origins: np.ndarray | None,
+        directions: np.ndarray | None,
+        tmax: np.ndarray | None,
+        depth_scale: np.ndarray | None,
+        t_start: np.ndarray | None,
         want_aovs: bool,
         want_features: bool = False,
         want_surface: bool = False,
         ray_dp: np.ndarray | None = None,
         ray_dd: np.ndarray | None = None,
         ray_time: np.ndarray | None = None,
-        footprints: DeferredFootprints | None = None,
+        camera: PinholeRays | None = None,
     ) -> tuple[np.ndarray, FirstHit | None, np.ndarray | None]:
         """Radiance (N, 3) float32 of N camera paths, their first-hit AOVs (want_aovs; want_features adds the
         denoising features, FirstHit.features; a scene with a shadow catcher adds FirstHit.catcher) and their
@@ -803,17 +803,23 @@ class PathTracer:
         paths are the shadow catcher copies of paths that split (the camera ray arguments are theirs). ray_dp, ray_dd (N,) float32: the camera
         rays' compact differentials (Cycles' ray dP and dD: the spread of a pixel's footprint at the origin and its
         growth per unit distance), which Bump nodes read; None: zero. ray_time: (N,) each path's time in [0, 1]
-        over the shutter (motion blur; its bounces and shadow rays keep it), None for a still scene. footprints:
-        ray_dp and ray_dd not computed yet (a pinhole camera's rays, as camera_rays made them), in their place."""
+        over the shutter (motion blur; its bounces and shadow rays keep it), None for a still scene. camera: a pinhole
+        camera's rays not made yet, in place of the five camera ray arrays (None each), and of ray_dp and ray_dd
+        where the scene's programs read differentials: the fused kernel makes them per path, as needed."""
         ps, s = self.ps, self.settings
         if (self.fused is not None and not (want_features or want_surface or self._catcher_copies)
                 and ray_time is None):
-            self.stats.paths += len(origins)
+            self.stats.paths += len(pixel_id)
             radiance, aovs = self.fused.trace(pixel_id, sample_id, origins, directions, tmax, depth_scale, t_start,
-                                              want_aovs, self.stats, ray_dp, ray_dd, footprints)
+                                              want_aovs, self.stats, ray_dp, ray_dd, camera)
             return radiance, None if aovs is None else FirstHit(*aovs), None
-        if footprints is not None:  # this loop reads every path's
-            ray_dp, ray_dd = footprints.compute(origins, directions)
+        if camera is not None:  # this loop takes every path's ray, and its differentials where programs read them
+            rays = camera.rays()
+            if ps.shading is not None and ps.shading.needs_differentials and ray_dp is None:
+                ray_dp, ray_dd = camera.footprints(rays)
+            origins, directions, tmax, depth_scale, t_start = (rays.origins, rays.directions, rays.tmax,
+                                                               rays.depth_scale, rays.t_start)
+            rays = camera = None
         n = len(origins)
         radiance = np.zeros((n, 3), np.float32)
         first = None

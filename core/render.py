@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from .accel import Accelerator
-from .camera import DeferredFootprints, camera_rays, pinhole_params
+from .camera import PinholeRays, camera_rays, pinhole_params
 from .data_passes import DataFilm, DataTables, manifests, take_samples
 from .data_passes import assemble as assemble_data
 from . import film_kernels
@@ -907,37 +907,43 @@ class _TileRender:
         if ray_time is not None and camera.rolling_shutter is not None:
             ray_time = rolling_shutter_times(ray_time, py, camera.resolution[1], camera.rolling_shutter)
         moving = (camera.motion_matrices is not None or camera.motion_lens is not None) and ray_time is not None
-        if moving:
-            rays = moving_camera_rays(camera, raster_x, raster_y, lens_u, ray_time)
-        else:
-            rays = camera_rays(camera, raster_x, raster_y, lens_u)
+        # A still pinhole camera's rays (and their differentials, where a path reaches a Bump node) are made per
+        # path where they are traced: the fused kernel makes each path's (PinholeRays), with the same bits.
+        pinhole = None if moving or self.camera_offset is not None else pinhole_params(camera)
         differentials = (None, None)
-        footprints = None
-        if self.prepared.shading is not None and self.prepared.shading.needs_differentials:  # Bump nodes
-            params = None if moving or self.camera_offset is not None else pinhole_params(camera)
-            if params is not None:
-                # a pinhole camera's: computed where a path first reads them (the fused kernel), most never do
-                raster = np.empty((len(raster_x), 2))
-                raster[:, 0], raster[:, 1] = raster_x, raster_y
-                footprints = DeferredFootprints(raster, params)
-            else:  # (compiled only from camera_rays' own rays: the NumPy form serves the moving camera's)
+        rays = deferred = None
+        if pinhole is not None:
+            deferred = PinholeRays(np.ascontiguousarray(raster_x, np.float64),
+                                   np.ascontiguousarray(raster_y, np.float64), pinhole)
+        else:
+            if moving:
+                rays = moving_camera_rays(camera, raster_x, raster_y, lens_u, ray_time)
+            else:
+                rays = camera_rays(camera, raster_x, raster_y, lens_u)
+            if self.prepared.shading is not None and self.prepared.shading.needs_differentials:  # Bump nodes
+                # (compiled only from camera_rays' own rays: the NumPy form serves the moving camera's)
                 differentials = camera_differentials(camera, raster_x, raster_y, rays, lens_u, compiled=not moving)
-        if self.camera_offset is not None:  # prepared for another camera position (render(prepared=...))
-            rays.origins += self.camera_offset
+            if self.camera_offset is not None:  # prepared for another camera position (render(prepared=...))
+                rays.origins += self.camera_offset
         tracer.stats.seconds_camera += time.perf_counter() - t0
         # the pixel coordinates and film offsets are in the rays now: not held while the paths are traced
         px = py = offsets = raster_x = raster_y = lens_u = None
-        if rays.alive is not None:  # a panoramic camera's dead rays: nothing traced, nothing added
+        if rays is not None and rays.alive is not None:  # a panoramic camera's dead rays: nothing traced or added
             out = self._trace_alive(tracer, pixel_id, smp, rays, differentials, ray_time)
         else:
             # Handed over, not kept here: CPython moves a call's arguments into the function's variables, so once
             # the tracer is past the camera rays' first hits (it drops them there) nothing holds them.
-            camera_arrays = [pixel_id, smp, rays.origins, rays.directions, rays.tmax, rays.depth_scale, rays.t_start]
-            pixel_id = smp = rays = None
+            camera_arrays = [pixel_id, smp]
+            if rays is not None:
+                camera_arrays += [rays.origins, rays.directions, rays.tmax, rays.depth_scale, rays.t_start]
+            else:
+                camera_arrays += [None] * 5
+            camera_arrays.append(deferred)
+            pixel_id = smp = rays = deferred = None
             take = camera_arrays.pop
             out = tracer.trace(take(0), take(0), take(0), take(0), take(0), take(0), take(0), self.settings.aovs,
                                self.settings.denoising_features, self.data_tables is not None, differentials[0],
-                               differentials[1], ray_time, footprints)  # (no *args: a call keeps those)
+                               differentials[1], ray_time, take(0))  # (no *args: a call keeps its arguments)
         if self.data_tables is not None:
             first = out[1]
             first.data = self.data_tables.samples(first.surface)

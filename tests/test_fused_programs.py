@@ -333,25 +333,26 @@ def test_the_fused_kernel_reads_the_ray_differentials(fast_settings, monkeypatch
 @pytest.mark.parametrize("kind", ["PERSP", "ORTHO"])
 def test_a_pinhole_cameras_differentials_computed_where_a_path_reads_them_are_the_same_bits(kind, fast_settings,
                                                                                           monkeypatch):
-    """A pinhole camera's ray differentials are deferred (core.camera.DeferredFootprints): the fused kernel
-    computes a path's only when it reaches a material with a Bump node, from its camera ray, and carries them over
-    the hit distances so far (paths that meet the bump-free third material first, then a bumped one). The image
-    is the one whose differentials were computed for every ray before the kernel ran, compiled or in NumPy."""
+    """A still pinhole camera's rays are made per path by the fused kernel (core.camera.PinholeRays), and their
+    differentials only when the path reaches a material with a Bump node, from its camera ray, carried over the
+    hit distances so far (paths that meet the bump-free third material first, then a bumped one). The image and
+    the first-hit passes are those of camera rays and differentials made for every ray before the kernel ran
+    (compiled or in NumPy)."""
     from monte.core import render as render_mod
-    from monte.core.camera import DeferredFootprints
+    from monte.core.camera import PinholeRays
 
     scene = bump_mapped_scene((24, 16))
     if kind == "ORTHO":
         scene.camera.kind, scene.camera.ortho_scale = "ORTHO", 5.0
     settings = fast_settings(spp=8, threads=1, max_bounces=6)
     made = []
-    real_init = DeferredFootprints.__init__
+    real_init = PinholeRays.__init__
 
     def counted(self, *args):
         made.append(1)
         real_init(self, *args)
 
-    monkeypatch.setattr(DeferredFootprints, "__init__", counted)
+    monkeypatch.setattr(PinholeRays, "__init__", counted)
     original = render_mod.camera_differentials
 
     def refused(*args, **kwargs):
@@ -366,8 +367,8 @@ def test_a_pinhole_cameras_differentials_computed_where_a_path_reads_them_are_th
                             lambda *a, _c=compiled, **k: original(*a, **{**k, "compiled": _c and k["compiled"]}))
         up_front = _render(scene, settings, monkeypatch, fused=True)
         assert up_front.stats["fused_kernel"]
-        assert np.array_equal(deferred.color, up_front.color), compiled
-        assert np.array_equal(deferred.albedo, up_front.albedo), compiled
+        for name in ("color", "variance", "albedo", "normal", "depth"):
+            assert np.array_equal(getattr(deferred, name), getattr(up_front, name)), (compiled, name)
     assert deferred.color[..., :3].mean() > 0.01
 
 

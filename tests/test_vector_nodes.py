@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from monte.core.scene import Camera
-from monte.core.camera import DeferredFootprints, camera_rays, pinhole_params
+from monte.core.camera import PinholeRays, camera_rays, pinhole_params
 from monte.core.shading import evaluator as ev
 from monte.core.shading import registry as R
 from monte.core.shading.program import WIDTH, ShadingProgram
@@ -190,9 +190,13 @@ def test_compiled_camera_differentials_are_the_numpy_ones_bit_for_bit(kind):
     dp_np, dd_np = camera_differentials(cam, x, y, rays, compiled=False)
     assert dp.dtype == np.float32 and dd.dtype == np.float32
     assert np.array_equal(dp, dp_np) and np.array_equal(dd, dd_np)
-    # deferred (the fused kernel computes a path's where it reads them, with the same per-ray function)
-    deferred = DeferredFootprints(np.stack([x, y], axis=1), pinhole_params(cam))
-    dp_d, dd_d = deferred.compute(rays.origins, rays.directions)
+    # deferred (the fused kernel makes a path's ray, and its differentials where it reads them, with the same
+    # per-ray functions; PinholeRays makes them all for the per-bounce integrator)
+    deferred = PinholeRays(x, y, pinhole_params(cam))
+    made = deferred.rays()
+    for name in ("origins", "directions", "tmax", "depth_scale", "t_start"):
+        assert np.array_equal(getattr(made, name), getattr(rays, name)), name
+    dp_d, dd_d = deferred.footprints(made)
     assert np.array_equal(dp_d, dp_np) and np.array_equal(dd_d, dd_np)
     assert np.all(dp > 0) and (np.all(dd > 0) if kind == "PERSP" else np.all(dd == 0))
 
