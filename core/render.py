@@ -38,7 +38,7 @@ from .memory import check_render_memory
 from .sampling import make_sampler
 from .scene import Scene
 from .schedule import (FILM_WINDOW_PIXELS, Segment, TileRect, adaptive_batch_target, batch_target, pass_bounds,
-                       pass_segments, sample_passes, tail_target, tiles)
+                       pass_segments, sample_passes, tail_piece_overfills, tail_target, tiles)
 
 SampleRanges = dict[int, tuple[int, int]]  # tile index -> samples [start, end) to take of it
 from .settings import RenderSettings
@@ -725,8 +725,8 @@ class _TileRender:
                     if self._stop_requested():
                         self.cancelled = True
                         break
-                    if target < self.target and self.group_paths + len(seg.loc) > target:
-                        self._submit()  # a tail piece would overfill the batch: the batch goes first, alone
+                    if tail_piece_overfills(target, self.target, self.group_paths, len(seg.loc)):
+                        self._submit()  # the batch goes first, alone
                     self.group.append(seg)
                     self.group_paths += len(seg.loc)
                     if self.group_paths >= target:

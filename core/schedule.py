@@ -57,6 +57,14 @@ def tail_target(target: int, paths_left: int, workers: int) -> int:
     return max(min(target, share), min(target, MIN_BATCH))
 
 
+def tail_piece_overfills(pass_target: int, target: int, gathered: int, piece: int) -> bool:
+    """Whether the batch gathered so far (`gathered` paths) goes out before a pass's next segment (`piece` paths)
+    joins it: in the tail (the pass's target from tail_target below the render's `target`) a piece never
+    overfills a batch, so that two tail pieces do not make one batch again. Outside the tail a batch gathers
+    segments until it reaches its target."""
+    return pass_target < target and gathered > 0 and gathered + piece > pass_target
+
+
 def adaptive_batch_target(target: int, region_pixels: int, min_samples: int) -> int:
     """With adaptive sampling a pass's convergence test waits for the tile's previous pass: keep each pass in
     >= 8 batches so that the threads still share it."""

@@ -31,7 +31,7 @@ import numpy as np
 from ..core import render as render_module
 from ..core.builtin_scenes import builtin_scene
 from ..core.schedule import (FILM_WINDOW_PIXELS, MIN_BATCH, batch_target, pass_segments, sample_passes,
-                             tail_target, tiles)
+                             tail_piece_overfills, tail_target, tiles)
 from ..core.scene import Scene
 from ..core.settings import RenderSettings
 
@@ -95,7 +95,8 @@ def cost_map(scene: Scene, settings: RenderSettings) -> np.ndarray:
 def plan(resolution: tuple[int, int], settings: RenderSettings, workers: int, tail: bool) -> list[list[tuple]]:
     """The batches, in order, that a render of the whole frame with these settings hands to `workers` threads
     (no adaptive sampling): each a list of (tile, tile-local pixels, samples). The cuts are core.render's pass
-    loop's (sample_passes, tail_target, pass_segments); a test checks them against a real render's batches."""
+    loop's, made with its functions (sample_passes, tail_target, pass_segments, tail_piece_overfills); a test
+    checks them against a real render's batches."""
     w, h = resolution
     tile_list = tiles(0, 0, w, h, settings.tile_size)
     target = batch_target(settings, settings.spp * w * h)
@@ -107,7 +108,7 @@ def plan(resolution: tuple[int, int], settings: RenderSettings, workers: int, ta
         here = tail_target(target, left + gathered, workers) if tail and workers > 1 else target
         left -= len(pixels) * count
         for seg in pass_segments(ti, tile, pixels, first_sample, count, here):
-            if here < target and gathered + len(seg.loc) > here and group:
+            if tail_piece_overfills(here, target, gathered, len(seg.loc)):
                 batches.append(group)
                 group, gathered = [], 0
             group.append((seg.tile, seg.loc[::count], count))

@@ -7,7 +7,7 @@ import pytest
 
 from monte.core import builtin_scenes as scenes
 from monte.core import render as render_module
-from monte.core.schedule import MIN_BATCH, TAIL_PIECES, tail_target
+from monte.core.schedule import MIN_BATCH, TAIL_PIECES, tail_piece_overfills, tail_target
 from monte.core.settings import RenderSettings
 
 OUTPUTS = ("color", "variance", "albedo", "normal", "depth", "sample_count")
@@ -32,6 +32,17 @@ def test_tail_target_keeps_full_batches_until_the_last_rounds():
     # one worker: nothing runs beside it, every batch keeps the target
     assert tail_target(target, 1, 1) == target
     assert tail_target(target, target, 0) == target
+
+
+def test_a_tail_piece_never_overfills_a_batch_but_segments_outside_the_tail_do():
+    target = 1 << 18
+    # in the tail (a pass target below the render's): the batch goes first when the piece would overfill it...
+    assert tail_piece_overfills(40_000, target, 30_000, 20_000)
+    # ...not when it fits exactly, nor when the batch is still empty (a piece always makes a batch)
+    assert not tail_piece_overfills(40_000, target, 20_000, 20_000)
+    assert not tail_piece_overfills(40_000, target, 0, 60_000)
+    # outside the tail a batch gathers segments until it reaches its target, whatever they overshoot
+    assert not tail_piece_overfills(target, target, target - 1, target)
 
 
 def _render(monkeypatch, tail: bool, threads: int = 2, **kw):
