@@ -23,8 +23,9 @@ affected; other numba users in the process (other Blender add-ons) keep numba's 
 A cache is valid while the sources are: its stamp is a SHA-256 of the kernel modules' contents and the numba
 options, not the files' times, so a cache built once and shipped (the extension zip,
 `make setup`) stays valid when unzipping or checking out rewrites the times, and any edit of a kernel module
-recompiles. Kernels are compiled for a generic CPU of the architecture (x86-64: SSE2; NUMBA_CPU_NAME=generic),
-so a cache built on one machine loads on every other: see `kernel_cpu()`.
+recompiles. Kernels are compiled for a named level of the architecture rather than for this exact CPU (x86-64-v3
+where the CPU has AVX2 and the rest of that level, else the generic baseline), so a cache built on one machine loads
+on every other of its level: see `_select_kernel_cpu()`.
 """
 
 from __future__ import annotations
@@ -115,7 +116,34 @@ import numba  # noqa: E402
 from numba.core import caching  # noqa: E402
 
 _CORE_DIR = os.path.dirname(os.path.abspath(__file__))
-KERNEL_CPU_ENV = "MONTE_KERNEL_CPU"  # "generic" (the default) or "host"
+KERNEL_CPU_ENV = "MONTE_KERNEL_CPU"  # "auto" (the default), "generic", "x86-64-v3" or "host"
+KERNEL_CPU_CHOICES = ("auto", "generic", "x86-64-v3", "host")
+
+# The x86-64-v3 level's features as LLVM names them: x86-64-v2's (SSE3 to SSE4.2, POPCNT, CMPXCHG16B, LAHF) and
+# AVX, AVX2, BMI1, BMI2, F16C, FMA, LZCNT, MOVBE, XSAVE. Every x86-64 CPU since 2013-2015 (Intel Haswell, AMD
+# Excavator and every Zen) has them; some low-end Intel parts (Atom-class Pentium and Celeron) do not.
+X86_64_V3_FEATURES = ("cx16", "sahf", "popcnt", "sse3", "sse4.1", "sse4.2", "ssse3", "avx", "avx2", "bmi", "bmi2",
+                      "f16c", "fma", "lzcnt", "movbe", "xsave")
+
+
+def level_kernel_cpu(triple: str, features: "dict[str, bool]") -> str:
+    """The CPU level Monte's kernels are compiled for on a machine whose LLVM target triple and host features (as
+    llvmlite.binding.get_host_cpu_features names them) are given: "x86-64-v3" on an x86-64 CPU that has all of
+    X86_64_V3_FEATURES, else "generic" (the architecture's baseline: SSE2 on x86-64)."""
+    if triple.split("-", 1)[0] in ("x86_64", "amd64") and all(features.get(f) for f in X86_64_V3_FEATURES):
+        return "x86-64-v3"
+    return "generic"
+
+
+def _host_level() -> str:
+    """level_kernel_cpu of this machine (generic where LLVM cannot say)."""
+    import llvmlite.binding as ll
+
+    try:
+        features = dict(ll.get_host_cpu_features())
+    except RuntimeError:  # (LLVM knows no features for this host)
+        features = {}
+    return level_kernel_cpu(ll.get_process_triple(), features)
 
 
 def _numba_codegen_exists() -> bool:
@@ -127,36 +155,46 @@ def _numba_codegen_exists() -> bool:
 
 
 def _select_kernel_cpu() -> str:
-    """Make numba compile for a generic CPU of the architecture, so that cached kernels built elsewhere (the
-    extension zip, `make setup`) load here: numba keys each cached kernel by the CPU name and features it was
-    compiled for. Measured on Cornell renders, generic kernels run as fast as host-tuned ones (the kernels are
-    scalar per-path code: docs/performance.md), and give the same image bits (no fast-math, so no fused
-    multiply-adds either way).
+    """Make numba compile for a named CPU level rather than this machine's exact CPU, so that cached kernels built
+    elsewhere (the extension zip, `make setup`) load on every machine of that level: numba keys each cached kernel
+    by the CPU name and features it was compiled for. The level (MONTE_KERNEL_CPU=auto, the default) is x86-64-v3
+    where the CPU has it (AVX2, FMA, BMI2, ...: docs/performance.md measured up to 7 % less render CPU than SSE2-only
+    code, the most on scenes with node programs), else the architecture's generic
+    baseline; MONTE_KERNEL_CPU=generic or x86-64-v3 names one (x86-64-v3 on a CPU without it falls back to
+    generic, with a warning: its code would not run here). The image bits are the same at every level: the
+    kernels use no fast-math, so LLVM neither fuses multiply-adds nor reorders float arithmetic, and the math
+    functions are the same library calls.
 
-    Left alone when the user chose a CPU for numba (NUMBA_CPU_NAME), when MONTE_KERNEL_CPU=host asks for
-    host-tuned kernels (compiled on the first render, not shipped), and when numba already compiled for this
-    process's CPU before Monte was imported (another add-on's kernels): then Monte compiles its own kernels
-    once, with a warning. Returns the CPU name numba uses ("generic", or "host")."""
+    Left alone when the user chose a CPU for numba (NUMBA_CPU_NAME), when MONTE_KERNEL_CPU=host asks for kernels
+    tuned to this exact CPU (compiled on the first render, never shipped), and when numba already compiled for
+    this process's CPU before Monte was imported (another add-on's kernels): then Monte compiles its own kernels
+    once, with a warning. Returns the CPU name numba uses ("x86-64-v3", "generic", or "host")."""
     if os.environ.get("NUMBA_CPU_NAME"):
         return os.environ["NUMBA_CPU_NAME"]
-    choice = os.environ.get(KERNEL_CPU_ENV, "generic").strip().lower() or "generic"
-    if choice not in ("generic", "host"):
-        warnings.warn(f"{KERNEL_CPU_ENV}={os.environ[KERNEL_CPU_ENV]!r} is neither 'generic' nor 'host'; "
-                      "using 'generic'", stacklevel=2)
-        choice = "generic"
+    choice = os.environ.get(KERNEL_CPU_ENV, "auto").strip().lower() or "auto"
+    if choice not in KERNEL_CPU_CHOICES:
+        warnings.warn(f"{KERNEL_CPU_ENV}={os.environ[KERNEL_CPU_ENV]!r} is not one of "
+                      f"{', '.join(KERNEL_CPU_CHOICES)}; using 'auto'", stacklevel=2)
+        choice = "auto"
     if choice == "host":
         return "host"
+    if choice != "generic":
+        level = _host_level()
+        if choice == "x86-64-v3" and level != choice:
+            warnings.warn(f"{KERNEL_CPU_ENV}=x86-64-v3: this CPU lacks some of that level's features "
+                          f"({', '.join(X86_64_V3_FEATURES)}); compiling for a generic CPU", stacklevel=2)
+        choice = level
     if _numba_codegen_exists():
         warnings.warn("numba was already compiling for this machine's CPU before Monte was loaded (another "
                       "package's kernels): Monte's shipped kernels do not apply and are compiled once on the "
                       "first render", stacklevel=2)
         return "host"
     # The environment too: numba re-reads NUMBA_* variables before each compile and would reset the config.
-    os.environ["NUMBA_CPU_NAME"] = "generic"
+    os.environ["NUMBA_CPU_NAME"] = choice
     os.environ["NUMBA_CPU_FEATURES"] = ""
-    numba.config.CPU_NAME = "generic"
+    numba.config.CPU_NAME = choice
     numba.config.CPU_FEATURES = ""
-    return "generic"
+    return choice
 
 
 KERNEL_CPU = _select_kernel_cpu()

@@ -744,7 +744,7 @@ def _precompile_in_parallel(jobs: int) -> dict | None:
 
 def main() -> int:
     jobs = precompile_jobs()
-    print(f"Monte: compiling the render kernels for a {jit_cache.KERNEL_CPU} CPU into {jit_cache.cache_dir()} "
+    print(f"Monte: compiling the render kernels for {jit_cache.KERNEL_CPU} CPUs into {jit_cache.cache_dir()} "
           f"(cached: the first time takes about three to four minutes of CPU"
           f"{f', in {jobs} processes' if jobs > 1 else ''})", flush=True)
     if jobs > 1:

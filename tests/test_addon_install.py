@@ -174,7 +174,7 @@ def test_zip_holds_only_the_add_on(built_zip):
         name = module.rpartition("/")[2]
         assert any(n.startswith(f"{cache}{name}.") and n.endswith(f".{tag}.nbi") for n in names), module
     assert any(n.startswith(cache) and n.endswith(".nbc") for n in names)
-    # numba's runtime module (NRT) compiled for the same generic CPU, so the first process builds nothing with LLVM
+    # numba's runtime module (NRT) compiled for the same CPU level, so the first process builds nothing with LLVM
     assert any(n.startswith(f"{cache}nrt-") and n.endswith(".bin") for n in names)
     # The add-on's bytecode beside every source, for this Python and each other Python of the manifest the build
     # found (Blender 4.2 - 5.0's 3.11, 5.3's 3.13), and nothing else in a __pycache__ folder.

@@ -1,8 +1,9 @@
 """The kernels' disk cache: keyed by the sources' contents, so a cache built once (`make setup`, the extension
 zip) stays valid when checking out or unzipping rewrites the file times, and any edit of any kernel module
 invalidates every kernel (kernels call and inline functions of other modules: core.warps, core.geometry_kernels;
-numba alone checks only the file a function is defined in). Kernels are compiled for a generic CPU, so a cache
-built on one machine applies on another; a process that finds a built cache compiles nothing."""
+numba alone checks only the file a function is defined in). Kernels are compiled for a named CPU level
+(x86-64-v3 or generic), so a cache built on one machine applies on another of its level; a process that finds a
+built cache compiles nothing."""
 
 from __future__ import annotations
 
@@ -112,16 +113,60 @@ def _python(code: str, **env) -> dict:
     return json.loads(lines[-1][len("RESULT "):])
 
 
-def test_kernels_are_compiled_for_a_generic_cpu():
-    result = _python("""
+def _host_level() -> str:
+    """The level this machine's CPU has, asked of LLVM directly (what the default, auto, must pick)."""
+    import llvmlite.binding as ll
+
+    features = dict(ll.get_host_cpu_features())
+    v3 = ll.get_process_triple().startswith("x86_64") and all(features.get(f) for f in jit_cache.X86_64_V3_FEATURES)
+    return "x86-64-v3" if v3 else "generic"
+
+
+def test_kernels_are_compiled_for_the_cpu_level_not_the_exact_cpu():
+    code = """
         import json
         from monte.core import jit_cache, warps
         from numba.core.registry import cpu_target
         print("RESULT " + json.dumps({"cpu": jit_cache.KERNEL_CPU,
                                       "magic": list(cpu_target.target_context.codegen().magic_tuple())}))
-    """)
-    assert result["cpu"] == "generic"
-    assert result["magic"][1:] == ["generic", ""]  # the CPU name and features numba keys the cache by
+    """
+    level = _host_level()
+    for env, expected in (({}, level), ({"MONTE_KERNEL_CPU": "auto"}, level),
+                          ({"MONTE_KERNEL_CPU": "generic"}, "generic")):
+        result = _python(code, **env)
+        assert result["cpu"] == expected, env
+        assert result["magic"][1:] == [expected, ""], env  # the CPU name and features numba keys the cache by
+
+
+def test_the_cpu_level_is_x86_64_v3_only_with_all_its_features():
+    everything = {f: True for f in jit_cache.X86_64_V3_FEATURES}
+    assert jit_cache.level_kernel_cpu("x86_64-unknown-linux-gnu", everything) == "x86-64-v3"
+    assert jit_cache.level_kernel_cpu("x86_64-pc-windows-msvc", {**everything, "avx512f": True}) == "x86-64-v3"
+    for missing in ("avx2", "fma", "bmi2", "movbe", "sse4.2"):
+        assert jit_cache.level_kernel_cpu("x86_64-unknown-linux-gnu", {**everything, missing: False}) == "generic"
+    assert jit_cache.level_kernel_cpu("x86_64-apple-darwin", {}) == "generic"
+    assert jit_cache.level_kernel_cpu("aarch64-unknown-linux-gnu", everything) == "generic"
+    assert jit_cache.level_kernel_cpu("arm64-apple-darwin", everything) == "generic"
+
+
+def test_a_level_the_cpu_lacks_or_an_unknown_choice_warns_and_falls_back():
+    code = """
+        import json, warnings
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            from monte.core import jit_cache
+        print("RESULT " + json.dumps({"cpu": jit_cache.KERNEL_CPU, "warnings": [str(w.message) for w in caught]}))
+    """
+    result = _python(code, MONTE_KERNEL_CPU="pentium")
+    assert result["cpu"] == _host_level()
+    assert any("MONTE_KERNEL_CPU='pentium' is not one of auto, generic, x86-64-v3, host" in w
+               for w in result["warnings"]), result["warnings"]
+    result = _python(code, MONTE_KERNEL_CPU="x86-64-v3")
+    if _host_level() == "x86-64-v3":
+        assert result["cpu"] == "x86-64-v3" and not result["warnings"], result
+    else:
+        assert result["cpu"] == "generic"
+        assert any("compiling for a generic CPU" in w for w in result["warnings"]), result["warnings"]
 
 
 def test_host_tuned_kernels_on_request_and_after_another_package_compiled():

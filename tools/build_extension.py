@@ -15,8 +15,9 @@ blender_ext.py), with plain Python: no Blender binary needed. Each zip is then c
 add-on (the package __init__.py, core/, addon/, the manifest, LICENSE, its wheels and its bytecode).
 
 The zip for the platform the build runs on also carries the compiled render kernels (numba's cache, built by
-core/precompile.py under the name Blender imports the extension as, bl_ext.user_default.monte, for a generic
-CPU and keyed by the sources' contents), so the first render after installing does not compile: for this
+core/precompile.py under the name Blender imports the extension as, bl_ext.user_default.monte, for the CPU
+level --kernel-cpu names (auto, the default: this machine's, x86-64-v3 on any recent x86-64 CPU; generic for
+older ones) and keyed by the sources' contents), so the first render after installing does not compile: for this
 interpreter's Python, and for each --kernel-python interpreter (e.g. a Python 3.11 environment with the
 manifest's numba, for Blender 4.2 - 5.0). Zips for other platforms compile on their first render.
 
@@ -253,7 +254,7 @@ KEPT_KERNEL_BUILDS = 6  # the most recent ones kept
 
 def kernel_build_key(python: str, root: Path, env: dict) -> str | None:
     """What a built kernel cache depends on, as one hex digest: the interpreter's full version, its numba's and
-    llvmlite's, the kernel CPU (generic for a build), the platform, and the kernel sources' digest with the
+    llvmlite's, the kernel CPU level, the platform, and the kernel sources' digest with the
     numba options (core.jit_cache.sources_digest: numba's own cache key). None when the probe fails."""
     code = (f"import sys; sys.path.insert(0, {str(root)!r}); import llvmlite, numba, platform; "
             f"from {BLENDER_PACKAGE}.core import jit_cache; print(sys.version, numba.__version__, "
@@ -296,9 +297,10 @@ def keep_kernel_build(cache: Path, names: list[str], key: str) -> None:
         log(f"kernel cache: not kept for later builds ({exc})")
 
 
-def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str, reuse: bool = True) -> bool:
-    """Compile every render kernel of the staged copy `src` with `python` into src/KERNEL_CACHE_DIR (for a
-    generic CPU). Skipped, with a note, when that Python's numba is not the one the manifest bundles for it
+def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str, reuse: bool = True,
+                       kernel_cpu: str = "auto") -> bool:
+    """Compile every render kernel of the staged copy `src` with `python` into src/KERNEL_CACHE_DIR, for the CPU
+    level kernel_cpu (core.jit_cache's MONTE_KERNEL_CPU: auto, generic or x86-64-v3). Skipped, with a note, when that Python's numba is not the one the manifest bundles for it
     (the cache would not match the numba Blender installs). With `reuse`, a cache an earlier build compiled for
     the same key (kernel_build_key: the same sources, interpreter, numba and llvmlite) is copied from
     KERNEL_BUILDS instead of compiling again; what a build compiles is kept there either way. Returns whether a
@@ -318,6 +320,7 @@ def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str, re
     env = {k: v for k, v in os.environ.items()
            if not k.startswith("NUMBA_") and k not in ("MONTE_KERNEL_CPU", "PYTHONPATH")}
     env["PYTHONDONTWRITEBYTECODE"] = "1"  # the cache folders ship: no .pyc in them
+    env["MONTE_KERNEL_CPU"] = kernel_cpu
     root = src.parent.parent.parent
     cache = src / KERNEL_CACHE_DIR
     key = kernel_build_key(python, root, env)
@@ -528,6 +531,11 @@ def main(argv: list[str] | None = None) -> int:
                              "3.11 with the manifest's numba, for Blender 4.2 - 5.0)")
     parser.add_argument("--no-kernel-cache", action="store_true",
                         help="ship no compiled kernels (the first render after installing compiles them)")
+    parser.add_argument("--kernel-cpu", choices=("auto", "generic", "x86-64-v3"), default="auto",
+                        help="the CPU level the shipped kernels are compiled for: auto (default: this machine's, "
+                             "x86-64-v3 on x86-64 CPUs with AVX2, FMA and BMI2, else generic), generic (runs on "
+                             "every CPU of the architecture, up to 7%% slower), or x86-64-v3; a machine of another "
+                             "level compiles the kernels on its first render")
     parser.add_argument("--recompile-kernels", action="store_true",
                         help="compile the shipped kernels even where an earlier build kept a cache for the same "
                              "sources, interpreter and numba (build/kernel-cache/)")
@@ -571,7 +579,8 @@ def main(argv: list[str] | None = None) -> int:
             with tempfile.TemporaryDirectory(prefix="monte-ext-") as tmp:
                 source = stage_subset(manifest, group, Path(tmp))
                 if with_cache:
-                    built_for = [build_kernel_cache(source, py, manifest, host, reuse=not args.recompile_kernels)
+                    built_for = [build_kernel_cache(source, py, manifest, host, reuse=not args.recompile_kernels,
+                                                  kernel_cpu=args.kernel_cpu)
                                  for py in [sys.executable, *args.kernel_python]]
                     if not any(built_for):
                         log("kernel cache: none built; the first render after installing compiles the kernels")
