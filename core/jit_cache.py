@@ -192,9 +192,27 @@ def _select_kernel_cpu() -> str:
     # The environment too: numba re-reads NUMBA_* variables before each compile and would reset the config.
     os.environ["NUMBA_CPU_NAME"] = choice
     os.environ["NUMBA_CPU_FEATURES"] = ""
+    NUMBA_ENVIRONMENT_WRITTEN.update(NUMBA_CPU_NAME=choice, NUMBA_CPU_FEATURES="")
     numba.config.CPU_NAME = choice
     numba.config.CPU_FEATURES = ""
     return choice
+
+
+# What _select_kernel_cpu wrote into this process's environment (nothing where the user chose numba's CPU, or
+# asked for host kernels). Child processes inherit it, and there it would win over their own choice: see
+# child_environment.
+NUMBA_ENVIRONMENT_WRITTEN: dict[str, str] = {}
+
+
+def child_environment(env: "dict[str, str] | None" = None) -> dict[str, str]:
+    """A copy of env (default: this process's environment) without the NUMBA_* values Monte wrote into it
+    (NUMBA_ENVIRONMENT_WRITTEN), for starting another process that should choose its own kernel CPU level: a
+    Monte of another checkout (whose `auto` may differ), a bench's renderer. NUMBA_* values the user set stay."""
+    copy = dict(os.environ if env is None else env)
+    for name, value in NUMBA_ENVIRONMENT_WRITTEN.items():
+        if copy.get(name) == value:
+            del copy[name]
+    return copy
 
 
 KERNEL_CPU = _select_kernel_cpu()

@@ -32,7 +32,7 @@ import bpy
 import numpy as np
 
 from ..addon.crosscheck import configure_cycles
-from ..core import metrics
+from ..core import jit_cache, metrics
 from . import bench_cycles
 from .bench_math import corrected_rmse, efficiency, format_table, write_json
 from .bench_reference import ReferenceCache
@@ -68,8 +68,10 @@ def _process_env(tmp_dir: Path) -> dict:
     bench runs from: without it, a checkout on PYTHONPATH benched whatever `monte` the working folder or the
     installed package gave), with Python's bytecode cache on (into a folder of tmp_dir unless PYTHONPYCACHEPREFIX
     names one), as a user's processes have it: with PYTHONDONTWRITEBYTECODE set, every Monte process compiled its
-    ~80 modules from source again (~0.3 s of CPU) while bpy's own scripts ship compiled."""
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    ~80 modules from source again (~0.3 s of CPU) while bpy's own scripts ship compiled. Without the kernel CPU
+    level this process's Monte wrote into its environment (jit_cache.child_environment): each renderer process
+    chooses its own, as a user's does, and a Monte started from another checkout is not handed this one's."""
+    env = {k: v for k, v in jit_cache.child_environment().items() if k != "PYTHONDONTWRITEBYTECODE"}
     env.setdefault("PYTHONPYCACHEPREFIX", str(tmp_dir / "pycache"))
     return env
 

@@ -177,6 +177,21 @@ def test_bench_whole_process_tiny_end_to_end(tmp_path):
     assert scene["monte_over_cycles_efficiency"] == pytest.approx(monte["efficiency"] / cycles["efficiency"])
 
 
+def test_bench_whole_process_renderers_choose_their_own_kernel_level(tmp_path, monkeypatch):
+    """The renderer processes do not inherit the NUMBA_* values this process's Monte wrote into its environment
+    (a Monte of another checkout would run this one's kernel CPU level), but keep the user's own."""
+    from monte.core import jit_cache
+    from monte.lab.bench_whole_process import _process_env
+
+    monkeypatch.setattr(jit_cache, "NUMBA_ENVIRONMENT_WRITTEN", {"MONTE_TEST_WRITTEN": "by-monte"})
+    monkeypatch.setenv("MONTE_TEST_WRITTEN", "by-monte")
+    monkeypatch.delenv("PYTHONPYCACHEPREFIX", raising=False)
+    env = _process_env(tmp_path)
+    assert "MONTE_TEST_WRITTEN" not in env and env["PYTHONPYCACHEPREFIX"] == str(tmp_path / "pycache")
+    monkeypatch.setenv("MONTE_TEST_WRITTEN", "by-the-user")
+    assert _process_env(tmp_path)["MONTE_TEST_WRITTEN"] == "by-the-user"
+
+
 def test_bench_whole_process_errors(tmp_path):
     base = ["bench", "--vs", "cycles", "--whole-process", "--reference-dir", str(tmp_path), "-o", str(tmp_path)]
     assert main([*base, "--ladder", "8,16"]) == 1  # renders at --spp: a ladder is refused, not ignored

@@ -169,6 +169,29 @@ def test_a_level_the_cpu_lacks_or_an_unknown_choice_warns_and_falls_back():
         assert any("compiling for a generic CPU" in w for w in result["warnings"]), result["warnings"]
 
 
+def test_child_processes_choose_their_own_level_unless_the_user_chose():
+    code = """
+        import json, os
+        from monte.core import jit_cache
+        child = jit_cache.child_environment()
+        print("RESULT " + json.dumps({"cpu": jit_cache.KERNEL_CPU, "own": os.environ.get("NUMBA_CPU_NAME"),
+                                      "child": [child.get("NUMBA_CPU_NAME"), child.get("NUMBA_CPU_FEATURES")],
+                                      "other": child.get("MONTE_TEST_MARK")}))
+    """
+    # Monte wrote its level into its own environment (numba re-reads it); a child process does not inherit that ...
+    result = _python(code, MONTE_KERNEL_CPU="generic", MONTE_TEST_MARK="kept")
+    assert result["cpu"] == "generic" and result["own"] == "generic"
+    assert result["child"] == [None, None] and result["other"] == "kept"
+    # ... but a level the user set is passed on
+    result = _python(code, NUMBA_CPU_NAME="generic", NUMBA_CPU_FEATURES="")
+    assert result["cpu"] == "generic" and result["child"] == ["generic", ""]
+    # and an explicit environment is filtered the same way, without touching this process's
+    written = dict(jit_cache.NUMBA_ENVIRONMENT_WRITTEN)
+    if written:
+        assert not set(written) & set(jit_cache.child_environment({**written, "PATH": "/bin"}))
+    assert jit_cache.child_environment({"NUMBA_CPU_NAME": "users-own"})["NUMBA_CPU_NAME"] == "users-own"
+
+
 def test_host_tuned_kernels_on_request_and_after_another_package_compiled():
     result = _python("""
         import json, warnings
