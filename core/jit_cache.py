@@ -120,8 +120,8 @@ KERNEL_CPU_ENV = "MONTE_KERNEL_CPU"  # "auto" (the default), "generic", "x86-64-
 KERNEL_CPU_CHOICES = ("auto", "generic", "x86-64-v3", "host")
 
 # The x86-64-v3 level's features as LLVM names them: x86-64-v2's (SSE3 to SSE4.2, POPCNT, CMPXCHG16B, LAHF) and
-# AVX, AVX2, BMI1, BMI2, F16C, FMA, LZCNT, MOVBE, XSAVE. Every x86-64 CPU since 2013-2015 (Intel Haswell, AMD
-# Excavator and every Zen) has them; some low-end Intel parts (Atom-class Pentium and Celeron) do not.
+# AVX, AVX2, BMI1, BMI2, F16C, FMA, LZCNT, MOVBE, XSAVE. Intel's Core CPUs since Haswell (2013) and AMD's since
+# Excavator (2015), every Zen included, have them; Intel's Atom-class Pentium and Celeron parts long did not.
 X86_64_V3_FEATURES = ("cx16", "sahf", "popcnt", "sse3", "sse4.1", "sse4.2", "ssse3", "avx", "avx2", "bmi", "bmi2",
                       "f16c", "fma", "lzcnt", "movbe", "xsave")
 
