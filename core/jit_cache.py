@@ -159,9 +159,9 @@ def _select_kernel_cpu() -> str:
     elsewhere (the extension zip, `make setup`) load on every machine of that level: numba keys each cached kernel
     by the CPU name and features it was compiled for. The level (MONTE_KERNEL_CPU=auto, the default) is x86-64-v3
     where the CPU has it (AVX2, FMA, BMI2, ...: docs/performance.md measured up to 7 % less render CPU than SSE2-only
-    code, the most on scenes with node programs), else the architecture's generic
-    baseline; MONTE_KERNEL_CPU=generic or x86-64-v3 names one (x86-64-v3 on a CPU without it falls back to
-    generic, with a warning: its code would not run here). The image bits are the same at every level: the
+    code, the most on scenes with node programs), else the architecture's generic baseline;
+    MONTE_KERNEL_CPU=generic or x86-64-v3 names one (x86-64-v3 on a CPU without it falls back to generic, with a
+    warning: its code would not run here). The image bits are the same at every level: the
     kernels use no fast-math, so LLVM neither fuses multiply-adds nor reorders float arithmetic, and the math
     functions are the same library calls.
 

@@ -300,8 +300,9 @@ def keep_kernel_build(cache: Path, names: list[str], key: str) -> None:
 def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str, reuse: bool = True,
                        kernel_cpu: str = "auto") -> bool:
     """Compile every render kernel of the staged copy `src` with `python` into src/KERNEL_CACHE_DIR, for the CPU
-    level kernel_cpu (core.jit_cache's MONTE_KERNEL_CPU: auto, generic or x86-64-v3). Skipped, with a note, when that Python's numba is not the one the manifest bundles for it
-    (the cache would not match the numba Blender installs). With `reuse`, a cache an earlier build compiled for
+    level kernel_cpu (core.jit_cache's MONTE_KERNEL_CPU: auto, generic or x86-64-v3). Skipped, with a note, when
+    that Python's numba is not the one the manifest bundles for it (the cache would not match the numba Blender
+    installs). With `reuse`, a cache an earlier build compiled for
     the same key (kernel_build_key: the same sources, interpreter, numba and llvmlite) is copied from
     KERNEL_BUILDS instead of compiling again; what a build compiles is kept there either way. Returns whether a
     cache was built."""
