@@ -27,6 +27,7 @@ sample density equals the filter to within the table's resolution.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -39,6 +40,7 @@ F32 = NDArray[np.float32]
 FILTER_KINDS: tuple[str, ...] = ("box", "tent", "gaussian", "blackman-harris")
 _ALIASES = {"triangle": "tent", "blackman_harris": "blackman-harris", "blackmanharris": "blackman-harris"}
 _BH = (0.35875, 0.48829, 0.14128, 0.01168)
+_RADIUS_PER_WIDTH = {"box": 0.5, "tent": 1.0, "gaussian": 1.5, "blackman-harris": 1.0}  # support half-extent / width
 
 _CDF_CELLS = 1 << 14  # x-grid cells for the CDF (Simpson per cell)
 _INV_CELLS = 1 << 16  # uniform-u inverse table entries (lerped), cf. Cycles' 1024
@@ -60,6 +62,24 @@ def _lerp(table: F32, i: NDArray[np.intp], frac: F32) -> F32:
     b *= frac
     b += a
     return b
+
+
+def _profile(kind: str, width: float, radius: float, x: ArrayLike) -> NDArray[np.float64]:
+    """The unnormalised profile of a filter of this kind and width (PixelFilter.evaluate)."""
+    x = np.asarray(x, dtype=np.float64)
+    w, r = width, radius
+    inside = np.abs(x) <= r
+    if kind == "box":
+        f = np.ones_like(x)
+    elif kind == "tent":
+        f = 1.0 - np.abs(x) / w
+    elif kind == "gaussian":
+        f = np.exp(-8.0 * (x / w) ** 2)  # sigma = w / 4
+    else:  # Cycles: v = 2 pi (x / width_eff + 1/2), width_eff = 2 w
+        v = 2.0 * math.pi * (x / (2.0 * w) + 0.5)
+        a0, a1, a2, a3 = _BH
+        f = a0 - a1 * np.cos(v) + a2 * np.cos(2.0 * v) - a3 * np.cos(3.0 * v)
+    return np.where(inside, f, 0.0)
 
 
 class PixelFilter:
@@ -92,7 +112,7 @@ class PixelFilter:
             raise ValueError(f"pixel filter width (filter_width) must be a finite number > 0 pixels, got {width!r}")
         self.kind: str = name
         self.width: float = w
-        self.radius: float = {"box": 0.5 * w, "tent": w, "gaussian": 1.5 * w, "blackman-harris": w}[name]
+        self.radius: float = _RADIUS_PER_WIDTH[name] * w
         self._r32 = _largest_f32_at_most(self.radius)
         self._norm = self._integral()
         self._inv: F32 | None = None
@@ -107,20 +127,7 @@ class PixelFilter:
 
     def evaluate(self, x: ArrayLike) -> NDArray[np.float64]:
         """Unnormalised filter profile ``f(x)`` (1 at the centre), 0 outside ``+-radius``."""
-        x = np.asarray(x, dtype=np.float64)
-        w, r = self.width, self.radius
-        inside = np.abs(x) <= r
-        if self.kind == "box":
-            f = np.ones_like(x)
-        elif self.kind == "tent":
-            f = 1.0 - np.abs(x) / w
-        elif self.kind == "gaussian":
-            f = np.exp(-8.0 * (x / w) ** 2)  # sigma = w / 4
-        else:  # Cycles: v = 2 pi (x / width_eff + 1/2), width_eff = 2 w
-            v = 2.0 * math.pi * (x / (2.0 * w) + 0.5)
-            a0, a1, a2, a3 = _BH
-            f = a0 - a1 * np.cos(v) + a2 * np.cos(2.0 * v) - a3 * np.cos(3.0 * v)
-        return np.where(inside, f, 0.0)
+        return _profile(self.kind, self.width, self.radius, x)
 
     def _integral(self) -> float:
         w = self.width
@@ -145,22 +152,10 @@ class PixelFilter:
     # -- sampling ------------------------------------------------------------------------
 
     def _build_inverse_tables(self) -> None:
-        """Inverse CDF on uniform grids of u, from a Simpson-integrated CDF on [-r, r]."""
-        r = self.radius
-        edges = np.linspace(-r, r, _CDF_CELLS + 1)
-        mids = 0.5 * (edges[:-1] + edges[1:])
-        fe, fm = self.evaluate(edges), self.evaluate(mids)
-        mass = (fe[:-1] + 4.0 * fm + fe[1:]) * ((2.0 * r / _CDF_CELLS) / 6.0)
-        cdf = np.concatenate([[0.0], np.cumsum(mass)])
-        cdf /= cdf[-1]
-
-        def table(u_lo: float, u_hi: float, cells: int) -> F32:
-            inv = np.interp(np.linspace(u_lo, u_hi, cells + 1), cdf, edges)
-            return np.clip(inv, -r, r).astype(np.float32).clip(-self._r32, self._r32)
-
-        du = 1.0 / _INV_CELLS
-        self._inv = table(0.0, 1.0, _INV_CELLS)
-        self._tails = (table(0.0, du, _TAIL_CELLS), table(1.0 - du, 1.0, _TAIL_CELLS))
+        """The inverse CDF tables of this kind and width, built once per process (_inverse_tables): every render
+        call makes its filter, and building them (~2 ms) would run on one thread before any path starts."""
+        self._inv, low, high = _inverse_tables(self.kind, self.width)
+        self._tails = (low, high)
 
     def sample_1d(self, u: ArrayLike) -> F32:
         """Offsets (float32, pixels from the pixel centre) for u in [0, 1), any shape."""
@@ -208,3 +203,26 @@ class PixelFilter:
         if uu.ndim != 2 or uu.shape[1] != 2:
             raise ValueError(f"expected u of shape (N, 2), got {uu.shape}")
         return self.sample_1d(uu)
+
+
+@functools.lru_cache(maxsize=8)
+def _inverse_tables(kind: str, width: float) -> tuple[F32, F32, F32]:
+    """Inverse CDF on uniform grids of u, from a Simpson-integrated CDF on [-r, r]: the whole table and the tables
+    of its first and last cells, read-only (shared by every PixelFilter of this kind and width)."""
+    r = _RADIUS_PER_WIDTH[kind] * width
+    r32 = _largest_f32_at_most(r)
+    edges = np.linspace(-r, r, _CDF_CELLS + 1)
+    mids = 0.5 * (edges[:-1] + edges[1:])
+    fe, fm = _profile(kind, width, r, edges), _profile(kind, width, r, mids)
+    mass = (fe[:-1] + 4.0 * fm + fe[1:]) * ((2.0 * r / _CDF_CELLS) / 6.0)
+    cdf = np.concatenate([[0.0], np.cumsum(mass)])
+    cdf /= cdf[-1]
+
+    def table(u_lo: float, u_hi: float, cells: int) -> F32:
+        inv = np.interp(np.linspace(u_lo, u_hi, cells + 1), cdf, edges)
+        out = np.clip(inv, -r, r).astype(np.float32).clip(-r32, r32)
+        out.flags.writeable = False
+        return out
+
+    du = 1.0 / _INV_CELLS
+    return table(0.0, 1.0, _INV_CELLS), table(0.0, du, _TAIL_CELLS), table(1.0 - du, 1.0, _TAIL_CELLS)

@@ -7,6 +7,7 @@ arguments and calls it per batch. Kept apart from the kernel module so that edit
 
 from __future__ import annotations
 
+import functools
 import os
 
 import numpy as np
@@ -84,6 +85,16 @@ def program_reason(ps) -> str | None:
     return None
 
 
+@functools.lru_cache(maxsize=16)
+def _sobol_set_keys(seed: int, dims: int) -> np.ndarray:
+    """The hash keys of the Sobol dimension sets 0 .. dims - 1 for this seed (read-only): the ones the sampler's
+    own sets use (SobolSampler), made once per process and seed, since hashing them one Python call at a time
+    (~1 ms for 16 bounces) would run on one thread before every render call's first path."""
+    keys = np.array([_U(_key(seed, d, _TAG_SOBOL_SET)) for d in range(dims)], np.uint32)
+    keys.flags.writeable = False
+    return keys
+
+
 class FusedTracer:
     """The kernel's scene-level arguments, built once per PathTracer whose scene `supports` accepts."""
 
@@ -111,7 +122,7 @@ class FusedTracer:
         self.n_matters = bool(lights._n_matters)
         self.has_emission = bool(lights.has_emission)
         dims = 2 + (s.max_bounces + 2) * 8
-        self.set_keys = np.array([_U(_key(sampler.seed, d, _TAG_SOBOL_SET)) for d in range(dims)], np.uint32)
+        self.set_keys = _sobol_set_keys(sampler.seed, dims).copy()  # writeable: the kernel's signature types it so
         self.dim_keys = np.ascontiguousarray(sampler._dim_keys, np.uint32)
         self.seed_key = _U(sampler._seed_key)
         self.tables = _sobol_tables()

@@ -13,7 +13,7 @@ from monte.core import builtin_scenes
 from monte.core.fused_tracer import FUSED_ENV, supports
 from monte.core.integrator import PathTracer
 from monte.core.render import prepare_scene, render
-from monte.core.sampling import make_sampler
+from monte.core.sampling import _TAG_SOBOL_SET, _U, _key, make_sampler
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fused_compare import assert_fused_bit_identical_across_thread_counts  # noqa: E402
@@ -87,6 +87,17 @@ def test_the_environment_variable_forces_the_per_bounce_integrator(fast_settings
     tracer = _tracer(_scene("cornell"), fast_settings(spp=4))
     assert supports(tracer) == f"{FUSED_ENV}=0"
     assert tracer.fused is None
+
+
+def test_each_tracer_gets_its_own_seeds_sobol_set_keys(fast_settings, monkeypatch):
+    """The kernel's Sobol set keys are hashed once per process and seed (fused_tracer._sobol_set_keys): a tracer
+    gets its own seed's, the sampler's own keys, in a writeable array (a read-only one is another kernel
+    signature, which would be compiled anew on the render's first batch)."""
+    monkeypatch.setenv(FUSED_ENV, "1")
+    for seed in (1, 2, 1, 2**40 + 5):
+        keys = _tracer(_scene("cornell"), fast_settings(spp=1, seed=seed)).fused.set_keys
+        assert keys.dtype == np.uint32 and keys.flags.writeable and len(keys) == 2 + (16 + 2) * 8
+        np.testing.assert_array_equal(keys, [_U(_key(seed, d, _TAG_SOBOL_SET)) for d in range(len(keys))])
 
 
 def test_the_shipped_kernel_has_no_timing_code(fast_settings, monkeypatch):

@@ -114,12 +114,11 @@ def _python(code: str, **env) -> dict:
 
 
 def _host_level() -> str:
-    """The level this machine's CPU has, asked of LLVM directly (what the default, auto, must pick)."""
+    """The level LLVM's report of this machine's CPU calls for (what the default, auto, must pick); which features
+    make a level is test_the_cpu_level_is_x86_64_v3_only_with_all_its_features'."""
     import llvmlite.binding as ll
 
-    features = dict(ll.get_host_cpu_features())
-    v3 = ll.get_process_triple().startswith("x86_64") and all(features.get(f) for f in jit_cache.X86_64_V3_FEATURES)
-    return "x86-64-v3" if v3 else "generic"
+    return jit_cache.level_kernel_cpu(ll.get_process_triple(), dict(ll.get_host_cpu_features()))
 
 
 def test_kernels_are_compiled_for_the_cpu_level_not_the_exact_cpu():

@@ -714,6 +714,22 @@ def test_filter_matches_cycles_table(kind, width):
     assert np.max(np.abs(ours - cyc)) < 0.01 * max(width, 1.0), np.max(np.abs(ours - cyc))
 
 
+def test_filter_tables_are_built_once_per_kind_and_width():
+    """Every render call makes its PixelFilter; the inverse CDF tables are built once per process for each kind and
+    width (filters._inverse_tables), read-only, and are the tables that kind and width build."""
+    a, b = filters.PixelFilter("blackman-harris", 1.5), filters.PixelFilter("BLACKMAN_HARRIS", 1.5)
+    assert a._inv is b._inv and a._tails[0] is b._tails[0] and a._tails[1] is b._tails[1]
+    assert not a._inv.flags.writeable
+    for kind, width in (("blackman-harris", 1.5), ("blackman-harris", 2.0), ("gaussian", 1.5), ("gaussian", 0.5)):
+        f = filters.PixelFilter(kind, width)
+        built = filters._inverse_tables.__wrapped__(kind, width)
+        for got, want in zip((f._inv, *f._tails), built):
+            np.testing.assert_array_equal(got, want)
+        assert abs(float(f._inv[0]) + f.radius) < 1e-3 * f.radius and abs(float(f._inv[-1]) - f.radius) < 1e-3 * f.radius
+    assert not np.array_equal(filters.PixelFilter("blackman-harris", 2.0)._inv, a._inv)
+    assert not np.array_equal(filters.PixelFilter("gaussian", 1.0)._inv, a._inv)
+
+
 @pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf"), "wide"])
 def test_filter_bad_width_raises(bad):
     with pytest.raises(ValueError, match="filter width"):
