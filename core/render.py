@@ -588,15 +588,35 @@ class _LazyFilms(dict):
         return film
 
 
+_SKIPPED = object()  # _add_in_order: a segment a cancel dropped (its tile's later segments go on without it)
+_NO_REPORT: tuple[bool, None] = (False, None)
+
+
+class _TileAdds:
+    """One tile's segments on their way into its film (_TileRender._add_in_order): those that arrived before their
+    turn (Segment.order -> the item to add), the next to add, whether a thread is adding, and the reports of those
+    added for the calling thread."""
+
+    __slots__ = ("pending", "next", "draining", "reports")
+
+    def __init__(self) -> None:
+        self.pending: dict[int, object] = {}
+        self.next = 0
+        self.draining = False
+        self.reports: dict[int, tuple[bool, Tile | None]] = {}
+
+
 class _TileRender:
     """One render while its batches run: the tiles' films, the batches in flight, the counters.
 
     Batches run on `workers` threads (NumPy, numba and Embree release the GIL), about `workers + 1` batches' paths
-    in flight (the last, smaller batches of core.schedule.tail_target more of them), and are accumulated in
-    submission order on the calling thread: the image does not depend on timing. A tile
-    whose samples all lie in one segment of one batch (every tile at 1 spp) is summed into a film of its own and
-    written into the frame's images by the worker thread that traced it (nothing else feeds that film, so the bits
-    are the same); the calling thread then only reports it (progress, on_tile) in submission order. A batch
+    in flight (the last, smaller batches of core.schedule.tail_target more of them). Each tile's film sums its
+    segments in the order they were queued, so the image does not depend on timing. A tile whose samples all lie
+    in one segment of one batch (every tile at 1 spp) is summed into a film of its own and written into the
+    frame's images by the worker thread that traced it (nothing else feeds that film, so the bits are the same);
+    a tile of several segments gets them from whichever worker holds its next one (_add_in_order). The calling
+    thread then only reports them (progress, on_tile) in submission order; one thread alone, sample ranges, data
+    passes and adaptive sampling have it add the segments itself. A batch
     holds about `target` paths, gathered from as many tile passes as it takes (at 1 spp a 64x64 tile is only
     4096 paths, far too few to amortise NumPy's per-call cost); small images are split into at least 8 batches
     (core.schedule.batch_target) so that threads share them, and the last ones shrink so that the threads finish
@@ -696,6 +716,16 @@ class _TileRender:
         self.tracers: list[PathTracer] = []  # one per worker thread
         self.local_state = threading.local()
         self.tracers_lock = threading.Lock()
+        # Segments of tiles that take several passes are added to their films by the worker threads, each tile's
+        # in the order they were queued (_add_in_order), not all by the calling thread: with many threads, one
+        # thread summing every sample would be the render's limit. Not for a local render's sample ranges, data
+        # passes or adaptive sampling, whose passes the calling thread reads as they land.
+        self._ordered_adds = (self.workers > 1 and self.frame is not None and work is None and not self.adaptive
+                              and self.data_tables is None)
+        self._queued_segments: dict[int, int] = {}  # tile index -> its segments queued so far (Segment.order)
+        self._tile_adds: dict[int, _TileAdds] = {}
+        self._adds = threading.Condition()  # guards _tile_adds and _adds_failed; notified as segments land
+        self._adds_failed: BaseException | None = None
 
     # ----------------------------------------------------------------------------------------- the pass loop
     def run(self) -> None:
@@ -785,7 +815,13 @@ class _TileRender:
         while self.in_flight:
             job = self.in_flight[0][-1]
             if self.pool is not None and job.cancel():
-                self._pop_oldest()
+                segments, _ = self._pop_oldest()
+                done = {"film": 0.0, "assembly": 0.0}
+                for seg in segments:  # later segments of their tiles, already running, are added without them
+                    if not self._whole_tile(seg) and self._ordered(seg):
+                        self._add_in_order(seg, _SKIPPED, done)
+                self.film_seconds += done["film"]
+                self.assembly_seconds += done["assembly"]
             else:
                 self._finish_one(quiet=True)
 
@@ -808,6 +844,9 @@ class _TileRender:
         if not self.group:
             return
         segments, self.group = self.group, []
+        for seg in segments:  # each tile's segments in queue order: the order its film sums them in
+            seg.order = self._queued_segments.get(seg.tile_index, 0)
+            self._queued_segments[seg.tile_index] = seg.order + 1
         self.largest_batch = max(self.largest_batch, self.group_paths)
         self.in_flight_paths += self.group_paths
         self.group_paths = 0
@@ -830,7 +869,9 @@ class _TileRender:
     def _run_batch(self, segments: list[Segment]):
         """A batch's paths (_trace_batch) and, for its segments that hold a whole tile's samples (every pixel, all
         spp: at low spp nearly every tile), their films, summed and written into the frame's images here on the
-        worker thread (_finish_in_worker); the rest are added on the calling thread in submission order."""
+        worker thread (_finish_in_worker); the other segments are added to their tiles' films in each tile's
+        queue order, by the workers (_add_in_order) or, where _ordered says not, by the calling thread in
+        submission order."""
         radiance, first, transparent = self._trace_batch(segments)
         finished = self._finish_in_worker(segments, radiance, first, transparent)
         return radiance, first, transparent, finished
@@ -842,11 +883,17 @@ class _TileRender:
         return (self.frame is not None and self.work is None and not self.adaptive and self.data_tables is None
                 and seg.last_chunk and len(seg.loc) == seg.tile[2] * seg.tile[3] * self.spp)
 
+    def _ordered(self, seg: Segment) -> bool:
+        """Whether a segment that is not a whole tile is added to its film by the worker threads (_add_in_order)
+        rather than by the calling thread."""
+        return self._ordered_adds
+
     def _finish_in_worker(self, segments: list[Segment], radiance, first, transparent) -> dict:
         """Write the batch's whole tiles (_whole_tile) into the frame's images from films of their own, on the
         worker thread: the frame's tiles are disjoint, so threads write them side by side; their order does not
-        matter. Returns {segment index: the tile's images (Tile)} plus the film and assembly seconds (keys
-        "film", "assembly"), which the calling thread adds up."""
+        matter. The other segments go to _add_in_order where _ordered says so. Returns {segment index: the tile's
+        images (Tile)} for the whole tiles, plus the film and assembly seconds (keys "film", "assembly"), which
+        the calling thread adds up."""
         done: dict = {"film": 0.0, "assembly": 0.0}
         # without a film: the settings allow it (_one_sample, decided once per render) and, once per batch, the
         # tracer returned nothing a film would keep beyond colour and the frame's AOVs
@@ -859,6 +906,8 @@ class _TileRender:
             rows = slice(start, start + len(seg.loc))
             start = rows.stop
             if not self._whole_tile(seg):
+                if self._ordered(seg):
+                    self._add_in_order(seg, (seg, rows, radiance, first, transparent), done)
                 continue
             t0 = time.perf_counter()
             if one_sample:
@@ -882,6 +931,72 @@ class _TileRender:
             done["film"] += t1 - t0
             done["assembly"] += time.perf_counter() - t1
         return done
+
+    def _add_in_order(self, seg: Segment, item, done: dict) -> None:
+        """Add a segment (item: its rows of the batch's results, or _SKIPPED for one a cancel dropped) to its tile's
+        film after the tile's segments queued before it (Segment.order). The thread that holds a tile's next
+        segment adds it and any that queued up behind it, so no thread waits for another; the others leave theirs
+        in the tile's queue. Each segment's report (_add_segment_in_worker) is kept for the calling thread's
+        callbacks (_report_in_order). A tile's segments are then summed in queue order, as the calling thread
+        sums them, so the film holds the same bits."""
+        with self._adds:
+            adds = self._tile_adds.get(seg.tile_index)
+            if adds is None:
+                adds = self._tile_adds[seg.tile_index] = _TileAdds()
+            adds.pending[seg.order] = item
+            if adds.draining:
+                return
+            adds.draining = True
+        try:
+            while True:
+                with self._adds:
+                    order = adds.next
+                    item = adds.pending.pop(order, None)
+                    if item is None:
+                        adds.draining = False
+                        return
+                    adds.next += 1
+                report = _NO_REPORT if item is _SKIPPED else self._add_segment_in_worker(*item, done)
+                with self._adds:
+                    adds.reports[order] = report
+                    self._adds.notify_all()
+        except BaseException as exc:  # the calling thread must not wait for reports that will never come
+            with self._adds:
+                self._adds_failed = exc
+                self._adds.notify_all()
+            raise
+
+    def _add_segment_in_worker(self, seg: Segment, rows: slice, radiance, first, transparent,
+                               done: dict) -> tuple[bool, Tile | None]:
+        """_add_segment, and where the segment ends its tile's pass what the calling thread would then do with the
+        film: its images written into the frame and the film released when the tile is final, or the tile's
+        images so far for on_tile. Returns (final, Tile or None)."""
+        t0 = time.perf_counter()
+        film = self.films[seg.tile]
+        self._add_segment(film, seg, rows, radiance, first, transparent)
+        t1 = time.perf_counter()
+        done["film"] += t1 - t0
+        if not seg.last_chunk:
+            return _NO_REPORT
+        if seg.sample_end == self.spp:  # final: its images once, the film released
+            tile = self.frame.put(seg.tile, film, self.spp)
+            film.release()
+            done["assembly"] += time.perf_counter() - t1
+            return True, tile
+        return False, (None if self.on_tile is None else self._tile_result(seg.tile, film, seg.sample_end))
+
+    def _report_in_order(self, seg: Segment) -> tuple[bool, Tile | None]:
+        """The report of a segment _add_in_order added (waiting until it is added: a later batch's worker may be
+        adding it)."""
+        with self._adds:
+            while True:
+                adds = self._tile_adds.get(seg.tile_index)
+                if adds is not None and seg.order in adds.reports:
+                    return adds.reports.pop(seg.order)
+                if self._adds_failed is not None:
+                    raise RuntimeError("a worker thread failed while adding samples to a tile's film"
+                                       ) from self._adds_failed
+                self._adds.wait()
 
     def _trace_batch(self, segments: list[Segment]):
         """Camera rays and paths of one batch, which may span several tiles (runs on a worker thread; touches no
@@ -991,7 +1106,8 @@ class _TileRender:
         return radiance, first, transparent
 
     def _finish_one(self, quiet: bool = False) -> None:
-        """Wait for the oldest batch in flight and add it to its tiles' films (quiet: no callbacks)."""
+        """Wait for the oldest batch in flight, add what its worker did not to its tiles' films, and report its
+        segments (quiet: no callbacks)."""
         segments, job = self._pop_oldest()
         radiance, first, transparent, finished = job.result() if self.pool is not None else job()
         self.film_seconds += finished["film"]
@@ -1000,6 +1116,18 @@ class _TileRender:
         for k, seg in enumerate(segments):
             rows = slice(start, start + len(seg.loc))
             start = rows.stop
+            if k not in finished and self._ordered(seg):  # added by a worker (_add_in_order): its callbacks only
+                final, tile = self._report_in_order(seg)
+                self.done_paths += len(seg.loc)
+                if not quiet:
+                    self._progress(seg.tile_index, seg.sample_end)
+                if seg.last_chunk:
+                    self.samples_started[seg.tile_index] = seg.sample_end
+                    if final:
+                        self.final.add(seg.tile_index)
+                    if self.on_tile is not None and not quiet and tile is not None:
+                        self.on_tile(tile)
+                continue
             if k in finished:  # a whole tile, already in the frame (_finish_in_worker): its callbacks only
                 self.done_paths += len(seg.loc)
                 self.samples_started[seg.tile_index] = seg.sample_end

@@ -75,7 +75,8 @@ def adaptive_batch_target(target: int, region_pixels: int, min_samples: int) -> 
 @dataclass
 class Segment:
     """Part of a batch: samples [sample_end - count, sample_end) of some pixels of one tile. loc: tile-local
-    pixel index per path; smp: sample index per path; last_chunk: the last segment of this tile's pass."""
+    pixel index per path; smp: sample index per path; last_chunk: the last segment of this tile's pass; order:
+    the segment's place among its tile's segments as the render queues them (the order its film sums them in)."""
 
     tile_index: int
     tile: TileRect
@@ -83,6 +84,7 @@ class Segment:
     smp: np.ndarray
     sample_end: int
     last_chunk: bool
+    order: int = 0  # its place among its tile's segments in the order they are queued (set when queued)
 
 
 def sample_passes(tile_list: list[TileRect], spp: int, settings: RenderSettings, min_samples: int,

@@ -18,8 +18,9 @@ def _render(monkeypatch, in_worker: bool, sky: bool = False, **kw):
     """(result, tile callbacks, tiles written by the worker path, threads that wrote them, tiles written without a
     film: FrameImages.put_one_sample)."""
     job = render_module._TileRender
-    if not in_worker:
+    if not in_worker:  # the calling thread adds every segment (tests/test_render_ordered_adds.py: the others)
         monkeypatch.setattr(job, "_whole_tile", lambda self, seg: False)
+        monkeypatch.setattr(job, "_ordered", lambda self, seg: False)
     written, threads = [0], set()
     finish = job._finish_in_worker
 
@@ -57,7 +58,7 @@ def _render(monkeypatch, in_worker: bool, sky: bool = False, **kw):
     ({}, True, True),  # 1 spp: every tile (15 of 16x16) in one segment, and no film needed
     ({"aovs": False}, True, True),
     ({"spp": 4}, True, False),  # 4 samples of 256 px in a 1024-path batch: one segment each, summed in a film
-    ({"spp": 8}, False, False),  # two passes per tile: the calling thread adds them, in order
+    ({"spp": 8}, False, False),  # two passes per tile: the workers add them, each tile's in order
     ({"threads": 1}, True, True),  # no worker threads: the same functions on the calling thread
     ({"denoising_features": True}, True, False),  # the features need the film
     ({"sky": True}, True, True),  # pixels that hit nothing: depth 1e10, normal 0

@@ -1,0 +1,164 @@
+"""Tiles that take several passes get their segments added to their films by the worker threads, each tile's in
+the order the render queued them (core.render._TileRender._add_in_order), instead of all by the calling thread:
+the same bits and the same tile callbacks, in the same order, as when the calling thread adds every segment."""
+
+import threading
+
+import numpy as np
+import pytest
+
+from monte.core import builtin_scenes as scenes
+from monte.core import render as render_module
+from monte.core.render import _SKIPPED, _TileRender
+from monte.core.schedule import Segment
+
+OUTPUTS = ("color", "variance", "albedo", "normal", "depth", "sample_count", "denoising_albedo", "denoising_normal")
+
+
+def _render(monkeypatch, in_workers: bool, **kw):
+    """(result, tile callbacks, {thread name: segments it added to films})."""
+    job = render_module._TileRender
+    if not in_workers:
+        monkeypatch.setattr(job, "_ordered", lambda self, seg: False)
+    adders: dict[str, int] = {}
+    add_segment = job._add_segment
+
+    def counted(self, *args):
+        name = threading.current_thread().name
+        adders[name] = adders.get(name, 0) + 1
+        return add_segment(self, *args)
+
+    monkeypatch.setattr(job, "_add_segment", counted)
+    calls = []
+
+    def on_tile(tile):
+        calls.append((tile.x0, tile.y0, tile.samples, tile.color.tobytes(),
+                      None if tile.variance is None else tile.variance.tobytes(),
+                      None if tile.albedo is None else tile.albedo.tobytes()))
+
+    # 48x40 in 9 tiles of 16x16 or 16x8 pixels: 16 or 32 samples a pass in a 4096-path batch, so every tile
+    # takes several passes
+    settings = dict(spp=40, tile_size=16, threads=2, max_bounces=4, seed=5, aovs=True, batch_paths=4096)
+    settings.update(kw)
+    result = render_module.render(scenes.cornell_box((48, 40)), render_module.RenderSettings(**settings),
+                                  on_tile=on_tile)
+    monkeypatch.undo()
+    return result, calls, adders
+
+
+@pytest.mark.parametrize("kw", [
+    {},
+    {"threads": 3},
+    {"error_estimate": False},  # the frame's AOV sums (FrameImages.add_aovs) from the workers
+    {"aovs": False, "spp": 33},  # a last pass of one sample
+    {"denoising_features": True},
+    {"batch_paths": 1024, "spp": 16},  # 4 or 8 samples a pass
+    {"tile_size": 64, "batch_paths": 1024, "spp": 3},  # one tile, each pass of 1920 paths cut into 2 segments
+])
+def test_segments_added_by_the_workers_change_no_bit(monkeypatch, kw):
+    base, base_calls, base_adders = _render(monkeypatch, False, **kw)
+    fast, fast_calls, fast_adders = _render(monkeypatch, True, **kw)
+    main = threading.main_thread().name
+    size = kw.get("tile_size", 16)
+    tiles = -(-48 // size) * -(-40 // size)
+    assert set(base_adders) == {main}  # the calling thread added every segment
+    assert fast_adders and main not in fast_adders  # the workers did
+    assert sum(fast_adders.values()) == sum(base_adders.values()) >= 2 * tiles  # several segments a tile
+    for name in OUTPUTS:
+        a, b = getattr(base, name), getattr(fast, name)
+        assert (a is None) == (b is None), name
+        if a is not None:
+            assert np.array_equal(a, b, equal_nan=True), name
+    assert fast_calls == base_calls  # the same tiles reported, in the same order, with the same images
+    assert len(base_calls) >= 2 * tiles  # every pass of every tile
+    assert fast.stats["samples"] == base.stats["samples"] == 48 * 40 * kw.get("spp", 40)
+
+
+def test_one_thread_adds_on_the_calling_thread(monkeypatch):
+    result, calls, adders = _render(monkeypatch, True, threads=1)
+    assert set(adders) == {threading.main_thread().name}
+    # 6 tiles of 16x16 in passes of 16, 16 and 8 samples, 3 of 16x8 in passes of 32 and 8
+    assert int(result.sample_count.sum()) == 48 * 40 * 40 and len(calls) == 6 * 3 + 3 * 2
+
+
+class _Orders:
+    """A _TileRender reduced to its ordered adds: _add_segment_in_worker records (tile, order, thread)."""
+
+    def __init__(self, monkeypatch):
+        self.job = job = object.__new__(_TileRender)
+        job._tile_adds, job._adds, job._adds_failed = {}, threading.Condition(), None
+        self.added = []
+
+        def add(seg, done):
+            self.added.append((seg.tile_index, seg.order, threading.current_thread().name))
+            return seg.last_chunk, f"tile {seg.tile_index} pass {seg.order}"
+
+        monkeypatch.setattr(job, "_add_segment_in_worker", add, raising=False)
+
+    @staticmethod
+    def segment(tile: int, order: int) -> Segment:
+        seg = Segment(tile, (0, 0, 1, 1), np.zeros(1, np.int64), np.zeros(1, np.uint32), order + 1, True)
+        seg.order = order
+        return seg
+
+    def deposit(self, tile: int, order: int, skipped: bool = False) -> None:
+        seg = self.segment(tile, order)
+        self.job._add_in_order(seg, _SKIPPED if skipped else (seg,), {"film": 0.0, "assembly": 0.0})
+
+
+def test_a_tile_adds_its_segments_in_queue_order_whoever_brings_them(monkeypatch):
+    orders = _Orders(monkeypatch)
+    orders.deposit(0, 2)  # early: nothing added, nobody waits
+    orders.deposit(1, 0)
+    orders.deposit(0, 1)
+    assert orders.added == [(1, 0, threading.main_thread().name)]
+    arrived = threading.Event()
+
+    def late_first():
+        orders.deposit(0, 0)  # the one missing: this thread adds it and the two that waited
+        arrived.set()
+
+    worker = threading.Thread(target=late_first, name="late")
+    worker.start()
+    worker.join(10)
+    assert arrived.is_set()
+    assert [(t, o) for t, o, _ in orders.added] == [(1, 0), (0, 0), (0, 1), (0, 2)]
+    assert {name for t, o, name in orders.added if t == 0} == {"late"}
+    assert orders.job._report_in_order(orders.segment(0, 1)) == (True, "tile 0 pass 1")
+    assert orders.job._report_in_order(orders.segment(0, 0)) == (True, "tile 0 pass 0")
+
+
+def test_a_segment_a_cancel_dropped_lets_its_tiles_later_ones_through(monkeypatch):
+    orders = _Orders(monkeypatch)
+    orders.deposit(0, 0)
+    orders.deposit(0, 2)  # a later batch, already running when the cancel came
+    orders.deposit(0, 1, skipped=True)  # its batch never started
+    assert [(t, o) for t, o, _ in orders.added] == [(0, 0), (0, 2)]
+    assert orders.job._report_in_order(orders.segment(0, 1)) == (False, None)
+    assert orders.job._report_in_order(orders.segment(0, 2)) == (True, "tile 0 pass 2")
+
+
+def test_the_calling_thread_waits_for_a_report_another_worker_is_adding(monkeypatch):
+    orders = _Orders(monkeypatch)
+    got = []
+    waiter = threading.Thread(target=lambda: got.append(orders.job._report_in_order(orders.segment(3, 0))))
+    waiter.start()
+    waiter.join(0.2)
+    assert waiter.is_alive() and not got  # not added yet: it waits
+    orders.deposit(3, 0)
+    waiter.join(10)
+    assert got == [(True, "tile 3 pass 0")]
+
+
+def test_a_failed_add_is_raised_to_the_calling_thread_not_waited_for(monkeypatch):
+    orders = _Orders(monkeypatch)
+
+    def broken(seg, done):
+        raise ValueError("film refused the samples")
+
+    monkeypatch.setattr(orders.job, "_add_segment_in_worker", broken, raising=False)
+    with pytest.raises(ValueError, match="film refused"):
+        orders.deposit(0, 0)
+    with pytest.raises(RuntimeError, match="failed while adding samples") as caught:
+        orders.job._report_in_order(orders.segment(0, 1))
+    assert isinstance(caught.value.__cause__, ValueError)
