@@ -720,8 +720,7 @@ class _TileRender:
         # in the order they were queued (_add_in_order), not all by the calling thread: with many threads, one
         # thread summing every sample would be the render's limit. Not for a local render's sample ranges, data
         # passes or adaptive sampling, whose passes the calling thread reads as they land.
-        self._ordered_adds = (self.workers > 1 and self.frame is not None and work is None and not self.adaptive
-                              and self.data_tables is None)
+        self._ordered_adds = self._adds_in_workers()  # decided once: a tile's segments must all go one way
         self._queued_segments: dict[int, int] = {}  # tile index -> its segments queued so far (Segment.order)
         self._tile_adds: dict[int, _TileAdds] = {}
         self._adds = threading.Condition()  # guards _tile_adds and _adds_failed; notified as segments land
@@ -818,7 +817,7 @@ class _TileRender:
                 segments, _ = self._pop_oldest()
                 done = {"film": 0.0, "assembly": 0.0}
                 for seg in segments:  # later segments of their tiles, already running, are added without them
-                    if not self._whole_tile(seg) and self._ordered(seg):
+                    if self._ordered_adds and not self._whole_tile(seg):
                         self._add_in_order(seg, _SKIPPED, done)
                 self.film_seconds += done["film"]
                 self.assembly_seconds += done["assembly"]
@@ -870,10 +869,12 @@ class _TileRender:
         """A batch's paths (_trace_batch) and, for its segments that hold a whole tile's samples (every pixel, all
         spp: at low spp nearly every tile), their films, summed and written into the frame's images here on the
         worker thread (_finish_in_worker); the other segments are added to their tiles' films in each tile's
-        queue order, by the workers (_add_in_order) or, where _ordered says not, by the calling thread in
-        submission order."""
+        queue order, by the workers (_add_in_order) or, where _adds_in_workers says not, by the calling thread
+        in submission order."""
         radiance, first, transparent = self._trace_batch(segments)
         finished = self._finish_in_worker(segments, radiance, first, transparent)
+        if self._ordered_adds:  # every segment is added here or waits in its tile's queue: none for the calling
+            radiance = first = transparent = None  # thread, so the batch's arrays go as soon as they are added
         return radiance, first, transparent, finished
 
     def _whole_tile(self, seg: Segment) -> bool:
@@ -883,15 +884,17 @@ class _TileRender:
         return (self.frame is not None and self.work is None and not self.adaptive and self.data_tables is None
                 and seg.last_chunk and len(seg.loc) == seg.tile[2] * seg.tile[3] * self.spp)
 
-    def _ordered(self, seg: Segment) -> bool:
-        """Whether a segment that is not a whole tile is added to its film by the worker threads (_add_in_order)
-        rather than by the calling thread."""
-        return self._ordered_adds
+    def _adds_in_workers(self) -> bool:
+        """Whether this render's segments that are not whole tiles are added to their films by the worker threads
+        (_add_in_order) rather than by the calling thread (read once, as _ordered_adds: were one tile's segments
+        split between the two ways, its later ones would wait for a number never handed in)."""
+        return (self.workers > 1 and self.frame is not None and self.work is None and not self.adaptive
+                and self.data_tables is None)
 
     def _finish_in_worker(self, segments: list[Segment], radiance, first, transparent) -> dict:
         """Write the batch's whole tiles (_whole_tile) into the frame's images from films of their own, on the
         worker thread: the frame's tiles are disjoint, so threads write them side by side; their order does not
-        matter. The other segments go to _add_in_order where _ordered says so. Returns {segment index: the tile's
+        matter. The other segments go to _add_in_order where _ordered_adds says so. Returns {segment index: the tile's
         images (Tile)} for the whole tiles, plus the film and assembly seconds (keys "film", "assembly"), which
         the calling thread adds up."""
         done: dict = {"film": 0.0, "assembly": 0.0}
@@ -906,7 +909,7 @@ class _TileRender:
             rows = slice(start, start + len(seg.loc))
             start = rows.stop
             if not self._whole_tile(seg):
-                if self._ordered(seg):
+                if self._ordered_adds:
                     self._add_in_order(seg, (seg, rows, radiance, first, transparent), done)
                 continue
             t0 = time.perf_counter()
@@ -983,7 +986,9 @@ class _TileRender:
             film.release()
             done["assembly"] += time.perf_counter() - t1
             return True, tile
-        return False, (None if self.on_tile is None else self._tile_result(seg.tile, film, seg.sample_end))
+        # (after a cancel nothing more is reported: no images to make)
+        return False, (None if self.on_tile is None or self.cancelled
+                       else self._tile_result(seg.tile, film, seg.sample_end))
 
     def _report_in_order(self, seg: Segment) -> tuple[bool, Tile | None]:
         """The report of a segment _add_in_order added (waiting until it is added: a later batch's worker may be
@@ -993,9 +998,8 @@ class _TileRender:
                 adds = self._tile_adds.get(seg.tile_index)
                 if adds is not None and seg.order in adds.reports:
                     return adds.reports.pop(seg.order)
-                if self._adds_failed is not None:
-                    raise RuntimeError("a worker thread failed while adding samples to a tile's film"
-                                       ) from self._adds_failed
+                if self._adds_failed is not None:  # what the worker raised (its batch's result raises it too)
+                    raise self._adds_failed
                 self._adds.wait()
 
     def _trace_batch(self, segments: list[Segment]):
@@ -1116,7 +1120,7 @@ class _TileRender:
         for k, seg in enumerate(segments):
             rows = slice(start, start + len(seg.loc))
             start = rows.stop
-            if k not in finished and self._ordered(seg):  # added by a worker (_add_in_order): its callbacks only
+            if k not in finished and self._ordered_adds:  # added by a worker (_add_in_order): its callbacks only
                 final, tile = self._report_in_order(seg)
                 self.done_paths += len(seg.loc)
                 if not quiet:

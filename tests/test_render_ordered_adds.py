@@ -19,7 +19,7 @@ def _render(monkeypatch, in_workers: bool, **kw):
     """(result, tile callbacks, {thread name: segments it added to films})."""
     job = render_module._TileRender
     if not in_workers:
-        monkeypatch.setattr(job, "_ordered", lambda self, seg: False)
+        monkeypatch.setattr(job, "_adds_in_workers", lambda self: False)
     adders: dict[str, int] = {}
     add_segment = job._add_segment
 
@@ -159,6 +159,46 @@ def test_a_failed_add_is_raised_to_the_calling_thread_not_waited_for(monkeypatch
     monkeypatch.setattr(orders.job, "_add_segment_in_worker", broken, raising=False)
     with pytest.raises(ValueError, match="film refused"):
         orders.deposit(0, 0)
-    with pytest.raises(RuntimeError, match="failed while adding samples") as caught:
+    with pytest.raises(ValueError, match="film refused"):  # the same error, whichever thread added
         orders.job._report_in_order(orders.segment(0, 1))
-    assert isinstance(caught.value.__cause__, ValueError)
+
+
+def test_the_calling_thread_is_handed_no_batch_arrays_to_hold(monkeypatch):
+    """With the workers adding, a finished batch hands the calling thread none of its arrays: they go as soon as
+    its segments are added, not when the calling thread reaches the batch."""
+    job = render_module._TileRender
+    run_batch = job._run_batch
+    returned = []
+
+    def spy(self, segments):
+        out = run_batch(self, segments)
+        returned.append(out[:3])
+        return out
+
+    monkeypatch.setattr(job, "_run_batch", spy)
+    result = render_module.render(scenes.cornell_box((48, 40)), render_module.RenderSettings(
+        spp=40, tile_size=16, threads=2, max_bounces=4, batch_paths=4096))
+    assert int(result.sample_count.sum()) == 48 * 40 * 40
+    assert len(returned) >= 9 and all(array is None for arrays in returned for array in arrays)
+
+
+def test_after_a_cancel_no_tile_images_are_made_for_callbacks_that_will_not_come(monkeypatch):
+    job = render_module._TileRender
+    tile_result = job._tile_result
+    made = []
+
+    def spy(self, *args):
+        made.append(self.cancelled)
+        return tile_result(self, *args)
+
+    monkeypatch.setattr(job, "_tile_result", spy)
+    polls = [0]
+
+    def cancel():
+        polls[0] += 1
+        return polls[0] > 8
+
+    result = render_module.render(scenes.cornell_box((48, 40)), render_module.RenderSettings(
+        spp=40, tile_size=16, threads=2, max_bounces=4, batch_paths=4096), on_tile=lambda tile: None,
+        should_cancel=cancel)
+    assert result.cancelled and made and not any(made)  # intermediate passes' images, all before the cancel

@@ -20,7 +20,7 @@ def _render(monkeypatch, in_worker: bool, sky: bool = False, **kw):
     job = render_module._TileRender
     if not in_worker:  # the calling thread adds every segment (tests/test_render_ordered_adds.py: the others)
         monkeypatch.setattr(job, "_whole_tile", lambda self, seg: False)
-        monkeypatch.setattr(job, "_ordered", lambda self, seg: False)
+        monkeypatch.setattr(job, "_adds_in_workers", lambda self: False)
     written, threads = [0], set()
     finish = job._finish_in_worker
 
