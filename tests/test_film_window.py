@@ -1,7 +1,9 @@
 """Films alive at once: the render's passes go round one window of tiles at a time (core.schedule), so a render
 whose tiles need several passes keeps only a window's films, with the same images as going round all tiles."""
 
-import numpy as np
+import sys
+from pathlib import Path
+
 import pytest
 
 from monte.core import builtin_scenes as scenes
@@ -10,6 +12,9 @@ from monte.core.film import TileFilm
 from monte.core.memory import FILM_BYTES, estimate_render_memory
 from monte.core.schedule import FILM_WINDOW_PIXELS, pass_bounds, sample_passes, tile_windows, tiles
 from monte.core.settings import RenderSettings
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from render_compare import assert_same_images  # noqa: E402
 
 # 32x32 in 8x8 tiles (16 tiles of 64 px), 1024-path batches: 16 samples per tile and pass, 3 passes at 48 spp
 SIZE, TILE, SPP, BATCH = 32, 8, 48, 1024
@@ -74,10 +79,7 @@ def test_a_window_keeps_only_its_films_alive_and_changes_no_bit(monkeypatch, ext
     # may converge whole before the last film is made)
     assert most_whole == tiles_total if not extra else most_whole >= tiles_total - 4
     assert most_windowed <= 4 + 1  # a window's 4 films (+ the next window's first while the last is folded)
-    for name in ("color", "variance", "albedo", "normal", "depth", "sample_count"):
-        a, b = getattr(whole, name), getattr(windowed, name)
-        if a is not None:
-            assert np.array_equal(a, b, equal_nan=True), name
+    assert_same_images(whole, windowed)
     assert whole.color[..., :3].mean() > 0.01
 
 

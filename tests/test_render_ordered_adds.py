@@ -2,7 +2,9 @@
 the order the render queued them (core.render._TileRender._add_in_order), instead of all by the calling thread:
 the same bits and the same tile callbacks, in the same order, as when the calling thread adds every segment."""
 
+import sys
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +14,8 @@ from monte.core import render as render_module
 from monte.core.render import _SKIPPED, _TileRender
 from monte.core.schedule import Segment
 
-OUTPUTS = ("color", "variance", "albedo", "normal", "depth", "sample_count", "denoising_albedo", "denoising_normal")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from render_compare import assert_same_images  # noqa: E402
 
 
 def _render(monkeypatch, in_workers: bool, **kw):
@@ -64,11 +67,7 @@ def test_segments_added_by_the_workers_change_no_bit(monkeypatch, kw):
     assert set(base_adders) == {main}  # the calling thread added every segment
     assert fast_adders and main not in fast_adders  # the workers did
     assert sum(fast_adders.values()) == sum(base_adders.values()) >= 2 * tiles  # several segments a tile
-    for name in OUTPUTS:
-        a, b = getattr(base, name), getattr(fast, name)
-        assert (a is None) == (b is None), name
-        if a is not None:
-            assert np.array_equal(a, b, equal_nan=True), name
+    assert_same_images(base, fast)
     assert fast_calls == base_calls  # the same tiles reported, in the same order, with the same images
     assert len(base_calls) >= 2 * tiles  # every pass of every tile
     assert fast.stats["samples"] == base.stats["samples"] == 48 * 40 * kw.get("spp", 40)

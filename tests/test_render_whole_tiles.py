@@ -2,7 +2,9 @@
 frame's images on the worker thread that traced them (core.render._TileRender._finish_in_worker): the same bits
 and the same tile callbacks, in the same order, as when the calling thread adds every batch."""
 
+import sys
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +13,8 @@ from monte.core import builtin_scenes as scenes
 from monte.core import render as render_module
 from monte.core.settings import RenderSettings
 
-OUTPUTS = ("color", "variance", "albedo", "normal", "depth", "sample_count", "denoising_albedo", "denoising_normal")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from render_compare import assert_same_images  # noqa: E402
 
 
 def _render(monkeypatch, in_worker: bool, sky: bool = False, **kw):
@@ -72,11 +75,7 @@ def test_whole_tiles_written_by_workers_change_no_bit(monkeypatch, kw, whole, fi
     assert fast_one == (tiles if film_free else 0)
     if whole and kw.get("threads", 2) > 1:
         assert threads and threading.current_thread().name not in threads  # worker threads wrote them
-    for name in OUTPUTS:
-        a, b = getattr(base, name), getattr(fast, name)
-        assert (a is None) == (b is None), name
-        if a is not None:
-            assert np.array_equal(a, b, equal_nan=True), name
+    assert_same_images(base, fast)
     assert fast_calls == base_calls  # the same tiles reported, in the same order, with the same images
     assert len(base_calls) == tiles * (2 if kw.get("spp") == 8 else 1)
     assert base.color[..., :3].mean() > 0.01
