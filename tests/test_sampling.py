@@ -725,7 +725,8 @@ def test_filter_tables_are_built_once_per_kind_and_width():
         built = filters._inverse_tables.__wrapped__(kind, width)
         for got, want in zip((f._inv, *f._tails), built):
             np.testing.assert_array_equal(got, want)
-        assert abs(float(f._inv[0]) + f.radius) < 1e-3 * f.radius and abs(float(f._inv[-1]) - f.radius) < 1e-3 * f.radius
+        assert abs(float(f._inv[0]) + f.radius) < 1e-3 * f.radius  # u = 0 and 1: the support's ends
+        assert abs(float(f._inv[-1]) - f.radius) < 1e-3 * f.radius
     assert not np.array_equal(filters.PixelFilter("blackman-harris", 2.0)._inv, a._inv)
     assert not np.array_equal(filters.PixelFilter("gaussian", 1.0)._inv, a._inv)
 
