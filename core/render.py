@@ -1120,26 +1120,18 @@ class _TileRender:
         for k, seg in enumerate(segments):
             rows = slice(start, start + len(seg.loc))
             start = rows.stop
-            if k not in finished and self._ordered_adds:  # added by a worker (_add_in_order): its callbacks only
-                final, tile = self._report_in_order(seg)
+            if k in finished or self._ordered_adds:  # added by a worker: its callbacks only
+                # a whole tile, already in the frame (_finish_in_worker), or a segment of _add_in_order
+                final, tile = (True, finished[k]) if k in finished else self._report_in_order(seg)
                 self.done_paths += len(seg.loc)
                 if not quiet:
                     self._progress(seg.tile_index, seg.sample_end)
-                if seg.last_chunk:
+                if seg.last_chunk:  # (every whole tile's is)
                     self.samples_started[seg.tile_index] = seg.sample_end
                     if final:
                         self.final.add(seg.tile_index)
                     if self.on_tile is not None and not quiet and tile is not None:
                         self.on_tile(tile)
-                continue
-            if k in finished:  # a whole tile, already in the frame (_finish_in_worker): its callbacks only
-                self.done_paths += len(seg.loc)
-                self.samples_started[seg.tile_index] = seg.sample_end
-                self.final.add(seg.tile_index)
-                if not quiet:
-                    self._progress(seg.tile_index, seg.sample_end)
-                    if self.on_tile is not None:
-                        self.on_tile(finished[k])
                 continue
             t0 = time.perf_counter()
             film = self.films[seg.tile]
