@@ -1,5 +1,6 @@
-# Monte: `make render` sets everything up (first time) and renders the Cornell box; `make test` runs the tests.
-# Setting up compiles the render kernels once (numba's cache: core/precompile.py), so renders start at once.
+# Monte: `make render` renders the Cornell box, installing (the first time) only what a render needs; `make setup`
+# sets everything up and `make test` runs the tests. Setting up compiles every render kernel once (numba's cache:
+# core/precompile.py), so renders start at once; a render before that compiles the kernels it calls.
 #
 # Environments, one per Blender version (PyPI's bpy module pins the Python it runs on):
 #   .venv      Blender 5.3 (bpy 5.3.0, Python 3.13, numpy 2.x): the default for everything below
@@ -30,15 +31,28 @@ define make_venv
 	touch $(1)/.installed
 endef
 
-$(VENV)/.installed: requirements.txt requirements/blender-5.3.txt requirements/common.txt pyproject.toml
+$(VENV)/.installed: requirements.txt requirements/blender-5.3.txt requirements/common.txt requirements/render.txt \
+                    requirements/core.txt pyproject.toml
 	$(call make_venv,$(VENV),$(PYTHON),requirements.txt)
+	touch $(VENV)/.render-installed
 
-.venv-%/.installed: requirements/blender-%.txt requirements/common.txt pyproject.toml
+# The render set alone (requirements/render.txt: Blender 5.3's numpy and the core's pins; no Blender, tests,
+# cluster or denoiser), which is all a built-in scene's render imports: the first `make render` after a clone
+# waits for this and for the kernels its render calls (compiled then, once), not for the whole setup.
+$(VENV)/.render-installed: requirements/render.txt requirements/core.txt pyproject.toml
+	@test -n "$(PYTHON)" || { echo "no Python interpreter for $(VENV) (see the message above)"; exit 1; }
+	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(VENV)/bin/python -m pip install --quiet -r requirements/render.txt
+	$(VENV)/bin/python -m pip install --quiet --no-deps -e .
+	touch $@
+
+.venv-%/.installed: requirements/blender-%.txt requirements/common.txt requirements/core.txt pyproject.toml
 	$(call make_venv,.venv-$*,$(PYTHON311),requirements/blender-$*.txt)
 
 setup: $(VENV)/.installed
 
-render: $(VENV)/.installed
+render: $(VENV)/.render-installed
 	$(BIN)/monte render cornell -o cornell.exr --spp $(SPP)
 
 # What CI runs: the default suite on Blender 5.3, then the extension's install-and-render and headless-exit

@@ -1,0 +1,80 @@
+"""The first `make render` after a clone installs only requirements/render.txt (no Blender, tests, cluster or
+denoiser) before it renders the Cornell box: a built-in scene's render must need nothing else."""
+
+import importlib.metadata as md
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+REQUIREMENTS = ROOT / "requirements"
+
+
+def _name(distribution: str) -> str:
+    return re.sub(r"[-_.]+", "-", distribution).lower()  # PEP 503 normalisation
+
+
+def _pins(path: Path) -> dict[str, str]:
+    """{normalised name: version} of the `name==version` lines of a requirements file and the files it includes
+    (`-r`); a name pinned twice to different versions is an error."""
+    pins: dict[str, str] = {}
+    for line in path.read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line.startswith("-r "):
+            found = _pins(path.parent / line[3:].strip())
+        elif "==" in line:
+            name, version = line.split("==", 1)
+            found = {_name(name.strip()): version.split(";", 1)[0].strip()}
+        else:
+            assert not line, f"{path.name}: unexpected line {line!r}"
+            continue
+        for name, version in found.items():
+            assert pins.setdefault(name, version) == version, f"{path.name}: {name} pinned to two versions"
+    return pins
+
+
+# Renders the Cornell box through the `monte` command in a process that cannot import any installed package
+# outside the render set (as if it were not installed: an optional import falls back, a needed one fails).
+_PROBE = """
+import importlib.abc, importlib.metadata as md, json, re, sys
+allowed = set(json.loads(sys.argv[2]))
+owners = md.packages_distributions()
+blocked = set()
+
+class RenderSetOnly(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if path is None and name in owners and not {re.sub(r"[-_.]+", "-", d).lower() for d in owners[name]} & allowed:
+            blocked.add(name)
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        return None
+
+sys.meta_path.insert(0, RenderSetOnly())
+from monte.cli import main
+code = main(["render", "cornell", "-o", sys.argv[1], "--spp", "2", "--resolution", "8x8", "--threads", "2"])
+print(json.dumps({"code": code, "blocked": sorted(blocked)}))
+"""
+
+
+def test_render_set_is_the_core_and_its_numpy():
+    render = _pins(REQUIREMENTS / "render.txt")
+    assert set(render) == {"embreex", "openexr", "numba", "llvmlite", "numpy"}, render
+    # The default environment (make setup, CI) holds the same versions: it includes the render set.
+    default = _pins(ROOT / "requirements.txt")
+    assert {name: default[name] for name in render} == render
+    assert "bpy" in default and "bpy" not in render
+    # and this environment runs them
+    assert {name: md.version(name) for name in render} == render
+
+
+def test_a_builtin_scene_renders_with_the_render_set_alone(tmp_path):
+    out = tmp_path / "cornell.exr"
+    allowed = sorted(_pins(REQUIREMENTS / "render.txt")) + ["monte"]
+    proc = subprocess.run([sys.executable, "-c", _PROBE, str(out), json.dumps(allowed)], capture_output=True,
+                          text=True, timeout=600, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert result["code"] == 0, (result, proc.stderr[-3000:])
+    assert out.exists() and out.with_suffix(".png").exists()
+    assert "bpy" not in result["blocked"]  # (the command never tried Blender for a built-in scene)
