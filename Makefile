@@ -31,10 +31,10 @@ define make_venv
 	touch $(1)/.installed
 endef
 
-$(VENV)/.installed: requirements.txt requirements/blender-5.3.txt requirements/common.txt requirements/render.txt \
-                    requirements/core.txt pyproject.toml
+# (after the render set, so that `make -j` never runs two pip installs into .venv at once)
+$(VENV)/.installed: $(VENV)/.render-installed requirements.txt requirements/blender-5.3.txt requirements/common.txt \
+                    pyproject.toml
 	$(call make_venv,$(VENV),$(PYTHON),requirements.txt)
-	touch $(VENV)/.render-installed
 
 # The render set alone (requirements/render.txt: Blender 5.3's numpy and the core's pins; no Blender, tests,
 # cluster or denoiser), which is all a built-in scene's render imports: the first `make render` after a clone
