@@ -20,13 +20,19 @@ BLENDERS := $(OLDER_BLENDERS) 5.3
 .PHONY: setup render test test-newest test-install-matrix test-blender test-slow test-all bench crosscheck \
         extension clean
 
-# $(call make_venv,DIR,PYTHON,REQUIREMENTS)
-define make_venv
+# $(call install,DIR,PYTHON,REQUIREMENTS): the venv DIR (made with PYTHON if missing), REQUIREMENTS and Monte
+# itself (editable)
+define install
 	@test -n "$(2)" || { echo "no Python interpreter for $(1) (see the message above)"; exit 1; }
 	test -x $(1)/bin/python || $(2) -m venv $(1)
 	$(1)/bin/python -m pip install --quiet --upgrade pip
 	$(1)/bin/python -m pip install --quiet -r $(3)
 	$(1)/bin/python -m pip install --quiet --no-deps -e .
+endef
+
+# $(call make_venv,DIR,PYTHON,REQUIREMENTS): installed as above, then every render kernel compiled
+define make_venv
+	$(call install,$(1),$(2),$(3))
 	$(1)/bin/python -m monte.core.precompile
 	touch $(1)/.installed
 endef
@@ -40,11 +46,7 @@ $(VENV)/.installed: $(VENV)/.render-installed requirements.txt requirements/blen
 # cluster or denoiser), which is all a built-in scene's render imports: the first `make render` after a clone
 # waits for this and for the kernels its render calls (compiled then, once), not for the whole setup.
 $(VENV)/.render-installed: requirements/render.txt requirements/core.txt pyproject.toml
-	@test -n "$(PYTHON)" || { echo "no Python interpreter for $(VENV) (see the message above)"; exit 1; }
-	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
-	$(VENV)/bin/python -m pip install --quiet --upgrade pip
-	$(VENV)/bin/python -m pip install --quiet -r requirements/render.txt
-	$(VENV)/bin/python -m pip install --quiet --no-deps -e .
+	$(call install,$(VENV),$(PYTHON),requirements/render.txt)
 	touch $@
 
 .venv-%/.installed: requirements/blender-%.txt requirements/common.txt requirements/core.txt pyproject.toml
