@@ -1,6 +1,7 @@
-# Monte: `make render` renders the Cornell box, installing (the first time) only what a render needs; `make setup`
-# sets everything up and `make test` runs the tests. Setting up compiles every render kernel once (numba's cache:
-# core/precompile.py), so renders start at once; a render before that compiles the kernels it calls.
+# Monte: `make render` renders the Cornell box, installing (the first time) only what a render needs, with the
+# Cornell box's compiled kernels shipped in kernels/; `make setup` sets everything up and `make test` runs the tests.
+# Setting up compiles every render kernel once (numba's cache: core/precompile.py), so renders start at once; a
+# render before that compiles the kernels it calls that the cache does not hold.
 #
 # Environments, one per Blender version (PyPI's bpy module pins the Python it runs on):
 #   .venv      Blender 5.3 (bpy 5.3.0, Python 3.13, numpy 2.x): the default for everything below
@@ -17,7 +18,7 @@ SPP ?= 64
 OLDER_BLENDERS := 4.2 4.5 5.0
 BLENDERS := $(OLDER_BLENDERS) 5.3
 
-.PHONY: setup render test test-newest test-install-matrix test-blender test-slow test-all bench crosscheck \
+.PHONY: setup render render-kernels test test-newest test-install-matrix test-blender test-slow test-all bench crosscheck \
         extension clean
 
 # $(call install,DIR,PYTHON,REQUIREMENTS): the venv DIR (made with PYTHON if missing), REQUIREMENTS and Monte
@@ -37,24 +38,36 @@ define make_venv
 	touch $(1)/.installed
 endef
 
-# (after the render set, so that `make -j` never runs two pip installs into .venv at once)
-$(VENV)/.installed: $(VENV)/.render-installed requirements.txt requirements/blender-5.3.txt requirements/common.txt \
+# (after the render set, so that `make -j` never runs two pip installs into .venv at once; and after the shipped
+# kernels, which the precompile then loads instead of compiling)
+$(VENV)/.installed: $(VENV)/.render-kernels requirements.txt requirements/blender-5.3.txt requirements/common.txt \
                     pyproject.toml
 	$(call make_venv,$(VENV),$(PYTHON),requirements.txt)
 
 # The render set alone (requirements/render.txt: Blender 5.3's numpy and the core's pins; no Blender, tests,
 # cluster or denoiser), which is all a built-in scene's render imports: the first `make render` after a clone
-# waits for this and for the kernels its render calls (compiled then, once), not for the whole setup.
+# waits for this (and the shipped kernels' unpacking), not for the whole setup.
 $(VENV)/.render-installed: requirements/render.txt requirements/core.txt pyproject.toml
 	$(call install,$(VENV),$(PYTHON),requirements/render.txt)
 	touch $@
+
+# The Cornell box's compiled kernels, shipped in the repository (kernels/render-set.tar.xz, tools/render_kernels.py):
+# put into the kernel cache, so that the first `make render` loads them instead of compiling them. Where they do not
+# apply (another CPU level, Python or numba, or kernels edited since), it says so and the render compiles.
+$(VENV)/.render-kernels: $(VENV)/.render-installed kernels/render-set.tar.xz
+	$(BIN)/python tools/render_kernels.py unpack
+	touch $@
+
+# After editing a kernel module: rebuild the shipped kernels (tests/test_render_kernels.py fails until then).
+render-kernels: $(VENV)/.render-installed
+	$(BIN)/python tools/render_kernels.py build
 
 .venv-%/.installed: requirements/blender-%.txt requirements/common.txt requirements/core.txt pyproject.toml
 	$(call make_venv,.venv-$*,$(PYTHON311),requirements/blender-$*.txt)
 
 setup: $(VENV)/.installed
 
-render: $(VENV)/.render-installed
+render: $(VENV)/.render-kernels
 	$(BIN)/monte render cornell -o cornell.exr --spp $(SPP)
 
 # What CI runs: the default suite on Blender 5.3, then the extension's install-and-render and headless-exit

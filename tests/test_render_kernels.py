@@ -1,0 +1,91 @@
+"""The Cornell box's compiled kernels shipped in kernels/render-set.tar.xz (tools/render_kernels.py), which the first
+`make render` after a clone loads instead of compiling: the archive is for these sources, a render from it alone
+compiles nothing, and unpacking never replaces a kernel the cache already has."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import tarfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def tool():
+    spec = importlib.util.spec_from_file_location("render_kernels", ROOT / "tools" / "render_kernels.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _listing(folder: str) -> dict[str, tuple[int, int]]:
+    return {entry.name: (entry.stat().st_size, entry.stat().st_mtime_ns) for entry in os.scandir(folder)}
+
+
+def test_the_shipped_kernels_are_for_these_sources(tool):
+    """Fails after an edit of a kernel module (or a new numba pin) until `make render-kernels` rebuilds the
+    archive: the first `make render` would compile again, silently."""
+    manifest = tool.read_manifest()
+    wrong = tool.mismatches(manifest, tool.environment_key(), ignore=tool.MACHINE_KEYS)
+    assert not wrong, "kernels/render-set.tar.xz is stale (rebuild it: make render-kernels): " + "; ".join(wrong)
+    assert manifest["command"] == ["monte", "render", "cornell", "--spp", "64"]
+    makefile = (ROOT / "Makefile").read_text()
+    assert "SPP ?= 64" in makefile and "$(BIN)/monte render cornell -o cornell.exr --spp $(SPP)" in makefile
+
+
+def test_a_first_render_from_the_shipped_kernels_compiles_nothing(tool, tmp_path):
+    """make render's command, run on a copy of the package whose kernel cache holds only the archive's files,
+    saves nothing into the cache: every kernel signature and numba's runtime module came from the archive."""
+    tool.copy_package(tmp_path)
+    key = tool.environment_key(str(tmp_path))
+    manifest = tool.read_manifest()
+    wrong = tool.mismatches(manifest, key)
+    if any(line.startswith(("kernel_cpu", "platform")) for line in wrong):
+        pytest.skip(f"the shipped kernels are for another machine: {'; '.join(wrong)}")
+    assert not wrong
+    cache_dir = key["cache_dir"]
+    assert not os.path.exists(cache_dir)
+    assert tool.unpack_into(cache_dir) == (manifest["files"], 0)
+    before = _listing(cache_dir)
+    proc = tool.render_in(str(tmp_path), str(tmp_path))
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert (tmp_path / "cornell.exr").stat().st_size > 0
+    after = _listing(cache_dir)
+    assert after == before, f"compiled and saved: {sorted(set(after.items()) - set(before.items()))}"
+
+
+def test_unpacking_keeps_every_file_of_a_kernel_the_cache_has(tool, tmp_path):
+    with tarfile.open(tool.ARCHIVE, "r:xz") as tar:
+        names = [m.name for m in tar.getmembers() if m.name != tool.MANIFEST_NAME]
+    kernel = tool._kernel_of(next(name for name in names if ".trace_paths-" in name))
+    ours = [name for name in names if tool._kernel_of(name) == kernel]
+    assert len(ours) >= 2  # its index and its data
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    (cache / ours[0]).write_bytes(b"the cache's own")
+    (cache / "save.lock").write_bytes(b"")
+    written, skipped = tool.unpack_into(str(cache))
+    assert (written, skipped) == (len(names) - len(ours), len(ours))
+    assert (cache / ours[0]).read_bytes() == b"the cache's own"
+    assert not any((cache / name).exists() for name in ours[1:])
+    assert sorted(os.listdir(cache)) == sorted({*names} - {*ours[1:]} | {"save.lock"})
+    assert tool.unpack_into(str(cache)) == (0, len(names))  # a second unpack writes nothing
+
+
+def test_a_stale_archive_is_named_with_what_differs(tool, tmp_path):
+    manifest = tool.read_manifest()
+    key = {**manifest["key"], "cache_dir": "/x"}
+    assert tool.mismatches(manifest, key) == []
+    edited = {**key, "sources": "0" * 64, "kernel_cpu": "generic"}
+    assert sorted(tool.mismatches(manifest, edited)) == [
+        f"kernel_cpu: shipped for {manifest['key']['kernel_cpu']!r}, here 'generic'",
+        f"sources: shipped for {manifest['key']['sources']!r}, here {'0' * 64!r}"]
+    assert tool.mismatches(manifest, edited, ignore=tool.MACHINE_KEYS) == [
+        f"sources: shipped for {manifest['key']['sources']!r}, here {'0' * 64!r}"]
+    assert tool.mismatches({**manifest, "format": 99}, key) == ["archive format 99, this tool reads 1"]
+    with tarfile.open(tool.ARCHIVE, "r:xz") as tar:
+        assert manifest["files"] == len(tar.getnames()) - 1

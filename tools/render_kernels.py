@@ -1,0 +1,224 @@
+#!/usr/bin/env python3
+"""The compiled kernels of `make render` (the Cornell box through `monte render`), shipped in the repository, so
+that a fresh clone's first render loads them instead of compiling them (about 40 s on two cores).
+
+    python tools/render_kernels.py unpack   # make render: put them into this checkout's kernel cache
+    python tools/render_kernels.py check    # exit 1, saying why, when the archive is not for these sources
+    python tools/render_kernels.py build    # after editing a kernel module: rebuild the archive (make render-kernels)
+
+kernels/render-set.tar.xz holds numba's cache files (the .nbi indexes and .nbc data) of every kernel signature
+that `monte render cornell --spp 64` compiles, built in a copy of this checkout with an empty cache, and a
+manifest: the sources' digest (core.jit_cache.sources_digest: the kernel modules' contents and the numba
+options), the kernel CPU level, Python's, numba's and llvmlite's versions, the platform and the import name.
+`unpack` copies them into the cache only where all of those match this checkout's (else it says why and the
+first render compiles, as without the archive), and never over a file the cache already has: a kernel with any
+file there keeps the cache's own. numba checks each entry again when it loads it (its version, the CPU, the
+sources' stamp), so a file that does not apply is recompiled, never run.
+
+After an edit of a kernel module the archive no longer applies: tests/test_render_kernels.py fails until
+`make render-kernels` rebuilds it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import os
+import platform
+import re
+import shutil
+import subprocess
+import sys
+import tarfile
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+ARCHIVE = ROOT / "kernels" / "render-set.tar.xz"
+MANIFEST_NAME = "manifest.json"
+FORMAT = 1
+# make render's command (its SPP's default), less the output path
+RENDER_ARGS = ["render", "cornell", "--spp", "64"]
+# numba's cache files: <module>.<qualname>-<line>.py<ver>.nbi (a kernel's index) and ...py<ver>.<n>.nbc (data);
+# and Monte's cached NRT module (core.jit_cache: nrt-<key>.bin), which a process loads before its first kernel
+_CACHE_FILE = re.compile(r"^(?:(?P<kernel>[\w.<>]+-\d+)\.py\d+(?:\.\d+\.nbc|\.nbi)|(?P<nrt>nrt-[0-9a-f]+\.bin))$")
+
+
+def _kernel_of(name: str) -> str | None:
+    """The kernel (or NRT module) a cache file belongs to, None for any other file."""
+    match = _CACHE_FILE.match(name)
+    return None if match is None else match.group("kernel") or match.group("nrt")
+
+_KEY_CODE = """
+import json, platform, sys
+import llvmlite, numba
+from monte.core import jit_cache
+print(json.dumps({"sources": jit_cache.sources_digest(), "kernel_cpu": jit_cache.KERNEL_CPU,
+                  "python": "%d.%d" % sys.version_info[:2], "numba": numba.__version__,
+                  "llvmlite": llvmlite.__version__, "platform": sys.platform + "-" + platform.machine(),
+                  "package": jit_cache.PACKAGE, "cache_dir": jit_cache.cache_dir()}))
+"""
+
+
+def environment_key(pythonpath: str | None = None) -> dict:
+    """What a cached kernel is valid for, as `monte` imports here (or from `pythonpath`), with its cache folder
+    ("cache_dir", not part of the key). Asked of a new interpreter, so that the kernel CPU level is chosen as a
+    render process chooses it."""
+    env = _clean_environment(pythonpath)
+    proc = subprocess.run([sys.executable, "-c", _KEY_CODE], capture_output=True, text=True, env=env,
+                          cwd=pythonpath or tempfile.gettempdir())
+    if proc.returncode != 0:
+        raise SystemExit(f"render_kernels: importing monte failed:\n{proc.stderr[-2000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _clean_environment(pythonpath: str | None) -> dict:
+    """This environment without the settings that would choose another kernel CPU or cache folder."""
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith("NUMBA_") and k not in ("MONTE_KERNEL_CPU", "PYTHONDONTWRITEBYTECODE")}
+    if pythonpath is not None:
+        env["PYTHONPATH"] = pythonpath
+    return env
+
+
+def read_manifest(archive: Path = ARCHIVE) -> dict:
+    with tarfile.open(archive, "r:xz") as tar:
+        member = tar.extractfile(MANIFEST_NAME)
+        if member is None:
+            raise SystemExit(f"render_kernels: {archive} has no {MANIFEST_NAME}")
+        return json.load(member)
+
+
+# What a machine is rather than what the checkout is: `check` leaves these out.
+MACHINE_KEYS = ("kernel_cpu", "platform")
+
+
+def mismatches(manifest: dict, key: dict, ignore: tuple[str, ...] = ()) -> list[str]:
+    """Where the archive's key differs from this checkout's (less the names in ignore), one line each (empty:
+    it applies)."""
+    if manifest.get("format") != FORMAT:
+        return [f"archive format {manifest.get('format')!r}, this tool reads {FORMAT}"]
+    shipped = manifest["key"]
+    return [f"{name}: shipped for {shipped.get(name)!r}, here {value!r}" for name, value in key.items()
+            if name != "cache_dir" and name not in ignore and shipped.get(name) != value]
+
+
+def unpack_into(cache_dir: str, archive: Path = ARCHIVE) -> tuple[int, int]:
+    """Copy the archive's cache files into cache_dir, each written whole (a temporary file renamed), skipping
+    every file of a kernel the folder already has a file of. Returns (files written, files skipped)."""
+    os.makedirs(cache_dir, exist_ok=True)
+    present = {_kernel_of(name) for name in os.listdir(cache_dir)} - {None}
+    mask = os.umask(0)
+    os.umask(mask)
+    written = skipped = 0
+    with tarfile.open(archive, "r:xz") as tar:
+        for member in tar.getmembers():
+            if member.name == MANIFEST_NAME:
+                continue
+            kernel = _kernel_of(member.name)
+            if not member.isfile() or kernel is None:
+                raise SystemExit(f"render_kernels: unexpected entry {member.name!r} in {archive}")
+            if kernel in present:
+                skipped += 1
+                continue
+            data = tar.extractfile(member).read()
+            fd, tmp = tempfile.mkstemp(dir=cache_dir, prefix=".unpack-")
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+            os.chmod(tmp, 0o666 & ~mask)  # as a file numba writes (mkstemp's are private)
+            os.replace(tmp, os.path.join(cache_dir, member.name))
+            written += 1
+    return written, skipped
+
+
+def copy_package(dest: Path) -> Path:
+    """A copy of what `python -m monte render` imports (the package's top-level modules and core/, without
+    caches) as dest/monte; returns it."""
+    package = dest / "monte"
+    package.mkdir(parents=True)
+    for path in ROOT.glob("*.py"):
+        shutil.copy2(path, package / path.name)
+    shutil.copytree(ROOT / "core", package / "core", ignore=shutil.ignore_patterns("__pycache__"))
+    return package
+
+
+def render_in(pythonpath: str, out_dir: str) -> subprocess.CompletedProcess:
+    """make render's command, run on the package under pythonpath, writing into out_dir."""
+    return subprocess.run([sys.executable, "-m", "monte", *RENDER_ARGS, "-o", os.path.join(out_dir, "cornell.exr"),
+                           "-q"], capture_output=True, text=True, env=_clean_environment(pythonpath), cwd=out_dir)
+
+
+def build(archive: Path = ARCHIVE) -> int:
+    with tempfile.TemporaryDirectory(prefix="monte-render-kernels-") as tmp:
+        copy_package(Path(tmp))
+        key = environment_key(tmp)
+        cache_dir = key.pop("cache_dir")
+        print(f"render_kernels: compiling `monte {' '.join(RENDER_ARGS)}`'s kernels for {key['kernel_cpu']} "
+              "CPUs in a copy of this checkout (about a minute on two cores)", flush=True)
+        proc = render_in(tmp, tmp)
+        if proc.returncode != 0:
+            print(proc.stdout[-2000:], proc.stderr[-2000:], sep="\n")
+            return 1
+        names = sorted(name for name in os.listdir(cache_dir) if _kernel_of(name))
+        if not names:
+            print(f"render_kernels: the render cached no kernel in {cache_dir}")
+            return 1
+        manifest = {"format": FORMAT, "key": key, "command": ["monte", *RENDER_ARGS], "files": len(names)}
+        archive.parent.mkdir(parents=True, exist_ok=True)
+        tmp_archive = archive.with_name(archive.name + ".tmp")
+
+        def add(tar: tarfile.TarFile, name: str, data: bytes) -> None:
+            info = tarfile.TarInfo(name)  # fixed metadata: the same files give the same archive
+            info.size, info.mode, info.mtime = len(data), 0o644, 0
+            tar.addfile(info, io.BytesIO(data))
+
+        with tarfile.open(tmp_archive, "w:xz", preset=9) as tar:
+            add(tar, MANIFEST_NAME, (json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode())
+            for name in names:
+                add(tar, name, Path(cache_dir, name).read_bytes())
+        os.replace(tmp_archive, archive)
+    print(f"render_kernels: wrote {archive.relative_to(ROOT)} ({len(names)} files, {archive.stat().st_size:,} "
+          "bytes): commit it with the kernel edit", flush=True)
+    return 0
+
+
+def unpack() -> int:
+    if not ARCHIVE.exists():
+        print(f"Monte: no {ARCHIVE.relative_to(ROOT)}: the first render compiles its kernels")
+        return 0
+    key = environment_key()
+    if not Path(key["cache_dir"]).resolve().is_relative_to(ROOT.resolve()):
+        print(f"Monte: `monte` imports from outside {ROOT} here ({key['cache_dir']}): nothing unpacked")
+        return 1
+    wrong = mismatches(read_manifest(), key)
+    if wrong:
+        print("Monte: the shipped render kernels do not apply here (" + "; ".join(wrong)
+              + "): the first render compiles them (about a minute)")
+        return 0
+    written, skipped = unpack_into(key["cache_dir"])
+    print(f"Monte: {written} compiled kernel files unpacked into {key['cache_dir']}"
+          + (f" ({skipped} left to the kernels the cache had)" if skipped else ""))
+    return 0
+
+
+def check() -> int:
+    """Whether the archive is for these sources and the pinned Python, numba and llvmlite (whatever the CPU)."""
+    wrong = mismatches(read_manifest(), environment_key(), ignore=MACHINE_KEYS)
+    if wrong:
+        print(f"{ARCHIVE.relative_to(ROOT)} is not for this checkout: " + "; ".join(wrong)
+              + ". Rebuild it with `make render-kernels`.")
+        return 1
+    print(f"{ARCHIVE.relative_to(ROOT)} applies here")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("command", choices=("unpack", "check", "build"))
+    args = parser.parse_args(argv)
+    return {"unpack": unpack, "check": check, "build": build}[args.command]()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
