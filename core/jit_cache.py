@@ -1323,10 +1323,12 @@ KERNEL_MODULES = ("geometry_kernels", "path_kernels", "mesh_checks", "camera", "
 
 
 # Kernel modules whose kernels run only for scenes that use their feature (an environment-map world, ray
-# visibility, node programs): the precompiled cache holds them (core.precompile renders such a scene), but one
-# filled by renders alone may not; every render runs the others, so those decide whether a cache is cold.
+# visibility, node programs, a lens or panoramic camera: a pinhole camera's rays are made inside the fused path
+# kernel): the precompiled cache holds them (core.precompile renders such a scene), but one filled by renders
+# alone (or by `make render`'s shipped kernels) may not; every render runs the others, so those decide whether a
+# cache is cold.
 FEATURE_KERNEL_MODULES = ("world_kernels", "ray_visibility", "shading/regs", "shading/evaluator", "fused_path",
-                          "shading/procedural", "shading/color")
+                          "shading/procedural", "shading/color", "camera")
 
 
 def compile_cache_is_cold(with_node_programs: bool = False) -> bool:

@@ -145,8 +145,8 @@ def copy_package(dest: Path) -> Path:
 
 def render_in(pythonpath: str, out_dir: str) -> subprocess.CompletedProcess:
     """make render's command, run on the package under pythonpath, writing into out_dir."""
-    return subprocess.run([sys.executable, "-m", "monte", *RENDER_ARGS, "-o", os.path.join(out_dir, "cornell.exr"),
-                           "-q"], capture_output=True, text=True, env=_clean_environment(pythonpath), cwd=out_dir)
+    return subprocess.run([sys.executable, "-m", "monte", *RENDER_ARGS, "-o", os.path.join(out_dir, "cornell.exr")],
+                          capture_output=True, text=True, env=_clean_environment(pythonpath), cwd=out_dir)
 
 
 def build(archive: Path = ARCHIVE) -> int:
