@@ -21,19 +21,24 @@ BLENDERS := $(OLDER_BLENDERS) 5.3
 .PHONY: setup render render-kernels test test-newest test-install-matrix test-blender test-slow test-all bench crosscheck \
         extension clean
 
-# $(call install,DIR,PYTHON,REQUIREMENTS): the venv DIR (made with PYTHON if missing), REQUIREMENTS and Monte
-# itself (editable)
+# $(call install,DIR,PYTHON,REQUIREMENTS[,quick]): the venv DIR (made with PYTHON if missing), REQUIREMENTS and
+# Monte itself (editable). `quick` (the render set, which the first `make render` waits for): pip is upgraded only
+# where older than 22, and the packages' bytecode is left to their first import (pip compiling every module of
+# numpy, numba and llvmlite was 6 of the 9.5 s their install took); make_venv compiles it afterwards.
 define install
 	@test -n "$(2)" || { echo "no Python interpreter for $(1) (see the message above)"; exit 1; }
 	test -x $(1)/bin/python || $(2) -m venv $(1)
-	$(1)/bin/python -m pip install --quiet --upgrade pip
-	$(1)/bin/python -m pip install --quiet -r $(3)
+	$(if $(4),$(1)/bin/python -c "import pip; import sys; sys.exit(int(pip.__version__.split('.')[0]) < 22)" || )$(1)/bin/python -m pip install --quiet --upgrade pip
+	$(1)/bin/python -m pip install --quiet $(if $(4),--no-compile) -r $(3)
 	$(1)/bin/python -m pip install --quiet --no-deps -e .
 endef
 
-# $(call make_venv,DIR,PYTHON,REQUIREMENTS): installed as above, then every render kernel compiled
+# $(call make_venv,DIR,PYTHON,REQUIREMENTS): installed as above, the bytecode of what a quick install left
+# uncompiled (a process with PYTHONDONTWRITEBYTECODE set would compile those modules at every start; errors are
+# ignored, as pip ignores them), then every render kernel compiled
 define make_venv
 	$(call install,$(1),$(2),$(3))
+	$(1)/bin/python -m compileall -q -j 0 "$$($(1)/bin/python -c 'import sysconfig; print(sysconfig.get_path("purelib"))')" > /dev/null || true
 	$(1)/bin/python -m monte.core.precompile
 	touch $(1)/.installed
 endef
@@ -48,7 +53,7 @@ $(VENV)/.installed: $(VENV)/.render-kernels requirements.txt requirements/blende
 # cluster or denoiser), which is all a built-in scene's render imports: the first `make render` after a clone
 # waits for this (and the shipped kernels' unpacking), not for the whole setup.
 $(VENV)/.render-installed: requirements/render.txt requirements/core.txt pyproject.toml
-	$(call install,$(VENV),$(PYTHON),requirements/render.txt)
+	$(call install,$(VENV),$(PYTHON),requirements/render.txt,quick)
 	touch $@
 
 # The Cornell box's compiled kernels, shipped in the repository (kernels/render-set.tar.xz, tools/render_kernels.py):
