@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import pickle
 import tarfile
 from pathlib import Path
 
@@ -50,7 +51,7 @@ def test_a_first_render_from_the_shipped_kernels_compiles_nothing(tool, tmp_path
     assert not wrong
     cache_dir = key["cache_dir"]
     assert not os.path.exists(cache_dir)
-    assert tool.unpack_into(cache_dir) == (manifest["files"], 0)
+    assert tool.unpack_into(cache_dir) == (manifest["files"], 0, 0)
     before = _listing(cache_dir)
     proc = tool.render_in(str(tmp_path), str(tmp_path))
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
@@ -60,22 +61,49 @@ def test_a_first_render_from_the_shipped_kernels_compiles_nothing(tool, tmp_path
     assert after == before, f"compiled and saved: {sorted(set(after.items()) - set(before.items()))}"
 
 
-def test_unpacking_keeps_every_file_of_a_kernel_the_cache_has(tool, tmp_path):
+def test_unpacking_keeps_a_kernel_cached_for_these_sources_and_replaces_a_stale_one(tool, tmp_path):
     with tarfile.open(tool.ARCHIVE, "r:xz") as tar:
-        names = [m.name for m in tar.getmembers() if m.name != tool.MANIFEST_NAME]
-    kernel = tool._kernel_of(next(name for name in names if ".trace_paths-" in name))
-    ours = [name for name in names if tool._kernel_of(name) == kernel]
-    assert len(ours) >= 2  # its index and its data
+        shipped = {m.name: tar.extractfile(m).read() for m in tar.getmembers() if m.name != tool.MANIFEST_NAME}
+
+    def files_of(word: str) -> dict[str, bytes]:
+        kernel = tool._kernel_of(next(name for name in shipped if word in name and name.endswith(".nbi")))
+        return {name: data for name, data in shipped.items() if tool._kernel_of(name) == kernel}
+
+    current, stale, unreadable = files_of(".trace_paths-"), files_of(".albedo_batch-"), files_of(".add_colour-")
+    current_index, stale_index, unreadable_index = (next(name for name in files if name.endswith(".nbi"))
+                                                    for files in (current, stale, unreadable))
+    version, _stamp = tool._index_stamp(current[current_index])
     cache = tmp_path / "cache"
     cache.mkdir()
-    (cache / ours[0]).write_bytes(b"the cache's own")
+    # the cache's own for these sources, with one more signature: kept whole
+    (cache / current_index).write_bytes(current[current_index])
+    extra = current_index.replace(".nbi", ".7.nbc")
+    (cache / extra).write_bytes(b"another signature")
+    # saved for other sources, with a data file the archive does not have: replaced
+    (cache / stale_index).write_bytes(pickle.dumps(version) + pickle.dumps((("edited since",), {})))
+    old_data = stale_index.replace(".nbi", ".9.nbc")
+    (cache / old_data).write_bytes(b"stale")
+    # an index this tool cannot read: left to numba
+    (cache / unreadable_index).write_bytes(b"not a pickle")
+    # the same kernel cached for another Python does not count
+    other_python = stale_index.replace(".py313.", ".py311.")
+    (cache / other_python).write_bytes(b"Python 3.11's")
     (cache / "save.lock").write_bytes(b"")
-    written, skipped = tool.unpack_into(str(cache))
-    assert (written, skipped) == (len(names) - len(ours), len(ours))
-    assert (cache / ours[0]).read_bytes() == b"the cache's own"
-    assert not any((cache / name).exists() for name in ours[1:])
-    assert sorted(os.listdir(cache)) == sorted({*names} - {*ours[1:]} | {"save.lock"})
-    assert tool.unpack_into(str(cache)) == (0, len(names))  # a second unpack writes nothing
+
+    written, replaced, kept = tool.unpack_into(str(cache))
+    assert kept == len(current) + len(unreadable)
+    assert replaced == len(stale)
+    assert written == len(shipped) - kept
+    for name, data in stale.items():
+        assert (cache / name).read_bytes() == data
+    assert not (cache / old_data).exists()
+    assert (cache / extra).read_bytes() == b"another signature"
+    assert (cache / unreadable_index).read_bytes() == b"not a pickle"
+    assert (cache / other_python).read_bytes() == b"Python 3.11's"
+    assert sorted(os.listdir(cache)) == sorted(
+        {*shipped} - ({*current} | {*unreadable}) | {current_index, extra, unreadable_index,
+                                                     other_python, "save.lock"})
+    assert tool.unpack_into(str(cache)) == (0, 0, len(shipped))  # a second unpack writes nothing
 
 
 def test_a_stale_archive_is_named_with_what_differs(tool, tmp_path):

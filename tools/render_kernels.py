@@ -11,9 +11,10 @@ that `monte render cornell --spp 64` compiles, built in a copy of this checkout 
 manifest: the sources' digest (core.jit_cache.sources_digest: the kernel modules' contents and the numba
 options), the kernel CPU level, Python's, numba's and llvmlite's versions, the platform and the import name.
 `unpack` copies them into the cache only where all of those match this checkout's (else it says why and the
-first render compiles, as without the archive), and never over a file the cache already has: a kernel with any
-file there keeps the cache's own. numba checks each entry again when it loads it (its version, the CPU, the
-sources' stamp), so a file that does not apply is recompiled, never run.
+first render compiles, as without the archive), and never over a kernel the cache has for these sources (which
+may hold more signatures); a kernel cached for sources edited since is replaced, as numba's next save would. numba
+checks each entry again when it loads it (its version, the CPU, the sources' stamp), so a file that does not
+apply is recompiled, never run.
 
 After an edit of a kernel module the archive no longer applies: tests/test_render_kernels.py fails until
 `make render-kernels` rebuilds it.
@@ -25,7 +26,7 @@ import argparse
 import io
 import json
 import os
-import platform
+import pickle
 import re
 import shutil
 import subprocess
@@ -42,11 +43,12 @@ FORMAT = 1
 RENDER_ARGS = ["render", "cornell", "--spp", "64"]
 # numba's cache files: <module>.<qualname>-<line>.py<ver>.nbi (a kernel's index) and ...py<ver>.<n>.nbc (data);
 # and Monte's cached NRT module (core.jit_cache: nrt-<key>.bin), which a process loads before its first kernel
-_CACHE_FILE = re.compile(r"^(?:(?P<kernel>[\w.<>]+-\d+)\.py\d+(?:\.\d+\.nbc|\.nbi)|(?P<nrt>nrt-[0-9a-f]+\.bin))$")
+_CACHE_FILE = re.compile(r"^(?:(?P<kernel>[\w.<>]+-\d+\.py\d+)(?:\.\d+\.nbc|\.nbi)|(?P<nrt>nrt-[0-9a-f]+\.bin))$")
 
 
 def _kernel_of(name: str) -> str | None:
-    """The kernel (or NRT module) a cache file belongs to, None for any other file."""
+    """The kernel (with the Python it is cached for: one cache folder serves several) or the NRT module that a cache
+    file belongs to, None for any other file."""
     match = _CACHE_FILE.match(name)
     return None if match is None else match.group("kernel") or match.group("nrt")
 
@@ -104,14 +106,30 @@ def mismatches(manifest: dict, key: dict, ignore: tuple[str, ...] = ()) -> list[
             if name != "cache_dir" and name not in ignore and shipped.get(name) != value]
 
 
-def unpack_into(cache_dir: str, archive: Path = ARCHIVE) -> tuple[int, int]:
-    """Copy the archive's cache files into cache_dir, each written whole (a temporary file renamed), skipping
-    every file of a kernel the folder already has a file of. Returns (files written, files skipped)."""
+def _index_stamp(data: bytes) -> tuple | None:
+    """(numba's version, the sources' stamp) that a numba index file was saved for, None where it cannot be read."""
+    try:
+        stream = io.BytesIO(data)
+        version = pickle.load(stream)
+        stamp, _overloads = pickle.loads(stream.read())
+    except Exception:  # noqa: BLE001 - numba's own format, read as numba reads it; anything else: unreadable
+        return None
+    return version, stamp
+
+
+def unpack_into(cache_dir: str, archive: Path = ARCHIVE) -> tuple[int, int, int]:
+    """Copy the archive's cache files into cache_dir, each written whole (a temporary file renamed). A kernel the
+    folder has files of (for the same Python) keeps them where its index was saved for the same sources and numba
+    as the archive's (the cache's own, perhaps with more signatures) or cannot be read here; otherwise (an index
+    saved for sources edited since, or data without an index) those files are removed and the archive's written,
+    as numba would overwrite them at its next save. Returns (files written, of them replacing a stale kernel's,
+    files left to the cache's own kernels)."""
     os.makedirs(cache_dir, exist_ok=True)
-    present = {_kernel_of(name) for name in os.listdir(cache_dir)} - {None}
-    mask = os.umask(0)
-    os.umask(mask)
-    written = skipped = 0
+    own: dict[str, list[str]] = {}
+    for name in os.listdir(cache_dir):
+        if (kernel := _kernel_of(name)) is not None:
+            own.setdefault(kernel, []).append(name)
+    shipped: dict[str, dict[str, bytes]] = {}
     with tarfile.open(archive, "r:xz") as tar:
         for member in tar.getmembers():
             if member.name == MANIFEST_NAME:
@@ -119,17 +137,29 @@ def unpack_into(cache_dir: str, archive: Path = ARCHIVE) -> tuple[int, int]:
             kernel = _kernel_of(member.name)
             if not member.isfile() or kernel is None:
                 raise SystemExit(f"render_kernels: unexpected entry {member.name!r} in {archive}")
-            if kernel in present:
-                skipped += 1
+            shipped.setdefault(kernel, {})[member.name] = tar.extractfile(member).read()
+    mask = os.umask(0)
+    os.umask(mask)
+    written = replaced = kept = 0
+    for kernel, files in shipped.items():
+        if kernel in own:
+            own_index = [name for name in own[kernel] if name.endswith(".nbi")]
+            index = [data for name, data in files.items() if name.endswith(".nbi")]
+            if kernel.startswith("nrt-") or (own_index and index and _index_stamp(
+                    Path(cache_dir, own_index[0]).read_bytes()) in (None, _index_stamp(index[0]))):
+                kept += len(files)
                 continue
-            data = tar.extractfile(member).read()
+            for name in own[kernel]:
+                os.remove(os.path.join(cache_dir, name))
+            replaced += len(files)
+        for name, data in files.items():
             fd, tmp = tempfile.mkstemp(dir=cache_dir, prefix=".unpack-")
             with os.fdopen(fd, "wb") as fh:
                 fh.write(data)
             os.chmod(tmp, 0o666 & ~mask)  # as a file numba writes (mkstemp's are private)
-            os.replace(tmp, os.path.join(cache_dir, member.name))
+            os.replace(tmp, os.path.join(cache_dir, name))
             written += 1
-    return written, skipped
+    return written, replaced, kept
 
 
 def copy_package(dest: Path) -> Path:
@@ -196,9 +226,10 @@ def unpack() -> int:
         print("Monte: the shipped render kernels do not apply here (" + "; ".join(wrong)
               + "): the first render compiles them (about a minute)")
         return 0
-    written, skipped = unpack_into(key["cache_dir"])
+    written, replaced, kept = unpack_into(key["cache_dir"])
     print(f"Monte: {written} compiled kernel files unpacked into {key['cache_dir']}"
-          + (f" ({skipped} left to the kernels the cache had)" if skipped else ""))
+          + (f" ({replaced} of them over kernels compiled for earlier sources)" if replaced else "")
+          + (f"; {kept} left to the kernels the cache has" if kept else ""))
     return 0
 
 
