@@ -14,7 +14,7 @@ from monte.core import builtin_scenes as scenes
 from monte.core import render as render_module
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from render_compare import assert_same_images  # noqa: E402
+from render_compare import assert_same_images, tile_recorder  # noqa: E402
 
 
 def _render(monkeypatch, threads: int, scene, **kw):
@@ -28,11 +28,7 @@ def _render(monkeypatch, threads: int, scene, **kw):
         return run_batch(self, segments)
 
     monkeypatch.setattr(job, "_run_batch", recorded)
-    calls = []
-
-    def on_tile(tile):
-        calls.append((tile.x0, tile.y0, tile.samples, tile.color.tobytes(),
-                      None if tile.variance is None else tile.variance.tobytes()))
+    calls, on_tile = tile_recorder()
 
     settings = render_module.RenderSettings(**{"seed": 3, "max_bounces": 4, "threads": threads, **kw})
     result = render_module.render(scene, settings, on_tile=on_tile)

@@ -15,7 +15,7 @@ from monte.core.render import _SKIPPED, _TileRender
 from monte.core.schedule import Segment
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from render_compare import assert_same_images  # noqa: E402
+from render_compare import assert_same_images, tile_recorder  # noqa: E402
 
 
 def _render(monkeypatch, in_workers: bool, **kw):
@@ -32,12 +32,7 @@ def _render(monkeypatch, in_workers: bool, **kw):
         return add_segment(self, *args)
 
     monkeypatch.setattr(job, "_add_segment", counted)
-    calls = []
-
-    def on_tile(tile):
-        calls.append((tile.x0, tile.y0, tile.samples, tile.color.tobytes(),
-                      None if tile.variance is None else tile.variance.tobytes(),
-                      None if tile.albedo is None else tile.albedo.tobytes()))
+    calls, on_tile = tile_recorder()
 
     # 48x40 in 9 tiles of 16x16 or 16x8 pixels: 16 or 32 samples a pass in a 4096-path batch, so every tile
     # takes several passes
