@@ -221,7 +221,12 @@ def unpack() -> int:
     if not Path(key["cache_dir"]).resolve().is_relative_to(ROOT.resolve()):
         print(f"Monte: `monte` imports from outside {ROOT} here ({key['cache_dir']}): nothing unpacked")
         return 1
-    wrong = mismatches(read_manifest(), key)
+    try:
+        manifest = read_manifest()
+    except (tarfile.TarError, ImportError, OSError) as exc:  # e.g. a Python built without lzma
+        print(f"Monte: cannot read {ARCHIVE.relative_to(ROOT)} ({exc}): the first render compiles its kernels")
+        return 0
+    wrong = mismatches(manifest, key)
     if wrong:
         print("Monte: the shipped render kernels do not apply here (" + "; ".join(wrong)
               + "): the first render compiles them (about a minute)")
