@@ -52,6 +52,7 @@ def _kernel_of(name: str) -> str | None:
     match = _CACHE_FILE.match(name)
     return None if match is None else match.group("kernel") or match.group("nrt")
 
+
 _KEY_CODE = """
 import json, platform, sys
 import llvmlite, numba
@@ -63,11 +64,12 @@ print(json.dumps({"sources": jit_cache.sources_digest(), "kernel_cpu": jit_cache
 """
 
 
-def environment_key(pythonpath: str | None = None) -> dict:
+def environment_key(pythonpath: str | None = None, clean: bool = True) -> dict:
     """What a cached kernel is valid for, as `monte` imports here (or from `pythonpath`), with its cache folder
     ("cache_dir", not part of the key). Asked of a new interpreter, so that the kernel CPU level is chosen as a
-    render process chooses it."""
-    env = _clean_environment(pythonpath)
+    render process chooses it: by default with the machine's own level (`clean`: without the user's NUMBA_* and
+    MONTE_KERNEL_CPU settings, as the archive is built), else as this environment's renders choose it."""
+    env = _clean_environment(pythonpath) if clean else dict(os.environ)
     proc = subprocess.run([sys.executable, "-c", _KEY_CODE], capture_output=True, text=True, env=env,
                           cwd=pythonpath or tempfile.gettempdir())
     if proc.returncode != 0:
@@ -217,7 +219,7 @@ def unpack() -> int:
     if not ARCHIVE.exists():
         print(f"Monte: no {ARCHIVE.relative_to(ROOT)}: the first render compiles its kernels")
         return 0
-    key = environment_key()
+    key = environment_key(clean=False)  # as `make render`'s render will choose its kernels
     if not Path(key["cache_dir"]).resolve().is_relative_to(ROOT.resolve()):
         print(f"Monte: `monte` imports from outside {ROOT} here ({key['cache_dir']}): nothing unpacked")
         return 1
