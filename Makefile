@@ -38,15 +38,16 @@ endef
 # ignored, as pip ignores them), then every render kernel compiled
 define make_venv
 	$(call install,$(1),$(2),$(3))
-	$(1)/bin/python -m compileall -q -j 0 "$$($(1)/bin/python -c 'import sysconfig; print(sysconfig.get_path("purelib"))')" > /dev/null || true
+	$(1)/bin/python -m compileall -q -j 0 $$($(1)/bin/python -c 'import sysconfig; print(*{sysconfig.get_path(p) for p in ("purelib", "platlib")})') > /dev/null || true
 	$(1)/bin/python -m monte.core.precompile
 	touch $(1)/.installed
 endef
 
 # (after the render set, so that `make -j` never runs two pip installs into .venv at once; and after the shipped
-# kernels, which the precompile then loads instead of compiling)
-$(VENV)/.installed: $(VENV)/.render-kernels requirements.txt requirements/blender-5.3.txt requirements/common.txt \
-                    pyproject.toml
+# kernels, which the precompile then loads instead of compiling: order-only, so that a rebuilt archive does not
+# redo the whole setup)
+$(VENV)/.installed: $(VENV)/.render-installed requirements.txt requirements/blender-5.3.txt requirements/common.txt \
+                    pyproject.toml | $(VENV)/.render-kernels
 	$(call make_venv,$(VENV),$(PYTHON),requirements.txt)
 
 # The render set alone (requirements/render.txt: Blender 5.3's numpy and the core's pins; no Blender, tests,

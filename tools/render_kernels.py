@@ -43,7 +43,7 @@ FORMAT = 1
 RENDER_ARGS = ["render", "cornell", "--spp", "64"]
 # numba's cache files: <module>.<qualname>-<line>.py<ver>.nbi (a kernel's index) and ...py<ver>.<n>.nbc (data);
 # and Monte's cached NRT module (core.jit_cache: nrt-<key>.bin), which a process loads before its first kernel
-_CACHE_FILE = re.compile(r"^(?:(?P<kernel>[\w.<>]+-\d+\.py\d+)(?:\.\d+\.nbc|\.nbi)|(?P<nrt>nrt-[0-9a-f]+\.bin))$")
+_CACHE_FILE = re.compile(r"^(?:(?P<kernel>[\w.<>]+-\d+\.py\d+[a-z]*)(?:\.\d+\.nbc|\.nbi)|(?P<nrt>nrt-[0-9a-f]+\.bin))$")
 
 
 def _kernel_of(name: str) -> str | None:
@@ -58,7 +58,7 @@ import json, platform, sys
 import llvmlite, numba
 from monte.core import jit_cache
 print(json.dumps({"sources": jit_cache.sources_digest(), "kernel_cpu": jit_cache.KERNEL_CPU,
-                  "python": "%d.%d" % sys.version_info[:2], "numba": numba.__version__,
+                  "python": "%d.%d%s" % (*sys.version_info[:2], sys.abiflags), "numba": numba.__version__,
                   "llvmlite": llvmlite.__version__, "platform": sys.platform + "-" + platform.machine(),
                   "package": jit_cache.PACKAGE, "cache_dir": jit_cache.cache_dir()}))
 """
@@ -70,8 +70,9 @@ def environment_key(pythonpath: str | None = None, clean: bool = True) -> dict:
     render process chooses it: by default with the machine's own level (`clean`: without the user's NUMBA_* and
     MONTE_KERNEL_CPU settings, as the archive is built), else as this environment's renders choose it."""
     env = _clean_environment(pythonpath) if clean else dict(os.environ)
-    proc = subprocess.run([sys.executable, "-c", _KEY_CODE], capture_output=True, text=True, env=env,
-                          cwd=pythonpath or tempfile.gettempdir())
+    # -P: nothing from the working folder (a stray ./monte) comes before the package asked about
+    proc = subprocess.run([sys.executable, "-P", "-c", _KEY_CODE], capture_output=True, text=True, env=env,
+                          cwd=pythonpath or ROOT)
     if proc.returncode != 0:
         raise SystemExit(f"render_kernels: importing monte failed:\n{proc.stderr[-2000:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -96,6 +97,7 @@ def read_manifest(archive: Path = ARCHIVE) -> dict:
 
 # What a machine is rather than what the checkout is: `check` leaves these out.
 MACHINE_KEYS = ("kernel_cpu", "platform")
+SHIPPED_FOR = ("x86-64-v3", "linux-x86_64")  # the machines the archive is built on and for
 
 
 def mismatches(manifest: dict, key: dict, ignore: tuple[str, ...] = ()) -> list[str]:
@@ -108,24 +110,26 @@ def mismatches(manifest: dict, key: dict, ignore: tuple[str, ...] = ()) -> list[
             if name != "cache_dir" and name not in ignore and shipped.get(name) != value]
 
 
-def _index_stamp(data: bytes) -> tuple | None:
-    """(numba's version, the sources' stamp) that a numba index file was saved for, None where it cannot be read."""
+def _saved_for_the_same(own: bytes, shipped: bytes) -> bool:
+    """Whether the cache's own index (bytes) was saved by the same numba for the same sources as the archive's,
+    read as numba reads one: its version first, then the source stamp. False where it cannot be read (numba
+    would fail on it too)."""
     try:
-        stream = io.BytesIO(data)
-        version = pickle.load(stream)
-        stamp, _overloads = pickle.loads(stream.read())
-    except Exception:  # noqa: BLE001 - numba's own format, read as numba reads it; anything else: unreadable
-        return None
-    return version, stamp
+        own_stream, shipped_stream = io.BytesIO(own), io.BytesIO(shipped)
+        if pickle.load(own_stream) != pickle.load(shipped_stream):
+            return False
+        return pickle.loads(own_stream.read())[0] == pickle.loads(shipped_stream.read())[0]
+    except Exception:  # noqa: BLE001 - anything numba's own read would fail on
+        return False
 
 
 def unpack_into(cache_dir: str, archive: Path = ARCHIVE) -> tuple[int, int, int]:
     """Copy the archive's cache files into cache_dir, each written whole (a temporary file renamed). A kernel the
-    folder has files of (for the same Python) keeps them where its index was saved for the same sources and numba
-    as the archive's (the cache's own, perhaps with more signatures) or cannot be read here; otherwise (an index
-    saved for sources edited since, or data without an index) those files are removed and the archive's written,
-    as numba would overwrite them at its next save. Returns (files written, of them replacing a stale kernel's,
-    files left to the cache's own kernels)."""
+    folder has files of (for the same Python) keeps them where its index was saved by the same numba for the same
+    sources as the archive's (the cache's own, perhaps with more signatures); otherwise (an index saved for
+    sources edited since or by another numba, one that cannot be read, or data without an index) those files are
+    removed and the archive's written, as numba would overwrite them at its next save. Returns (files written, of
+    them replacing a kernel's stale files, files left to the cache's own kernels)."""
     os.makedirs(cache_dir, exist_ok=True)
     own: dict[str, list[str]] = {}
     for name in os.listdir(cache_dir):
@@ -147,8 +151,8 @@ def unpack_into(cache_dir: str, archive: Path = ARCHIVE) -> tuple[int, int, int]
         if kernel in own:
             own_index = [name for name in own[kernel] if name.endswith(".nbi")]
             index = [data for name, data in files.items() if name.endswith(".nbi")]
-            if kernel.startswith("nrt-") or (own_index and index and _index_stamp(
-                    Path(cache_dir, own_index[0]).read_bytes()) in (None, _index_stamp(index[0]))):
+            if kernel.startswith("nrt-") or (own_index and index and _saved_for_the_same(
+                    Path(cache_dir, own_index[0]).read_bytes(), index[0])):
                 kept += len(files)
                 continue
             for name in own[kernel]:
@@ -186,6 +190,14 @@ def build(archive: Path = ARCHIVE) -> int:
         copy_package(Path(tmp))
         key = environment_key(tmp)
         cache_dir = key.pop("cache_dir")
+        if not Path(cache_dir).resolve().is_relative_to(Path(tmp).resolve()):
+            print(f"render_kernels: the copy's `monte` did not import from the copy ({cache_dir})")
+            return 1
+        if (key["kernel_cpu"], key["platform"]) != SHIPPED_FOR:
+            print(f"render_kernels: the archive is built for {SHIPPED_FOR[0]} kernels on {SHIPPED_FOR[1]} (what "
+                  f"the README promises), and this machine gives {key['kernel_cpu']} on {key['platform']}: build "
+                  "it on such a machine (CI's, for one)")
+            return 1
         print(f"render_kernels: compiling `monte {' '.join(RENDER_ARGS)}`'s kernels for {key['kernel_cpu']} "
               "CPUs in a copy of this checkout (about a minute on two cores)", flush=True)
         proc = render_in(tmp, tmp)
@@ -219,10 +231,15 @@ def unpack() -> int:
     if not ARCHIVE.exists():
         print(f"Monte: no {ARCHIVE.relative_to(ROOT)}: the first render compiles its kernels")
         return 0
+    chosen = [name for name in ("NUMBA_CACHE_DIR", "NUMBA_CACHE_LOCATOR_CLASSES") if os.environ.get(name)]
+    if chosen:
+        print(f"Monte: {' and '.join(chosen)} set: numba caches the kernels where that says, so the shipped ones "
+              "are not unpacked (the first render compiles them)")
+        return 0
     key = environment_key(clean=False)  # as `make render`'s render will choose its kernels
     if not Path(key["cache_dir"]).resolve().is_relative_to(ROOT.resolve()):
         print(f"Monte: `monte` imports from outside {ROOT} here ({key['cache_dir']}): nothing unpacked")
-        return 1
+        return 0
     try:
         manifest = read_manifest()
     except (tarfile.TarError, ImportError, OSError) as exc:  # e.g. a Python built without lzma
