@@ -4,7 +4,8 @@ that a fresh clone's first render loads them instead of compiling them (about 40
 
     python tools/render_kernels.py unpack   # make render: put them into this checkout's kernel cache
     python tools/render_kernels.py check    # exit 1, saying why, when the archive is not for these sources
-    python tools/render_kernels.py build    # after editing a kernel module: rebuild the archive (make render-kernels)
+    python tools/render_kernels.py build    # after editing a kernel module: rebuild the archive (make render-kernels;
+                                            # a no-op while it is up to date, --force rebuilds anyway)
 
 kernels/render-set.tar.xz holds numba's cache files (the .nbi indexes and .nbc data) of every kernel signature
 that `monte render cornell --spp 64` compiles, built in a copy of this checkout with an empty cache, and a
@@ -185,45 +186,62 @@ def render_in(pythonpath: str, out_dir: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, env=_clean_environment(pythonpath), cwd=out_dir)
 
 
-def build(archive: Path = ARCHIVE) -> int:
+def build(archive: Path = ARCHIVE, force: bool = False) -> int:
+    """Rebuild the archive, unless it already applies to these sources (and `force` is false): numba's cache
+    files name the folder they were compiled in and number symbols in the order a process compiled them, so a
+    rebuild of the same sources gives other bytes, which would only churn the repository."""
+    if not force and archive.exists():
+        try:
+            wrong = mismatches(read_manifest(archive), environment_key(), ignore=MACHINE_KEYS)
+        except (tarfile.TarError, OSError, KeyError):
+            wrong = ["unreadable"]
+        if not wrong:
+            print(f"render_kernels: {archive} already holds these sources' kernels: nothing to do (--force "
+                  "rebuilds it)")
+            return 0
     with tempfile.TemporaryDirectory(prefix="monte-render-kernels-") as tmp:
-        copy_package(Path(tmp))
-        key = environment_key(tmp)
-        cache_dir = key.pop("cache_dir")
-        if not Path(cache_dir).resolve().is_relative_to(Path(tmp).resolve()):
-            print(f"render_kernels: the copy's `monte` did not import from the copy ({cache_dir})")
-            return 1
-        if (key["kernel_cpu"], key["platform"]) != SHIPPED_FOR:
-            print(f"render_kernels: the archive is built for {SHIPPED_FOR[0]} kernels on {SHIPPED_FOR[1]} (what "
-                  f"the README promises), and this machine gives {key['kernel_cpu']} on {key['platform']}: build "
-                  "it on such a machine (CI's, for one)")
-            return 1
-        print(f"render_kernels: compiling `monte {' '.join(RENDER_ARGS)}`'s kernels for {key['kernel_cpu']} "
-              "CPUs in a copy of this checkout (about a minute on two cores)", flush=True)
-        proc = render_in(tmp, tmp)
-        if proc.returncode != 0:
-            print(proc.stdout[-2000:], proc.stderr[-2000:], sep="\n")
-            return 1
-        names = sorted(name for name in os.listdir(cache_dir) if _kernel_of(name))
-        if not names:
-            print(f"render_kernels: the render cached no kernel in {cache_dir}")
-            return 1
-        manifest = {"format": FORMAT, "key": key, "command": ["monte", *RENDER_ARGS], "files": len(names)}
-        archive.parent.mkdir(parents=True, exist_ok=True)
-        tmp_archive = archive.with_name(archive.name + ".tmp")
+        return _build_in(tmp, archive)
 
-        def add(tar: tarfile.TarFile, name: str, data: bytes) -> None:
-            info = tarfile.TarInfo(name)  # fixed metadata: the same files give the same archive
-            info.size, info.mode, info.mtime = len(data), 0o644, 0
-            tar.addfile(info, io.BytesIO(data))
 
-        with tarfile.open(tmp_archive, "w:xz", preset=9) as tar:
-            add(tar, MANIFEST_NAME, (json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode())
-            for name in names:
-                add(tar, name, Path(cache_dir, name).read_bytes())
-        os.replace(tmp_archive, archive)
-    print(f"render_kernels: wrote {archive.relative_to(ROOT)} ({len(names)} files, {archive.stat().st_size:,} "
-          "bytes): commit it with the kernel edit", flush=True)
+def _build_in(tmp: str, archive: Path) -> int:
+    """Compile make render's kernels in a copy of the package at tmp and pack them into archive."""
+    copy_package(Path(tmp))
+    key = environment_key(tmp)
+    cache_dir = key.pop("cache_dir")
+    if not Path(cache_dir).resolve().is_relative_to(Path(tmp).resolve()):
+        print(f"render_kernels: the copy's `monte` did not import from the copy ({cache_dir})")
+        return 1
+    if (key["kernel_cpu"], key["platform"]) != SHIPPED_FOR:
+        print(f"render_kernels: the archive is built for {SHIPPED_FOR[0]} kernels on {SHIPPED_FOR[1]} (what "
+              f"the README promises), and this machine gives {key['kernel_cpu']} on {key['platform']}: build "
+              "it on such a machine (CI's, for one)")
+        return 1
+    print(f"render_kernels: compiling `monte {' '.join(RENDER_ARGS)}`'s kernels for {key['kernel_cpu']} "
+          "CPUs in a copy of this checkout (about a minute on two cores)", flush=True)
+    proc = render_in(tmp, tmp)
+    if proc.returncode != 0:
+        print(proc.stdout[-2000:], proc.stderr[-2000:], sep="\n")
+        return 1
+    names = sorted(name for name in os.listdir(cache_dir) if _kernel_of(name))
+    if not names:
+        print(f"render_kernels: the render cached no kernel in {cache_dir}")
+        return 1
+    manifest = {"format": FORMAT, "key": key, "command": ["monte", *RENDER_ARGS], "files": len(names)}
+    archive.parent.mkdir(parents=True, exist_ok=True)
+    tmp_archive = archive.with_name(archive.name + ".tmp")
+
+    def add(tar: tarfile.TarFile, name: str, data: bytes) -> None:
+        info = tarfile.TarInfo(name)  # fixed metadata: the same files give the same archive
+        info.size, info.mode, info.mtime = len(data), 0o644, 0
+        tar.addfile(info, io.BytesIO(data))
+
+    with tarfile.open(tmp_archive, "w:xz", preset=9) as tar:
+        add(tar, MANIFEST_NAME, (json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode())
+        for name in names:
+            add(tar, name, Path(cache_dir, name).read_bytes())
+    os.replace(tmp_archive, archive)
+    print(f"render_kernels: wrote {archive} ({len(names)} files, {archive.stat().st_size:,} bytes): commit it with "
+          "the kernel edit", flush=True)
     return 0
 
 
@@ -271,8 +289,11 @@ def check() -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("command", choices=("unpack", "check", "build"))
+    parser.add_argument("--force", action="store_true", help="build: even where the archive is up to date")
     args = parser.parse_args(argv)
-    return {"unpack": unpack, "check": check, "build": build}[args.command]()
+    if args.command == "build":
+        return build(force=args.force)
+    return {"unpack": unpack, "check": check}[args.command]()
 
 
 if __name__ == "__main__":
