@@ -24,6 +24,7 @@ After an edit of a kernel module the archive no longer applies: tests/test_rende
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import io
 import json
 import os
@@ -88,6 +89,15 @@ def _clean_environment(pythonpath: str | None) -> dict:
     return env
 
 
+def _atomic_file():
+    """This checkout's core/atomic_file.py (the project's one writer of whole files; standard library only),
+    loaded from its file: importing the package would run core's start-up and could find another checkout's."""
+    spec = importlib.util.spec_from_file_location("_monte_atomic_file", ROOT / "core" / "atomic_file.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def read_manifest(archive: Path = ARCHIVE) -> dict:
     with tarfile.open(archive, "r:xz") as tar:
         member = tar.extractfile(MANIFEST_NAME)
@@ -99,6 +109,11 @@ def read_manifest(archive: Path = ARCHIVE) -> dict:
 # What a machine is rather than what the checkout is: `check` leaves these out.
 MACHINE_KEYS = ("kernel_cpu", "platform")
 SHIPPED_FOR = ("x86-64-v3", "linux-x86_64")  # the machines the archive is built on and for
+
+
+def machine_of(key: dict) -> tuple[str, ...]:
+    """A key's MACHINE_KEYS values, to compare with SHIPPED_FOR."""
+    return tuple(key[name] for name in MACHINE_KEYS)
 
 
 def mismatches(manifest: dict, key: dict, ignore: tuple[str, ...] = ()) -> list[str]:
@@ -145,8 +160,7 @@ def unpack_into(cache_dir: str, archive: Path = ARCHIVE) -> tuple[int, int, int]
             if not member.isfile() or kernel is None:
                 raise SystemExit(f"render_kernels: unexpected entry {member.name!r} in {archive}")
             shipped.setdefault(kernel, {})[member.name] = tar.extractfile(member).read()
-    mask = os.umask(0)
-    os.umask(mask)
+    write_bytes_atomically = _atomic_file().write_bytes_atomically
     written = replaced = kept = 0
     for kernel, files in shipped.items():
         if kernel in own:
@@ -160,11 +174,7 @@ def unpack_into(cache_dir: str, archive: Path = ARCHIVE) -> tuple[int, int, int]
                 os.remove(os.path.join(cache_dir, name))
             replaced += len(files)
         for name, data in files.items():
-            fd, tmp = tempfile.mkstemp(dir=cache_dir, prefix=".unpack-")
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(data)
-            os.chmod(tmp, 0o666 & ~mask)  # as a file numba writes (mkstemp's are private)
-            os.replace(tmp, os.path.join(cache_dir, name))
+            write_bytes_atomically(os.path.join(cache_dir, name), data)
             written += 1
     return written, replaced, kept
 
@@ -211,7 +221,7 @@ def _build_in(tmp: str, archive: Path) -> int:
     if not Path(cache_dir).resolve().is_relative_to(Path(tmp).resolve()):
         print(f"render_kernels: the copy's `monte` did not import from the copy ({cache_dir})")
         return 1
-    if (key["kernel_cpu"], key["platform"]) != SHIPPED_FOR:
+    if machine_of(key) != SHIPPED_FOR:
         print(f"render_kernels: the archive is built for {SHIPPED_FOR[0]} kernels on {SHIPPED_FOR[1]} (what "
               f"the README promises), and this machine gives {key['kernel_cpu']} on {key['platform']}: build "
               "it on such a machine (CI's, for one)")
@@ -228,18 +238,19 @@ def _build_in(tmp: str, archive: Path) -> int:
         return 1
     manifest = {"format": FORMAT, "key": key, "command": ["monte", *RENDER_ARGS], "files": len(names)}
     archive.parent.mkdir(parents=True, exist_ok=True)
-    tmp_archive = archive.with_name(archive.name + ".tmp")
 
     def add(tar: tarfile.TarFile, name: str, data: bytes) -> None:
         info = tarfile.TarInfo(name)  # fixed metadata: the same files give the same archive
         info.size, info.mode, info.mtime = len(data), 0o644, 0
         tar.addfile(info, io.BytesIO(data))
 
-    with tarfile.open(tmp_archive, "w:xz", preset=9) as tar:
-        add(tar, MANIFEST_NAME, (json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode())
-        for name in names:
-            add(tar, name, Path(cache_dir, name).read_bytes())
-    os.replace(tmp_archive, archive)
+    def write(path: str) -> None:
+        with tarfile.open(path, "w:xz", preset=9) as tar:
+            add(tar, MANIFEST_NAME, (json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode())
+            for name in names:
+                add(tar, name, Path(cache_dir, name).read_bytes())
+
+    _atomic_file().write_atomically(archive, write)
     print(f"render_kernels: wrote {archive} ({len(names)} files, {archive.stat().st_size:,} bytes): commit it with "
           "the kernel edit", flush=True)
     return 0
