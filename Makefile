@@ -21,21 +21,23 @@ BLENDERS := $(OLDER_BLENDERS) 5.3
 .PHONY: setup render render-kernels test test-newest test-install-matrix test-blender test-slow test-all bench crosscheck \
         extension clean
 
-# $(call install,DIR,PYTHON,REQUIREMENTS[,quick]): the venv DIR (made with PYTHON if missing), REQUIREMENTS and
-# Monte itself (editable). `quick` (the render set, which the first `make render` waits for): pip is upgraded only
-# where older than 22, and the packages' bytecode is left to their first import (pip compiling every module of
-# numpy, numba and llvmlite was 6 of the 9.5 s their install took); make_venv compiles it afterwards.
+# $(call install,DIR,PYTHON,REQUIREMENTS): the venv DIR (made with PYTHON if missing), REQUIREMENTS and Monte
+# itself (editable, in place of the link the render set's quick install may have made). A venv that quick install
+# made has no pip of its own: it gets one here.
 define install
 	@test -n "$(2)" || { echo "no Python interpreter for $(1) (see the message above)"; exit 1; }
 	test -x $(1)/bin/python || $(2) -m venv $(1)
-	$(if $(4),$(1)/bin/python -c "import pip; import sys; sys.exit(int(pip.__version__.split('.')[0]) < 22)" || )$(1)/bin/python -m pip install --quiet --upgrade pip
-	$(1)/bin/python -m pip install --quiet $(if $(4),--no-compile) -r $(3)
+	$(1)/bin/python -c "import pip" 2> /dev/null || $(1)/bin/python -m ensurepip --upgrade --default-pip > /dev/null
+	$(1)/bin/python -m pip install --quiet --upgrade pip
+	$(1)/bin/python -m pip install --quiet -r $(3)
+	link="$$($(1)/bin/python -P -c 'import sysconfig; print(sysconfig.get_path("purelib"))')/monte"; \
+	  if [ -L "$$link" ]; then rm "$$link"; fi
 	$(1)/bin/python -m pip install --quiet --no-deps -e .
 endef
 
-# $(call make_venv,DIR,PYTHON,REQUIREMENTS): installed as above, the bytecode of what a quick install left
-# uncompiled (a process with PYTHONDONTWRITEBYTECODE set would compile those modules at every start; errors are
-# ignored, as pip ignores them), then every render kernel compiled
+# $(call make_venv,DIR,PYTHON,REQUIREMENTS): installed as above, the bytecode of what the render set's quick
+# install left uncompiled (a process with PYTHONDONTWRITEBYTECODE set would compile those modules at every start;
+# errors are ignored, as pip ignores them), then every render kernel compiled
 define make_venv
 	$(call install,$(1),$(2),$(3))
 	$(1)/bin/python -m compileall -q -j 0 $$($(1)/bin/python -c 'import sysconfig; print(*{sysconfig.get_path(p) for p in ("purelib", "platlib")})') > /dev/null || true
@@ -54,7 +56,8 @@ $(VENV)/.installed: $(VENV)/.render-installed requirements.txt requirements/blen
 # cluster or denoiser), which is all a built-in scene's render imports: the first `make render` after a clone
 # waits for this (and the shipped kernels' unpacking), not for the whole setup.
 $(VENV)/.render-installed: requirements/render.txt requirements/core.txt pyproject.toml
-	$(call install,$(VENV),$(PYTHON),requirements/render.txt,quick)
+	@test -n "$(PYTHON)" || { echo "no Python interpreter for $(VENV) (see the message above)"; exit 1; }
+	tools/install_render_set.sh $(VENV) $(PYTHON) requirements/render.txt
 	touch $@
 
 # The Cornell box's compiled kernels, shipped in the repository (kernels/render-set.tar.xz, tools/render_kernels.py):
@@ -74,7 +77,7 @@ render-kernels: $(VENV)/.render-installed
 setup: $(VENV)/.installed
 
 render: $(VENV)/.render-kernels
-	$(BIN)/monte render cornell -o cornell.exr --spp $(SPP)
+	$(BIN)/python -m monte render cornell -o cornell.exr --spp $(SPP)
 
 # What CI runs: the default suite on Blender 5.3, then the extension's install-and-render and headless-exit
 # tests on every older Blender of the support table.

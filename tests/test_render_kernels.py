@@ -45,7 +45,7 @@ def test_the_shipped_kernels_are_for_these_sources(tool):
     assert (tool.ARCHIVE.stat().st_mtime_ns, tool.ARCHIVE.read_bytes()) == before
     assert manifest["command"] == ["monte", "render", "cornell", "--spp", "64"]
     makefile = (ROOT / "Makefile").read_text()
-    assert "SPP ?= 64" in makefile and "$(BIN)/monte render cornell -o cornell.exr --spp $(SPP)" in makefile
+    assert "SPP ?= 64" in makefile and "$(BIN)/python -m monte render cornell -o cornell.exr --spp $(SPP)" in makefile
 
 
 def test_a_first_render_from_the_shipped_kernels_compiles_nothing(tool, tmp_path):

@@ -80,3 +80,64 @@ def test_a_builtin_scene_renders_with_the_render_set_alone(tmp_path):
     assert result["code"] == 0, (result, proc.stderr[-3000:])
     assert out.exists() and out.with_suffix(".png").exists()
     assert "bpy" not in result["blocked"]  # (the command never tried Blender for a built-in scene)
+
+
+# tools/install_render_set.sh, run with an empty requirements file (pip installs nothing, so no package index is
+# needed): how the venv is made and how Monte becomes importable from this checkout.
+_SCRIPT = ROOT / "tools" / "install_render_set.sh"
+_WHERE = ("import importlib.util, sysconfig; spec = importlib.util.find_spec('monte'); "
+          "print(spec.origin if spec else None); print(sysconfig.get_path('purelib'))")
+
+
+def _install(venv: Path, python: str, tmp_path: Path) -> tuple[str, Path]:
+    """Run the script; returns where `monte` imports from in the venv (without running it) and its purelib."""
+    requirements = tmp_path / "empty.txt"
+    requirements.write_text("")
+    proc = subprocess.run([str(_SCRIPT), str(venv), python, str(requirements)], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    where = subprocess.run([str(venv / "bin" / "python"), "-P", "-c", _WHERE], capture_output=True, text=True,
+                           cwd=tmp_path, check=True).stdout.split("\n")
+    return where[0], Path(where[1])
+
+
+def _has_pip(venv: Path) -> bool:
+    return subprocess.run([str(venv / "bin" / "python"), "-c", "import pip"], capture_output=True).returncode == 0
+
+
+def test_the_quick_install_makes_a_venv_without_pip_and_links_monte_to_this_checkout(tmp_path):
+    """The interpreter's own pip (22.3 or newer) installs into a venv made without pip, and `monte` is a link to
+    this checkout in its site-packages (no editable install's wheel build); a second run changes nothing."""
+    venv = tmp_path / "venv"
+    origin, purelib = _install(venv, sys.executable, tmp_path)
+    assert not _has_pip(venv)
+    link = purelib / "monte"
+    assert link.is_symlink() and link.resolve() == ROOT
+    assert Path(origin).resolve() == ROOT / "__init__.py"
+    assert _install(venv, sys.executable, tmp_path) == (origin, purelib)
+    assert link.is_symlink() and link.resolve() == ROOT and not _has_pip(venv)
+
+
+def test_the_quick_install_leaves_an_installed_monte_alone(tmp_path):
+    """Where the venv has Monte installed (`make setup`'s editable install), no link is added beside it."""
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    purelib = Path(subprocess.run([str(venv / "bin" / "python"), "-c",
+                                   "import sysconfig; print(sysconfig.get_path('purelib'))"],
+                                  capture_output=True, text=True, check=True).stdout.strip())
+    dist_info = purelib / "monte-0.1.0.dist-info"
+    dist_info.mkdir(parents=True)
+    (dist_info / "METADATA").write_text("Metadata-Version: 2.1\nName: monte\nVersion: 0.1.0\n")
+    origin, _ = _install(venv, sys.executable, tmp_path)
+    assert not (purelib / "monte").exists() and origin == "None"
+
+
+def test_the_quick_install_gives_the_venv_its_own_pip_where_the_interpreter_has_none(tmp_path):
+    """An interpreter without pip (here a venv made without it) cannot install into another environment: the
+    venv is made with pip, as before."""
+    bare = tmp_path / "bare"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(bare)], check=True)
+    venv = tmp_path / "venv"
+    origin, purelib = _install(venv, str(bare / "bin" / "python"), tmp_path)
+    assert _has_pip(venv)
+    assert (purelib / "monte").resolve() == ROOT and Path(origin).resolve() == ROOT / "__init__.py"
