@@ -3,6 +3,7 @@ denoiser) before it renders the Cornell box: a built-in scene's render must need
 
 import importlib.metadata as md
 import json
+import os
 import re
 import subprocess
 import sys
@@ -90,14 +91,16 @@ _WHERE = ("import importlib.util, sysconfig; spec = importlib.util.find_spec('mo
 
 
 def _install(venv: Path, python: str, tmp_path: Path) -> tuple[str, Path]:
-    """Run the script; returns where `monte` imports from in the venv (without running it) and its purelib."""
+    """Run the script; returns where `monte` imports from in the venv (without running it) and its purelib.
+    (Without PYTHONPATH, which would name where this test's own `monte` comes from.)"""
     requirements = tmp_path / "empty.txt"
     requirements.write_text("")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     proc = subprocess.run([str(_SCRIPT), str(venv), python, str(requirements)], capture_output=True, text=True,
-                          cwd=tmp_path, timeout=300)
+                          cwd=tmp_path, timeout=300, env=env)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     where = subprocess.run([str(venv / "bin" / "python"), "-P", "-c", _WHERE], capture_output=True, text=True,
-                           cwd=tmp_path, check=True).stdout.split("\n")
+                           cwd=tmp_path, check=True, env=env).stdout.split("\n")
     return where[0], Path(where[1])
 
 
