@@ -200,6 +200,21 @@ class BsdfSample:
     valid: np.ndarray
 
 
+def select_for_view(lobes: LobeBatch, wo: np.ndarray, back: np.ndarray, material_index: np.ndarray,
+                    table: "MaterialTable") -> None:
+    """Rewrite, in place, the lobe-choice probabilities of the hits whose material chooses by the view
+    (MaterialTable.view_select) for their local wo (N, 3; `back`: wo below the geometric surface), as the fused
+    path kernel does at each vertex (core.bsdf_kernels.view_select_row). Every reader of lobes.select after this
+    (eval_bsdf's pdf, sample_bsdf, the ray kinds) sees the same probabilities."""
+    if not table.view_select.any() or len(lobes) == 0:
+        return
+    lobes.select = np.ascontiguousarray(lobes.select, F32)  # the array the kernel rewrites is the batch's own
+    bk.view_selection_batch(lobes.arrays(), lobes.multiscatter, mf.kernel_tables(),
+                            np.ascontiguousarray(wo, F32), np.ascontiguousarray(back, np.bool_),
+                            np.ascontiguousarray(material_index, np.int64), table.view_select,
+                            np.ascontiguousarray(table.select_scale, F32))
+
+
 # -------------------------------------------------------------------------------------------------- materials
 def _gen_schlick_fss(f0: np.ndarray, ior: float) -> np.ndarray:
     """Per-channel hemispherical Fresnel average of a generalized-Schlick lobe: f0 + (1 - f0) s_avg (Cycles' Fss)."""
@@ -256,6 +271,11 @@ class MaterialTable:
                                                  self.f0[i, j], layer, self.tint[i, j])
         self._select_scale = scale
         self._select = self._selection(self.kind, self.color, scale)
+        # materials whose lobe choice follows the view (core.bsdf_kernels.view_select_row): more than one lobe, one
+        # of them a glossy lobe with a Fresnel term or a lobe under a layer; the others keep the choice above
+        present = self.kind >= 0
+        follows_view = ((self.kind == GLOSSY) & (self.fresnel != F_NONE)) | (present & (self.under >= 0))
+        self.view_select: np.ndarray = np.ascontiguousarray((present.sum(axis=1) > 1) & follows_view.any(axis=1))
         self.kinds_present: frozenset[str] = frozenset(KINDS[k] for k in np.unique(self.kind) if k >= 0)
         self.has_transmission: np.ndarray = np.any((self.kind == GLASS) | (self.kind == REFRACTION), axis=1)
         self._texture_ids = sorted(int(t) for t in np.unique(self.texture) if t >= 0)

@@ -843,6 +843,83 @@ def _select_row(kind, weight, scale, m, k, select):
         select[k, l] = np.float32(select[k, l] / tot)
 
 
+@_inline
+def view_select_row(lobes, row, multiscatter, tabs, mu, scale, m):
+    """Rewrite hit `row`'s lobe-choice probabilities for the view cos wo = mu (float64, the frame flipped to wo's
+    geometric side, as eval_path's oz): mean colour x each lobe's albedo estimate at mu, normalised, as Cycles sets
+    a closure's sample weight from its albedo at the view direction (bsdf_microfacet_estimate_albedo), the layers
+    below a coat attenuated by what the coat reflects there (closure_layering_weight). A diffuse lobe counts 1; a
+    generalized-Schlick glossy lobe its single-scatter albedo f0 + (1 - f0) s(mu) (the `gen_schlick_table_s`
+    read that gen_schlick_albedo also makes, without its multiscatter factor: a few % from 1, and three more table
+    reads and six divisions a vertex); another glossy lobe its Fresnel at mu (`glossy_fresnel`); a lobe under a
+    layer also 1 - max_c of that layer's albedo (under another lobe than the last coat seen: `layer_factor`);
+    glass and refraction lobes keep their view-independent estimate scale[m, l] (material m's row of
+    MaterialTable.select_scale). So a coated surface seen at grazing angles, where its coat reflects most, picks the
+    coat more often, and less often where it is seen head-on: the material-wide averages (`_select_row`)
+    over-picked the coat head-on and under-picked it at grazing angles, where paths from a floor arrive at an
+    object's base. The probabilities only shape the variance (every reader of `select` at the vertex, the light
+    sample's MIS, the BSDF sample and the ray kinds, sees these), so the estimate need not be exact. The caller
+    decides that material m's choice follows the view (MaterialTable.view_select)."""
+    kind, weight, rough, ior, fresnel, select, f0s, under, tint, dnorm = lobes
+    mu = min(max(mu, 1e-4), 1.0)  # (wo below the shading normal: the tables' grazing end)
+    tot = _F32_0
+    layer = -1  # the last generalized-Schlick lobe seen, and 1 - max_c of its albedo (its layer_factor)
+    layer_keep = 1.0
+    for l in range(kind.shape[1]):
+        k = kind[row, l]
+        if k < 0:
+            select[row, l] = _F32_0
+            continue
+        if k == DIFFUSE:
+            a = 1.0
+        elif k == GLOSSY and fresnel[row, l] == F_GEN_SCHLICK:
+            # the layer's single-scatter albedo f0 + (1 - f0) s(mu) (gen_schlick_albedo without the multiscatter
+            # factor, which is within a few % of 1 and costs three table reads and six divisions a vertex): linear
+            # in f0, so the mean colour's is the channels' mean, and the largest f0 gives the largest albedo
+            s = gen_schlick_table_s(tabs, np.float64(rough[row, l]), mu, np.float64(ior[row, l]))
+            fmean = 0.0
+            fmax = 0.0
+            for c in range(3):
+                fc = np.float64(f0s[row, l, c])
+                fmean += fc
+                if weight[row, l, c] > 0.0:
+                    fmax = max(fmax, fc)
+            fmean /= 3.0
+            a = fmean + (1.0 - fmean) * s
+            layer = l
+            layer_keep = min(max(1.0 - (fmax + (1.0 - fmax) * s), 0.0), 1.0)
+        elif k == GLOSSY:
+            a = glossy_fresnel(fresnel[row, l], np.float64(ior[row, l]), mu)
+        else:
+            a = np.float64(scale[m, l])
+        j = under[row, l]
+        if j >= 0 and k <= GLOSSY:
+            a *= layer_keep if j == layer else layer_factor(lobes, row, j, multiscatter, tabs, mu)
+        sv = np.float32(np.float32(np.float32(weight[row, l, 0] + weight[row, l, 1]) + weight[row, l, 2])
+                        * np.float32(a))
+        select[row, l] = sv
+        tot = np.float32(tot + sv)
+    if not tot > _F32_0:  # a black material: uniform over its lobes, as _select_row
+        tot = _F32_0
+        for l in range(kind.shape[1]):
+            select[row, l] = _F32_1 if kind[row, l] >= 0 else _F32_0
+            tot = np.float32(tot + select[row, l])
+        tot = max(tot, _F32_1)
+    for l in range(kind.shape[1]):
+        select[row, l] = np.float32(select[row, l] / tot)
+
+
+@_jit
+def view_selection_batch(lobes, multiscatter, tabs, wo, back, mat, view_select, scale):
+    """view_select_row for every hit k whose material mat[k] has a view-dependent choice (view_select[mat[k]]),
+    seen from the local wo[k] (flipped to its geometric side where back[k], as sample_batch does)."""
+    for k in range(wo.shape[0]):
+        m = mat[k]
+        if view_select[m]:
+            mu = np.float64(wo[k, 2]) * (-1.0 if back[k] else 1.0)
+            view_select_row(lobes, k, multiscatter, tabs, mu, scale, m)
+
+
 @_jit
 def selection_batch(kind, weight, scale, select):
     for k in range(kind.shape[0]):

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from .bsdf_kernels import albedo_batch, eval_path, sample_path
+from .bsdf_kernels import albedo_batch, eval_path, sample_path, view_select_row
 from llvmlite import ir
 from numba import types
 from numba.core import cgutils
@@ -203,7 +203,8 @@ def _loss(w, keep, f_d, pdf):
 
 @_jit
 def trace_paths(pix, smp, origins, directions, tmax, raster_x, raster_y, pinhole, intersect1, occluded1, scene,
-                tri_vertices, face_normals, corner_normals, smooth, tri_magnitude, material_index, specular, lobes, multiscatter, tabs,
+                tri_vertices, face_normals, corner_normals, smooth, tri_magnitude, material_index, specular, lobes,
+                view_select, select_scale, multiscatter, tabs,
                 has_nondelta, has_transmission, emission, emitter_of_triangle, lt, per_point, n_matters,
                 has_emission, seed_key, set_keys, dim_keys, tables, group_bits, max_bounces, rr_depth, clamp,
                 shadow_epsilon, words, ids, address, buf, radiance, counters, t_start, depth_scale, albedo_of,
@@ -219,7 +220,10 @@ def trace_paths(pix, smp, origins, directions, tmax, raster_x, raster_y, pinhole
     ray's origin, exactly as core.path_kernels.shadow_rays does it. programs: None (no node programs: this code
     compiles without their blocks), or the tuple PROGRAM_FIELDS names: a vertex whose material has a program
     shades and samples a 1-row copy of its lobes that the program rewrote (`_shade_vertex`), and the first hit's
-    albedo comes from it."""
+    albedo comes from it. view_select (M,) bool, select_scale (M, L) float32: the materials whose lobe choice
+    follows the view, and MaterialTable.select_scale; such a vertex rewrites its row of lobes' `select` (a copy
+    per call: the rows are scratch, as the diffuse normals' are) for its wo before anything reads it
+    (core.bsdf_kernels.view_select_row, as core.bsdf.select_for_view in the per-bounce integrator)."""
     use_terminator = terminator_offset.shape[0] > 0
     has_normals = corner_normals.shape[0] > 0
     want_aovs = out_depth.shape[0] > 0
@@ -441,6 +445,8 @@ def trace_paths(pix, smp, origins, directions, tmax, raster_x, raster_y, pinhole
                             wd[0, l, c] = shade_lobes[1][row, l, c] if dif else _F0
             back = cos_o_geo < _F0
             sgn = -1.0 if back else 1.0
+            if view_select[mat]:
+                view_select_row(shade_lobes, row, multiscatter, tabs, np.float64(lz) * sgn, select_scale, mat)
             transmits = has_transmission[mat]
             if TIMED:
                 counters[TIMING_FIRST + 8] += _cycles() - cs_

@@ -110,6 +110,8 @@ class FusedTracer:
         m = ps.materials.kind.shape[0]
         lobes = ps.materials.gather(np.arange(m))
         self.lobes = lobes.arrays()
+        self.view_select = np.ascontiguousarray(ps.materials.view_select, np.bool_)
+        self.select_scale = np.ascontiguousarray(ps.materials.select_scale, np.float32)
         self.albedo = np.ascontiguousarray(bsdf_mod.albedo(lobes), np.float32)  # (M, 3): the albedo AOV
         self.multiscatter = ps.materials.multiscatter
         self.specular = (np.ascontiguousarray(ps.specular, bool) if len(ps.specular)
@@ -201,7 +203,9 @@ class FusedTracer:
         buf = np.empty(max(self.lt[1].shape[0], 1))
         dn = np.zeros((len(self.specular), 3), np.float32)
         dn[:, 2] = 1.0
-        lobes = (*self.lobes[:9], dn)
+        # where a material's lobe choice follows the view, the kernel rewrites its select rows: a copy per call
+        select = self.lobes[5].copy() if self.view_select.any() else self.lobes[5]
+        lobes = (*self.lobes[:5], select, *self.lobes[6:9], dn)
         if want_aovs:
             first = (np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32), np.full(n, np.inf, np.float32))
             aov_args = (np.ascontiguousarray(t_start, np.float32), np.ascontiguousarray(depth_scale, np.float32),
@@ -216,7 +220,7 @@ class FusedTracer:
                     np.ascontiguousarray(raster_y, np.float64), np.ascontiguousarray(pinhole, np.float64),
                     self.intersect1, self.occluded1, self.scene,
                     ps.tri_vertices, ps.face_normals, ps.kernel_corner_normals, ps.kernel_smooth, ps.tri_magnitude,
-                    ps.material_index, self.specular, lobes,
+                    ps.material_index, self.specular, lobes, self.view_select, self.select_scale,
                     self.multiscatter, self.tabs, ps.has_nondelta, ps.materials.has_transmission,
                     np.ascontiguousarray(ps.materials.emission, np.float32), self.emitters, self.lt, self.per_point,
                     self.n_matters, self.has_emission, self.seed_key, self.set_keys, self.dim_keys, self.tables,

@@ -1186,6 +1186,8 @@ class PathTracer:
                 aov_path.record(idx, aov_rows, aov_out, lobes)
             if ps.specular.any():  # where a specular material's normal was tilted, the diffuse lobes keep it untilted
                 lobes.diffuse_normal = np.ascontiguousarray(g.dn)
+            # the lobe choice for this view, before anything reads it (core.bsdf.select_for_view)
+            bsdf_mod.select_for_view(lobes, g.wo, g.cos_o_geo < 0, mat, ps.materials)
             if features is not None:
                 features.record(idx, lobes, g.wo, g.n_view)
             if data_path is not None:
