@@ -824,6 +824,21 @@ def albedo_batch(lobes, multiscatter, tabs, wo, use_wo, out):
 
 
 @_inline
+def _normalise_select(kind, select, k, tot):
+    """Divide row k's lobe weights (float32, summing to tot) by their sum; a black material (tot 0) picks among
+    its present lobes uniformly (their weights are 0 anyway)."""
+    L = kind.shape[1]
+    if not tot > _F32_0:
+        tot = _F32_0
+        for l in range(L):
+            select[k, l] = _F32_1 if kind[k, l] >= 0 else _F32_0
+            tot = np.float32(tot + select[k, l])
+        tot = max(tot, _F32_1)
+    for l in range(L):
+        select[k, l] = np.float32(select[k, l] / tot)
+
+
+@_inline
 def _select_row(kind, weight, scale, m, k, select):
     """Lobe-choice probabilities of hit k (float32): mean colour x albedo estimate (scale[m, l]), normalised over
     the present lobes; a black material picks among its lobes uniformly (their weights are 0 anyway)."""
@@ -833,14 +848,7 @@ def _select_row(kind, weight, scale, m, k, select):
         s = np.float32(np.float32(weight[k, l, 0] + weight[k, l, 1]) + weight[k, l, 2]) * scale[m, l]
         select[k, l] = s
         tot = np.float32(tot + s)
-    if not tot > _F32_0:
-        tot = _F32_0
-        for l in range(L):
-            select[k, l] = _F32_1 if kind[k, l] >= 0 else _F32_0
-            tot = np.float32(tot + select[k, l])
-        tot = max(tot, _F32_1)
-    for l in range(L):
-        select[k, l] = np.float32(select[k, l] / tot)
+    _normalise_select(kind, select, k, tot)
 
 
 @_inline
@@ -899,14 +907,7 @@ def view_select_row(lobes, row, multiscatter, tabs, mu, scale, m):
                         * np.float32(a))
         select[row, l] = sv
         tot = np.float32(tot + sv)
-    if not tot > _F32_0:  # a black material: uniform over its lobes, as _select_row
-        tot = _F32_0
-        for l in range(kind.shape[1]):
-            select[row, l] = _F32_1 if kind[row, l] >= 0 else _F32_0
-            tot = np.float32(tot + select[row, l])
-        tot = max(tot, _F32_1)
-    for l in range(kind.shape[1]):
-        select[row, l] = np.float32(select[row, l] / tot)
+    _normalise_select(kind, select, row, tot)
 
 
 @_jit
