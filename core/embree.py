@@ -27,6 +27,7 @@ import ctypes
 import ctypes.util
 import glob
 import os
+import platform
 import threading
 from typing import Iterator
 
@@ -182,11 +183,19 @@ def _library_candidates() -> Iterator[str]:
         yield system
 
 
+# The widest instruction set the device may use. Embree's AVX2 and AVX-512 kernels round some hits differently
+# (another image hash), so a device left to choose renders other bits on a CPU with AVX-512 than on the many with
+# AVX2 only, and the golden images (tests/test_golden_images.py) would hold on one kind alone. Capped, every x86-64
+# CPU with AVX2 renders the same bits, at the same speed here (docs/performance.md, "Embree's ISA").
+DEVICE_CONFIG = "max_isa=avx2" if platform.machine().lower() in ("x86_64", "amd64") else ""
+
+
 class EmbreeLibrary:
     """The Embree 4 C API through ctypes: one device per process, scenes over shared NumPy buffers, and the
     addresses of rtcIntersect1 / rtcOccluded1 for the compiled trace loops."""
 
-    def __init__(self, path: str) -> None:
+    def __init__(self, path: str, config: str = DEVICE_CONFIG) -> None:
+        """path: the Embree 4 library; config: the device's configuration string (Embree's rtcNewDevice)."""
         lib = ctypes.CDLL(path)
         p = ctypes.c_void_p
         for name, restype, argtypes in (
@@ -211,7 +220,8 @@ class EmbreeLibrary:
         self._lib = lib
         self.intersect1 = ctypes.cast(lib.rtcIntersect1, ctypes.c_void_p).value
         self.occluded1 = ctypes.cast(lib.rtcOccluded1, ctypes.c_void_p).value
-        self.device = lib.rtcNewDevice(None)
+        self.config = config
+        self.device = lib.rtcNewDevice(config.encode() if config else None)
         if not self.device:
             raise OSError(f"rtcNewDevice failed in {path}")
 

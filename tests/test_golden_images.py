@@ -13,12 +13,18 @@ A change that is meant to change images regenerates the fingerprints (and says w
 The kernels use no fast-math, and the same fingerprints come out of Python 3.11 / NumPy 1.26.4 / numba 0.62.1
 and Python 3.13 / NumPy 2.5.5 / numba 0.68.1 (x86-64): an environment that renders other bits is a finding to
 look into before regenerating. The stored means give a readable hint of how far a failing image moved.
+
+They also hold on any x86-64 CPU with AVX2, with or without AVX-512. The kernels compile for one level
+(core.jit_cache: x86-64-v3), Embree's device is capped at AVX2 (core.embree.DEVICE_CONFIG), and NumPy's AVX-512
+loops give the same bits as its AVX2 ones, which the last test checks by turning them off.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -103,7 +109,37 @@ def test_every_case_has_a_fingerprint():
     assert sorted(_stored()) == sorted(CASES)
 
 
+PORTABLE_CASES = ("cornell", "spheres-sky")  # NumPy's transcendental functions (the sky) and the film
+
+
+def _avx512_dispatch() -> list[str]:
+    """NumPy's dispatch targets that use AVX-512 on this CPU (its names differ between versions)."""
+    try:
+        from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    except ImportError:  # NumPy 1.x
+        from numpy.core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    return [t for t in __cpu_dispatch__ if ("AVX512" in t or t == "X86_V4") and __cpu_features__.get(t)]
+
+
+def test_numpy_s_avx512_loops_render_the_same_bits():
+    """Without NumPy's AVX-512 loops (as on a CPU that has only AVX2) the same fingerprints come out."""
+    targets = _avx512_dispatch()
+    if not targets:
+        pytest.skip("this CPU runs none of NumPy's AVX-512 loops: nothing to turn off")
+    env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": " ".join(targets)}
+    done = subprocess.run([sys.executable, __file__, "--print", *PORTABLE_CASES], env=env, capture_output=True,
+                          text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    got, stored = json.loads(done.stdout.splitlines()[-1]), _stored()
+    for case in PORTABLE_CASES:
+        changed = [k for k in stored[case] if k != "mean_rgb" and got[case][k] != stored[case][k]]
+        assert not changed, f"{case} without NumPy's {targets}: {', '.join(changed)} changed"
+
+
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--print"]:  # the fingerprints of the named cases, as one JSON line
+        print(json.dumps({case: _fingerprint(case) for case in sys.argv[2:]}))
+        sys.exit(0)
     if sys.argv[1:] != ["--regenerate"]:
         sys.exit("usage: tests/test_golden_images.py --regenerate")
     GOLDEN.parent.mkdir(exist_ok=True)
