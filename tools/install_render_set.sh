@@ -19,9 +19,19 @@ venv=${1:?usage: install_render_set.sh VENV PYTHON REQUIREMENTS}
 python=${2:?usage: install_render_set.sh VENV PYTHON REQUIREMENTS}
 requirements=${3:?usage: install_render_set.sh VENV PYTHON REQUIREMENTS}
 
-# PYTHON's pip can install into another interpreter's environment (pip 22.3 added --python)
+# PYTHON's pip can install into another interpreter's environment (pip 22.3 added --python); asked once (an
+# interpreter start, ~25 ms)
+base_pip_answer=
 base_pip_installs_into_venvs() {
-  "$python" -c "import sys, pip; sys.exit(tuple(map(int, pip.__version__.split('.')[:2])) < (22, 3))" 2>/dev/null
+  if [ -z "$base_pip_answer" ]; then
+    if "$python" -c "import sys, pip; sys.exit(tuple(map(int, pip.__version__.split('.')[:2])) < (22, 3))" \
+        2>/dev/null; then
+      base_pip_answer=yes
+    else
+      base_pip_answer=no
+    fi
+  fi
+  [ "$base_pip_answer" = yes ]
 }
 
 if [ ! -x "$venv/bin/python" ]; then
