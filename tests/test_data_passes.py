@@ -165,8 +165,8 @@ def test_passes_look_through_a_transparent_bsdf_as_cycles():
     assert abs(cov[behind] - 0.7) < 4 * np.sqrt(0.21 / spp / mist.size) + 1e-4
     # the single-sample passes: the back surface where sample 0 went through (probability 0.7), else the front
     z = p["Position"][left][..., 2]
-    back = z == 1.0
-    assert np.all(back | (z == 7.0)) and abs(back.mean() - 0.7) < 4 * np.sqrt(0.21 / z.size)
+    back = np.abs(z - 1.0) < 1e-5  # (the hit's t, rounded by Embree, puts a point an ulp or so off the plane)
+    assert np.all(back | (np.abs(z - 7.0) < 1e-5)) and abs(back.mean() - 0.7) < 4 * np.sqrt(0.21 / z.size)
     assert np.all(p["Object Index"][left][..., 0] == np.where(back, 0, 3))
     assert np.all(p["Material Index"][left][..., 0] == np.where(back, 5, 2))
     # UV only where a sample reached an opaque enough surface: the back one, 0.7 of the samples
