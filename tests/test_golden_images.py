@@ -89,6 +89,11 @@ def _stored() -> dict:
     return json.loads(GOLDEN.read_text())
 
 
+def _changed(expected: dict, got: dict) -> list[str]:
+    """The arrays whose fingerprints differ."""
+    return [k for k in expected if k != "mean_rgb" and got[k] != expected[k]]
+
+
 def _needs(source: str):
     if source == "bpy":
         pytest.importorskip("bpy")
@@ -100,7 +105,7 @@ def test_image_is_bit_identical(case):
     _needs(source)
     expected = _stored()[case]
     got = _fingerprint(case)
-    changed = [k for k in expected if k != "mean_rgb" and got[k] != expected[k]]
+    changed = _changed(expected, got)
     assert not changed, (f"{case}: {', '.join(changed)} changed; mean RGB {got['mean_rgb']} "
                          f"(stored {expected['mean_rgb']})")
 
@@ -132,7 +137,7 @@ def test_numpy_s_avx512_loops_render_the_same_bits():
     assert done.returncode == 0, done.stderr[-2000:]
     got, stored = json.loads(done.stdout.splitlines()[-1]), _stored()
     for case in PORTABLE_CASES:
-        changed = [k for k in stored[case] if k != "mean_rgb" and got[case][k] != stored[case][k]]
+        changed = _changed(stored[case], got[case])
         assert not changed, f"{case} without NumPy's {targets}: {', '.join(changed)} changed"
 
 
