@@ -37,6 +37,14 @@ def cornell_soup():
     return prepared, origins, directions, tmax
 
 
+@pytest.fixture
+def uncapped_embree(monkeypatch):
+    """The process's Embree library replaced by one whose device takes Embree's own choice of instruction set
+    (core.embree.DEVICE_CONFIG caps it), as embreex's device does."""
+    library, _ = embree.load()
+    monkeypatch.setattr(embree, "_library", embree.EmbreeLibrary(library.path, config=""))
+
+
 def test_the_direct_embree_backend_loads_from_the_embreex_wheel():
     library, why_not = embree.load()
     assert why_not is None and library is not None
@@ -67,10 +75,8 @@ def test_tmax_bounds_closest_hits_and_occlusion(backend):
     assert accel.rays_shadow == 3
 
 
-def test_direct_backend_is_bit_identical_to_embreex(cornell_soup, monkeypatch):
+def test_direct_backend_is_bit_identical_to_embreex(cornell_soup, uncapped_embree):
     # embreex's device takes Embree's own choice of instruction set; the direct one, configured alike, matches it
-    library, _ = embree.load()
-    monkeypatch.setattr(embree, "_library", embree.EmbreeLibrary(library.path, config=""))
     prepared, origins, directions, tmax = cornell_soup
     direct = Accelerator(prepared.vertices, prepared.triangles, backend="embree")
     wrapper = Accelerator(prepared.vertices, prepared.triangles, backend="embreex")
@@ -97,13 +103,12 @@ def test_the_device_is_capped_at_avx2_on_x86_64():
     assert library.config == ("max_isa=avx2" if x86 else "")
 
 
-def test_the_capped_device_hits_what_embree_s_own_choice_hits(cornell_soup, monkeypatch):
+def test_the_capped_device_hits_what_embree_s_own_choice_hits(cornell_soup, request):
     """The cap changes rounding (on these rays, with AVX-512, ~6 % of the hits move by an ulp or two), never which
     triangle a ray hits."""
     prepared, origins, directions, tmax = cornell_soup
     capped = Accelerator(prepared.vertices, prepared.triangles, backend="embree").intersect(origins, directions, tmax)
-    library, _ = embree.load()
-    monkeypatch.setattr(embree, "_library", embree.EmbreeLibrary(library.path, config=""))
+    request.getfixturevalue("uncapped_embree")
     own = Accelerator(prepared.vertices, prepared.triangles, backend="embree").intersect(origins, directions, tmax)
     np.testing.assert_array_equal(capped.prim, own.prim)
     hit = own.prim >= 0
