@@ -39,6 +39,7 @@ import sys
 import threading
 import warnings
 import weakref
+from typing import Callable
 
 
 class _YamlOnUse:
@@ -114,6 +115,7 @@ NUMBA_IMPORTED_WITHOUT_SCIPY = _import_numba_without_scipy_version_check()
 
 import numba  # noqa: E402
 from numba.core import caching  # noqa: E402
+from numba.core import event as numba_events  # noqa: E402
 
 _CORE_DIR = os.path.dirname(os.path.abspath(__file__))
 KERNEL_CPU_ENV = "MONTE_KERNEL_CPU"  # "auto" (the default), "generic", "x86-64-v3" or "host"
@@ -1353,3 +1355,77 @@ def compile_cache_is_cold(with_node_programs: bool = False) -> bool:
 
 
 _cache_warm = {False: False, True: False}
+
+
+def _is_cached_monte_kernel(dispatcher) -> bool:
+    """Whether a numba dispatcher is one of Monte's kernels with a disk cache (a compile of it is a cache miss
+    that the next process will not repeat), not one of its uncached helpers or another package's function."""
+    module = getattr(getattr(dispatcher, "py_func", None), "__module__", None) or ""
+    if not module.startswith(_PACKAGE_PREFIX):
+        return False
+    return not isinstance(dispatcher.__dict__.get("_cache"), (type(None), caching.NullCache))
+
+
+_PACKAGE_PREFIX = __name__.rsplit(".", 2)[0] + "."  # "monte." (or "bl_ext.<repository>.monte.")
+
+
+class _CompileNotices(numba_events.Listener):
+    """numba's "numba:compile" events relayed to the render calls under way, each told once. numba fires the event
+    only when a signature is compiled because no cache entry held it, on the thread that compiles (a render's
+    worker). compile_cache_is_cold sees only whether a kernel module has any cache index: a scene whose kernels the
+    cache lacks in a cache that is not cold (a built-in scene other than the Cornell box after `make render`'s
+    shipped kernels, a feature no earlier render used) compiled silently for ~10 s before its first progress."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._waiting: list[Callable[[str], None]] = []
+
+    def wait(self, say: Callable[[str], None]) -> None:
+        with self._lock:
+            self._waiting.append(say)
+
+    def done(self, say: Callable[[str], None]) -> None:
+        with self._lock:
+            if say in self._waiting:
+                self._waiting.remove(say)
+
+    def on_start(self, event) -> None:
+        if not self._waiting:
+            return
+        dispatcher = (event.data or {}).get("dispatcher")
+        if not _is_cached_monte_kernel(dispatcher):
+            return
+        with self._lock:
+            waiting, self._waiting = self._waiting, []
+        name = f"{dispatcher.py_func.__module__.rsplit('.', 1)[-1]}.{dispatcher.py_func.__name__}"
+        for say in waiting:
+            try:
+                say(f"compiling the render kernels this scene needs that the kernel cache does not hold yet "
+                    f"({name} first; once, cached after)")
+            except Exception:  # a notice must not fail the compile it announces (numba holds its lock here)
+                pass
+
+    def on_end(self, event) -> None:
+        pass
+
+
+_COMPILE_NOTICES = _CompileNotices()
+_COMPILE_NOTICES_REGISTERED: list[bool] = []
+
+
+@contextlib.contextmanager
+def compile_notices(say: Callable[[str], None] | None):
+    """While the block runs, the first compile of a cached Monte kernel (on any thread) calls `say` once with a
+    line naming it; None does nothing. say must be callable from a worker thread."""
+    if say is None:
+        yield
+        return
+    with _CACHES_MADE:
+        if not _COMPILE_NOTICES_REGISTERED:
+            numba_events.register("numba:compile", _COMPILE_NOTICES)
+            _COMPILE_NOTICES_REGISTERED.append(True)
+    _COMPILE_NOTICES.wait(say)
+    try:
+        yield
+    finally:
+        _COMPILE_NOTICES.done(say)

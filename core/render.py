@@ -31,7 +31,7 @@ from .integrator import (DIM_FILM, DIM_LENS, DIM_TIME, CatcherSamples, Denoising
                          PathTracer, PreparedScene)
 from .motion import moving_camera_rays, rolling_shutter_times, shutter_times
 from .shading.vector_context import camera_differentials
-from .jit_cache import compile_cache_is_cold
+from .jit_cache import compile_cache_is_cold, compile_notices
 from .light_groups import LightGroupSamples, pass_name
 from .light_passes import LightPassSamples
 from .memory import check_render_memory
@@ -188,15 +188,18 @@ def render(
     """
     t_start = time.perf_counter()
     say = log or _silent
-    region = _check_inputs(scene, settings, region, say, camera_only=prepared is not None)
-    if prepared is None:
-        prepared, accel, t_prepare = _prepare(scene, settings, say)
-    else:
-        (prepared, accel), t_prepare = prepared, 0.0
-        prepared.update_camera(scene.camera)  # a moved camera (the viewport's): what Camera / Window nodes read
-    job = _TileRender(scene, settings, prepared, accel, region, tile_order, t_start,
-                      on_tile, on_progress, should_cancel)
-    job.run()
+    region = _check_inputs(scene, settings, region, camera_only=prepared is not None)
+    # A cold cache is said before the work; otherwise the first kernel this scene needs that the cache lacks says
+    # so when it starts compiling (a worker thread calls `say` then), rather than leaving the render silent.
+    with compile_notices(None if say is _silent or _said_cache_cold(scene, say) else say):
+        if prepared is None:
+            prepared, accel, t_prepare = _prepare(scene, settings, say)
+        else:
+            (prepared, accel), t_prepare = prepared, 0.0
+            prepared.update_camera(scene.camera)  # a moved camera (the viewport's): what Camera / Window nodes read
+        job = _TileRender(scene, settings, prepared, accel, region, tile_order, t_start,
+                          on_tile, on_progress, should_cancel)
+        job.run()
     return job.result(t_prepare, say)
 
 
@@ -238,7 +241,7 @@ def render_samples(scene: Scene, settings: RenderSettings, work: SampleRanges, *
     prepared: the scene's (PreparedScene, Accelerator) when the caller keeps them between calls (built here
     otherwise). No time limit, progress or cancel: a range is the unit of work a scheduler cancels.
     """
-    region = _check_inputs(scene, settings, region, _silent)
+    region = _check_inputs(scene, settings, region)
     if settings.time_limit > 0:  # a range always runs to its end (a time limit is the caller's to apply)
         settings = settings.replace(time_limit=0.0)
     if prepared is None:
@@ -522,14 +525,23 @@ def _silent(_msg: str) -> None:
     pass
 
 
-def _check_inputs(scene: Scene, settings: RenderSettings, region, say, camera_only: bool = False) -> TileRect:
+def _said_cache_cold(scene: Scene, say: Callable[[str], None]) -> bool:
+    """Say that the render compiles the kernels first when the kernel cache is cold (reads the cache folder, so
+    only when there is someone to tell); True when said."""
+    if say is _silent:
+        return False
+    programs = any(getattr(m, "program", None) is not None for m in scene.materials)
+    if not compile_cache_is_cold(programs):
+        return False
+    say("compiling the render kernels (first render after an install or update, about a minute; cached after)")
+    return True
+
+
+def _check_inputs(scene: Scene, settings: RenderSettings, region, camera_only: bool = False) -> TileRect:
     """Validate the settings, the scene (camera_only: its camera; the rest was validated when it was prepared)
     and the region (the whole frame when None), and refuse a render that would not fit in memory (a clear error
     instead of an out-of-memory kill). Returns the region."""
     settings.validate()
-    programs = any(getattr(m, "program", None) is not None for m in scene.materials)
-    if say is not _silent and compile_cache_is_cold(programs):  # reads the cache folder: only when it is said
-        say("compiling the render kernels (first render after an install or update, about a minute; cached after)")
     if camera_only:
         scene.camera.validate()
     else:

@@ -179,6 +179,52 @@ def test_cancel_stops_within_a_batch_and_keeps_a_valid_partial_image(tmp_path, p
     assert abs(img[..., 0].mean() - full[..., 0].mean()) < 0.05 * full[..., 0].mean()
 
 
+def test_a_kernel_compile_during_a_render_reaches_the_status_bar(tmp_path, patch_engine):
+    """A render whose scene needs a kernel the cache lacks says so when the compile starts (numba's
+    "numba:compile" event, fired by a worker thread, as a render's worker compiles): the engine's log prints it and
+    shows it in the status bar (update_stats), from that thread, without an error, and the render completes."""
+    import threading
+
+    from numba.core import event as numba_events
+
+    from monte.core import embree
+
+    scene = bf.plane_under_world(resolution=(16, 16))
+    scene.monte.samples = 4
+    logged, failed, fired = [], [], []
+    original_progress, original_log = Engine._progress, Engine._log
+
+    def compile_on_a_worker() -> None:
+        with numba_events.trigger_event("numba:compile", data={"dispatcher": embree.trace_closest, "args": (),
+                                                               "return_type": None}):
+            pass
+
+    def progress(self, p):
+        if not fired:
+            worker = threading.Thread(target=compile_on_a_worker)
+            worker.start()
+            worker.join()
+            fired.append(True)
+        original_progress(self, p)
+
+    def log(self, message):
+        try:
+            original_log(self, message)  # prints, and for a compile notice calls update_stats
+        except BaseException as exc:  # (the notice's caller swallows errors: record them here)
+            failed.append(repr(exc))
+            raise
+        logged.append((message, threading.current_thread() is threading.main_thread()))
+
+    patch_engine("_progress", progress)
+    patch_engine("_log", log)
+    ch = render_still(scene, tmp_path)
+    notices = [entry for entry in logged if "kernel cache does not hold" in entry[0]]
+    assert notices == [("compiling the render kernels this scene needs that the kernel cache does not hold yet "
+                        "(embree.trace_closest first; once, cached after)", False)], logged
+    assert failed == []
+    assert np.allclose(rgb(ch), 0.5, atol=1e-5)
+
+
 def test_cancel_during_export_leaves_a_black_image_and_no_crash(tmp_path, patch_engine):
     scene = bf.plane_under_world(resolution=(8, 8))
     for i in range(1100):  # enough instances that the export polls for cancel

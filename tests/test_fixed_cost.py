@@ -428,3 +428,74 @@ def test_a_headless_render_imports_nothing_it_does_not_use(tmp_path):
     assert lines, proc.stdout[-3000:]
     assert json.loads(lines[-1][len("RESULT "):]) == {"status": 0, "imported": [], "numba": True}
     assert out.is_file()
+
+
+def test_a_render_says_when_it_compiles_a_kernel_the_cache_lacks():
+    """A render whose cache is not cold but lacks a kernel the scene needs (a built-in scene other than the Cornell
+    box after `make render`'s shipped kernels) says so once, when numba starts compiling it (numba's
+    "numba:compile" event: fired on cache misses only, here triggered on the render's thread with one of Monte's
+    cached kernels); nothing is said after the render, nor for another package's function."""
+    import numba
+    from numba.core import event as numba_events
+
+    from monte.core import builtin_scenes, embree
+    from monte.core.render import render
+    from monte.core.settings import RenderSettings
+
+    messages: list[str] = []
+    plain = numba.njit(lambda x: x)
+
+    def compile_event(dispatcher) -> None:
+        with numba_events.trigger_event("numba:compile", data={"dispatcher": dispatcher, "args": (),
+                                                               "return_type": None}):
+            pass
+
+    def progress(_p) -> None:
+        compile_event(plain)
+        compile_event(embree.trace_closest)
+        compile_event(embree.trace_closest)
+
+    scene = builtin_scenes.builtin_scene("plane-world", (8, 8))
+    render(scene, RenderSettings(spp=1, threads=1), on_progress=progress, log=messages.append)
+    notices = [m for m in messages if m.startswith("compiling")]
+    assert notices == ["compiling the render kernels this scene needs that the kernel cache does not hold yet "
+                       "(embree.trace_closest first; once, cached after)"], messages
+    compile_event(embree.trace_closest)
+    assert [m for m in messages if m.startswith("compiling")] == notices
+
+
+def test_a_real_compile_of_a_kernel_is_said_and_a_cached_one_is_not(tmp_path):
+    """The compile notice on a real cache miss: under an import name of its own (its own, empty kernel cache
+    folder), the first process compiles Embree's closest-hit kernel and is told once; the next process loads it
+    from the cache and is told nothing (nor for a function numba compiles that is not Monte's)."""
+    import shutil
+    from pathlib import Path
+
+    root = Path(jit_cache.__file__).resolve().parent.parent
+    (tmp_path / "montenotice").symlink_to(root, target_is_directory=True)
+    cache = root / "core" / "__pycache__" / "numba-montenotice.core"
+    shutil.rmtree(cache, ignore_errors=True)
+    code = f"""
+        import json, sys
+        sys.path.insert(0, {str(tmp_path)!r})
+        sys.modules["monte"] = None
+        import numba
+        import numpy as np
+        from montenotice.core import jit_cache
+        from montenotice.core.accel import Accelerator
+        told = []
+        with jit_cache.compile_notices(told.append):
+            numba.njit(lambda x: x + 1)(1)
+            accel = Accelerator(np.array([[0, 0, 1], [2, 0, 1], [0, 2, 1]], np.float32),
+                                np.array([[0, 1, 2]], np.int32))
+            hits = accel.intersect(np.array([[0.5, 0.5, 0]], np.float32), np.array([[0, 0, 1]], np.float32))
+        print("RESULT " + json.dumps({{"told": told, "prim": int(hits.prim[0])}}))
+    """
+    try:
+        first, second = _python(code, cwd=str(tmp_path)), _python(code, cwd=str(tmp_path))
+    finally:
+        shutil.rmtree(cache, ignore_errors=True)
+    assert first["prim"] == second["prim"] == 0
+    assert len(first["told"]) == 1 and first["told"][0].startswith(
+        "compiling the render kernels this scene needs that the kernel cache does not hold yet ("), first
+    assert second["told"] == [], second
