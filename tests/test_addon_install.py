@@ -115,6 +115,7 @@ SCRIPT = textwrap.dedent(r"""
         "textured_render": sorted(textured_render), "textured_mean_rgb": textured_px[..., :3].mean(),
         "textured_kernels": textured_kernels, "feature_kernels": feature_kernels,
         "distributed_import": distributed_import,
+        "kernel_cpu": sys.modules["bl_ext.user_default.monte.core.jit_cache"].KERNEL_CPU,
     }))
 """).replace("# PLANE_SCENE\n", PLANE_SCENE)  # the plane under a white world (tests/plane_scene.py)
 
@@ -247,18 +248,36 @@ def test_kept_kernel_builds_are_replaced_whole_and_only_the_newest_stay(tmp_path
     assert kept == list(range(2, build.KEPT_KERNEL_BUILDS + 2))
 
 
-def test_zip_installs_enables_and_renders(built_zip, tmp_path):
+def _install_and_render(built_zip: Path, tmp_path: Path, **env_vars: str) -> dict:
+    """SCRIPT in a new Blender process with an empty user folder: what installing the zip and two first renders
+    gave."""
     user = tmp_path / "user"
     out = tmp_path / "out"
     user.mkdir()
     out.mkdir()
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(user))
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != "MONTE_KERNEL_CPU"}
+    env.update(BLENDER_USER_RESOURCES=str(user), **env_vars)
     env.pop("PYTHONPATH", None)
     proc = subprocess.run([sys.executable, "-c", SCRIPT, str(built_zip), str(out)], capture_output=True, text=True,
                           timeout=600, env=env, cwd=str(tmp_path))
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
     assert proc.returncode == 0 and lines, f"exit {proc.returncode}\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
-    result = json.loads(lines[-1][len("RESULT "):])
+    return json.loads(lines[-1][len("RESULT "):])
+
+
+def _host_kernel_level() -> str:
+    """The CPU level this machine's kernels are compiled for by default (core.jit_cache.level_kernel_cpu)."""
+    import llvmlite.binding as ll
+
+    from monte.core.jit_cache import level_kernel_cpu
+
+    return level_kernel_cpu(ll.get_process_triple(), dict(ll.get_host_cpu_features()))
+
+
+def test_zip_installs_enables_and_renders(built_zip, tmp_path):
+    result = _install_and_render(built_zip, tmp_path)
+    user = tmp_path / "user"
+    assert result["kernel_cpu"] == _host_kernel_level()
     assert result["install"] == ["FINISHED"]
     assert "MONTE" in result["engines"]
     # The engine came from the installed zip, not from this checkout.
@@ -287,6 +306,22 @@ def test_zip_installs_enables_and_renders(built_zip, tmp_path):
     common = (ROOT / "requirements" / "common.txt").read_text().splitlines()
     pinned = next(line.split("==")[1].strip() for line in common if line.startswith("distributed=="))
     assert version == pinned and where.startswith(str(user)), result["distributed_import"]
+
+
+def test_a_cpu_without_avx2_loads_the_zip_s_generic_kernels(built_zip, tmp_path):
+    """The zip carries the kernels for this machine's CPU level and for the architecture's generic one (the build's
+    --kernel-cpu all): a CPU without x86-64-v3's AVX2, FMA and BMI2 (here: MONTE_KERNEL_CPU=generic, the level such
+    a CPU picks) loads them too, and its first renders after installing compile nothing."""
+    if _host_kernel_level() == "generic":
+        pytest.skip("this machine's kernels are the generic level already (test_zip_installs_enables_and_renders)")
+    result = _install_and_render(built_zip, tmp_path, MONTE_KERNEL_CPU="generic")
+    assert result["kernel_cpu"] == "generic"
+    assert result["render"] == ["FINISHED"] and result["textured_render"] == ["FINISHED"]
+    assert result["kernels"]["compiled"] == 0 and result["kernels"]["loaded"] > 0, result["kernels"]
+    assert result["textured_kernels"]["compiled"] == 0, result["textured_kernels"]
+    assert all(compiled == 0 for _, compiled in result["feature_kernels"].values()), result["feature_kernels"]
+    assert result["mean_rgb"] == pytest.approx(0.5, abs=0.03)
+    assert result["textured_mean_rgb"] == pytest.approx(0.5, abs=0.03)
 
 
 # Imports the unpacked extension as Blender names it, with the render's wheels (unpacked as Blender unpacks

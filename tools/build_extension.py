@@ -16,10 +16,10 @@ add-on (the package __init__.py, core/, addon/, the manifest, LICENSE, its wheel
 
 The zip for the platform the build runs on also carries the compiled render kernels (numba's cache, built by
 core/precompile.py under the name Blender imports the extension as, bl_ext.user_default.monte, for the CPU
-level --kernel-cpu names (auto, the default: this machine's, x86-64-v3 on any recent x86-64 CPU; generic for
-older ones) and keyed by the sources' contents), so the first render after installing does not compile: for this
-interpreter's Python, and for each --kernel-python interpreter (e.g. a Python 3.11 environment with the
-manifest's numba, for Blender 4.2 - 5.0). Zips for other platforms compile on their first render.
+levels --kernel-cpu names (all, the default: this machine's, x86-64-v3 on any recent x86-64 CPU, and generic,
+for CPUs without AVX2; or one level) and keyed by the sources' contents), so the first render after installing
+does not compile: for this interpreter's Python, and for each --kernel-python interpreter (e.g. a Python 3.11
+environment with the manifest's numba, for Blender 4.2 - 5.0). Zips for other platforms compile on their first render.
 
 Every zip also carries Python bytecode, for each Python the manifest's wheels are for (3.11: Blender 4.2 - 5.0,
 3.13: Blender 5.3), compiled by an interpreter of that version (this one, a --kernel-python, a --bytecode-python,
@@ -297,13 +297,31 @@ def keep_kernel_build(cache: Path, names: list[str], key: str) -> None:
         log(f"kernel cache: not kept for later builds ({exc})")
 
 
+def kernel_levels(python: str, root: Path, env: dict, kernel_cpu: str) -> list[str]:
+    """The CPU levels (core.jit_cache's MONTE_KERNEL_CPU values) to compile the shipped kernels for with `python`:
+    kernel_cpu itself, or for "all" the level this machine's `auto` picks and then "generic" where that differs
+    (x86-64-v3 and generic on a recent x86-64 machine: a user's CPU without AVX2 then loads the generic ones
+    instead of compiling). A level above this machine's cannot be compiled here: precompiling runs the kernels."""
+    if kernel_cpu != "all":
+        return [kernel_cpu]
+    code = (f"import sys; sys.path.insert(0, {str(root)!r}); "
+            f"from {BLENDER_PACKAGE}.core import jit_cache; print(jit_cache.KERNEL_CPU)")
+    proc = subprocess.run([python, "-c", code], capture_output=True, text=True,
+                          env={**env, "MONTE_KERNEL_CPU": "auto"}, cwd=root)
+    own = proc.stdout.strip().splitlines()[-1] if proc.returncode == 0 and proc.stdout.strip() else "generic"
+    return [own] if own == "generic" else [own, "generic"]
+
+
 def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str, reuse: bool = True,
-                       kernel_cpu: str = "auto") -> bool:
+                       kernel_cpu: str = "all") -> bool:
     """Compile every render kernel of the staged copy `src` with `python` into src/KERNEL_CACHE_DIR, for the CPU
-    level kernel_cpu (core.jit_cache's MONTE_KERNEL_CPU: auto, generic or x86-64-v3). Skipped, with a note, when
+    levels kernel_cpu names (kernel_levels: all, the default, is this machine's level and generic; or one of
+    core.jit_cache's MONTE_KERNEL_CPU values: auto, generic, x86-64-v3). The levels compile one after the other
+    into the one folder: numba's index file of a kernel module holds every level's entries, each keyed by the CPU
+    it was compiled for, and the loading process picks its own. Skipped, with a note, when
     that Python's numba is not the one the manifest bundles for it (the cache would not match the numba Blender
     installs). With `reuse`, a cache an earlier build compiled for
-    the same key (kernel_build_key: the same sources, interpreter, numba and llvmlite) is copied from
+    the same key (kernel_build_key of every level: the same sources, interpreter, numba and llvmlite) is copied from
     KERNEL_BUILDS instead of compiling again; what a build compiles is kept there either way. Returns whether a
     cache was built."""
     probe = subprocess.run([python, "-c", "import sys, numba; "
@@ -318,28 +336,33 @@ def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str, re
         log(f"kernel cache: skipped for Python {py_version} ({python}): it has numba {numba_version}, the zip "
             f"bundles {wanted or 'no numba'} for it on {platform}")
         return False
-    env = {k: v for k, v in os.environ.items()
-           if not k.startswith("NUMBA_") and k not in ("MONTE_KERNEL_CPU", "PYTHONPATH")}
-    env["PYTHONDONTWRITEBYTECODE"] = "1"  # the cache folders ship: no .pyc in them
-    env["MONTE_KERNEL_CPU"] = kernel_cpu
+    base_env = {k: v for k, v in os.environ.items()
+                if not k.startswith("NUMBA_") and k not in ("MONTE_KERNEL_CPU", "PYTHONPATH")}
+    base_env["PYTHONDONTWRITEBYTECODE"] = "1"  # the cache folders ship: no .pyc in them
     root = src.parent.parent.parent
+    levels = kernel_levels(python, root, base_env, kernel_cpu)
+    envs = [{**base_env, "MONTE_KERNEL_CPU": level} for level in levels]
     cache = src / KERNEL_CACHE_DIR
-    key = kernel_build_key(python, root, env)
+    level_keys = [kernel_build_key(python, root, env) for env in envs]
+    key = None if None in level_keys else (
+        level_keys[0] if len(level_keys) == 1 else hashlib.sha256("+".join(level_keys).encode()).hexdigest()[:24])
+    named = f"MONTE_KERNEL_CPU={' and '.join(levels)}"
     if reuse and key is not None and (KERNEL_BUILDS / key / "entry-kernels.json").is_file():
         shutil.copytree(KERNEL_BUILDS / key, cache, dirs_exist_ok=True)
         os.utime(KERNEL_BUILDS / key)  # (recently used: kept the longest)
-        log(f"kernel cache: Python {py_version}: the one an earlier build compiled for these sources, numba "
+        log(f"kernel cache: Python {py_version}, {named}: the one an earlier build compiled for these sources, numba "
             f"{numba_version} and this interpreter ({KERNEL_BUILDS / key}; --recompile-kernels compiles anew)")
         return True
     before = _files(cache)
     code = (f"import sys; sys.path.insert(0, {str(root)!r}); "
             f"from {BLENDER_PACKAGE}.core.precompile import main; sys.exit(main())")
-    log(f"kernel cache: compiling for Python {py_version} (numba {numba_version}) ...")
-    proc = subprocess.run([python, "-c", code], capture_output=True, text=True, env=env, cwd=root)
-    if proc.returncode != 0:
-        raise BuildError(f"compiling the kernel cache with {python} failed:\n{proc.stdout[-3000:]}\n"
-                         f"{proc.stderr[-3000:]}")
-    log(f"kernel cache: {proc.stdout.strip().splitlines()[-1]}")
+    for level, env in zip(levels, envs):
+        log(f"kernel cache: compiling for Python {py_version} (numba {numba_version}), MONTE_KERNEL_CPU={level} ...")
+        proc = subprocess.run([python, "-c", code], capture_output=True, text=True, env=env, cwd=root)
+        if proc.returncode != 0:
+            raise BuildError(f"compiling the kernel cache with {python} for {level} CPUs failed:\n"
+                             f"{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+        log(f"kernel cache: {proc.stdout.strip().splitlines()[-1]}")
     # The lock file its saves took (core/jit_cache.py: SAVE_LOCK_NAME) is not part of the cache; the staged copy
     # is this build's alone, so nothing else holds it now.
     (cache / "save.lock").unlink(missing_ok=True)
@@ -532,11 +555,13 @@ def main(argv: list[str] | None = None) -> int:
                              "3.11 with the manifest's numba, for Blender 4.2 - 5.0)")
     parser.add_argument("--no-kernel-cache", action="store_true",
                         help="ship no compiled kernels (the first render after installing compiles them)")
-    parser.add_argument("--kernel-cpu", choices=("auto", "generic", "x86-64-v3"), default="auto",
-                        help="the CPU level the shipped kernels are compiled for: auto (default: this machine's, "
-                             "x86-64-v3 on x86-64 CPUs with AVX2, FMA and BMI2, else generic), generic (runs on "
-                             "every CPU of the architecture, up to 7%% slower), or x86-64-v3; a machine of another "
-                             "level compiles the kernels on its first render")
+    parser.add_argument("--kernel-cpu", choices=("all", "auto", "generic", "x86-64-v3"), default="all",
+                        help="the CPU levels the shipped kernels are compiled for: all (default: this machine's "
+                             "level and generic, so every CPU of the architecture loads them: x86-64-v3 and "
+                             "generic on x86-64 CPUs with AVX2, FMA and BMI2, else generic alone), auto (this "
+                             "machine's alone), generic (runs on every CPU of the architecture, up to 7%% slower), "
+                             "or x86-64-v3; a machine of a level not shipped compiles the kernels on its first "
+                             "render")
     parser.add_argument("--recompile-kernels", action="store_true",
                         help="compile the shipped kernels even where an earlier build kept a cache for the same "
                              "sources, interpreter and numba (build/kernel-cache/)")
