@@ -7,7 +7,8 @@ empty Blender user folder (Blender's extension machinery, as tests/test_addon_in
 saved, as Blender saves them on quit), then runs fresh processes that each start the bpy module, read the saved
 preferences (which enables the installed extension: Blender does so as it starts, the bpy module when asked), open
 the .blend and press F12 twice (render with write_still): the first is the *cold* process (the first ever after installing: Python's bytecode for the
-extension is written then), the next ones *warm*. Prints, per process, the seconds from the process's start to
+extension is written then), the next ones *warm*. `--kernel-cpu generic` plays a CPU without AVX2 (the kernel
+level such a CPU loads or compiles). Prints, per process, the seconds from the process's start to
 the end of its first render, and each of its two render calls; nothing is asserted (a benchmark, not a test).
 """
 
@@ -91,6 +92,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spp", type=int, default=64)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--processes", type=int, default=3, help="render processes after installing (default 3)")
+    parser.add_argument("--kernel-cpu", choices=("auto", "generic", "x86-64-v3"), default="auto",
+                        help="MONTE_KERNEL_CPU of the processes after installing: generic plays a CPU without "
+                             "AVX2 (default auto: this machine's level)")
     args = parser.parse_args(argv)
     w, h = (int(v) for v in args.resolution.lower().split("x"))
     with tempfile.TemporaryDirectory(prefix="monte-first-render-") as tmp:
@@ -103,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         _child(_SAVE, str(blend), str(tmp_dir / "out.exr"), str(w), str(h), str(args.spp), str(args.threads),
                env=dict(base, PYTHONDONTWRITEBYTECODE="1", **({"PYTHONPATH": os.environ["PYTHONPATH"]}
                                                            if "PYTHONPATH" in os.environ else {})))
-        env = dict(base, BLENDER_USER_RESOURCES=str(user))  # a user's Python writes bytecode
+        env = dict(base, BLENDER_USER_RESOURCES=str(user), MONTE_KERNEL_CPU=args.kernel_cpu)  # (writes bytecode)
         t0 = time.perf_counter()
         _child(_INSTALL, str(Path(args.zip).resolve()), env=env)
         print(f"install (unzip, wheels, enable, save preferences): {time.perf_counter() - t0:.2f} s")
