@@ -27,7 +27,6 @@ import ctypes
 import ctypes.util
 import glob
 import os
-import platform
 import threading
 from typing import Iterator
 
@@ -183,11 +182,12 @@ def _library_candidates() -> Iterator[str]:
         yield system
 
 
-# The widest instruction set the device may use. Embree's AVX2 and AVX-512 kernels round some hits differently
-# (another image hash), so a device left to choose renders other bits on a CPU with AVX-512 than on the many with
-# AVX2 only, and the golden images (tests/test_golden_images.py) would hold on one kind alone. Capped, every x86-64
-# CPU with AVX2 renders the same bits, at the same speed here (docs/performance.md, "Embree's ISA").
-DEVICE_CONFIG = "max_isa=avx2" if platform.machine().lower() in ("x86_64", "amd64") else ""
+# The device's configuration: Embree's own choice of instruction set. Its AVX-512 code computes the same hits
+# on every CPU with AVX-512, Intel's and AMD's alike (its reciprocals are exact there), so images are the same bits
+# on all of them. Its AVX2 and SSE code starts from the CPU's approximate reciprocal (RCPPS), whose last bits
+# differ between CPU makers, so no cap makes all CPUs agree: a cap at AVX2 made Intel and AMD machines render
+# other bits (docs/performance.md, "Embree's ISA").
+DEVICE_CONFIG = ""
 
 
 class EmbreeLibrary:
