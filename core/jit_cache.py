@@ -1410,7 +1410,7 @@ class _CompileNotices(numba_events.Listener):
 
 
 _COMPILE_NOTICES = _CompileNotices()
-_COMPILE_NOTICES_REGISTERED: list[bool] = []
+numba_events.register("numba:compile", _COMPILE_NOTICES)  # (returns at once while no render waits)
 
 
 @contextlib.contextmanager
@@ -1420,10 +1420,6 @@ def compile_notices(say: Callable[[str], None] | None):
     if say is None:
         yield
         return
-    with _CACHES_MADE:
-        if not _COMPILE_NOTICES_REGISTERED:
-            numba_events.register("numba:compile", _COMPILE_NOTICES)
-            _COMPILE_NOTICES_REGISTERED.append(True)
     _COMPILE_NOTICES.wait(say)
     try:
         yield

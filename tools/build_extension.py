@@ -308,7 +308,9 @@ def kernel_levels(python: str, root: Path, env: dict, kernel_cpu: str) -> list[s
             f"from {BLENDER_PACKAGE}.core import jit_cache; print(jit_cache.KERNEL_CPU)")
     proc = subprocess.run([python, "-c", code], capture_output=True, text=True,
                           env={**env, "MONTE_KERNEL_CPU": "auto"}, cwd=root)
-    own = proc.stdout.strip().splitlines()[-1] if proc.returncode == 0 and proc.stdout.strip() else "generic"
+    if proc.returncode != 0 or not proc.stdout.strip():
+        return ["auto", "generic"]  # (the precompile itself will say what fails)
+    own = proc.stdout.strip().splitlines()[-1]
     return [own] if own == "generic" else [own, "generic"]
 
 
