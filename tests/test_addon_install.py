@@ -266,12 +266,10 @@ def _install_and_render(built_zip: Path, tmp_path: Path, **env_vars: str) -> dic
 
 
 def _host_kernel_level() -> str:
-    """The CPU level this machine's kernels are compiled for by default (core.jit_cache.level_kernel_cpu)."""
-    import llvmlite.binding as ll
+    """The CPU level this machine's kernels are compiled for by default (tests/test_jit_cache.py checks it)."""
+    from monte.core.jit_cache import _host_level
 
-    from monte.core.jit_cache import level_kernel_cpu
-
-    return level_kernel_cpu(ll.get_process_triple(), dict(ll.get_host_cpu_features()))
+    return _host_level()
 
 
 def test_zip_installs_enables_and_renders(built_zip, tmp_path):

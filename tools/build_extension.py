@@ -252,10 +252,11 @@ KERNEL_BUILDS = ROOT / "build" / "kernel-cache"  # earlier builds' compiled kern
 KEPT_KERNEL_BUILDS = 6  # the most recent ones kept
 
 
-def kernel_build_key(python: str, root: Path, env: dict) -> str | None:
-    """What a built kernel cache depends on, as one hex digest: the interpreter's full version, its numba's and
-    llvmlite's, the kernel CPU level, the platform, and the kernel sources' digest with the
-    numba options (core.jit_cache.sources_digest: numba's own cache key). None when the probe fails."""
+def kernel_build_key(python: str, root: Path, env: dict) -> tuple[str, str] | None:
+    """(the kernel CPU level env resolves to, what a built kernel cache depends on as one hex digest: the
+    interpreter's full version, its numba's and llvmlite's, that level, the platform, and the kernel sources'
+    digest with the numba options: core.jit_cache.sources_digest, numba's own cache key). None when the probe
+    fails."""
     code = (f"import sys; sys.path.insert(0, {str(root)!r}); import llvmlite, numba, platform; "
             f"from {BLENDER_PACKAGE}.core import jit_cache; print(sys.version, numba.__version__, "
             "llvmlite.__version__, jit_cache.KERNEL_CPU, platform.system(), platform.machine(), "
@@ -263,7 +264,8 @@ def kernel_build_key(python: str, root: Path, env: dict) -> str | None:
     proc = subprocess.run([python, "-c", code], capture_output=True, text=True, env=env, cwd=root)
     if proc.returncode != 0:
         return None
-    return hashlib.sha256(proc.stdout.encode()).hexdigest()[:24]
+    level = proc.stdout.splitlines()[-4]  # (the sources' digest, machine and system follow it)
+    return level, hashlib.sha256(proc.stdout.encode()).hexdigest()[:24]
 
 
 def _files(folder: Path) -> dict[str, tuple[int, int]]:
@@ -297,21 +299,22 @@ def keep_kernel_build(cache: Path, names: list[str], key: str) -> None:
         log(f"kernel cache: not kept for later builds ({exc})")
 
 
-def kernel_levels(python: str, root: Path, env: dict, kernel_cpu: str) -> list[str]:
-    """The CPU levels (core.jit_cache's MONTE_KERNEL_CPU values) to compile the shipped kernels for with `python`:
-    kernel_cpu itself, or for "all" the level this machine's `auto` picks and then "generic" where that differs
-    (x86-64-v3 and generic on a recent x86-64 machine: a user's CPU without AVX2 then loads the generic ones
-    instead of compiling). A level above this machine's cannot be compiled here: precompiling runs the kernels."""
+def kernel_levels(python: str, root: Path, env: dict, kernel_cpu: str) -> list[tuple[str, str | None]]:
+    """[(level, its kernel_build_key digest or None)] to compile the shipped kernels for with `python`, levels as
+    core.jit_cache's MONTE_KERNEL_CPU values: kernel_cpu itself, or for "all" the level this machine's `auto`
+    picks and then "generic" where that differs (x86-64-v3 and generic on a recent x86-64 machine: a user's CPU
+    without AVX2 then loads the generic ones instead of compiling). A level above this machine's cannot be
+    compiled here: precompiling runs the kernels."""
+    first = kernel_build_key(python, root, {**env, "MONTE_KERNEL_CPU": "auto" if kernel_cpu == "all" else kernel_cpu})
     if kernel_cpu != "all":
-        return [kernel_cpu]
-    code = (f"import sys; sys.path.insert(0, {str(root)!r}); "
-            f"from {BLENDER_PACKAGE}.core import jit_cache; print(jit_cache.KERNEL_CPU)")
-    proc = subprocess.run([python, "-c", code], capture_output=True, text=True,
-                          env={**env, "MONTE_KERNEL_CPU": "auto"}, cwd=root)
-    if proc.returncode != 0 or not proc.stdout.strip():
-        return ["auto", "generic"]  # (the precompile itself will say what fails)
-    own = proc.stdout.strip().splitlines()[-1]
-    return [own] if own == "generic" else [own, "generic"]
+        return [(kernel_cpu, first and first[1])]
+    if first is None:
+        return [("auto", None), ("generic", None)]  # (the precompile itself will say what fails)
+    own, key = first
+    if own == "generic":
+        return [(own, key)]
+    generic = kernel_build_key(python, root, {**env, "MONTE_KERNEL_CPU": "generic"})
+    return [(own, key), ("generic", generic and generic[1])]
 
 
 def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str, reuse: bool = True,
@@ -342,10 +345,9 @@ def build_kernel_cache(src: Path, python: str, manifest: dict, platform: str, re
                 if not k.startswith("NUMBA_") and k not in ("MONTE_KERNEL_CPU", "PYTHONPATH")}
     base_env["PYTHONDONTWRITEBYTECODE"] = "1"  # the cache folders ship: no .pyc in them
     root = src.parent.parent.parent
-    levels = kernel_levels(python, root, base_env, kernel_cpu)
+    levels, level_keys = zip(*kernel_levels(python, root, base_env, kernel_cpu))
     envs = [{**base_env, "MONTE_KERNEL_CPU": level} for level in levels]
     cache = src / KERNEL_CACHE_DIR
-    level_keys = [kernel_build_key(python, root, env) for env in envs]
     key = None if None in level_keys else (
         level_keys[0] if len(level_keys) == 1 else hashlib.sha256("+".join(level_keys).encode()).hexdigest()[:24])
     named = f"MONTE_KERNEL_CPU={' and '.join(levels)}"
